@@ -1,0 +1,450 @@
+//! Per-modulation-state frame sums of LUT-corrected codes.
+//!
+//! The acquisition system of the K-Coronagraph sums frames per modulation state before
+//! they leave it (de Wijn 2018, section 4). Each pixel adds `lut[adc(column)][code]`, an
+//! entry in units of 2^-11 DN, into the `u32` sum of its state.
+//!
+//! ## Why 512 frames cannot overflow
+//! Every entry of a [`LutSet`](crate::LutSet) is below 2^23 (checked when the set is
+//! built or loaded, whatever bank is active). Lines arrive in order and each line at
+//! most once per frame, so after `f` frames a sum is at most `f (2^23 - 1)`; for
+//! `f <= 512 = 2^9` that is below 2^32. While a state has fewer than [`EXACT_FRAMES`]
+//! completed frames its sums are added without any check ([`FrameCount::mode`]); the
+//! test `five_hundred_twelve_top_code_frames_do_not_overflow` drives the worst case.
+//! From frame 513 on the addition saturates at `u32::MAX` and every clipped addition is
+//! counted: a sum never wraps silently.
+
+use crate::adc::{AdcMap, Code};
+use crate::error::Quantity;
+use crate::lut::LutEntry;
+use crate::{CoreError, LutBanks, LutSet};
+
+/// Frames per state that sum exactly, without a possible overflow: 2^32 / 2^23.
+pub const EXACT_FRAMES: u32 = 1 << (32 - 23);
+
+/// Most modulation states a geometry can have.
+pub const MAX_STATES: usize = 8;
+
+/// The region the sums cover: `width` pixels starting at sensor column `first_column`,
+/// `height` lines, and `states` modulation states (the K-Coronagraph uses 4).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Geometry {
+    width: u16,
+    height: u16,
+    states: u8,
+    first_column: u16,
+}
+
+impl Geometry {
+    /// A geometry, or [`CoreError::Geometry`] for a zero size or more than
+    /// [`MAX_STATES`] states.
+    pub const fn new(width: u16, height: u16, states: u8, first_column: u16) -> Result<Self, CoreError> {
+        if width == 0 || height == 0 || states == 0 || states as usize > MAX_STATES {
+            return Err(CoreError::Geometry { width, height, states });
+        }
+        Ok(Geometry { width, height, states, first_column })
+    }
+    /// Pixels per line.
+    pub const fn width(&self) -> u16 {
+        self.width
+    }
+    /// Lines per frame.
+    pub const fn height(&self) -> u16 {
+        self.height
+    }
+    /// Modulation states.
+    pub const fn states(&self) -> u8 {
+        self.states
+    }
+    /// Sensor column of the first pixel of a line; it decides which ADC reads each pixel.
+    pub const fn first_column(&self) -> u16 {
+        self.first_column
+    }
+    /// Pixels of one state's sum image.
+    pub const fn pixels(&self) -> usize {
+        self.width as usize * self.height as usize
+    }
+    /// Elements of the whole sum buffer: states x height x width.
+    pub const fn sum_len(&self) -> usize {
+        self.pixels() * self.states as usize
+    }
+}
+
+/// How a frame's additions are made, decided by how many frames its state already holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum SumMode {
+    /// At most 512 frames in the sum: no overflow is possible, plain addition.
+    Exact,
+    /// Past 512 frames: saturating addition, clipped additions counted.
+    Saturating,
+}
+
+/// Frames completed in one state's sum.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, PartialOrd, Ord)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct FrameCount(u32);
+
+impl FrameCount {
+    /// Completed frames.
+    pub const fn get(self) -> u32 {
+        self.0
+    }
+    /// The mode of the *next* frame: exact while this count is below [`EXACT_FRAMES`].
+    pub const fn mode(self) -> SumMode {
+        if self.0 < EXACT_FRAMES {
+            SumMode::Exact
+        } else {
+            SumMode::Saturating
+        }
+    }
+}
+
+/// The sum images of all states, in a buffer the caller owns (no allocation here):
+/// element `(state * height + row) * width + column`.
+#[derive(Debug)]
+pub struct SumImages<'a> {
+    buf: &'a mut [u32],
+    geometry: Geometry,
+    frames: [FrameCount; MAX_STATES],
+}
+
+impl<'a> SumImages<'a> {
+    /// Sums over `buf`, which must hold exactly `geometry.sum_len()` elements; it is
+    /// cleared.
+    pub fn new(geometry: Geometry, buf: &'a mut [u32]) -> Result<Self, CoreError> {
+        if buf.len() != geometry.sum_len() {
+            return Err(CoreError::Length {
+                what: Quantity::SumBuffer,
+                expected: geometry.sum_len() as u32,
+                got: buf.len() as u32,
+            });
+        }
+        buf.fill(0);
+        Ok(SumImages { buf, geometry, frames: [FrameCount::default(); MAX_STATES] })
+    }
+    /// The geometry.
+    pub fn geometry(&self) -> Geometry {
+        self.geometry
+    }
+    /// The sum image of `state`, row-major.
+    pub fn state(&self, state: u8) -> Option<&[u32]> {
+        let n = self.geometry.pixels();
+        (state < self.geometry.states).then(|| &self.buf[state as usize * n..(state as usize + 1) * n])
+    }
+    /// The whole buffer, state-major.
+    pub fn as_slice(&self) -> &[u32] {
+        self.buf
+    }
+    /// Frames completed in `state` since the last clear.
+    pub fn frames(&self, state: u8) -> FrameCount {
+        self.frames.get(state as usize).copied().unwrap_or_default()
+    }
+    /// Zeroes every sum and frame count, as after a readout.
+    pub fn clear(&mut self) {
+        self.buf.fill(0);
+        self.frames = [FrameCount::default(); MAX_STATES];
+    }
+    fn row_mut(&mut self, state: u8, row: u16) -> &mut [u32] {
+        let w = self.geometry.width as usize;
+        let start = (state as usize * self.geometry.height as usize + row as usize) * w;
+        &mut self.buf[start..start + w]
+    }
+}
+
+/// Counters of everything the datapath absorbed instead of failing. All saturate.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Status {
+    /// Codes above the top code, read as the top code.
+    pub out_of_range_codes: u32,
+    /// Additions that clipped at `u32::MAX` (only possible past 512 frames).
+    pub saturated_additions: u32,
+    /// Lines rejected for their length, order or for arriving outside a frame.
+    pub rejected_lines: u32,
+    /// Frames ended before all their lines arrived.
+    pub incomplete_frames: u32,
+    /// Frames completed, all states.
+    pub frames: u32,
+    /// LUT bank swaps.
+    pub lut_swaps: u32,
+}
+
+/// What one accepted line did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct LineReport {
+    /// Codes of this line above the top code.
+    pub out_of_range_codes: u32,
+    /// Additions of this line that clipped.
+    pub saturated_additions: u32,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct OpenFrame {
+    state: u8,
+    next_row: u16,
+    mode: SumMode,
+}
+
+/// The datapath: LUT banks, sum images and status. Frames are bracketed by
+/// [`begin_frame`](Self::begin_frame) and [`end_frame`](Self::end_frame); a LUT
+/// activation takes effect only between frames.
+pub struct Corrector<'a, const N: usize, const CODES: usize> {
+    banks: &'a mut LutBanks<N, CODES>,
+    sums: SumImages<'a>,
+    status: Status,
+    frame: Option<OpenFrame>,
+}
+
+impl<'a, const N: usize, const CODES: usize> Corrector<'a, N, CODES> {
+    /// A corrector over `banks` and `sum_buf` (exactly `geometry.sum_len()` elements,
+    /// cleared). Both are borrowed so that a device can keep them in static memory.
+    pub fn new(banks: &'a mut LutBanks<N, CODES>, geometry: Geometry, sum_buf: &'a mut [u32]) -> Result<Self, CoreError> {
+        Ok(Corrector { banks, sums: SumImages::new(geometry, sum_buf)?, status: Status::default(), frame: None })
+    }
+
+    /// Opens a frame of modulation state `state`. A pending LUT activation happens here.
+    pub fn begin_frame(&mut self, state: u8) -> Result<SumMode, CoreError> {
+        if self.frame.is_some() {
+            return Err(CoreError::FrameOpen);
+        }
+        let states = self.sums.geometry.states;
+        if state >= states {
+            return Err(CoreError::State { state, states });
+        }
+        if self.banks.swap_if_pending() {
+            self.status.lut_swaps = self.status.lut_swaps.saturating_add(1);
+        }
+        let mode = self.sums.frames(state).mode();
+        self.frame = Some(OpenFrame { state, next_row: 0, mode });
+        Ok(mode)
+    }
+
+    /// Adds one line of raw codes (line `row` of the open frame) into the sums. A line of
+    /// the wrong length, out of order or outside a frame is rejected, counted, and adds
+    /// nothing; codes above the top code are read as the top code and counted.
+    pub fn accumulate_line(&mut self, row: u16, codes: &[u16]) -> Result<LineReport, CoreError> {
+        let result = self.check_line(row, codes.len());
+        let frame = match result {
+            Ok(frame) => frame,
+            Err(e) => {
+                self.status.rejected_lines = self.status.rejected_lines.saturating_add(1);
+                return Err(e);
+            }
+        };
+        let first_column = self.sums.geometry.first_column as u32;
+        let luts = self.banks.active();
+        let sums = self.sums.row_mut(frame.state, row);
+        let report = match frame.mode {
+            SumMode::Exact => add_line::<Exact, N, CODES>(luts, first_column, codes, sums),
+            SumMode::Saturating => add_line::<Saturating, N, CODES>(luts, first_column, codes, sums),
+        };
+        self.status.out_of_range_codes = self.status.out_of_range_codes.saturating_add(report.out_of_range_codes);
+        self.status.saturated_additions = self.status.saturated_additions.saturating_add(report.saturated_additions);
+        if let Some(f) = self.frame.as_mut() {
+            f.next_row += 1;
+        }
+        Ok(report)
+    }
+
+    fn check_line(&self, row: u16, len: usize) -> Result<OpenFrame, CoreError> {
+        let frame = self.frame.ok_or(CoreError::NoFrame)?;
+        let width = self.sums.geometry.width;
+        if len != width as usize {
+            return Err(CoreError::Length { what: Quantity::LinePixels, expected: width as u32, got: len as u32 });
+        }
+        if row != frame.next_row || row >= self.sums.geometry.height {
+            return Err(CoreError::LineOrder { expected: frame.next_row, got: row });
+        }
+        Ok(frame)
+    }
+
+    /// Closes the open frame and counts it in its state. A frame closed before all its
+    /// lines arrived is still counted (its lines are in the sums) and flagged in
+    /// [`Status::incomplete_frames`]. A LUT activation requested during the frame
+    /// happens here.
+    pub fn end_frame(&mut self) -> Result<(), CoreError> {
+        let frame = self.frame.take().ok_or(CoreError::NoFrame)?;
+        if frame.next_row != self.sums.geometry.height {
+            self.status.incomplete_frames = self.status.incomplete_frames.saturating_add(1);
+        }
+        let count = &mut self.sums.frames[frame.state as usize];
+        count.0 = count.0.saturating_add(1);
+        self.status.frames = self.status.frames.saturating_add(1);
+        if self.banks.swap_if_pending() {
+            self.status.lut_swaps = self.status.lut_swaps.saturating_add(1);
+        }
+        Ok(())
+    }
+
+    /// Asks for the validated staging bank to become active: now if no frame is open,
+    /// otherwise when the open frame ends.
+    pub fn request_activation(&mut self) -> Result<(), CoreError> {
+        self.banks.request_activation()?;
+        if self.frame.is_none() && self.banks.swap_if_pending() {
+            self.status.lut_swaps = self.status.lut_swaps.saturating_add(1);
+        }
+        Ok(())
+    }
+
+    /// The LUT banks, to load a staging image.
+    pub fn banks_mut(&mut self) -> &mut LutBanks<N, CODES> {
+        self.banks
+    }
+    /// The LUT banks.
+    pub fn banks(&self) -> &LutBanks<N, CODES> {
+        self.banks
+    }
+    /// The sums.
+    pub fn sums(&self) -> &SumImages<'a> {
+        &self.sums
+    }
+    /// Zeroes the sums and frame counts after a readout. Refused while a frame is open.
+    pub fn clear_sums(&mut self) -> Result<(), CoreError> {
+        if self.frame.is_some() {
+            return Err(CoreError::FrameOpen);
+        }
+        self.sums.clear();
+        Ok(())
+    }
+    /// The counters.
+    pub fn status(&self) -> Status {
+        self.status
+    }
+    /// Whether a frame is open.
+    pub fn frame_open(&self) -> bool {
+        self.frame.is_some()
+    }
+}
+
+/// How one sum takes one entry; a type per [`SumMode`] so the exact loop carries no
+/// overflow check at all.
+trait Add {
+    fn add(sum: &mut u32, entry: LutEntry, saturated: &mut u32);
+}
+struct Exact;
+struct Saturating;
+
+impl Add for Exact {
+    #[inline(always)]
+    fn add(sum: &mut u32, entry: LutEntry, _: &mut u32) {
+        // Cannot wrap: at most 512 entries below 2^23 (module documentation).
+        *sum = sum.wrapping_add(entry.to_bits());
+    }
+}
+impl Add for Saturating {
+    #[inline(always)]
+    fn add(sum: &mut u32, entry: LutEntry, saturated: &mut u32) {
+        let (s, overflow) = sum.overflowing_add(entry.to_bits());
+        *sum = if overflow { u32::MAX } else { s };
+        *saturated += overflow as u32;
+    }
+}
+
+#[inline(always)]
+fn add_pixel<A: Add, const CODES: usize>(table: &[LutEntry; CODES], raw: u16, sum: &mut u32, r: &mut LineReport) {
+    let (code, clipped) = Code::<CODES>::clamped(raw);
+    r.out_of_range_codes += clipped as u32;
+    A::add(sum, table[code.index()], &mut r.saturated_additions);
+}
+
+/// Adds `lut[adc(first_column + i)][codes[i]]` to `sums[i]`. `codes` and `sums` have the
+/// same length (checked by the caller). The line is split into a head up to the next
+/// multiple of N columns, whole groups of N in ADC order 0..N (no index arithmetic per
+/// pixel), and a tail.
+fn add_line<A: Add, const N: usize, const CODES: usize>(
+    luts: &LutSet<N, CODES>,
+    first_column: u32,
+    codes: &[u16],
+    sums: &mut [u32],
+) -> LineReport {
+    let tables = luts.tables();
+    let mut report = LineReport::default();
+    let head = ((N - AdcMap::<N>::adc(first_column)) % N).min(codes.len());
+    let (head_codes, body_codes) = codes.split_at(head);
+    let (head_sums, body_sums) = sums.split_at_mut(head);
+    for (i, (&raw, sum)) in head_codes.iter().zip(head_sums).enumerate() {
+        add_pixel::<A, CODES>(&tables[AdcMap::<N>::adc(first_column + i as u32)], raw, sum, &mut report);
+    }
+    let mut code_groups = body_codes.chunks_exact(N);
+    let mut sum_groups = body_sums.chunks_exact_mut(N);
+    for (cs, ss) in (&mut code_groups).zip(&mut sum_groups) {
+        for ((table, &raw), sum) in tables.iter().zip(cs).zip(ss) {
+            add_pixel::<A, CODES>(table, raw, sum, &mut report);
+        }
+    }
+    for ((table, &raw), sum) in tables.iter().zip(code_groups.remainder()).zip(sum_groups.into_remainder()) {
+        add_pixel::<A, CODES>(table, raw, sum, &mut report);
+    }
+    report
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::lut::LUT_ENTRY_LIMIT;
+
+    fn top_luts() -> LutSet<4, 4096> {
+        LutSet::from_bits(&[[LUT_ENTRY_LIMIT - 1; 4096]; 4]).unwrap()
+    }
+
+    #[test]
+    fn five_hundred_twelve_top_code_frames_do_not_overflow() {
+        // The worst case: every entry at 2^23 - 1, every code at the top code.
+        let g = Geometry::new(8, 1, 1, 0).unwrap();
+        let mut buf = [0u32; 8];
+        let mut banks = LutBanks::new(top_luts());
+        let mut c = Corrector::new(&mut banks, g, &mut buf).unwrap();
+        for _ in 0..EXACT_FRAMES {
+            assert_eq!(c.begin_frame(0).unwrap(), SumMode::Exact);
+            c.accumulate_line(0, &[4095; 8]).unwrap();
+            c.end_frame().unwrap();
+        }
+        let expected = 512u64 * (LUT_ENTRY_LIMIT as u64 - 1);
+        assert!(expected < 1 << 32);
+        assert!(c.sums().state(0).unwrap().iter().all(|&s| s as u64 == expected));
+        assert_eq!(c.status().saturated_additions, 0);
+        // Frame 513 switches to saturating; one more top entry still fits (2^32 - 512 +
+        // 2^23 - 1 overflows, so it clips).
+        assert_eq!(c.begin_frame(0).unwrap(), SumMode::Saturating);
+        c.accumulate_line(0, &[4095; 8]).unwrap();
+        c.end_frame().unwrap();
+        assert!(c.sums().state(0).unwrap().iter().all(|&s| s == u32::MAX));
+        assert_eq!(c.status().saturated_additions, 8);
+    }
+
+    #[test]
+    fn bad_lines_are_rejected_and_add_nothing() {
+        let g = Geometry::new(4, 2, 2, 1).unwrap();
+        let mut buf = [0u32; 16];
+        let mut banks = LutBanks::new(LutSet::<4, 4096>::ideal());
+        let mut c = Corrector::new(&mut banks, g, &mut buf).unwrap();
+        assert_eq!(c.accumulate_line(0, &[1; 4]), Err(CoreError::NoFrame));
+        assert_eq!(c.begin_frame(2), Err(CoreError::State { state: 2, states: 2 }));
+        c.begin_frame(1).unwrap();
+        assert_eq!(c.begin_frame(1), Err(CoreError::FrameOpen));
+        assert!(matches!(c.accumulate_line(0, &[1; 5]), Err(CoreError::Length { expected: 4, got: 5, .. })));
+        assert_eq!(c.accumulate_line(1, &[1; 4]), Err(CoreError::LineOrder { expected: 0, got: 1 }));
+        let r = c.accumulate_line(0, &[0, 4095, 4096, 65535]).unwrap();
+        assert_eq!(r.out_of_range_codes, 2);
+        c.end_frame().unwrap();
+        assert_eq!(c.status().rejected_lines, 3);
+        assert_eq!(c.status().incomplete_frames, 1);
+        assert_eq!(c.status().out_of_range_codes, 2);
+        let top = LutEntry::ideal(4095).to_bits();
+        assert_eq!(c.sums().state(1).unwrap()[..4], [LutEntry::ideal(0).to_bits(), top, top, top]);
+        assert!(c.sums().state(0).unwrap().iter().all(|&s| s == 0));
+        assert_eq!(c.sums().frames(1).get(), 1);
+    }
+
+    #[test]
+    fn geometry_and_buffer_are_validated() {
+        assert!(Geometry::new(0, 1, 1, 0).is_err());
+        assert!(Geometry::new(1, 1, 9, 0).is_err());
+        let g = Geometry::new(3, 3, 2, 0).unwrap();
+        let mut buf = [0u32; 17];
+        assert!(matches!(SumImages::new(g, &mut buf), Err(CoreError::Length { expected: 18, got: 17, .. })));
+    }
+}

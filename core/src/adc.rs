@@ -1,0 +1,113 @@
+//! Codes and the column-to-ADC map.
+//!
+//! A `CODES`-code ADC (`CODES = 2^B`, B bits) returns codes `0..=CODES-1`. The sensor's
+//! columns are shared round-robin between `N` ADCs: column `c` is digitized by ADC
+//! `c mod N` (de Wijn 2018, section 4: "Column N of the sensor is digitized by ADC N mod 4").
+
+use crate::CoreError;
+
+/// Compile-time check that a code count is a power of two in `2..=2^16`.
+pub(crate) struct CodeCount<const CODES: usize>;
+
+impl<const CODES: usize> CodeCount<CODES> {
+    /// Evaluated (and so checked) wherever a type with `CODES` codes is constructed.
+    pub(crate) const VALID: () = assert!(
+        CODES.is_power_of_two() && CODES >= 2 && CODES <= 1 << 16,
+        "CODES must be a power of two in 2..=65536"
+    );
+    /// Bits per code, B = log2(CODES).
+    pub(crate) const BITS: u32 = CODES.trailing_zeros();
+    /// The top code, `2^B - 1`; it is also the saturation code.
+    pub(crate) const MAX: u16 = (CODES - 1) as u16;
+}
+
+/// A code of a `CODES`-code ADC: never above `CODES - 1`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Code<const CODES: usize>(u16);
+
+impl<const CODES: usize> Code<CODES> {
+    /// The top code, `CODES - 1`.
+    pub const MAX: Self = {
+        let () = CodeCount::<CODES>::VALID;
+        Code(CodeCount::<CODES>::MAX)
+    };
+
+    /// A code, or [`CoreError::CodeOutOfRange`] above the top code.
+    pub const fn new(raw: u16) -> Result<Self, CoreError> {
+        let () = CodeCount::<CODES>::VALID;
+        if raw > CodeCount::<CODES>::MAX {
+            Err(CoreError::CodeOutOfRange { code: raw, max: CodeCount::<CODES>::MAX })
+        } else {
+            Ok(Code(raw))
+        }
+    }
+
+    /// The code a raw value stands for on the datapath: values above the top code are
+    /// read as the top code (the ADC's saturation), and the flag says so.
+    #[inline]
+    pub const fn clamped(raw: u16) -> (Self, bool) {
+        let () = CodeCount::<CODES>::VALID;
+        let max = CodeCount::<CODES>::MAX;
+        if raw > max {
+            (Code(max), true)
+        } else {
+            (Code(raw), false)
+        }
+    }
+
+    /// The code as an index into a table of `CODES` entries.
+    #[inline]
+    pub const fn index(self) -> usize {
+        self.0 as usize
+    }
+
+    /// The raw value.
+    pub const fn get(self) -> u16 {
+        self.0
+    }
+
+    /// Bits per code, B.
+    pub const fn bits() -> u32 {
+        CodeCount::<CODES>::BITS
+    }
+}
+
+/// The map from sensor column to ADC: column `c` goes to ADC `c mod N`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct AdcMap<const N: usize>;
+
+impl<const N: usize> AdcMap<N> {
+    const VALID: () = assert!(N >= 1 && N <= 255, "1..=255 ADCs");
+
+    /// The ADC that digitizes sensor column `column`.
+    #[inline]
+    pub const fn adc(column: u32) -> usize {
+        let () = Self::VALID;
+        (column as usize) % N
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn code_rejects_above_top_and_clamps() {
+        assert_eq!(Code::<4096>::new(4095).unwrap().get(), 4095);
+        assert_eq!(Code::<4096>::new(4096), Err(CoreError::CodeOutOfRange { code: 4096, max: 4095 }));
+        assert_eq!(Code::<4096>::clamped(65535), (Code::<4096>::MAX, true));
+        assert_eq!(Code::<256>::clamped(255).0.get(), 255);
+        assert_eq!(Code::<4096>::bits(), 12);
+        assert_eq!(Code::<65536>::MAX.get(), 65535);
+    }
+
+    #[test]
+    fn column_map_is_column_mod_n() {
+        for c in 0..100u32 {
+            assert_eq!(AdcMap::<4>::adc(c), (c % 4) as usize);
+            assert_eq!(AdcMap::<3>::adc(c), (c % 3) as usize);
+        }
+    }
+}

@@ -1,0 +1,54 @@
+//! The one error type of the host crate. Library code returns it; only the binary turns
+//! it into a message and an exit code.
+
+use std::path::PathBuf;
+
+use dncal_core::CoreError;
+
+/// Everything host-side work can fail with; each variant names the file or step.
+#[derive(Debug, thiserror::Error)]
+pub enum HostError {
+    /// A file could not be read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// The core rejected something.
+    #[error("{context}: {source}")]
+    Core {
+        /// What was being done.
+        context: String,
+        /// The core's error.
+        source: CoreError,
+    },
+    /// A program the run needs failed or is missing.
+    #[error("{program}: {message}")]
+    Tool {
+        /// The program.
+        program: String,
+        /// What happened.
+        message: String,
+    },
+    /// A file's contents are not what they must be.
+    #[error("{path}: {message}")]
+    Format {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+}
+
+impl HostError {
+    /// An I/O error on `path`.
+    pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
+        HostError::Io { path: path.into(), source }
+    }
+    /// A core error while doing `context`.
+    pub fn core(context: impl Into<String>, source: CoreError) -> Self {
+        HostError::Core { context: context.into(), source }
+    }
+}

@@ -1,0 +1,11 @@
+//! # dncal-host: dncal on the host
+//!
+//! Everything that needs `std`: synthetic camera data, the firmware-versus-host run, and
+//! (in later issues) the camera model, the float reference, characterization and the
+//! `dncal` command's subcommands. All correction arithmetic comes from `dncal-core`.
+
+pub mod error;
+pub mod firmware;
+pub mod synth;
+
+pub use error::HostError;

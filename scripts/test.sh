@@ -1,0 +1,9 @@
+#!/usr/bin/env bash
+# Every test of the project, the firmware-in-QEMU test included. Installs the cross
+# toolchain (Debian's rustc-web, rust-web-src, lld-22, qemu-system-arm) when missing.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+scripts/firmware.sh install
+cargo test --workspace --locked
+# The core must also build with defmt on (as the firmware uses it) and stay warning-free.
+cargo build -p dncal-core --features defmt --locked

@@ -1,0 +1,56 @@
+//! The firmware in QEMU against the host, bit for bit.
+//!
+//! A LUT set with DN error and 8 frames x 4 modulation states of 64 x 64 synthetic
+//! lines go through the core on the host and through the firmware (thumbv7em-none-eabihf
+//! on QEMU mps2-an386), which writes its sums, status and histograms back over
+//! semihosting. Both must equal each other and the naive reference of `dncal_tests`.
+//! The firmware's defmt log is decoded with its ELF.
+//!
+//! Needs the cross toolchain: `scripts/firmware.sh install` (the README's test command
+//! runs it). Without it this test fails; it does not skip.
+
+use std::time::Duration;
+
+use dncal_core::{Geometry, LutSet, Mvd1024eLuts};
+use dncal_host::firmware::{build_firmware, run_firmware, run_on_host, RunInputs};
+use dncal_host::synth::{dn_error_weights, synthetic_frames, Rng};
+use dncal_tests::{lut_bits, naive_histograms, naive_sums};
+
+const FRAMES: u32 = 32;
+
+#[test]
+fn firmware_sums_are_bit_exact_with_the_host() {
+    let elf = build_firmware().expect("firmware build (scripts/firmware.sh install installs the toolchain)");
+    let mut rng = Rng::new(0x5EED_2018);
+    let weights: Vec<Vec<_>> = (0..4).map(|_| dn_error_weights(&mut rng, 4096)).collect();
+    let luts = Mvd1024eLuts::from_weights(&[&weights[0], &weights[1], &weights[2], &weights[3]]).unwrap();
+    assert_ne!(luts, LutSet::ideal(), "the test LUT must differ from the boot LUT");
+    let g = Geometry::new(64, 64, 4, 130).unwrap();
+    let frames = synthetic_frames(&mut rng, g, FRAMES, 1.5, 4096);
+    let inputs = RunInputs { luts: luts.clone(), geometry: g, frames: frames.clone() };
+
+    let host = run_on_host(&inputs).unwrap();
+    let naive = naive_sums(&lut_bits(&luts), g, &frames);
+    assert!(naive.iter().all(|&s| s < 1 << 32));
+    assert_eq!(host.outputs.sums.iter().map(|&s| s as u64).collect::<Vec<_>>(), naive, "host core vs naive reference");
+
+    let fw = run_firmware(&elf, &inputs, &host.outputs.sums, Duration::from_secs(300)).unwrap();
+    println!("{}\ndefmt log:\n{}", fw.stdout, fw.log.join("\n"));
+    let pixels = g.sum_len();
+    assert!(fw.stdout.contains(&format!("firmware bit-exact: OK ({pixels} pixels)")), "{}", fw.stdout);
+    assert_eq!(fw.outputs.sums, host.outputs.sums, "firmware sums vs host sums");
+    assert_eq!(fw.outputs.status, host.outputs.status);
+    assert_eq!(fw.outputs.status.lut_swaps, 1, "one swap from the boot LUT to the uploaded one");
+    assert_eq!(fw.outputs.status.out_of_range_codes, 2 * FRAMES, "two planted codes above the top per frame");
+    assert_eq!(fw.outputs.frames_per_state, vec![FRAMES / 4; 4]);
+    let naive_hist = naive_histograms(g, &frames, 4, 4096);
+    assert_eq!(fw.outputs.histograms, naive_hist, "firmware histograms vs naive count");
+    assert_eq!(host.outputs.histograms, naive_hist);
+
+    assert!(fw.log.iter().any(|l| l.contains("LUT image validated")), "{:?}", fw.log);
+    let noise_line = fw.log.iter().find(|l| l.starts_with("noise check: sigma")).expect("noise check logged");
+    let sigma: f32 = noise_line.split_whitespace().nth(3).unwrap().parse().unwrap();
+    let host_noise = host.noise.unwrap();
+    assert_eq!(sigma, host_noise.sigma_dn, "device noise estimate (micromath on the M4) vs host: {noise_line}");
+    assert!((host_noise.sigma_dn - 1.5).abs() < 0.15, "planted noise 1.5 DN, estimated {}", host_noise.sigma_dn);
+}
