@@ -1,0 +1,208 @@
+//! Property tests of the core's invariants, each against an independent reference.
+
+use dncal_core::stream::StreamHeader;
+use dncal_core::{
+    encode_image, image_len, Corrector, CoreError, Geometry, HistogramSet, LutBanks, LutSet, Roi, StagingState, Weight, EXACT_FRAMES,
+    LUT_ENTRY_LIMIT,
+};
+use dncal_tests::{lut_bits, naive_histograms, naive_sums};
+use proptest::prelude::*;
+
+/// The rounding rule evaluated independently in u128 arithmetic on raw weight bits:
+/// entry_k = RNE((2 sum_{j<k} w_j + w_k) / 2^14), ties to even, by explicit remainder
+/// comparison.
+fn rule_reference(weights: &[u32]) -> Vec<u128> {
+    let mut below: u128 = 0;
+    weights
+        .iter()
+        .map(|&w| {
+            let n = 2 * below + w as u128;
+            below += w as u128;
+            let (q, r) = (n / 16384, n % 16384);
+            if r * 2 > 16384 || (r * 2 == 16384 && q % 2 == 1) {
+                q + 1
+            } else {
+                q
+            }
+        })
+        .collect()
+}
+
+fn weights_strategy(codes: usize) -> impl Strategy<Value = Vec<u32>> {
+    // Raw Weight bits (2^-24 DN units): anything from 0 to ~3 DN wide, ties included.
+    proptest::collection::vec(prop_oneof![0u32..(3 << 24), Just(1 << 24), Just(1 << 13), Just(3 << 13)], codes)
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(256))]
+
+    #[test]
+    fn lut_is_monotonic_bounded_and_follows_the_rounding_rule_for_any_weights(raw in weights_strategy(256)) {
+        let weights: Vec<Weight> = raw.iter().map(|&b| Weight::from_bits(b)).collect();
+        let reference = rule_reference(&raw);
+        match LutSet::<1, 256>::from_weights(&[&weights]) {
+            Ok(set) => {
+                let bits = &lut_bits(&set)[0];
+                prop_assert!(bits.windows(2).all(|p| p[0] <= p[1]));
+                prop_assert!(bits.iter().all(|&b| b < LUT_ENTRY_LIMIT));
+                prop_assert_eq!(bits.iter().map(|&b| b as u128).collect::<Vec<_>>(), reference);
+            }
+            Err(CoreError::EntryOutOfRange { code: 255, .. }) => {
+                prop_assert!(reference[255] >= LUT_ENTRY_LIMIT as u128, "rejected although the top entry fits");
+            }
+            Err(e) => prop_assert!(false, "unexpected error {e}"),
+        }
+    }
+
+    #[test]
+    fn line_accumulation_equals_a_naive_reference(
+        width in 1u16..40,
+        height in 1u16..4,
+        states in 1u8..5,
+        first_column in 0u16..1000,
+        frames in 1u32..12,
+        seed in any::<u64>(),
+    ) {
+        let g = Geometry::new(width, height, states, first_column).unwrap();
+        let mut rng = dncal_host::synth::Rng::new(seed);
+        let tables: [[u32; 64]; 3] = core::array::from_fn(|_| {
+            let mut acc = 0u32;
+            core::array::from_fn(|_| { acc += (rng.next_u64() % 100_000) as u32; acc })
+        });
+        let luts = LutSet::<3, 64>::from_bits(&tables).unwrap();
+        let frame_codes: Vec<Vec<u16>> = (0..frames)
+            .map(|_| (0..g.pixels()).map(|_| (rng.next_u64() % 80) as u16).collect())
+            .collect();
+        let mut banks = LutBanks::new(luts.clone());
+        let mut sums = vec![0u32; g.sum_len()];
+        let mut c = Corrector::new(&mut banks, g, &mut sums).unwrap();
+        let mut out_of_range = 0;
+        for (f, frame) in frame_codes.iter().enumerate() {
+            c.begin_frame((f % states as usize) as u8).unwrap();
+            for (row, line) in frame.chunks_exact(width as usize).enumerate() {
+                out_of_range += c.accumulate_line(row as u16, line).unwrap().out_of_range_codes;
+            }
+            c.end_frame().unwrap();
+        }
+        prop_assert_eq!(out_of_range as usize, frame_codes.iter().flatten().filter(|&&x| x > 63).count());
+        drop(c);
+        let naive = naive_sums(&lut_bits(&luts), g, &frame_codes);
+        prop_assert_eq!(sums.iter().map(|&s| s as u64).collect::<Vec<_>>(), naive);
+    }
+
+    #[test]
+    fn sums_never_wrap_in_saturating_mode(extra_frames in 1u32..200, entry in (LUT_ENTRY_LIMIT - 4096)..LUT_ENTRY_LIMIT, low in 0u32..1_000_000) {
+        // Two columns: one near the top of the range (must clip), one low (must not).
+        let luts = LutSet::<1, 2>::from_bits(&[[low.min(entry), entry]]).unwrap();
+        let g = Geometry::new(2, 1, 1, 0).unwrap();
+        let mut banks = LutBanks::new(luts);
+        let mut sums = vec![0u32; 2];
+        let mut c = Corrector::new(&mut banks, g, &mut sums).unwrap();
+        let frames = EXACT_FRAMES + extra_frames;
+        let mut previous = [0u32; 2];
+        for _ in 0..frames {
+            c.begin_frame(0).unwrap();
+            c.accumulate_line(0, &[0, 1]).unwrap();
+            c.end_frame().unwrap();
+            let now = c.sums().state(0).unwrap();
+            prop_assert!(now[0] >= previous[0] && now[1] >= previous[1], "a sum decreased: wrapped");
+            previous = [now[0], now[1]];
+        }
+        let exact = [low.min(entry) as u64 * frames as u64, entry as u64 * frames as u64];
+        let expected_clips = (1..=frames as u64).filter(|f| f * entry as u64 > u32::MAX as u64).count() as u32
+            + (1..=frames as u64).filter(|f| f * low.min(entry) as u64 > u32::MAX as u64).count() as u32;
+        prop_assert_eq!(previous[0] as u64, exact[0].min(u32::MAX as u64));
+        prop_assert_eq!(previous[1] as u64, exact[1].min(u32::MAX as u64));
+        prop_assert_eq!(c.status().saturated_additions, expected_clips);
+    }
+
+    #[test]
+    fn a_random_bit_flip_of_a_full_size_image_is_rejected(bit in 0usize..image_len::<4, 4096>() * 8, seed in any::<u64>()) {
+        let mut rng = dncal_host::synth::Rng::new(seed);
+        let weights: Vec<Vec<Weight>> = (0..4).map(|_| dncal_host::synth::dn_error_weights(&mut rng, 4096)).collect();
+        let luts = LutSet::<4, 4096>::from_weights(&[&weights[0], &weights[1], &weights[2], &weights[3]]).unwrap();
+        let mut image = vec![0u8; image_len::<4, 4096>()];
+        encode_image(&luts, &mut image).unwrap();
+        image[bit / 8] ^= 1 << (bit % 8);
+        let mut banks = Box::new(LutBanks::new(LutSet::<4, 4096>::ideal()));
+        prop_assert!(banks.load_image(&image).is_err());
+        prop_assert!(matches!(banks.staging_state(), StagingState::Failed(_)));
+        prop_assert_eq!(banks.request_activation(), Err(CoreError::StagingNotValid));
+        prop_assert_eq!(banks.active(), &LutSet::<4, 4096>::ideal());
+    }
+
+    #[test]
+    fn histograms_equal_a_naive_count(width in 1u16..30, first_column in 0u16..50, seed in any::<u64>()) {
+        let g = Geometry::new(width, 3, 1, first_column).unwrap();
+        let mut rng = dncal_host::synth::Rng::new(seed);
+        let frame: Vec<u16> = (0..g.pixels()).map(|_| (rng.next_u64() % 20) as u16).collect();
+        let roi = Roi::new((0, 3), (first_column, first_column + width), g).unwrap();
+        let mut h = HistogramSet::<4, 16>::new();
+        for (row, line) in frame.chunks_exact(width as usize).enumerate() {
+            h.capture_line(&roi, row as u16, first_column, line);
+        }
+        let got: Vec<u32> = (0..4).flat_map(|a| h.counts(a).unwrap().to_vec()).collect();
+        prop_assert_eq!(got, naive_histograms(g, &[frame.clone()], 4, 16));
+        prop_assert_eq!(h.out_of_range() as usize, frame.iter().filter(|&&c| c > 15).count());
+    }
+}
+
+#[test]
+fn every_single_bit_flip_of_an_image_is_rejected() {
+    let luts = LutSet::<4, 16>::from_bits(&core::array::from_fn(|a| core::array::from_fn(|k| (a * 1000 + k * 2048 + 17) as u32))).unwrap();
+    let mut image = vec![0u8; image_len::<4, 16>()];
+    encode_image(&luts, &mut image).unwrap();
+    let mut banks = LutBanks::new(LutSet::<4, 16>::ideal());
+    banks.load_image(&image).expect("the unflipped image loads");
+    for bit in 0..image.len() * 8 {
+        let mut flipped = image.clone();
+        flipped[bit / 8] ^= 1 << (bit % 8);
+        let mut banks = LutBanks::new(LutSet::<4, 16>::ideal());
+        assert!(banks.load_image(&flipped).is_err(), "bit {bit} flipped was accepted");
+        assert_eq!(banks.active(), &LutSet::<4, 16>::ideal());
+    }
+}
+
+#[test]
+fn every_truncation_of_an_image_is_rejected_and_leaves_the_active_bank() {
+    let luts = LutSet::<2, 8>::from_bits(&[[1, 2, 3, 4, 5, 6, 7, 8], [0, 0, 0, 9, 9, 9, 10, 11]]).unwrap();
+    let mut image = vec![0u8; image_len::<2, 8>()];
+    encode_image(&luts, &mut image).unwrap();
+    for len in 0..image.len() {
+        let mut banks = LutBanks::new(LutSet::<2, 8>::ideal());
+        banks.begin_upload();
+        let fed = banks.upload(&image[..len]);
+        assert!(fed.is_err() || banks.finish_upload().is_err(), "truncated at {len} accepted");
+        assert_eq!(banks.request_activation(), Err(CoreError::StagingNotValid));
+        assert_eq!(banks.active(), &LutSet::<2, 8>::ideal());
+    }
+}
+
+#[test]
+fn five_hundred_twelve_top_code_frames_fit_in_32_bits_on_a_full_line() {
+    // The worst case at full width: every entry 2^23 - 1, every code the top code.
+    let luts = LutSet::<4, 4096>::from_bits(&[[LUT_ENTRY_LIMIT - 1; 4096]; 4]).unwrap();
+    let g = Geometry::new(1024, 1, 1, 0).unwrap();
+    let mut banks = Box::new(LutBanks::new(luts));
+    let mut sums = vec![0u32; 1024];
+    let mut c = Corrector::new(&mut banks, g, &mut sums).unwrap();
+    let line = vec![4095u16; 1024];
+    for _ in 0..EXACT_FRAMES {
+        c.begin_frame(0).unwrap();
+        c.accumulate_line(0, &line).unwrap();
+        c.end_frame().unwrap();
+    }
+    assert_eq!(c.status().saturated_additions, 0);
+    drop(c);
+    assert!(sums.iter().all(|&s| s as u64 == 512 * (LUT_ENTRY_LIMIT as u64 - 1)));
+}
+
+#[test]
+fn stream_header_rejects_every_single_bit_flip_of_magic_and_version() {
+    let h = StreamHeader { geometry: Geometry::new(64, 64, 4, 0).unwrap(), frames: 8 }.encode();
+    for bit in 0..6 * 8 {
+        let mut f = h;
+        f[bit / 8] ^= 1 << (bit % 8);
+        assert_eq!(StreamHeader::parse(&f), Err(CoreError::StreamHeader), "bit {bit}");
+    }
+}
