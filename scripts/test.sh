@@ -5,5 +5,6 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/firmware.sh install
 cargo test --workspace --locked
+cargo clippy --workspace --all-targets --locked -- -D warnings
 # The core must also build with defmt on (as the firmware uses it) and stay warning-free.
 cargo build -p dncal-core --features defmt --locked

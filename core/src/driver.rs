@@ -37,11 +37,12 @@ impl DatapathStatus {
     }
     /// Encodes the register value.
     pub fn to_bits(self) -> u32 {
-        (self.staging_valid as u32) * status::STAGING_VALID
-            | (self.activation_pending as u32) * status::ACTIVATION_PENDING
-            | (self.frame_open as u32) * status::FRAME_OPEN
-            | (self.upload_failed as u32) * status::UPLOAD_FAILED
-            | (self.active_bank as u32) << status::ACTIVE_BANK_SHIFT
+        let bit = |on: bool, mask: u32| if on { mask } else { 0 };
+        bit(self.staging_valid, status::STAGING_VALID)
+            | bit(self.activation_pending, status::ACTIVATION_PENDING)
+            | bit(self.frame_open, status::FRAME_OPEN)
+            | bit(self.upload_failed, status::UPLOAD_FAILED)
+            | ((self.active_bank as u32) << status::ACTIVE_BANK_SHIFT)
     }
 }
 

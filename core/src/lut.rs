@@ -250,9 +250,9 @@ mod tests {
     #[test]
     fn rounding_is_half_to_even_at_exact_ties() {
         // n_0 = w_0; entry_0 = RNE(w_0 / 2^14) in raw weight bits.
-        let tie_even = Weight::from_bits(2 << 14 | 1 << 13); // 2.5 units -> 2
-        let tie_odd = Weight::from_bits(3 << 14 | 1 << 13); // 3.5 units -> 4
-        let above = Weight::from_bits(2 << 14 | (1 << 13) + 1); // 2.5+ -> 3
+        let tie_even = Weight::from_bits((2 << 14) | (1 << 13)); // 2.5 units -> 2
+        let tie_odd = Weight::from_bits((3 << 14) | (1 << 13)); // 3.5 units -> 4
+        let above = Weight::from_bits((2 << 14) | ((1 << 13) + 1)); // 2.5+ -> 3
         for (weight, expected) in [(tie_even, 2), (tie_odd, 4), (above, 3)] {
             let mut weights = [w(0.0); 4];
             weights[0] = weight;
@@ -268,8 +268,8 @@ mod tests {
         let weights: [Weight; 64] = core::array::from_fn(|k| Weight::from_bits(0x0100_0000 + (k as u32 * 7919 % 200_000) - 100_000));
         let set = LutSet::<1, 64>::from_weights(&[&weights]).unwrap();
         let mut below = 0.0f64;
-        for k in 0..64 {
-            let wk = weights[k].to_num::<f64>();
+        for (k, w) in weights.iter().enumerate() {
+            let wk = w.to_num::<f64>();
             let center = (below + wk / 2.0) * 2048.0;
             let rne = {
                 let f = center.floor();

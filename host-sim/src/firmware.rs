@@ -82,7 +82,6 @@ pub fn run_on_host(inputs: &RunInputs) -> Result<HostRun, HostError> {
     .map_err(|e| HostError::core("host stream", e))?;
     let status = corrector.status();
     let frames_per_state = (0..g.states()).map(|s| corrector.sums().frames(s).get()).collect();
-    drop(corrector);
     let histograms = (0..4).flat_map(|a| histograms.counts(a).into_iter().flatten().copied()).collect();
     Ok(HostRun { outputs: RunOutputs { sums, status, frames_per_state, histograms }, noise: noise.check(KCOR_ACCURACY_DN) })
 }

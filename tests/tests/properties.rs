@@ -85,7 +85,6 @@ proptest! {
             c.end_frame().unwrap();
         }
         prop_assert_eq!(out_of_range as usize, frame_codes.iter().flatten().filter(|&&x| x > 63).count());
-        drop(c);
         let naive = naive_sums(&lut_bits(&luts), g, &frame_codes);
         prop_assert_eq!(sums.iter().map(|&s| s as u64).collect::<Vec<_>>(), naive);
     }
@@ -142,7 +141,7 @@ proptest! {
             h.capture_line(&roi, row as u16, first_column, line);
         }
         let got: Vec<u32> = (0..4).flat_map(|a| h.counts(a).unwrap().to_vec()).collect();
-        prop_assert_eq!(got, naive_histograms(g, &[frame.clone()], 4, 16));
+        prop_assert_eq!(got, naive_histograms(g, std::slice::from_ref(&frame), 4, 16));
         prop_assert_eq!(h.out_of_range() as usize, frame.iter().filter(|&&c| c > 15).count());
     }
 }
@@ -193,7 +192,6 @@ fn five_hundred_twelve_top_code_frames_fit_in_32_bits_on_a_full_line() {
         c.end_frame().unwrap();
     }
     assert_eq!(c.status().saturated_additions, 0);
-    drop(c);
     assert!(sums.iter().all(|&s| s as u64 == 512 * (LUT_ENTRY_LIMIT as u64 - 1)));
 }
 
