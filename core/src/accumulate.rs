@@ -107,7 +107,8 @@ impl FrameCount {
 pub struct SumImages<'a> {
     buf: &'a mut [u32],
     geometry: Geometry,
-    frames: [FrameCount; MAX_STATES],
+    /// One count per configured state: the length is the geometry's state count.
+    frames: heapless::Vec<FrameCount, MAX_STATES>,
 }
 
 impl<'a> SumImages<'a> {
@@ -122,7 +123,15 @@ impl<'a> SumImages<'a> {
             });
         }
         buf.fill(0);
-        Ok(SumImages { buf, geometry, frames: [FrameCount::default(); MAX_STATES] })
+        Ok(SumImages { buf, geometry, frames: Self::zero_counts(geometry) })
+    }
+    fn zero_counts(geometry: Geometry) -> heapless::Vec<FrameCount, MAX_STATES> {
+        // Geometry::new bounds `states` by MAX_STATES, so every push fits.
+        let mut counts = heapless::Vec::new();
+        for _ in 0..geometry.states {
+            let _ = counts.push(FrameCount::default());
+        }
+        counts
     }
     /// The geometry.
     pub fn geometry(&self) -> Geometry {
@@ -144,7 +153,7 @@ impl<'a> SumImages<'a> {
     /// Zeroes every sum and frame count, as after a readout.
     pub fn clear(&mut self) {
         self.buf.fill(0);
-        self.frames = [FrameCount::default(); MAX_STATES];
+        self.frames = Self::zero_counts(self.geometry);
     }
     fn row_mut(&mut self, state: u8, row: u16) -> &mut [u32] {
         let w = self.geometry.width as usize;
@@ -270,8 +279,9 @@ impl<'a, const N: usize, const CODES: usize> Corrector<'a, N, CODES> {
         if frame.next_row != self.sums.geometry.height {
             self.status.incomplete_frames = self.status.incomplete_frames.saturating_add(1);
         }
-        let count = &mut self.sums.frames[frame.state as usize];
-        count.0 = count.0.saturating_add(1);
+        if let Some(count) = self.sums.frames.get_mut(frame.state as usize) {
+            count.0 = count.0.saturating_add(1);
+        }
         self.status.frames = self.status.frames.saturating_add(1);
         if self.banks.swap_if_pending() {
             self.status.lut_swaps = self.status.lut_swaps.saturating_add(1);
