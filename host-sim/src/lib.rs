@@ -4,8 +4,13 @@
 //! (in later issues) the camera model, the float reference, characterization and the
 //! `dncal` command's subcommands. All correction arithmetic comes from `dncal-core`.
 
+pub mod camera;
+pub mod emva;
 pub mod error;
 pub mod firmware;
+pub mod fits;
+pub mod flatten;
+pub mod reference;
 pub mod synth;
 
 pub use error::HostError;
