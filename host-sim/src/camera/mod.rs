@@ -1,1 +1,70 @@
-//! (being written)
+//! The camera model: photons to codes, pixel by pixel, as docs/model.md derives.
+//!
+//! For pixel `i` in column `c` receiving `N_p` photons in a frame:
+//!
+//! ```text
+//! mean signal     mu_i = QE N_p g_i + d_i           g_i = 1 + N(0, prnu_rms)   (PRNU)
+//!                                                   d_i = dark_e + N(0, dsnu_rms_e), >= 0 (DSNU)
+//! photoelectrons  n    ~ Poisson(mu_i),  clipped at the full well FW
+//! nonlinearity    y    = FW p_i(n / FW),  p_i(x) = x + sum_m a_{m,i} x^m   (m = 2, 3, ...)
+//! read noise      y'   = y + N(0, read_noise_e)
+//! analog DN       v    = y' / K + offset_dn          K = gain_e_per_dn
+//! code            k    = max { k : T_k <= v }        T from ADC c mod N (see [`adc`])
+//! ```
+//!
+//! Bad pixels are hot (always the top code) or dead (`g_i = 0`). The same model is
+//! evaluated two ways: sampled line by line ([`sample`]) for streaming, and as exact code
+//! probabilities for a given mean signal ([`exact`]) where means and variances must be
+//! free of sampling noise.
+
+pub mod adc;
+pub mod config;
+pub mod exact;
+pub mod pixels;
+pub mod sample;
+
+pub use adc::PipelinedAdc;
+pub use config::{AdcConfig, CameraConfig};
+pub use pixels::{PixelMaps, PixelState};
+
+/// A camera: its configuration, one ADC per ADC index, and its pixel maps.
+pub struct Camera {
+    /// The parameters.
+    pub config: CameraConfig,
+    /// ADC `a` reads columns `c` with `c mod n_adc == a`.
+    pub adcs: Vec<PipelinedAdc>,
+    /// Per-pixel gain, dark, nonlinearity and defects.
+    pub pixels: PixelMaps,
+}
+
+impl Camera {
+    /// Builds the camera of `config` (validated): ADCs from the stage errors, pixel maps
+    /// from the seed.
+    pub fn new(config: CameraConfig) -> Result<Self, String> {
+        config.validate()?;
+        let adcs = (0..config.n_adc).map(|a| PipelinedAdc::from_config(&config.adc, config.bits, a)).collect::<Result<Vec<_>, _>>()?;
+        let pixels = PixelMaps::generate(&config);
+        Ok(Camera { config, adcs, pixels })
+    }
+
+    /// The ADC of column `column`.
+    #[inline]
+    pub fn adc_of(&self, column: usize) -> &PipelinedAdc {
+        &self.adcs[column % self.adcs.len()]
+    }
+
+    /// The noiseless response: photoelectrons `n` (already clipped or not) to electrons
+    /// after the nonlinearity of pixel coefficients `a` (a2, a3, ...).
+    #[inline]
+    pub fn response_e(&self, n: f64, a: &[f64]) -> f64 {
+        let fw = self.config.full_well_e;
+        let x = n.min(fw) / fw;
+        let mut xm = x;
+        let mut p = x;
+        for &am in a {
+            xm *= x;
+            p += am * xm;
+        }
+        fw * p
+    }
+}

@@ -1,0 +1,176 @@
+//! A pipelined ADC with stage mismatch: where DN error comes from (de Wijn 2018,
+//! section 4).
+//!
+//! A pipelined ADC resolves a few bits per stage, most significant first; each stage
+//! subtracts its DAC level from the residue and passes it on amplified. A DAC level that
+//! is off by `e` LSB (capacitor mismatch) shifts every code boundary that uses that
+//! digit by `e`. With stage `s` resolving digit `d_s(k)` of code `k`, the transition level
+//! from code `k - 1` to code `k` is, in ideal DN,
+//!
+//! ```text
+//! T_k = k - 1/2 + E(k),    E(k) = sum_s e_{s, d_s(k)},   e_{s,0} = 0,
+//! ```
+//!
+//! so an ideal ADC (all `e = 0`) reads analog value `v` as the nearest integer. Code `k`
+//! is `w_k = T_{k+1} - T_k = 1 + E(k+1) - E(k)` DN wide: periodic DN error with the
+//! period of each stage's digit, large jumps at the major (high-stage) transitions,
+//! exactly the pattern of the paper's Fig. 3. The level errors `e_{s,d}` are drawn once
+//! from N(0, `stage_error_lsb[s]`) with the ADC's seed. Code 0 takes everything below
+//! `T_1`, the top code everything from `T_{2^B-1}` up (saturation).
+
+use rand::{rngs::StdRng, SeedableRng};
+use rand_distr::{Distribution, Normal};
+
+use super::config::AdcConfig;
+
+/// One ADC's transfer: its transition levels.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PipelinedAdc {
+    /// `levels[k]` = T_k for k = 1..codes-1; `levels[0]` is unused (-inf).
+    levels: Vec<f64>,
+}
+
+impl PipelinedAdc {
+    /// The ADC number `index` of a camera: stage errors drawn from `config` with seed
+    /// `config.seed + index`. Fails if a code would have zero or negative width.
+    pub fn from_config(config: &AdcConfig, bits: u32, index: usize) -> Result<Self, String> {
+        let mut rng = StdRng::seed_from_u64(config.seed.wrapping_add(index as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+        let mut stage_errors = Vec::new();
+        for (&b, &sigma) in config.stage_bits.iter().zip(&config.stage_error_lsb) {
+            let normal = Normal::new(0.0, sigma).map_err(|e| e.to_string())?;
+            let mut e: Vec<f64> = (0..1usize << b).map(|_| normal.sample(&mut rng)).collect();
+            e[0] = 0.0;
+            stage_errors.push(e);
+        }
+        let codes = 1usize << bits;
+        let mut levels = vec![f64::NEG_INFINITY; codes];
+        for (k, level) in levels.iter_mut().enumerate().skip(1) {
+            let mut shift = bits;
+            let mut error = 0.0;
+            for (&b, e) in config.stage_bits.iter().zip(&stage_errors) {
+                shift -= b;
+                error += e[(k >> shift) & ((1 << b) - 1)];
+            }
+            *level = k as f64 - 0.5 + error;
+        }
+        let adc = PipelinedAdc { levels };
+        if let Some(k) = (1..codes - 1).find(|&k| adc.levels[k + 1] <= adc.levels[k]) {
+            return Err(format!("ADC {index}: code {k} has no width (stage errors {:?} LSB are too large)", config.stage_error_lsb));
+        }
+        Ok(adc)
+    }
+
+    /// An ideal ADC of `bits` bits: `T_k = k - 1/2`.
+    pub fn ideal(bits: u32) -> Self {
+        let codes = 1usize << bits;
+        PipelinedAdc { levels: (0..codes).map(|k| if k == 0 { f64::NEG_INFINITY } else { k as f64 - 0.5 }).collect() }
+    }
+
+    /// An ADC with the given transition levels `T_1..T_{codes-1}` (strictly increasing).
+    pub fn from_levels(levels_from_1: &[f64]) -> Result<Self, String> {
+        if !(levels_from_1.len() + 1).is_power_of_two() || levels_from_1.windows(2).any(|p| p[1] <= p[0]) {
+            return Err("transition levels must be 2^B - 1 strictly increasing values".into());
+        }
+        let mut levels = vec![f64::NEG_INFINITY];
+        levels.extend_from_slice(levels_from_1);
+        Ok(PipelinedAdc { levels })
+    }
+
+    /// Number of codes.
+    pub fn codes(&self) -> usize {
+        self.levels.len()
+    }
+
+    /// Transition level T_k (k >= 1) into code k, DN; -inf for k = 0, +inf for k = codes.
+    pub fn level(&self, k: usize) -> f64 {
+        self.levels.get(k).copied().unwrap_or(f64::INFINITY)
+    }
+
+    /// The code of analog value `v` DN: the largest k with T_k <= v.
+    #[inline]
+    pub fn code(&self, v: f64) -> u16 {
+        let top = self.levels.len() - 1;
+        if v.is_nan() {
+            return 0;
+        }
+        // Start at the ideal code and walk: |E(k)| is a few LSB at most.
+        let mut k = (v + 0.5).floor().clamp(0.0, top as f64) as usize;
+        while k > 0 && self.levels[k] > v {
+            k -= 1;
+        }
+        while k < top && self.levels[k + 1] <= v {
+            k += 1;
+        }
+        k as u16
+    }
+
+    /// Code widths w_k = T_{k+1} - T_k for the inner codes 1..codes-2, DN. Code 0 and the
+    /// top code are open-ended and reported as 1.
+    pub fn widths(&self) -> Vec<f64> {
+        let n = self.levels.len();
+        (0..n).map(|k| if k == 0 || k == n - 1 { 1.0 } else { self.levels[k + 1] - self.levels[k] }).collect()
+    }
+
+    /// The center of each code, (T_k + T_{k+1})/2, with the open end codes centered one
+    /// width (1 DN) beyond their finite boundary's half: k for an ideal ADC.
+    pub fn centers(&self) -> Vec<f64> {
+        let n = self.levels.len();
+        (0..n)
+            .map(|k| match k {
+                0 => self.levels[1] - 0.5,
+                k if k == n - 1 => self.levels[n - 1] + 0.5,
+                k => 0.5 * (self.levels[k] + self.levels[k + 1]),
+            })
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ideal_adc_rounds_to_nearest() {
+        let adc = PipelinedAdc::ideal(4);
+        assert_eq!(adc.code(-3.0), 0);
+        assert_eq!(adc.code(0.49), 0);
+        assert_eq!(adc.code(0.5), 1);
+        assert_eq!(adc.code(7.2), 7);
+        assert_eq!(adc.code(99.0), 15);
+        assert_eq!(adc.centers()[5], 5.0);
+    }
+
+    #[test]
+    fn stage_errors_shift_levels_by_digit() {
+        let cfg = AdcConfig { stage_bits: vec![2, 2], stage_error_lsb: vec![0.1, 0.05], seed: 7 };
+        let adc = PipelinedAdc::from_config(&cfg, 4, 0).unwrap();
+        // E(k) = e_hi[k / 4] + e_lo[k % 4] with e_hi[0] = e_lo[0] = 0, so every level
+        // error is the sum of the errors of its high-digit-only and low-digit-only codes.
+        let e = |k: usize| adc.level(k) - (k as f64 - 0.5);
+        for k in 5..16 {
+            if k % 4 != 0 {
+                assert!((e(k) - e(4 * (k / 4)) - e(k % 4)).abs() < 1e-12, "code {k}");
+            }
+        }
+        assert!(e(1) != 0.0 && e(4) != 0.0);
+        // Widths sum to the span of the levels.
+        let w = adc.widths();
+        let inner: f64 = w[1..15].iter().sum();
+        assert!((inner - (adc.level(15) - adc.level(1))).abs() < 1e-12);
+    }
+
+    #[test]
+    fn code_inverts_levels() {
+        let adc = PipelinedAdc::from_config(&AdcConfig::default(), 12, 3).unwrap();
+        for k in 1..4095 {
+            assert_eq!(adc.code(adc.level(k)), k as u16);
+            assert_eq!(adc.code(adc.level(k) - 1e-9), (k - 1) as u16);
+        }
+    }
+
+    #[test]
+    fn too_large_errors_are_rejected() {
+        let cfg = AdcConfig { stage_bits: vec![2, 2], stage_error_lsb: vec![3.0, 3.0], seed: 1 };
+        assert!(PipelinedAdc::from_config(&cfg, 4, 0).is_err());
+    }
+}
