@@ -18,6 +18,7 @@
 //! free of sampling noise.
 
 pub mod adc;
+pub mod calibration;
 pub mod config;
 pub mod exact;
 pub mod pixels;

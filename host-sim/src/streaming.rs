@@ -1,0 +1,205 @@
+//! The streaming check: frames from the camera model, sampled line by line with cycling
+//! modulation states, pushed through the core's `Corrector` exactly as the datapath
+//! would, and compared with the independent float reference ([`crate::reference`]).
+//!
+//! Two comparisons per sum pixel:
+//! - the core's `u32` sum equals the sum of the reference entries quantized by the
+//!   core's rounding rule (a *mismatch* otherwise; the expected count is zero);
+//! - the core's sum, in DN, lies within `F 2^-12` DN of the f64 sum of the reference
+//!   centers, `F` the frames in that state (each entry is within half a unit, 2^-12 DN).
+
+use std::time::Instant;
+
+use dncal_core::{Corrector, Geometry, LutBanks, LutSet, Status, Weight};
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::camera::Camera;
+use crate::reference::ReferenceLut;
+use crate::HostError;
+
+/// What to stream.
+#[derive(Debug, Clone, Serialize)]
+pub struct StreamParams {
+    /// Frames in all (frame f has state f mod states).
+    pub frames: u32,
+    /// Modulation states.
+    pub states: u8,
+    /// Pixels per line (a ROI starting at `first_column`).
+    pub width: u16,
+    /// Lines per frame (starting at `first_row`).
+    pub height: u16,
+    /// Sensor column of the first pixel.
+    pub first_column: u16,
+    /// Sensor row of the first line.
+    pub first_row: u16,
+    /// Brightest illumination as a fraction of the ADC's full scale.
+    pub peak_fraction: f64,
+    /// Intensity modulation between states, relative (0.2: +-20%).
+    pub modulation_depth: f64,
+    /// Seed of the frames.
+    pub seed: u64,
+}
+
+impl StreamParams {
+    /// The whole sensor of `camera`, 4 states, `frames` frames.
+    pub fn full_frame(camera: &Camera, frames: u32) -> Self {
+        StreamParams {
+            frames,
+            states: 4,
+            width: camera.config.width as u16,
+            height: camera.config.height as u16,
+            first_column: 0,
+            first_row: 0,
+            peak_fraction: 0.9,
+            modulation_depth: 0.2,
+            seed: 735,
+        }
+    }
+}
+
+/// The outcome.
+#[derive(Debug, Clone, Serialize)]
+pub struct StreamReport {
+    /// Frames streamed.
+    pub frames: u32,
+    /// Pixels pushed through the core (frames x width x height).
+    pub pixels: u64,
+    /// Sum pixels compared.
+    pub sum_pixels: u64,
+    /// Sums that differ from the quantized reference.
+    pub mismatches: u64,
+    /// Largest |core sum - f64 reference sum|, DN.
+    pub max_abs_err_dn: f64,
+    /// The bound it must respect: max frames per state x 2^-12 DN.
+    pub bound_dn: f64,
+    /// Sums outside the bound.
+    pub out_of_bound: u64,
+    /// Core throughput: pixels / time spent in `accumulate_line`.
+    pub pixels_per_s: f64,
+    /// Wall time of the whole run, s (sampling included).
+    pub wall_s: f64,
+    /// The datapath's counters.
+    pub status: StatusReport,
+}
+
+/// [`Status`] for JSON.
+#[derive(Debug, Clone, Serialize)]
+pub struct StatusReport {
+    /// Codes above the top code.
+    pub out_of_range_codes: u32,
+    /// Clipped additions.
+    pub saturated_additions: u32,
+    /// Rejected lines.
+    pub rejected_lines: u32,
+    /// Frames completed.
+    pub frames: u32,
+}
+
+impl From<Status> for StatusReport {
+    fn from(s: Status) -> Self {
+        StatusReport { out_of_range_codes: s.out_of_range_codes, saturated_additions: s.saturated_additions, rejected_lines: s.rejected_lines, frames: s.frames }
+    }
+}
+
+/// Mean photons reaching pixel (row, column) in a frame of state `state`: a ramp across
+/// the columns from 5% to 95% of `peak`, modulated by state.
+pub fn illumination(p: &StreamParams, peak_photons: f64, column: usize, state: u8) -> f64 {
+    let x = (column - p.first_column as usize) as f64 / (p.width.max(2) - 1) as f64;
+    let m = 1.0 + p.modulation_depth * (std::f64::consts::TAU * state as f64 / p.states as f64).cos();
+    peak_photons * (0.05 + 0.9 * x) * m / (1.0 + p.modulation_depth)
+}
+
+/// Streams `p` through a core loaded with `weights` (one vector per ADC, on the core's
+/// 2^-24 grid). `progress` is called with the frames done.
+pub fn run_stream(camera: &Camera, weights: &[Vec<Weight>], p: &StreamParams, progress: impl Fn(u64) + Sync) -> Result<StreamReport, HostError> {
+    let (n, codes) = (camera.config.n_adc, camera.config.codes());
+    macro_rules! dispatch {
+        ($(($nn:literal, $cc:literal)),*) => {
+            match (n, codes) {
+                $(($nn, $cc) => run_typed::<$nn, $cc>(camera, weights, p, progress),)*
+                _ => Err(HostError::Format { path: "camera config".into(), message: format!("streaming supports 1, 2, 4 or 8 ADCs of 8, 10, 12 or 14 bits, not {n} ADCs of {codes} codes") }),
+            }
+        };
+    }
+    dispatch!((1, 256), (1, 1024), (1, 4096), (1, 16384), (2, 256), (2, 1024), (2, 4096), (2, 16384), (4, 256), (4, 1024), (4, 4096), (4, 16384), (8, 256), (8, 1024), (8, 4096))
+}
+
+fn run_typed<const N: usize, const CODES: usize>(
+    camera: &Camera,
+    weights: &[Vec<Weight>],
+    p: &StreamParams,
+    progress: impl Fn(u64) + Sync,
+) -> Result<StreamReport, HostError> {
+    let start = Instant::now();
+    let ctx = |what: &str| format!("stream: {what}");
+    let geometry = Geometry::new(p.width, p.height, p.states, p.first_column).map_err(|e| HostError::core(ctx("geometry"), e))?;
+    if p.first_column as usize + p.width as usize > camera.config.width || p.first_row as usize + p.height as usize > camera.config.height {
+        return Err(HostError::Format { path: "stream parameters".into(), message: format!("ROI {}x{} at ({}, {}) exceeds the {}x{} sensor", p.width, p.height, p.first_column, p.first_row, camera.config.width, camera.config.height) });
+    }
+    let slices: Vec<&[Weight]> = weights.iter().map(|w| w.as_slice()).collect();
+    let slices: &[&[Weight]; N] = slices.as_slice().try_into().map_err(|_| HostError::Format { path: "weights".into(), message: format!("{} weight vectors for {N} ADCs", weights.len()) })?;
+    let luts = Box::new(LutSet::<N, CODES>::from_weights(slices).map_err(|e| HostError::core(ctx("LUT from weights"), e))?);
+    let reference = ReferenceLut::from_weights(&weights.iter().map(|w| w.iter().map(|x| x.to_num::<f64>()).collect()).collect::<Vec<_>>());
+    let quantized = reference.quantized();
+
+    let mut banks = Box::new(LutBanks::new((*luts).clone()));
+    let mut sums = vec![0u32; geometry.sum_len()];
+    let mut ref_q = vec![0u64; geometry.sum_len()];
+    let mut ref_f = vec![0f64; geometry.sum_len()];
+    let mut corrector = Corrector::new(&mut banks, geometry, &mut sums).map_err(|e| HostError::core(ctx("corrector"), e))?;
+    let cfg = &camera.config;
+    let full_scale_photons = ((cfg.codes() - 1) as f64 - cfg.offset_dn) * cfg.gain_e_per_dn / cfg.qe;
+    let peak = p.peak_fraction * full_scale_photons;
+    let (w, h) = (p.width as usize, p.height as usize);
+    let mut core_s = 0.0;
+    for frame in 0..p.frames {
+        let state = (frame % p.states as u32) as u8;
+        let frame_seed = p.seed.wrapping_mul(0x2545_F491_4F6C_DD1D).wrapping_add(frame as u64);
+        let lines: Vec<Vec<u16>> = (0..h)
+            .into_par_iter()
+            .map(|y| {
+                let row = p.first_row as usize + y;
+                let full = camera.sample_line(row, frame_seed, |c| if c >= p.first_column as usize && c < p.first_column as usize + w { illumination(p, peak, c, state) } else { 0.0 });
+                full[p.first_column as usize..p.first_column as usize + w].to_vec()
+            })
+            .collect();
+        let t = Instant::now();
+        corrector.begin_frame(state).map_err(|e| HostError::core(ctx("begin frame"), e))?;
+        for (y, line) in lines.iter().enumerate() {
+            corrector.accumulate_line(y as u16, line).map_err(|e| HostError::core(ctx("line"), e))?;
+        }
+        corrector.end_frame().map_err(|e| HostError::core(ctx("end frame"), e))?;
+        core_s += t.elapsed().as_secs_f64();
+        let base = state as usize * w * h;
+        ref_q[base..base + w * h].par_chunks_mut(w).zip(ref_f[base..base + w * h].par_chunks_mut(w)).zip(&lines).for_each(|((q, f), line)| {
+            for (x, &code) in line.iter().enumerate() {
+                let adc = (p.first_column as usize + x) % N;
+                let k = (code as usize).min(CODES - 1);
+                q[x] += quantized[adc][k];
+                f[x] += reference.centers[adc][k];
+            }
+        });
+        progress(frame as u64 + 1);
+    }
+    let status = corrector.status();
+    let frames_max = (0..p.states).map(|s| corrector.sums().frames(s).get()).max().unwrap_or(0);
+    let bound_dn = frames_max as f64 * 2f64.powi(-12);
+    let mismatches = sums.iter().zip(&ref_q).filter(|(&s, &q)| s as u64 != q).count() as u64;
+    let errors: Vec<f64> = sums.iter().zip(&ref_f).map(|(&s, &f)| (s as f64 / 2048.0 - f).abs()).collect();
+    let max_abs_err_dn = errors.iter().cloned().fold(0.0, f64::max);
+    let out_of_bound = errors.iter().filter(|&&e| e > bound_dn).count() as u64;
+    let pixels = p.frames as u64 * (w * h) as u64;
+    Ok(StreamReport {
+        frames: p.frames,
+        pixels,
+        sum_pixels: sums.len() as u64,
+        mismatches,
+        max_abs_err_dn,
+        bound_dn,
+        out_of_bound,
+        pixels_per_s: if core_s > 0.0 { pixels as f64 / core_s } else { 0.0 },
+        wall_s: start.elapsed().as_secs_f64(),
+        status: status.into(),
+    })
+}
