@@ -11,6 +11,7 @@ pub mod firmware;
 pub mod fits;
 pub mod flatten;
 pub mod reference;
+pub mod streaming;
 pub mod synth;
 
 pub use error::HostError;
