@@ -10,6 +10,7 @@ pub mod error;
 pub mod firmware;
 pub mod fits;
 pub mod flatten;
+// pub mod plots; (waits for fits::write_atomically)
 pub mod reference;
 pub mod streaming;
 pub mod synth;

@@ -100,6 +100,88 @@ impl Camera {
     }
 }
 
+/// How a linearity set is recorded.
+#[derive(Debug, Clone)]
+pub struct LinearityParams {
+    /// Illumination levels, the first dark (the paper: 41).
+    pub levels: usize,
+    /// Frames per level (the paper: 256).
+    pub frames: u32,
+    /// Region read out: first column, first row, width, height.
+    pub roi: (usize, usize, usize, usize),
+    /// The brightest level, as a multiple of the saturation light.
+    pub overshoot: f64,
+    /// Reference photodiode volts per photon reaching a pixel (it is linear by
+    /// assumption: the paper's SM1PD1A photodiode and amplifier).
+    pub volts_per_photon: f64,
+    /// Seed of the frames.
+    pub seed: u64,
+}
+
+/// A recorded linearity set: per-pixel mean and standard deviation of the frames at each
+/// level (level-major, then row, then column), the reference voltages, and the pixels
+/// the camera model knows to be bad.
+#[derive(Debug, Clone)]
+pub struct LinearityData {
+    /// Width of the ROI.
+    pub width: usize,
+    /// Height of the ROI.
+    pub height: usize,
+    /// Mean code per level and pixel, DN.
+    pub mean: Vec<f64>,
+    /// Standard deviation (n - 1) per level and pixel, DN.
+    pub std: Vec<f64>,
+    /// Reference voltage per level, V.
+    pub voltage: Vec<f64>,
+    /// 1 where the pixel is hot or dead.
+    pub mask: Vec<u8>,
+}
+
+impl Camera {
+    /// Records a linearity set by sampling `p.frames` frames at each level. `progress`
+    /// gets the number of levels done.
+    pub fn linearity_set(&self, p: &LinearityParams, progress: impl Fn(u64) + Sync) -> LinearityData {
+        let (x0, y0, w, h) = p.roi;
+        let sat = self.saturation_photons() * p.overshoot;
+        let done = std::sync::atomic::AtomicU64::new(0);
+        let per_level: Vec<(Vec<f64>, Vec<f64>)> = (0..p.levels)
+            .into_par_iter()
+            .map(|level| {
+                let photons = sat * level as f64 / (p.levels - 1).max(1) as f64;
+                // Welford per pixel over the frames.
+                let mut mean = vec![0.0; w * h];
+                let mut m2 = vec![0.0; w * h];
+                for f in 0..p.frames {
+                    let seed = p.seed ^ ((level as u64) << 40) ^ ((f as u64) << 8);
+                    for y in 0..h {
+                        let line = self.sample_span(y0 + y, x0..x0 + w, seed, |_| photons);
+                        for (x, &c) in line.iter().enumerate() {
+                            let i = y * w + x;
+                            let d = c as f64 - mean[i];
+                            mean[i] += d / (f + 1) as f64;
+                            m2[i] += d * (c as f64 - mean[i]);
+                        }
+                    }
+                }
+                let std = m2.iter().map(|v| (v / (p.frames.max(2) - 1) as f64).sqrt()).collect();
+                progress(done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1);
+                (mean, std)
+            })
+            .collect();
+        let voltage = (0..p.levels).map(|l| p.volts_per_photon * sat * l as f64 / (p.levels - 1).max(1) as f64).collect();
+        let mask = (0..h)
+            .flat_map(|y| (0..w).map(move |x| (y, x)))
+            .map(|(y, x)| (self.pixels.state[(y0 + y) * self.config.width + x0 + x] != super::PixelState::Good) as u8)
+            .collect();
+        let (mut mean, mut std) = (Vec::with_capacity(p.levels * w * h), Vec::with_capacity(p.levels * w * h));
+        for (m, s) in per_level {
+            mean.extend(m);
+            std.extend(s);
+        }
+        LinearityData { width: w, height: h, mean, std, voltage, mask }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -120,6 +202,30 @@ mod tests {
             // offset plus dark never occur.
             assert!(counts[4095] > 0);
             assert_eq!(counts[0], 0);
+        }
+    }
+
+    #[test]
+    fn linearity_means_follow_the_exact_model() {
+        let cfg = CameraConfig { width: 16, height: 8, prnu_rms: 0.0, dsnu_rms_e: 0.0, pixel_nonlinearity_rms: vec![], bad_pixel_fraction: 0.0, ..Default::default() };
+        let cam = Camera::new(cfg).unwrap();
+        let p = LinearityParams { levels: 5, frames: 64, roi: (4, 2, 8, 4), overshoot: 1.0, volts_per_photon: 1e-5, seed: 9 };
+        let d = cam.linearity_set(&p, |_| {});
+        assert_eq!(d.mean.len(), 5 * 32);
+        let sat = cam.saturation_photons();
+        for level in 1..4 {
+            let photons = sat * level as f64 / 4.0;
+            assert!((d.voltage[level] - 1e-5 * photons).abs() < 1e-9);
+            for i in 0..32 {
+                let x = 4 + i % 8;
+                let pmf = cam.code_pmf(cam.adc_of(x), cam.mean_signal_e(photons), &cam.config.nonlinearity);
+                let m = d.mean[level * 32 + i];
+                let se = (pmf.variance() / 64.0).sqrt();
+                assert!((m - pmf.mean()).abs() < 5.0 * se, "level {level} pixel {i}: {m} vs {}", pmf.mean());
+                let s = d.std[level * 32 + i];
+                // The sample sd of 64 frames has a relative standard error of 1/sqrt(126) = 9%: 45% is 5 of them.
+                assert!((s - pmf.variance().sqrt()).abs() < 0.45 * pmf.variance().sqrt(), "std {s}");
+            }
         }
     }
 }

@@ -98,6 +98,14 @@ impl Default for CameraConfig {
 }
 
 impl CameraConfig {
+    /// Reads a TOML file whose fields override the defaults; unknown fields are errors.
+    pub fn from_toml_file(path: &std::path::Path) -> Result<Self, crate::HostError> {
+        let text = std::fs::read_to_string(path).map_err(|e| crate::HostError::io(path, e))?;
+        let config: CameraConfig = toml::from_str(&text).map_err(|e| crate::HostError::Format { path: path.into(), message: e.to_string() })?;
+        config.validate().map_err(|message| crate::HostError::Format { path: path.into(), message })?;
+        Ok(config)
+    }
+
     /// Codes of the ADC, 2^B.
     pub fn codes(&self) -> usize {
         1 << self.bits

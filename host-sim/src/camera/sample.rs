@@ -11,12 +11,17 @@ impl Camera {
     /// Draws line `row` of a frame with seed `frame_seed`; `photons(column)` is the mean
     /// number of photons reaching each pixel in the frame.
     pub fn sample_line(&self, row: usize, frame_seed: u64, photons: impl Fn(usize) -> f64) -> Vec<u16> {
+        self.sample_span(row, 0..self.config.width, frame_seed, photons)
+    }
+
+    /// Draws the pixels `columns` of line `row` (a ROI readout), as [`Self::sample_line`].
+    pub fn sample_span(&self, row: usize, columns: std::ops::Range<usize>, frame_seed: u64, photons: impl Fn(usize) -> f64) -> Vec<u16> {
         let cfg = &self.config;
         let mut rng = StdRng::seed_from_u64(frame_seed ^ (row as u64 + 1).wrapping_mul(0xA076_1D64_78BD_642F));
         let read = Normal::new(0.0, cfg.read_noise_e).expect("validated read noise");
         let top = (cfg.codes() - 1) as u16;
         let base = row * cfg.width;
-        (0..cfg.width)
+        columns
             .map(|c| {
                 let i = base + c;
                 let state = self.pixels.state[i];
