@@ -4,6 +4,8 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/firmware.sh install
+# The FITS interchange tests open our files in astropy (the astronomers' reference reader).
+python3 -c "import astropy, numpy" 2>/dev/null || python3 -m pip install --quiet astropy numpy
 cargo test --workspace --locked
 cargo clippy --workspace --all-targets --locked -- -D warnings
 # The core must also build with defmt on (as the firmware uses it) and stay warning-free.

@@ -1,1 +1,1385 @@
-//! (being written)
+//! FITS interchange: code histograms, linearity sets and LUTs as astronomers exchange them.
+//!
+//! Three files leave and enter dncal as FITS, so that astropy, ds9 or IDL can open them and
+//! so that measurements taken elsewhere can be corrected here (layouts in `docs/formats.md`):
+//!
+//! - **Histogram set** ([`AdcHistograms`]): per ADC, how many samples of a smooth
+//!   illumination ramp fell into each code (counts), from which the code widths in DN are
+//!   estimated (de Wijn 2018, section 4). Image `NADC` rows x `2^BITDEPTH` codes.
+//! - **Linearity set** ([`LinearitySet`]): mean frame (DN) and per-pixel standard
+//!   deviation (DN) at each illumination level, the reference photodiode voltage (V) of
+//!   each level (level 0 is dark), and optionally the known-bad pixels.
+//! - **LUT file** ([`LutTables`]): per ADC, the corrected value of every code in units of
+//!   2^-11 DN ([`dncal_core::FRAC_BITS`] fractional bits), unsigned 32-bit.
+//!
+//! All three record `ADCMAP = 'COLMOD'`: column `c` is read by ADC `c mod NADC`, as on the
+//! PhotonFocus MV-D1024E.
+//!
+//! ## Robustness
+//! Files are written through [`write_atomically`], so a failed or rejected write never
+//! leaves a half-written file at the destination. Readers check every shape, key and value
+//! before returning and answer a truncated, foreign or malformed file with a
+//! [`HostError::Format`] naming it. They deliberately avoid the `fitsio` calls that panic on
+//! legal FITS they do not expect (unsigned 64-bit images, variable-length or complex table
+//! columns): image and table headers are read key by key instead. Paths reach cfitsio only
+//! in a form it takes literally (`CfitsioName`): `h.fits[1]` is a file of that name, not
+//! HDU 1 of `h.fits`.
+//!
+//! ```
+//! use dncal_host::fits::{read_histograms, write_histograms, AdcHistograms};
+//! let dir = tempfile::tempdir().unwrap();
+//! let path = dir.path().join("histograms.fits");
+//! let hist = AdcHistograms { bit_depth: 2, counts: vec![vec![5, 6, 7, 8]; 4] };
+//! write_histograms(&path, &hist)?;
+//! assert_eq!(read_histograms(&path)?, hist);
+//! # Ok::<(), dncal_host::HostError>(())
+//! ```
+
+use std::path::Path;
+
+use dncal_core::FRAC_BITS;
+use fitsio::errors::Error as FitsioError;
+use fitsio::hdu::{FitsHdu, HduInfo};
+use fitsio::headers::{ReadsKey, WritesKey};
+use fitsio::images::{ImageDescription, ImageType, ReadImage, WriteImage};
+use fitsio::tables::{ColumnDataType, ColumnDescription};
+use fitsio::FitsFile;
+
+use crate::HostError;
+
+/// The only ADC map dncal knows: column `c` is read by ADC `c mod NADC`.
+pub const ADCMAP_COLMOD: &str = "COLMOD";
+
+/// Deepest ADC the formats accept: codes are `u16` throughout dncal.
+pub const MAX_BIT_DEPTH: u32 = 16;
+
+/// Code histograms of every ADC of a camera, in samples per code.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct AdcHistograms {
+    /// Bits per code; each ADC has `2^bit_depth` codes.
+    pub bit_depth: u32,
+    /// `counts[adc][code]`: samples read as `code` by ADC `adc`.
+    pub counts: Vec<Vec<u64>>,
+}
+
+impl AdcHistograms {
+    /// Number of ADCs (histogram rows).
+    pub fn n_adc(&self) -> usize {
+        self.counts.len()
+    }
+}
+
+/// A linearity measurement: frames averaged at illumination levels of known reference
+/// voltage.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LinearitySet {
+    /// Bits per code of the camera.
+    pub bit_depth: u32,
+    /// ADCs of the camera; column `c` is read by ADC `c mod n_adc`.
+    pub n_adc: usize,
+    /// Frames averaged at each level.
+    pub n_frames: u32,
+    /// Columns per frame.
+    pub width: usize,
+    /// Rows per frame.
+    pub height: usize,
+    /// Illumination levels; level 0 is dark.
+    pub levels: usize,
+    /// Mean frames in DN, level-major, then row, then column:
+    /// `mean[(level * height + row) * width + column]`.
+    pub mean: Vec<f64>,
+    /// Per-pixel standard deviation of the frames in DN, laid out as `mean`.
+    pub std: Vec<f64>,
+    /// Reference photodiode voltage of each level in V.
+    pub voltage: Vec<f64>,
+    /// Known bad pixels, `mask[row * width + column]`, 1 = bad, 0 = good.
+    pub mask: Option<Vec<u8>>,
+}
+
+/// Per-ADC lookup tables as exchanged; the core validates them again when it loads them.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LutTables {
+    /// Fractional bits of every entry; must be [`dncal_core::FRAC_BITS`] (11).
+    pub frac_bits: u32,
+    /// `tables[adc][code]`: corrected value of `code` in units of 2^-frac_bits DN.
+    pub tables: Vec<Vec<u32>>,
+}
+
+impl LutTables {
+    /// Number of ADCs (table rows).
+    pub fn n_adc(&self) -> usize {
+        self.tables.len()
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Writing
+
+/// Runs `write` on a fresh temporary path in `path`'s directory and renames the result to
+/// `path` only when `write` succeeds, so readers see the old file or the complete new one,
+/// never a half-written one. On failure the temporary file is removed and `path` is left
+/// as it was. The temporary path exists (empty) when `write` is called; a replaced file
+/// keeps its permissions.
+pub fn write_atomically(path: &Path, write: impl FnOnce(&Path) -> Result<(), HostError>) -> Result<(), HostError> {
+    let file_name = path
+        .file_name()
+        .ok_or_else(|| HostError::Format { path: path.into(), message: "not a file name to write to".into() })?;
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    let mut builder = tempfile::Builder::new();
+    // Only plain characters: the name may go to cfitsio, which parses brackets and more.
+    let plain: String = file_name
+        .to_string_lossy()
+        .chars()
+        .map(|c| if c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-') { c } else { '_' })
+        .collect();
+    let prefix = format!(".{plain}.");
+    builder.prefix(&prefix).suffix(".tmp");
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        // The process umask applies, as for any newly created file.
+        builder.permissions(std::fs::Permissions::from_mode(0o666));
+    }
+    let tmp = builder.tempfile_in(dir).map_err(|e| HostError::io(path, e))?.into_temp_path();
+    write(&tmp)?;
+    if let Ok(old) = std::fs::metadata(path) {
+        std::fs::set_permissions(&tmp, old.permissions()).map_err(|e| HostError::io(path, e))?;
+    }
+    std::fs::File::open(&tmp).and_then(|f| f.sync_all()).map_err(|e| HostError::io(path, e))?;
+    tmp.persist(path).map_err(|e| HostError::io(path, e.error))
+}
+
+/// Writes a histogram set: primary image of `NADC` rows x `2^BITDEPTH` codes, 64-bit
+/// signed (BITPIX 64).
+pub fn write_histograms(path: &Path, hist: &AdcHistograms) -> Result<(), HostError> {
+    let codes = check_tables(hist.bit_depth, &hist.counts, "codes").map_err(|m| format_error(path, m))?;
+    let mut flat = Vec::with_capacity(hist.n_adc() * codes);
+    for (adc, row) in hist.counts.iter().enumerate() {
+        for (code, &n) in row.iter().enumerate() {
+            let n = i64::try_from(n).map_err(|_| {
+                format_error(path, format!("count {n} (ADC {adc}, code {code}) exceeds BITPIX 64's signed range"))
+            })?;
+            flat.push(n);
+        }
+    }
+    write_atomically(path, |tmp| {
+        let mut out = FitsWriter::create(tmp, path, ImageType::LongLong, &[hist.n_adc(), codes])?;
+        out.adc_keys(hist.bit_depth, hist.n_adc())?;
+        out.image(&flat)?;
+        out.finish()
+    })
+}
+
+/// Writes a linearity set: primary float64 cube of mean frames, extensions `STD` (same
+/// cube), `MASK` (uint8, when present) and `REFERENCE` (table, column `VOLTAGE`).
+pub fn write_linearity(path: &Path, set: &LinearitySet) -> Result<(), HostError> {
+    check_linearity(set).map_err(|m| format_error(path, m))?;
+    write_atomically(path, |tmp| {
+        let cube = [set.levels, set.height, set.width];
+        let mut out = FitsWriter::create(tmp, path, ImageType::Double, &cube)?;
+        out.adc_keys(set.bit_depth, set.n_adc)?;
+        out.key("NFRAMES", (i64::from(set.n_frames), "frames averaged per illumination level"))?;
+        out.key("BUNIT", ("DN", "mean of the frames at each level"))?;
+        out.image(&set.mean)?;
+        out.add_image("STD", ImageType::Double, &cube)?;
+        out.key("BUNIT", ("DN", "standard deviation of the frames"))?;
+        out.image(&set.std)?;
+        if let Some(mask) = &set.mask {
+            out.add_image("MASK", ImageType::UnsignedByte, &[set.height, set.width])?;
+            out.image(mask)?;
+        }
+        // Last, so that a file cut at an HDU boundary lacks a required HDU rather than
+        // reading as a valid set without its (optional) mask.
+        out.add_table("REFERENCE", "VOLTAGE", "V", &set.voltage)?;
+        out.finish()
+    })
+}
+
+/// Writes LUTs: primary image of `NADC` rows x `2^BITDEPTH` codes, unsigned 32-bit (BITPIX
+/// 32 with BZERO 2^31, which astropy reads as uint32), with `FRACBITS`.
+pub fn write_lut(path: &Path, lut: &LutTables) -> Result<(), HostError> {
+    let bit_depth = check_lut(lut).map_err(|m| format_error(path, m))?;
+    let flat: Vec<u32> = lut.tables.concat();
+    write_atomically(path, |tmp| {
+        let codes = 1usize << bit_depth;
+        let mut out = FitsWriter::create(tmp, path, ImageType::UnsignedLong, &[lut.n_adc(), codes])?;
+        out.adc_keys(bit_depth, lut.n_adc())?;
+        out.key("FRACBITS", (i64::from(lut.frac_bits), "entries in units of 2^-FRACBITS DN"))?;
+        out.image(&flat)?;
+        out.finish()
+    })
+}
+
+/// A FITS file being written at a temporary path; errors name the final `path`.
+struct FitsWriter<'a> {
+    file: FitsFile,
+    /// Kept while cfitsio has the file open.
+    _name: CfitsioName,
+    path: &'a Path,
+    /// The HDU that keys and data go to.
+    hdu: FitsHdu,
+}
+
+impl<'a> FitsWriter<'a> {
+    /// Creates `tmp` (replacing it) with a primary image of `dims` (slowest axis first).
+    fn create(tmp: &Path, path: &'a Path, data_type: ImageType, dims: &[usize]) -> Result<Self, HostError> {
+        let name = CfitsioName::for_writing(tmp, path)?;
+        let description = ImageDescription { data_type, dimensions: dims };
+        let mut file = FitsFile::create(&name.name)
+            .with_custom_primary(&description)
+            .overwrite()
+            .open()
+            .map_err(|e| fits_error(path, "creating the file", &e))?;
+        let hdu = file.primary_hdu().map_err(|e| fits_error(path, "creating the primary HDU", &e))?;
+        // fitsio names a custom primary HDU "_PRIMARY"; a primary HDU has no name in FITS
+        // practice (astropy calls it PRIMARY), so the key goes.
+        let mut status = 0;
+        // SAFETY: `file` is open and its current HDU is the primary (moved to just above);
+        // the key name is a NUL-terminated literal.
+        unsafe { fitsio::sys::ffdkey(file.as_raw(), c"EXTNAME".as_ptr(), &mut status) };
+        fitsio::errors::check_status(status).map_err(|e| fits_error(path, "removing fitsio's EXTNAME", &e))?;
+        Ok(FitsWriter { file, _name: name, path, hdu })
+    }
+
+    /// Writes `value` (a value or a (value, comment) pair) as key `name` of the current HDU.
+    fn key<T: WritesKey>(&mut self, name: &str, value: T) -> Result<(), HostError> {
+        let path = self.path;
+        self.hdu
+            .write_key(&mut self.file, name, value)
+            .map_err(|e| fits_error(path, &format!("writing key {name}"), &e))
+    }
+
+    /// The keys every format carries: `BITDEPTH`, `NADC`, `ADCMAP`.
+    fn adc_keys(&mut self, bit_depth: u32, n_adc: usize) -> Result<(), HostError> {
+        self.key("BITDEPTH", (i64::from(bit_depth), "bits per ADC code"))?;
+        let n_adc = i64::try_from(n_adc).map_err(|_| format_error(self.path, "NADC exceeds the key's range"))?;
+        self.key("NADC", (n_adc, "ADCs; column c is read by ADC c mod NADC"))?;
+        self.key("ADCMAP", (ADCMAP_COLMOD, "ADC of column c is c mod NADC"))
+    }
+
+    /// Writes the whole data array of the current image HDU.
+    fn image<T: WriteImage>(&mut self, data: &[T]) -> Result<(), HostError> {
+        let path = self.path;
+        self.hdu.write_image(&mut self.file, data).map_err(|e| fits_error(path, "writing image data", &e))
+    }
+
+    /// Appends image extension `extname` of `dims` and makes it current.
+    fn add_image(&mut self, extname: &str, data_type: ImageType, dims: &[usize]) -> Result<(), HostError> {
+        let description = ImageDescription { data_type, dimensions: dims };
+        self.hdu = self
+            .file
+            .create_image(extname, &description)
+            .map_err(|e| fits_error(self.path, &format!("creating extension {extname}"), &e))?;
+        Ok(())
+    }
+
+    /// Appends binary table `extname` with the single float64 column `column` in `unit`.
+    fn add_table(&mut self, extname: &str, column: &str, unit: &str, values: &[f64]) -> Result<(), HostError> {
+        let path = self.path;
+        let context = format!("writing table {extname}");
+        let described = ColumnDescription::new(column).with_type(ColumnDataType::Double).create();
+        let description = described.map_err(|e| fits_error(path, &context, &e))?;
+        self.hdu = self.file.create_table(extname, &[description]).map_err(|e| fits_error(path, &context, &e))?;
+        self.hdu.write_col(&mut self.file, column, values).map_err(|e| fits_error(path, &context, &e))?;
+        self.key("TUNIT1", unit)
+    }
+
+    /// Flushes everything to disk, so that a full disk is an error here and not a silently
+    /// short file when `Drop` closes it (fitsio ignores errors on close).
+    fn finish(mut self) -> Result<(), HostError> {
+        let mut status = 0;
+        // SAFETY: `self.file` is open; ffflus only writes its buffers.
+        unsafe { fitsio::sys::ffflus(self.file.as_raw(), &mut status) };
+        fitsio::errors::check_status(status).map_err(|e| fits_error(self.path, "flushing to disk", &e))
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Reading
+
+/// Reads a histogram set. Accepts any integer image (BITPIX 8, 16, 32 or 64, with BZERO for
+/// unsigned data); rejects float images, negative counts, a shape other than `NADC` x
+/// `2^BITDEPTH`, missing or invalid keys, and LUT files (which carry `FRACBITS`).
+pub fn read_histograms(path: &Path) -> Result<AdcHistograms, HostError> {
+    let mut r = FitsReader::open(path)?;
+    let (bit_depth, n_adc, codes) = r.adc_keys()?;
+    if r.key::<f64>(0, PRIMARY, "FRACBITS")?.is_some() {
+        return Err(r.error("the primary HDU has FRACBITS: this is a LUT file, not a histogram set"));
+    }
+    let image = r.image(0, PRIMARY, 2)?;
+    r.check_adc_image_shape(&image, codes, n_adc, bit_depth)?;
+    let flat: Vec<u64> = r
+        .integer_pixels(&image, "histogram counts")?
+        .convert()
+        .map_err(|(i, v)| r.error(format!("count {v} at ADC {}, code {} is negative", i / codes, i % codes)))?;
+    let counts = flat.chunks(codes).map(<[u64]>::to_vec).collect();
+    Ok(AdcHistograms { bit_depth, counts })
+}
+
+/// Reads a linearity set. Rejects missing keys or extensions, shapes that disagree between
+/// the primary cube, `STD`, `MASK` and the rows of `REFERENCE`, NaN or infinite values,
+/// negative standard deviations and mask values other than 0 and 1.
+pub fn read_linearity(path: &Path) -> Result<LinearitySet, HostError> {
+    let mut r = FitsReader::open(path)?;
+    let (bit_depth, n_adc, _) = r.adc_keys()?;
+    let n_frames = r.required_int(0, PRIMARY, "NFRAMES")?;
+    let n_frames = u32::try_from(n_frames)
+        .ok()
+        .filter(|&n| n >= 1)
+        .ok_or_else(|| r.error(format!("NFRAMES = {n_frames}, must be 1 to {}", u32::MAX)))?;
+    let image = r.image(0, PRIMARY, 3)?;
+    let (width, height, levels) = (image.naxes[0], image.naxes[1], image.naxes[2]);
+    if width == 0 || height == 0 || levels == 0 {
+        return Err(r.error(format!("the primary cube is {width} x {height} x {levels}: empty")));
+    }
+    let mean = r.float_pixels(&image)?;
+
+    let std_hdu = r.require_extension("STD", "per-pixel standard deviations")?;
+    let std_image = r.image(std_hdu, "extension STD", 3)?;
+    if std_image.naxes != image.naxes {
+        return Err(r.error(format!(
+            "extension STD is {} but the primary cube is {} (columns x rows x levels)",
+            shape_text(&std_image.naxes),
+            shape_text(&image.naxes)
+        )));
+    }
+    let std = r.float_pixels(&std_image)?;
+
+    let ref_hdu = r.require_extension("REFERENCE", "reference voltages")?;
+    let voltage = r.column_f64(ref_hdu, "extension REFERENCE", "VOLTAGE")?;
+    if voltage.len() != levels {
+        return Err(r.error(format!("extension REFERENCE has {} rows, the cube has {levels} levels", voltage.len())));
+    }
+
+    let mask = match r.extension("MASK")? {
+        None => None,
+        Some(hdu) => {
+            let mask_image = r.image(hdu, "extension MASK", 2)?;
+            if mask_image.naxes != [width, height] {
+                return Err(r.error(format!(
+                    "extension MASK is {} but frames are {width} x {height} (columns x rows)",
+                    shape_text(&mask_image.naxes)
+                )));
+            }
+            let mask: Vec<u8> = r.integer_pixels(&mask_image, "mask values")?.convert().map_err(|(i, v)| {
+                r.error(format!("mask value {v} at row {}, column {} is not 0 or 1", i / width, i % width))
+            })?;
+            Some(mask)
+        }
+    };
+    let set = LinearitySet { bit_depth, n_adc, n_frames, width, height, levels, mean, std, voltage, mask };
+    check_linearity(&set).map_err(|m| r.error(m))?;
+    Ok(set)
+}
+
+/// Reads LUTs. Accepts any integer image whose values fit in 32 unsigned bits; rejects a
+/// shape other than `NADC` x `2^BITDEPTH`, missing or invalid keys, and `FRACBITS` other
+/// than [`dncal_core::FRAC_BITS`].
+pub fn read_lut(path: &Path) -> Result<LutTables, HostError> {
+    let mut r = FitsReader::open(path)?;
+    let (bit_depth, n_adc, codes) = r.adc_keys()?;
+    let frac_bits = r.required_int(0, PRIMARY, "FRACBITS")?;
+    if frac_bits != i64::from(FRAC_BITS) {
+        return Err(r.error(format!("FRACBITS = {frac_bits}, dncal LUT entries have {FRAC_BITS} fractional bits")));
+    }
+    let image = r.image(0, PRIMARY, 2)?;
+    r.check_adc_image_shape(&image, codes, n_adc, bit_depth)?;
+    let flat: Vec<u32> = r.integer_pixels(&image, "LUT entries")?.convert().map_err(|(i, v)| {
+        r.error(format!("entry {v} at ADC {}, code {} is outside 0 to 2^32 - 1", i / codes, i % codes))
+    })?;
+    let tables = flat.chunks(codes).map(<[u32]>::to_vec).collect();
+    Ok(LutTables { frac_bits: FRAC_BITS, tables })
+}
+
+/// How messages name the primary HDU.
+const PRIMARY: &str = "primary HDU";
+
+/// cfitsio's status for a missing key.
+const KEY_NO_EXIST: i32 = 202;
+/// cfitsio's status for reading past the end of the file.
+const END_OF_FILE: i32 = 107;
+/// cfitsio's status for a failed read, such as a last block cut short.
+const READ_ERROR: i32 = 108;
+
+/// What an image HDU's header says about its data.
+struct ImageHeader {
+    /// HDU number, 0 = primary.
+    hdu: usize,
+    /// How messages name the HDU.
+    label: String,
+    bitpix: i64,
+    /// NAXIS1 (fastest, columns) first.
+    naxes: Vec<usize>,
+    bzero: f64,
+    bscale: f64,
+    elements: usize,
+}
+
+/// Integer pixel values as cfitsio delivers them after BZERO.
+enum IntegerPixels {
+    Signed(Vec<i64>),
+    /// BITPIX 64 with BZERO 2^63: the only integer data that does not fit `i64`.
+    Unsigned(Vec<u64>),
+}
+
+impl IntegerPixels {
+    /// Every value as `T`, or the flat index and value of the first that does not fit.
+    fn convert<T: TryFrom<i128>>(self) -> Result<Vec<T>, (usize, i128)> {
+        fn all<T: TryFrom<i128>>(values: impl Iterator<Item = i128>) -> Result<Vec<T>, (usize, i128)> {
+            values.enumerate().map(|(i, v)| T::try_from(v).map_err(|_| (i, v))).collect()
+        }
+        match self {
+            IntegerPixels::Signed(v) => all(v.into_iter().map(i128::from)),
+            IntegerPixels::Unsigned(v) => all(v.into_iter().map(i128::from)),
+        }
+    }
+}
+
+/// A FITS file open for reading, with every access turned into a [`HostError`] naming it.
+struct FitsReader<'a> {
+    file: FitsFile,
+    /// Kept while cfitsio has the file open.
+    _name: CfitsioName,
+    path: &'a Path,
+    /// Most data bytes the file can hold: no header may make us allocate more. The file
+    /// size, or for a gzip-, compress- or zip-compressed file (cfitsio opens those too)
+    /// the size times 1100, above deflate's largest ratio of 1032.
+    len: u64,
+}
+
+impl<'a> FitsReader<'a> {
+    fn open(path: &'a Path) -> Result<Self, HostError> {
+        let meta = std::fs::metadata(path).map_err(|e| HostError::io(path, e))?;
+        if meta.is_dir() {
+            return Err(format_error(path, "is a directory, not a FITS file"));
+        }
+        let name = CfitsioName::for_reading(path)?;
+        let file = FitsFile::open(&name.name).map_err(|e| fits_error(path, "not a readable FITS file", &e))?;
+        let mut start = [0u8; 9];
+        let plain = std::fs::File::open(path)
+            .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut start))
+            .is_ok_and(|()| &start == b"SIMPLE  =");
+        let len = if plain { meta.len() } else { meta.len().saturating_mul(1100) };
+        Ok(FitsReader { file, _name: name, path, len })
+    }
+
+    fn error(&self, message: impl Into<String>) -> HostError {
+        format_error(self.path, message)
+    }
+
+    /// Key `name` of HDU `hdu`, `None` when absent.
+    fn key<T: ReadsKey>(&mut self, hdu: usize, label: &str, name: &str) -> Result<Option<T>, HostError> {
+        // A hand-made handle: `FitsFile::hdu` would describe the HDU first, which panics
+        // inside fitsio on some legal HDUs (see the module documentation).
+        let handle = FitsHdu { info: HduInfo::AnyInfo, number: hdu };
+        match handle.read_key::<T>(&mut self.file, name) {
+            Ok(v) => Ok(Some(v)),
+            Err(FitsioError::Fits(e)) if e.status == KEY_NO_EXIST => Ok(None),
+            Err(e) => Err(fits_error(self.path, &format!("key {name} of the {label}"), &e)),
+        }
+    }
+
+    fn required<T: ReadsKey>(&mut self, hdu: usize, label: &str, name: &str) -> Result<T, HostError> {
+        self.key(hdu, label, name)?.ok_or_else(|| self.error(format!("missing key {name} in the {label}")))
+    }
+
+    /// An integer-valued key (read as a float so that `4.5` is an error, not 4).
+    fn int_key(&mut self, hdu: usize, label: &str, name: &str) -> Result<Option<i64>, HostError> {
+        match self.key::<f64>(hdu, label, name)? {
+            None => Ok(None),
+            Some(v) if v.fract() == 0.0 && v.abs() <= 9.007_199_254_740_992e15 => Ok(Some(v as i64)),
+            Some(v) => Err(self.error(format!("key {name} of the {label} is {v}, not an integer"))),
+        }
+    }
+
+    fn required_int(&mut self, hdu: usize, label: &str, name: &str) -> Result<i64, HostError> {
+        self.int_key(hdu, label, name)?.ok_or_else(|| self.error(format!("missing key {name} in the {label}")))
+    }
+
+    /// `BITDEPTH`, `NADC` and `ADCMAP` of the primary HDU: (bits, ADCs, codes).
+    fn adc_keys(&mut self) -> Result<(u32, usize, usize), HostError> {
+        let bits = self.required_int(0, PRIMARY, "BITDEPTH")?;
+        let bit_depth = u32::try_from(bits).unwrap_or(0);
+        let codes =
+            codes_for(bit_depth).map_err(|_| self.error(format!("BITDEPTH = {bits}, must be 1 to {MAX_BIT_DEPTH}")))?;
+        let n = self.required_int(0, PRIMARY, "NADC")?;
+        let n_adc = usize::try_from(n)
+            .ok()
+            .filter(|&n| n >= 1)
+            .ok_or_else(|| self.error(format!("NADC = {n}, must be at least 1")))?;
+        let map: String = self.required(0, PRIMARY, "ADCMAP")?;
+        if map.trim() != ADCMAP_COLMOD {
+            return Err(self.error(format!(
+                "ADCMAP = '{map}'; only '{ADCMAP_COLMOD}' (column c read by ADC c mod NADC) is defined"
+            )));
+        }
+        Ok((bit_depth, n_adc, codes))
+    }
+
+    /// The first extension named `name` (case-insensitive), if any.
+    fn extension(&mut self, name: &str) -> Result<Option<usize>, HostError> {
+        let count = self.file.num_hdus().map_err(|e| fits_error(self.path, "counting HDUs", &e))?;
+        for hdu in 1..count {
+            let label = format!("HDU {hdu}");
+            if let Some(extname) = self.key::<String>(hdu, &label, "EXTNAME")? {
+                if extname.trim().eq_ignore_ascii_case(name) {
+                    return Ok(Some(hdu));
+                }
+            }
+        }
+        Ok(None)
+    }
+
+    fn require_extension(&mut self, name: &str, holding: &str) -> Result<usize, HostError> {
+        match self.extension(name)? {
+            Some(hdu) => Ok(hdu),
+            None => {
+                let count = self.file.num_hdus().unwrap_or(0);
+                Err(self.error(format!("missing extension {name} ({holding}); the file has {count} HDUs")))
+            }
+        }
+    }
+
+    /// The header of image HDU `hdu`, which must have `naxis` axes.
+    fn image(&mut self, hdu: usize, label: &str, naxis: usize) -> Result<ImageHeader, HostError> {
+        if hdu > 0 {
+            let xtension: String = self.required(hdu, label, "XTENSION")?;
+            if xtension.trim() != "IMAGE" {
+                let hint = match self.key::<bool>(hdu, label, "ZIMAGE") {
+                    Ok(Some(true)) => " (a tile-compressed image: write it uncompressed)",
+                    _ => "",
+                };
+                return Err(self.error(format!("the {label} is a {} extension, not an image{hint}", xtension.trim())));
+            }
+        }
+        let bitpix = self.required_int(hdu, label, "BITPIX")?;
+        if ![8, 16, 32, 64, -32, -64].contains(&bitpix) {
+            return Err(self.error(format!("the {label} has BITPIX = {bitpix}, not a FITS data type")));
+        }
+        let found = self.required_int(hdu, label, "NAXIS")?;
+        if found != naxis as i64 {
+            return Err(self.error(format!("the {label} has NAXIS = {found}, expected {naxis} axes")));
+        }
+        let mut naxes = Vec::with_capacity(naxis);
+        for axis in 1..=naxis {
+            let key = format!("NAXIS{axis}");
+            let n = self.required_int(hdu, label, &key)?;
+            naxes.push(usize::try_from(n).map_err(|_| self.error(format!("{key} = {n} in the {label}")))?);
+        }
+        let bzero = self.key::<f64>(hdu, label, "BZERO")?.unwrap_or(0.0);
+        let bscale = self.key::<f64>(hdu, label, "BSCALE")?.unwrap_or(1.0);
+        let elements = naxes.iter().try_fold(1usize, |acc, &n| acc.checked_mul(n));
+        let bytes = elements.and_then(|n| n.checked_mul(bitpix.unsigned_abs() as usize / 8));
+        match (elements, bytes) {
+            (Some(elements), Some(bytes)) if bytes as u64 <= self.len => {
+                Ok(ImageHeader { hdu, label: label.into(), bitpix, naxes, bzero, bscale, elements })
+            }
+            _ => Err(self.error(format!(
+                "the {label} declares {} pixels of BITPIX {bitpix}, more than the file can hold (truncated?)",
+                shape_text(&naxes)
+            ))),
+        }
+    }
+
+    /// Checks a per-ADC table image: NAXIS1 = codes, NAXIS2 = ADCs.
+    fn check_adc_image_shape(
+        &self,
+        image: &ImageHeader,
+        codes: usize,
+        n_adc: usize,
+        bits: u32,
+    ) -> Result<(), HostError> {
+        if image.naxes[0] != codes {
+            return Err(self.error(format!(
+                "the {} has NAXIS1 = {} codes, BITDEPTH = {bits} needs 2^{bits} = {codes}",
+                image.label, image.naxes[0]
+            )));
+        }
+        if image.naxes[1] != n_adc {
+            return Err(self.error(format!("the {} has NAXIS2 = {} rows, NADC = {n_adc}", image.label, image.naxes[1])));
+        }
+        Ok(())
+    }
+
+    /// All pixels of an image as `V` (a `Vec` of the wanted type; cfitsio converts).
+    fn pixels<V: ReadImage>(&mut self, image: &ImageHeader) -> Result<V, HostError> {
+        let shape = image.naxes.iter().rev().copied().collect();
+        let handle = FitsHdu { info: HduInfo::ImageInfo { shape, image_type: ImageType::Double }, number: image.hdu };
+        handle
+            .read_section(&mut self.file, 0, image.elements)
+            .map_err(|e| fits_error(self.path, &format!("reading the data of the {}", image.label), &e))
+    }
+
+    /// All pixels of an integer image, physical values (BZERO applied).
+    fn integer_pixels(&mut self, image: &ImageHeader, what: &str) -> Result<IntegerPixels, HostError> {
+        if image.bitpix < 0 {
+            return Err(self.error(format!(
+                "the {} is a floating-point image (BITPIX = {}); {what} must be integers",
+                image.label, image.bitpix
+            )));
+        }
+        if image.bscale != 1.0 || image.bzero.fract() != 0.0 {
+            return Err(self.error(format!(
+                "the {} is scaled (BSCALE = {}, BZERO = {}); {what} must be unscaled integers",
+                image.label, image.bscale, image.bzero
+            )));
+        }
+        if image.bitpix == 64 && image.bzero == 9_223_372_036_854_775_808.0 {
+            Ok(IntegerPixels::Unsigned(self.pixels(image)?))
+        } else {
+            Ok(IntegerPixels::Signed(self.pixels(image)?))
+        }
+    }
+
+    /// All pixels of an image as float64 (integer data converted, BSCALE and BZERO applied).
+    fn float_pixels(&mut self, image: &ImageHeader) -> Result<Vec<f64>, HostError> {
+        self.pixels(image)
+    }
+
+    /// Scalar numeric column `column` (case-insensitive) of binary table `hdu`.
+    fn column_f64(&mut self, hdu: usize, label: &str, column: &str) -> Result<Vec<f64>, HostError> {
+        let xtension: String = self.required(hdu, label, "XTENSION")?;
+        if xtension.trim() != "BINTABLE" {
+            return Err(self.error(format!("the {label} is a {} extension, not a binary table", xtension.trim())));
+        }
+        let row_bytes = self.required_int(hdu, label, "NAXIS1")?;
+        let rows = self.required_int(hdu, label, "NAXIS2")?;
+        if row_bytes.checked_mul(rows).is_none_or(|b| b < 0 || b as u64 > self.len) {
+            return Err(
+                self.error(format!("the {label} declares {rows} rows of {row_bytes} bytes, more than the file holds"))
+            );
+        }
+        let fields = self.required_int(hdu, label, "TFIELDS")?;
+        let mut found = None;
+        for n in 1..=fields {
+            let tform: String = self.required(hdu, label, &format!("TFORM{n}"))?;
+            let (repeat, letter) = split_tform(&tform);
+            // fitsio describes every column when reading any, and panics on the types it
+            // cannot describe: variable-length (P, Q) and complex (C, M) columns.
+            if !matches!(letter, Some('L' | 'X' | 'B' | 'I' | 'J' | 'K' | 'E' | 'D' | 'A')) {
+                return Err(self.error(format!(
+                    "column {n} of the {label} has TFORM{n} = '{tform}'; variable-length and complex columns are not supported"
+                )));
+            }
+            let name: Option<String> = self.key(hdu, label, &format!("TTYPE{n}"))?;
+            if let Some(name) = name.filter(|t| t.trim().eq_ignore_ascii_case(column)) {
+                found = Some((name, tform.clone(), repeat, letter));
+            }
+        }
+        let (name, tform, repeat, letter) =
+            found.ok_or_else(|| self.error(format!("the {label} has no column {column}")))?;
+        if repeat != Some(1) || !matches!(letter, Some('B' | 'I' | 'J' | 'K' | 'E' | 'D')) {
+            return Err(self.error(format!(
+                "column {column} of the {label} has TFORM '{tform}'; it must hold one number per row (e.g. 'D')"
+            )));
+        }
+        let handle = FitsHdu { info: HduInfo::AnyInfo, number: hdu };
+        handle
+            .read_col::<f64>(&mut self.file, &name)
+            .map_err(|e| fits_error(self.path, &format!("reading column {column} of the {label}"), &e))
+    }
+}
+
+/// The repeat count (`None` if unreadable) and type letter of a binary-table TFORM such as
+/// `1D`, `D` or `10A`.
+fn split_tform(tform: &str) -> (Option<usize>, Option<char>) {
+    let tform = tform.trim();
+    let digits = tform.len() - tform.trim_start_matches(|c: char| c.is_ascii_digit()).len();
+    let repeat = if digits == 0 { Some(1) } else { tform[..digits].parse().ok() };
+    (repeat, tform[digits..].chars().next().map(|c| c.to_ascii_uppercase()))
+}
+
+// ---------------------------------------------------------------------------------------
+// Validation shared by writers and readers
+
+/// Codes of an ADC of `bit_depth` bits, if the formats accept that depth.
+fn codes_for(bit_depth: u32) -> Result<usize, String> {
+    if (1..=MAX_BIT_DEPTH).contains(&bit_depth) {
+        Ok(1usize << bit_depth)
+    } else {
+        Err(format!("bit depth {bit_depth}, must be 1 to {MAX_BIT_DEPTH}"))
+    }
+}
+
+/// Per-ADC rows of `2^bit_depth` entries each, at least one row; returns the codes per row.
+fn check_tables<T>(bit_depth: u32, rows: &[Vec<T>], what: &str) -> Result<usize, String> {
+    let codes = codes_for(bit_depth)?;
+    if rows.is_empty() {
+        return Err("no ADCs: at least one row is needed".into());
+    }
+    for (adc, row) in rows.iter().enumerate() {
+        if row.len() != codes {
+            return Err(format!(
+                "ADC {adc} has {} {what}, bit depth {bit_depth} needs 2^{bit_depth} = {codes}",
+                row.len()
+            ));
+        }
+    }
+    Ok(codes)
+}
+
+/// A LUT set's bit depth, from its table length, after checking it is writable.
+fn check_lut(lut: &LutTables) -> Result<u32, String> {
+    if lut.frac_bits != FRAC_BITS {
+        return Err(format!("{} fractional bits; dncal LUT entries have {FRAC_BITS}", lut.frac_bits));
+    }
+    let codes = lut.tables.first().map_or(0, Vec::len);
+    if !codes.is_power_of_two() {
+        return Err(format!("tables of {codes} entries; a table has 2^bits entries"));
+    }
+    let bit_depth = codes.trailing_zeros();
+    check_tables(bit_depth, &lut.tables, "entries")?;
+    Ok(bit_depth)
+}
+
+/// Everything a [`LinearitySet`] must satisfy, whether about to be written or just read.
+fn check_linearity(s: &LinearitySet) -> Result<(), String> {
+    codes_for(s.bit_depth)?;
+    if s.n_adc == 0 {
+        return Err("no ADCs: NADC must be at least 1".into());
+    }
+    if s.n_frames == 0 {
+        return Err("NFRAMES must be at least 1".into());
+    }
+    let frame = s.width.checked_mul(s.height).filter(|&n| n > 0);
+    let (Some(frame), Some(cube)) = (frame, frame.and_then(|f| f.checked_mul(s.levels)).filter(|&n| n > 0)) else {
+        return Err(format!(
+            "shape {} x {} x {} (columns x rows x levels) is empty or too large",
+            s.width, s.height, s.levels
+        ));
+    };
+    let at = |i: usize| format!("level {}, row {}, column {}", i / frame, i % frame / s.width, i % s.width);
+    for (name, values) in [("mean", &s.mean), ("std", &s.std)] {
+        if values.len() != cube {
+            return Err(format!(
+                "{name} holds {} values, {} x {} x {} (columns x rows x levels) needs {cube}",
+                values.len(),
+                s.width,
+                s.height,
+                s.levels
+            ));
+        }
+        if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+            return Err(format!("{name} is {} at {}", values[i], at(i)));
+        }
+    }
+    if let Some(i) = s.std.iter().position(|&v| v < 0.0) {
+        return Err(format!("std is negative ({}) at {}", s.std[i], at(i)));
+    }
+    if s.voltage.len() != s.levels {
+        return Err(format!("{} reference voltages for {} levels", s.voltage.len(), s.levels));
+    }
+    if let Some(level) = s.voltage.iter().position(|v| !v.is_finite()) {
+        return Err(format!("reference voltage is {} at level {level}", s.voltage[level]));
+    }
+    if let Some(mask) = &s.mask {
+        if mask.len() != frame {
+            return Err(format!("mask holds {} values, {} x {} frames need {frame}", mask.len(), s.width, s.height));
+        }
+        if let Some(i) = mask.iter().position(|&m| m > 1) {
+            return Err(format!("mask value {} at row {}, column {} is not 0 or 1", mask[i], i / s.width, i % s.width));
+        }
+    }
+    Ok(())
+}
+
+// ---------------------------------------------------------------------------------------
+// Errors
+
+fn format_error(path: &Path, message: impl Into<String>) -> HostError {
+    HostError::Format { path: path.into(), message: message.into() }
+}
+
+/// A fitsio error while doing `context`, as a message for people.
+fn fits_error(path: &Path, context: &str, e: &FitsioError) -> HostError {
+    let cause = match e {
+        FitsioError::Fits(f) if f.status == END_OF_FILE || f.status == READ_ERROR => {
+            format!("the file ends early or cannot be read, truncated? (cfitsio {}: {})", f.status, f.message)
+        }
+        FitsioError::Fits(f) => format!("cfitsio {}: {}", f.status, f.message),
+        other => other.to_string(),
+    };
+    format_error(path, format!("{context}: {cause}"))
+}
+
+/// A name under which cfitsio opens a file as that file and nothing else.
+///
+/// cfitsio parses file names: `h.fits[1]` or `h.fits+1` is HDU 1 of `h.fits`, `a(b)`
+/// copies `a` to `b`, `-` is standard input, `!x` clobbers `x`, `mem://` is memory; and
+/// fitsio panics on a name that is not UTF-8. Absolute UTF-8 paths free of that syntax
+/// are used as they are. Any other path is reached through a symbolic link with a plain
+/// name in a fresh temporary directory (Unix only; elsewhere such paths are an error).
+struct CfitsioName {
+    name: String,
+    /// Holds the link; removing it removes only the link.
+    _alias: Option<tempfile::TempDir>,
+}
+
+impl CfitsioName {
+    /// For the existing file `path`.
+    fn for_reading(path: &Path) -> Result<Self, HostError> {
+        let absolute = std::path::absolute(path).map_err(|e| HostError::io(path, e))?;
+        match plain_for_cfitsio(&absolute) {
+            Some(name) => Ok(CfitsioName { name, _alias: None }),
+            None => Self::alias(&absolute, "file.fits", path),
+        }
+    }
+
+    /// For `tmp`, a file [`write_atomically`] made (its own name is plain), reporting
+    /// errors as about `shown`. A directory with cfitsio syntax in its path is linked, so
+    /// the file is still created in that directory and can be renamed into place.
+    fn for_writing(tmp: &Path, shown: &Path) -> Result<Self, HostError> {
+        let absolute = std::path::absolute(tmp).map_err(|e| HostError::io(shown, e))?;
+        if let Some(name) = plain_for_cfitsio(&absolute) {
+            return Ok(CfitsioName { name, _alias: None });
+        }
+        let (Some(dir), Some(file)) = (absolute.parent(), absolute.file_name()) else {
+            return Err(format_error(shown, "no directory to write in"));
+        };
+        let mut alias = Self::alias(dir, "dir", shown)?;
+        alias.name = format!("{}/{}", alias.name, file.to_string_lossy());
+        Ok(alias)
+    }
+
+    /// A link named `link` to `target`, in a new temporary directory.
+    fn alias(target: &Path, link: &str, shown: &Path) -> Result<Self, HostError> {
+        #[cfg(unix)]
+        {
+            let dir = tempfile::Builder::new().prefix("dncal-fits").tempdir().map_err(|e| HostError::io(shown, e))?;
+            let alias = dir.path().join(link);
+            std::os::unix::fs::symlink(target, &alias).map_err(|e| HostError::io(shown, e))?;
+            match plain_for_cfitsio(&alias) {
+                Some(name) => Ok(CfitsioName { name, _alias: Some(dir) }),
+                None => Err(format_error(shown, "the temporary directory's path is not usable by cfitsio")),
+            }
+        }
+        #[cfg(not(unix))]
+        {
+            let _ = (target, link);
+            Err(format_error(shown, "cfitsio would read this path's brackets, parentheses or other syntax; rename it"))
+        }
+    }
+}
+
+/// `path` as a string cfitsio takes literally: absolute, UTF-8, no extended syntax.
+fn plain_for_cfitsio(path: &Path) -> Option<String> {
+    let name = path.to_str()?;
+    let ends_with_hdu_number =
+        name.rsplit_once('+').is_some_and(|(_, n)| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()));
+    let plain =
+        path.is_absolute() && !name.contains(['[', ']', '(', ')']) && !name.contains("://") && !ends_with_hdu_number;
+    plain.then(|| name.to_owned())
+}
+
+/// `[4, 16]` as "4 x 16".
+fn shape_text(naxes: &[usize]) -> String {
+    naxes.iter().map(usize::to_string).collect::<Vec<_>>().join(" x ")
+}
+
+#[cfg(test)]
+mod tests {
+    use std::path::PathBuf;
+
+    use super::*;
+
+    /// A key for hand-made test files.
+    enum Key {
+        Int(i64),
+        Str(&'static str),
+        Float(f64),
+    }
+    use Key::{Float, Int, Str};
+
+    fn keys(out: &mut FitsWriter, keys: &[(&str, Key)]) {
+        for (name, value) in keys {
+            match value {
+                Int(v) => out.key(name, *v),
+                Str(v) => out.key(name, *v),
+                Float(v) => out.key(name, *v),
+            }
+            .unwrap();
+        }
+    }
+
+    /// A one-HDU file with any primary image and keys, bypassing every check.
+    fn image_file<T: WriteImage>(path: &Path, data_type: ImageType, dims: &[usize], data: &[T], with: &[(&str, Key)]) {
+        let mut out = FitsWriter::create(path, path, data_type, dims).unwrap();
+        keys(&mut out, with);
+        out.image(data).unwrap();
+        out.finish().unwrap();
+    }
+
+    /// BITDEPTH 2 (4 codes), 2 ADCs.
+    fn adc_keys_2x4() -> Vec<(&'static str, Key)> {
+        vec![("BITDEPTH", Int(2)), ("NADC", Int(2)), ("ADCMAP", Str("COLMOD"))]
+    }
+
+    fn without(mut k: Vec<(&'static str, Key)>, name: &str) -> Vec<(&'static str, Key)> {
+        k.retain(|(n, _)| *n != name);
+        k
+    }
+
+    fn with(mut k: Vec<(&'static str, Key)>, name: &'static str, value: Key) -> Vec<(&'static str, Key)> {
+        k.retain(|(n, _)| *n != name);
+        k.push((name, value));
+        k
+    }
+
+    /// The message of a `Format` error, after checking it names `path`.
+    fn format_message<T: std::fmt::Debug>(result: Result<T, HostError>, path: &Path) -> String {
+        match result {
+            Err(HostError::Format { path: p, message }) => {
+                assert_eq!(p, path, "error names the wrong file: {message}");
+                message
+            }
+            other => panic!("expected a format error for {}, got {other:?}", path.display()),
+        }
+    }
+
+    fn assert_rejects<T: std::fmt::Debug>(result: Result<T, HostError>, path: &Path, expected: &str) {
+        let message = format_message(result, path);
+        assert!(message.contains(expected), "message {message:?} does not contain {expected:?}");
+    }
+
+    fn files_in(dir: &Path) -> Vec<PathBuf> {
+        let mut v: Vec<PathBuf> = std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().path()).collect();
+        v.sort();
+        v
+    }
+
+    fn histograms() -> AdcHistograms {
+        // Distinct in every ADC and code, with both ends of the signed 64-bit range's
+        // non-negative half, so a transposed or truncated read cannot pass.
+        let mut counts: Vec<Vec<u64>> = (0..3u64).map(|a| (0..16u64).map(|k| 1000 * a + k * k).collect()).collect();
+        counts[2][15] = i64::MAX as u64;
+        AdcHistograms { bit_depth: 4, counts }
+    }
+
+    fn linearity(mask: bool) -> LinearitySet {
+        let (width, height, levels) = (5, 3, 4);
+        let mean = (0..levels * height * width).map(|i| 100.0 + 0.25 * i as f64).collect();
+        let std = (0..levels * height * width).map(|i| 0.5 + 0.125 * (i % 7) as f64).collect();
+        LinearitySet {
+            bit_depth: 12,
+            n_adc: 4,
+            n_frames: 64,
+            width,
+            height,
+            levels,
+            mean,
+            std,
+            voltage: vec![0.0, 0.5, 1.0, 1.5],
+            mask: mask.then(|| (0..width * height).map(|i| u8::from(i % 4 == 1)).collect()),
+        }
+    }
+
+    fn lut() -> LutTables {
+        let mut tables: Vec<Vec<u32>> =
+            (0..4u32).map(|a| (0..8u32).map(|k| (2 * k + 1) * 1024 + a).collect()).collect();
+        tables[3][7] = u32::MAX;
+        tables[0][0] = 0;
+        LutTables { frac_bits: FRAC_BITS, tables }
+    }
+
+    #[test]
+    fn histograms_round_trip_as_bitpix_64_without_primary_extname() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("h.fits");
+        write_histograms(&path, &histograms()).unwrap();
+        assert_eq!(read_histograms(&path).unwrap(), histograms());
+        let mut r = FitsReader::open(&path).unwrap();
+        assert_eq!(r.required_int(0, PRIMARY, "BITPIX").unwrap(), 64);
+        assert_eq!(r.key::<String>(0, PRIMARY, "EXTNAME").unwrap(), None);
+    }
+
+    #[test]
+    fn histograms_read_from_every_integer_bitpix() {
+        let dir = tempfile::tempdir().unwrap();
+        // (type, largest value it holds): the unsigned types exercise BZERO.
+        let types = [
+            (ImageType::UnsignedByte, 255),
+            (ImageType::Byte, 127),
+            (ImageType::Short, 32_767),
+            (ImageType::UnsignedShort, 65_535),
+            (ImageType::Long, i64::from(i32::MAX)),
+            (ImageType::UnsignedLong, i64::from(u32::MAX)),
+            (ImageType::LongLong, i64::MAX),
+        ];
+        for (i, (data_type, top)) in types.into_iter().enumerate() {
+            let path = dir.path().join(format!("h{i}.fits"));
+            let data = [0, 1, 2, 3, 4, 5, 6, top];
+            image_file(&path, data_type, &[2, 4], &data, &adc_keys_2x4());
+            let h = read_histograms(&path).unwrap();
+            let expected = vec![vec![0, 1, 2, 3], vec![4, 5, 6, top as u64]];
+            assert_eq!((h.bit_depth, h.counts), (2, expected), "{data_type:?}");
+        }
+    }
+
+    #[test]
+    fn histograms_reject_bad_images() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("h.fits");
+        image_file(&p, ImageType::Double, &[2, 4], &[1.0f64; 8], &adc_keys_2x4());
+        assert_rejects(read_histograms(&p), &p, "floating-point image (BITPIX = -64)");
+        image_file(&p, ImageType::Float, &[2, 4], &[1.0f32; 8], &adc_keys_2x4());
+        assert_rejects(read_histograms(&p), &p, "floating-point image (BITPIX = -32)");
+        image_file(&p, ImageType::Long, &[2, 4], &[1, 2, 3, 4, 5, 6, -7, 8], &adc_keys_2x4());
+        assert_rejects(read_histograms(&p), &p, "count -7 at ADC 1, code 2 is negative");
+        image_file(&p, ImageType::Long, &[2, 3], &[1; 6], &adc_keys_2x4());
+        assert_rejects(read_histograms(&p), &p, "NAXIS1 = 3 codes, BITDEPTH = 2 needs 2^2 = 4");
+        image_file(&p, ImageType::Long, &[3, 4], &[1; 12], &adc_keys_2x4());
+        assert_rejects(read_histograms(&p), &p, "NAXIS2 = 3 rows, NADC = 2");
+        image_file(&p, ImageType::Long, &[1, 2, 4], &[1; 8], &adc_keys_2x4());
+        assert_rejects(read_histograms(&p), &p, "NAXIS = 3, expected 2");
+        image_file(&p, ImageType::Long, &[8], &[1; 8], &adc_keys_2x4());
+        assert_rejects(read_histograms(&p), &p, "NAXIS = 1, expected 2");
+    }
+
+    #[test]
+    fn histograms_reject_missing_and_bad_keys() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("h.fits");
+        for name in ["BITDEPTH", "NADC", "ADCMAP"] {
+            image_file(&p, ImageType::Long, &[2, 4], &[1; 8], &without(adc_keys_2x4(), name));
+            assert_rejects(read_histograms(&p), &p, &format!("missing key {name} in the primary HDU"));
+        }
+        let cases = [
+            ("ADCMAP", Str("ROWMOD"), "ADCMAP = 'ROWMOD'"),
+            ("ADCMAP", Int(4), "ADCMAP = '4'"),
+            ("BITDEPTH", Int(0), "BITDEPTH = 0, must be 1 to 16"),
+            ("BITDEPTH", Int(17), "BITDEPTH = 17, must be 1 to 16"),
+            ("BITDEPTH", Int(-3), "BITDEPTH = -3"),
+            ("BITDEPTH", Float(2.5), "BITDEPTH of the primary HDU is 2.5, not an integer"),
+            ("BITDEPTH", Str("two"), "key BITDEPTH of the primary HDU"),
+            ("NADC", Int(0), "NADC = 0, must be at least 1"),
+        ];
+        for (name, value, expected) in cases {
+            image_file(&p, ImageType::Long, &[2, 4], &[1; 8], &with(adc_keys_2x4(), name, value));
+            assert_rejects(read_histograms(&p), &p, expected);
+        }
+    }
+
+    #[test]
+    fn histogram_and_lut_files_are_not_mistaken_for_each_other() {
+        let dir = tempfile::tempdir().unwrap();
+        let (h, l) = (dir.path().join("h.fits"), dir.path().join("l.fits"));
+        write_histograms(&h, &histograms()).unwrap();
+        write_lut(&l, &lut()).unwrap();
+        assert_rejects(read_histograms(&l), &l, "this is a LUT file");
+        assert_rejects(read_lut(&h), &h, "missing key FRACBITS");
+        assert_rejects(read_linearity(&h), &h, "missing key NFRAMES");
+    }
+
+    #[test]
+    fn histogram_writer_rejects_bad_sets_and_writes_nothing() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("h.fits");
+        let ragged = AdcHistograms { bit_depth: 2, counts: vec![vec![1; 4], vec![1; 3]] };
+        assert_rejects(write_histograms(&p, &ragged), &p, "ADC 1 has 3 codes, bit depth 2 needs 2^2 = 4");
+        let empty = AdcHistograms { bit_depth: 2, counts: vec![] };
+        assert_rejects(write_histograms(&p, &empty), &p, "no ADCs");
+        for bits in [0, 17, 64, u32::MAX] {
+            let h = AdcHistograms { bit_depth: bits, counts: vec![vec![1; 4]] };
+            assert_rejects(write_histograms(&p, &h), &p, &format!("bit depth {bits}, must be 1 to 16"));
+        }
+        let huge = AdcHistograms { bit_depth: 1, counts: vec![vec![0, u64::MAX]] };
+        assert_rejects(write_histograms(&p, &huge), &p, "count 18446744073709551615 (ADC 0, code 1)");
+        assert_eq!(files_in(dir.path()), Vec::<PathBuf>::new());
+    }
+
+    #[test]
+    fn linearity_round_trips_with_and_without_mask() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("lin.fits");
+        for mask in [true, false] {
+            write_linearity(&p, &linearity(mask)).unwrap();
+            assert_eq!(read_linearity(&p).unwrap(), linearity(mask));
+        }
+    }
+
+    #[test]
+    fn linearity_writer_rejects_bad_sets_and_writes_nothing() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("lin.fits");
+        type Edit = fn(&mut LinearitySet);
+        let cases: [(Edit, &str); 13] = [
+            (|s| s.mean[17] = f64::NAN, "mean is NaN at level 1, row 0, column 2"),
+            (|s| s.mean[0] = f64::INFINITY, "mean is inf at level 0, row 0, column 0"),
+            (|s| s.std[59] = f64::NAN, "std is NaN at level 3, row 2, column 4"),
+            (|s| s.std[6] = -0.5, "std is negative (-0.5) at level 0, row 1, column 1"),
+            (|s| s.voltage[2] = f64::NEG_INFINITY, "reference voltage is -inf at level 2"),
+            (|s| s.voltage.push(2.0), "5 reference voltages for 4 levels"),
+            (|s| s.mean.truncate(59), "mean holds 59 values, 5 x 3 x 4 (columns x rows x levels) needs 60"),
+            (|s| s.std.push(1.0), "std holds 61 values"),
+            (|s| s.mask = Some(vec![0; 14]), "mask holds 14 values, 5 x 3 frames need 15"),
+            (|s| s.mask.as_mut().unwrap()[7] = 2, "mask value 2 at row 1, column 2 is not 0 or 1"),
+            (|s| s.n_frames = 0, "NFRAMES must be at least 1"),
+            (|s| s.n_adc = 0, "NADC must be at least 1"),
+            (|s| s.width = 0, "is empty or too large"),
+        ];
+        for (edit, expected) in cases {
+            let mut set = linearity(true);
+            edit(&mut set);
+            assert_rejects(write_linearity(&p, &set), &p, expected);
+        }
+        assert_eq!(files_in(dir.path()), Vec::<PathBuf>::new());
+    }
+
+    /// The HDUs of a linearity file, to be broken one at a time.
+    struct Parts {
+        keys: Vec<(&'static str, Key)>,
+        cube: Vec<usize>,
+        mean: Vec<f64>,
+        std: Option<(Vec<usize>, Vec<f64>)>,
+        mask: Option<(Vec<usize>, Vec<i64>)>,
+        /// (column name, values)
+        reference: Option<(&'static str, Vec<f64>)>,
+    }
+
+    fn parts() -> Parts {
+        let s = linearity(true);
+        Parts {
+            keys: with(with(adc_keys_2x4(), "BITDEPTH", Int(12)), "NFRAMES", Int(64)),
+            cube: vec![4, 3, 5],
+            mean: s.mean,
+            std: Some((vec![4, 3, 5], s.std)),
+            mask: Some((vec![3, 5], vec![0; 15])),
+            reference: Some(("VOLTAGE", s.voltage)),
+        }
+    }
+
+    fn write_parts(path: &Path, p: &Parts) {
+        let mut out = FitsWriter::create(path, path, ImageType::Double, &p.cube).unwrap();
+        keys(&mut out, &p.keys);
+        out.image(&p.mean).unwrap();
+        if let Some((dims, std)) = &p.std {
+            out.add_image("STD", ImageType::Double, dims).unwrap();
+            out.image(std).unwrap();
+        }
+        if let Some((dims, mask)) = &p.mask {
+            out.add_image("MASK", ImageType::UnsignedByte, dims).unwrap();
+            out.image(mask).unwrap();
+        }
+        if let Some((column, voltage)) = &p.reference {
+            out.add_table("REFERENCE", column, "V", voltage).unwrap();
+        }
+        out.finish().unwrap();
+    }
+
+    #[test]
+    fn linearity_reader_rejects_bad_files() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("lin.fits");
+        write_parts(&path, &parts());
+        read_linearity(&path).unwrap();
+        type Edit = fn(&mut Parts);
+        let cases: [(Edit, &str); 17] = [
+            (|p| p.std = None, "missing extension STD"),
+            (|p| p.reference = None, "missing extension REFERENCE"),
+            (|p| p.reference = Some(("VOLTS", vec![0.0; 4])), "the extension REFERENCE has no column VOLTAGE"),
+            (
+                |p| p.reference = Some(("VOLTAGE", vec![0.0; 3])),
+                "extension REFERENCE has 3 rows, the cube has 4 levels",
+            ),
+            (|p| p.reference = Some(("VOLTAGE", vec![0.0, 1.0, f64::NAN, 2.0])), "reference voltage is NaN at level 2"),
+            (
+                |p| p.std = Some((vec![4, 5, 3], vec![1.0; 60])),
+                "extension STD is 3 x 5 x 4 but the primary cube is 5 x 3 x 4",
+            ),
+            (|p| p.std = Some((vec![3, 3, 5], vec![1.0; 45])), "extension STD is 5 x 3 x 3"),
+            (|p| p.std = Some((vec![60], vec![1.0; 60])), "extension STD has NAXIS = 1, expected 3"),
+            (|p| p.mask = Some((vec![5, 3], vec![0; 15])), "extension MASK is 3 x 5 but frames are 5 x 3"),
+            (|p| p.mask.as_mut().unwrap().1[7] = 3, "mask value 3 at row 1, column 2 is not 0 or 1"),
+            (|p| p.mean[17] = f64::NAN, "mean is NaN at level 1, row 0, column 2"),
+            (|p| p.std.as_mut().unwrap().1[6] = -1.0, "std is negative (-1) at level 0, row 1, column 1"),
+            (|p| p.std.as_mut().unwrap().1[0] = f64::INFINITY, "std is inf at level 0, row 0, column 0"),
+            (|p| p.keys.retain(|(n, _)| *n != "NFRAMES"), "missing key NFRAMES in the primary HDU"),
+            (|p| p.keys = with(std::mem::take(&mut p.keys), "NFRAMES", Int(0)), "NFRAMES = 0"),
+            (|p| p.keys.retain(|(n, _)| *n != "ADCMAP"), "missing key ADCMAP"),
+            (|p| p.cube = vec![60], "the primary HDU has NAXIS = 1, expected 3"),
+        ];
+        for (edit, expected) in cases {
+            let mut p = parts();
+            edit(&mut p);
+            write_parts(&path, &p);
+            assert_rejects(read_linearity(&path), &path, expected);
+        }
+    }
+
+    #[test]
+    fn lut_round_trips_as_uint32_with_bzero() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("lut.fits");
+        write_lut(&p, &lut()).unwrap();
+        assert_eq!(read_lut(&p).unwrap(), lut());
+        let mut r = FitsReader::open(&p).unwrap();
+        assert_eq!(r.required_int(0, PRIMARY, "BITPIX").unwrap(), 32);
+        assert_eq!(r.key::<f64>(0, PRIMARY, "BZERO").unwrap(), Some(2_147_483_648.0));
+        assert_eq!(r.required_int(0, PRIMARY, "FRACBITS").unwrap(), 11);
+        assert_eq!(r.required_int(0, PRIMARY, "BITDEPTH").unwrap(), 3);
+    }
+
+    #[test]
+    fn lut_reader_and_writer_reject_bad_tables() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("lut.fits");
+        let k = || with(adc_keys_2x4(), "FRACBITS", Int(11));
+        image_file(&p, ImageType::LongLong, &[2, 4], &[0, 1, 2, 3, 4, 5, 6, 1i64 << 32], &k());
+        assert_rejects(read_lut(&p), &p, "entry 4294967296 at ADC 1, code 3 is outside 0 to 2^32 - 1");
+        image_file(&p, ImageType::Long, &[2, 4], &[0, -1, 2, 3, 4, 5, 6, 7], &k());
+        assert_rejects(read_lut(&p), &p, "entry -1 at ADC 0, code 1");
+        image_file(&p, ImageType::Double, &[2, 4], &[0.5f64; 8], &k());
+        assert_rejects(read_lut(&p), &p, "floating-point image");
+        image_file(&p, ImageType::Long, &[2, 4], &[0; 8], &with(k(), "FRACBITS", Int(12)));
+        assert_rejects(read_lut(&p), &p, "FRACBITS = 12, dncal LUT entries have 11 fractional bits");
+        image_file(&p, ImageType::Long, &[2, 8], &[0; 16], &k());
+        assert_rejects(read_lut(&p), &p, "NAXIS1 = 8 codes, BITDEPTH = 2 needs 2^2 = 4");
+
+        let w = dir.path().join("w.fits");
+        let bad_frac = LutTables { frac_bits: 12, ..lut() };
+        assert_rejects(write_lut(&w, &bad_frac), &w, "12 fractional bits; dncal LUT entries have 11");
+        let odd = LutTables { frac_bits: 11, tables: vec![vec![0; 6]] };
+        assert_rejects(write_lut(&w, &odd), &w, "tables of 6 entries");
+        let one_code = LutTables { frac_bits: 11, tables: vec![vec![0; 1]] };
+        assert_rejects(write_lut(&w, &one_code), &w, "bit depth 0");
+        let ragged = LutTables { frac_bits: 11, tables: vec![vec![0; 4], vec![0; 2]] };
+        assert_rejects(write_lut(&w, &ragged), &w, "ADC 1 has 2 entries");
+        let none = LutTables { frac_bits: 11, tables: vec![] };
+        assert_rejects(write_lut(&w, &none), &w, "tables of 0 entries");
+        assert!(!w.exists());
+    }
+
+    /// Every cut of a good file is an error naming it, or (in the last block, where only
+    /// padding may be lost) reads exactly the original; never a panic or other data.
+    fn check_truncations<T: PartialEq + std::fmt::Debug>(path: &Path, read: fn(&Path) -> Result<T, HostError>) {
+        let original = read(path).unwrap();
+        let bytes = std::fs::read(path).unwrap();
+        assert_eq!(bytes.len() % 2880, 0);
+        let cut_path = path.with_extension("cut.fits");
+        let cuts =
+            (0..bytes.len()).step_by(173).chain((0..bytes.len()).step_by(2880)).chain([1, 79, 80, bytes.len() - 1]);
+        for cut in cuts {
+            std::fs::write(&cut_path, &bytes[..cut]).unwrap();
+            match read(&cut_path) {
+                Ok(v) => assert!(cut >= bytes.len() - 2880 && v == original, "cut at {cut} read as {v:?}"),
+                Err(e) => {
+                    format_message(Err::<(), _>(e), &cut_path);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn truncated_files_are_errors_naming_the_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let (h, lin, l) = (dir.path().join("h.fits"), dir.path().join("lin.fits"), dir.path().join("lut.fits"));
+        write_histograms(&h, &histograms()).unwrap();
+        write_linearity(&lin, &linearity(true)).unwrap();
+        write_lut(&l, &lut()).unwrap();
+        check_truncations(&h, read_histograms);
+        check_truncations(&lin, read_linearity);
+        check_truncations(&l, read_lut);
+        // The message says what happened.
+        let bytes = std::fs::read(&h).unwrap();
+        std::fs::write(&h, &bytes[..2880]).unwrap();
+        assert_rejects(read_histograms(&h), &h, "truncated?");
+    }
+
+    #[test]
+    fn foreign_and_missing_files_are_errors_naming_the_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("notes.fits");
+        let contents: [&[u8]; 4] = [b"", b"this is not a FITS file\n", &[0u8; 5760], b"\x89PNG\r\n\x1a\n0000"];
+        for bytes in contents {
+            std::fs::write(&p, bytes).unwrap();
+            assert_rejects(read_histograms(&p), &p, "not a readable FITS file");
+            assert_rejects(read_linearity(&p), &p, "not a readable FITS file");
+            assert_rejects(read_lut(&p), &p, "not a readable FITS file");
+        }
+        let missing = dir.path().join("missing.fits");
+        assert!(matches!(read_histograms(&missing), Err(HostError::Io { path, .. }) if path == missing));
+        assert_rejects(read_lut(dir.path()), dir.path(), "is a directory");
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn names_cfitsio_would_parse_are_files_like_any_other() {
+        use std::os::unix::ffi::OsStrExt;
+        let dir = tempfile::tempdir().unwrap();
+        let other = AdcHistograms { bit_depth: 1, counts: vec![vec![7, 8]] };
+        let names: [&[u8]; 9] = [
+            b"h.fits[1]",
+            b"h.fits+1",
+            b"h(2).fits",
+            b"h.fits(x.fits)",
+            b"!h.fits",
+            b"-",
+            b"stdin",
+            b"mem://x",
+            b"h\xff.fits",
+        ];
+        for sub in ["plain", "run[1]", "run(2)", "-"] {
+            let d = dir.path().join(sub);
+            std::fs::create_dir_all(d.join("mem:")).unwrap();
+            // The file cfitsio would read instead for h.fits[1], h.fits+1, ...
+            write_histograms(&d.join("h.fits"), &histograms()).unwrap();
+            for name in names {
+                let file = d.join(std::ffi::OsStr::from_bytes(name));
+                write_histograms(&file, &other).unwrap();
+                assert_eq!(read_histograms(&file).unwrap(), other, "{}", file.display());
+            }
+            assert_eq!(read_histograms(&d.join("h.fits")).unwrap(), histograms());
+            // Nothing else was made: no temporaries, no files cfitsio made up.
+            assert_eq!(std::fs::read_dir(&d).unwrap().count(), names.len() + 1, "{}", d.display());
+        }
+    }
+
+    #[test]
+    fn write_atomically_replaces_on_success_only_and_leaves_no_temporary_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("h.fits");
+        write_histograms(&p, &histograms()).unwrap();
+        // Rewriting an existing path works (cfitsio alone would refuse).
+        let other = AdcHistograms { bit_depth: 1, counts: vec![vec![7, 8]] };
+        write_histograms(&p, &other).unwrap();
+        assert_eq!(read_histograms(&p).unwrap(), other);
+        // A failing writer leaves the old file and no temporary.
+        let mut seen = None;
+        let result = write_atomically(&p, |tmp| {
+            seen = Some(tmp.to_path_buf());
+            std::fs::write(tmp, b"half").unwrap();
+            Err(format_error(tmp, "stopped halfway"))
+        });
+        assert_rejects(result, seen.as_deref().unwrap(), "stopped halfway");
+        assert_eq!(seen.unwrap().parent(), Some(dir.path()));
+        assert_eq!(read_histograms(&p).unwrap(), other);
+        assert_eq!(files_in(dir.path()), vec![p.clone()]);
+        // A path without a file name is refused before anything is written.
+        assert_rejects(write_atomically(Path::new(""), |_| Ok(())), Path::new(""), "not a file name");
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn write_atomically_keeps_the_permissions_of_a_replaced_file() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("lut.fits");
+        write_lut(&p, &lut()).unwrap();
+        std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o640)).unwrap();
+        write_lut(&p, &lut()).unwrap();
+        assert_eq!(std::fs::metadata(&p).unwrap().permissions().mode() & 0o777, 0o640);
+    }
+
+    #[test]
+    fn split_tform_reads_repeat_and_type() {
+        assert_eq!(split_tform("D"), (Some(1), Some('D')));
+        assert_eq!(split_tform("1D "), (Some(1), Some('D')));
+        assert_eq!(split_tform("10A"), (Some(10), Some('A')));
+        assert_eq!(split_tform("1PD(5)"), (Some(1), Some('P')));
+        assert_eq!(split_tform(""), (Some(1), None));
+        assert_eq!(split_tform("99999999999999999999999E"), (None, Some('E')));
+    }
+}

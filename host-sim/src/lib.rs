@@ -5,12 +5,14 @@
 //! `dncal` command's subcommands. All correction arithmetic comes from `dncal-core`.
 
 pub mod camera;
+pub mod commands;
+pub mod dims;
 pub mod emva;
 pub mod error;
 pub mod firmware;
 pub mod fits;
 pub mod flatten;
-// pub mod plots; (waits for fits::write_atomically)
+pub mod plots;
 pub mod reference;
 pub mod streaming;
 pub mod synth;

@@ -1,14 +1,22 @@
-//! `dncal`: the command people run. Library code returns `HostError`; this file turns it
-//! into a message on stderr and a nonzero exit.
+//! `dncal`: the command people run. Library code returns `HostError`; this file parses
+//! arguments, prints a readable or JSON (`--json`) summary, and turns errors into a
+//! message on stderr and a nonzero exit.
 
+use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
-use clap::{Parser, Subcommand};
+use clap::{Args, Parser, Subcommand};
 use dncal_core::{Geometry, Mvd1024eLuts};
+use dncal_host::camera::calibration::{LinearityParams, RampParams};
+use dncal_host::camera::{Camera, CameraConfig};
+use dncal_host::commands::{demo, lut, simulate, stream};
 use dncal_host::firmware::{build_firmware, run_firmware, run_on_host, RunInputs};
+use dncal_host::flatten::FlattenParams;
+use dncal_host::streaming::StreamParams;
 use dncal_host::synth::{dn_error_weights, synthetic_frames, Rng};
 use dncal_host::HostError;
+use serde::Serialize;
 
 #[derive(Parser)]
 #[command(name = "dncal", version, about = "Real-time correction and characterization of scientific camera detectors")]
@@ -17,10 +25,128 @@ struct Cli {
     command: Cmd,
 }
 
+#[derive(Args, Clone)]
+struct CameraArgs {
+    /// Camera parameters (TOML; any field of the default MV-D1024E may be set).
+    #[arg(long, value_name = "TOML")]
+    config: Option<PathBuf>,
+}
+
+impl CameraArgs {
+    fn camera(&self) -> Result<Camera, HostError> {
+        match &self.config {
+            Some(path) => simulate::camera_from(CameraConfig::from_toml_file(path)?, &path.display().to_string()),
+            None => simulate::camera_from(CameraConfig::default(), "default camera"),
+        }
+    }
+}
+
+#[derive(Args, Clone)]
+struct FlattenArgs {
+    /// Points of the smoothing spline.
+    #[arg(long, default_value_t = 50)]
+    spline_points: usize,
+    /// Width of the running median, codes (odd).
+    #[arg(long, default_value_t = 21)]
+    median_window: usize,
+    /// Lowest codes set to 1.
+    #[arg(long, default_value_t = 150)]
+    fixed_low_codes: usize,
+    /// Keep the last (saturation) code's measured weight instead of setting it to 1.
+    #[arg(long)]
+    keep_last: bool,
+}
+
+impl FlattenArgs {
+    fn params(&self) -> FlattenParams {
+        FlattenParams { spline_points: self.spline_points, median_window: self.median_window, fixed_low_codes: self.fixed_low_codes, set_last_to_one: !self.keep_last, ..FlattenParams::default() }
+    }
+}
+
+#[derive(Args, Clone)]
+struct RampArgs {
+    /// Levels of the first ramp; ramps of this many, one more, ... up to --last-ramp.
+    #[arg(long, default_value_t = 130)]
+    first_ramp: usize,
+    /// Levels of the last ramp.
+    #[arg(long, default_value_t = 139)]
+    last_ramp: usize,
+    /// Pixels of each ADC in the region.
+    #[arg(long, default_value_t = 1024)]
+    pixels_per_adc: u64,
+    /// Frames per level.
+    #[arg(long, default_value_t = 8)]
+    frames_per_level: u64,
+    /// Seed of the counts.
+    #[arg(long, default_value_t = 4)]
+    seed: u64,
+}
+
+impl RampArgs {
+    fn params(&self) -> Result<RampParams, HostError> {
+        if self.first_ramp < 2 || self.last_ramp < self.first_ramp {
+            return Err(HostError::Format { path: "arguments".into(), message: "ramps need --first-ramp >= 2 and --last-ramp >= --first-ramp".into() });
+        }
+        Ok(RampParams { ramp_levels: (self.first_ramp..=self.last_ramp).collect(), pixels_per_adc: self.pixels_per_adc, frames_per_level: self.frames_per_level, seed: self.seed, ..RampParams::default() })
+    }
+}
+
 #[derive(Subcommand)]
 enum Cmd {
-    /// Run the correction core on the Cortex-M4 firmware in QEMU and on the host, and
-    /// compare the per-state sums bit for bit.
+    /// Write calibration data sets from the camera model.
+    Simulate {
+        #[command(subcommand)]
+        what: SimulateCmd,
+    },
+    /// Build or inspect per-ADC lookup tables.
+    Lut {
+        #[command(subcommand)]
+        what: LutCmd,
+    },
+    /// Stream frames through the core and compare them with the float reference.
+    Stream {
+        #[command(flatten)]
+        camera: CameraArgs,
+        /// Histogram set to build the LUTs from (default: the camera's true code widths).
+        #[arg(long, value_name = "FITS")]
+        hist: Option<PathBuf>,
+        #[command(flatten)]
+        flatten: FlattenArgs,
+        /// Frames (frame f has modulation state f mod states).
+        #[arg(long, default_value_t = 8)]
+        frames: u32,
+        /// Modulation states.
+        #[arg(long, default_value_t = 4)]
+        states: u8,
+        /// ROI as WIDTHxHEIGHT+COLUMN+ROW (default: the whole sensor).
+        #[arg(long)]
+        roi: Option<String>,
+        /// Seed of the frames.
+        #[arg(long, default_value_t = 735)]
+        seed: u64,
+        /// Print a JSON summary on stdout.
+        #[arg(long)]
+        json: bool,
+    },
+    /// The main job: calibrate, build LUTs, stream, check, report (default camera).
+    Demo {
+        #[command(flatten)]
+        camera: CameraArgs,
+        /// Output folder.
+        #[arg(short, long, default_value = "dncal-demo")]
+        out: PathBuf,
+        /// Frames to stream.
+        #[arg(long, default_value_t = 8)]
+        frames: u32,
+        #[command(flatten)]
+        ramp: RampArgs,
+        #[command(flatten)]
+        flatten: FlattenArgs,
+        /// Print a JSON summary on stdout.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Run the core on the Cortex-M4 firmware in QEMU and on the host; compare the sums.
     FirmwareCheck {
         /// Frames per modulation state.
         #[arg(long, default_value_t = 8)]
@@ -40,6 +166,95 @@ enum Cmd {
     },
 }
 
+#[derive(Subcommand)]
+enum SimulateCmd {
+    /// Per-ADC code histograms of illumination ramps (a histogram set).
+    Histograms {
+        #[command(flatten)]
+        camera: CameraArgs,
+        #[command(flatten)]
+        ramp: RampArgs,
+        /// Output FITS file.
+        #[arg(short, long)]
+        out: PathBuf,
+        /// Print a JSON summary on stdout.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Mean and standard deviation frames at illumination levels (a linearity set).
+    Linearity {
+        #[command(flatten)]
+        camera: CameraArgs,
+        /// Illumination levels, the first dark.
+        #[arg(long, default_value_t = 41)]
+        levels: usize,
+        /// Frames per level.
+        #[arg(long, default_value_t = 256)]
+        frames: u32,
+        /// ROI as WIDTHxHEIGHT+COLUMN+ROW (default: 128x128 at the sensor center).
+        #[arg(long)]
+        roi: Option<String>,
+        /// Seed of the frames.
+        #[arg(long, default_value_t = 41)]
+        seed: u64,
+        /// Output FITS file.
+        #[arg(short, long)]
+        out: PathBuf,
+        /// Print a JSON summary on stdout.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+#[derive(Subcommand)]
+enum LutCmd {
+    /// Flatten a histogram set into LUTs: writes the LUT FITS and the device image.
+    Build {
+        /// Histogram set (FITS).
+        hist: PathBuf,
+        /// Output: OUT.fits (LUT) and OUT.bin (device image); OUT may end in .fits.
+        #[arg(short, long)]
+        out: PathBuf,
+        #[command(flatten)]
+        flatten: FlattenArgs,
+        /// Print a JSON summary on stdout.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Show the tables, steps (normalized histograms) and cumulative offsets of a LUT
+    /// FITS or device image.
+    Inspect {
+        /// LUT FITS or device image.
+        file: PathBuf,
+        /// Also list every code (code, entry, DN, step, offset) in the readable output.
+        #[arg(long)]
+        table: bool,
+        /// Print a JSON summary on stdout (with every table).
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+/// Parses `WxH+X+Y`.
+fn parse_roi(s: &str) -> Result<(usize, usize, usize, usize), HostError> {
+    let bad = || HostError::Format { path: "--roi".into(), message: format!("'{s}' is not WIDTHxHEIGHT+COLUMN+ROW") };
+    let (size, rest) = s.split_once('+').ok_or_else(bad)?;
+    let (x, y) = rest.split_once('+').ok_or_else(bad)?;
+    let (w, h) = size.split_once('x').ok_or_else(bad)?;
+    let n = |t: &str| t.trim().parse::<usize>().map_err(|_| bad());
+    Ok((n(w)?, n(h)?, n(x)?, n(y)?))
+}
+
+fn print<T: Serialize>(json: bool, value: &T, text: impl FnOnce(&T) -> String) -> Result<(), HostError> {
+    if json {
+        let s = serde_json::to_string_pretty(value).map_err(|e| HostError::Format { path: "stdout".into(), message: e.to_string() })?;
+        println!("{s}");
+    } else {
+        print!("{}", text(value));
+    }
+    Ok(())
+}
+
 fn main() -> ExitCode {
     match run(Cli::parse()) {
         Ok(code) => code,
@@ -52,8 +267,93 @@ fn main() -> ExitCode {
 
 fn run(cli: Cli) -> Result<ExitCode, HostError> {
     match cli.command {
-        Cmd::FirmwareCheck { frames_per_state, states, size, seed, json } => firmware_check(frames_per_state, states, size, seed, json),
+        Cmd::Simulate { what: SimulateCmd::Histograms { camera, ramp, out, json } } => {
+            let cam = camera.camera()?;
+            let s = simulate::simulate_histograms(&cam, &ramp.params()?, out)?;
+            print(json, &s, |s| format!("wrote {} ({} ADCs x {} codes, {} levels, {:.1} s)\n", s.output.display(), s.n_adc, 1u32 << s.bit_depth, s.levels, s.seconds))?;
+        }
+        Cmd::Simulate { what: SimulateCmd::Linearity { camera, levels, frames, roi, seed, out, json } } => {
+            let cam = camera.camera()?;
+            let (w, h) = (cam.config.width.min(128), cam.config.height.min(128));
+            let roi = match roi {
+                Some(r) => parse_roi(&r)?,
+                None => (w, h, (cam.config.width - w) / 2, (cam.config.height - h) / 2),
+            };
+            let p = LinearityParams { levels, frames, roi: (roi.2, roi.3, roi.0, roi.1), overshoot: 1.02, volts_per_photon: 1e-5, seed };
+            let s = simulate::simulate_linearity(&cam, &p, out)?;
+            print(json, &s, |s| format!("wrote {} ({}x{} pixels, {} levels x {} frames, {} masked, {:.1} s)\n", s.output.display(), s.width, s.height, s.levels, s.frames, s.masked_pixels, s.seconds))?;
+        }
+        Cmd::Lut { what: LutCmd::Build { hist, out, flatten, json } } => {
+            let s = lut::build(&hist, &out, &flatten.params())?;
+            print(json, &s, |s| {
+                let mut t = format!("read {}\nwrote {} and {}\n", s.input.display(), s.lut_fits.display(), s.device_image.display());
+                for a in &s.adcs {
+                    t += &format!(
+                        "ADC {}: weights {:.4}..{:.4}, max |cumulative offset| {:.3} DN, top offset {:+.4} DN before normalization, {:+.2e} DN after, top entry {}\n",
+                        a.adc, a.weight_range.0, a.weight_range.1, a.max_abs_offset_dn, a.top_offset_before_dn, a.top_offset_dn, a.top_entry
+                    );
+                }
+                t
+            })?;
+        }
+        Cmd::Lut { what: LutCmd::Inspect { file, table, json } } => {
+            let s = lut::inspect(&file)?;
+            print(json, &s, |s| {
+                let mut t = format!("{} ({}, {} bits, {} ADCs)\n", s.path.display(), s.kind, s.bit_depth, s.adcs.len());
+                for a in &s.adcs {
+                    t += &format!("ADC {}: steps {:.4}..{:.4} DN, max |cumulative offset| {:.3} DN, top entry {}\n", a.adc, a.step_range.0, a.step_range.1, a.max_abs_offset_dn, a.entries.last().copied().unwrap_or(0));
+                    if table {
+                        t += "  code      entry          DN     step   offset\n";
+                        for k in 0..a.entries.len() {
+                            let step = if k == 0 { f64::NAN } else { a.step_dn[k - 1] };
+                            t += &format!("  {k:4} {:10} {:11.5} {:8.5} {:+8.5}\n", a.entries[k], a.entries[k] as f64 / 2048.0, step, a.cumulative_offset_dn[k]);
+                        }
+                    }
+                }
+                t
+            })?;
+        }
+        Cmd::Stream { camera, hist, flatten, frames, states, roi, seed, json } => {
+            let cam = camera.camera()?;
+            let mut p = StreamParams::full_frame(&cam, frames);
+            p.states = states;
+            p.seed = seed;
+            if let Some(r) = roi {
+                let (w, h, x, y) = parse_roi(&r)?;
+                let fit = |v: usize| u16::try_from(v).map_err(|_| HostError::Format { path: "--roi".into(), message: format!("{v} does not fit 16 bits") });
+                (p.width, p.height, p.first_column, p.first_row) = (fit(w)?, fit(h)?, fit(x)?, fit(y)?);
+            }
+            let r = stream::stream(&cam, hist.as_deref(), &flatten.params(), &p)?;
+            let ok = r.mismatches == 0 && r.out_of_bound == 0;
+            print(json, &r, |r| {
+                format!(
+                    "{} frames, {} pixels through the core: {} mismatches against the float reference, max |error| {:.3e} DN (bound {:.3e} DN), core {:.3e} pixels/s, {:.1} s\n",
+                    r.frames, r.pixels, r.mismatches, r.max_abs_err_dn, r.bound_dn, r.pixels_per_s, r.wall_s
+                )
+            })?;
+            return Ok(if ok { ExitCode::SUCCESS } else { ExitCode::FAILURE });
+        }
+        Cmd::Demo { camera, out, frames, ramp, flatten, json } => {
+            let cam = camera.camera()?;
+            let s = demo::demo(&cam, &out, &ramp.params()?, &flatten.params(), frames)?;
+            let ok = s.stream.mismatches == 0 && s.stream.out_of_bound == 0;
+            print(json, &s, |s| {
+                let mut t = format!("dncal demo on {}: {} ramp levels, {:.1} s\n", s.camera, s.ramp_levels, s.seconds);
+                t += &format!(
+                    "stream: {} frames, {} pixels, {} mismatches, max |error| {:.3e} DN (bound {:.3e}), core {:.3e} pixels/s\n",
+                    s.stream.frames, s.stream.pixels, s.stream.mismatches, s.stream.max_abs_err_dn, s.stream.bound_dn, s.stream.pixels_per_s
+                );
+                for c in &s.correction {
+                    t += &format!("ADC {}: error vs true code centers rms {:.4} DN raw -> {:.4} DN with LUT (max {:.3} -> {:.3})\n", c.adc, c.rms_raw_dn, c.rms_lut_dn, c.max_raw_dn, c.max_lut_dn);
+                }
+                t += &format!("report: {}\n", s.report.display());
+                t
+            })?;
+            return Ok(if ok { ExitCode::SUCCESS } else { ExitCode::FAILURE });
+        }
+        Cmd::FirmwareCheck { frames_per_state, states, size, seed, json } => return firmware_check(frames_per_state, states, size, seed, json),
     }
+    Ok(ExitCode::SUCCESS)
 }
 
 fn firmware_check(frames_per_state: u32, states: u8, size: u16, seed: u64, json: bool) -> Result<ExitCode, HostError> {
@@ -66,8 +366,7 @@ fn firmware_check(frames_per_state: u32, states: u8, size: u16, seed: u64, json:
     let host = run_on_host(&inputs)?;
     let elf = build_firmware()?;
     let fw = run_firmware(&elf, &inputs, &host.outputs.sums, Duration::from_secs(600))?;
-    let mismatches = fw.outputs.sums.iter().zip(&host.outputs.sums).filter(|(a, b)| a != b).count()
-        + fw.outputs.sums.len().abs_diff(host.outputs.sums.len());
+    let mismatches = fw.outputs.sums.iter().zip(&host.outputs.sums).filter(|(a, b)| a != b).count() + fw.outputs.sums.len().abs_diff(host.outputs.sums.len());
     let same_status = fw.outputs.status == host.outputs.status && fw.outputs.frames_per_state == host.outputs.frames_per_state;
     let same_hist = fw.outputs.histograms == host.outputs.histograms;
     let ok = mismatches == 0 && same_status && same_hist;

@@ -111,23 +111,29 @@ pub fn illumination(p: &StreamParams, peak_photons: f64, column: usize, state: u
 }
 
 /// Streams `p` through a core loaded with `weights` (one vector per ADC, on the core's
-/// 2^-24 grid). `progress` is called with the frames done.
+/// 2^-24 grid) and checks it against the float reference of the same weights.
+/// `progress` is called with the frames done.
 pub fn run_stream(camera: &Camera, weights: &[Vec<Weight>], p: &StreamParams, progress: impl Fn(u64) + Sync) -> Result<StreamReport, HostError> {
-    let (n, codes) = (camera.config.n_adc, camera.config.codes());
-    macro_rules! dispatch {
-        ($(($nn:literal, $cc:literal)),*) => {
-            match (n, codes) {
-                $(($nn, $cc) => run_typed::<$nn, $cc>(camera, weights, p, progress),)*
-                _ => Err(HostError::Format { path: "camera config".into(), message: format!("streaming supports 1, 2, 4 or 8 ADCs of 8, 10, 12 or 14 bits, not {n} ADCs of {codes} codes") }),
-            }
-        };
-    }
-    dispatch!((1, 256), (1, 1024), (1, 4096), (1, 16384), (2, 256), (2, 1024), (2, 4096), (2, 16384), (4, 256), (4, 1024), (4, 4096), (4, 16384), (8, 256), (8, 1024), (8, 4096))
+    let reference: Vec<Vec<f64>> = weights.iter().map(|w| w.iter().map(|x| x.to_num::<f64>()).collect()).collect();
+    run_stream_against(camera, weights, &reference, p, progress)
+}
+
+/// As [`run_stream`], with the reference built from `reference_weights` (f64, one vector
+/// per ADC). Different weights must produce mismatches: that is how the check is tested.
+pub fn run_stream_against(
+    camera: &Camera,
+    weights: &[Vec<Weight>],
+    reference_weights: &[Vec<f64>],
+    p: &StreamParams,
+    progress: impl Fn(u64) + Sync,
+) -> Result<StreamReport, HostError> {
+    crate::dispatch_lut_dims!(camera.config.n_adc, camera.config.codes(), "camera config", run_typed(camera, weights, reference_weights, p, progress))
 }
 
 fn run_typed<const N: usize, const CODES: usize>(
     camera: &Camera,
     weights: &[Vec<Weight>],
+    reference_weights: &[Vec<f64>],
     p: &StreamParams,
     progress: impl Fn(u64) + Sync,
 ) -> Result<StreamReport, HostError> {
@@ -140,7 +146,10 @@ fn run_typed<const N: usize, const CODES: usize>(
     let slices: Vec<&[Weight]> = weights.iter().map(|w| w.as_slice()).collect();
     let slices: &[&[Weight]; N] = slices.as_slice().try_into().map_err(|_| HostError::Format { path: "weights".into(), message: format!("{} weight vectors for {N} ADCs", weights.len()) })?;
     let luts = Box::new(LutSet::<N, CODES>::from_weights(slices).map_err(|e| HostError::core(ctx("LUT from weights"), e))?);
-    let reference = ReferenceLut::from_weights(&weights.iter().map(|w| w.iter().map(|x| x.to_num::<f64>()).collect()).collect::<Vec<_>>());
+    let reference = ReferenceLut::from_weights(reference_weights);
+    if reference.centers.len() != N || reference.centers.iter().any(|t| t.len() != CODES) {
+        return Err(HostError::Format { path: "reference weights".into(), message: format!("need {N} vectors of {CODES} weights") });
+    }
     let quantized = reference.quantized();
 
     let mut banks = Box::new(LutBanks::new((*luts).clone()));
@@ -202,4 +211,40 @@ fn run_typed<const N: usize, const CODES: usize>(
         wall_s: start.elapsed().as_secs_f64(),
         status: status.into(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::CameraConfig;
+
+    fn oracle(camera: &Camera) -> Vec<Vec<Weight>> {
+        camera.adcs.iter().map(|a| a.normalized_widths().iter().map(|&w| Weight::from_num(w)).collect()).collect()
+    }
+
+    #[test]
+    fn streaming_has_no_mismatches_and_respects_the_bound() {
+        let cam = Camera::new(CameraConfig { width: 96, height: 24, ..Default::default() }).unwrap();
+        let w = oracle(&cam);
+        let p = StreamParams { frames: 12, states: 4, width: 90, height: 20, first_column: 3, first_row: 2, ..StreamParams::full_frame(&cam, 12) };
+        let r = run_stream(&cam, &w, &p, |_| {}).unwrap();
+        assert_eq!(r.pixels, 12 * 90 * 20);
+        assert_eq!(r.mismatches, 0);
+        assert_eq!(r.out_of_bound, 0);
+        assert!(r.max_abs_err_dn <= 3.0 * 2f64.powi(-12), "{}", r.max_abs_err_dn);
+        assert!(r.max_abs_err_dn > 0.0, "entries are rounded, so some error must show");
+    }
+
+    #[test]
+    fn a_different_reference_is_caught() {
+        let cam = Camera::new(CameraConfig { width: 64, height: 8, ..Default::default() }).unwrap();
+        let w = oracle(&cam);
+        let mut reference: Vec<Vec<f64>> = w.iter().map(|t| t.iter().map(|x| x.to_num::<f64>()).collect()).collect();
+        // One code of one ADC 0.001 DN wider shifts every center above it by 0.0005 DN
+        // or more: about one LUT unit.
+        reference[2][1500] += 0.001;
+        let p = StreamParams { frames: 4, states: 2, width: 64, height: 8, first_column: 0, first_row: 0, ..StreamParams::full_frame(&cam, 4) };
+        let r = run_stream_against(&cam, &w, &reference, &p, |_| {}).unwrap();
+        assert!(r.mismatches > 0);
+    }
 }

@@ -111,6 +111,20 @@ impl PipelinedAdc {
         (0..n).map(|k| if k == 0 || k == n - 1 { 1.0 } else { self.levels[k + 1] - self.levels[k] }).collect()
     }
 
+    /// The true code widths as LUT weights: the open end codes set to 1 and the inner
+    /// codes scaled so that all weights sum to the number of codes, the normalization the
+    /// flattening of a measured histogram applies. A perfect calibration.
+    pub fn normalized_widths(&self) -> Vec<f64> {
+        let mut w = self.widths();
+        let n = w.len();
+        let inner: f64 = w[1..n - 1].iter().sum();
+        let scale = (n - 2) as f64 / inner;
+        for x in &mut w[1..n - 1] {
+            *x *= scale;
+        }
+        w
+    }
+
     /// The center of each code, (T_k + T_{k+1})/2, with the open end codes centered one
     /// width (1 DN) beyond their finite boundary's half: k for an ideal ADC.
     pub fn centers(&self) -> Vec<f64> {

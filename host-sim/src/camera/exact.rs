@@ -176,8 +176,8 @@ mod tests {
             let peak = ln_p[lo..=hi].iter().cloned().fold(f64::NEG_INFINITY, f64::max);
             let total: f64 = ln_p[lo..=hi].iter().map(|l| (l - peak).exp()).sum();
             let mut slow = vec![0.0; adc.codes()];
-            for n in lo..=hi {
-                let w = (ln_p[n] - peak).exp() / total;
+            for (n, &ln_pn) in ln_p.iter().enumerate().skip(lo) {
+                let w = (ln_pn - peak).exp() / total;
                 let v = n as f64 / 44.0 + cam.config.offset_dn;
                 for (k, slot) in slow.iter_mut().enumerate() {
                     let lo = if k == 0 { 0.0 } else { phi((adc.level(k) - v) / s) };

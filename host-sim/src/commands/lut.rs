@@ -1,0 +1,204 @@
+//! `dncal lut build` and `dncal lut inspect`.
+//!
+//! `build` flattens each ADC's histogram (the paper's procedure, [`crate::flatten`]),
+//! quantizes the weights to the core's 2^-24 grid, lets the core build the LUT set by its
+//! rounding rule, and writes the LUT FITS and the device image. The float reference must
+//! reproduce every entry; `build` checks it and refuses to write otherwise.
+
+use std::path::{Path, PathBuf};
+
+use dncal_core::{encode_image, image_len, LutSet, Weight};
+use serde::Serialize;
+
+use crate::fits::{read_histograms, read_lut, write_atomically, write_lut, AdcHistograms, LutTables};
+use crate::flatten::{flatten_histogram, to_core_weights, FlattenParams, Flattened};
+use crate::reference::ReferenceLut;
+use crate::HostError;
+
+/// The LUT of one ADC, summarized.
+#[derive(Debug, Clone, Serialize)]
+pub struct AdcLutSummary {
+    /// ADC index.
+    pub adc: usize,
+    /// Cumulative offset at the top code before normalization, DN.
+    pub top_offset_before_dn: f64,
+    /// Cumulative offset at the top code after normalization, DN (~0).
+    pub top_offset_dn: f64,
+    /// Largest |cumulative offset| over the codes, DN.
+    pub max_abs_offset_dn: f64,
+    /// Smallest and largest weight of the inner codes.
+    pub weight_range: (f64, f64),
+    /// Top entry, units of 2^-11 DN (must be below 2^23).
+    pub top_entry: u32,
+}
+
+/// What `lut build` wrote.
+#[derive(Debug, Serialize)]
+pub struct BuildSummary {
+    /// The histogram set read.
+    pub input: PathBuf,
+    /// The LUT FITS written.
+    pub lut_fits: PathBuf,
+    /// The device image written.
+    pub device_image: PathBuf,
+    /// Per ADC.
+    pub adcs: Vec<AdcLutSummary>,
+}
+
+/// The LUTs built from a histogram set: weights, flattening details, core tables, image.
+pub struct BuiltLuts {
+    /// Flattening results per ADC.
+    pub flattened: Vec<Flattened>,
+    /// The weights the core received, per ADC.
+    pub weights: Vec<Vec<Weight>>,
+    /// The core's entries, per ADC.
+    pub tables: Vec<Vec<u32>>,
+    /// The device image.
+    pub image: Vec<u8>,
+}
+
+/// Flattens `hist` and builds the LUT set in the core; `source` names the input in errors.
+pub fn build_luts(hist: &AdcHistograms, params: &FlattenParams, source: &Path) -> Result<BuiltLuts, HostError> {
+    let mut flattened = Vec::new();
+    let mut weights = Vec::new();
+    for (adc, counts) in hist.counts.iter().enumerate() {
+        let f = flatten_histogram(counts, params).map_err(|e| HostError::Format { path: source.into(), message: format!("ADC {adc}: {e}") })?;
+        let w = to_core_weights(&f.weights).map_err(|e| HostError::Format { path: source.into(), message: format!("ADC {adc}: {e}") })?;
+        flattened.push(f);
+        weights.push(w);
+    }
+    let (tables, image) = crate::dispatch_lut_dims!(hist.counts.len(), 1usize << hist.bit_depth, source.display().to_string(), core_tables(&weights, source))?;
+    // The independent float reference must reproduce every entry.
+    let reference = ReferenceLut::from_weights(&weights.iter().map(|w| w.iter().map(|x| x.to_num::<f64>()).collect()).collect::<Vec<_>>());
+    for (adc, (q, t)) in reference.quantized().iter().zip(&tables).enumerate() {
+        if let Some(k) = (0..t.len()).find(|&k| q[k] != t[k] as u64) {
+            return Err(HostError::Format { path: source.into(), message: format!("ADC {adc} code {k}: core entry {} differs from the float reference {}", t[k], q[k]) });
+        }
+    }
+    Ok(BuiltLuts { flattened, weights, tables, image })
+}
+
+fn core_tables<const N: usize, const CODES: usize>(weights: &[Vec<Weight>], source: &Path) -> Result<(Vec<Vec<u32>>, Vec<u8>), HostError> {
+    let slices: Vec<&[Weight]> = weights.iter().map(|w| w.as_slice()).collect();
+    let slices: &[&[Weight]; N] = slices.as_slice().try_into().map_err(|_| HostError::Format { path: source.into(), message: "ADC count".into() })?;
+    let set = Box::new(LutSet::<N, CODES>::from_weights(slices).map_err(|e| HostError::core(format!("{}: LUT from weights", source.display()), e))?);
+    let tables = set.tables().iter().map(|t| t.iter().map(|e| e.to_bits()).collect()).collect();
+    let mut image = vec![0u8; image_len::<N, CODES>()];
+    encode_image(&set, &mut image).map_err(|e| HostError::core("encode device image", e))?;
+    Ok((tables, image))
+}
+
+/// Where `-o OUT` puts the two files: OUT itself if it ends in `.fits` (the image beside
+/// it with `.bin`), otherwise `OUT.fits` and `OUT.bin`.
+pub fn output_paths(out: &Path) -> (PathBuf, PathBuf) {
+    if out.extension().is_some_and(|e| e.eq_ignore_ascii_case("fits")) {
+        (out.to_path_buf(), out.with_extension("bin"))
+    } else {
+        let s = out.as_os_str().to_string_lossy();
+        (PathBuf::from(format!("{s}.fits")), PathBuf::from(format!("{s}.bin")))
+    }
+}
+
+pub(crate) fn summarize(adc: usize, f: &Flattened, table: &[u32]) -> AdcLutSummary {
+    let n = f.weights.len();
+    let offsets = crate::flatten::cumulative_offsets(&f.weights);
+    let inner = &f.weights[1..n - 1];
+    AdcLutSummary {
+        adc,
+        top_offset_before_dn: f.top_offset_before_dn,
+        top_offset_dn: f.top_offset_dn,
+        max_abs_offset_dn: offsets.iter().fold(0.0, |m: f64, o| m.max(o.abs())),
+        weight_range: (inner.iter().cloned().fold(f64::INFINITY, f64::min), inner.iter().cloned().fold(f64::NEG_INFINITY, f64::max)),
+        top_entry: table.last().copied().unwrap_or(0),
+    }
+}
+
+/// `lut build HIST -o OUT`.
+pub fn build(input: &Path, output: &Path, params: &FlattenParams) -> Result<BuildSummary, HostError> {
+    let hist = read_histograms(input)?;
+    let built = build_luts(&hist, params, input)?;
+    let (lut_fits, device_image) = output_paths(output);
+    write_lut(&lut_fits, &LutTables { frac_bits: dncal_core::FRAC_BITS, tables: built.tables.clone() })?;
+    write_atomically(&device_image, |tmp| std::fs::write(tmp, &built.image).map_err(|e| HostError::io(tmp, e)))?;
+    let adcs = built.flattened.iter().zip(&built.tables).enumerate().map(|(a, (f, t))| summarize(a, f, t)).collect();
+    Ok(BuildSummary { input: input.into(), lut_fits, device_image, adcs })
+}
+
+/// One ADC's table as `lut inspect` shows it.
+#[derive(Debug, Serialize)]
+pub struct InspectAdc {
+    /// ADC index.
+    pub adc: usize,
+    /// Entries, units of 2^-11 DN.
+    pub entries: Vec<u32>,
+    /// Step between consecutive entries in DN: the mean width of two adjacent codes,
+    /// the normalized histogram as the table sees it.
+    pub step_dn: Vec<f64>,
+    /// Cumulative offset: entry in DN minus (k + 1/2).
+    pub cumulative_offset_dn: Vec<f64>,
+    /// Largest |cumulative offset|, DN.
+    pub max_abs_offset_dn: f64,
+    /// Smallest and largest step, DN.
+    pub step_range: (f64, f64),
+}
+
+/// What `lut inspect` found.
+#[derive(Debug, Serialize)]
+pub struct InspectSummary {
+    /// The file.
+    pub path: PathBuf,
+    /// "lut-fits" or "device-image".
+    pub kind: String,
+    /// Bits per code.
+    pub bit_depth: u32,
+    /// Per ADC.
+    pub adcs: Vec<InspectAdc>,
+}
+
+/// `lut inspect FILE`: a LUT FITS or a device image (validated by the core).
+pub fn inspect(path: &Path) -> Result<InspectSummary, HostError> {
+    let bytes = std::fs::read(path).map_err(|e| HostError::io(path, e))?;
+    let (kind, tables) = if bytes.starts_with(b"DNLT") {
+        if bytes.len() < 16 {
+            return Err(HostError::Format { path: path.into(), message: "device image shorter than its 16-byte header".into() });
+        }
+        let (bits, n) = (bytes[6] as u32, bytes[7] as usize);
+        if !(1..=16).contains(&bits) {
+            return Err(HostError::Format { path: path.into(), message: format!("device image declares {bits} bits") });
+        }
+        ("device-image", crate::dispatch_lut_dims!(n, 1usize << bits, path.display().to_string(), parse_image(&bytes, path))?)
+    } else {
+        ("lut-fits", read_lut(path)?.tables)
+    };
+    let codes = tables.first().map_or(0, |t| t.len());
+    let adcs = tables
+        .into_iter()
+        .enumerate()
+        .map(|(adc, entries)| {
+            let dn: Vec<f64> = entries.iter().map(|&e| e as f64 / 2048.0).collect();
+            let step_dn: Vec<f64> = dn.windows(2).map(|p| p[1] - p[0]).collect();
+            let cumulative_offset_dn: Vec<f64> = dn.iter().enumerate().map(|(k, v)| v - (k as f64 + 0.5)).collect();
+            InspectAdc {
+                adc,
+                max_abs_offset_dn: cumulative_offset_dn.iter().fold(0.0, |m: f64, o| m.max(o.abs())),
+                step_range: (step_dn.iter().cloned().fold(f64::INFINITY, f64::min), step_dn.iter().cloned().fold(f64::NEG_INFINITY, f64::max)),
+                entries,
+                step_dn,
+                cumulative_offset_dn,
+            }
+        })
+        .collect();
+    Ok(InspectSummary { path: path.into(), kind: kind.into(), bit_depth: codes.trailing_zeros(), adcs })
+}
+
+fn parse_image<const N: usize, const CODES: usize>(bytes: &[u8], path: &Path) -> Result<Vec<Vec<u32>>, HostError> {
+    let err = |e| HostError::core(path.display().to_string(), e);
+    let mut banks = Box::new(dncal_core::LutBanks::new(LutSet::<N, CODES>::ideal()));
+    banks.load_image(bytes).map_err(err)?;
+    // With no frame open the activation swaps the validated staging bank in at once.
+    let g = dncal_core::Geometry::new(1, 1, 1, 0).map_err(err)?;
+    let mut sums = [0u32; 1];
+    let mut c = dncal_core::Corrector::new(&mut banks, g, &mut sums).map_err(err)?;
+    c.request_activation().map_err(err)?;
+    Ok(c.banks().active().tables().iter().map(|t| t.iter().map(|e| e.to_bits()).collect()).collect())
+}

@@ -1,0 +1,102 @@
+//! `dncal simulate`: calibration data sets from the camera model.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use serde::Serialize;
+
+use crate::camera::calibration::{LinearityParams, RampParams};
+use crate::camera::{Camera, CameraConfig};
+use crate::commands::progress::bar;
+use crate::fits::{write_histograms, write_linearity, AdcHistograms, LinearitySet};
+use crate::HostError;
+
+/// Builds the camera of `config`, naming `source` (a file or "defaults") in errors.
+pub fn camera_from(config: CameraConfig, source: &str) -> Result<Camera, HostError> {
+    Camera::new(config).map_err(|message| HostError::Format { path: source.into(), message })
+}
+
+/// What `simulate histograms` wrote.
+#[derive(Debug, Serialize)]
+pub struct HistogramSummary {
+    /// The histogram set.
+    pub output: PathBuf,
+    /// ADCs.
+    pub n_adc: usize,
+    /// Bits per code.
+    pub bit_depth: u32,
+    /// Illumination levels summed (all ramps).
+    pub levels: usize,
+    /// Total counts per ADC.
+    pub counts_per_adc: Vec<u64>,
+    /// Wall time, s.
+    pub seconds: f64,
+}
+
+/// Simulates the ramps of `ramp` and writes the summed per-ADC histograms.
+pub fn simulate_histograms(camera: &Camera, ramp: &RampParams, output: PathBuf) -> Result<HistogramSummary, HostError> {
+    let start = Instant::now();
+    let levels: usize = ramp.ramp_levels.iter().sum();
+    let pb = bar(levels as u64, "ADC ramp histograms");
+    let counts = camera.ramp_histograms(ramp, |n| pb.set_position(n));
+    pb.finish_and_clear();
+    let set = AdcHistograms { bit_depth: camera.config.bits, counts };
+    write_histograms(&output, &set)?;
+    Ok(HistogramSummary {
+        counts_per_adc: set.counts.iter().map(|c| c.iter().sum()).collect(),
+        n_adc: set.counts.len(),
+        bit_depth: set.bit_depth,
+        output,
+        levels,
+        seconds: start.elapsed().as_secs_f64(),
+    })
+}
+
+/// What `simulate linearity` wrote.
+#[derive(Debug, Serialize)]
+pub struct LinearitySummary {
+    /// The linearity set.
+    pub output: PathBuf,
+    /// ROI width.
+    pub width: usize,
+    /// ROI height.
+    pub height: usize,
+    /// Levels.
+    pub levels: usize,
+    /// Frames per level.
+    pub frames: u32,
+    /// Pixels flagged in MASK.
+    pub masked_pixels: usize,
+    /// Wall time, s.
+    pub seconds: f64,
+}
+
+/// Simulates a linearity set and writes it.
+pub fn simulate_linearity(camera: &Camera, p: &LinearityParams, output: PathBuf) -> Result<LinearitySummary, HostError> {
+    let start = Instant::now();
+    let (x0, y0, w, h) = p.roi;
+    if w == 0 || h == 0 || x0 + w > camera.config.width || y0 + h > camera.config.height || p.levels < 2 || p.frames < 2 {
+        return Err(HostError::Format {
+            path: "simulate linearity arguments".into(),
+            message: format!("ROI {w}x{h} at ({x0}, {y0}) must be non-empty and inside the {}x{} sensor, with >= 2 levels and >= 2 frames", camera.config.width, camera.config.height),
+        });
+    }
+    let pb = bar(p.levels as u64, "linearity levels");
+    let data = camera.linearity_set(p, |n| pb.set_position(n));
+    pb.finish_and_clear();
+    let masked_pixels = data.mask.iter().filter(|&&m| m != 0).count();
+    let set = LinearitySet {
+        bit_depth: camera.config.bits,
+        n_adc: camera.config.n_adc,
+        n_frames: p.frames,
+        width: w,
+        height: h,
+        levels: p.levels,
+        mean: data.mean,
+        std: data.std,
+        voltage: data.voltage,
+        mask: Some(data.mask),
+    };
+    write_linearity(&output, &set)?;
+    Ok(LinearitySummary { output, width: w, height: h, levels: p.levels, frames: p.frames, masked_pixels, seconds: start.elapsed().as_secs_f64() })
+}
