@@ -71,12 +71,16 @@ struct RampArgs {
     /// Levels of the last ramp.
     #[arg(long, default_value_t = 139)]
     last_ramp: usize,
-    /// Pixels of each ADC in the region.
-    #[arg(long, default_value_t = 1024)]
+    /// Pixels of each ADC in the region (256 x 256 pixels / 4 ADCs by default).
+    #[arg(long, default_value_t = RampParams::default().pixels_per_adc)]
     pixels_per_adc: u64,
     /// Frames per level.
-    #[arg(long, default_value_t = 8)]
+    #[arg(long, default_value_t = RampParams::default().frames_per_level)]
     frames_per_level: u64,
+    /// Relative rms spread of the pixels' mean signal across the region (gamma distributed).
+    #[arg(long, default_value_t = RampParams::default().field_spread)]
+    field_spread: f64,
+
     /// Seed of the counts.
     #[arg(long, default_value_t = 4)]
     seed: u64,
@@ -87,7 +91,17 @@ impl RampArgs {
         if self.first_ramp < 2 || self.last_ramp < self.first_ramp {
             return Err(HostError::Format { path: "arguments".into(), message: "ramps need --first-ramp >= 2 and --last-ramp >= --first-ramp".into() });
         }
-        Ok(RampParams { ramp_levels: (self.first_ramp..=self.last_ramp).collect(), pixels_per_adc: self.pixels_per_adc, frames_per_level: self.frames_per_level, seed: self.seed, ..RampParams::default() })
+        if !(0.0..1.0).contains(&self.field_spread) {
+            return Err(HostError::Format { path: "arguments".into(), message: "--field-spread must be in [0, 1)".into() });
+        }
+        Ok(RampParams {
+            ramp_levels: (self.first_ramp..=self.last_ramp).collect(),
+            pixels_per_adc: self.pixels_per_adc,
+            frames_per_level: self.frames_per_level,
+            field_spread: self.field_spread,
+            seed: self.seed,
+            ..RampParams::default()
+        })
     }
 }
 

@@ -2,11 +2,23 @@
 //!
 //! - **ADC histograms** (section 4): per-ADC code histograms of a region near the sensor
 //!   center, summed over illumination ramps of 130, 131, ..., 139 levels from dark to
-//!   saturation. Each level's expected histogram is the exact code distribution
-//!   ([`super::exact`]) of the region's mean signal times the pixels per ADC and frames;
-//!   the recorded counts are Poisson draws around it. The spread of PRNU and DSNU inside
-//!   the region is not modeled here (it only broadens each level's bump, which the
-//!   flattening divides out).
+//!   saturation. The signal is not uniform across the region (vignetting, lamp
+//!   gradient, PRNU, DSNU): a pixel's mean photoelectrons at a level of mean `mu` are
+//!   `mu f`, `f` gamma distributed with mean 1 and rms `field_spread`, so the level's
+//!   photoelectrons follow the Poisson-gamma mixture, a negative binomial of mean `mu`
+//!   and variance `mu + (field_spread mu)^2`. The mixtures of all levels are summed per
+//!   electron count `n` into `M(n)` (it does not depend on the ADC), then each ADC's
+//!   expected counts are `E_k = N sum_n M(n) [Phi((T_{k+1} - v_n)/s) - Phi((T_k - v_n)/s)]`,
+//!   the exact model of [`super::exact`], with `N` = pixels x frames; the recorded counts
+//!   are Poisson draws around them.
+//!
+//!   Why the spread, and why a smooth one: without it the low levels of every ramp land
+//!   on the same codes (level i of each ramp is near i x 31 DN, read noise 4 DN) and leave
+//!   a comb of period ~31 DN up to ~500 DN that neither the 50-point spline nor the
+//!   21-code median removes; in the first demo it biased the LUT's cumulative offset by
+//!   up to 18 DN. A uniform (box) spread of +-25% still left lumps from the box edges
+//!   near code 150 and 2.5 DN errors there; a smooth distribution's lumps fall off as
+//!   `exp(-2 pi^2 (spread / spacing)^2)`.
 //! - **Linearity sets** (section 5): 41 levels from dark to saturation, 256 frames per
 //!   level; per pixel the mean and standard deviation of the sampled frames, and the
 //!   reference photodiode's voltage, linear in the light.
@@ -15,7 +27,8 @@ use rand::{rngs::StdRng, SeedableRng};
 use rand_distr::{Distribution, Poisson};
 use rayon::prelude::*;
 
-use super::Camera;
+use super::exact::phi;
+use super::{Camera, PipelinedAdc};
 
 /// How the ramps are recorded.
 #[derive(Debug, Clone)]
@@ -28,13 +41,16 @@ pub struct RampParams {
     pub frames_per_level: u64,
     /// The last level, as a multiple of the light that just saturates the ADC.
     pub overshoot: f64,
+    /// Relative rms spread of the pixels' mean signal across the region (light and
+    /// dark; a gamma distribution of mean 1: 0.25 means 25% rms).
+    pub field_spread: f64,
     /// Seed of the Poisson draws.
     pub seed: u64,
 }
 
 impl Default for RampParams {
     fn default() -> Self {
-        RampParams { ramp_levels: (130..140).collect(), pixels_per_adc: 64 * 64 / 4, frames_per_level: 8, overshoot: 1.03, seed: 4 }
+        RampParams { ramp_levels: (130..140).collect(), pixels_per_adc: 256 * 256 / 4, frames_per_level: 100, overshoot: 1.03, field_spread: 0.25, seed: 4 }
     }
 }
 
@@ -61,43 +77,149 @@ impl Camera {
         self.config.qe * photons + self.config.dark_e
     }
 
-    /// The summed per-ADC histograms of the ramps, `[adc][code]`. `progress` gets the
-    /// number of levels done.
-    pub fn ramp_histograms(&self, p: &RampParams, progress: impl Fn(u64) + Sync) -> Vec<Vec<u64>> {
+    /// The ramps' illumination levels, photons per pixel per frame.
+    pub fn ramp_levels(&self, p: &RampParams) -> Vec<f64> {
         let sat = self.saturation_photons() * p.overshoot;
-        let levels: Vec<f64> = p.ramp_levels.iter().flat_map(|&l| (0..l).map(move |i| sat * i as f64 / (l - 1).max(1) as f64)).collect();
+        p.ramp_levels.iter().flat_map(|&l| (0..l).map(move |i| sat * i as f64 / (l - 1).max(1) as f64)).collect()
+    }
+
+    /// `M(n)`: the photoelectron distributions of all ramp levels summed (each level
+    /// contributes probability 1), indexed by electron count. Counts above the full well
+    /// are kept (the response clips them). `progress` gets the number of levels done.
+    pub fn ramp_electrons(&self, p: &RampParams, progress: impl Fn(u64) + Sync) -> Vec<f64> {
+        let levels = self.ramp_levels(p);
         let done = std::sync::atomic::AtomicU64::new(0);
-        let a = self.config.nonlinearity.clone();
-        let expected: Vec<Vec<f64>> = levels
+        let g = p.field_spread;
+        levels
             .par_iter()
-            .map(|&photons| {
-                let mu = self.mean_signal_e(photons);
-                let mut e = vec![0.0; self.config.codes() * self.adcs.len()];
-                for (i, adc) in self.adcs.iter().enumerate() {
-                    let pmf = self.code_pmf(adc, mu, &a);
-                    for (j, &pk) in pmf.p.iter().enumerate() {
-                        e[i * self.config.codes() + pmf.first + j] += pk;
-                    }
-                }
+            .fold(Vec::new, |mut m: Vec<f64>, &photons| {
+                add_poisson_gamma(&mut m, self.mean_signal_e(photons), g);
                 progress(done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1);
-                e
+                m
             })
-            .collect();
+            .reduce(Vec::new, |mut a, b| {
+                if a.len() < b.len() {
+                    a.resize(b.len(), 0.0);
+                }
+                a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
+                a
+            })
+    }
+
+    /// Expected fraction of samples in each code of `adc` when the photoelectrons follow
+    /// `m` (any non-negative masses by electron count): the exact model, Gaussian read
+    /// noise of `read_noise_e` around `v_n`, integrated over each code's interval.
+    pub fn codes_from_electrons(&self, adc: &PipelinedAdc, m: &[f64]) -> Vec<f64> {
+        let cfg = &self.config;
+        let s = cfg.read_noise_e / cfg.gain_e_per_dn;
+        let v: Vec<f64> = (0..m.len()).map(|n| self.response_e(n as f64, &cfg.nonlinearity) / cfg.gain_e_per_dn + cfg.offset_dn).collect();
+        // Prefix sums of m: the mass far below a transition level counts whole.
+        let mut below = Vec::with_capacity(m.len() + 1);
+        let mut acc = 0.0;
+        below.push(0.0);
+        for &x in m {
+            acc += x;
+            below.push(acc);
+        }
+        let total = acc;
+        let reach = 9.0 * s;
+        // C(T) = sum_n m(n) Phi((T - v_n)/s): mass below the analog level T.
+        let cdf = |t: f64| -> f64 {
+            if s == 0.0 {
+                return below[v.partition_point(|&x| x < t)];
+            }
+            let i0 = v.partition_point(|&x| x < t - reach);
+            let i1 = v.partition_point(|&x| x <= t + reach);
+            below[i0] + (i0..i1).map(|n| m[n] * phi((t - v[n]) / s)).sum::<f64>()
+        };
+        let codes = adc.codes();
+        let c: Vec<f64> = (0..=codes).map(|k| if k == 0 { 0.0 } else if k == codes { total } else { cdf(adc.level(k)) }).collect();
+        c.windows(2).map(|w| (w[1] - w[0]).max(0.0)).collect()
+    }
+
+    /// The summed per-ADC histograms of the ramps, `[adc][code]`: Poisson draws around
+    /// [`Self::codes_from_electrons`] of [`Self::ramp_electrons`] times pixels x frames.
+    /// `progress` gets the number of levels done.
+    pub fn ramp_histograms(&self, p: &RampParams, progress: impl Fn(u64) + Sync) -> Vec<Vec<u64>> {
+        let m = self.ramp_electrons(p, progress);
         let scale = (p.pixels_per_adc * p.frames_per_level) as f64;
-        let codes = self.config.codes();
-        (0..self.adcs.len())
-            .into_par_iter()
-            .map(|adc| {
+        self.adcs
+            .par_iter()
+            .enumerate()
+            .map(|(adc, conv)| {
                 let mut rng = StdRng::seed_from_u64(p.seed.wrapping_add(adc as u64 * 7919));
-                (0..codes)
-                    .map(|k| {
-                        let lambda = scale * expected.iter().map(|e| e[adc * codes + k]).sum::<f64>();
+                self.codes_from_electrons(conv, &m)
+                    .into_iter()
+                    .map(|e| {
+                        let lambda = scale * e;
                         if lambda > 0.0 { Poisson::new(lambda).map(|d| d.sample(&mut rng) as u64).unwrap_or(0) } else { 0 }
                     })
                     .collect()
             })
             .collect()
     }
+}
+
+/// Poisson probabilities `Pois(n; mu)` for `n` in `lo..=hi` (the whole mass beyond is
+/// below 1e-30 when the range spans 12 sqrt(mu) + 12 each side), by the ratio recurrence
+/// outward from the mode and normalized over the range: `n ln mu - mu - ln n!` would
+/// cancel 1e5-sized terms.
+fn poisson_range(mu: f64) -> (usize, Vec<f64>) {
+    let spread = 12.0 * mu.sqrt() + 12.0;
+    let lo = (mu - spread).floor().max(0.0) as usize;
+    let hi = (mu + spread).ceil() as usize;
+    let mode = (mu.floor() as usize).clamp(lo, hi);
+    let mut p = vec![0.0; hi - lo + 1];
+    p[mode - lo] = 1.0;
+    for n in mode..hi {
+        p[n + 1 - lo] = p[n - lo] * mu / (n + 1) as f64;
+    }
+    for n in (lo..mode).rev() {
+        p[n - lo] = p[n + 1 - lo] * (n + 1) as f64 / mu;
+    }
+    let total: f64 = p.iter().sum();
+    p.iter_mut().for_each(|x| *x /= total);
+    (lo, p)
+}
+
+/// Adds to `m` the distribution of `n ~ Pois(mu)` with `mu = mean f`, `f` gamma
+/// distributed with mean 1 and relative spread `g` (shape `k = 1/g^2`): the negative
+/// binomial `P(n) = Gamma(n + k) / (n! Gamma(k)) (1 - q)^k q^n`, `q = mean g^2 / (1 + mean g^2)`,
+/// of mean `mean` and variance `mean + g^2 mean^2`. It is evaluated by the ratio
+/// `P(n + 1) / P(n) = q (n + k) / (n + 1)` outward from the mode until terms fall below
+/// 1e-20 of it, and normalized over that range. `g = 0` is plain Poisson.
+fn add_poisson_gamma(m: &mut Vec<f64>, mean: f64, g: f64) {
+    let (lo, p) = if g <= 0.0 || mean <= 0.0 {
+        poisson_range(mean.max(0.0))
+    } else {
+        let k = 1.0 / (g * g);
+        let q = mean * g * g / (1.0 + mean * g * g);
+        let mode = if k > 1.0 { ((k - 1.0) * q / (1.0 - q)).floor() as usize } else { 0 };
+        let ratio = |n: usize| q * (n as f64 + k) / (n as f64 + 1.0);
+        let mut up = vec![1.0];
+        let mut n = mode;
+        while *up.last().unwrap_or(&0.0) > 1e-20 {
+            let next = up[up.len() - 1] * ratio(n);
+            up.push(next);
+            n += 1;
+        }
+        let mut down = Vec::new();
+        let (mut n, mut x) = (mode, 1.0);
+        while n > 0 && x > 1e-20 {
+            x /= ratio(n - 1);
+            down.push(x);
+            n -= 1;
+        }
+        let lo = mode - down.len();
+        let mut p: Vec<f64> = down.into_iter().rev().chain(up).collect();
+        let total: f64 = p.iter().sum();
+        p.iter_mut().for_each(|x| *x /= total);
+        (lo, p)
+    };
+    if m.len() < lo + p.len() {
+        m.resize(lo + p.len(), 0.0);
+    }
+    m[lo..lo + p.len()].iter_mut().zip(&p).for_each(|(x, y)| *x += y);
 }
 
 /// How a linearity set is recorded.
@@ -186,6 +308,67 @@ impl Camera {
 mod tests {
     use super::*;
     use crate::camera::CameraConfig;
+    use statrs::function::gamma::ln_gamma;
+
+    fn moments(m: &[f64]) -> (f64, f64, f64) {
+        let total: f64 = m.iter().sum();
+        let mean = m.iter().enumerate().map(|(n, p)| n as f64 * p).sum::<f64>() / total;
+        let var = m.iter().enumerate().map(|(n, p)| (n as f64 - mean).powi(2) * p).sum::<f64>() / total;
+        (total, mean, var)
+    }
+
+    #[test]
+    fn poisson_gamma_mixture_has_the_closed_form_moments() {
+        for (mean, g) in [(0.0, 0.25), (3.0, 0.0), (400.0, 0.25), (20_000.0, 0.1), (150_000.0, 0.35)] {
+            let mut m = Vec::new();
+            add_poisson_gamma(&mut m, mean, g);
+            let (total, mu, var) = moments(&m);
+            assert!((total - 1.0).abs() < 1e-12, "{mean} {g}: total {total}");
+            assert!((mu - mean).abs() < 1e-9 * mean.max(1.0), "{mean} {g}: mean {mu}");
+            let want = mean + g * g * mean * mean;
+            assert!((var - want).abs() < 1e-8 * want.max(1.0), "{mean} {g}: variance {var} vs {want}");
+        }
+    }
+
+    #[test]
+    fn poisson_gamma_mixture_matches_the_integral_over_the_spread() {
+        // Independent oracle: int Pois(n; mean f) Gamma(f; k, 1/k) df by the midpoint rule
+        // on a fine grid, in logs from ln_gamma.
+        let (mean, g) = (60.0, 0.3);
+        let k = 1.0 / (g * g);
+        let mut m = Vec::new();
+        add_poisson_gamma(&mut m, mean, g);
+        let df = 1e-4;
+        for n in [0usize, 10, 45, 60, 90, 150] {
+            let mut integral = 0.0;
+            let mut f = df / 2.0;
+            while f < 6.0 {
+                let ln_pois = n as f64 * (mean * f).ln() - mean * f - ln_gamma(n as f64 + 1.0);
+                let ln_gam = k * k.ln() + (k - 1.0) * f.ln() - k * f - ln_gamma(k);
+                integral += (ln_pois + ln_gam).exp() * df;
+                f += df;
+            }
+            assert!((m[n] - integral).abs() < 1e-7 * integral.max(1e-12) + 1e-15, "n {n}: {} vs {integral}", m[n]);
+        }
+    }
+
+    #[test]
+    fn codes_from_poisson_electrons_equal_the_exact_code_pmf() {
+        // Two evaluations of the same model: every-n convolution here, the strided sum
+        // of `exact::code_pmf` there.
+        let cam = Camera::new(CameraConfig { width: 8, height: 2, ..Default::default() }).unwrap();
+        for mu in [400.0, 9_000.0, 120_000.0] {
+            let mut m = Vec::new();
+            add_poisson_gamma(&mut m, mu, 0.0);
+            for adc in &cam.adcs {
+                let e = cam.codes_from_electrons(adc, &m);
+                let pmf = cam.code_pmf(adc, mu, &cam.config.nonlinearity);
+                let worst = e.iter().enumerate().map(|(k, x)| (x - pmf.prob(k)).abs()).fold(0.0, f64::max);
+                assert!(worst < 1e-10, "mu {mu}: worst {worst}");
+                assert!((e.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+            }
+        }
+    }
 
     #[test]
     fn ramp_histograms_count_every_sample_and_cover_the_codes() {

@@ -62,14 +62,20 @@ pub struct DemoSummary {
     pub seconds: f64,
 }
 
-/// Residuals of `y` after the least-squares line through `(x, y)`.
-pub fn detrend(x: &[f64], y: &[f64]) -> Vec<f64> {
-    let n = x.len() as f64;
+/// The least-squares line `y = c0 + c1 x`, as `(c0, c1)`.
+pub fn line_fit(x: &[f64], y: &[f64]) -> (f64, f64) {
+    let n = x.len().max(1) as f64;
     let (mx, my) = (x.iter().sum::<f64>() / n, y.iter().sum::<f64>() / n);
     let sxy: f64 = x.iter().zip(y).map(|(a, b)| (a - mx) * (b - my)).sum();
     let sxx: f64 = x.iter().map(|a| (a - mx).powi(2)).sum();
     let slope = if sxx > 0.0 { sxy / sxx } else { 0.0 };
-    x.iter().zip(y).map(|(a, b)| b - my - slope * (a - mx)).collect()
+    (my - slope * mx, slope)
+}
+
+/// Residuals of `y` after the least-squares line through `(x, y)`.
+pub fn detrend(x: &[f64], y: &[f64]) -> Vec<f64> {
+    let (c0, c1) = line_fit(x, y);
+    x.iter().zip(y).map(|(a, b)| b - c0 - c1 * a).collect()
 }
 
 fn rms(v: &[f64]) -> f64 {
@@ -136,7 +142,7 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
         .collect();
 
     // 5. Figures and report.
-    let pb = bar(3, "3/4 figures");
+    let pb = bar(4, "3/4 figures");
     let n_adc = camera.adcs.len();
     let inner = 1..codes - 1;
     let mut hist_series = Vec::new();
@@ -148,17 +154,26 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
         hist_series.push(Series { label: format!("ADC {a}: true code width"), points: inner.clone().map(|k| (k as f64, w[k])).collect() });
     }
     line_plot(&at("histograms.png"), "Normalized histograms (weights) per ADC", "code (DN)", "relative code width", &hist_series, n_adc)?;
+    // The same around the major transition at 1024, where single codes can be seen.
+    let zoom = 992.0..1056.0;
+    let zoomed: Vec<Series> = hist_series.iter().map(|s| Series { label: s.label.clone(), points: s.points.iter().filter(|(k, _)| zoom.contains(k)).copied().collect() }).collect();
+    line_plot(&at("histograms_zoom.png"), "Normalized histograms around code 1024", "code (DN)", "relative code width", &zoomed, n_adc)?;
     pb.inc(1);
     let mut offset_series = Vec::new();
-    for (a, t) in luts.tables.iter().enumerate() {
-        offset_series.push(Series { label: format!("ADC {a}: LUT"), points: (0..codes).map(|k| (k as f64, t[k] as f64 / 2048.0 - (k as f64 + 0.5))).collect() });
+    let mut truth_series = Vec::new();
+    for (a, (t, adc)) in luts.tables.iter().zip(&camera.adcs).enumerate() {
+        // Cumulative offset of the LUT from a perfect ADC (entry minus code center), and
+        // the true one aligned to it: the LUT fixes no absolute offset or gain, so the
+        // truth gets the best-fit line of their difference over the calibrated codes.
+        let lut_offset: Vec<f64> = (0..codes).map(|k| t[k] as f64 / 2048.0 - (k as f64 + 0.5)).collect();
+        let true_offset: Vec<f64> = adc.centers().iter().enumerate().map(|(k, c)| c - (k as f64 + 0.5)).collect();
+        let x: Vec<f64> = range.clone().map(|k| k as f64).collect();
+        let diff: Vec<f64> = range.clone().map(|k| lut_offset[k] - true_offset[k]).collect();
+        let (c0, c1) = line_fit(&x, &diff);
+        offset_series.push(Series { label: format!("ADC {a}: LUT"), points: range.clone().map(|k| (k as f64, lut_offset[k])).collect() });
+        truth_series.push(Series { label: format!("ADC {a}: truth (aligned)"), points: range.clone().map(|k| (k as f64, true_offset[k] + c0 + c1 * k as f64)).collect() });
     }
-    for (a, adc) in camera.adcs.iter().enumerate() {
-        let c = adc.centers();
-        let x: Vec<f64> = (0..codes).map(|k| k as f64).collect();
-        let truth = detrend(&x, &c.iter().zip(&x).map(|(c, k)| c - k).collect::<Vec<_>>());
-        offset_series.push(Series { label: format!("ADC {a}: truth (detrended)"), points: x.iter().zip(truth).map(|(&k, o)| (k, o)).collect() });
-    }
+    offset_series.extend(truth_series);
     line_plot(&at("offsets.png"), "Cumulative offset from a perfect ADC", "code (DN)", "offset (DN)", &offset_series, n_adc)?;
     pb.inc(1);
     let mut err_series = Vec::new();
@@ -183,12 +198,12 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
     };
     let json = serde_json::to_string_pretty(&summary).map_err(|e| HostError::Format { path: at("summary.json"), message: e.to_string() })?;
     write_atomically(&at("summary.json"), |tmp| std::fs::write(tmp, &json).map_err(|e| HostError::io(tmp, e)))?;
-    let html = report_html(&summary, camera);
+    let html = report_html(&summary, camera, ramp, flatten);
     write_atomically(&summary.report, |tmp| std::fs::write(tmp, &html).map_err(|e| HostError::io(tmp, e)))?;
     Ok(summary)
 }
 
-fn report_html(s: &DemoSummary, camera: &Camera) -> String {
+fn report_html(s: &DemoSummary, camera: &Camera, ramp: &RampParams, flat: &FlattenParams) -> String {
     let c = &camera.config;
     let mut h = String::new();
     let _ = write!(
@@ -197,10 +212,28 @@ fn report_html(s: &DemoSummary, camera: &Camera) -> String {
          <style>body{{font-family:sans-serif;max-width:1050px;margin:2em auto}}td,th{{padding:2px 10px;text-align:right}}</style></head><body>\
          <h1>dncal demo: DN-error correction</h1>\
          <p>Camera: {} ({}x{}, {} bits, {} ADCs, {} e-/DN, {} e- read noise, {} e- full well). Calibration: {} ramp levels \
-         (ramps of 130..139 levels, dark to saturation), flattened with a 50-point spline and a 21-code running median, first 150 codes and \
-         the last set to 1 (de Wijn 2018, section 4). Files: <a href=\"histograms.fits\">histograms.fits</a>, <a href=\"lut.fits\">lut.fits</a>, \
+         (ramps of {}..{} levels, dark to {:.0}% of saturation, {} pixels per ADC, {} frames per level, signal spread {:.0}% rms across the region), \
+         flattened with a {}-point spline and a {}-code running median, the first {} codes {}set to 1 (de Wijn 2018, section 4). Files: <a href=\"histograms.fits\">histograms.fits</a>, <a href=\"lut.fits\">lut.fits</a>, \
          <a href=\"lut.bin\">lut.bin</a> (device image), <a href=\"summary.json\">summary.json</a>.</p>",
-        c.name, c.width, c.height, c.bits, c.n_adc, c.gain_e_per_dn, c.read_noise_e, c.full_well_e, s.ramp_levels
+        c.name,
+        c.width,
+        c.height,
+        c.bits,
+        c.n_adc,
+        c.gain_e_per_dn,
+        c.read_noise_e,
+        c.full_well_e,
+        s.ramp_levels,
+        ramp.ramp_levels.first().copied().unwrap_or(0),
+        ramp.ramp_levels.last().copied().unwrap_or(0),
+        100.0 * ramp.overshoot,
+        ramp.pixels_per_adc,
+        ramp.frames_per_level,
+        100.0 * ramp.field_spread,
+        flat.spline_points,
+        flat.median_window,
+        flat.fixed_low_codes,
+        if flat.set_last_to_one { "and the last " } else { "" },
     );
     let st = &s.stream;
     let _ = write!(
@@ -220,7 +253,8 @@ fn report_html(s: &DemoSummary, camera: &Camera) -> String {
     h.push_str("</table><p>Errors are against the simulated ADCs' true code centers after removing a best-fit offset and gain, over the calibrated codes.</p>");
     for (img, caption) in [
         ("histograms.png", "Flattened histograms (the LUT weights) and the true code widths, per ADC."),
-        ("offsets.png", "Cumulative offset of the LUT from a perfect ADC, with the true offsets (detrended)."),
+        ("histograms_zoom.png", "The same around the major transition at code 1024."),
+        ("offsets.png", "Cumulative offset of the LUT from a perfect ADC, and the true offsets aligned to it (best-fit offset and gain of the difference removed)."),
         ("correction_error.png", "Error of the raw code and of the LUT value against the true code centers."),
     ] {
         let _ = write!(h, "<figure><img src=\"{img}\" width=\"1000\"><figcaption>{caption}</figcaption></figure>");
