@@ -21,9 +21,11 @@
 //! The paper's table returns `sum_{j<=k} w_j`, the *top* of code k. For a 12-bit ADC
 //! whose normalized weights average 1 the top code's entry is then 4096 DN = 2^23 units,
 //! one past the 23-bit range, and 512 such frames sum to exactly 2^32: one count of
-//! overflow. The center convention differs by a constant half code width (which dark
-//! subtraction removes) and keeps the top entry at 4095.5 DN < 2^23 for any normalized
-//! histogram whose last code is set to 1, as the paper's flattening does.
+//! overflow. The center differs from the top by half the code's own width, `w_k / 2`:
+//! a constant half code (which dark subtraction removes) only for an ideal ADC, for a
+//! real one a per-code shift of a few hundredths of a DN, and the center is the better
+//! estimate of the code's value. It keeps the top entry at 4095.5 DN < 2^23 for any
+//! normalized histogram whose last code is set to 1, as the paper's flattening does.
 //!
 //! ## Invariants a [`LutSet`] carries
 //! Every table is non-decreasing and every entry is below 2^23 ([`LUT_ENTRY_LIMIT`]), so

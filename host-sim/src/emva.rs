@@ -39,6 +39,7 @@ use std::path::{Component, Path, PathBuf};
 use rayon::prelude::*;
 
 use crate::HostError;
+use serde::Serialize;
 
 /// Largest frame accepted, pixels (2^28: 512 MiB of `u16`), so a corrupt `n` line cannot
 /// make a caller allocate without bound.
@@ -106,6 +107,83 @@ pub struct PtcPoint {
     pub dark_mean_dn: f64,
     /// Temporal variance of the dark frames, DN^2.
     pub dark_var_dn2: f64,
+}
+
+/// The photon-transfer characterization of a measured set (EMVA 1288 section 6 methods).
+#[derive(Debug, Clone, Serialize)]
+pub struct PtcSummary {
+    /// Illuminated levels used.
+    pub levels: usize,
+    /// Saturation: the level of largest temporal variance (EMVA 1288), mean above dark, DN.
+    pub saturation_dn: f64,
+    /// Photons per pixel at saturation.
+    pub saturation_photons: f64,
+    /// Responsivity, DN per photon, from the levels below half the saturation photons.
+    pub responsivity_dn_per_photon: f64,
+    /// R^2 of that line.
+    pub linearity_r2: f64,
+    /// Overall system gain K, DN per electron: slope of (variance - dark variance) against
+    /// mean above dark, over the levels up to 70% of saturation.
+    pub gain_dn_per_e: f64,
+    /// R^2 of that line.
+    pub gain_r2: f64,
+    /// Conversion gain the paper's way, electrons per DN (1/K).
+    pub gain_e_per_dn: f64,
+    /// Quantum efficiency, responsivity / K.
+    pub quantum_efficiency: f64,
+    /// Temporal dark noise, DN (at the shortest exposure's dark level).
+    pub dark_noise_dn: f64,
+    /// The same in electrons.
+    pub dark_noise_e: f64,
+}
+
+/// Least-squares line `y = a + b x`: (a, b, R^2).
+pub fn fit_line(x: &[f64], y: &[f64]) -> (f64, f64, f64) {
+    let n = x.len() as f64;
+    let (mx, my) = (x.iter().sum::<f64>() / n, y.iter().sum::<f64>() / n);
+    let sxy: f64 = x.iter().zip(y).map(|(a, b)| (a - mx) * (b - my)).sum();
+    let sxx: f64 = x.iter().map(|a| (a - mx) * (a - mx)).sum();
+    let syy: f64 = y.iter().map(|b| (b - my) * (b - my)).sum();
+    let slope = sxy / sxx;
+    (my - slope * mx, slope, sxy * sxy / (sxx * syy))
+}
+
+/// Gain, responsivity, QE, dark noise and saturation from photon-transfer points. Needs
+/// at least two levels below half saturation and two up to 70% of it: otherwise an error
+/// naming `path`.
+pub fn summarize(path: &Path, ptc: &[PtcPoint]) -> Result<PtcSummary, HostError> {
+    let mut ptc = ptc.to_vec();
+    ptc.sort_by(|a, b| a.photons.total_cmp(&b.photons));
+    let too_few = |what: &str| HostError::Format { path: path.to_path_buf(), message: format!("too few illuminated levels for {what}") };
+    let sat = (0..ptc.len()).max_by(|&a, &b| ptc[a].var_dn2.total_cmp(&ptc[b].var_dn2)).ok_or_else(|| too_few("a photon-transfer curve"))?;
+    let (saturation_dn, saturation_photons) = (ptc[sat].mean_dn, ptc[sat].photons);
+    let low: Vec<&PtcPoint> = ptc.iter().filter(|p| p.photons <= 0.5 * saturation_photons).collect();
+    if low.len() < 2 {
+        return Err(too_few("the linearity fit (two below half saturation)"));
+    }
+    let (x, y): (Vec<f64>, Vec<f64>) = low.iter().map(|p| (p.photons, p.mean_dn)).unzip();
+    let (_, responsivity, linearity_r2) = fit_line(&x, &y);
+    let gain_points: Vec<&PtcPoint> = ptc.iter().filter(|p| p.mean_dn <= 0.7 * saturation_dn).collect();
+    if gain_points.len() < 2 {
+        return Err(too_few("the gain fit (two up to 70% of saturation)"));
+    }
+    let (gx, gy): (Vec<f64>, Vec<f64>) = gain_points.iter().map(|p| (p.mean_dn, p.var_dn2 - p.dark_var_dn2)).unzip();
+    let (_, gain, gain_r2) = fit_line(&gx, &gy);
+    let shortest = ptc.iter().min_by(|a, b| a.exposure.total_cmp(&b.exposure)).ok_or_else(|| too_few("dark noise"))?;
+    let dark_noise_dn = shortest.dark_var_dn2.sqrt();
+    Ok(PtcSummary {
+        levels: ptc.len(),
+        saturation_dn,
+        saturation_photons,
+        responsivity_dn_per_photon: responsivity,
+        linearity_r2,
+        gain_dn_per_e: gain,
+        gain_r2,
+        gain_e_per_dn: 1.0 / gain,
+        quantum_efficiency: responsivity / gain,
+        dark_noise_dn,
+        dark_noise_e: dark_noise_dn / gain,
+    })
 }
 
 /// A format error at `line` of descriptor `path`.
@@ -423,17 +501,6 @@ mod tests {
             .join("EMVA1288_Data.txt")
     }
 
-    /// Least-squares line `y = a + b x`: (a, b, R^2).
-    fn fit_line(x: &[f64], y: &[f64]) -> (f64, f64, f64) {
-        let n = x.len() as f64;
-        let (mx, my) = (x.iter().sum::<f64>() / n, y.iter().sum::<f64>() / n);
-        let sxy: f64 = x.iter().zip(y).map(|(a, b)| (a - mx) * (b - my)).sum();
-        let sxx: f64 = x.iter().map(|a| (a - mx) * (a - mx)).sum();
-        let syy: f64 = y.iter().map(|b| (b - my) * (b - my)).sum();
-        let slope = sxy / sxx;
-        (my - slope * mx, slope, sxy * sxy / (sxx * syy))
-    }
-
     #[test]
     fn parses_the_real_set() {
         let set = read_descriptor(&real_descriptor()).unwrap();
@@ -460,32 +527,21 @@ mod tests {
         assert_eq!(ptc.len(), 51);
         assert!(ptc.iter().all(|p| p.exposure == set.levels.iter().find(|l| l.line == p.dark_line).unwrap().exposure));
         ptc.sort_by(|a, b| a.photons.total_cmp(&b.photons));
-        // Saturation as EMVA 1288 defines it: the level of largest temporal variance.
-        let sat = (0..ptc.len()).max_by(|&a, &b| ptc[a].var_dn2.total_cmp(&ptc[b].var_dn2)).unwrap();
-        let (sat_mean, sat_photons) = (ptc[sat].mean_dn, ptc[sat].photons);
         for p in &ptc {
             eprintln!(
                 "{:8.0} photons  {:8.2} DN  var {:8.3} DN^2  dark {:7.2} DN var {:.3} DN^2",
                 p.photons, p.mean_dn, p.var_dn2, p.dark_mean_dn, p.dark_var_dn2
             );
         }
-        // Linearity: the levels below half the saturation photons.
-        let low: Vec<&PtcPoint> = ptc.iter().filter(|p| p.photons <= 0.5 * sat_photons).collect();
-        let (x, y): (Vec<f64>, Vec<f64>) = low.iter().map(|p| (p.photons, p.mean_dn)).unzip();
-        let (offset, responsivity, r2) = fit_line(&x, &y);
-        // Gain: var - dark var against mean, up to 70 % of saturation (EMVA 1288 range).
-        let gain_points: Vec<&PtcPoint> = ptc.iter().filter(|p| p.mean_dn <= 0.7 * sat_mean).collect();
-        let (gx, gy): (Vec<f64>, Vec<f64>) = gain_points.iter().map(|p| (p.mean_dn, p.var_dn2 - p.dark_var_dn2)).unzip();
-        let (_, gain, gain_r2) = fit_line(&gx, &gy);
-        let qe = responsivity / gain;
-        eprintln!(
-            "saturation {sat_mean:.1} DN at {sat_photons:.0} photons; linearity over {} levels: R^2 = {r2:.6}, \
-             {responsivity:.5} DN/photon, offset {offset:.2} DN; gain K = {gain:.4} DN/e- (R^2 {gain_r2:.5}, \
-             {} levels), QE = {qe:.3}, dark noise {:.2} DN",
-            low.len(),
-            gain_points.len(),
-            ptc[0].dark_var_dn2.sqrt()
-        );
+        let s = summarize(&set.path, &ptc).unwrap();
+        eprintln!("{s:?}");
+        let (r2, gain_r2, gain, qe) = (s.linearity_r2, s.gain_r2, s.gain_dn_per_e, s.quantum_efficiency);
+        // Independently of the fits: K from the two lowest-signal and the two
+        // highest-below-70% points, by hand.
+        let usable: Vec<&PtcPoint> = ptc.iter().filter(|p| p.mean_dn <= 0.7 * s.saturation_dn).collect();
+        let (p0, p1) = (usable[0], usable[usable.len() - 1]);
+        let k_two_point = ((p1.var_dn2 - p1.dark_var_dn2) - (p0.var_dn2 - p0.dark_var_dn2)) / (p1.mean_dn - p0.mean_dn);
+        assert!((k_two_point - gain).abs() < 0.02 * gain, "fit {gain} vs two points {k_two_point}");
         assert!(r2 > 0.9999, "linearity R^2 {r2}");
         assert!(gain_r2 > 0.999, "PTC R^2 {gain_r2}");
         assert!((0.05..1.0).contains(&gain), "gain {gain} DN/e-");

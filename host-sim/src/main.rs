@@ -2,6 +2,7 @@
 //! arguments, prints a readable or JSON (`--json`) summary, and turns errors into a
 //! message on stderr and a nonzero exit.
 
+use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
@@ -160,6 +161,14 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
+    /// Photon transfer of a measured EMVA 1288 set: gain, QE, dark noise, linearity.
+    Emva {
+        /// The set's descriptor (EMVA1288_Data.txt); its images must lie inside its folder.
+        descriptor: PathBuf,
+        /// Print a JSON summary on stdout.
+        #[arg(long)]
+        json: bool,
+    },
     /// Run the core on the Cortex-M4 firmware in QEMU and on the host; compare the sums.
     FirmwareCheck {
         /// Frames per modulation state.
@@ -260,13 +269,18 @@ fn parse_roi(s: &str) -> Result<(usize, usize, usize, usize), HostError> {
 }
 
 fn print<T: Serialize>(json: bool, value: &T, text: impl FnOnce(&T) -> String) -> Result<(), HostError> {
-    if json {
-        let s = serde_json::to_string_pretty(value).map_err(|e| HostError::Format { path: "stdout".into(), message: e.to_string() })?;
-        println!("{s}");
+    let out = if json {
+        let mut s = serde_json::to_string_pretty(value).map_err(|e| HostError::Format { path: "stdout".into(), message: e.to_string() })?;
+        s.push('\n');
+        s
     } else {
-        print!("{}", text(value));
+        text(value)
+    };
+    // A closed pipe (`dncal ... | head`) is the reader's choice, not an error.
+    match std::io::stdout().lock().write_all(out.as_bytes()) {
+        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(HostError::io("stdout", e)),
+        _ => Ok(()),
     }
-    Ok(())
 }
 
 fn main() -> ExitCode {
@@ -346,6 +360,33 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
                 )
             })?;
             return Ok(if ok { ExitCode::SUCCESS } else { ExitCode::FAILURE });
+        }
+        Cmd::Emva { descriptor, json } => {
+            let set = dncal_host::emva::read_descriptor(&descriptor)?;
+            let ptc = dncal_host::emva::photon_transfer(&set)?;
+            let s = dncal_host::emva::summarize(&descriptor, &ptc)?;
+            print(json, &s, |s| {
+                format!(
+                    "{}: {} bits, {}x{}, {} illuminated levels\n\
+                     gain K = {:.4} DN/e- ({:.2} e-/DN, R^2 {:.5}); responsivity {:.5} DN/photon (R^2 {:.6}); QE {:.3}\n\
+                     dark noise {:.3} DN = {:.2} e-; saturation {:.1} DN above dark at {:.0} photons\n",
+                    descriptor.display(),
+                    set.bits,
+                    set.width,
+                    set.height,
+                    s.levels,
+                    s.gain_dn_per_e,
+                    s.gain_e_per_dn,
+                    s.gain_r2,
+                    s.responsivity_dn_per_photon,
+                    s.linearity_r2,
+                    s.quantum_efficiency,
+                    s.dark_noise_dn,
+                    s.dark_noise_e,
+                    s.saturation_dn,
+                    s.saturation_photons
+                )
+            })?;
         }
         Cmd::Demo { camera, out, frames, ramp, flatten, json } => {
             let cam = camera.camera()?;

@@ -168,7 +168,11 @@ pub fn inspect(path: &Path) -> Result<InspectSummary, HostError> {
         }
         ("device-image", crate::dispatch_lut_dims!(n, 1usize << bits, path.display().to_string(), parse_image(&bytes, path))?)
     } else {
-        ("lut-fits", read_lut(path)?.tables)
+        let tables = read_lut(path)?.tables;
+        // The file format allows any u32; show only what the core would load.
+        let (n, codes) = (tables.len(), tables.first().map_or(0, Vec::len));
+        crate::dispatch_lut_dims!(n, codes, path.display().to_string(), validate_tables(&tables, path))?;
+        ("lut-fits", tables)
     };
     let codes = tables.first().map_or(0, |t| t.len());
     let adcs = tables
@@ -189,6 +193,16 @@ pub fn inspect(path: &Path) -> Result<InspectSummary, HostError> {
         })
         .collect();
     Ok(InspectSummary { path: path.into(), kind: kind.into(), bit_depth: codes.trailing_zeros(), adcs })
+}
+
+/// The core's checks of a LUT set (every entry below 2^23, non-decreasing).
+fn validate_tables<const N: usize, const CODES: usize>(tables: &[Vec<u32>], path: &Path) -> Result<(), HostError> {
+    let mut bits = vec![[0u32; CODES]; N];
+    for (dst, src) in bits.iter_mut().zip(tables) {
+        dst.copy_from_slice(src);
+    }
+    let bits: Box<[[u32; CODES]; N]> = bits.into_boxed_slice().try_into().map_err(|_| HostError::Format { path: path.into(), message: "table count".into() })?;
+    LutSet::<N, CODES>::from_bits(&bits).map(drop).map_err(|e| HostError::core(path.display().to_string(), e))
 }
 
 fn parse_image<const N: usize, const CODES: usize>(bytes: &[u8], path: &Path) -> Result<Vec<Vec<u32>>, HostError> {

@@ -1,0 +1,304 @@
+//! The `dncal` command as a user runs it: every subcommand end to end, and every kind of
+//! bad input (a clear message naming the file, a nonzero exit, no panic, no output left
+//! behind and an existing output untouched).
+//!
+//! Bad FITS files are written by astropy (`python3`), the reference writer, so that the
+//! files are exactly what a user's tools produce.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use dncal_host::fits::{read_histograms, read_lut};
+use serde_json::Value;
+
+fn dncal(args: &[&str], dir: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_dncal")).args(args).current_dir(dir).output().expect("dncal runs")
+}
+
+fn stdout_json(out: &Output) -> Value {
+    assert!(out.status.success(), "exit {:?}\nstderr: {}", out.status, String::from_utf8_lossy(&out.stderr));
+    serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("stdout is not JSON ({e}): {}", String::from_utf8_lossy(&out.stdout)))
+}
+
+/// The command failed cleanly: exit 1, one error line naming `file` and containing
+/// `words`, no panic.
+fn assert_clean_failure(out: &Output, file: &str, words: &str) {
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "stderr: {stderr}");
+    assert!(!stderr.contains("panicked"), "panic: {stderr}");
+    assert!(stderr.starts_with("dncal: error: "), "{stderr}");
+    assert!(stderr.contains(file), "{stderr:?} should name {file}");
+    assert!(stderr.to_lowercase().contains(&words.to_lowercase()), "{stderr:?} should say {words:?}");
+}
+
+fn python(script: &str, dir: &Path) {
+    let out = Command::new("python3").arg("-c").arg(script).current_dir(dir).output().expect("python3 must be installed");
+    assert!(out.status.success(), "python failed (astropy installed?):\n{}", String::from_utf8_lossy(&out.stderr));
+}
+
+/// Files in `dir`, sorted: to see that a failed command left nothing behind.
+fn listing(dir: &Path) -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().path()).collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn demo_calibrates_streams_and_reports() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dncal(&["demo", "-o", "report", "--frames", "2", "--json"], dir.path());
+    let s = stdout_json(&out);
+    let folder = dir.path().join("report");
+    assert_eq!(s["stream"]["mismatches"], 0);
+    assert_eq!(s["stream"]["out_of_bound"], 0);
+    assert_eq!(s["stream"]["frames"], 2);
+    assert_eq!(s["stream"]["pixels"], 2 * 1024 * 1024);
+    // Against the simulated ADCs' true code centers (the planted truth), the LUT must
+    // beat the raw code on every ADC.
+    let correction = s["correction"].as_array().unwrap();
+    assert_eq!(correction.len(), 4);
+    for c in correction {
+        let (raw, lut) = (c["rms_raw_dn"].as_f64().unwrap(), c["rms_lut_dn"].as_f64().unwrap());
+        assert!(lut < raw && lut < 0.1, "ADC {}: raw {raw} DN, with LUT {lut} DN", c["adc"]);
+    }
+    let html = std::fs::read_to_string(folder.join("report.html")).unwrap();
+    for png in ["histograms.png", "histograms_zoom.png", "offsets.png", "correction_error.png"] {
+        assert!(html.contains(&format!("src=\"{png}\"")), "report lacks {png}");
+        let bytes = std::fs::read(folder.join(png)).unwrap();
+        assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n", "{png}");
+        let width = u32::from_be_bytes(bytes[16..20].try_into().unwrap());
+        assert!(width >= 800, "{png} is {width} pixels wide");
+    }
+    let h = read_histograms(&folder.join("histograms.fits")).unwrap();
+    assert_eq!((h.bit_depth, h.n_adc()), (12, 4));
+    let levels = s["ramp_levels"].as_u64().unwrap() as f64;
+    assert_eq!(levels, (130..140).sum::<u64>() as f64);
+    for counts in &h.counts {
+        // Every sample of every level lands in some code: Poisson total per ADC.
+        let expected = levels * 16384.0 * 100.0;
+        let total = counts.iter().sum::<u64>() as f64;
+        assert!((total - expected).abs() < 5.0 * expected.sqrt(), "{total} vs {expected}");
+    }
+    let lut = read_lut(&folder.join("lut.fits")).unwrap();
+    // The device image holds the same tables: `lut inspect` reads it with the core.
+    let inspected = stdout_json(&dncal(&["lut", "inspect", "report/lut.bin", "--json"], dir.path()));
+    for (a, table) in lut.tables.iter().enumerate() {
+        let entries: Vec<u64> = inspected["adcs"][a]["entries"].as_array().unwrap().iter().map(|v| v.as_u64().unwrap()).collect();
+        assert_eq!(entries, table.iter().map(|&e| e as u64).collect::<Vec<_>>(), "ADC {a}");
+    }
+    let summary: Value = serde_json::from_str(&std::fs::read_to_string(folder.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["stream"]["mismatches"], 0);
+}
+
+#[test]
+fn simulate_then_build_then_inspect() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = stdout_json(&dncal(&["simulate", "histograms", "-o", "h.fits", "--first-ramp", "40", "--last-ramp", "41", "--json"], dir.path()));
+    assert_eq!(s["levels"], 81);
+    let h = read_histograms(&dir.path().join("h.fits")).unwrap();
+    let total: u64 = h.counts[1].iter().sum();
+    // 81 levels x 16384 pixels x 100 frames, Poisson per code: within 5 sd of the sum.
+    let expected = 81.0 * 16384.0 * 100.0;
+    assert!((total as f64 - expected).abs() < 5.0 * expected.sqrt(), "{total}");
+
+    let b = stdout_json(&dncal(&["lut", "build", "h.fits", "-o", "cal", "--json"], dir.path()));
+    for a in b["adcs"].as_array().unwrap() {
+        // Normalization leaves no drift at the top code (the issue's check).
+        assert!(a["top_offset_dn"].as_f64().unwrap().abs() < 1e-6, "{a}");
+    }
+    let lut = read_lut(&dir.path().join("cal.fits")).unwrap();
+    assert_eq!(lut.frac_bits, 11);
+    for (file, kind) in [("cal.fits", "lut-fits"), ("cal.bin", "device-image")] {
+        let i = stdout_json(&dncal(&["lut", "inspect", file, "--json"], dir.path()));
+        assert_eq!(i["kind"], kind);
+        for (a, table) in lut.tables.iter().enumerate() {
+            let entries = i["adcs"][a]["entries"].as_array().unwrap();
+            assert_eq!(entries.len(), 4096);
+            assert!(entries.iter().zip(table).all(|(v, &e)| v.as_u64() == Some(e as u64)), "{file} ADC {a}");
+            // Cumulative offset = entry / 2048 - (k + 1/2), recomputed here.
+            let offsets = i["adcs"][a]["cumulative_offset_dn"].as_array().unwrap();
+            for k in [0usize, 149, 150, 2000, 4095] {
+                let want = table[k] as f64 / 2048.0 - (k as f64 + 0.5);
+                assert!((offsets[k].as_f64().unwrap() - want).abs() < 1e-12, "{file} ADC {a} code {k}");
+            }
+        }
+    }
+    // Readable output too.
+    let text = dncal(&["lut", "inspect", "cal.bin", "--table"], dir.path());
+    assert!(text.status.success());
+    let t = String::from_utf8_lossy(&text.stdout);
+    assert!(t.contains("ADC 3:") && t.lines().count() > 4 * 4096, "{}", &t[..200.min(t.len())]);
+}
+
+#[test]
+fn stream_reports_zero_mismatches_in_json() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = stdout_json(&dncal(&["stream", "--frames", "6", "--roi", "128x64+8+100", "--json"], dir.path()));
+    for key in ["frames", "pixels", "mismatches", "max_abs_err_dn", "pixels_per_s"] {
+        assert!(s.get(key).is_some(), "missing {key}");
+    }
+    assert_eq!(s["frames"], 6);
+    assert_eq!(s["pixels"], 6 * 128 * 64);
+    assert_eq!(s["mismatches"], 0);
+    // Frames 0..5 over 4 states: at most 2 frames per state, each entry within 2^-12 DN.
+    let err = s["max_abs_err_dn"].as_f64().unwrap();
+    assert!(err > 0.0 && err <= 2.0 * 2f64.powi(-12), "{err}");
+    assert!(s["pixels_per_s"].as_f64().unwrap() > 0.0);
+}
+
+#[test]
+fn emva_reads_the_real_measurement() {
+    let descriptor = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/emva1288-ccd-12bit/EMVA1288_Data.txt");
+    let descriptor = std::env::var_os("DNCAL_EMVA_DIR").map(|d| Path::new(&d).join("EMVA1288_Data.txt")).unwrap_or(descriptor);
+    let dir = tempfile::tempdir().unwrap();
+    let s = stdout_json(&dncal(&["emva", descriptor.to_str().unwrap(), "--json"], dir.path()));
+    let k = s["gain_dn_per_e"].as_f64().unwrap();
+    assert!((0.2..0.35).contains(&k), "K = {k} DN/e-");
+    assert!(s["linearity_r2"].as_f64().unwrap() > 0.9999);
+    assert_eq!(s["levels"], 51);
+}
+
+#[test]
+fn bad_histogram_files_fail_cleanly_and_leave_outputs_alone() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    python(
+        r#"
+import numpy as np
+from astropy.io import fits
+def hist(name, data, **keys):
+    h = fits.PrimaryHDU(data)
+    for k, v in keys.items():
+        h.header[k] = v
+    h.writeto(name)
+good = np.full((4, 4096), 1000, dtype=np.int32)
+neg = good.copy(); neg[2, 77] = -5
+hist('negative.fits', neg, BITDEPTH=12, NADC=4, ADCMAP='COLMOD')
+hist('nokey.fits', good, NADC=4, ADCMAP='COLMOD')
+hist('shape.fits', good[:, :4000], BITDEPTH=12, NADC=4, ADCMAP='COLMOD')
+hist('nadc.fits', good, BITDEPTH=12, NADC=3, ADCMAP='COLMOD')
+hist('adcmap.fits', good, BITDEPTH=12, NADC=4, ADCMAP='ROWMOD')
+flt = good.astype(np.float64); flt[0, 5] = np.nan
+hist('nan.fits', flt, BITDEPTH=12, NADC=4, ADCMAP='COLMOD')
+empty = np.zeros((4, 4096), dtype=np.int32)
+hist('empty.fits', empty, BITDEPTH=12, NADC=4, ADCMAP='COLMOD')
+hist('ok.fits', good, BITDEPTH=12, NADC=4, ADCMAP='COLMOD')
+open('text.fits', 'w').write('SIMPLE  = T but not really\n')
+raw = open('ok.fits', 'rb').read()
+open('truncated.fits', 'wb').write(raw[: len(raw) // 2])
+"#,
+        d,
+    );
+    // An earlier output that a failed build must not touch.
+    std::fs::write(d.join("out.fits"), "old").unwrap();
+    std::fs::write(d.join("out.bin"), "old").unwrap();
+    let before = listing(d);
+    for (file, words) in [
+        ("negative.fits", "negative"),
+        ("nokey.fits", "BITDEPTH"),
+        ("shape.fits", "4000"),
+        ("nadc.fits", "NADC"),
+        ("adcmap.fits", "ADCMAP"),
+        ("nan.fits", "NaN"),
+        ("empty.fits", "count"),
+        ("text.fits", "FITS"),
+        ("truncated.fits", "truncated"),
+        ("missing.fits", "No such file"),
+    ] {
+        let out = dncal(&["lut", "build", file, "-o", "out"], d);
+        assert_clean_failure(&out, file, words);
+        assert_eq!(listing(d), before, "{file}: the folder changed");
+        assert_eq!(std::fs::read_to_string(d.join("out.fits")).unwrap(), "old", "{file}");
+        assert_eq!(std::fs::read_to_string(d.join("out.bin")).unwrap(), "old", "{file}");
+    }
+    // The good file builds: the failures above were the files, not the setup.
+    assert!(dncal(&["lut", "build", "ok.fits", "-o", "out"], d).status.success());
+}
+
+#[test]
+fn bad_lut_files_fail_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    assert!(dncal(&["stream", "--frames", "1", "--roi", "8x1+0+0"], d).status.success());
+    python(
+        r#"
+import numpy as np
+from astropy.io import fits
+t = (np.arange(4096, dtype=np.uint64) * 2048 + 1024)
+good = np.tile(t, (4, 1)).astype(np.uint32)
+def lut(name, data, **keys):
+    h = fits.PrimaryHDU(data)
+    for k, v in keys.items():
+        h.header[k] = v
+    h.writeto(name)
+dec = good.copy(); dec[1, 100] = dec[1, 99] - 1
+lut('decreasing.fits', dec, FRACBITS=11, BITDEPTH=12, NADC=4, ADCMAP='COLMOD')
+lut('fracbits.fits', good, FRACBITS=8, BITDEPTH=12, NADC=4, ADCMAP='COLMOD')
+lut('nokeys.fits', good, FRACBITS=11)
+big = good.copy(); big[0, 4095] = 1 << 23
+lut('range.fits', big, FRACBITS=11, BITDEPTH=12, NADC=4, ADCMAP='COLMOD')
+"#,
+        d,
+    );
+    for (file, words) in [("decreasing.fits", "decreases at code 100"), ("fracbits.fits", "FRACBITS"), ("nokeys.fits", "BITDEPTH"), ("range.fits", "8388608")] {
+        assert_clean_failure(&dncal(&["lut", "inspect", file], d), file, words);
+    }
+    // A device image with one flipped bit, and one cut short.
+    let build = tempfile::tempdir().unwrap();
+    python(
+        r#"
+import numpy as np
+from astropy.io import fits
+h = fits.PrimaryHDU(np.full((4, 4096), 1000, dtype=np.int32))
+h.header['BITDEPTH'] = 12; h.header['NADC'] = 4; h.header['ADCMAP'] = 'COLMOD'
+h.writeto('h.fits')
+"#,
+        build.path(),
+    );
+    assert!(dncal(&["lut", "build", "h.fits", "-o", "l"], build.path()).status.success());
+    let mut image = std::fs::read(build.path().join("l.bin")).unwrap();
+    std::fs::write(d.join("short.bin"), &image[..image.len() - 7]).unwrap();
+    image[5000] ^= 0x10;
+    std::fs::write(d.join("flipped.bin"), &image).unwrap();
+    assert_clean_failure(&dncal(&["lut", "inspect", "short.bin"], d), "short.bin", "length");
+    assert_clean_failure(&dncal(&["lut", "inspect", "flipped.bin"], d), "flipped.bin", "CRC");
+}
+
+#[test]
+fn bad_camera_files_and_arguments_fail_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("cam.toml"), "read_noise_e = -3.0\n").unwrap();
+    std::fs::write(d.join("typo.toml"), "read_nois_e = 3.0\n").unwrap();
+    std::fs::write(d.join("syntax.toml"), "read_noise_e = \n").unwrap();
+    for (file, words) in [("cam.toml", "read_noise_e"), ("typo.toml", "read_nois_e"), ("syntax.toml", "")] {
+        let out = dncal(&["simulate", "histograms", "--config", file, "-o", "h.fits"], d);
+        assert_clean_failure(&out, file, words);
+        assert!(!d.join("h.fits").exists(), "{file}");
+    }
+    assert_clean_failure(&dncal(&["stream", "--roi", "2000x1+0+0"], d), "ROI", "2000");
+}
+
+#[test]
+fn emva_descriptors_that_leave_their_folder_or_break_fail_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let set = dir.path().join("set");
+    std::fs::create_dir(&set).unwrap();
+    std::fs::write(dir.path().join("secret.png"), b"not yours").unwrap();
+    let cases = [
+        ("escape.txt", "v 3.0\nn 12 4 3\nd 1\ni ../secret.png\ni ../secret.png\n", "escapes"),
+        ("absolute.txt", "v 3.0\nn 12 4 3\nd 1\ni /etc/passwd\ni /etc/passwd\n", "absolute"),
+        ("bits.txt", "v 3.0\nn 40 4 3\n", "bits"),
+        ("garbage.txt", "v 3.0\nn 12 4 3\nb 1 nan\n", "line 3"),
+        ("missing_image.txt", "v 3.0\nn 12 4 3\nd 1\ni images/none.png\ni images/none.png\nb 1 100\ni images/none.png\ni images/none.png\n", "none.png"),
+    ];
+    for (name, text, words) in cases {
+        std::fs::write(set.join(name), text).unwrap();
+        let out = dncal(&["emva", &format!("set/{name}")], dir.path());
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{name}: {stderr}");
+        assert!(!stderr.contains("panicked"), "{name}: {stderr}");
+        assert!(stderr.contains(name) || stderr.contains("none.png"), "{name}: {stderr}");
+        assert!(stderr.to_lowercase().contains(&words.to_lowercase()), "{name}: {stderr:?} should say {words:?}");
+    }
+}
