@@ -1,8 +1,9 @@
 //! # dncal-host: dncal on the host
 //!
-//! Everything that needs `std`: synthetic camera data, the firmware-versus-host run, and
-//! (in later issues) the camera model, the float reference, characterization and the
-//! `dncal` command's subcommands. All correction arithmetic comes from `dncal-core`.
+//! Everything that needs `std`: the camera model, the float reference and the streaming
+//! check, the FITS and EMVA 1288 formats, the paper's flattening and characterizations,
+//! figures, the firmware-versus-host run, and the `dncal` command's subcommands. All
+//! correction arithmetic comes from `dncal-core`.
 
 pub mod camera;
 pub mod commands;
@@ -13,6 +14,7 @@ pub mod firmware;
 pub mod fits;
 pub mod flatten;
 pub mod plots;
+pub mod quantization;
 pub mod reference;
 pub mod streaming;
 pub mod synth;

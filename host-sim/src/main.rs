@@ -11,7 +11,7 @@ use clap::{Args, Parser, Subcommand};
 use dncal_core::{Geometry, Mvd1024eLuts};
 use dncal_host::camera::calibration::{LinearityParams, RampParams};
 use dncal_host::camera::{Camera, CameraConfig};
-use dncal_host::commands::{demo, lut, simulate, stream};
+use dncal_host::commands::{demo, lut, quantization, simulate, stream};
 use dncal_host::firmware::{build_firmware, run_firmware, run_on_host, RunInputs};
 use dncal_host::flatten::FlattenParams;
 use dncal_host::streaming::StreamParams;
@@ -157,6 +157,30 @@ enum Cmd {
         ramp: RampArgs,
         #[command(flatten)]
         flatten: FlattenArgs,
+        /// Print a JSON summary on stdout.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Quantization bias of averaged readouts (paper section 2).
+    Quantization {
+        /// Noise rms, DN: print the worst-case bias over lambda mod 1.
+        #[arg(long)]
+        sigma: Option<f64>,
+        /// Noise as read noise in electrons (with --gain-e-per-dn) instead of --sigma.
+        #[arg(long, requires = "gain_e_per_dn", conflicts_with = "sigma")]
+        read_noise_e: Option<f64>,
+        /// Conversion gain, e-/DN, for --read-noise-e.
+        #[arg(long)]
+        gain_e_per_dn: Option<f64>,
+        /// Worst-case bias target, DN: print the smallest noise that meets it.
+        #[arg(long)]
+        bias: Option<f64>,
+        /// Write the paper's Fig. 1 (|delta| over lambda mod 1 and sigma) as a PNG.
+        #[arg(long)]
+        figure: Option<PathBuf>,
+        /// Monte Carlo readouts for the check at the worst lambda.
+        #[arg(long, default_value_t = 1_000_000)]
+        samples: u64,
         /// Print a JSON summary on stdout.
         #[arg(long)]
         json: bool,
@@ -360,6 +384,45 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
                 )
             })?;
             return Ok(if ok { ExitCode::SUCCESS } else { ExitCode::FAILURE });
+        }
+        Cmd::Quantization { sigma, read_noise_e, gain_e_per_dn, bias, figure, samples, json } => {
+            let sigma = match (sigma, read_noise_e, gain_e_per_dn) {
+                (Some(s), _, _) => Some(s),
+                (None, Some(r), Some(g)) if g > 0.0 => Some(r / g),
+                (None, Some(_), Some(g)) => return Err(HostError::Format { path: "--gain-e-per-dn".into(), message: format!("{g} e-/DN must be > 0") }),
+                _ => None,
+            };
+            if sigma.is_none() && bias.is_none() && figure.is_none() {
+                return Err(HostError::Format { path: "arguments".into(), message: "give --sigma (or --read-noise-e with --gain-e-per-dn), --bias or --figure".into() });
+            }
+            if let Some(path) = &figure {
+                quantization::figure(path)?;
+                if !json {
+                    println!("wrote {}", path.display());
+                }
+            }
+            // One JSON object per request; both requests give a combined object.
+            let at = sigma.map(|s| quantization::at_sigma(s, samples, 1)).transpose()?;
+            let needed = bias.map(quantization::for_bias).transpose()?;
+            match (at, needed) {
+                (Some(a), None) => print(json, &a, |a| {
+                    format!(
+                        "noise {:.4} DN: worst-case bias {:.4e} DN at lambda mod 1 = {:.4}\n  Fourier series {:+.6e}, eq. 4 {:+.6e}, exact sum {:+.6e}, Monte Carlo {:+.6e} +- {:.1e} DN ({} readouts)\n",
+                        a.sigma, a.max_abs_bias_dn, a.at_lambda_frac, a.fourier_bias_dn, a.erf_bias_dn, a.exact_bias_dn, a.monte_carlo_bias_dn, a.monte_carlo_se_dn, a.monte_carlo_samples
+                    )
+                })?,
+                (None, Some(b)) => print(json, &b, |b| format!("worst-case bias <= {} DN needs noise >= {:.4} DN\n", b.bias, b.sigma))?,
+                (Some(a), Some(b)) => {
+                    let both = serde_json::json!({ "at_sigma": a, "for_bias": b });
+                    print(json, &both, |_| {
+                        format!(
+                            "noise {:.4} DN: worst-case bias {:.4e} DN at lambda mod 1 = {:.4}\nworst-case bias <= {} DN needs noise >= {:.4} DN\n",
+                            a.sigma, a.max_abs_bias_dn, a.at_lambda_frac, b.bias, b.sigma
+                        )
+                    })?
+                }
+                (None, None) => {}
+            }
         }
         Cmd::Emva { descriptor, json } => {
             let set = dncal_host::emva::read_descriptor(&descriptor)?;

@@ -103,6 +103,155 @@ pub fn line_plot(path: &Path, title: &str, x_label: &str, y_label: &str, series:
     write_png(path, &rgb, width, height)
 }
 
+/// A color map of a grid of values with contour lines, for maps such as the paper's
+/// Fig. 1 and Fig. 5.
+pub struct Map<'a> {
+    /// Figure title.
+    pub title: &'a str,
+    /// Axis labels.
+    pub x_label: &'a str,
+    /// Axis labels.
+    pub y_label: &'a str,
+    /// `values[i][j]` at `y = y_range.0 + (y_range.1 - y_range.0) i / (rows - 1)` and `x`
+    /// likewise with `j`: rows along y.
+    pub values: &'a [Vec<f64>],
+    /// x of the first and last column.
+    pub x_range: (f64, f64),
+    /// y of the first and last row.
+    pub y_range: (f64, f64),
+    /// Color scale label.
+    pub scale_label: &'a str,
+    /// Color the values' log10 (non-positive values take the lowest color).
+    pub log: bool,
+    /// Contour levels, in the values' units (not log).
+    pub contours: &'a [f64],
+}
+
+/// Segments where the bilinear grid `v` (rows along y) crosses `level`: marching
+/// squares, in grid coordinates (column, row). Saddle cells join the crossings in order.
+pub fn contour_segments(v: &[Vec<f64>], level: f64) -> Vec<[(f64, f64); 2]> {
+    let mut out = Vec::new();
+    for i in 0..v.len().saturating_sub(1) {
+        for j in 0..v[i].len().saturating_sub(1).min(v[i + 1].len().saturating_sub(1)) {
+            // Corners counter-clockwise from (j, i).
+            let c = [(j, i, v[i][j]), (j + 1, i, v[i][j + 1]), (j + 1, i + 1, v[i + 1][j + 1]), (j, i + 1, v[i + 1][j])];
+            let mut pts = Vec::with_capacity(4);
+            for e in 0..4 {
+                let (x0, y0, a) = c[e];
+                let (x1, y1, b) = c[(e + 1) % 4];
+                if !(a.is_finite() && b.is_finite()) {
+                    continue;
+                }
+                if (a < level) != (b < level) {
+                    let t = (level - a) / (b - a);
+                    pts.push((x0 as f64 + t * (x1 as f64 - x0 as f64), y0 as f64 + t * (y1 as f64 - y0 as f64)));
+                }
+            }
+            for pair in pts.chunks_exact(2) {
+                out.push([pair[0], pair[1]]);
+            }
+        }
+    }
+    out
+}
+
+/// Draws `map` as a PNG at `path`, atomically: cells colored by value (viridis), contour
+/// lines in white, a color bar.
+pub fn map_plot(path: &Path, map: &Map) -> Result<(), HostError> {
+    use plotters::style::colors::colormaps::{ColorMap, ViridisRGB};
+    ensure_font();
+    let rows = map.values.len();
+    let cols = map.values.first().map_or(0, Vec::len);
+    if rows < 2 || cols < 2 {
+        return Err(plot_err(path, "a map needs at least 2 x 2 values"));
+    }
+    let t = |x: f64| if map.log { if x > 0.0 { x.log10() } else { f64::NEG_INFINITY } } else { x };
+    let finite: Vec<f64> = map.values.iter().flatten().map(|&x| t(x)).filter(|x| x.is_finite()).collect();
+    let (mut lo, hi) = finite.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+    if map.log {
+        // Keep six decades below the top: the rest is "negligible".
+        lo = lo.max(hi - 6.0);
+    }
+    let hi = if hi > lo { hi } else { lo + 1.0 };
+    let (width, height) = (1000u32, 760u32);
+    let mut rgb = vec![0u8; (width * height * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut rgb, (width, height)).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| plot_err(path, e))?;
+        let root = root.titled(map.title, ("sans-serif", 22)).map_err(|e| plot_err(path, e))?;
+        let (main, bar) = root.split_horizontally(860);
+        let (x0, x1) = map.x_range;
+        let (y0, y1) = map.y_range;
+        let dx = (x1 - x0) / (cols - 1) as f64;
+        let dy = (y1 - y0) / (rows - 1) as f64;
+        let mut chart = ChartBuilder::on(&main)
+            .margin(10)
+            .x_label_area_size(44)
+            .y_label_area_size(70)
+            .build_cartesian_2d((x0 - dx / 2.0)..(x1 + dx / 2.0), (y0 - dy / 2.0)..(y1 + dy / 2.0))
+            .map_err(|e| plot_err(path, e))?;
+        chart
+            .configure_mesh()
+            .disable_mesh()
+            .x_desc(map.x_label)
+            .y_desc(map.y_label)
+            .label_style(("sans-serif", 15))
+            .draw()
+            .map_err(|e| plot_err(path, e))?;
+        let color = |x: f64| -> RGBColor {
+            let v = t(x);
+            let h = if v.is_finite() { ((v - lo) / (hi - lo)).clamp(0.0, 1.0) } else { 0.0 };
+            ViridisRGB.get_color(h as f32)
+        };
+        chart
+            .draw_series(map.values.iter().enumerate().flat_map(|(i, row)| {
+                row.iter().enumerate().map(move |(j, &v)| {
+                    let (cx, cy) = (x0 + j as f64 * dx, y0 + i as f64 * dy);
+                    Rectangle::new([(cx - dx / 2.0, cy - dy / 2.0), (cx + dx / 2.0, cy + dy / 2.0)], color(v).filled())
+                })
+            }))
+            .map_err(|e| plot_err(path, e))?;
+        for &level in map.contours {
+            let segs = contour_segments(map.values, level);
+            // Label each contour at its highest point.
+            let top = segs.iter().flatten().copied().max_by(|a, b| a.1.total_cmp(&b.1));
+            chart
+                .draw_series(segs.into_iter().map(|[a, b]| PathElement::new(vec![(x0 + a.0 * dx, y0 + a.1 * dy), (x0 + b.0 * dx, y0 + b.1 * dy)], WHITE.stroke_width(2))))
+                .map_err(|e| plot_err(path, e))?;
+            if let Some((cx, cy)) = top {
+                let label = format!("{level:e}");
+                chart
+                    .draw_series(std::iter::once(Text::new(label, (x0 + cx * dx, y0 + cy * dy + 2.0 * dy), ("sans-serif", 15).into_font().color(&WHITE))))
+                    .map_err(|e| plot_err(path, e))?;
+            }
+        }
+        // Color bar.
+        let mut cb = ChartBuilder::on(&bar)
+            .margin_top(10)
+            .margin_bottom(54)
+            .margin_right(10)
+            .y_label_area_size(60)
+            .build_cartesian_2d(0.0..1.0, lo..hi)
+            .map_err(|e| plot_err(path, e))?;
+        cb.configure_mesh()
+            .disable_mesh()
+            .disable_x_axis()
+            .y_desc(map.scale_label)
+            .label_style(("sans-serif", 13))
+            .draw()
+            .map_err(|e| plot_err(path, e))?;
+        let n = 200;
+        cb.draw_series((0..n).map(|k| {
+            let a = lo + (hi - lo) * k as f64 / n as f64;
+            let b = lo + (hi - lo) * (k + 1) as f64 / n as f64;
+            Rectangle::new([(0.0, a), (1.0, b)], ViridisRGB.get_color(k as f32 / n as f32).filled())
+        }))
+        .map_err(|e| plot_err(path, e))?;
+        root.present().map_err(|e| plot_err(path, e))?;
+    }
+    write_png(path, &rgb, width, height)
+}
+
 /// Encodes 8-bit RGB pixels as a PNG at `path`, atomically.
 pub fn write_png(path: &Path, rgb: &[u8], width: u32, height: u32) -> Result<(), HostError> {
     let mut bytes = Vec::new();
@@ -114,4 +263,41 @@ pub fn write_png(path: &Path, rgb: &[u8], width: u32, height: u32) -> Result<(),
         writer.write_image_data(rgb).map_err(|e| plot_err(path, e))?;
     }
     write_atomically(path, |tmp| std::fs::write(tmp, &bytes).map_err(|e| HostError::io(tmp, e)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn contours_of_a_plane_lie_on_the_level_line() {
+        // v = x + 2 y is bilinear, so the crossings are exact: x + 2 y = level.
+        let v: Vec<Vec<f64>> = (0..12).map(|i| (0..15).map(|j| j as f64 + 2.0 * i as f64).collect()).collect();
+        for level in [3.5, 10.0, 17.25] {
+            let segs = contour_segments(&v, level);
+            assert!(!segs.is_empty());
+            for p in segs.iter().flatten() {
+                assert!((p.0 + 2.0 * p.1 - level).abs() < 1e-12, "{p:?}");
+            }
+            // The line crosses from x = level - 2 y: its length inside the grid, summed.
+            let length: f64 = segs.iter().map(|[a, b]| ((a.0 - b.0).powi(2) + (a.1 - b.1).powi(2)).sqrt()).sum();
+            let ys = (0.0f64.max((level - 14.0) / 2.0), 11.0f64.min(level / 2.0));
+            let want = (ys.1 - ys.0) * 5f64.sqrt();
+            assert!((length - want).abs() < 1e-9, "level {level}: {length} vs {want}");
+        }
+        assert!(contour_segments(&v, -1.0).is_empty());
+    }
+
+    #[test]
+    fn map_plot_writes_a_png_and_rejects_a_degenerate_grid() {
+        let dir = tempfile::tempdir().unwrap();
+        let values = vec![vec![1.0, 0.1], vec![0.01, 0.001]];
+        let map = Map { title: "t", x_label: "x", y_label: "y", values: &values, x_range: (0.0, 1.0), y_range: (0.0, 1.0), scale_label: "s", log: true, contours: &[0.05] };
+        let path = dir.path().join("m.png");
+        map_plot(&path, &map).unwrap();
+        assert_eq!(&std::fs::read(&path).unwrap()[..4], b"\x89PNG");
+        let one = vec![vec![1.0]];
+        assert!(map_plot(&dir.path().join("n.png"), &Map { values: &one, ..map }).is_err());
+        assert!(!dir.path().join("n.png").exists());
+    }
 }

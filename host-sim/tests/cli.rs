@@ -302,3 +302,54 @@ fn emva_descriptors_that_leave_their_folder_or_break_fail_cleanly() {
         assert!(stderr.to_lowercase().contains(&words.to_lowercase()), "{name}: {stderr:?} should say {words:?}");
     }
 }
+
+/// The bias by brute numerical integration, independent of every closed form: the mean
+/// of round(x) for x ~ N(lambda, sigma^2) by the midpoint rule over +-12 sigma, on a grid
+/// whose cell edges include every code boundary k + 1/2 (so no cell straddles a jump).
+fn integrated_bias(lambda: f64, sigma: f64) -> f64 {
+    let per_dn = 20_000;
+    let a = (lambda - 12.0 * sigma).floor() - 0.5;
+    let n = ((24.0 * sigma + 2.0).ceil() as usize) * per_dn;
+    let h = 1.0 / per_dn as f64;
+    let norm = 1.0 / (sigma * (2.0 * std::f64::consts::PI).sqrt());
+    let mean: f64 = (0..n)
+        .map(|i| {
+            let x = a + (i as f64 + 0.5) * h;
+            (x + 0.5).floor() * norm * (-0.5 * ((x - lambda) / sigma).powi(2)).exp() * h
+        })
+        .sum();
+    lambda - mean
+}
+
+#[test]
+fn quantization_matches_numerical_integration_and_the_paper() {
+    let dir = tempfile::tempdir().unwrap();
+    for sigma in [0.15, 0.25, 0.4] {
+        let s = stdout_json(&dncal(&["quantization", "--sigma", &sigma.to_string(), "--samples", "200000", "--json"], dir.path()));
+        assert_eq!(s["sigma"].as_f64(), Some(sigma));
+        let max = s["max_abs_bias_dn"].as_f64().unwrap();
+        let at = s["at_lambda_frac"].as_f64().unwrap();
+        // The integral at the reported lambda' equals the reported bias...
+        let at_value = integrated_bias(100.0 + at, sigma).abs();
+        assert!((at_value - max).abs() < 1e-9, "sigma {sigma}: integral {at_value} vs {max}");
+        // ...and no lambda' on a grid does worse.
+        let grid_max = (0..200).map(|i| integrated_bias(100.0 + i as f64 / 200.0, sigma).abs()).fold(0.0, f64::max);
+        assert!(grid_max <= max + 1e-9 && grid_max > 0.95 * max, "sigma {sigma}: grid {grid_max} vs {max}");
+        let (mc, se) = (s["monte_carlo_bias_dn"].as_f64().unwrap(), s["monte_carlo_se_dn"].as_f64().unwrap());
+        assert!((mc.abs() - max).abs() < 5.0 * se, "Monte Carlo {mc} +- {se} vs {max}");
+    }
+    // The paper's claims (section 2).
+    let need = |b: &str| stdout_json(&dncal(&["quantization", "--bias", b, "--json"], dir.path()))["sigma"].as_f64().unwrap();
+    assert!(need("0.2") <= 0.2, "0.2 DN of noise averages to 0.2 DN");
+    let for_001 = need("0.01");
+    assert!((0.38..0.45).contains(&for_001), "about 0.4 DN for 0.01 DN: {for_001}");
+    let camera = |r: &str, g: &str| stdout_json(&dncal(&["quantization", "--read-noise-e", r, "--gain-e-per-dn", g, "--samples", "1000", "--json"], dir.path()))["max_abs_bias_dn"].as_f64().unwrap();
+    assert!(camera("182", "44") < 1e-100, "the MV-D1024E has no quantization problem");
+    // An 8-bit camera of 30 ke- full well (117 e-/DN) with 37 e- read noise misses 0.01 DN.
+    assert!(camera("37", "117.2") > 0.01);
+    let fig = dncal(&["quantization", "--figure", "q.png"], dir.path());
+    assert!(fig.status.success());
+    assert_eq!(&std::fs::read(dir.path().join("q.png")).unwrap()[..4], b"\x89PNG");
+    assert_clean_failure(&dncal(&["quantization", "--bias", "0"], dir.path()), "--bias", "> 0");
+    assert_clean_failure(&dncal(&["quantization", "--sigma=-1"], dir.path()), "--sigma", ">= 0");
+}

@@ -4,5 +4,6 @@
 pub mod demo;
 pub mod lut;
 pub mod progress;
+pub mod quantization;
 pub mod simulate;
 pub mod stream;
