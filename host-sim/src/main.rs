@@ -11,7 +11,7 @@ use clap::{Args, Parser, Subcommand};
 use dncal_core::{Geometry, Mvd1024eLuts};
 use dncal_host::camera::calibration::{LinearityParams, RampParams};
 use dncal_host::camera::{Camera, CameraConfig};
-use dncal_host::commands::{demo, lut, quantization, simulate, stream};
+use dncal_host::commands::{adc, demo, lut, quantization, simulate, stream};
 use dncal_host::firmware::{build_firmware, run_firmware, run_on_host, RunInputs};
 use dncal_host::flatten::FlattenParams;
 use dncal_host::streaming::StreamParams;
@@ -153,6 +153,25 @@ enum Cmd {
         /// Frames to stream.
         #[arg(long, default_value_t = 8)]
         frames: u32,
+        #[command(flatten)]
+        ramp: RampArgs,
+        #[command(flatten)]
+        flatten: FlattenArgs,
+        /// Print a JSON summary on stdout.
+        #[arg(long)]
+        json: bool,
+    },
+    /// ADC characterization (paper section 4, Fig. 3): histograms, LUTs, cumulative offsets.
+    Adc {
+        #[command(flatten)]
+        camera: CameraArgs,
+        /// Measured histogram set to characterize (default: simulate the ramps; then the
+        /// results are also compared with the simulated ADCs' true code widths).
+        #[arg(long)]
+        hist: Option<PathBuf>,
+        /// Output folder for the figures and the LUT files.
+        #[arg(short, long, default_value = "dncal-adc")]
+        out: PathBuf,
         #[command(flatten)]
         ramp: RampArgs,
         #[command(flatten)]
@@ -307,6 +326,24 @@ fn print<T: Serialize>(json: bool, value: &T, text: impl FnOnce(&T) -> String) -
     }
 }
 
+/// The readable lines of an ADC characterization.
+fn adc_text(r: &adc::AdcReport) -> String {
+    let mut t = String::new();
+    for a in &r.adcs {
+        t += &format!(
+            "ADC {}: DN error {:.2}% rms per code, cumulative offset {:.3} DN peak to peak (max |offset| {:.3} DN, largest step {:.3} DN)\n",
+            a.adc, a.width_rms_pct, a.offset_p2p_dn, a.lut.max_abs_offset_dn, a.max_offset_step_dn
+        );
+        if let Some(c) = &a.truth {
+            t += &format!(
+                "  vs the true ADC: widths {:.4} DN rms; code centers rms {:.4} DN raw -> {:.4} DN with LUT (max {:.3} -> {:.3})\n",
+                c.width_err_rms_dn, c.rms_raw_dn, c.rms_lut_dn, c.max_raw_dn, c.max_lut_dn
+            );
+        }
+    }
+    t
+}
+
 fn main() -> ExitCode {
     match run(Cli::parse()) {
         Ok(code) => code,
@@ -385,6 +422,16 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
             })?;
             return Ok(if ok { ExitCode::SUCCESS } else { ExitCode::FAILURE });
         }
+        Cmd::Adc { camera, hist, out, ramp, flatten, json } => {
+            let cam = camera.camera()?;
+            let (r, _) = adc::run(&cam, hist.as_deref(), &ramp.params()?, &flatten.params(), &out)?;
+            print(json, &r, |r| {
+                let mut t = format!("{}: {} ADCs\n", r.histograms.display(), r.adcs.len());
+                t += &adc_text(r);
+                t += &format!("figures: {}\n", r.figures.iter().map(|f| f.display().to_string()).collect::<Vec<_>>().join(", "));
+                t
+            })?;
+        }
         Cmd::Quantization { sigma, read_noise_e, gain_e_per_dn, bias, figure, samples, json } => {
             let sigma = match (sigma, read_noise_e, gain_e_per_dn) {
                 (Some(s), _, _) => Some(s),
@@ -461,9 +508,7 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
                     "stream: {} frames, {} pixels, {} mismatches, max |error| {:.3e} DN (bound {:.3e}), core {:.3e} pixels/s\n",
                     s.stream.frames, s.stream.pixels, s.stream.mismatches, s.stream.max_abs_err_dn, s.stream.bound_dn, s.stream.pixels_per_s
                 );
-                for c in &s.correction {
-                    t += &format!("ADC {}: error vs true code centers rms {:.4} DN raw -> {:.4} DN with LUT (max {:.3} -> {:.3})\n", c.adc, c.rms_raw_dn, c.rms_lut_dn, c.max_raw_dn, c.max_lut_dn);
-                }
+                t += &adc_text(&s.adc);
                 t += &format!("report: {}\n", s.report.display());
                 t
             })?;

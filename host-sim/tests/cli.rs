@@ -55,11 +55,12 @@ fn demo_calibrates_streams_and_reports() {
     assert_eq!(s["stream"]["pixels"], 2 * 1024 * 1024);
     // Against the simulated ADCs' true code centers (the planted truth), the LUT must
     // beat the raw code on every ADC.
-    let correction = s["correction"].as_array().unwrap();
-    assert_eq!(correction.len(), 4);
-    for c in correction {
+    let adcs = s["adc"]["adcs"].as_array().unwrap();
+    assert_eq!(adcs.len(), 4);
+    for a in adcs {
+        let c = &a["truth"];
         let (raw, lut) = (c["rms_raw_dn"].as_f64().unwrap(), c["rms_lut_dn"].as_f64().unwrap());
-        assert!(lut < raw && lut < 0.1, "ADC {}: raw {raw} DN, with LUT {lut} DN", c["adc"]);
+        assert!(lut < raw && lut < 0.1, "ADC {}: raw {raw} DN, with LUT {lut} DN", a["adc"]);
     }
     let html = std::fs::read_to_string(folder.join("report.html")).unwrap();
     for png in ["histograms.png", "histograms_zoom.png", "offsets.png", "correction_error.png"] {
@@ -352,4 +353,32 @@ fn quantization_matches_numerical_integration_and_the_paper() {
     assert_eq!(&std::fs::read(dir.path().join("q.png")).unwrap()[..4], b"\x89PNG");
     assert_clean_failure(&dncal(&["quantization", "--bias", "0"], dir.path()), "--bias", "> 0");
     assert_clean_failure(&dncal(&["quantization", "--sigma=-1"], dir.path()), "--sigma", ">= 0");
+}
+
+#[test]
+fn adc_characterizes_simulated_and_measured_histograms() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // Simulated: the truth is known, so the recovered widths must match it.
+    let s = stdout_json(&dncal(&["adc", "-o", "sim", "--json"], d));
+    for a in s["adcs"].as_array().unwrap() {
+        let t = &a["truth"];
+        // Poisson noise of ~5e5 counts per code is 0.14%; the widths match to 0.5%.
+        assert!(t["width_err_rms_dn"].as_f64().unwrap() < 0.005, "{a}");
+        assert!(t["rms_lut_dn"].as_f64().unwrap() < t["rms_raw_dn"].as_f64().unwrap(), "{a}");
+        // The default ADCs have a DN error of a few percent (the paper's "few percent").
+        let pct = a["width_rms_pct"].as_f64().unwrap();
+        assert!((1.0..5.0).contains(&pct), "{pct}");
+    }
+    for f in ["histograms.png", "histograms_zoom.png", "offsets.png", "correction_error.png", "histograms.fits", "lut.fits", "lut.bin"] {
+        assert!(d.join("sim").join(f).exists(), "{f}");
+    }
+    // Measured: the same histograms read back give the same LUT statistics, and no truth.
+    let m = stdout_json(&dncal(&["adc", "--hist", "sim/histograms.fits", "-o", "meas", "--json"], d));
+    for (a, b) in s["adcs"].as_array().unwrap().iter().zip(m["adcs"].as_array().unwrap()) {
+        assert_eq!(a["offset_p2p_dn"], b["offset_p2p_dn"]);
+        assert!(b["truth"].is_null());
+    }
+    assert!(!d.join("meas/correction_error.png").exists());
+    assert_eq!(std::fs::read(d.join("sim/lut.bin")).unwrap(), std::fs::read(d.join("meas/lut.bin")).unwrap());
 }

@@ -1,6 +1,7 @@
 //! The `dncal` subcommands as library functions: each takes its arguments and returns a
 //! serializable summary; `main.rs` only parses, prints and sets the exit code.
 
+pub mod adc;
 pub mod demo;
 pub mod lut;
 pub mod progress;

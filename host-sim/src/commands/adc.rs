@@ -1,0 +1,280 @@
+//! `dncal adc`: ADC characterization (paper section 4, Fig. 3). Per-ADC histograms of the
+//! illumination ramps (simulated, or measured from a histogram set), flattened into LUTs;
+//! the normalized histograms and the cumulative offsets from a perfect ADC as figures;
+//! and, when the ADCs are simulated and their code widths therefore known, how well the
+//! recovered widths and the LUT match the truth.
+
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+
+use crate::camera::calibration::RampParams;
+use crate::camera::{Camera, PipelinedAdc};
+use crate::commands::lut::{build_luts, summarize, AdcLutSummary, BuiltLuts};
+use crate::commands::progress::bar;
+use crate::fits::{read_histograms, write_atomically, write_histograms, write_lut, AdcHistograms, LutTables};
+use crate::flatten::{cumulative_offsets, FlattenParams};
+use crate::plots::{line_plot, Series};
+use crate::HostError;
+
+/// The least-squares line `y = c0 + c1 x`, as `(c0, c1)`.
+pub fn line_fit(x: &[f64], y: &[f64]) -> (f64, f64) {
+    let n = x.len().max(1) as f64;
+    let (mx, my) = (x.iter().sum::<f64>() / n, y.iter().sum::<f64>() / n);
+    let sxy: f64 = x.iter().zip(y).map(|(a, b)| (a - mx) * (b - my)).sum();
+    let sxx: f64 = x.iter().map(|a| (a - mx).powi(2)).sum();
+    let slope = if sxx > 0.0 { sxy / sxx } else { 0.0 };
+    (my - slope * mx, slope)
+}
+
+/// Residuals of `y` after the least-squares line through `(x, y)`.
+pub fn detrend(x: &[f64], y: &[f64]) -> Vec<f64> {
+    let (c0, c1) = line_fit(x, y);
+    x.iter().zip(y).map(|(a, b)| b - c0 - c1 * a).collect()
+}
+
+/// Root mean square.
+pub fn rms(v: &[f64]) -> f64 {
+    (v.iter().map(|e| e * e).sum::<f64>() / v.len().max(1) as f64).sqrt()
+}
+
+/// Largest absolute value.
+pub fn max_abs(v: &[f64]) -> f64 {
+    v.iter().fold(0.0, |m: f64, e| m.max(e.abs()))
+}
+
+/// How well one ADC's LUT matches its known truth, over the calibrated codes (from
+/// `fixed_low_codes` to the code below the top) after removing the best straight line (an
+/// offset and a gain, which dark and flat corrections remove anyway).
+#[derive(Debug, Clone, Serialize)]
+pub struct TruthComparison {
+    /// Rms of recovered minus true code width, DN.
+    pub width_err_rms_dn: f64,
+    /// Rms error of the raw code as a DN value against the true code center, DN.
+    pub rms_raw_dn: f64,
+    /// Largest |error| of the raw code, DN.
+    pub max_raw_dn: f64,
+    /// Rms error of the LUT value, DN.
+    pub rms_lut_dn: f64,
+    /// Largest |error| of the LUT value, DN.
+    pub max_lut_dn: f64,
+}
+
+/// What the DN error of one ADC looks like (the paper's Fig. 3), and against the truth.
+#[derive(Debug, Clone, Serialize)]
+pub struct AdcStats {
+    /// ADC index.
+    pub adc: usize,
+    /// The LUT's summary (normalization drift, top entry, weight range).
+    pub lut: AdcLutSummary,
+    /// Rms of (normalized histogram - 1) over the calibrated codes: the typical DN error of
+    /// one code, percent.
+    pub width_rms_pct: f64,
+    /// Peak-to-peak cumulative offset over the calibrated codes, DN.
+    pub offset_p2p_dn: f64,
+    /// Largest change of the cumulative offset between neighbouring codes, DN: |w_k - 1|.
+    pub max_offset_step_dn: f64,
+    /// Against the simulated ADC, when known.
+    pub truth: Option<TruthComparison>,
+}
+
+/// The characterization of all ADCs.
+#[derive(Debug, Clone, Serialize)]
+pub struct AdcReport {
+    /// Where the histograms came from.
+    pub histograms: PathBuf,
+    /// Per ADC.
+    pub adcs: Vec<AdcStats>,
+    /// The figures written.
+    pub figures: Vec<PathBuf>,
+}
+
+/// The calibrated codes: from the fixed low codes to the one below the top.
+pub fn calibrated_codes(codes: usize, flatten: &FlattenParams) -> std::ops::Range<usize> {
+    flatten.fixed_low_codes.min(codes - 2)..codes - 1
+}
+
+/// Errors of the raw and the LUT code values against the true centers, detrended, over
+/// `codes`.
+pub fn correction_errors(truth: &[PipelinedAdc], tables: &[Vec<u32>], codes: std::ops::Range<usize>) -> Vec<(Vec<f64>, Vec<f64>)> {
+    truth
+        .iter()
+        .zip(tables)
+        .map(|(adc, table)| {
+            let centers = adc.centers();
+            let x: Vec<f64> = codes.clone().map(|k| centers[k]).collect();
+            let raw: Vec<f64> = codes.clone().map(|k| k as f64).collect();
+            let lut: Vec<f64> = codes.clone().map(|k| table[k] as f64 / 2048.0).collect();
+            // The error of a mapping m is m(k) - truth(k) after matching offset and gain:
+            // fit m against the truth and keep the residuals.
+            (detrend(&x, &raw), detrend(&x, &lut))
+        })
+        .collect()
+}
+
+/// Statistics and figures for `luts` built from histograms at `source`; with `truth`
+/// (the simulated ADCs) also the comparison. Figures go to `out_dir`:
+/// `histograms.png`, `histograms_zoom.png`, `offsets.png` and, with the truth,
+/// `correction_error.png`.
+pub fn characterize(source: &Path, luts: &BuiltLuts, flatten: &FlattenParams, truth: Option<&[PipelinedAdc]>, out_dir: &Path) -> Result<AdcReport, HostError> {
+    let n_adc = luts.tables.len();
+    let codes = luts.tables.first().map_or(0, Vec::len);
+    if codes < 4 {
+        return Err(HostError::Format { path: source.into(), message: format!("{codes} codes are too few to characterize") });
+    }
+    let range = calibrated_codes(codes, flatten);
+    let at = |name: &str| out_dir.join(name);
+    let errors = truth.map(|t| correction_errors(t, &luts.tables, range.clone()));
+    let mut adcs = Vec::new();
+    for (a, (f, table)) in luts.flattened.iter().zip(&luts.tables).enumerate() {
+        let offsets = cumulative_offsets(&f.weights);
+        let inner = &offsets[range.clone()];
+        let (lo, hi) = inner.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &o| (l.min(o), h.max(o)));
+        let dev: Vec<f64> = f.weights[range.clone()].iter().map(|w| w - 1.0).collect();
+        let truth = match (truth, &errors) {
+            (Some(t), Some(e)) => {
+                let w = t[a].normalized_widths();
+                let werr: Vec<f64> = range.clone().map(|k| f.weights[k] - w[k]).collect();
+                let (raw, lut) = &e[a];
+                Some(TruthComparison { width_err_rms_dn: rms(&werr), rms_raw_dn: rms(raw), max_raw_dn: max_abs(raw), rms_lut_dn: rms(lut), max_lut_dn: max_abs(lut) })
+            }
+            _ => None,
+        };
+        adcs.push(AdcStats {
+            adc: a,
+            lut: summarize(a, f, table),
+            width_rms_pct: 100.0 * rms(&dev),
+            offset_p2p_dn: hi - lo,
+            max_offset_step_dn: max_abs(&dev),
+            truth,
+        });
+    }
+
+    // Fig. 3: normalized histograms (with the true widths when known) ...
+    let mut figures = Vec::new();
+    let inner = 1..codes - 1;
+    let mut hist_series = Vec::new();
+    for (a, f) in luts.flattened.iter().enumerate() {
+        hist_series.push(Series { label: format!("ADC {a}: normalized histogram"), points: inner.clone().map(|k| (k as f64, f.weights[k])).collect() });
+    }
+    if let Some(t) = truth {
+        for (a, adc) in t.iter().enumerate() {
+            let w = adc.normalized_widths();
+            hist_series.push(Series { label: format!("ADC {a}: true code width"), points: inner.clone().map(|k| (k as f64, w[k])).collect() });
+        }
+    }
+    line_plot(&at("histograms.png"), "Normalized histograms per ADC", "code (DN)", "relative code width", &hist_series, n_adc)?;
+    figures.push(at("histograms.png"));
+    // ... zoomed on the major transition at half scale, where single codes show ...
+    let mid = codes as f64 / 4.0;
+    let zoom = (mid - 32.0)..(mid + 32.0);
+    let zoomed: Vec<Series> = hist_series.iter().map(|s| Series { label: s.label.clone(), points: s.points.iter().filter(|(k, _)| zoom.contains(k)).copied().collect() }).collect();
+    line_plot(&at("histograms_zoom.png"), &format!("Normalized histograms around code {mid}"), "code (DN)", "relative code width", &zoomed, n_adc)?;
+    figures.push(at("histograms_zoom.png"));
+    // ... and the cumulative offsets, the truth aligned to them: the LUT fixes no
+    // absolute offset or gain, so the truth gets the best-fit line of the difference.
+    let mut offset_series = Vec::new();
+    let mut truth_series = Vec::new();
+    for (a, t) in luts.tables.iter().enumerate() {
+        let lut_offset: Vec<f64> = (0..codes).map(|k| t[k] as f64 / 2048.0 - (k as f64 + 0.5)).collect();
+        offset_series.push(Series { label: format!("ADC {a}: LUT"), points: range.clone().map(|k| (k as f64, lut_offset[k])).collect() });
+        if let Some(truth) = truth {
+            let true_offset: Vec<f64> = truth[a].centers().iter().enumerate().map(|(k, c)| c - (k as f64 + 0.5)).collect();
+            let x: Vec<f64> = range.clone().map(|k| k as f64).collect();
+            let diff: Vec<f64> = range.clone().map(|k| lut_offset[k] - true_offset[k]).collect();
+            let (c0, c1) = line_fit(&x, &diff);
+            truth_series.push(Series { label: format!("ADC {a}: truth (aligned)"), points: range.clone().map(|k| (k as f64, true_offset[k] + c0 + c1 * k as f64)).collect() });
+        }
+    }
+    offset_series.extend(truth_series);
+    line_plot(&at("offsets.png"), "Cumulative offset from a perfect ADC", "code (DN)", "offset (DN)", &offset_series, n_adc)?;
+    figures.push(at("offsets.png"));
+    if let Some(errors) = &errors {
+        let mut err_series = Vec::new();
+        for (a, (raw, _)) in errors.iter().enumerate() {
+            err_series.push(Series { label: format!("ADC {a}: raw code"), points: range.clone().zip(raw).map(|(k, &e)| (k as f64, e)).collect() });
+        }
+        for (a, (_, lut)) in errors.iter().enumerate() {
+            err_series.push(Series { label: format!("ADC {a}: with LUT"), points: range.clone().zip(lut).map(|(k, &e)| (k as f64, e)).collect() });
+        }
+        line_plot(&at("correction_error.png"), "Error against the true code centers (offset and gain removed)", "code (DN)", "error (DN)", &err_series, n_adc)?;
+        figures.push(at("correction_error.png"));
+    }
+    Ok(AdcReport { histograms: source.into(), adcs, figures })
+}
+
+/// Simulated ramps (or `hist` when given), LUTs written to `out_dir` (`lut.fits`,
+/// `lut.bin`, and `histograms.fits` when simulated), the characterization and figures.
+pub fn run(camera: &Camera, hist: Option<&Path>, ramp: &RampParams, flatten: &FlattenParams, out_dir: &Path) -> Result<(AdcReport, BuiltLuts), HostError> {
+    std::fs::create_dir_all(out_dir).map_err(|e| HostError::io(out_dir, e))?;
+    let (histograms, source, truth) = match hist {
+        Some(path) => (read_histograms(path)?, path.to_path_buf(), None),
+        None => {
+            let levels: usize = ramp.ramp_levels.iter().sum();
+            let pb = bar(levels as u64, "ADC ramp histograms");
+            let counts = camera.ramp_histograms(ramp, |n| pb.set_position(n));
+            pb.finish_and_clear();
+            let h = AdcHistograms { bit_depth: camera.config.bits, counts };
+            let path = out_dir.join("histograms.fits");
+            write_histograms(&path, &h)?;
+            (h, path, Some(camera.adcs.as_slice()))
+        }
+    };
+    let luts = build_luts(&histograms, flatten, &source)?;
+    write_lut(&out_dir.join("lut.fits"), &LutTables { frac_bits: dncal_core::FRAC_BITS, tables: luts.tables.clone() })?;
+    write_atomically(&out_dir.join("lut.bin"), |tmp| std::fs::write(tmp, &luts.image).map_err(|e| HostError::io(tmp, e)))?;
+    let report = characterize(&source, &luts, flatten, truth, out_dir)?;
+    Ok((report, luts))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn detrend_removes_exactly_a_line() {
+        let x: Vec<f64> = (0..50).map(|i| i as f64 * 0.7).collect();
+        let bump: Vec<f64> = x.iter().map(|v| (v * 1.3).sin()).collect();
+        let y: Vec<f64> = x.iter().zip(&bump).map(|(v, b)| 3.0 - 0.25 * v + b).collect();
+        let r = detrend(&x, &y);
+        let rb = detrend(&x, &bump);
+        for (a, b) in r.iter().zip(&rb) {
+            assert!((a - b).abs() < 1e-12);
+        }
+        let (c0, c1) = line_fit(&x, &x.iter().map(|v| 2.0 + 5.0 * v).collect::<Vec<_>>());
+        assert!((c0 - 2.0).abs() < 1e-12 && (c1 - 5.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_perfect_calibration_has_no_error_and_a_raw_adc_has_its_inl() {
+        // The LUT built from the true widths is the truth up to the rounding of entries
+        // (2^-12 DN); the raw code's error is the ADC's integral nonlinearity.
+        let cam = Camera::new(crate::camera::CameraConfig { width: 8, height: 2, ..Default::default() }).unwrap();
+        let tables: Vec<Vec<u32>> = cam
+            .adcs
+            .iter()
+            .map(|a| {
+                let w = a.normalized_widths();
+                let mut below = 0.0;
+                w.iter()
+                    .map(|wk| {
+                        let e = ((below + wk / 2.0) * 2048.0).round() as u32;
+                        below += wk;
+                        e
+                    })
+                    .collect()
+            })
+            .collect();
+        let errors = correction_errors(&cam.adcs, &tables, 150..4095);
+        for ((raw, lut), adc) in errors.iter().zip(&cam.adcs) {
+            assert!(max_abs(lut) < 2.0 * 2f64.powi(-12), "{}", max_abs(lut));
+            // Independently: the INL (center - code) detrended, by hand.
+            let c = adc.centers();
+            let x: Vec<f64> = (150..4095).map(|k| c[k]).collect();
+            let inl: Vec<f64> = (150..4095).map(|k| k as f64).collect();
+            let want = detrend(&x, &inl);
+            assert!(raw.iter().zip(&want).all(|(a, b)| (a - b).abs() < 1e-12));
+            assert!(rms(raw) > 0.05, "the default ADCs have DN error");
+        }
+    }
+}
