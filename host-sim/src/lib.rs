@@ -13,6 +13,7 @@ pub mod error;
 pub mod firmware;
 pub mod fits;
 pub mod flatten;
+pub mod kcor;
 pub mod plots;
 pub mod quantization;
 pub mod reference;

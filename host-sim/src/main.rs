@@ -11,7 +11,7 @@ use clap::{Args, Parser, Subcommand};
 use dncal_core::{Geometry, Mvd1024eLuts};
 use dncal_host::camera::calibration::{LinearityParams, RampParams};
 use dncal_host::camera::{Camera, CameraConfig};
-use dncal_host::commands::{adc, demo, lut, quantization, simulate, stream};
+use dncal_host::commands::{adc, demo, kcor, lut, quantization, simulate, stream};
 use dncal_host::firmware::{build_firmware, run_firmware, run_on_host, RunInputs};
 use dncal_host::flatten::FlattenParams;
 use dncal_host::streaming::StreamParams;
@@ -176,6 +176,38 @@ enum Cmd {
         ramp: RampArgs,
         #[command(flatten)]
         flatten: FlattenArgs,
+        /// Print a JSON summary on stdout.
+        #[arg(long)]
+        json: bool,
+    },
+    /// The K-Coronagraph model (paper section 4, Figs. 5-6): polarimetric error from DN error.
+    KcorModel {
+        #[command(flatten)]
+        camera: CameraArgs,
+        /// Which ADC (the paper used the camera's 4th).
+        #[arg(long, default_value_t = 3)]
+        adc: usize,
+        /// Exposure time of one frame, ms.
+        #[arg(long, default_value_t = 1.0)]
+        exposure_ms: f64,
+        /// Grid steps in I (Q gets twice as many, from -I to I).
+        #[arg(long, default_value_t = 100)]
+        steps: usize,
+        /// Relative Gaussian noise on the histogram the LUT is built from.
+        #[arg(long, default_value_t = 0.01)]
+        lut_noise: f64,
+        /// LUT to apply (FITS or device image; default: the true widths with --lut-noise).
+        #[arg(long)]
+        lut: Option<PathBuf>,
+        /// Largest |Q| of the grid as a fraction of the brightest I.
+        #[arg(long, default_value_t = 1.0)]
+        q_fraction: f64,
+        /// Seed of that noise.
+        #[arg(long, default_value_t = 2018)]
+        seed: u64,
+        /// Folder for the figures kcor_raw.png and kcor_lut.png.
+        #[arg(short, long)]
+        out: Option<PathBuf>,
         /// Print a JSON summary on stdout.
         #[arg(long)]
         json: bool,
@@ -429,6 +461,26 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
                 let mut t = format!("{}: {} ADCs\n", r.histograms.display(), r.adcs.len());
                 t += &adc_text(r);
                 t += &format!("figures: {}\n", r.figures.iter().map(|f| f.display().to_string()).collect::<Vec<_>>().join(", "));
+                t
+            })?;
+        }
+        Cmd::KcorModel { camera, adc, exposure_ms, steps, lut_noise, lut, q_fraction, seed, out, json } => {
+            let cam = camera.camera()?;
+            let p = dncal_host::kcor::KcorParams { adc, exposure_s: exposure_ms * 1e-3, steps, lut_noise, q_fraction, seed, ..Default::default() };
+            let s = kcor::kcor_model(&cam, &p, lut.as_deref(), out.as_deref())?;
+            print(json, &s, |s| {
+                let r = &s.result;
+                let mut t = format!(
+                    "K-Cor model, ADC {}, {} ms frames: {:.4e} e-/s per B_sun per pixel, 1 DN in a state = {:.3e} B_sun in Q; I up to {:.3e} B_sun\n",
+                    p.adc, exposure_ms, r.electrons_per_s_per_bsun, r.bsun_per_dn, r.i_max_bsun
+                );
+                t += &format!(
+                    "max |systematic error in Q|: {:.3e} B_sun raw, {:.3e} B_sun with the LUT ({}): {:.1}x less\n",
+                    r.max_abs_sys_err_bsun_raw, r.max_abs_sys_err_bsun_lut, s.lut_source, r.reduction
+                );
+                for f in &s.figures {
+                    t += &format!("wrote {}\n", f.display());
+                }
                 t
             })?;
         }

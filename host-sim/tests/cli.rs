@@ -382,3 +382,26 @@ fn adc_characterizes_simulated_and_measured_histograms() {
     assert!(!d.join("meas/correction_error.png").exists());
     assert_eq!(std::fs::read(d.join("sim/lut.bin")).unwrap(), std::fs::read(d.join("meas/lut.bin")).unwrap());
 }
+
+#[test]
+fn kcor_model_reports_raw_and_lut_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let s = stdout_json(&dncal(&["kcor-model", "--steps", "20", "-o", "k", "--json"], d));
+    for key in ["max_abs_sys_err_bsun_raw", "max_abs_sys_err_bsun_lut", "reduction"] {
+        assert!(s[key].as_f64().is_some(), "missing {key}: {s}");
+    }
+    let (raw, lut) = (s["max_abs_sys_err_bsun_raw"].as_f64().unwrap(), s["max_abs_sys_err_bsun_lut"].as_f64().unwrap());
+    assert!((s["reduction"].as_f64().unwrap() - raw / lut).abs() < 1e-9 * raw / lut);
+    // 1 DN of error in one state is bsun_per_dn of Q; the DN error is a fraction of a DN.
+    let per_dn = s["bsun_per_dn"].as_f64().unwrap();
+    assert!(raw > 0.05 * per_dn && raw < 2.0 * per_dn, "{raw} vs {per_dn}");
+    // A perfect LUT (no histogram noise) leaves only the 2^-12 DN rounding of its entries.
+    let p = stdout_json(&dncal(&["kcor-model", "--steps", "20", "--lut-noise", "0", "--json"], d));
+    assert!(p["max_abs_sys_err_bsun_lut"].as_f64().unwrap() < 4.0 * 2f64.powi(-12) * per_dn, "{p}");
+    for f in ["kcor_raw.png", "kcor_lut.png"] {
+        assert_eq!(&std::fs::read(d.join("k").join(f)).unwrap()[..4], b"\x89PNG");
+    }
+    assert_clean_failure(&dncal(&["kcor-model", "--adc", "7"], d), "--adc", "ADC 7");
+    assert_clean_failure(&dncal(&["kcor-model", "--lut", "missing.fits"], d), "missing.fits", "No such file");
+}

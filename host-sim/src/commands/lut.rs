@@ -67,7 +67,7 @@ pub fn build_luts(hist: &AdcHistograms, params: &FlattenParams, source: &Path) -
         flattened.push(f);
         weights.push(w);
     }
-    let (tables, image) = crate::dispatch_lut_dims!(hist.counts.len(), 1usize << hist.bit_depth, source.display().to_string(), core_tables(&weights, source))?;
+    let (tables, image) = tables_from_weights(&weights, source)?;
     // The independent float reference must reproduce every entry.
     let reference = ReferenceLut::from_weights(&weights.iter().map(|w| w.iter().map(|x| x.to_num::<f64>()).collect()).collect::<Vec<_>>());
     for (adc, (q, t)) in reference.quantized().iter().zip(&tables).enumerate() {
@@ -76,6 +76,13 @@ pub fn build_luts(hist: &AdcHistograms, params: &FlattenParams, source: &Path) -
         }
     }
     Ok(BuiltLuts { flattened, weights, tables, image })
+}
+
+/// The core's LUT entries (units of 2^-11 DN) and device image for per-ADC `weights`;
+/// `source` names the input in errors.
+pub fn tables_from_weights(weights: &[Vec<Weight>], source: &Path) -> Result<(Vec<Vec<u32>>, Vec<u8>), HostError> {
+    let codes = weights.first().map_or(0, Vec::len);
+    crate::dispatch_lut_dims!(weights.len(), codes, source.display().to_string(), core_tables(weights, source))
 }
 
 fn core_tables<const N: usize, const CODES: usize>(weights: &[Vec<Weight>], source: &Path) -> Result<(Vec<Vec<u32>>, Vec<u8>), HostError> {

@@ -3,6 +3,7 @@
 
 pub mod adc;
 pub mod demo;
+pub mod kcor;
 pub mod lut;
 pub mod progress;
 pub mod quantization;
