@@ -320,7 +320,7 @@ mod tests {
         let d = demodulation();
         for (r, row) in d.iter().enumerate() {
             for c in 0..3 {
-                let x: f64 = (0..4).map(|k| row[k] * MODULATION[k][c]).sum();
+                let x: f64 = row.iter().zip(&MODULATION).map(|(d, m)| d * m[c]).sum();
                 assert!((x - if r == c { 1.0 } else { 0.0 }).abs() < 1e-14);
             }
         }
