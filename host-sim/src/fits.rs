@@ -198,6 +198,60 @@ pub fn write_linearity(path: &Path, set: &LinearitySet) -> Result<(), HostError>
     })
 }
 
+/// The pixel-wise correction as written: see [`write_pixel_correction`].
+#[derive(Debug, Clone, Copy)]
+pub struct PixelCorrection<'a> {
+    /// Coefficient cube, plane-major (`a_k` planes of `height x width`).
+    pub coeffs: &'a [f64],
+    /// Mask reasons per pixel.
+    pub mask: &'a [u8],
+    /// Columns.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// Polynomial order.
+    pub order: usize,
+    /// Camera bits per code.
+    pub bit_depth: u32,
+    /// Camera ADCs.
+    pub n_adc: usize,
+}
+
+/// Writes the pixel-wise nonlinearity correction (`dncal linearity`): a float64 cube of
+/// the polynomial coefficients (`NAXIS1` columns, `NAXIS2` rows, `NAXIS3 = ORDER + 1`,
+/// plane k holds a_k of `m = sum a_k x^k`, x the normalized reference) and the uint8
+/// extension `MASK` (non-zero = masked; bit 1 input mask, 2 low signal, 4 anomalous trend,
+/// 8 unfitted).
+pub fn write_pixel_correction(path: &Path, c: &PixelCorrection) -> Result<(), HostError> {
+    let PixelCorrection { coeffs, mask, width, height, order, bit_depth, n_adc } = *c;
+    if coeffs.len() != (order + 1) * width * height || mask.len() != width * height {
+        return Err(format_error(path, "coefficient cube or mask does not match the frame size"));
+    }
+    write_atomically(path, |tmp| {
+        let mut out = FitsWriter::create(tmp, path, ImageType::Double, &[order + 1, height, width])?;
+        out.adc_keys(bit_depth, n_adc)?;
+        out.key("ORDER", (order as i64, "m = sum_k a_k x^k, k = 0..ORDER; x = V / max V"))?;
+        out.key("BUNIT", ("DN", "coefficients give DN"))?;
+        out.image(coeffs)?;
+        out.add_image("MASK", ImageType::UnsignedByte, &[height, width])?;
+        out.image(mask)?;
+        out.finish()
+    })
+}
+
+/// Writes a float64 cube of `levels` images (`NAXIS3 = levels`) with `BUNIT`.
+pub fn write_cube(path: &Path, data: &[f64], levels: usize, width: usize, height: usize, bunit: &str) -> Result<(), HostError> {
+    if data.len() != levels * width * height {
+        return Err(format_error(path, "cube does not match its shape"));
+    }
+    write_atomically(path, |tmp| {
+        let mut out = FitsWriter::create(tmp, path, ImageType::Double, &[levels, height, width])?;
+        out.key("BUNIT", (bunit.to_string(), "per level"))?;
+        out.image(data)?;
+        out.finish()
+    })
+}
+
 /// Writes LUTs: primary image of `NADC` rows x `2^BITDEPTH` codes, unsigned 32-bit (BITPIX
 /// 32 with BZERO 2^31, which astropy reads as uint32), with `FRACBITS`.
 pub fn write_lut(path: &Path, lut: &LutTables) -> Result<(), HostError> {

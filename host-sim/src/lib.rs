@@ -14,6 +14,7 @@ pub mod firmware;
 pub mod fits;
 pub mod flatten;
 pub mod kcor;
+pub mod linearity;
 pub mod plots;
 pub mod quantization;
 pub mod reference;

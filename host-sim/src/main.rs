@@ -11,7 +11,7 @@ use clap::{Args, Parser, Subcommand};
 use dncal_core::{Geometry, Mvd1024eLuts};
 use dncal_host::camera::calibration::{LinearityParams, RampParams};
 use dncal_host::camera::{Camera, CameraConfig};
-use dncal_host::commands::{adc, demo, kcor, lut, quantization, simulate, stream};
+use dncal_host::commands::{adc, demo, kcor, linearity, lut, quantization, simulate, stream};
 use dncal_host::firmware::{build_firmware, run_firmware, run_on_host, RunInputs};
 use dncal_host::flatten::FlattenParams;
 use dncal_host::streaming::StreamParams;
@@ -212,6 +212,17 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
+    /// Pixel-wise nonlinearity (paper section 5, Fig. 9) of a linearity set.
+    Linearity {
+        /// The linearity set (FITS, as `simulate linearity` writes or astropy).
+        file: PathBuf,
+        /// Folder for coefficients.fits, corrected.fits and linearity_rms.png.
+        #[arg(short, long)]
+        out: Option<PathBuf>,
+        /// Print a JSON summary on stdout.
+        #[arg(long)]
+        json: bool,
+    },
     /// Quantization bias of averaged readouts (paper section 2).
     Quantization {
         /// Noise rms, DN: print the worst-case bias over lambda mod 1.
@@ -395,12 +406,15 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
         }
         Cmd::Simulate { what: SimulateCmd::Linearity { camera, levels, frames, roi, seed, out, json } } => {
             let cam = camera.camera()?;
-            let (w, h) = (cam.config.width.min(128), cam.config.height.min(128));
+            let paper = LinearityParams::paper(&cam);
             let roi = match roi {
-                Some(r) => parse_roi(&r)?,
-                None => (w, h, (cam.config.width - w) / 2, (cam.config.height - h) / 2),
+                Some(r) => {
+                    let (w, h, x, y) = parse_roi(&r)?;
+                    (x, y, w, h)
+                }
+                None => paper.roi,
             };
-            let p = LinearityParams { levels, frames, roi: (roi.2, roi.3, roi.0, roi.1), overshoot: 1.02, volts_per_photon: 1e-5, seed };
+            let p = LinearityParams { levels, frames, roi, seed, ..paper };
             let s = simulate::simulate_linearity(&cam, &p, out)?;
             print(json, &s, |s| format!("wrote {} ({}x{} pixels, {} levels x {} frames, {} masked, {:.1} s)\n", s.output.display(), s.width, s.height, s.levels, s.frames, s.masked_pixels, s.seconds))?;
         }
@@ -479,6 +493,21 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
                     r.max_abs_sys_err_bsun_raw, r.max_abs_sys_err_bsun_lut, s.lut_source, r.reduction
                 );
                 for f in &s.figures {
+                    t += &format!("wrote {}\n", f.display());
+                }
+                t
+            })?;
+        }
+        Cmd::Linearity { file, out, json } => {
+            let s = linearity::linearity(&file, out.as_deref())?;
+            print(json, &s, |s| {
+                let r = &s.report;
+                let mut t = format!("{}: {} levels x {} pixels, gain level {}, {} masked, analysis {:.2} s\n", s.input.display(), r.levels, r.pixels, r.gain_level, r.masked_pixels, s.analysis_s);
+                t += &format!(
+                    "max RMS over levels: raw {:.3e}, standard {:.3e}, pixel-wise {:.3e}, random {:.3e}\n",
+                    r.rms_raw_max, r.rms_standard_max, r.rms_pixelwise_max, r.rms_random_max
+                );
+                for f in &s.outputs {
                     t += &format!("wrote {}\n", f.display());
                 }
                 t

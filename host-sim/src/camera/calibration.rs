@@ -240,6 +240,15 @@ pub struct LinearityParams {
     pub seed: u64,
 }
 
+impl LinearityParams {
+    /// The paper's set: 41 levels to 1.02 x saturation, 256 frames, here on a region of
+    /// up to 128 x 128 pixels at the sensor center; 1e-5 V per photon; seed 41.
+    pub fn paper(camera: &Camera) -> Self {
+        let (w, h) = (camera.config.width.min(128), camera.config.height.min(128));
+        LinearityParams { levels: 41, frames: 256, roi: ((camera.config.width - w) / 2, (camera.config.height - h) / 2, w, h), overshoot: 1.02, volts_per_photon: 1e-5, seed: 41 }
+    }
+}
+
 /// A recorded linearity set: per-pixel mean and standard deviation of the frames at each
 /// level (level-major, then row, then column), the reference voltages, and the pixels
 /// the camera model knows to be bad.

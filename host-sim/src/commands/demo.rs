@@ -5,7 +5,8 @@
 //! 3. stream frames through the core and check them bit for bit against the float
 //!    reference;
 //! 4. measure how well the LUTs recover the ADCs' true code centers ([`super::adc`]);
-//! 5. write PNG figures and an HTML report.
+//! 5. the paper's other analyses: quantization map, K-Cor model, pixel-wise nonlinearity;
+//! 6. write PNG figures and an HTML report.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -13,7 +14,11 @@ use std::time::Instant;
 
 use serde::Serialize;
 
-use crate::camera::calibration::RampParams;
+use crate::camera::calibration::{LinearityParams, RampParams};
+use crate::commands::kcor::KcorSummary;
+use crate::commands::linearity::LinearitySummary;
+use crate::commands::quantization::SigmaReport;
+use crate::kcor::KcorParams;
 use crate::camera::Camera;
 use crate::commands::adc::AdcReport;
 use crate::commands::progress::bar;
@@ -38,6 +43,12 @@ pub struct DemoSummary {
     pub adc: AdcReport,
     /// The streaming check.
     pub stream: StreamReport,
+    /// Quantization bias at the camera's own read noise (paper section 2).
+    pub quantization: SigmaReport,
+    /// The K-Coronagraph model (section 4).
+    pub kcor: KcorSummary,
+    /// Pixel-wise nonlinearity on a simulated linearity set (section 5).
+    pub linearity: LinearitySummary,
     /// Wall time, s.
     pub seconds: f64,
 }
@@ -58,6 +69,19 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
     let stream = run_stream(camera, &luts.weights, &params, |n| pb.set_position(n))?;
     pb.finish_and_clear();
 
+    // 4. The paper's other analyses (docs/paper.md): quantization, K-Cor, linearity.
+    let pb = bar(3, "paper analyses");
+    crate::commands::quantization::figure(&at("quantization.png"))?;
+    let quantization = crate::commands::quantization::at_sigma(camera.config.read_noise_e / camera.config.gain_e_per_dn, 100_000, 1)?;
+    pb.inc(1);
+    let kp = KcorParams { adc: camera.adcs.len().min(4) - 1, steps: 50, ..Default::default() };
+    let kcor = crate::commands::kcor::kcor_model(camera, &kp, None, Some(out_dir))?;
+    pb.inc(1);
+    let lin_path = at("linearity.fits");
+    crate::commands::simulate::simulate_linearity(camera, &LinearityParams::paper(camera), lin_path.clone())?;
+    let linearity = crate::commands::linearity::linearity(&lin_path, Some(&at("linearity")))?;
+    pb.finish_and_clear();
+
     let summary = DemoSummary {
         out_dir: out_dir.into(),
         report: at("report.html"),
@@ -65,6 +89,9 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
         ramp_levels: levels,
         adc,
         stream,
+        quantization,
+        kcor,
+        linearity,
         seconds: start.elapsed().as_secs_f64(),
     };
     let json = serde_json::to_string_pretty(&summary).map_err(|e| HostError::Format { path: at("summary.json"), message: e.to_string() })?;
@@ -139,6 +166,37 @@ fn report_html(s: &DemoSummary, camera: &Camera, ramp: &RampParams, flat: &Flatt
     ] {
         let _ = write!(h, "<figure><img src=\"{img}\" width=\"1000\"><figcaption>{caption}</figcaption></figure>");
     }
+    let (q, k, l) = (&s.quantization, &s.kcor.result, &s.linearity.report);
+    let _ = write!(
+        h,
+        "<h2>The paper's other analyses</h2><p>Each is a command of its own; <code>docs/paper.md</code> compares every number with the paper.</p>\
+         <h3>Quantization (section 2, Fig. 1): <code>dncal quantization</code></h3><p>At this camera's read noise, {:.3} DN, the worst-case bias of an averaged readout \
+         is {:.2e} DN. A bias of 0.01 DN or less needs {:.3} DN of noise.</p>\
+         <figure><img src=\"quantization.png\" width=\"900\"><figcaption>|bias| over lambda mod 1 and noise, contours at 1e-1 to 1e-4 DN.</figcaption></figure>\
+         <h3>K-Coronagraph model (section 4, Figs. 5-6): <code>dncal kcor-model</code></h3><p>ADC {}, {} ms frames ({:.3e} e-/s per B_sun per pixel): the largest systematic error \
+         in Q is {:.2e} B_sun raw and {:.2e} B_sun with a LUT from the true widths with {}% noise per code: raw / LUT = {:.1} (the paper: about 10; <code>docs/paper.md</code> discusses the difference).</p>\
+         <figure><img src=\"kcor_raw.png\" width=\"900\"><figcaption>Raw ADC.</figcaption></figure><figure><img src=\"kcor_lut.png\" width=\"900\"><figcaption>With the LUT.</figcaption></figure>\
+         <h3>Pixel-wise nonlinearity (section 5, Fig. 9): <code>dncal linearity</code></h3><p>{} pixels x {} levels, {} masked. Largest RMS residual over the levels: raw {:.2e}, \
+         standard correction {:.2e}, pixel-wise 4th order {:.2e}, random noise {:.2e}. Coefficients and mask: <a href=\"linearity/coefficients.fits\">coefficients.fits</a>.</p>\
+         <figure><img src=\"linearity/linearity_rms.png\" width=\"1000\"><figcaption>RMS residual per level.</figcaption></figure>",
+        q.sigma,
+        q.max_abs_bias_dn,
+        crate::quantization::sigma_for_bias(0.01).unwrap_or(f64::NAN),
+        k.params.adc,
+        k.params.exposure_s * 1e3,
+        k.electrons_per_s_per_bsun,
+        k.max_abs_sys_err_bsun_raw,
+        k.max_abs_sys_err_bsun_lut,
+        100.0 * k.params.lut_noise,
+        k.reduction,
+        l.pixels,
+        l.levels,
+        l.masked_pixels,
+        l.rms_raw_max,
+        l.rms_standard_max,
+        l.rms_pixelwise_max,
+        l.rms_random_max
+    );
     let _ = write!(h, "<p>Run time {:.1} s.</p></body></html>", s.seconds);
     h
 }

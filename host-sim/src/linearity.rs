@@ -1,0 +1,431 @@
+//! Pixel-to-pixel gain variation and nonlinearity (de Wijn 2018, section 5, Figs. 8-9).
+//!
+//! Input: a linearity set (mean and standard-deviation frames at levels from dark to
+//! saturation, and a linear reference detector's voltage per level; `docs/formats.md`).
+//!
+//! ## Definitions
+//! - Normalized reference `x_l = V_l / max V`; the *gain level* `g` is the level whose
+//!   `x` is nearest 1/2 (the paper's 22nd of 41), level 0 is dark. A level is *expected*
+//!   to read the normalized intensity `e_l = (x_l - x_0) / (x_g - x_0)`.
+//! - A pixel's level is *saturated* when its mean is within `4 max(std, 0.5)` DN of the
+//!   top code; it and every level above are left out for that pixel.
+//! - *Masked* pixels: the set's `MASK`, pixels whose signal at the gain level is below half
+//!   the median, and pixels whose own 4th-order fit leaves an rms residual above 10 times
+//!   the median (anomalous trends: dead, hot, stuck pixels). Masked pixels are left out
+//!   of every statistic and replaced in corrected images by the mean of their good
+//!   neighbours (8-connected).
+//!
+//! ## The three corrections, per pixel `p` and level `l`, with mean `m_l(p)` DN
+//! - **raw**: `c = m_l(p) / <m_l>` (the pixel against the mean of the good pixels); its
+//!   residual is `c - 1`: the fixed-pattern structure of the paper's Fig. 8, left.
+//! - **standard**: a global cubic `f` fitted to `x_l` against the median pixel's mean,
+//!   applied to every pixel, then dark and gain: `c = (f(m_l) - f(m_0)) / (f(m_g) - f(m_0))`.
+//! - **pixel-wise**: per pixel the 4th-order polynomial `m = P_p(x) = sum_k a_k x^k` fitted
+//!   by least squares to its unsaturated levels; the correction inverts it,
+//!   `x^_l = P_p^-1(m_l)` (Newton from the linear guess), then dark and gain:
+//!   `c = (x^_l - x^_0) / (x^_g - x^_0)`.
+//!
+//! For the standard and pixel-wise corrections the residual is `c - e_l`. The RMS of a
+//! level is over the good, unsaturated pixels. The *random* noise is the frames' standard
+//! deviation over `sqrt(NFRAMES)` propagated through the dark and gain correction:
+//! `sigma_c = sqrt(s_l^2 + (c s_g)^2 + ((1 - c) s_0)^2) / (m_g - m_0)`, `s = std / sqrt(N)`.
+//!
+//! All pixels share the design matrix of a level prefix, so the least-squares fit is one
+//! precomputed pseudo-inverse per distinct number of unsaturated levels: a matrix-vector
+//! product per pixel.
+
+use nalgebra::{DMatrix, DVector};
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::fits::LinearitySet;
+
+/// Order of the pixel-wise polynomial (the paper: 4; higher did not help).
+pub const PIXEL_ORDER: usize = 4;
+/// Order of the global nonlinearity of the standard correction (the paper: 3).
+pub const GLOBAL_ORDER: usize = 3;
+
+/// Why a pixel is masked (bit flags).
+pub mod reason {
+    /// In the set's MASK extension.
+    pub const INPUT: u8 = 1;
+    /// Signal at the gain level below half the median.
+    pub const LOW: u8 = 2;
+    /// Pixel-wise fit residual above 10x the median.
+    pub const TREND: u8 = 4;
+    /// Too few unsaturated levels to fit, or non-finite data.
+    pub const UNFIT: u8 = 8;
+}
+
+/// The analysis of one set.
+#[derive(Debug, Clone, Serialize)]
+pub struct LinearityReport {
+    /// Levels, dark included.
+    pub levels: usize,
+    /// Pixels in a frame.
+    pub pixels: usize,
+    /// The gain (flat) level.
+    pub gain_level: usize,
+    /// Expected normalized intensity of each level (1 at the gain level).
+    pub intensity: Vec<f64>,
+    /// Normalized reference `x = V / max V` of each level.
+    pub reference: Vec<f64>,
+    /// RMS residual per level, raw (NaN at level 0).
+    pub rms_raw: Vec<f64>,
+    /// RMS residual per level, standard correction (NaN at the dark and gain levels, where
+    /// it is zero by construction).
+    pub rms_standard: Vec<f64>,
+    /// RMS residual per level, pixel-wise correction (NaN at dark and gain).
+    pub rms_pixelwise: Vec<f64>,
+    /// Propagated random noise per level (NaN at dark and gain).
+    pub rms_random: Vec<f64>,
+    /// max over levels of `rms_raw`.
+    pub rms_raw_max: f64,
+    /// max over levels of `rms_standard`.
+    pub rms_standard_max: f64,
+    /// max over levels of `rms_pixelwise`.
+    pub rms_pixelwise_max: f64,
+    /// max over levels of `rms_random`.
+    pub rms_random_max: f64,
+    /// Masked pixels.
+    pub masked_pixels: usize,
+    /// Global cubic of the standard correction, `x = sum c_k (m / top)^k`.
+    pub global_coefficients: Vec<f64>,
+}
+
+/// The per-pixel results, for the FITS outputs.
+#[derive(Debug, Clone)]
+pub struct PixelResults {
+    /// Coefficients `a_k` of `m = sum a_k x^k`, k-major: `coeffs[(k * height + row) * width + col]`;
+    /// NaN for unfitted pixels.
+    pub coeffs: Vec<f64>,
+    /// Mask reasons per pixel (0 = good).
+    pub mask: Vec<u8>,
+    /// Pixel-wise corrected normalized intensity per level, masked pixels filled from
+    /// their good neighbours, laid out as the set's mean cube.
+    pub corrected: Vec<f64>,
+}
+
+/// Least-squares pseudo-inverse `(A^T A)^-1 A^T` of the Vandermonde matrix of `x` up to
+/// `order`, via SVD (robust for the near-collinear powers of x in [0, 1]).
+fn pseudo_inverse(x: &[f64], order: usize) -> DMatrix<f64> {
+    let a = DMatrix::from_fn(x.len(), order + 1, |r, c| x[r].powi(c as i32));
+    a.pseudo_inverse(1e-13).unwrap_or_else(|_| DMatrix::zeros(order + 1, x.len()))
+}
+
+fn poly(a: &[f64], x: f64) -> f64 {
+    a.iter().rev().fold(0.0, |acc, &c| acc * x + c)
+}
+
+fn poly_slope(a: &[f64], x: f64) -> f64 {
+    a.iter().enumerate().skip(1).rev().fold(0.0, |acc, (k, &c)| acc * x + k as f64 * c)
+}
+
+/// `x` with `P(x) = m`: Newton from `guess`, then bisection on [-0.5, 2] if Newton fails.
+pub fn invert(a: &[f64], m: f64, guess: f64) -> f64 {
+    let mut x = guess;
+    for _ in 0..30 {
+        let (f, d) = (poly(a, x) - m, poly_slope(a, x));
+        if d == 0.0 || !d.is_finite() {
+            break;
+        }
+        let step = f / d;
+        x -= step;
+        if step.abs() < 1e-15 * (1.0 + x.abs()) {
+            return x;
+        }
+    }
+    if (poly(a, x) - m).abs() <= 1e-9 * m.abs().max(1.0) {
+        return x;
+    }
+    let (mut lo, mut hi) = (-0.5, 2.0);
+    if (poly(a, lo) - m).signum() == (poly(a, hi) - m).signum() {
+        return f64::NAN;
+    }
+    for _ in 0..200 {
+        let mid = 0.5 * (lo + hi);
+        if (poly(a, mid) - m).signum() == (poly(a, lo) - m).signum() { lo = mid } else { hi = mid }
+    }
+    0.5 * (lo + hi)
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.retain(|x| x.is_finite());
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) }
+}
+
+fn rms_of(v: impl Iterator<Item = f64>) -> f64 {
+    let (s, n) = v.filter(|x| x.is_finite()).fold((0.0, 0usize), |(s, n), x| (s + x * x, n + 1));
+    if n == 0 { f64::NAN } else { (s / n as f64).sqrt() }
+}
+
+/// Replaces masked pixels of one `width x height` image by the mean of their good
+/// 8-neighbours (left as they are when none is good).
+pub fn fill_masked(image: &mut [f64], mask: &[u8], width: usize, height: usize) {
+    let source = image.to_vec();
+    for r in 0..height {
+        for c in 0..width {
+            if mask[r * width + c] == 0 {
+                continue;
+            }
+            let (mut sum, mut n) = (0.0, 0);
+            for dr in -1i64..=1 {
+                for dc in -1i64..=1 {
+                    let (rr, cc) = (r as i64 + dr, c as i64 + dc);
+                    if (dr, dc) == (0, 0) || rr < 0 || cc < 0 || rr >= height as i64 || cc >= width as i64 {
+                        continue;
+                    }
+                    let i = rr as usize * width + cc as usize;
+                    if mask[i] == 0 && source[i].is_finite() {
+                        sum += source[i];
+                        n += 1;
+                    }
+                }
+            }
+            if n > 0 {
+                image[r * width + c] = sum / n as f64;
+            }
+        }
+    }
+}
+
+/// Analyzes `set`: masks, the three corrections, their RMS per level, the random noise.
+pub fn analyze(set: &LinearitySet) -> (LinearityReport, PixelResults) {
+    let (nl, w, h) = (set.levels, set.width, set.height);
+    let np = w * h;
+    let top = ((1u64 << set.bit_depth) - 1) as f64;
+    let vmax = set.voltage.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+    let x: Vec<f64> = set.voltage.iter().map(|v| v / vmax).collect();
+    let g = (1..nl).min_by(|&a, &b| (x[a] - 0.5).abs().total_cmp(&(x[b] - 0.5).abs())).unwrap_or(0);
+    let e: Vec<f64> = x.iter().map(|xl| (xl - x[0]) / (x[g] - x[0])).collect();
+    let m = |l: usize, p: usize| set.mean[l * np + p];
+    let sd = |l: usize, p: usize| set.std[l * np + p];
+    // Unsaturated levels per pixel: a prefix.
+    let valid: Vec<usize> = (0..np)
+        .map(|p| (0..nl).find(|&l| !(m(l, p).is_finite() && sd(l, p).is_finite()) || m(l, p) >= top - 4.0 * sd(l, p).max(0.5)).unwrap_or(nl))
+        .collect();
+    // One pseudo-inverse per prefix length.
+    let pinv: Vec<Option<DMatrix<f64>>> = (0..=nl).map(|n| (n > PIXEL_ORDER + 1).then(|| pseudo_inverse(&x[..n], PIXEL_ORDER))).collect();
+    let fits: Vec<(Vec<f64>, f64)> = (0..np)
+        .into_par_iter()
+        .map(|p| {
+            let n = valid[p];
+            match &pinv[n] {
+                Some(pi) if n > g => {
+                    let y = DVector::from_iterator(n, (0..n).map(|l| m(l, p)));
+                    let a: Vec<f64> = (pi * &y).iter().copied().collect();
+                    let resid = rms_of((0..n).map(|l| poly(&a, x[l]) - m(l, p)));
+                    (a, resid)
+                }
+                _ => (vec![f64::NAN; PIXEL_ORDER + 1], f64::NAN),
+            }
+        })
+        .collect();
+    // Masks.
+    let mut mask = vec![0u8; np];
+    if let Some(input) = &set.mask {
+        for (m, &i) in mask.iter_mut().zip(input) {
+            if i != 0 {
+                *m |= reason::INPUT;
+            }
+        }
+    }
+    let signal: Vec<f64> = (0..np).map(|p| m(g, p) - m(0, p)).collect();
+    let med_signal = median(signal.clone());
+    let med_resid = median(fits.iter().map(|f| f.1).collect());
+    for p in 0..np {
+        if signal[p].is_nan() || signal[p] < 0.5 * med_signal {
+            mask[p] |= reason::LOW;
+        }
+        if fits[p].1.is_nan() {
+            mask[p] |= reason::UNFIT;
+        } else if fits[p].1 > 10.0 * med_resid.max(1e-12) {
+            mask[p] |= reason::TREND;
+        }
+    }
+    let good: Vec<usize> = (0..np).filter(|&p| mask[p] == 0).collect();
+    // Standard correction: global cubic x = f(m / top) from the median good pixel.
+    let med_levels: Vec<f64> = (0..nl).map(|l| median(good.iter().filter(|&&p| l < valid[p]).map(|&p| m(l, p)).collect())).collect();
+    let usable: Vec<usize> = (0..nl).filter(|&l| med_levels[l].is_finite() && good.iter().filter(|&&p| l < valid[p]).count() * 2 > good.len()).collect();
+    let gpinv = pseudo_inverse(&usable.iter().map(|&l| med_levels[l] / top).collect::<Vec<_>>(), GLOBAL_ORDER);
+    let global: Vec<f64> = (&gpinv * DVector::from_iterator(usable.len(), usable.iter().map(|&l| x[l]))).iter().copied().collect();
+    let f = |v: f64| poly(&global, v / top);
+    // The pixel-wise correction of every good pixel and level, once: x^ = P^-1(m), then
+    // dark and gain. (Unsaturated or not: the corrected images show every level.)
+    let mut xhat = vec![f64::NAN; nl * np];
+    xhat.par_chunks_mut(np).enumerate().for_each(|(l, row)| {
+        for (p, v) in row.iter_mut().enumerate() {
+            if mask[p] == 0 {
+                *v = invert(&fits[p].0, m(l, p), x[l]);
+            }
+        }
+    });
+    let corrected_raw: Vec<f64> = (0..nl * np)
+        .into_par_iter()
+        .map(|i| {
+            let p = i % np;
+            (xhat[i] - xhat[p]) / (xhat[g * np + p] - xhat[p])
+        })
+        .collect();
+    // Per level statistics.
+    let nan_unless = |cond: bool, v: f64| if cond { v } else { f64::NAN };
+    let level_stats: Vec<[f64; 4]> = (0..nl)
+        .into_par_iter()
+        .map(|l| {
+            let pix: Vec<usize> = good.iter().copied().filter(|&p| l < valid[p]).collect();
+            let mean_l = pix.iter().map(|&p| m(l, p)).sum::<f64>() / pix.len().max(1) as f64;
+            let raw = rms_of(pix.iter().map(|&p| m(l, p) / mean_l - 1.0));
+            let std = rms_of(pix.iter().map(|&p| (f(m(l, p)) - f(m(0, p))) / (f(m(g, p)) - f(m(0, p))) - e[l]));
+            let pw = rms_of(pix.iter().map(|&p| corrected_raw[l * np + p] - e[l]));
+            let nf = f64::from(set.n_frames.max(1)).sqrt();
+            let random = rms_of(pix.iter().map(|&p| {
+                let d = m(g, p) - m(0, p);
+                let c = (m(l, p) - m(0, p)) / d;
+                let (sl, sg, s0) = (sd(l, p) / nf, sd(g, p) / nf, sd(0, p) / nf);
+                (sl * sl + (c * sg).powi(2) + ((1.0 - c) * s0).powi(2)).sqrt() / d
+            }));
+            let calibrated = l != 0 && l != g;
+            [nan_unless(l != 0, raw), nan_unless(calibrated, std), nan_unless(calibrated, pw), nan_unless(calibrated, random)]
+        })
+        .collect();
+    let col = |i: usize| -> Vec<f64> { level_stats.iter().map(|s| s[i]).collect() };
+    let maxf = |v: &[f64]| v.iter().filter(|x| x.is_finite()).fold(0.0f64, |a, &b| a.max(b));
+    let (rms_raw, rms_standard, rms_pixelwise, rms_random) = (col(0), col(1), col(2), col(3));
+    // Outputs: coefficients, and the pixel-wise corrected cube with masked pixels filled.
+    let mut coeffs = vec![f64::NAN; (PIXEL_ORDER + 1) * np];
+    for (p, (a, _)) in fits.iter().enumerate() {
+        for (k, &ak) in a.iter().enumerate() {
+            coeffs[k * np + p] = ak;
+        }
+    }
+    let mut corrected = corrected_raw;
+    corrected.par_chunks_mut(np).for_each(|image| fill_masked(image, &mask, w, h));
+    let report = LinearityReport {
+        levels: nl,
+        pixels: np,
+        gain_level: g,
+        intensity: e,
+        reference: x,
+        rms_raw_max: maxf(&rms_raw),
+        rms_standard_max: maxf(&rms_standard),
+        rms_pixelwise_max: maxf(&rms_pixelwise),
+        rms_random_max: maxf(&rms_random),
+        rms_raw,
+        rms_standard,
+        rms_pixelwise,
+        rms_random,
+        masked_pixels: mask.iter().filter(|&&m| m != 0).count(),
+        global_coefficients: global,
+    };
+    (report, PixelResults { coeffs, mask, corrected })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A set whose pixel p reads exactly `sum_k a_k(p) x^k` at x = l / (levels - 1).
+    fn planted(w: usize, h: usize, levels: usize, a: impl Fn(usize) -> [f64; 5]) -> LinearitySet {
+        let np = w * h;
+        let mut mean = vec![0.0; levels * np];
+        for l in 0..levels {
+            let x = l as f64 / (levels - 1) as f64;
+            for p in 0..np {
+                mean[l * np + p] = poly(&a(p), x);
+            }
+        }
+        LinearitySet { bit_depth: 12, n_adc: 4, n_frames: 256, width: w, height: h, levels, std: vec![2.0; levels * np], mean, voltage: (0..levels).map(|l| 0.01 * l as f64).collect(), mask: None }
+    }
+
+    fn coefficients(p: usize) -> [f64; 5] {
+        let t = p as f64;
+        [100.0 + t, 3000.0 + 7.0 * t, -150.0 + t % 5.0, 40.0 - (t % 3.0) * 10.0, -12.0 + (t % 7.0)]
+    }
+
+    #[test]
+    fn the_pixel_fit_recovers_planted_coefficients() {
+        let set = planted(6, 5, 41, coefficients);
+        let (r, px) = analyze(&set);
+        let np = 30;
+        for p in 0..np {
+            for (k, want) in coefficients(p).iter().enumerate() {
+                let got = px.coeffs[k * np + p];
+                assert!((got - want).abs() < 1e-6 * want.abs().max(1.0), "pixel {p} a{k}: {got} vs {want}");
+            }
+        }
+        // Exact quartics: the pixel-wise correction is exact, the standard one is not.
+        assert!(r.rms_pixelwise_max < 1e-9, "{}", r.rms_pixelwise_max);
+        assert!(r.rms_standard_max > 1e-4, "{}", r.rms_standard_max);
+        assert_eq!(r.masked_pixels, 0);
+        assert_eq!(r.gain_level, 20);
+    }
+
+    #[test]
+    fn saturated_levels_are_left_out_of_the_fit() {
+        // Pixel 0 clips at the top code from level 30: its fit uses levels 0..29 only and
+        // still recovers the quartic.
+        let mut set = planted(4, 1, 41, coefficients);
+        for l in 30..41 {
+            set.mean[l * 4] = 4095.0;
+        }
+        let (_, px) = analyze(&set);
+        for (k, want) in coefficients(0).iter().enumerate() {
+            assert!((px.coeffs[k * 4] - want).abs() < 1e-6 * want.abs().max(1.0), "a{k}");
+        }
+    }
+
+    #[test]
+    fn dead_and_anomalous_pixels_are_masked_and_filled() {
+        let mut set = planted(5, 5, 41, |_| [100.0, 3000.0, -150.0, 40.0, -12.0]);
+        let np = 25;
+        // Pixel 7 is dead (no signal), pixel 12 (the center) has a kink no quartic fits.
+        for l in 0..41 {
+            set.mean[l * np + 7] = 100.0;
+            if l > 20 {
+                set.mean[l * np + 12] += 300.0;
+            }
+        }
+        let (r, px) = analyze(&set);
+        assert_eq!(px.mask[7] & reason::LOW, reason::LOW);
+        assert_eq!(px.mask[12] & reason::TREND, reason::TREND);
+        assert_eq!(r.masked_pixels, 2);
+        // The filled value is the mean of the good neighbours: here every good pixel reads
+        // the same corrected intensity, so the filled one must equal it.
+        for l in [5, 20, 35] {
+            let row = &px.corrected[l * np..(l + 1) * np];
+            assert!((row[12] - row[0]).abs() < 1e-12 && (row[7] - row[0]).abs() < 1e-12, "level {l}: {row:?}");
+        }
+    }
+
+    #[test]
+    fn fill_masked_averages_the_good_neighbours() {
+        let mut img = vec![1.0, 2.0, 3.0, 4.0, 99.0, 6.0, 7.0, 8.0, 9.0];
+        let mut mask = vec![0u8; 9];
+        mask[4] = 1;
+        mask[0] = 1;
+        fill_masked(&mut img, &mask, 3, 3);
+        assert_eq!(img[4], (2.0 + 3.0 + 4.0 + 6.0 + 7.0 + 8.0 + 9.0) / 7.0);
+        assert_eq!(img[0], (2.0 + 4.0) / 2.0);
+    }
+
+    #[test]
+    fn random_noise_propagates_as_the_closed_form() {
+        // Linear pixels (no fit error) with std 2 DN, 256 frames: at level l the noise is
+        // sqrt(s^2 (1 + c^2 + (1 - c)^2)) / (m_g - m_0) with s = 2/16.
+        let set = planted(3, 3, 41, |_| [100.0, 3000.0, 0.0, 0.0, 0.0]);
+        let (r, _) = analyze(&set);
+        let d = 3000.0 * 0.5;
+        for l in [1usize, 10, 30, 40] {
+            let c = (l as f64 / 40.0) / 0.5;
+            let s: f64 = 2.0 / 16.0;
+            let want = (s * s * (1.0 + c * c + (1.0 - c).powi(2))).sqrt() / d;
+            assert!((r.rms_random[l] - want).abs() < 1e-12, "level {l}");
+        }
+        assert!(r.rms_random[0].is_nan() && r.rms_random[20].is_nan());
+    }
+}
