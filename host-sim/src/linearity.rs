@@ -42,6 +42,8 @@ use crate::fits::LinearitySet;
 
 /// Order of the pixel-wise polynomial (the paper: 4; higher did not help).
 pub const PIXEL_ORDER: usize = 4;
+/// The highest order `analyze` accepts (the powers of x in [0, 1] grow collinear).
+pub const MAX_ORDER: usize = 8;
 /// Order of the global nonlinearity of the standard correction (the paper: 3).
 pub const GLOBAL_ORDER: usize = 3;
 
@@ -89,6 +91,8 @@ pub struct LinearityReport {
     pub rms_random_max: f64,
     /// Masked pixels.
     pub masked_pixels: usize,
+    /// Order of the pixel-wise polynomial.
+    pub order: usize,
     /// Global cubic of the standard correction, `x = sum c_k (m / top)^k`.
     pub global_coefficients: Vec<f64>,
 }
@@ -194,8 +198,10 @@ pub fn fill_masked(image: &mut [f64], mask: &[u8], width: usize, height: usize) 
     }
 }
 
-/// Analyzes `set`: masks, the three corrections, their RMS per level, the random noise.
-pub fn analyze(set: &LinearitySet) -> (LinearityReport, PixelResults) {
+/// Analyzes `set` with the pixel-wise polynomial of `order` (clamped to 1..=[`MAX_ORDER`]):
+/// masks, the three corrections, their RMS per level, the random noise.
+pub fn analyze(set: &LinearitySet, order: usize) -> (LinearityReport, PixelResults) {
+    let order = order.clamp(1, MAX_ORDER);
     let (nl, w, h) = (set.levels, set.width, set.height);
     let np = w * h;
     let top = ((1u64 << set.bit_depth) - 1) as f64;
@@ -210,7 +216,7 @@ pub fn analyze(set: &LinearitySet) -> (LinearityReport, PixelResults) {
         .map(|p| (0..nl).find(|&l| !(m(l, p).is_finite() && sd(l, p).is_finite()) || m(l, p) >= top - 4.0 * sd(l, p).max(0.5)).unwrap_or(nl))
         .collect();
     // One pseudo-inverse per prefix length.
-    let pinv: Vec<Option<DMatrix<f64>>> = (0..=nl).map(|n| (n > PIXEL_ORDER + 1).then(|| pseudo_inverse(&x[..n], PIXEL_ORDER))).collect();
+    let pinv: Vec<Option<DMatrix<f64>>> = (0..=nl).map(|n| (n > order + 1).then(|| pseudo_inverse(&x[..n], order))).collect();
     let fits: Vec<(Vec<f64>, f64)> = (0..np)
         .into_par_iter()
         .map(|p| {
@@ -222,7 +228,7 @@ pub fn analyze(set: &LinearitySet) -> (LinearityReport, PixelResults) {
                     let resid = rms_of((0..n).map(|l| poly(&a, x[l]) - m(l, p)));
                     (a, resid)
                 }
-                _ => (vec![f64::NAN; PIXEL_ORDER + 1], f64::NAN),
+                _ => (vec![f64::NAN; order + 1], f64::NAN),
             }
         })
         .collect();
@@ -297,7 +303,7 @@ pub fn analyze(set: &LinearitySet) -> (LinearityReport, PixelResults) {
     let maxf = |v: &[f64]| v.iter().filter(|x| x.is_finite()).fold(0.0f64, |a, &b| a.max(b));
     let (rms_raw, rms_standard, rms_pixelwise, rms_random) = (col(0), col(1), col(2), col(3));
     // Outputs: coefficients, and the pixel-wise corrected cube with masked pixels filled.
-    let mut coeffs = vec![f64::NAN; (PIXEL_ORDER + 1) * np];
+    let mut coeffs = vec![f64::NAN; (order + 1) * np];
     for (p, (a, _)) in fits.iter().enumerate() {
         for (k, &ak) in a.iter().enumerate() {
             coeffs[k * np + p] = ak;
@@ -320,6 +326,7 @@ pub fn analyze(set: &LinearitySet) -> (LinearityReport, PixelResults) {
         rms_pixelwise,
         rms_random,
         masked_pixels: mask.iter().filter(|&&m| m != 0).count(),
+        order,
         global_coefficients: global,
     };
     (report, PixelResults { coeffs, mask, corrected })
@@ -350,7 +357,7 @@ mod tests {
     #[test]
     fn the_pixel_fit_recovers_planted_coefficients() {
         let set = planted(6, 5, 41, coefficients);
-        let (r, px) = analyze(&set);
+        let (r, px) = analyze(&set, PIXEL_ORDER);
         let np = 30;
         for p in 0..np {
             for (k, want) in coefficients(p).iter().enumerate() {
@@ -373,7 +380,7 @@ mod tests {
         for l in 30..41 {
             set.mean[l * 4] = 4095.0;
         }
-        let (_, px) = analyze(&set);
+        let (_, px) = analyze(&set, PIXEL_ORDER);
         for (k, want) in coefficients(0).iter().enumerate() {
             assert!((px.coeffs[k * 4] - want).abs() < 1e-6 * want.abs().max(1.0), "a{k}");
         }
@@ -390,7 +397,7 @@ mod tests {
                 set.mean[l * np + 12] += 300.0;
             }
         }
-        let (r, px) = analyze(&set);
+        let (r, px) = analyze(&set, PIXEL_ORDER);
         assert_eq!(px.mask[7] & reason::LOW, reason::LOW);
         assert_eq!(px.mask[12] & reason::TREND, reason::TREND);
         assert_eq!(r.masked_pixels, 2);
@@ -418,7 +425,7 @@ mod tests {
         // Linear pixels (no fit error) with std 2 DN, 256 frames: at level l the noise is
         // sqrt(s^2 (1 + c^2 + (1 - c)^2)) / (m_g - m_0) with s = 2/16.
         let set = planted(3, 3, 41, |_| [100.0, 3000.0, 0.0, 0.0, 0.0]);
-        let (r, _) = analyze(&set);
+        let (r, _) = analyze(&set, PIXEL_ORDER);
         let d = 3000.0 * 0.5;
         for l in [1usize, 10, 30, 40] {
             let c = (l as f64 / 40.0) / 0.5;

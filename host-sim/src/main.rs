@@ -216,6 +216,9 @@ enum Cmd {
     Linearity {
         /// The linearity set (FITS, as `simulate linearity` writes or astropy).
         file: PathBuf,
+        /// Order of the pixel-wise polynomial (the paper: 4).
+        #[arg(long, default_value_t = 4)]
+        order: usize,
         /// Folder for coefficients.fits, corrected.fits and linearity_rms.png.
         #[arg(short, long)]
         out: Option<PathBuf>,
@@ -498,8 +501,8 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
                 t
             })?;
         }
-        Cmd::Linearity { file, out, json } => {
-            let s = linearity::linearity(&file, out.as_deref())?;
+        Cmd::Linearity { file, order, out, json } => {
+            let s = linearity::linearity(&file, order, out.as_deref())?;
             print(json, &s, |s| {
                 let r = &s.report;
                 let mut t = format!("{}: {} levels x {} pixels, gain level {}, {} masked, analysis {:.2} s\n", s.input.display(), r.levels, r.pixels, r.gain_level, r.masked_pixels, s.analysis_s);

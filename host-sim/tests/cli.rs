@@ -439,6 +439,7 @@ with fits.open('out/corrected.fits') as h:
         d,
     );
     assert_clean_failure(&dncal(&["linearity", "missing.fits"], d), "missing.fits", "No such file");
+    assert_clean_failure(&dncal(&["linearity", "lin.fits", "--order", "0"], d), "--order", "1 to 8");
     std::fs::write(d.join("h.fits"), b"").unwrap();
     assert_clean_failure(&dncal(&["linearity", "h.fits"], d), "h.fits", "");
 }

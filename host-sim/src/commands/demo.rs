@@ -79,7 +79,7 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
     pb.inc(1);
     let lin_path = at("linearity.fits");
     crate::commands::simulate::simulate_linearity(camera, &LinearityParams::paper(camera), lin_path.clone())?;
-    let linearity = crate::commands::linearity::linearity(&lin_path, Some(&at("linearity")))?;
+    let linearity = crate::commands::linearity::linearity(&lin_path, crate::linearity::PIXEL_ORDER, Some(&at("linearity")))?;
     pb.finish_and_clear();
 
     let summary = DemoSummary {

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 
 use crate::fits::{read_linearity, write_cube, write_pixel_correction, PixelCorrection};
-use crate::linearity::{analyze, LinearityReport, PIXEL_ORDER};
+use crate::linearity::{analyze, LinearityReport, MAX_ORDER};
 use crate::plots::{line_plot, Series};
 use crate::HostError;
 
@@ -28,22 +28,25 @@ pub struct LinearitySummary {
 /// Analyzes `input`; with `out_dir`, writes `coefficients.fits` (cube and MASK),
 /// `corrected.fits` (pixel-wise corrected normalized intensities, masked pixels filled)
 /// and `linearity_rms.png`.
-pub fn linearity(input: &Path, out_dir: Option<&Path>) -> Result<LinearitySummary, HostError> {
+pub fn linearity(input: &Path, order: usize, out_dir: Option<&Path>) -> Result<LinearitySummary, HostError> {
+    if !(1..=MAX_ORDER).contains(&order) {
+        return Err(HostError::Format { path: "--order".into(), message: format!("{order}: the pixel-wise polynomial order must be 1 to {MAX_ORDER}") });
+    }
     let set = read_linearity(input)?;
-    if set.levels < PIXEL_ORDER + 3 {
-        return Err(HostError::Format { path: input.into(), message: format!("{} levels; the 4th-order fit needs at least {}", set.levels, PIXEL_ORDER + 3) });
+    if set.levels < order + 3 {
+        return Err(HostError::Format { path: input.into(), message: format!("{} levels; an order-{order} fit needs at least {}", set.levels, order + 3) });
     }
     if set.voltage.iter().any(|v| !(v.is_finite() && *v >= 0.0)) || set.voltage.iter().cloned().fold(0.0, f64::max) <= 0.0 {
         return Err(HostError::Format { path: input.into(), message: "REFERENCE VOLTAGE must be finite, >= 0 and not all zero".into() });
     }
     let start = std::time::Instant::now();
-    let (report, px) = analyze(&set);
+    let (report, px) = analyze(&set, order);
     let analysis_s = start.elapsed().as_secs_f64();
     let mut outputs = Vec::new();
     if let Some(dir) = out_dir {
         std::fs::create_dir_all(dir).map_err(|e| HostError::io(dir, e))?;
         let c = dir.join("coefficients.fits");
-        let pc = PixelCorrection { coeffs: &px.coeffs, mask: &px.mask, width: set.width, height: set.height, order: PIXEL_ORDER, bit_depth: set.bit_depth, n_adc: set.n_adc };
+        let pc = PixelCorrection { coeffs: &px.coeffs, mask: &px.mask, width: set.width, height: set.height, order, bit_depth: set.bit_depth, n_adc: set.n_adc };
         write_pixel_correction(&c, &pc)?;
         let k = dir.join("corrected.fits");
         write_cube(&k, &px.corrected, set.levels, set.width, set.height, "normalized intensity")?;
@@ -60,7 +63,7 @@ pub fn linearity(input: &Path, out_dir: Option<&Path>) -> Result<LinearitySummar
             &[
                 series("raw", &report.rms_raw),
                 series("standard: global cubic, dark, gain", &report.rms_standard),
-                series("pixel-wise 4th order, dark, gain", &report.rms_pixelwise),
+                series(&format!("pixel-wise order {}, dark, gain", report.order), &report.rms_pixelwise),
                 series("random (propagated)", &report.rms_random),
             ],
             1,
