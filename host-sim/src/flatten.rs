@@ -74,6 +74,12 @@ pub struct FlattenParams {
     /// (10 %) exceeds the few-percent DN error being measured; the paper's sums of 130 to
     /// 139 ramps hold far more.
     pub min_mean_count: f64,
+    /// Narrow the fit to the codes whose count reaches this fraction of the median count
+    /// of the candidate codes (from the first to the last such code); codes left out get
+    /// weight 1 like the fixed low codes. 0 (the default) keeps the paper's fixed range;
+    /// `diagnose` uses 0.1 so that data whose dark level or saturation leave empty codes
+    /// inside the range can be fitted.
+    pub trim_below_fraction: f64,
     /// Largest cumulative offset at the top code accepted after normalization, DN. The
     /// normalization zeroes it up to f64 rounding (about 1e-12 DN); 1e-6 DN is far below
     /// a LUT unit of 2^-11 DN.
@@ -88,8 +94,25 @@ impl Default for FlattenParams {
             fixed_low_codes: 150,
             set_last_to_one: true,
             min_mean_count: 100.0,
+            trim_below_fraction: 0.0,
             max_top_offset_dn: 1e-6,
         }
+    }
+}
+
+/// `[start, end)` narrowed to the first and last code whose count reaches `fraction` of the
+/// median count in it (unchanged for `fraction <= 0` or when no code does).
+fn trimmed_range(counts: &[u64], start: usize, end: usize, fraction: f64) -> (usize, usize) {
+    if fraction.is_nan() || fraction <= 0.0 || start >= end {
+        return (start, end);
+    }
+    let mut sorted: Vec<u64> = counts[start..end].to_vec();
+    sorted.sort_unstable();
+    let threshold = fraction * sorted[sorted.len() / 2] as f64;
+    let ok = |k: &usize| counts[*k] as f64 >= threshold && counts[*k] > 0;
+    match ((start..end).find(ok), (start..end).rev().find(ok)) {
+        (Some(a), Some(b)) => (a, b + 1),
+        _ => (start, end),
     }
 }
 
@@ -234,7 +257,8 @@ pub fn flatten_histogram(counts: &[u64], p: &FlattenParams) -> Result<Flattened,
         }
     }
     let end = if p.set_last_to_one { n - 1 } else { n };
-    let fit = p.fixed_low_codes..end;
+    let (start, end) = trimmed_range(counts, p.fixed_low_codes.min(end), end, p.trim_below_fraction);
+    let fit = start..end;
     let fit_len = end.saturating_sub(fit.start);
     let range_error = |needed, what| FlattenError::FitRange { start: fit.start, end, needed, what };
     let spline_needed = MIN_CODES_PER_INTERVAL * (p.spline_points - 3) + 1;

@@ -7,6 +7,7 @@
 
 pub mod camera;
 pub mod commands;
+pub mod diagnose;
 pub mod dims;
 pub mod emva;
 pub mod error;

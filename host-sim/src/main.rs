@@ -11,7 +11,7 @@ use clap::{Args, Parser, Subcommand};
 use dncal_core::{Geometry, Mvd1024eLuts};
 use dncal_host::camera::calibration::{LinearityParams, RampParams};
 use dncal_host::camera::{Camera, CameraConfig};
-use dncal_host::commands::{adc, demo, kcor, linearity, lut, quantization, simulate, stream};
+use dncal_host::commands::{adc, demo, diagnose, kcor, linearity, lut, quantization, simulate, stream};
 use dncal_host::firmware::{build_firmware, run_firmware, run_on_host, RunInputs};
 use dncal_host::flatten::FlattenParams;
 use dncal_host::streaming::StreamParams;
@@ -220,6 +220,23 @@ enum Cmd {
         #[arg(long, default_value_t = 4)]
         order: usize,
         /// Folder for coefficients.fits, corrected.fits and linearity_rms.png.
+        #[arg(short, long)]
+        out: Option<PathBuf>,
+        /// Print a JSON summary on stdout.
+        #[arg(long)]
+        json: bool,
+    },
+    /// What the baseline simulation gets wrong in measured data: findings, held-out gains.
+    Diagnose {
+        /// Measured data: histogram sets (linearity and EMVA sets are next).
+        #[arg(required = true)]
+        files: Vec<PathBuf>,
+        #[command(flatten)]
+        flatten: FlattenArgs,
+        /// Seed of the held-out split.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Report folder (one subfolder per input when several).
         #[arg(short, long)]
         out: Option<PathBuf>,
         /// Print a JSON summary on stdout.
@@ -515,6 +532,31 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
                 }
                 t
             })?;
+        }
+        Cmd::Diagnose { files, flatten, seed, out, json } => {
+            let several = files.len() > 1;
+            let mut all = Vec::new();
+            for (i, f) in files.iter().enumerate() {
+                let dir = out.as_ref().map(|o| if several { o.join(format!("{i}")) } else { o.clone() });
+                all.push(diagnose::diagnose(f, &flatten.params(), seed, dir.as_deref())?);
+            }
+            let text = |s: &diagnose::DiagnoseSummary| {
+                let d = &s.diagnosis;
+                let mut t = format!("{}: baseline ({}) held-out RMS {:.3}\n", s.input.display(), d.baseline.model, d.baseline.rms);
+                if d.findings.is_empty() {
+                    t += "  no finding: the baseline explains the data\n";
+                }
+                for f in &d.findings {
+                    t += &format!("  {}{}: significance {:.1}, RMS {:.3} -> {:.3} (gain {:.2}); {}\n", f.effect, f.adc.map_or(String::new(), |a| format!(" (ADC {a})")), f.significance, f.rms_before, f.rms_after, f.gain, f.detail);
+                }
+                t += &format!("  unexplained RMS {:.3}\n", d.unexplained_rms);
+                t
+            };
+            if several {
+                print(json, &all, |all| all.iter().map(text).collect::<String>())?;
+            } else {
+                print(json, &all[0], text)?;
+            }
         }
         Cmd::Quantization { sigma, read_noise_e, gain_e_per_dn, bias, figure, samples, json } => {
             let sigma = match (sigma, read_noise_e, gain_e_per_dn) {

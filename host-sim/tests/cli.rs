@@ -443,3 +443,37 @@ with fits.open('out/corrected.fits') as h:
     std::fs::write(d.join("h.fits"), b"").unwrap();
     assert_clean_failure(&dncal(&["linearity", "h.fits"], d), "h.fits", "");
 }
+
+#[test]
+fn diagnose_names_dnl_in_simulated_histograms_and_nothing_in_ideal_ones() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("ideal.toml"), "[adc]\nstage_bits = [3, 3, 3, 3]\nstage_error_lsb = [0.0, 0.0, 0.0, 0.0]\nseed = 1\n").unwrap();
+    // The paper's ramps (130..139 levels) for the clean set: fewer levels leave lumps in
+    // the illumination that a careful diagnosis rightly reports.
+    for (cfg, file) in [(None, "dnl.fits"), (Some("ideal.toml"), "ideal.fits")] {
+        let mut args = vec!["simulate", "histograms", "-o", file];
+        if let Some(c) = cfg {
+            args.extend(["--config", c]);
+        } else {
+            args.extend(["--first-ramp", "60", "--last-ramp", "61"]);
+        }
+        let out = dncal(&args, d);
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    }
+    let s = stdout_json(&dncal(&["diagnose", "dnl.fits", "--json", "-o", "rep"], d));
+    let adcs: Vec<u64> = s["findings"].as_array().unwrap().iter().map(|f| {
+        assert_eq!(f["effect"], "adc-dnl", "{f}");
+        assert!(f["gain"].as_f64().unwrap() > 2.0, "{f}");
+        f["adc"].as_u64().unwrap()
+    }).collect();
+    assert_eq!(adcs, vec![0, 1, 2, 3], "every simulated ADC has DN error");
+    assert!((s["unexplained_rms"].as_f64().unwrap() - 1.0).abs() < 0.1);
+    assert!(d.join("rep/report.html").exists() && d.join("rep/residuals.png").exists());
+    let clean = stdout_json(&dncal(&["diagnose", "ideal.fits", "--json"], d));
+    assert!(clean["findings"].as_array().unwrap().is_empty(), "{clean}");
+    assert_clean_failure(&dncal(&["diagnose", "missing.fits"], d), "missing.fits", "No such file");
+    let raw = std::fs::read(d.join("dnl.fits")).unwrap();
+    std::fs::write(d.join("cut.fits"), &raw[..raw.len() / 3]).unwrap();
+    assert_clean_failure(&dncal(&["diagnose", "cut.fits"], d), "cut.fits", "truncated");
+}

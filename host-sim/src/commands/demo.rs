@@ -49,6 +49,8 @@ pub struct DemoSummary {
     pub kcor: KcorSummary,
     /// Pixel-wise nonlinearity on a simulated linearity set (section 5).
     pub linearity: LinearitySummary,
+    /// `diagnose` on the calibration histograms.
+    pub diagnose: crate::commands::diagnose::DiagnoseSummary,
     /// Wall time, s.
     pub seconds: f64,
 }
@@ -81,6 +83,8 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
     crate::commands::simulate::simulate_linearity(camera, &LinearityParams::paper(camera), lin_path.clone())?;
     let linearity = crate::commands::linearity::linearity(&lin_path, crate::linearity::PIXEL_ORDER, Some(&at("linearity")))?;
     pb.finish_and_clear();
+    // 5. What a diagnosis of the calibration histograms finds (issue: diagnose).
+    let diagnose = crate::commands::diagnose::diagnose(&at("histograms.fits"), flatten, 1, Some(&at("diagnose")))?;
 
     let summary = DemoSummary {
         out_dir: out_dir.into(),
@@ -92,6 +96,7 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
         quantization,
         kcor,
         linearity,
+        diagnose,
         seconds: start.elapsed().as_secs_f64(),
     };
     let json = serde_json::to_string_pretty(&summary).map_err(|e| HostError::Format { path: at("summary.json"), message: e.to_string() })?;
@@ -196,6 +201,15 @@ fn report_html(s: &DemoSummary, camera: &Camera, ramp: &RampParams, flat: &Flatt
         l.rms_standard_max,
         l.rms_pixelwise_max,
         l.rms_random_max
+    );
+    let dg = &s.diagnose.diagnosis;
+    let _ = write!(
+        h,
+        "<h2>Diagnosis of the calibration histograms: <code>dncal diagnose</code></h2><p>Baseline (ideal ADCs): held-out RMS {:.2} of the expected noise. Findings: {}. \
+         Unexplained RMS after them: {:.3}. <a href=\"diagnose/report.html\">The diagnosis report</a>.</p>",
+        dg.baseline.rms,
+        if dg.findings.is_empty() { "none".to_string() } else { dg.findings.iter().map(|f| format!("{}{} (gain {:.1})", f.effect, f.adc.map_or(String::new(), |a| format!(" ADC {a}")), f.gain)).collect::<Vec<_>>().join(", ") },
+        dg.unexplained_rms
     );
     let _ = write!(h, "<p>Run time {:.1} s.</p></body></html>", s.seconds);
     h

@@ -3,6 +3,7 @@
 
 pub mod adc;
 pub mod demo;
+pub mod diagnose;
 pub mod kcor;
 pub mod linearity;
 pub mod lut;

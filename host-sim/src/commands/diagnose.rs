@@ -1,0 +1,69 @@
+//! `dncal diagnose FILE`: the baseline simulation against measured data, findings from the
+//! catalog, held-out gains ([`crate::diagnose`]).
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+
+use crate::diagnose::{diagnose_histograms, Diagnosis};
+use crate::fits::{read_histograms, read_linearity, write_atomically};
+use crate::flatten::FlattenParams;
+use crate::plots::{line_plot, Series};
+use crate::HostError;
+
+/// One input's diagnosis and the files written for it.
+#[derive(Debug, Serialize)]
+pub struct DiagnoseSummary {
+    /// The input.
+    pub input: PathBuf,
+    /// The diagnosis.
+    #[serde(flatten)]
+    pub diagnosis: Diagnosis,
+    /// Report files.
+    pub outputs: Vec<PathBuf>,
+}
+
+/// Diagnoses `input` (a histogram set so far); with `out_dir`, writes `residuals.png` and
+/// `report.html` there.
+pub fn diagnose(input: &Path, flatten: &FlattenParams, seed: u64, out_dir: Option<&Path>) -> Result<DiagnoseSummary, HostError> {
+    let hist = match read_histograms(input) {
+        Ok(h) => h,
+        Err(e) => {
+            // Say what the file is when it is another of our formats.
+            let text = std::fs::read(input).ok().map(|b| b.starts_with(b"SIMPLE")).unwrap_or(false);
+            if text && read_linearity(input).is_ok() {
+                return Err(HostError::Format { path: input.into(), message: "a linearity set: diagnose reads histogram sets so far (linearity sets and EMVA descriptors are next)".into() });
+            }
+            if std::fs::read_to_string(input).map(|t| t.lines().any(|l| l.trim_start().starts_with("n "))).unwrap_or(false) {
+                return Err(HostError::Format { path: input.into(), message: "an EMVA 1288 descriptor: diagnose reads histogram sets so far (EMVA sets are next)".into() });
+            }
+            return Err(e);
+        }
+    };
+    let diagnosis = diagnose_histograms(&hist, flatten, seed).map_err(|m| HostError::Format { path: input.into(), message: m })?;
+    let mut outputs = Vec::new();
+    if let Some(dir) = out_dir {
+        std::fs::create_dir_all(dir).map_err(|e| HostError::io(dir, e))?;
+        let n = diagnosis.residuals.len();
+        let mut series: Vec<Series> = diagnosis.residuals.iter().enumerate().map(|(a, r)| Series { label: format!("ADC {a}: baseline (ideal ADC)"), points: r.baseline.iter().map(|&(k, z)| (k as f64, z)).collect() }).collect();
+        series.extend(diagnosis.residuals.iter().enumerate().map(|(a, r)| Series { label: format!("ADC {a}: with the findings"), points: r.extended.iter().map(|&(k, z)| (k as f64, z)).collect() }));
+        let fig = dir.join("residuals.png");
+        line_plot(&fig, "Held-out residuals / expected noise, before and after", "code (DN)", "normalized residual", &series, n)?;
+        let html_path = dir.join("report.html");
+        let mut h = format!(
+            "<!doctype html><html><head><meta charset=\"utf-8\"><title>dncal diagnose</title><style>body{{font-family:sans-serif;max-width:1050px;margin:2em auto}}td,th{{padding:2px 10px}}</style></head><body><h1>dncal diagnose: {}</h1>\
+             <p>Baseline: {}. Held-out RMS of the normalized residual {:.3} (1 is noise).</p><table><tr><th>effect</th><th>ADC</th><th>significance</th><th>RMS before</th><th>after</th><th>gain</th><th>evidence</th></tr>",
+            input.display(),
+            diagnosis.baseline.model,
+            diagnosis.baseline.rms
+        );
+        for f in &diagnosis.findings {
+            let _ = write!(h, "<tr><td>{}</td><td>{}</td><td>{:.1}</td><td>{:.3}</td><td>{:.3}</td><td>{:.2}</td><td>{}</td></tr>", f.effect, f.adc.map_or("-".into(), |a| a.to_string()), f.significance, f.rms_before, f.rms_after, f.gain, f.detail);
+        }
+        let _ = write!(h, "</table><p>Unexplained: held-out RMS {:.3}.</p><figure><img src=\"residuals.png\" width=\"1000\"></figure></body></html>", diagnosis.unexplained_rms);
+        write_atomically(&html_path, |tmp| std::fs::write(tmp, &h).map_err(|e| HostError::io(tmp, e)))?;
+        outputs.extend([fig, html_path]);
+    }
+    Ok(DiagnoseSummary { input: input.into(), diagnosis, outputs })
+}
