@@ -477,3 +477,17 @@ fn diagnose_names_dnl_in_simulated_histograms_and_nothing_in_ideal_ones() {
     std::fs::write(d.join("cut.fits"), &raw[..raw.len() / 3]).unwrap();
     assert_clean_failure(&dncal(&["diagnose", "cut.fits"], d), "cut.fits", "truncated");
 }
+
+#[test]
+fn diagnose_finds_the_real_ccds_nonlinearity() {
+    let descriptor = std::env::var_os("DNCAL_EMVA_DIR")
+        .map(|d| Path::new(&d).join("EMVA1288_Data.txt"))
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/emva1288-ccd-12bit/EMVA1288_Data.txt"));
+    let dir = tempfile::tempdir().unwrap();
+    let s = stdout_json(&dncal(&["diagnose", descriptor.to_str().unwrap(), "--json", "-o", "rep"], dir.path()));
+    assert_eq!(s["baseline"]["kind"], "photon-transfer");
+    let f = &s["findings"][0];
+    assert_eq!(f["effect"], "global-nonlinearity", "{s}");
+    assert!(f["gain"].as_f64().unwrap() > 2.0, "{f}");
+    assert!(dir.path().join("rep/residuals.png").exists());
+}

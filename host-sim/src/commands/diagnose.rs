@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::diagnose::{diagnose_histograms, Diagnosis};
+use crate::diagnose::{diagnose_histograms, diagnose_ptc, Diagnosis};
 use crate::fits::{read_histograms, read_linearity, write_atomically};
 use crate::flatten::FlattenParams;
 use crate::plots::{line_plot, Series};
@@ -24,32 +24,36 @@ pub struct DiagnoseSummary {
     pub outputs: Vec<PathBuf>,
 }
 
-/// Diagnoses `input` (a histogram set so far); with `out_dir`, writes `residuals.png` and
+/// Diagnoses `input` (a histogram set or an EMVA 1288 descriptor); with `out_dir`, writes `residuals.png` and
 /// `report.html` there.
 pub fn diagnose(input: &Path, flatten: &FlattenParams, seed: u64, out_dir: Option<&Path>) -> Result<DiagnoseSummary, HostError> {
-    let hist = match read_histograms(input) {
-        Ok(h) => h,
-        Err(e) => {
-            // Say what the file is when it is another of our formats.
-            let text = std::fs::read(input).ok().map(|b| b.starts_with(b"SIMPLE")).unwrap_or(false);
-            if text && read_linearity(input).is_ok() {
-                return Err(HostError::Format { path: input.into(), message: "a linearity set: diagnose reads histogram sets so far (linearity sets and EMVA descriptors are next)".into() });
+    let is_descriptor = std::fs::read(input).map(|b| !b.starts_with(b"SIMPLE")).unwrap_or(false)
+        && std::fs::read_to_string(input).map(|t| t.lines().any(|l| l.trim_start().starts_with("n "))).unwrap_or(false);
+    let diagnosis = if is_descriptor {
+        let set = crate::emva::read_descriptor(input)?;
+        let points = crate::emva::photon_transfer(&set)?;
+        diagnose_ptc(&points, set.width * set.height, 0.01).map_err(|m| HostError::Format { path: input.into(), message: m })?
+    } else {
+        let hist = match read_histograms(input) {
+            Ok(h) => h,
+            Err(e) => {
+                if read_linearity(input).is_ok() {
+                    return Err(HostError::Format { path: input.into(), message: "a linearity set: diagnose reads histogram sets and EMVA 1288 descriptors so far (linearity sets are next)".into() });
+                }
+                return Err(e);
             }
-            if std::fs::read_to_string(input).map(|t| t.lines().any(|l| l.trim_start().starts_with("n "))).unwrap_or(false) {
-                return Err(HostError::Format { path: input.into(), message: "an EMVA 1288 descriptor: diagnose reads histogram sets so far (EMVA sets are next)".into() });
-            }
-            return Err(e);
-        }
+        };
+        diagnose_histograms(&hist, flatten, seed).map_err(|m| HostError::Format { path: input.into(), message: m })?
     };
-    let diagnosis = diagnose_histograms(&hist, flatten, seed).map_err(|m| HostError::Format { path: input.into(), message: m })?;
     let mut outputs = Vec::new();
     if let Some(dir) = out_dir {
         std::fs::create_dir_all(dir).map_err(|e| HostError::io(dir, e))?;
         let n = diagnosis.residuals.len();
-        let mut series: Vec<Series> = diagnosis.residuals.iter().enumerate().map(|(a, r)| Series { label: format!("ADC {a}: baseline (ideal ADC)"), points: r.baseline.iter().map(|&(k, z)| (k as f64, z)).collect() }).collect();
+        let (x_label, base_label) = if is_descriptor { ("level (by photons)", "baseline (linear camera)") } else { ("code (DN)", "baseline (ideal ADC)") };
+        let mut series: Vec<Series> = diagnosis.residuals.iter().enumerate().map(|(a, r)| Series { label: format!("ADC {a}: {base_label}"), points: r.baseline.iter().map(|&(k, z)| (k as f64, z)).collect() }).collect();
         series.extend(diagnosis.residuals.iter().enumerate().map(|(a, r)| Series { label: format!("ADC {a}: with the findings"), points: r.extended.iter().map(|&(k, z)| (k as f64, z)).collect() }));
         let fig = dir.join("residuals.png");
-        line_plot(&fig, "Held-out residuals / expected noise, before and after", "code (DN)", "normalized residual", &series, n)?;
+        line_plot(&fig, "Held-out residuals / expected noise, before and after", x_label, "normalized residual", &series, n)?;
         let html_path = dir.join("report.html");
         let mut h = format!(
             "<!doctype html><html><head><meta charset=\"utf-8\"><title>dncal diagnose</title><style>body{{font-family:sans-serif;max-width:1050px;margin:2em auto}}td,th{{padding:2px 10px}}</style></head><body><h1>dncal diagnose: {}</h1>\
