@@ -544,12 +544,13 @@ mod tests {
     #[test]
     fn a_hidden_dnl_is_named_on_its_adc_only() {
         // A seeded generator hides stage-mismatch DNL in one random ADC, at a random
-        // amplitude a careful scientist would see (rms widths 0.5% to 3%) with 2e4 counts
-        // per code (0.7% Poisson noise per code).
+        // amplitude a careful scientist would see: stage errors of 0.025 to 0.1 LSB give
+        // code widths of about 0.75% to 5% rms (measured for these stage sizes), against
+        // 2e4 counts per code (0.7% Poisson noise per code, 1% per half).
         let mut gen = rand::rngs::StdRng::seed_from_u64(5);
-        for seed in 0..12u64 {
+        for seed in 0..24u64 {
             let hidden = gen.random_range(0..4usize);
-            let amp = gen.random_range(0.05..0.3);
+            let amp = gen.random_range(0.025..0.1);
             let cfg = AdcConfig { stage_bits: vec![4, 3, 3], stage_error_lsb: vec![amp, amp / 2.0, amp / 4.0], seed: 1000 + seed };
             let adcs: Vec<PipelinedAdc> = (0..4).map(|i| if i == hidden { PipelinedAdc::from_config(&cfg, 10, i).unwrap() } else { PipelinedAdc::ideal(10) }).collect();
             let h = measure(&adcs, 20_000.0, seed);
@@ -557,7 +558,7 @@ mod tests {
             let named: Vec<(String, Option<usize>)> = d.findings.iter().map(|f| (f.effect.clone(), f.adc)).collect();
             assert_eq!(named, vec![("adc-dnl".to_string(), Some(hidden))], "seed {seed} (amp {amp}): {:?}", d.findings);
             let f = &d.findings[0];
-            assert!(f.gain > 1.5, "seed {seed}: gain {}", f.gain);
+            assert!(f.gain > 1.2, "seed {seed}: gain {}", f.gain);
             assert!((f.rms_after - 1.0).abs() < 0.1, "seed {seed}: after {}", f.rms_after);
         }
     }
