@@ -551,7 +551,7 @@ mod tests {
         for seed in 0..24u64 {
             let hidden = gen.random_range(0..4usize);
             let amp = gen.random_range(0.025..0.1);
-            let cfg = AdcConfig { stage_bits: vec![4, 3, 3], stage_error_lsb: vec![amp, amp / 2.0, amp / 4.0], seed: 1000 + seed };
+            let cfg = AdcConfig { stage_bits: vec![4, 3, 3], stage_error_lsb: vec![amp, amp / 2.0, amp / 4.0], seed: 1000 + seed, ..Default::default() };
             let adcs: Vec<PipelinedAdc> = (0..4).map(|i| if i == hidden { PipelinedAdc::from_config(&cfg, 10, i).unwrap() } else { PipelinedAdc::ideal(10) }).collect();
             let h = measure(&adcs, 20_000.0, seed);
             let d = diagnose_histograms(&h, &params(10), seed).unwrap();

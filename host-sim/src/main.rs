@@ -28,8 +28,9 @@ struct Cli {
 
 #[derive(Args, Clone)]
 struct CameraArgs {
-    /// Camera parameters (TOML; any field of the default MV-D1024E may be set).
-    #[arg(long, value_name = "TOML")]
+    /// Camera parameters (TOML; any field of the default MV-D1024E may be set), or the
+    /// model file `dncal diagnose -o DIR` writes (DIR/model.toml).
+    #[arg(long, visible_alias = "model", value_name = "TOML")]
     config: Option<PathBuf>,
 }
 

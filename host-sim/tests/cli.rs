@@ -470,6 +470,13 @@ fn diagnose_names_dnl_in_simulated_histograms_and_nothing_in_ideal_ones() {
     assert_eq!(adcs, vec![0, 1, 2, 3], "every simulated ADC has DN error");
     assert!((s["unexplained_rms"].as_f64().unwrap() - 1.0).abs() < 0.1);
     assert!(d.join("rep/report.html").exists() && d.join("rep/residuals.png").exists());
+    // Close the loop: simulating from the extended model and diagnosing the result names
+    // nothing new (the same DNL, on the same ADCs, and no unexplained remainder).
+    let again = dncal(&["simulate", "histograms", "--model", "rep/model.toml", "-o", "again.fits", "--first-ramp", "60", "--last-ramp", "61"], d);
+    assert!(again.status.success(), "{}", String::from_utf8_lossy(&again.stderr));
+    let s2 = stdout_json(&dncal(&["diagnose", "again.fits", "--json"], d));
+    let named: Vec<(String, u64)> = s2["findings"].as_array().unwrap().iter().map(|f| (f["effect"].as_str().unwrap().to_string(), f["adc"].as_u64().unwrap())).collect();
+    assert_eq!(named, (0..4).map(|a| ("adc-dnl".to_string(), a)).collect::<Vec<_>>(), "{s2}");
     let clean = stdout_json(&dncal(&["diagnose", "ideal.fits", "--json"], d));
     assert!(clean["findings"].as_array().unwrap().is_empty(), "{clean}");
     assert_clean_failure(&dncal(&["diagnose", "missing.fits"], d), "missing.fits", "No such file");

@@ -66,6 +66,17 @@ impl PipelinedAdc {
         PipelinedAdc { levels: (0..codes).map(|k| if k == 0 { f64::NEG_INFINITY } else { k as f64 - 0.5 }).collect() }
     }
 
+    /// An ADC whose code k is `widths[k]` DN wide (codes 0 and top: open ends, their
+    /// widths unused): `T_k = 1/2 + sum_{0<j<k} w_j`, so unit widths are the ideal ADC.
+    pub fn from_widths(widths: &[f64]) -> Result<Self, String> {
+        let levels: Vec<f64> = (1..widths.len()).scan(0.5, |t, k| {
+            let level = *t;
+            *t += widths[k];
+            Some(level)
+        }).collect();
+        Self::from_levels(&levels)
+    }
+
     /// An ADC with the given transition levels `T_1..T_{codes-1}` (strictly increasing).
     pub fn from_levels(levels_from_1: &[f64]) -> Result<Self, String> {
         if !(levels_from_1.len() + 1).is_power_of_two() || levels_from_1.windows(2).any(|p| p[1] <= p[0]) {
@@ -140,6 +151,23 @@ impl PipelinedAdc {
 }
 
 #[cfg(test)]
+mod widths_tests {
+    use super::*;
+
+    #[test]
+    fn unit_widths_are_the_ideal_adc_and_widths_round_trip() {
+        assert_eq!(PipelinedAdc::from_widths(&[1.0; 16]).unwrap(), PipelinedAdc::ideal(4));
+        let w: Vec<f64> = (0..16).map(|k| 1.0 + 0.05 * ((k * 7 % 5) as f64 - 2.0)).collect();
+        let adc = PipelinedAdc::from_widths(&w).unwrap();
+        let back = adc.widths();
+        for k in 1..15 {
+            assert!((back[k] - w[k]).abs() < 1e-12, "code {k}");
+        }
+        assert!(PipelinedAdc::from_widths(&[1.0, 1.0, -1.0, 1.0]).is_err());
+    }
+}
+
+#[cfg(test)]
 mod tests {
     use super::*;
 
@@ -156,7 +184,7 @@ mod tests {
 
     #[test]
     fn stage_errors_shift_levels_by_digit() {
-        let cfg = AdcConfig { stage_bits: vec![2, 2], stage_error_lsb: vec![0.1, 0.05], seed: 7 };
+        let cfg = AdcConfig { stage_bits: vec![2, 2], stage_error_lsb: vec![0.1, 0.05], seed: 7, ..Default::default() };
         let adc = PipelinedAdc::from_config(&cfg, 4, 0).unwrap();
         // E(k) = e_hi[k / 4] + e_lo[k % 4] with e_hi[0] = e_lo[0] = 0, so every level
         // error is the sum of the errors of its high-digit-only and low-digit-only codes.
@@ -184,7 +212,7 @@ mod tests {
 
     #[test]
     fn too_large_errors_are_rejected() {
-        let cfg = AdcConfig { stage_bits: vec![2, 2], stage_error_lsb: vec![3.0, 3.0], seed: 1 };
+        let cfg = AdcConfig { stage_bits: vec![2, 2], stage_error_lsb: vec![3.0, 3.0], seed: 1, ..Default::default() };
         assert!(PipelinedAdc::from_config(&cfg, 4, 0).is_err());
     }
 }

@@ -14,11 +14,16 @@ pub struct AdcConfig {
     pub stage_error_lsb: Vec<f64>,
     /// Seed of the level errors: the same seed is the same physical ADC set.
     pub seed: u64,
+    /// Measured code widths instead of the stage model: one list of `2^bits` widths (DN)
+    /// per ADC, as `dncal diagnose` writes into its model file. Code 0 is open below and
+    /// the top code above; the transition into code k is at `-1/2 + sum_{0<j<k} w_j`.
+    /// Empty (the default): the stage model.
+    pub widths: Vec<Vec<f64>>,
 }
 
 impl Default for AdcConfig {
     fn default() -> Self {
-        AdcConfig { stage_bits: vec![3, 3, 3, 3], stage_error_lsb: vec![0.15, 0.06, 0.03, 0.015], seed: 13890 }
+        AdcConfig { stage_bits: vec![3, 3, 3, 3], stage_error_lsb: vec![0.15, 0.06, 0.03, 0.015], seed: 13890, widths: Vec::new() }
     }
 }
 
@@ -163,6 +168,11 @@ impl CameraConfig {
         let stage_sum: u32 = self.adc.stage_bits.iter().sum();
         if stage_sum != self.bits || self.adc.stage_bits.contains(&0) {
             return Err(format!("adc.stage_bits {:?} must be positive and sum to bits = {}", self.adc.stage_bits, self.bits));
+        }
+        if !self.adc.widths.is_empty()
+            && (self.adc.widths.len() != self.n_adc || self.adc.widths.iter().any(|w| w.len() != self.codes() || w.iter().any(|x| !(x.is_finite() && *x > 0.0))))
+        {
+            return Err(format!("adc.widths needs {} lists of {} positive widths (or none)", self.n_adc, self.codes()));
         }
         if self.adc.stage_error_lsb.len() != self.adc.stage_bits.len() || self.adc.stage_error_lsb.iter().any(|e| !(e.is_finite() && *e >= 0.0)) {
             return Err("adc.stage_error_lsb needs one non-negative value per stage".into());

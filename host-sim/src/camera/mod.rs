@@ -43,7 +43,11 @@ impl Camera {
     /// from the seed.
     pub fn new(config: CameraConfig) -> Result<Self, String> {
         config.validate()?;
-        let adcs = (0..config.n_adc).map(|a| PipelinedAdc::from_config(&config.adc, config.bits, a)).collect::<Result<Vec<_>, _>>()?;
+        let adcs = if config.adc.widths.is_empty() {
+            (0..config.n_adc).map(|a| PipelinedAdc::from_config(&config.adc, config.bits, a)).collect::<Result<Vec<_>, _>>()?
+        } else {
+            config.adc.widths.iter().map(|w| PipelinedAdc::from_widths(w)).collect::<Result<Vec<_>, _>>()?
+        };
         let pixels = PixelMaps::generate(&config);
         Ok(Camera { config, adcs, pixels })
     }

@@ -12,6 +12,30 @@ use crate::flatten::FlattenParams;
 use crate::plots::{line_plot, Series};
 use crate::HostError;
 
+/// The camera model with the accepted findings of a histogram diagnosis: the default
+/// camera at the data's bit depth and ADC count, with every ADC that shows `adc-dnl`
+/// given the code widths flattened from all its counts (the others ideal). A missing code
+/// keeps a width of 1e-6 DN (the model needs increasing transition levels).
+pub fn extended_model(hist: &crate::fits::AdcHistograms, d: &Diagnosis, flatten: &FlattenParams) -> Result<crate::camera::CameraConfig, String> {
+    let codes = 1usize << hist.bit_depth;
+    let trimmed = FlattenParams { trim_below_fraction: flatten.trim_below_fraction.max(0.1), ..flatten.clone() };
+    let mut widths = Vec::new();
+    for (adc, counts) in hist.counts.iter().enumerate() {
+        if d.findings.iter().any(|f| f.effect == "adc-dnl" && f.adc == Some(adc)) {
+            let f = crate::flatten::flatten_histogram(counts, &trimmed).map_err(|e| format!("ADC {adc}: {e}"))?;
+            widths.push(f.weights.iter().map(|w| w.max(1e-6)).collect());
+        } else {
+            widths.push(vec![1.0; codes]);
+        }
+    }
+    let mut c = crate::camera::CameraConfig { bits: hist.bit_depth, n_adc: hist.counts.len(), ..Default::default() };
+    c.name = "model extended by dncal diagnose".into();
+    c.adc.widths = widths;
+    c.adc.stage_bits = vec![hist.bit_depth];
+    c.adc.stage_error_lsb = vec![0.0];
+    Ok(c)
+}
+
 /// One input's diagnosis and the files written for it.
 #[derive(Debug, Serialize)]
 pub struct DiagnoseSummary {
@@ -29,6 +53,7 @@ pub struct DiagnoseSummary {
 pub fn diagnose(input: &Path, flatten: &FlattenParams, seed: u64, out_dir: Option<&Path>) -> Result<DiagnoseSummary, HostError> {
     let is_descriptor = std::fs::read(input).map(|b| !b.starts_with(b"SIMPLE")).unwrap_or(false)
         && std::fs::read_to_string(input).map(|t| t.lines().any(|l| l.trim_start().starts_with("n "))).unwrap_or(false);
+    let mut model: Option<crate::camera::CameraConfig> = None;
     let diagnosis = if is_descriptor {
         let set = crate::emva::read_descriptor(input)?;
         let points = crate::emva::photon_transfer(&set)?;
@@ -43,7 +68,9 @@ pub fn diagnose(input: &Path, flatten: &FlattenParams, seed: u64, out_dir: Optio
                 return Err(e);
             }
         };
-        diagnose_histograms(&hist, flatten, seed).map_err(|m| HostError::Format { path: input.into(), message: m })?
+        let d = diagnose_histograms(&hist, flatten, seed).map_err(|m| HostError::Format { path: input.into(), message: m })?;
+        model = Some(extended_model(&hist, &d, flatten).map_err(|m| HostError::Format { path: input.into(), message: m })?);
+        d
     };
     let mut outputs = Vec::new();
     if let Some(dir) = out_dir {
@@ -68,6 +95,13 @@ pub fn diagnose(input: &Path, flatten: &FlattenParams, seed: u64, out_dir: Optio
         let _ = write!(h, "</table><p>Unexplained: held-out RMS {:.3}.</p><figure><img src=\"residuals.png\" width=\"1000\"></figure></body></html>", diagnosis.unexplained_rms);
         write_atomically(&html_path, |tmp| std::fs::write(tmp, &h).map_err(|e| HostError::io(tmp, e)))?;
         outputs.extend([fig, html_path]);
+        if let Some(m) = &model {
+            let path = dir.join("model.toml");
+            let text = toml::to_string(m).map_err(|e| HostError::Format { path: path.clone(), message: e.to_string() })?;
+            let text = format!("# The model `dncal diagnose` extended from {}: `dncal simulate histograms --model` reads it.\n{text}", input.display());
+            write_atomically(&path, |tmp| std::fs::write(tmp, &text).map_err(|e| HostError::io(tmp, e)))?;
+            outputs.push(path);
+        }
     }
     Ok(DiagnoseSummary { input: input.into(), diagnosis, outputs })
 }
