@@ -107,6 +107,11 @@ pub struct PtcPoint {
     pub dark_mean_dn: f64,
     /// Temporal variance of the dark frames, DN^2.
     pub dark_var_dn2: f64,
+    /// Mean of the first illuminated frame minus the second, DN: frame-to-frame changes
+    /// (light source, exposure, offset) that the variance of the difference removes.
+    pub frame_diff_dn: f64,
+    /// The same for the dark pair, DN.
+    pub dark_frame_diff_dn: f64,
 }
 
 /// The photon-transfer characterization of a measured set (EMVA 1288 section 6 methods).
@@ -407,12 +412,14 @@ pub fn load_image(set: &EmvaSet, image: &Path) -> Result<Vec<u16>, HostError> {
 }
 
 /// Mean and temporal variance of a frame pair, DN and DN^2: `(mean a + mean b) / 2` and
-/// `var(a - b) / 2` with the 1/N variance. Sums are exact integers (i128), so the only
-/// rounding is the final division.
-fn pair_statistics(a: &[u16], b: &[u16]) -> (f64, f64) {
+/// `var(a - b) / 2` with the 1/N variance; and the difference of the frame means
+/// `mean a - mean b`, DN, which shows frame-to-frame (common-mode) changes the pixel
+/// variance removes. Sums are exact integers (i128), so the only rounding is the final
+/// division.
+fn pair_statistics(a: &[u16], b: &[u16]) -> (f64, f64, f64) {
     let n = a.len().min(b.len()) as i128;
     if n == 0 {
-        return (f64::NAN, f64::NAN);
+        return (f64::NAN, f64::NAN, f64::NAN);
     }
     let (mut sum, mut diff, mut diff2) = (0i128, 0i128, 0i128);
     for (&x, &y) in a.iter().zip(b) {
@@ -423,11 +430,11 @@ fn pair_statistics(a: &[u16], b: &[u16]) -> (f64, f64) {
     }
     let mean = sum as f64 / (2 * n) as f64;
     let var = (n * diff2 - diff * diff) as f64 / (n * n) as f64 / 2.0;
-    (mean, var)
+    (mean, var, diff as f64 / n as f64)
 }
 
-/// Mean and temporal variance of a level from its first two frames.
-fn level_statistics(set: &EmvaSet, level: &EmvaLevel) -> Result<(f64, f64), HostError> {
+/// Mean, temporal variance and frame-mean difference of a level from its first two frames.
+fn level_statistics(set: &EmvaSet, level: &EmvaLevel) -> Result<(f64, f64, f64), HostError> {
     let [a, b, ..] = &level.images[..] else {
         return Err(at_line(&set.path, level.line, "the photon-transfer curve needs two frames per level"));
     };
@@ -465,15 +472,15 @@ pub fn photon_transfer(set: &EmvaSet) -> Result<Vec<PtcPoint>, HostError> {
     let mut needed: Vec<usize> = pairs.iter().flat_map(|&(b, d, _)| [b, d]).collect();
     needed.sort_unstable();
     needed.dedup();
-    let stats: Vec<(usize, (f64, f64))> = needed
+    let stats: Vec<(usize, (f64, f64, f64))> = needed
         .par_iter()
         .map(|&i| level_statistics(set, &set.levels[i]).map(|s| (i, s)))
         .collect::<Result<_, _>>()?;
-    let of = |i: usize| stats.iter().find(|(j, _)| *j == i).map(|(_, s)| *s).unwrap_or((f64::NAN, f64::NAN));
+    let of = |i: usize| stats.iter().find(|(j, _)| *j == i).map(|(_, s)| *s).unwrap_or((f64::NAN, f64::NAN, f64::NAN));
     Ok(pairs
         .into_iter()
         .map(|(b, d, photons)| {
-            let ((mean, var), (dark_mean, dark_var)) = (of(b), of(d));
+            let ((mean, var, diff), (dark_mean, dark_var, dark_diff)) = (of(b), of(d));
             PtcPoint {
                 line: set.levels[b].line,
                 dark_line: set.levels[d].line,
@@ -483,6 +490,8 @@ pub fn photon_transfer(set: &EmvaSet) -> Result<Vec<PtcPoint>, HostError> {
                 var_dn2: var,
                 dark_mean_dn: dark_mean,
                 dark_var_dn2: dark_var,
+                frame_diff_dn: diff,
+                dark_frame_diff_dn: dark_diff,
             }
         })
         .collect())
@@ -681,8 +690,8 @@ mod tests {
     #[test]
     fn pair_statistics_match_hand_values() {
         // a - b = [0, 1, 2, 3]: variance 1.25, half of it 0.625; mean (10 + 4) / 8.
-        assert_eq!(pair_statistics(&[1, 2, 3, 4], &[1, 1, 1, 1]), (1.75, 0.625));
-        assert_eq!(pair_statistics(&[7; 9], &[7; 9]), (7.0, 0.0));
+        assert_eq!(pair_statistics(&[1, 2, 3, 4], &[1, 1, 1, 1]), (1.75, 0.625, 1.5));
+        assert_eq!(pair_statistics(&[7; 9], &[7; 9]), (7.0, 0.0, 0.0));
     }
 
     #[test]

@@ -229,7 +229,7 @@ enum Cmd {
     },
     /// What the baseline simulation gets wrong in measured data: findings, held-out gains.
     Diagnose {
-        /// Measured data: histogram sets (linearity and EMVA sets are next).
+        /// Measured data: histogram sets and EMVA 1288 descriptors (linearity sets are next).
         #[arg(required = true)]
         files: Vec<PathBuf>,
         #[command(flatten)]

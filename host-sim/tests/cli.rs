@@ -421,9 +421,10 @@ fn linearity_ranks_the_corrections_and_writes_fits() {
     }
     let v = |k: &str| s[k].as_f64().unwrap();
     // The model has per-pixel quartic nonlinearity and 1% PRNU: the pixel-wise fit beats
-    // the standard correction, which beats nothing; the random floor is below both.
+    // the standard correction, which beats nothing; the pixel-wise residual reaches the
+    // propagated random floor (the model's per-pixel curve is a polynomial the fit holds).
     assert!(v("rms_pixelwise_max") < v("rms_standard_max") && v("rms_standard_max") < v("rms_raw_max"), "{s}");
-    assert!(v("rms_random_max") < v("rms_pixelwise_max") * 1.5, "{s}");
+    assert!(v("rms_pixelwise_max") < 3.0 * v("rms_random_max"), "{s}");
     // The FITS outputs open in astropy with the documented shapes.
     python(
         r#"

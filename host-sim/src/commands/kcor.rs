@@ -30,8 +30,8 @@ pub struct KcorSummary {
 /// it, the paper's: the ADC's true widths with `p.lut_noise` relative noise per code.
 pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, out_dir: Option<&Path>) -> Result<KcorSummary, HostError> {
     let adc = camera.adcs.get(p.adc).ok_or_else(|| HostError::Format { path: "--adc".into(), message: format!("ADC {} does not exist; the camera has {}", p.adc, camera.adcs.len()) })?;
-    if !(p.exposure_s > 0.0 && p.exposure_s.is_finite() && p.fill > 0.0 && p.fill <= 1.0 && p.lut_noise >= 0.0 && p.flat_fraction > 0.0 && p.flat_fraction <= 1.0) {
-        return Err(HostError::Format { path: "arguments".into(), message: "need exposure > 0, 0 < fill <= 1, 0 < flat fraction <= 1 and LUT noise >= 0".into() });
+    if !(p.exposure_s > 0.0 && p.exposure_s.is_finite() && p.fill > 0.0 && p.fill <= 1.0 && p.lut_noise >= 0.0 && p.flat_fraction > 0.0 && p.flat_fraction <= 1.0 && p.q_fraction > 0.0 && p.q_fraction <= 1.0) {
+        return Err(HostError::Format { path: "arguments".into(), message: "need exposure > 0, 0 < fill <= 1, 0 < flat fraction <= 1, 0 < q fraction <= 1 and LUT noise >= 0".into() });
     }
     let entries: Vec<u32> = match lut_file {
         Some(path) => {
@@ -67,7 +67,7 @@ pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, out_
                     y_label: "Stokes Q (B_sun)",
                     values: grid,
                     x_range: (0.0, i_max),
-                    y_range: (-i_max, i_max),
+                    y_range: (result.q_bsun.first().copied().unwrap_or(-i_max), result.q_bsun.last().copied().unwrap_or(i_max)),
                     scale_label: "log10 |dQ| (B_sun)",
                     log: true,
                     contours: &[1e-8, 1e-9, 1e-10],

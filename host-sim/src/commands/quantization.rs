@@ -15,7 +15,7 @@ use crate::HostError;
 pub struct SigmaReport {
     /// Noise rms, DN.
     pub sigma: f64,
-    /// max over lambda' of |delta|, DN (eq. 4).
+    /// max over lambda' of |delta|, DN (the Fourier series from sigma = 0.3 DN, eq. 4 below).
     pub max_abs_bias_dn: f64,
     /// Where, lambda' in [0, 1).
     pub at_lambda_frac: f64,
