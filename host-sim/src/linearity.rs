@@ -8,7 +8,9 @@
 //!   `x` is nearest 1/2 (the paper's 22nd of 41), level 0 is dark. A level is *expected*
 //!   to read the normalized intensity `e_l = (x_l - x_0) / (x_g - x_0)`.
 //! - A pixel's level is *saturated* when its mean is within `4 max(std, 0.5)` DN of the
-//!   top code; it and every level above are left out for that pixel.
+//!   top code, or when its temporal noise falls below half the previous level's in the
+//!   upper half of the range (clipping below the top code); it and every level above are
+//!   left out for that pixel.
 //! - *Masked* pixels: the set's `MASK`, pixels whose signal at the gain level is below half
 //!   the median, and pixels whose own 4th-order fit leaves an rms residual above 10 times
 //!   the median (anomalous trends: dead, hot, stuck pixels). Masked pixels are left out
@@ -212,9 +214,16 @@ pub fn analyze(set: &LinearitySet, order: usize) -> (LinearityReport, PixelResul
     let m = |l: usize, p: usize| set.mean[l * np + p];
     let sd = |l: usize, p: usize| set.std[l * np + p];
     // Unsaturated levels per pixel: a prefix.
-    let valid: Vec<usize> = (0..np)
-        .map(|p| (0..nl).find(|&l| !(m(l, p).is_finite() && sd(l, p).is_finite()) || m(l, p) >= top - 4.0 * sd(l, p).max(0.5)).unwrap_or(nl))
-        .collect();
+    // A level is saturated at the top code, or where the temporal noise collapses to less
+    // than half the previous level's while the signal is in the upper half of the range
+    // (a sensor or amplifier that clips below the top code, as the real EMVA CCD does at
+    // 4080 DN with zero variance).
+    let saturated = |l: usize, p: usize| {
+        !(m(l, p).is_finite() && sd(l, p).is_finite())
+            || m(l, p) >= top - 4.0 * sd(l, p).max(0.5)
+            || (l > 0 && m(l, p) > 0.5 * top && sd(l, p) < 0.5 * sd(l - 1, p))
+    };
+    let valid: Vec<usize> = (0..np).map(|p| (0..nl).find(|&l| saturated(l, p)).unwrap_or(nl)).collect();
     // One pseudo-inverse per prefix length.
     let pinv: Vec<Option<DMatrix<f64>>> = (0..=nl).map(|n| (n > order + 1).then(|| pseudo_inverse(&x[..n], order))).collect();
     let fits: Vec<(Vec<f64>, f64)> = (0..np)
@@ -383,6 +392,21 @@ mod tests {
         let (_, px) = analyze(&set, PIXEL_ORDER);
         for (k, want) in coefficients(0).iter().enumerate() {
             assert!((px.coeffs[k * 4] - want).abs() < 1e-6 * want.abs().max(1.0), "a{k}");
+        }
+    }
+
+    #[test]
+    fn clipping_below_the_top_code_is_saturation() {
+        // Pixel 1 clips at 4080 DN with no noise from level 33 (as the real EMVA CCD does):
+        // the fit must stop there and still recover its quartic.
+        let mut set = planted(4, 1, 41, coefficients);
+        for l in 33..41 {
+            set.mean[l * 4 + 1] = 4080.0;
+            set.std[l * 4 + 1] = 0.0;
+        }
+        let (_, px) = analyze(&set, PIXEL_ORDER);
+        for (k, want) in coefficients(1).iter().enumerate() {
+            assert!((px.coeffs[k * 4 + 1] - want).abs() < 1e-6 * want.abs().max(1.0), "a{k}: {}", px.coeffs[k * 4 + 1]);
         }
     }
 
