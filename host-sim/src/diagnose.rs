@@ -147,6 +147,13 @@ fn by_residue(codes: &[usize], z: &[f64]) -> Vec<ResidueStructure> {
     out
 }
 
+/// The flattening `diagnose` applies: `flatten` with empty codes at the ends of the range
+/// trimmed (at least 10% of the median count), so that data whose dark level or
+/// saturation leave empty codes can be fitted.
+pub fn trimmed_params(flatten: &FlattenParams) -> FlattenParams {
+    FlattenParams { trim_below_fraction: flatten.trim_below_fraction.max(0.1), ..flatten.clone() }
+}
+
 /// Diagnoses a histogram set; `seed` drives the binomial split.
 pub fn diagnose_histograms(h: &AdcHistograms, flatten: &FlattenParams, seed: u64) -> Result<Diagnosis, String> {
     let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
@@ -157,7 +164,7 @@ pub fn diagnose_histograms(h: &AdcHistograms, flatten: &FlattenParams, seed: u64
     for (adc, counts) in h.counts.iter().enumerate() {
         let a: Vec<u64> = counts.iter().map(|&c| if c == 0 { 0 } else { Binomial::new(c, 0.5).map(|d| d.sample(&mut rng)).unwrap_or(c / 2) }).collect();
         let b: Vec<u64> = counts.iter().zip(&a).map(|(c, a)| c - a).collect();
-        let trimmed = FlattenParams { trim_below_fraction: flatten.trim_below_fraction.max(0.1), ..flatten.clone() };
+        let trimmed = trimmed_params(flatten);
         let f = flatten_histogram(&a, &trimmed).map_err(|e| format!("ADC {adc}: {e}"))?;
         // Scored codes: fitted, with a usable smooth expectation, and away from the ends
         // of the fit by a median window plus a knot interval, where the smooth fit cannot
@@ -357,7 +364,6 @@ pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Res
     let (m0, z0) = score(Terms::Linear).ok_or("the linear fit failed")?;
     let mut findings = Vec::new();
     let (mut current, mut mcur, mut zcur) = (Terms::Linear, m0, z0.clone());
-    let _ = &mut current;
     for (terms, effect, what) in [
         (Terms::Cubic, "global-nonlinearity", "the response bends: x^2 and x^3 terms in the photons"),
         (Terms::CubicLow, "low-signal-nonlinearity", "a departure confined to the lowest 10% of the range"),
@@ -428,7 +434,6 @@ pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Res
             detail: format!("held-out levels still scatter {:.1} times their noise (temporal plus frame-to-frame): a response the cubic does not follow, or level-to-level errors of the light calibration", mcur.sqrt()),
         });
     }
-    let code = |z: &[(usize, f64)]| z.iter().map(|&(i, v)| (i, v)).collect::<Vec<_>>();
     Ok(Diagnosis {
         baseline: Baseline {
             kind: "photon-transfer".into(),
@@ -438,7 +443,7 @@ pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Res
         },
         findings,
         unexplained_rms: mcur.sqrt(),
-        residuals: vec![AdcResiduals { baseline: code(&z0), extended: code(&zcur) }],
+        residuals: vec![AdcResiduals { baseline: z0, extended: zcur }],
     })
 }
 

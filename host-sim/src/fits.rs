@@ -152,6 +152,11 @@ pub fn write_atomically(path: &Path, write: impl FnOnce(&Path) -> Result<(), Hos
     tmp.persist(path).map_err(|e| HostError::io(path, e.error))
 }
 
+/// Writes `bytes` to `path` atomically (see [`write_atomically`]).
+pub fn write_file_atomically(path: &Path, bytes: impl AsRef<[u8]>) -> Result<(), HostError> {
+    write_atomically(path, |tmp| std::fs::write(tmp, bytes.as_ref()).map_err(|e| HostError::io(tmp, e)))
+}
+
 /// Writes a histogram set: primary image of `NADC` rows x `2^BITDEPTH` codes, 64-bit
 /// signed (BITPIX 64).
 pub fn write_histograms(path: &Path, hist: &AdcHistograms) -> Result<(), HostError> {

@@ -211,9 +211,7 @@ pub fn noisy_weights(adc: &PipelinedAdc, noise: f64, seed: u64) -> Vec<f64> {
     let w = adc.normalized_widths();
     let n = w.len();
     let mut out: Vec<f64> = w.iter().enumerate().map(|(k, &x)| if k == 0 || k == n - 1 { 1.0 } else { (x * (1.0 + normal.sample(&mut rng))).max(0.0) }).collect();
-    let inner: f64 = out[1..n - 1].iter().sum();
-    let scale = (n - 2) as f64 / inner;
-    out[1..n - 1].iter_mut().for_each(|x| *x *= scale);
+    crate::camera::adc::normalize_inner(&mut out);
     out
 }
 

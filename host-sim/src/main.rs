@@ -390,6 +390,11 @@ fn print<T: Serialize>(json: bool, value: &T, text: impl FnOnce(&T) -> String) -
     }
 }
 
+/// One `wrote PATH` line per file written.
+fn wrote(paths: &[PathBuf]) -> String {
+    paths.iter().map(|p| format!("wrote {}\n", p.display())).collect()
+}
+
 /// The readable lines of an ADC characterization.
 fn adc_text(r: &adc::AdcReport) -> String {
     let mut t = String::new();
@@ -513,10 +518,7 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
                     "max |systematic error in Q|: {:.3e} B_sun raw, {:.3e} B_sun with the LUT ({}): {:.1}x less\n",
                     r.max_abs_sys_err_bsun_raw, r.max_abs_sys_err_bsun_lut, s.lut_source, r.reduction
                 );
-                for f in &s.figures {
-                    t += &format!("wrote {}\n", f.display());
-                }
-                t
+                t + &wrote(&s.figures)
             })?;
         }
         Cmd::Linearity { file, order, out, json } => {
@@ -528,10 +530,7 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
                     "max RMS over levels: raw {:.3e}, standard {:.3e}, pixel-wise {:.3e}, random {:.3e}\n",
                     r.rms_raw_max, r.rms_standard_max, r.rms_pixelwise_max, r.rms_random_max
                 );
-                for f in &s.outputs {
-                    t += &format!("wrote {}\n", f.display());
-                }
-                t
+                t + &wrote(&s.outputs)
             })?;
         }
         Cmd::Diagnose { files, flatten, seed, out, json } => {

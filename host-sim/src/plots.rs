@@ -8,7 +8,7 @@ use std::sync::Once;
 use plotters::prelude::*;
 use plotters::style::{register_font, FontStyle};
 
-use crate::fits::write_atomically;
+use crate::fits::write_file_atomically;
 use crate::HostError;
 
 static FONT: Once = Once::new();
@@ -262,7 +262,7 @@ pub fn write_png(path: &Path, rgb: &[u8], width: u32, height: u32) -> Result<(),
         let mut writer = encoder.write_header().map_err(|e| plot_err(path, e))?;
         writer.write_image_data(rgb).map_err(|e| plot_err(path, e))?;
     }
-    write_atomically(path, |tmp| std::fs::write(tmp, &bytes).map_err(|e| HostError::io(tmp, e)))
+    write_file_atomically(path, &bytes)
 }
 
 #[cfg(test)]

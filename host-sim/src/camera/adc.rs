@@ -127,12 +127,7 @@ impl PipelinedAdc {
     /// flattening of a measured histogram applies. A perfect calibration.
     pub fn normalized_widths(&self) -> Vec<f64> {
         let mut w = self.widths();
-        let n = w.len();
-        let inner: f64 = w[1..n - 1].iter().sum();
-        let scale = (n - 2) as f64 / inner;
-        for x in &mut w[1..n - 1] {
-            *x *= scale;
-        }
+        normalize_inner(&mut w);
         w
     }
 
@@ -147,6 +142,20 @@ impl PipelinedAdc {
                 k => 0.5 * (self.levels[k] + self.levels[k + 1]),
             })
             .collect()
+    }
+}
+
+/// Scales the inner codes of `w` (all but the first and last) to sum to their number:
+/// the normalization of LUT weights, with the open end codes left as they are.
+pub fn normalize_inner(w: &mut [f64]) {
+    let n = w.len();
+    if n < 3 {
+        return;
+    }
+    let inner: f64 = w[1..n - 1].iter().sum();
+    let scale = (n - 2) as f64 / inner;
+    for x in &mut w[1..n - 1] {
+        *x *= scale;
     }
 }
 

@@ -27,7 +27,7 @@ use rand::{rngs::StdRng, SeedableRng};
 use rand_distr::{Distribution, Poisson};
 use rayon::prelude::*;
 
-use super::exact::phi;
+use super::exact::{phi, poisson_range};
 use super::{Camera, PipelinedAdc};
 
 /// How the ramps are recorded.
@@ -158,28 +158,6 @@ impl Camera {
             })
             .collect()
     }
-}
-
-/// Poisson probabilities `Pois(n; mu)` for `n` in `lo..=hi` (the whole mass beyond is
-/// below 1e-30 when the range spans 12 sqrt(mu) + 12 each side), by the ratio recurrence
-/// outward from the mode and normalized over the range: `n ln mu - mu - ln n!` would
-/// cancel 1e5-sized terms.
-fn poisson_range(mu: f64) -> (usize, Vec<f64>) {
-    let spread = 12.0 * mu.sqrt() + 12.0;
-    let lo = (mu - spread).floor().max(0.0) as usize;
-    let hi = (mu + spread).ceil() as usize;
-    let mode = (mu.floor() as usize).clamp(lo, hi);
-    let mut p = vec![0.0; hi - lo + 1];
-    p[mode - lo] = 1.0;
-    for n in mode..hi {
-        p[n + 1 - lo] = p[n - lo] * mu / (n + 1) as f64;
-    }
-    for n in (lo..mode).rev() {
-        p[n - lo] = p[n + 1 - lo] * (n + 1) as f64 / mu;
-    }
-    let total: f64 = p.iter().sum();
-    p.iter_mut().for_each(|x| *x /= total);
-    (lo, p)
 }
 
 /// Adds to `m` the distribution of `n ~ Pois(mu)` with `mu = mean f`, `f` gamma

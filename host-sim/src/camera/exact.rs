@@ -59,29 +59,38 @@ pub fn phi(x: f64) -> f64 {
     0.5 * erfc(-x / std::f64::consts::SQRT_2)
 }
 
-/// Nodes and weights of the sum over photoelectrons for mean `mu`. The Poisson
-/// probabilities come from the ratio recurrence `p_{n+1} = p_n mu / (n + 1)` outward from
-/// the mode, normalized over the range at the end (the mass beyond 12 sqrt(mu) + 12 of
-/// the mean is below 1e-30): `n ln mu - mu - ln n!` would cancel ~1e5-sized terms and
-/// lose ten digits.
+/// Poisson probabilities `Pois(n; mu)` for `n` in `lo..=hi` (the whole mass beyond is
+/// below 1e-30 when the range spans 12 sqrt(mu) + 12 each side), by the ratio recurrence
+/// outward from the mode and normalized over the range: `n ln mu - mu - ln n!` would
+/// cancel 1e5-sized terms.
+pub(crate) fn poisson_range(mu: f64) -> (usize, Vec<f64>) {
+    let spread = 12.0 * mu.sqrt() + 12.0;
+    let lo = (mu - spread).floor().max(0.0) as usize;
+    let hi = (mu + spread).ceil() as usize;
+    let mode = (mu.floor() as usize).clamp(lo, hi);
+    let mut p = vec![0.0; hi - lo + 1];
+    p[mode - lo] = 1.0;
+    for n in mode..hi {
+        p[n + 1 - lo] = p[n - lo] * mu / (n + 1) as f64;
+    }
+    for n in (lo..mode).rev() {
+        p[n - lo] = p[n + 1 - lo] * (n + 1) as f64 / mu;
+    }
+    let total: f64 = p.iter().sum();
+    p.iter_mut().for_each(|x| *x /= total);
+    (lo, p)
+}
+
+/// Nodes and weights of the sum over photoelectrons for mean `mu`: every `h`-th count of
+/// [`poisson_range`], renormalized over the nodes kept.
 fn poisson_nodes(mu: f64, read_noise_e: f64, full_well_e: f64) -> Vec<(f64, f64)> {
     if mu <= 0.0 {
         return vec![(0.0, 1.0)];
     }
-    let spread = 12.0 * mu.sqrt() + 12.0;
-    let lo = (mu - spread).floor().max(0.0) as u64;
-    let hi = (mu + spread).ceil() as u64;
-    let h = if read_noise_e <= 0.0 || hi as f64 >= full_well_e { 1 } else { (mu.sqrt().min(read_noise_e) / 4.0).floor().max(1.0) as u64 };
-    let mode = (mu.floor() as u64).clamp(lo, hi);
-    let mut p = vec![0.0; (hi - lo + 1) as usize];
-    p[(mode - lo) as usize] = 1.0;
-    for n in mode..hi {
-        p[(n + 1 - lo) as usize] = p[(n - lo) as usize] * mu / (n + 1) as f64;
-    }
-    for n in (lo..mode).rev() {
-        p[(n - lo) as usize] = p[(n + 1 - lo) as usize] * (n + 1) as f64 / mu;
-    }
-    let nodes: Vec<(f64, f64)> = (lo..=hi).step_by(h as usize).map(|n| (n as f64, p[(n - lo) as usize])).collect();
+    let (lo, p) = poisson_range(mu);
+    let hi = lo + p.len() - 1;
+    let h = if read_noise_e <= 0.0 || hi as f64 >= full_well_e { 1 } else { (mu.sqrt().min(read_noise_e) / 4.0).floor().max(1.0) as usize };
+    let nodes: Vec<(f64, f64)> = (0..p.len()).step_by(h).map(|i| ((lo + i) as f64, p[i])).collect();
     let total: f64 = nodes.iter().map(|(_, w)| w).sum();
     nodes.into_iter().map(|(n, w)| (n, w / total)).collect()
 }

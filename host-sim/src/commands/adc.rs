@@ -12,19 +12,16 @@ use crate::camera::calibration::RampParams;
 use crate::camera::{Camera, PipelinedAdc};
 use crate::commands::lut::{build_luts, summarize, AdcLutSummary, BuiltLuts};
 use crate::commands::progress::bar;
-use crate::fits::{read_histograms, write_atomically, write_histograms, write_lut, AdcHistograms, LutTables};
+use crate::fits::{read_histograms, write_file_atomically, write_histograms, write_lut, AdcHistograms, LutTables};
 use crate::flatten::{cumulative_offsets, FlattenParams};
 use crate::plots::{line_plot, Series};
 use crate::HostError;
 
-/// The least-squares line `y = c0 + c1 x`, as `(c0, c1)`.
+/// The least-squares line `y = c0 + c1 x`, as `(c0, c1)`: [`crate::emva::fit_line`], with
+/// a flat line through the mean when `x` does not vary.
 pub fn line_fit(x: &[f64], y: &[f64]) -> (f64, f64) {
-    let n = x.len().max(1) as f64;
-    let (mx, my) = (x.iter().sum::<f64>() / n, y.iter().sum::<f64>() / n);
-    let sxy: f64 = x.iter().zip(y).map(|(a, b)| (a - mx) * (b - my)).sum();
-    let sxx: f64 = x.iter().map(|a| (a - mx).powi(2)).sum();
-    let slope = if sxx > 0.0 { sxy / sxx } else { 0.0 };
-    (my - slope * mx, slope)
+    let (c0, c1, _) = crate::emva::fit_line(x, y);
+    if c1.is_finite() { (c0, c1) } else { (y.iter().sum::<f64>() / y.len().max(1) as f64, 0.0) }
 }
 
 /// Residuals of `y` after the least-squares line through `(x, y)`.
@@ -222,7 +219,7 @@ pub fn run(camera: &Camera, hist: Option<&Path>, ramp: &RampParams, flatten: &Fl
     };
     let luts = build_luts(&histograms, flatten, &source)?;
     write_lut(&out_dir.join("lut.fits"), &LutTables { frac_bits: dncal_core::FRAC_BITS, tables: luts.tables.clone() })?;
-    write_atomically(&out_dir.join("lut.bin"), |tmp| std::fs::write(tmp, &luts.image).map_err(|e| HostError::io(tmp, e)))?;
+    write_file_atomically(&out_dir.join("lut.bin"), &luts.image)?;
     let report = characterize(&source, &luts, flatten, truth, out_dir)?;
     Ok((report, luts))
 }

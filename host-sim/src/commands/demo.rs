@@ -22,7 +22,7 @@ use crate::kcor::KcorParams;
 use crate::camera::Camera;
 use crate::commands::adc::AdcReport;
 use crate::commands::progress::bar;
-use crate::fits::write_atomically;
+use crate::fits::write_file_atomically;
 use crate::flatten::FlattenParams;
 use crate::streaming::{run_stream, StreamParams, StreamReport};
 use crate::HostError;
@@ -100,9 +100,9 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
         seconds: start.elapsed().as_secs_f64(),
     };
     let json = serde_json::to_string_pretty(&summary).map_err(|e| HostError::Format { path: at("summary.json"), message: e.to_string() })?;
-    write_atomically(&at("summary.json"), |tmp| std::fs::write(tmp, &json).map_err(|e| HostError::io(tmp, e)))?;
+    write_file_atomically(&at("summary.json"), &json)?;
     let html = report_html(&summary, camera, ramp, flatten);
-    write_atomically(&summary.report, |tmp| std::fs::write(tmp, &html).map_err(|e| HostError::io(tmp, e)))?;
+    write_file_atomically(&summary.report, &html)?;
     Ok(summary)
 }
 

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 
 use crate::diagnose::{diagnose_histograms, diagnose_ptc, Diagnosis};
-use crate::fits::{read_histograms, read_linearity, write_atomically};
+use crate::fits::{read_histograms, read_linearity, write_file_atomically};
 use crate::flatten::FlattenParams;
 use crate::plots::{line_plot, Series};
 use crate::HostError;
@@ -18,7 +18,7 @@ use crate::HostError;
 /// keeps a width of 1e-6 DN (the model needs increasing transition levels).
 pub fn extended_model(hist: &crate::fits::AdcHistograms, d: &Diagnosis, flatten: &FlattenParams) -> Result<crate::camera::CameraConfig, String> {
     let codes = 1usize << hist.bit_depth;
-    let trimmed = FlattenParams { trim_below_fraction: flatten.trim_below_fraction.max(0.1), ..flatten.clone() };
+    let trimmed = crate::diagnose::trimmed_params(flatten);
     let mut widths = Vec::new();
     for (adc, counts) in hist.counts.iter().enumerate() {
         if d.findings.iter().any(|f| f.effect == "adc-dnl" && f.adc == Some(adc)) {
@@ -51,8 +51,10 @@ pub struct DiagnoseSummary {
 /// Diagnoses `input` (a histogram set or an EMVA 1288 descriptor); with `out_dir`, writes `residuals.png` and
 /// `report.html` there.
 pub fn diagnose(input: &Path, flatten: &FlattenParams, seed: u64, out_dir: Option<&Path>) -> Result<DiagnoseSummary, HostError> {
-    let is_descriptor = std::fs::read(input).map(|b| !b.starts_with(b"SIMPLE")).unwrap_or(false)
-        && std::fs::read_to_string(input).map(|t| t.lines().any(|l| l.trim_start().starts_with("n "))).unwrap_or(false);
+    // A FITS file starts with SIMPLE; an EMVA descriptor is text with an `n` record.
+    let is_descriptor = std::fs::read(input)
+        .map(|b| !b.starts_with(b"SIMPLE") && std::str::from_utf8(&b).is_ok_and(|t| t.lines().any(|l| l.trim_start().starts_with("n "))))
+        .unwrap_or(false);
     let mut model: Option<crate::camera::CameraConfig> = None;
     let diagnosis = if is_descriptor {
         let set = crate::emva::read_descriptor(input)?;
@@ -93,13 +95,13 @@ pub fn diagnose(input: &Path, flatten: &FlattenParams, seed: u64, out_dir: Optio
             let _ = write!(h, "<tr><td>{}</td><td>{}</td><td>{:.1}</td><td>{:.3}</td><td>{:.3}</td><td>{:.2}</td><td>{}</td></tr>", f.effect, f.adc.map_or("-".into(), |a| a.to_string()), f.significance, f.rms_before, f.rms_after, f.gain, f.detail);
         }
         let _ = write!(h, "</table><p>Unexplained: held-out RMS {:.3}.</p><figure><img src=\"residuals.png\" width=\"1000\"></figure></body></html>", diagnosis.unexplained_rms);
-        write_atomically(&html_path, |tmp| std::fs::write(tmp, &h).map_err(|e| HostError::io(tmp, e)))?;
+        write_file_atomically(&html_path, &h)?;
         outputs.extend([fig, html_path]);
         if let Some(m) = &model {
             let path = dir.join("model.toml");
             let text = toml::to_string(m).map_err(|e| HostError::Format { path: path.clone(), message: e.to_string() })?;
             let text = format!("# The model `dncal diagnose` extended from {}: `dncal simulate histograms --model` reads it.\n{text}", input.display());
-            write_atomically(&path, |tmp| std::fs::write(tmp, &text).map_err(|e| HostError::io(tmp, e)))?;
+            write_file_atomically(&path, &text)?;
             outputs.push(path);
         }
     }

@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use dncal_core::{encode_image, image_len, LutSet, Weight};
 use serde::Serialize;
 
-use crate::fits::{read_histograms, read_lut, write_atomically, write_lut, AdcHistograms, LutTables};
+use crate::fits::{read_histograms, read_lut, write_file_atomically, write_lut, AdcHistograms, LutTables};
 use crate::flatten::{flatten_histogram, to_core_weights, FlattenParams, Flattened};
 use crate::reference::ReferenceLut;
 use crate::HostError;
@@ -126,7 +126,7 @@ pub fn build(input: &Path, output: &Path, params: &FlattenParams) -> Result<Buil
     let built = build_luts(&hist, params, input)?;
     let (lut_fits, device_image) = output_paths(output);
     write_lut(&lut_fits, &LutTables { frac_bits: dncal_core::FRAC_BITS, tables: built.tables.clone() })?;
-    write_atomically(&device_image, |tmp| std::fs::write(tmp, &built.image).map_err(|e| HostError::io(tmp, e)))?;
+    write_file_atomically(&device_image, &built.image)?;
     let adcs = built.flattened.iter().zip(&built.tables).enumerate().map(|(a, (f, t))| summarize(a, f, t)).collect();
     Ok(BuildSummary { input: input.into(), lut_fits, device_image, adcs })
 }
