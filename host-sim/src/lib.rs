@@ -13,6 +13,7 @@ pub mod emva;
 pub mod error;
 pub mod firmware;
 pub mod fits;
+pub mod hidden;
 pub mod flatten;
 pub mod kcor;
 pub mod linearity;

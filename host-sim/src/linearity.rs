@@ -200,6 +200,24 @@ pub fn fill_masked(image: &mut [f64], mask: &[u8], width: usize, height: usize) 
     }
 }
 
+/// Per pixel, how many levels from dark up are unsaturated (they form a prefix): a level
+/// is saturated at the top code (within `4 max(std, 0.5)` DN), or where the temporal
+/// noise collapses to less than half the previous level's while the signal is in the
+/// upper half of the range (a sensor or amplifier that clips below the top code, as the
+/// real EMVA CCD does at 4080 DN with zero variance), or where the data are not finite.
+pub fn unsaturated_levels(set: &LinearitySet) -> Vec<usize> {
+    let (nl, np) = (set.levels, set.width * set.height);
+    let top = ((1u64 << set.bit_depth) - 1) as f64;
+    let m = |l: usize, p: usize| set.mean[l * np + p];
+    let sd = |l: usize, p: usize| set.std[l * np + p];
+    let saturated = |l: usize, p: usize| {
+        !(m(l, p).is_finite() && sd(l, p).is_finite())
+            || m(l, p) >= top - 4.0 * sd(l, p).max(0.5)
+            || (l > 0 && m(l, p) > 0.5 * top && sd(l, p) < 0.5 * sd(l - 1, p))
+    };
+    (0..np).map(|p| (0..nl).find(|&l| saturated(l, p)).unwrap_or(nl)).collect()
+}
+
 /// Analyzes `set` with the pixel-wise polynomial of `order` (clamped to 1..=[`MAX_ORDER`]):
 /// masks, the three corrections, their RMS per level, the random noise.
 pub fn analyze(set: &LinearitySet, order: usize) -> (LinearityReport, PixelResults) {
@@ -213,17 +231,7 @@ pub fn analyze(set: &LinearitySet, order: usize) -> (LinearityReport, PixelResul
     let e: Vec<f64> = x.iter().map(|xl| (xl - x[0]) / (x[g] - x[0])).collect();
     let m = |l: usize, p: usize| set.mean[l * np + p];
     let sd = |l: usize, p: usize| set.std[l * np + p];
-    // Unsaturated levels per pixel: a prefix.
-    // A level is saturated at the top code, or where the temporal noise collapses to less
-    // than half the previous level's while the signal is in the upper half of the range
-    // (a sensor or amplifier that clips below the top code, as the real EMVA CCD does at
-    // 4080 DN with zero variance).
-    let saturated = |l: usize, p: usize| {
-        !(m(l, p).is_finite() && sd(l, p).is_finite())
-            || m(l, p) >= top - 4.0 * sd(l, p).max(0.5)
-            || (l > 0 && m(l, p) > 0.5 * top && sd(l, p) < 0.5 * sd(l - 1, p))
-    };
-    let valid: Vec<usize> = (0..np).map(|p| (0..nl).find(|&l| saturated(l, p)).unwrap_or(nl)).collect();
+    let valid = unsaturated_levels(set);
     // One pseudo-inverse per prefix length.
     let pinv: Vec<Option<DMatrix<f64>>> = (0..=nl).map(|n| (n > order + 1).then(|| pseudo_inverse(&x[..n], order))).collect();
     let fits: Vec<(Vec<f64>, f64)> = (0..np)

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::diagnose::{diagnose_histograms, diagnose_ptc, Diagnosis};
+use crate::diagnose::{diagnose_histograms, diagnose_linearity, diagnose_ptc, Diagnosis};
 use crate::fits::{read_histograms, read_linearity, write_file_atomically};
 use crate::flatten::FlattenParams;
 use crate::plots::{line_plot, Series};
@@ -48,8 +48,8 @@ pub struct DiagnoseSummary {
     pub outputs: Vec<PathBuf>,
 }
 
-/// Diagnoses `input` (a histogram set or an EMVA 1288 descriptor); with `out_dir`, writes `residuals.png` and
-/// `report.html` there.
+/// Diagnoses `input` (a histogram set, a linearity set or an EMVA 1288 descriptor); with
+/// `out_dir`, writes `residuals.png`, `report.html` and (histogram sets) `model.toml` there.
 pub fn diagnose(input: &Path, flatten: &FlattenParams, seed: u64, out_dir: Option<&Path>) -> Result<DiagnoseSummary, HostError> {
     // A FITS file starts with SIMPLE; an EMVA descriptor is text with an `n` record.
     let is_descriptor = std::fs::read(input)
@@ -64,21 +64,26 @@ pub fn diagnose(input: &Path, flatten: &FlattenParams, seed: u64, out_dir: Optio
         let hist = match read_histograms(input) {
             Ok(h) => h,
             Err(e) => {
-                if read_linearity(input).is_ok() {
-                    return Err(HostError::Format { path: input.into(), message: "a linearity set: diagnose reads histogram sets and EMVA 1288 descriptors so far (linearity sets are next)".into() });
-                }
-                return Err(e);
+                // Not a histogram set: a linearity set, or the histogram reader's error.
+                let Ok(set) = read_linearity(input) else { return Err(e) };
+                let d = diagnose_linearity(&set, 0.01).map_err(|m| HostError::Format { path: input.into(), message: m })?;
+                return report(input, d, None, out_dir, ("level", "baseline (linear pixels): RMS over pixels"));
             }
         };
         let d = diagnose_histograms(&hist, flatten, seed).map_err(|m| HostError::Format { path: input.into(), message: m })?;
         model = Some(extended_model(&hist, &d, flatten).map_err(|m| HostError::Format { path: input.into(), message: m })?);
         d
     };
+    let labels = if is_descriptor { ("level (by photons)", "baseline (linear camera)") } else { ("code (DN)", "baseline (ideal ADC)") };
+    report(input, diagnosis, model, out_dir, labels)
+}
+
+/// Writes the report of `diagnosis` (and the extended `model`, if any) into `out_dir`.
+fn report(input: &Path, diagnosis: Diagnosis, model: Option<crate::camera::CameraConfig>, out_dir: Option<&Path>, (x_label, base_label): (&str, &str)) -> Result<DiagnoseSummary, HostError> {
     let mut outputs = Vec::new();
     if let Some(dir) = out_dir {
         std::fs::create_dir_all(dir).map_err(|e| HostError::io(dir, e))?;
         let n = diagnosis.residuals.len();
-        let (x_label, base_label) = if is_descriptor { ("level (by photons)", "baseline (linear camera)") } else { ("code (DN)", "baseline (ideal ADC)") };
         let mut series: Vec<Series> = diagnosis.residuals.iter().enumerate().map(|(a, r)| Series { label: format!("ADC {a}: {base_label}"), points: r.baseline.iter().map(|&(k, z)| (k as f64, z)).collect() }).collect();
         series.extend(diagnosis.residuals.iter().enumerate().map(|(a, r)| Series { label: format!("ADC {a}: with the findings"), points: r.extended.iter().map(|&(k, z)| (k as f64, z)).collect() }));
         let fig = dir.join("residuals.png");

@@ -1,0 +1,135 @@
+//! `dncal diagnose`: what the baseline simulation gets wrong in measured data, named from a
+//! catalog of model extensions, each accepted only if it improves the fit on held-out data.
+//!
+//! One submodule per data kind: [`histograms`], [`ptc`] (EMVA 1288 photon transfer),
+//! [`linearity`] (linearity sets).
+
+mod histograms;
+mod linearity;
+mod ptc;
+
+pub use histograms::diagnose_histograms;
+pub use linearity::diagnose_linearity;
+pub use ptc::diagnose_ptc;
+
+use serde::Serialize;
+
+use crate::flatten::FlattenParams;
+
+/// The acceptance threshold, in standard deviations of `mean z^2`.
+pub const SIGNIFICANCE: f64 = 5.0;
+
+/// Where the baseline residual of one ADC has structure: a residue modulus and the
+/// `chi^2` per class of the class means (about 1 for noise).
+#[derive(Debug, Clone, Serialize)]
+pub struct ResidueStructure {
+    /// The modulus m: classes are codes k mod m.
+    pub modulus: usize,
+    /// `sum_classes n_c mean_c^2 / m`.
+    pub chi2_per_class: f64,
+}
+
+/// The baseline fit of one ADC.
+#[derive(Debug, Clone, Serialize)]
+pub struct AdcBaseline {
+    /// ADC index.
+    pub adc: usize,
+    /// Codes scored (held-out half).
+    pub codes_scored: usize,
+    /// RMS of the normalized held-out residual.
+    pub rms: f64,
+    /// Structure by code residue, strongest first.
+    pub by_residue: Vec<ResidueStructure>,
+}
+
+/// The baseline over the whole input.
+#[derive(Debug, Clone, Serialize)]
+pub struct Baseline {
+    /// "histogram-set".
+    pub kind: String,
+    /// The model: "ideal ADC, smooth illumination, Poisson counts".
+    pub model: String,
+    /// Per ADC.
+    pub adcs: Vec<AdcBaseline>,
+    /// RMS of all normalized held-out residuals.
+    pub rms: f64,
+}
+
+/// One accepted model extension.
+#[derive(Debug, Clone, Serialize)]
+pub struct Finding {
+    /// The effect, from the catalog (`adc-dnl`, ..., `unexplained`).
+    pub effect: String,
+    /// The ADC, for per-ADC effects.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub adc: Option<usize>,
+    /// A pixel count, for pixel effects.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub count: Option<usize>,
+    /// A noise level, DN, for `insufficient-noise`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sigma_dn: Option<f64>,
+    /// Standard deviations by which the extension lowers `mean z^2` on held-out data.
+    pub significance: f64,
+    /// Held-out RMS of the normalized residual before the extension.
+    pub rms_before: f64,
+    /// After.
+    pub rms_after: f64,
+    /// `rms_before / rms_after`.
+    pub gain: f64,
+    /// The evidence in words.
+    pub detail: String,
+}
+
+/// What `diagnose` concluded.
+#[derive(Debug, Clone, Serialize)]
+pub struct Diagnosis {
+    /// The baseline fit.
+    pub baseline: Baseline,
+    /// Accepted findings only.
+    pub findings: Vec<Finding>,
+    /// Held-out RMS of the normalized residual of the extended model.
+    pub unexplained_rms: f64,
+    /// Per ADC: the baseline and final normalized residuals (for the figures).
+    #[serde(skip)]
+    pub residuals: Vec<AdcResiduals>,
+}
+
+/// Held-out normalized residuals of one ADC, as (code, residual).
+#[derive(Debug, Clone, Default)]
+pub struct AdcResiduals {
+    /// Against the baseline.
+    pub baseline: Vec<(usize, f64)>,
+    /// Against the model with the accepted findings.
+    pub extended: Vec<(usize, f64)>,
+}
+
+pub(crate) fn mean_sq(z: &[f64]) -> f64 {
+    z.iter().map(|x| x * x).sum::<f64>() / z.len().max(1) as f64
+}
+
+/// Structure of `z` (indexed by `codes`) by residue classes, strongest first.
+pub(crate) fn by_residue(codes: &[usize], z: &[f64]) -> Vec<ResidueStructure> {
+    let mut out: Vec<ResidueStructure> = (1..=9)
+        .map(|b| {
+            let m = 1usize << b;
+            let (mut sum, mut n) = (vec![0.0; m], vec![0usize; m]);
+            for (&k, &v) in codes.iter().zip(z) {
+                sum[k % m] += v;
+                n[k % m] += 1;
+            }
+            let chi2: f64 = sum.iter().zip(&n).filter(|(_, &c)| c > 0).map(|(s, &c)| s * s / c as f64).sum();
+            ResidueStructure { modulus: m, chi2_per_class: chi2 / m as f64 }
+        })
+        .collect();
+    out.sort_by(|a, b| b.chi2_per_class.total_cmp(&a.chi2_per_class));
+    out
+}
+
+/// The flattening `diagnose` applies: `flatten` with empty codes at the ends of the range
+/// trimmed (at least 10% of the median count), so that data whose dark level or
+/// saturation leave empty codes can be fitted.
+pub fn trimmed_params(flatten: &FlattenParams) -> FlattenParams {
+    FlattenParams { trim_below_fraction: flatten.trim_below_fraction.max(0.1), ..flatten.clone() }
+}
+

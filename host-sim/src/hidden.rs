@@ -1,0 +1,180 @@
+//! Hidden-effect generator: measured-looking data with effects planted at random, for
+//! blind tests of `dncal diagnose` (the tests know what was hidden; diagnose does not).
+//!
+//! Linearity sets are drawn at the level of their sufficient statistics rather than frame
+//! by frame (a 64 x 64 x 41 x 256-frame set would take minutes): per pixel and level the
+//! mean of `N` Gaussian frames is `Normal(mu, var / N)` and their sample variance is
+//! `var chi^2_(N-1) / (N-1)`, independent of it, which is exactly what averaging `N`
+//! frames gives. `var` is read noise, shot noise and one code's quantization
+//! (`r^2 + S / K + 1/12` DN^2); with 4 DN of read noise the mean of quantized frames is
+//! unbiased to far below its noise (`crate::quantization`).
+//!
+//! The camera, in DN: pixel `p` on ADC `a` (column mod 4) at reference `x` reads
+//! `h_a(o + d_p + G_p(g_p S_max x))`, `G_p(S) = S (1 + c2_p S/T + c3 (S/T)^2)`, where `h_a`
+//! is the ADC's transfer (identity, or a gain, offset or curvature mismatch acting on the
+//! whole analog level), `d_p` the DSNU, `g_p` the PRNU and `T` the top code.
+
+use rand::{rngs::StdRng, Rng, SeedableRng};
+use rand_distr::{ChiSquared, Distribution, Normal};
+
+use crate::fits::LinearitySet;
+
+/// One planted effect.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Hidden {
+    /// A shared curvature: `c2` (relative bend at full scale).
+    GlobalNonlinearity { c2: f64 },
+    /// Per-pixel spread of `c2`, rms.
+    PixelNonlinearity { rms: f64 },
+    /// ADC `adc`'s gain is `1 + rel` times the others'.
+    AdcGain { adc: usize, rel: f64 },
+    /// ADC `adc` adds `dn` DN.
+    AdcOffset { adc: usize, dn: f64 },
+    /// ADC `adc` bends: `h(v) = v (1 + e v / T)`.
+    AdcCurvature { adc: usize, e: f64 },
+    /// `count` pixels are dead (no response), hot (always the top code) or kinked (a step
+    /// of 20-100 DN at a random level).
+    BadPixels { count: usize },
+}
+
+impl Hidden {
+    /// The `effect` name `diagnose` should give, and the ADC.
+    pub fn expected(&self) -> (&'static str, Option<usize>) {
+        match self {
+            Hidden::GlobalNonlinearity { .. } => ("global-nonlinearity", None),
+            Hidden::PixelNonlinearity { .. } => ("pixel-nonlinearity", None),
+            Hidden::AdcGain { adc, .. } | Hidden::AdcOffset { adc, .. } | Hidden::AdcCurvature { adc, .. } => ("adc-mismatch", Some(*adc)),
+            Hidden::BadPixels { .. } => ("bad-pixels", None),
+        }
+    }
+}
+
+/// The camera of the generator (defaults: 64 x 64 pixels, 4 ADCs, 12 bits, 41 levels,
+/// 256 frames, 3600 DN at full reference, 44 e-/DN, 4 DN read noise, 1% PRNU, 1 DN DSNU).
+#[derive(Debug, Clone)]
+pub struct Plant {
+    /// Columns.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// ADCs.
+    pub n_adc: usize,
+    /// Levels including dark.
+    pub levels: usize,
+    /// Frames per level.
+    pub frames: u32,
+    /// Mean signal at the brightest level, DN.
+    pub full_dn: f64,
+    /// e- per DN (shot noise).
+    pub gain_e_per_dn: f64,
+    /// Read noise, DN.
+    pub read_dn: f64,
+    /// PRNU, relative rms.
+    pub prnu: f64,
+    /// DSNU, DN rms.
+    pub dsnu_dn: f64,
+    /// Black level, DN.
+    pub offset_dn: f64,
+}
+
+impl Default for Plant {
+    fn default() -> Self {
+        Plant { width: 64, height: 64, n_adc: 4, levels: 41, frames: 256, full_dn: 3600.0, gain_e_per_dn: 44.0, read_dn: 4.0, prnu: 0.01, dsnu_dn: 1.0, offset_dn: 60.0 }
+    }
+}
+
+/// Picks 0 to 2 effects at random (kind, ADC, amplitude) at amplitudes a careful
+/// scientist would detect in a 64 x 64 set; never two on one ADC.
+pub fn pick(rng: &mut StdRng, n_adc: usize, how_many: usize) -> Vec<Hidden> {
+    let mut out: Vec<Hidden> = Vec::new();
+    let sign = |rng: &mut StdRng| if rng.random::<bool>() { 1.0 } else { -1.0 };
+    while out.len() < how_many {
+        let kind = rng.random_range(0..6);
+        let adc = rng.random_range(0..n_adc);
+        let h = match kind {
+            0 => Hidden::GlobalNonlinearity { c2: sign(rng) * rng.random_range(0.01..0.04) },
+            1 => Hidden::PixelNonlinearity { rms: rng.random_range(0.002..0.01) },
+            2 => Hidden::AdcGain { adc, rel: sign(rng) * rng.random_range(0.01..0.03) },
+            3 => Hidden::AdcOffset { adc, dn: sign(rng) * rng.random_range(1.0..3.0) },
+            4 => Hidden::AdcCurvature { adc, e: sign(rng) * rng.random_range(0.005..0.02) },
+            _ => Hidden::BadPixels { count: rng.random_range(5..40) },
+        };
+        let clash = out.iter().any(|o| std::mem::discriminant(o) == std::mem::discriminant(&h) || (o.expected().1.is_some() && o.expected().1 == h.expected().1));
+        if !clash {
+            out.push(h);
+        }
+    }
+    out
+}
+
+/// Draws a linearity set of `plant` with `hidden` planted; `seed` drives every draw.
+pub fn linearity_set(plant: &Plant, hidden: &[Hidden], seed: u64) -> LinearitySet {
+    let mut rng = StdRng::seed_from_u64(seed);
+    let (w, h, nl) = (plant.width, plant.height, plant.levels);
+    let np = w * h;
+    let top = 4095.0;
+    let unit = Normal::new(0.0, 1.0).expect("unit normal");
+    let mut c2 = vec![0.0; np];
+    let (mut adc_gain, mut adc_offset, mut adc_bend) = (vec![1.0; plant.n_adc], vec![0.0; plant.n_adc], vec![0.0; plant.n_adc]);
+    let mut bad_count = 0;
+    for e in hidden {
+        match *e {
+            Hidden::GlobalNonlinearity { c2: c } => c2.iter_mut().for_each(|v| *v += c),
+            Hidden::PixelNonlinearity { rms } => c2.iter_mut().for_each(|v| *v += rms * unit.sample(&mut rng)),
+            Hidden::AdcGain { adc, rel } => adc_gain[adc] = 1.0 + rel,
+            Hidden::AdcOffset { adc, dn } => adc_offset[adc] = dn,
+            Hidden::AdcCurvature { adc, e } => adc_bend[adc] = e,
+            Hidden::BadPixels { count } => bad_count = count,
+        }
+    }
+    let gain: Vec<f64> = (0..np).map(|_| 1.0 + plant.prnu * unit.sample(&mut rng)).collect();
+    let dark: Vec<f64> = (0..np).map(|_| plant.dsnu_dn * unit.sample(&mut rng)).collect();
+    // Bad pixels: distinct, each dead, hot or kinked.
+    let mut kind = vec![0u8; np];
+    let mut kink = vec![(0usize, 0.0); np];
+    let mut placed = 0;
+    while placed < bad_count {
+        let p = rng.random_range(0..np);
+        if kind[p] == 0 {
+            kind[p] = rng.random_range(1..=3);
+            kink[p] = (rng.random_range(5..nl - 5), rng.random_range(20.0..100.0));
+            placed += 1;
+        }
+    }
+    let chi = ChiSquared::new(f64::from(plant.frames - 1)).expect("frames > 1");
+    let n = f64::from(plant.frames);
+    let (mut mean, mut std) = (vec![0.0; nl * np], vec![0.0; nl * np]);
+    for l in 0..nl {
+        let x = l as f64 / (nl - 1) as f64;
+        for p in 0..np {
+            let a = (p % w) % plant.n_adc;
+            let s_lin = if kind[p] == 1 { 0.0 } else { gain[p] * plant.full_dn * x };
+            let s = s_lin * (1.0 + c2[p] * s_lin / top);
+            let mut v = plant.offset_dn + dark[p] + s;
+            if kind[p] == 3 && l >= kink[p].0 {
+                v += kink[p].1;
+            }
+            let code = adc_gain[a] * v * (1.0 + adc_bend[a] * v / top) + adc_offset[a];
+            let var = plant.read_dn.powi(2) + s.max(0.0) / plant.gain_e_per_dn + 1.0 / 12.0;
+            let i = l * np + p;
+            if kind[p] == 2 {
+                (mean[i], std[i]) = (top, 0.0);
+            } else {
+                mean[i] = (code + (var / n).sqrt() * unit.sample(&mut rng)).min(top);
+                std[i] = (var * chi.sample(&mut rng) / (n - 1.0)).sqrt();
+            }
+        }
+    }
+    LinearitySet {
+        bit_depth: 12,
+        n_adc: plant.n_adc,
+        n_frames: plant.frames,
+        width: w,
+        height: h,
+        levels: nl,
+        mean,
+        std,
+        voltage: (0..nl).map(|l| 2.5 * l as f64 / (nl - 1) as f64).collect(),
+        mask: None,
+    }
+}
