@@ -411,6 +411,26 @@ pub fn load_image(set: &EmvaSet, image: &Path) -> Result<Vec<u16>, HostError> {
     Ok(codes)
 }
 
+/// The code histogram of every frame of `set` (bright and dark levels), `2^bits` bins:
+/// the data of a code-density test of the camera's ADC. Frames are loaded in parallel.
+pub fn code_histogram(set: &EmvaSet) -> Result<Vec<u64>, HostError> {
+    let images: Vec<&PathBuf> = set.levels.iter().flat_map(|l| l.images.iter()).collect();
+    let bins = 1usize << set.bits;
+    images
+        .par_iter()
+        .map(|image| {
+            let mut h = vec![0u64; bins];
+            for c in load_image(set, image)? {
+                h[c as usize] += 1;
+            }
+            Ok(h)
+        })
+        .try_reduce(|| vec![0u64; bins], |mut a, b| {
+            a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
+            Ok(a)
+        })
+}
+
 /// Mean and temporal variance of a frame pair, DN and DN^2: `(mean a + mean b) / 2` and
 /// `var(a - b) / 2` with the 1/N variance; and the difference of the frame means
 /// `mean a - mean b`, DN, which shows frame-to-frame (common-mode) changes the pixel

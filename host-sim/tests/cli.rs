@@ -497,7 +497,14 @@ fn diagnose_finds_the_real_ccds_nonlinearity() {
     let f = &s["findings"][0];
     assert_eq!(f["effect"], "global-nonlinearity", "{s}");
     assert!(f["gain"].as_f64().unwrap() > 2.0, "{f}");
-    assert!(dir.path().join("rep/residuals.png").exists());
+    // The frames' code density: the CCD's ADC has code widths with a period of 4 codes.
+    let dnl = s["findings"].as_array().unwrap().iter().find(|f| f["effect"] == "adc-dnl").unwrap_or_else(|| panic!("no adc-dnl: {s}"));
+    assert_eq!(dnl["adc"], 0);
+    assert!(dnl["gain"].as_f64().unwrap() > 2.0 && (dnl["rms_after"].as_f64().unwrap() - 1.0).abs() < 0.1, "{dnl}");
+    assert_eq!(s["code_density"]["by_residue"][0]["modulus"], 4, "{s}");
+    let widths: Vec<f64> = s["code_density"]["class_widths"].as_array().unwrap().iter().map(|w| w.as_f64().unwrap()).collect();
+    assert!(widths.iter().cloned().fold(0.0, f64::max) - widths.iter().cloned().fold(2.0, f64::min) > 0.1, "{widths:?}");
+    assert!(dir.path().join("rep/residuals.png").exists() && dir.path().join("rep/codes.png").exists());
 }
 
 /// The hidden-effect generator writes linearity sets as FITS; `dncal diagnose --json`

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::diagnose::{diagnose_histograms, diagnose_linearity, diagnose_ptc, Diagnosis};
+use crate::diagnose::{diagnose_code_density, diagnose_histograms, diagnose_linearity, diagnose_ptc, Diagnosis};
 use crate::fits::{read_histograms, read_linearity, write_file_atomically};
 use crate::flatten::FlattenParams;
 use crate::plots::{line_plot, Series};
@@ -59,7 +59,15 @@ pub fn diagnose(input: &Path, flatten: &FlattenParams, seed: u64, out_dir: Optio
     let diagnosis = if is_descriptor {
         let set = crate::emva::read_descriptor(input)?;
         let points = crate::emva::photon_transfer(&set)?;
-        diagnose_ptc(&points, set.width * set.height, 0.01).map_err(|m| HostError::Format { path: input.into(), message: m })?
+        let mut d = diagnose_ptc(&points, set.width * set.height, 0.01).map_err(|m| HostError::Format { path: input.into(), message: m })?;
+        // The frames' code density: the single ADC's code widths (the descriptor's camera
+        // has one output; a multi-output camera's columns would need splitting by ADC).
+        let counts = crate::emva::code_histogram(&set)?;
+        let (findings, residuals, density) = diagnose_code_density(&counts, 0, seed).map_err(|m| HostError::Format { path: input.into(), message: format!("code density: {m}") })?;
+        d.findings.extend(findings);
+        d.code_density = Some(density);
+        d.code_residuals = Some(residuals);
+        d
     } else {
         let hist = match read_histograms(input) {
             Ok(h) => h,
@@ -100,6 +108,16 @@ fn report(input: &Path, diagnosis: Diagnosis, model: Option<crate::camera::Camer
             let _ = write!(h, "<tr><td>{}</td><td>{}</td><td>{:.1}</td><td>{:.3}</td><td>{:.3}</td><td>{:.2}</td><td>{}</td></tr>", f.effect, f.adc.map_or("-".into(), |a| a.to_string()), f.significance, f.rms_before, f.rms_after, f.gain, f.detail);
         }
         let _ = write!(h, "</table><p>Unexplained: held-out RMS {:.3}.</p><figure><img src=\"residuals.png\" width=\"1000\"></figure></body></html>", diagnosis.unexplained_rms);
+        if let Some(r) = &diagnosis.code_residuals {
+            let codes_fig = dir.join("codes.png");
+            let series = [
+                Series { label: "ideal ADC".into(), points: r.baseline.iter().map(|&(k, z)| (k as f64, z)).collect() },
+                Series { label: "with the findings".into(), points: r.extended.iter().map(|&(k, z)| (k as f64, z)).collect() },
+            ];
+            line_plot(&codes_fig, "Code density of the frames: held-out residuals / expected noise", "code (DN)", "normalized residual", &series, 1)?;
+            h = h.replace("</body></html>", "<h2>Code density of the frames</h2><figure><img src=\"codes.png\" width=\"1000\"></figure></body></html>");
+            outputs.push(codes_fig);
+        }
         write_file_atomically(&html_path, &h)?;
         outputs.extend([fig, html_path]);
         if let Some(m) = &model {

@@ -661,6 +661,8 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
         acc.iter().enumerate().filter(|(_, a)| a.1 > 0).map(|(l, a)| (l, (a.0 / a.1 as f64).sqrt())).collect()
     };
     Ok(Diagnosis {
+        code_density: None,
+        code_residuals: None,
         baseline: Baseline {
             kind: "linearity-set".into(),
             model: "linear response with per-pixel dark and gain from one population, shot and read noise".into(),

@@ -1,13 +1,15 @@
 //! `dncal diagnose`: what the baseline simulation gets wrong in measured data, named from a
 //! catalog of model extensions, each accepted only if it improves the fit on held-out data.
 //!
-//! One submodule per data kind: [`histograms`], [`ptc`] (EMVA 1288 photon transfer),
-//! [`linearity`] (linearity sets).
+//! One submodule per data kind: [`histograms`], [`ptc`] (EMVA 1288 photon transfer) with
+//! [`codes`] (the code density of its frames), [`linearity`] (linearity sets).
 
+mod codes;
 mod histograms;
 mod linearity;
 mod ptc;
 
+pub use codes::{diagnose_code_density, CodeDensity};
 pub use histograms::diagnose_histograms;
 pub use linearity::diagnose_linearity;
 pub use ptc::diagnose_ptc;
@@ -90,6 +92,12 @@ pub struct Diagnosis {
     pub findings: Vec<Finding>,
     /// Held-out RMS of the normalized residual of the extended model.
     pub unexplained_rms: f64,
+    /// The code-density test of the frames, for photon-transfer sets.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub code_density: Option<codes::CodeDensity>,
+    /// Its held-out residuals by code (for the figures).
+    #[serde(skip)]
+    pub code_residuals: Option<AdcResiduals>,
     /// Per ADC: the baseline and final normalized residuals (for the figures).
     #[serde(skip)]
     pub residuals: Vec<AdcResiduals>,

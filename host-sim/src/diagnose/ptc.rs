@@ -187,6 +187,8 @@ pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Res
         });
     }
     Ok(Diagnosis {
+        code_density: None,
+        code_residuals: None,
         baseline: Baseline {
             kind: "photon-transfer".into(),
             model: "linear response (offset and gain), shot and read noise".into(),
