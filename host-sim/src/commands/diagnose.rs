@@ -36,6 +36,97 @@ pub fn extended_model(hist: &crate::fits::AdcHistograms, d: &Diagnosis, flatten:
     Ok(c)
 }
 
+/// `base` with what `d` measured and accepted: conversion gain, read noise, dark level,
+/// DSNU, PRNU, full well (1.1 times the full scale, in electrons), bad pixels, the shared response
+/// curve (`y = S + b2 S^2 + ...` DN becomes the camera's `a_k = b_k (FW / G)^(k-1)` of
+/// `y/FW = x + a2 x^2 + ...`) and, with `pixel-nonlinearity`, the spread of `a2`. What
+/// the data do not measure keeps `base`'s value.
+pub fn apply_measured(mut c: crate::camera::CameraConfig, d: &Diagnosis) -> crate::camera::CameraConfig {
+    let m = &d.measured;
+    let g = m.gain_e_per_dn.unwrap_or(c.gain_e_per_dn);
+    c.gain_e_per_dn = g;
+    if let Some(s) = m.dsnu_dn {
+        c.dsnu_rms_e = s * g;
+    }
+    // The dark level as a dark signal of 5 DSNU (so that the simulator's non-negative
+    // dark keeps the whole spread; with none, half the pixels clipped at zero and the
+    // re-diagnosis read 17 e- of DSNU for 40) on a black level; its shot noise comes out
+    // of the read noise.
+    if let Some(o) = m.offset_dn {
+        c.dark_e = (5.0 * c.dsnu_rms_e).min(o.max(0.0) * g);
+        c.offset_dn = o - c.dark_e / g;
+    }
+    if let Some(r) = m.read_noise_dn {
+        c.read_noise_e = ((r * g).powi(2) - c.dark_e).max(0.0).sqrt();
+    }
+    if let Some(p) = m.prnu_rms {
+        c.prnu_rms = p;
+    }
+    // The full well 10% above the measured full scale: the data show where the signal
+    // clips, not whether the well or the ADC clips it; a well at exactly the full scale
+    // made pixels of higher gain clip early and bend the top levels of a re-simulation.
+    if let Some(f) = m.full_scale_dn.filter(|f| *f > 0.0) {
+        c.full_well_e = 1.1 * f * g;
+    }
+    if let Some(b) = m.bad_fraction {
+        c.bad_pixel_fraction = b;
+    }
+    let scale = c.full_well_e / g;
+    c.nonlinearity = d.curve_per_dn.as_ref().map_or(Vec::new(), |b| b.iter().enumerate().map(|(k, b)| b * scale.powi(k as i32 + 1)).collect());
+    c.pixel_nonlinearity_rms = match (m.pixel_b2_rms_per_dn, d.findings.iter().any(|f| f.effect == "pixel-nonlinearity")) {
+        (Some(r), true) if !c.nonlinearity.is_empty() => vec![r * scale],
+        _ => Vec::new(),
+    };
+    c
+}
+
+/// The camera model of a linearity set's diagnosis: the default camera at the set's size,
+/// bit depth and ADC count with what the set measured ([`apply_measured`]) and an ideal ADC
+/// (a linearity set cannot see code widths). Not yet in the camera model: per-ADC offset,
+/// gain and curvature (an `adc-mismatch` is named in the file's header, not simulated).
+pub fn linearity_model(set: &crate::fits::LinearitySet, d: &Diagnosis) -> crate::camera::CameraConfig {
+    let mut c = crate::camera::CameraConfig { bits: set.bit_depth, n_adc: set.n_adc, width: set.width, height: set.height, ..Default::default() };
+    c.name = "linearity set, model extended by dncal diagnose".into();
+    c.adc.stage_bits = vec![set.bit_depth];
+    c.adc.stage_error_lsb = vec![0.0];
+    apply_measured(c, d)
+}
+
+/// The camera model of a photon-transfer set's diagnosis: bit depth, size, one ADC,
+/// conversion gain, QE, dark noise, dark level and saturation from the EMVA 1288 summary,
+/// the shared response curve if accepted, and the code widths of the frames' code density
+/// if `adc-dnl` was accepted (ideal otherwise). PRNU, DSNU and bad pixels are zero, not
+/// guessed: the photon-transfer diagnosis does not measure them (yet).
+pub fn ptc_model(set: &crate::emva::EmvaSet, summary: &crate::emva::PtcSummary, dark_dn: f64, d: &mut Diagnosis) -> crate::camera::CameraConfig {
+    let mut c = crate::camera::CameraConfig {
+        bits: set.bits,
+        n_adc: 1,
+        width: set.width,
+        height: set.height,
+        qe: summary.quantum_efficiency.clamp(1e-6, 1.0),
+        prnu_rms: 0.0,
+        dsnu_rms_e: 0.0,
+        bad_pixel_fraction: 0.0,
+        ..Default::default()
+    };
+    c.name = "EMVA 1288 set, model extended by dncal diagnose".into();
+    c.adc.stage_bits = vec![set.bits];
+    c.adc.stage_error_lsb = vec![0.0];
+    if d.findings.iter().any(|f| f.effect == "adc-dnl") {
+        if let Some(cd) = &d.code_density {
+            c.adc.widths = vec![cd.widths.clone()];
+        }
+    }
+    d.measured = crate::diagnose::Measured {
+        gain_e_per_dn: Some(summary.gain_e_per_dn),
+        read_noise_dn: Some(summary.dark_noise_dn),
+        offset_dn: Some(dark_dn),
+        full_scale_dn: Some(summary.saturation_dn),
+        ..Default::default()
+    };
+    apply_measured(c, d)
+}
+
 /// One input's diagnosis and the files written for it.
 #[derive(Debug, Serialize)]
 pub struct DiagnoseSummary {
@@ -49,13 +140,14 @@ pub struct DiagnoseSummary {
 }
 
 /// Diagnoses `input` (a histogram set, a linearity set or an EMVA 1288 descriptor); with
-/// `out_dir`, writes `residuals.png`, `report.html` and (histogram sets) `model.toml` there.
+/// `out_dir`, writes `residuals.png`, `report.html`, `model.toml` (the extended camera model
+/// `dncal simulate --model` reads) and, for EMVA sets, `codes.png` there.
 pub fn diagnose(input: &Path, flatten: &FlattenParams, seed: u64, out_dir: Option<&Path>) -> Result<DiagnoseSummary, HostError> {
     // A FITS file starts with SIMPLE; an EMVA descriptor is text with an `n` record.
     let is_descriptor = std::fs::read(input)
         .map(|b| !b.starts_with(b"SIMPLE") && std::str::from_utf8(&b).is_ok_and(|t| t.lines().any(|l| l.trim_start().starts_with("n "))))
         .unwrap_or(false);
-    let mut model: Option<crate::camera::CameraConfig> = None;
+    let model: Option<crate::camera::CameraConfig>;
     let diagnosis = if is_descriptor {
         let set = crate::emva::read_descriptor(input)?;
         let points = crate::emva::photon_transfer(&set)?;
@@ -67,6 +159,9 @@ pub fn diagnose(input: &Path, flatten: &FlattenParams, seed: u64, out_dir: Optio
         d.findings.extend(findings);
         d.code_density = Some(density);
         d.code_residuals = Some(residuals);
+        let summary = crate::emva::summarize(input, &points)?;
+        let dark = points.first().map_or(0.0, |p| p.dark_mean_dn);
+        model = Some(ptc_model(&set, &summary, dark, &mut d));
         d
     } else {
         let hist = match read_histograms(input) {
@@ -75,7 +170,8 @@ pub fn diagnose(input: &Path, flatten: &FlattenParams, seed: u64, out_dir: Optio
                 // Not a histogram set: a linearity set, or the histogram reader's error.
                 let Ok(set) = read_linearity(input) else { return Err(e) };
                 let d = diagnose_linearity(&set, 0.01).map_err(|m| HostError::Format { path: input.into(), message: m })?;
-                return report(input, d, None, out_dir, ("level", "baseline (linear pixels): RMS over pixels"));
+                let model = linearity_model(&set, &d);
+                return report(input, d, Some(model), out_dir, ("level", "baseline (linear pixels): RMS over pixels"));
             }
         };
         let d = diagnose_histograms(&hist, flatten, seed).map_err(|m| HostError::Format { path: input.into(), message: m })?;
@@ -120,10 +216,17 @@ fn report(input: &Path, diagnosis: Diagnosis, model: Option<crate::camera::Camer
         }
         write_file_atomically(&html_path, &h)?;
         outputs.extend([fig, html_path]);
-        if let Some(m) = &model {
+        if let Some(m) = model.as_ref().filter(|m| match m.validate() {
+            Ok(()) => true,
+            Err(e) => {
+                eprintln!("dncal: warning: {}: the extended model is not written: {e}", input.display());
+                false
+            }
+        }) {
             let path = dir.join("model.toml");
             let text = toml::to_string(m).map_err(|e| HostError::Format { path: path.clone(), message: e.to_string() })?;
-            let text = format!("# The model `dncal diagnose` extended from {}: `dncal simulate histograms --model` reads it.\n{text}", input.display());
+            let not_simulated: Vec<String> = diagnosis.findings.iter().filter(|f| f.effect == "adc-mismatch" || f.effect == "unexplained" || f.effect == "low-signal-nonlinearity").map(|f| format!("# not in the camera model yet: {}{}\n", f.effect, f.adc.map_or(String::new(), |a| format!(" (ADC {a})")))).collect();
+            let text = format!("# The model `dncal diagnose` extended from {}: `dncal simulate --model` reads it.\n{}{text}", input.display(), not_simulated.concat());
             write_file_atomically(&path, &text)?;
             outputs.push(path);
         }

@@ -48,6 +48,10 @@ pub struct CodeDensity {
     /// Width of each class `k mod m` for the strongest modulus up to 16 (the mean measured
     /// ratio unfolded from the smoother's share of the pattern, mean 1).
     pub class_widths: Vec<f64>,
+    /// Every code's width (mean 1 over the scored codes): measured where scored, the
+    /// class width of the strongest period elsewhere (for the model file).
+    #[serde(skip)]
+    pub widths: Vec<f64>,
 }
 
 /// The Savitzky-Golay weights `L_j`, j = -HALF..=HALF: the value at 0 of the least-squares
@@ -136,6 +140,10 @@ pub fn diagnose_code_density(counts: &[u64], adc: usize, seed: u64) -> Result<(V
         .collect();
     let class_widths = unfold_period(&ratios, &l);
     let width_rms = (widths.iter().map(|w| (w - 1.0).powi(2)).sum::<f64>() / n).sqrt();
+    let mut all_widths: Vec<f64> = (0..counts.len()).map(|k| class_widths[k % strongest]).collect();
+    for (&k, &w) in codes.iter().zip(&widths) {
+        all_widths[k] = w.max(1e-6);
+    }
     let mut findings = Vec::new();
     let significance = (m0 - m1) / sd;
     let accepted = significance > SIGNIFICANCE && m1 < m0;
@@ -176,7 +184,7 @@ pub fn diagnose_code_density(counts: &[u64], adc: usize, seed: u64) -> Result<(V
         });
     }
     let residuals = AdcResiduals { baseline: codes.iter().copied().zip(z0.iter().copied()).collect(), extended: codes.iter().copied().zip(z_final.iter().copied()).collect() };
-    Ok((findings, residuals, CodeDensity { codes_scored: codes.len(), rms_baseline: m0.sqrt(), rms_widths: m1.sqrt(), width_rms, by_residue: structure, class_widths }))
+    Ok((findings, residuals, CodeDensity { codes_scored: codes.len(), rms_baseline: m0.sqrt(), rms_widths: m1.sqrt(), width_rms, by_residue: structure, widths: all_widths, class_widths }))
 }
 
 #[cfg(test)]

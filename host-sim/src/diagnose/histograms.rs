@@ -125,8 +125,10 @@ pub fn diagnose_histograms(h: &AdcHistograms, flatten: &FlattenParams, seed: u64
         residuals.push(AdcResiduals { baseline: codes.iter().copied().zip(z0.iter().copied()).collect(), extended: codes.iter().copied().zip(z_final.iter().copied()).collect() });
     }
     Ok(Diagnosis {
+        measured: Measured::default(),
         code_density: None,
         code_residuals: None,
+        curve_per_dn: None,
         baseline: Baseline { kind: "histogram-set".into(), model: "ideal ADC, illumination smooth over a few codes, Poisson counts".into(), adcs, rms: mean_sq(&all0).sqrt() },
         findings,
         unexplained_rms: mean_sq(&all_final).sqrt(),

@@ -311,6 +311,69 @@ fn shared_curve(pixels: &[(&Vec<Point>, f64)], top: f64) -> [f64; 3] {
     }
 }
 
+/// The camera parameters a linearity set measures (for the model file): conversion gain
+/// and read noise from the pixels' temporal variance against their signal (median over
+/// pixels per level, a line over the levels below 70% of the range: `var = r^2 + 1/12 +
+/// S / G`), dark level and DSNU, PRNU, full scale, the fraction of bad pixels, and the
+/// pixel-to-pixel rms of the quadratic response term from the *covariance* of the
+/// pixels' even-level and odd-level quartics (their noises are independent, so the
+/// covariance over pixels is the spread of the true terms alone).
+#[allow(clippy::too_many_arguments)]
+fn measure_camera(set: &LinearitySet, pixels: &[usize], good: &[usize], valid: &[usize], quartics: &[(Option<Scored>, Option<Scored>)], dg: &[Option<[f64; 2]>], top: f64, bad: usize) -> Measured {
+    let np = set.width * set.height;
+    let (mut s, mut v) = (Vec::new(), Vec::new());
+    let dark = median(good.iter().map(|&i| set.mean[pixels[i]]).collect());
+    for l in 1..set.levels {
+        let on: Vec<usize> = good.iter().map(|&i| pixels[i]).filter(|&p| l < valid[p]).collect();
+        if on.len() * 2 < good.len() {
+            break;
+        }
+        let signal = median(on.iter().map(|&p| set.mean[l * np + p] - set.mean[p]).collect());
+        if signal > 0.7 * (top - dark) {
+            break;
+        }
+        s.push(signal);
+        v.push(median(on.iter().map(|&p| set.std[l * np + p].powi(2)).collect()));
+    }
+    let (gain, read) = if s.len() >= 3 {
+        let (a, b, _) = crate::emva::fit_line(&s, &v);
+        ((b > 0.0).then(|| 1.0 / b), Some((a - 1.0 / 12.0).max(0.0).sqrt()))
+    } else {
+        (None, None)
+    };
+    let _ = dg;
+    // DSNU from the dark frames themselves, less their own noise; PRNU from the signal at
+    // the level nearest half scale (fitted intercepts and slopes would absorb part of each
+    // pixel's own curvature: they read 2.1 DN of DSNU where the camera had 0.9).
+    let n_frames = f64::from(set.n_frames.max(1));
+    let (_, d_scatter) = robust(&good.iter().map(|&i| set.mean[pixels[i]]).collect::<Vec<_>>());
+    let d_noise = median(good.iter().map(|&i| set.std[pixels[i]].powi(2) / n_frames).collect());
+    let half = s.iter().enumerate().min_by(|a, b| (a.1 - 0.5 * s.last().copied().unwrap_or(0.0) / 0.7).abs().total_cmp(&(b.1 - 0.5 * s.last().copied().unwrap_or(0.0) / 0.7).abs())).map_or(1, |(j, _)| j + 1);
+    let sig_half: Vec<f64> = good.iter().map(|&i| pixels[i]).filter(|&p| half < valid[p]).map(|p| set.mean[half * np + p] - set.mean[p]).collect();
+    let (gm, gs) = robust(&sig_half);
+    let b2: Vec<(f64, f64)> = good
+        .iter()
+        .filter_map(|&i| {
+            let (a, b) = (quartics[i].0.as_ref()?, quartics[i].1.as_ref()?);
+            Some((a.params[2] / a.params[1].powi(2), b.params[2] / b.params[1].powi(2)))
+        })
+        .filter(|(a, b)| a.is_finite() && b.is_finite())
+        .collect();
+    let n = b2.len() as f64;
+    let (ma, mb) = (b2.iter().map(|v| v.0).sum::<f64>() / n, b2.iter().map(|v| v.1).sum::<f64>() / n);
+    let cov = b2.iter().map(|v| (v.0 - ma) * (v.1 - mb)).sum::<f64>() / (n - 1.0);
+    Measured {
+        gain_e_per_dn: gain,
+        read_noise_dn: read,
+        offset_dn: Some(dark),
+        full_scale_dn: Some(median(good.iter().map(|&i| pixels[i]).filter(|&p| valid[p] > 1).map(|p| set.mean[(valid[p] - 1) * np + p] - set.mean[p]).collect())),
+        prnu_rms: Some(gs / gm),
+        dsnu_dn: Some((d_scatter.powi(2) - d_noise).max(0.0).sqrt()),
+        pixel_b2_rms_per_dn: (n > 10.0).then(|| cov.max(0.0).sqrt()),
+        bad_fraction: Some(bad as f64 / pixels.len().max(1) as f64),
+    }
+}
+
 /// Diagnoses a linearity set; `accuracy_dn` is the averaging accuracy the
 /// `insufficient-noise` check asks for.
 pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagnosis, String> {
@@ -604,6 +667,7 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     }
     // Noise: the dark level's temporal noise against the quantization bias.
     let dark_noise = median(good.iter().map(|&i| set.std[pixels[i]]).collect());
+    let measured = measure_camera(set, &pixels, &good, &valid, &quartics, &dg, top, bad.iter().filter(|b| b.is_some()).count());
     let worst = worst_bias(dark_noise).max_abs_bias_dn;
     if worst > accuracy_dn {
         findings.push(Finding {
@@ -661,8 +725,10 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
         acc.iter().enumerate().filter(|(_, a)| a.1 > 0).map(|(l, a)| (l, (a.0 / a.1 as f64).sqrt())).collect()
     };
     Ok(Diagnosis {
+        measured,
         code_density: None,
         code_residuals: None,
+        curve_per_dn: global_accepted.then(|| vec![global[0] / top, global[1] / (top * top), global[2] / (top * top * top)]),
         baseline: Baseline {
             kind: "linearity-set".into(),
             model: "linear response with per-pixel dark and gain from one population, shot and read noise".into(),

@@ -101,6 +101,35 @@ pub struct Diagnosis {
     /// Per ADC: the baseline and final normalized residuals (for the figures).
     #[serde(skip)]
     pub residuals: Vec<AdcResiduals>,
+    /// The accepted shared response curve in DN, `y = S + b2 S^2 + b3 S^3 + ...` above
+    /// dark for a linear signal `S` DN: `[b2, b3, ...]` (for the model file).
+    #[serde(skip)]
+    pub curve_per_dn: Option<Vec<f64>>,
+    /// Camera parameters the data measure (for the model file).
+    #[serde(skip)]
+    pub measured: Measured,
+}
+
+/// Camera parameters a diagnosis measured on the way, each `None` when the data do not
+/// say (the model file keeps the default camera's value then).
+#[derive(Debug, Clone, Default)]
+pub struct Measured {
+    /// Conversion gain, e- per DN (from the noise: variance against signal).
+    pub gain_e_per_dn: Option<f64>,
+    /// Temporal read noise at dark, DN.
+    pub read_noise_dn: Option<f64>,
+    /// Dark level, DN.
+    pub offset_dn: Option<f64>,
+    /// Largest signal above dark before saturation, DN.
+    pub full_scale_dn: Option<f64>,
+    /// Pixel-to-pixel gain spread, relative rms.
+    pub prnu_rms: Option<f64>,
+    /// Pixel-to-pixel dark spread, DN rms.
+    pub dsnu_dn: Option<f64>,
+    /// Pixel-to-pixel rms of the quadratic term `b2` of the response per DN.
+    pub pixel_b2_rms_per_dn: Option<f64>,
+    /// Fraction of pixels found bad.
+    pub bad_fraction: Option<f64>,
 }
 
 /// Held-out normalized residuals of one ADC, as (code, residual).

@@ -158,6 +158,11 @@ pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Res
         }
     }
     let (ecur, sdcur) = moments(current);
+    // The accepted curve per DN of linear signal S = c1 x: y - c0 = S + (c2 / c1^2) S^2 + (c3 / c1^3) S^3.
+    let curve_per_dn = (current != Terms::Linear)
+        .then(|| fit_terms(current, &pick(&x, &train), &pick(&y, &train), &pick(&sig, &train)))
+        .flatten()
+        .map(|c| vec![c[2] / c[1].powi(2), c[3] / c[1].powi(3)]);
     let sigma_dn = used.iter().map(|p| p.dark_var_dn2).fold(f64::INFINITY, f64::min).max(0.0).sqrt();
     let worst = worst_bias(sigma_dn).max_abs_bias_dn;
     if worst > accuracy_dn {
@@ -187,8 +192,10 @@ pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Res
         });
     }
     Ok(Diagnosis {
+        measured: Measured::default(),
         code_density: None,
         code_residuals: None,
+        curve_per_dn,
         baseline: Baseline {
             kind: "photon-transfer".into(),
             model: "linear response (offset and gain), shot and read noise".into(),
