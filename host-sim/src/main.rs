@@ -229,7 +229,7 @@ enum Cmd {
     },
     /// What the baseline simulation gets wrong in measured data: findings, held-out gains.
     Diagnose {
-        /// Measured data: histogram sets and EMVA 1288 descriptors (linearity sets are next).
+        /// Measured data: histogram sets, linearity sets (FITS) and EMVA 1288 descriptors.
         #[arg(required = true)]
         files: Vec<PathBuf>,
         #[command(flatten)]
@@ -635,6 +635,10 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
                     s.stream.frames, s.stream.pixels, s.stream.mismatches, s.stream.max_abs_err_dn, s.stream.bound_dn, s.stream.pixels_per_s
                 );
                 t += &adc_text(&s.adc);
+                for (what, d) in [("histograms", &s.diagnose), ("linearity set", &s.diagnose_linearity)] {
+                    let names: Vec<String> = d.diagnosis.findings.iter().map(|f| format!("{}{} (gain {:.2})", f.effect, f.adc.map_or(String::new(), |a| format!(" ADC {a}")), f.gain)).collect();
+                    t += &format!("diagnose {what}: {}\n", if names.is_empty() { "no finding".to_string() } else { names.join(", ") });
+                }
                 t += &format!("report: {}\n", s.report.display());
                 t
             })?;

@@ -6,6 +6,7 @@
 //!    reference;
 //! 4. measure how well the LUTs recover the ADCs' true code centers ([`super::adc`]);
 //! 5. the paper's other analyses: quantization map, K-Cor model, pixel-wise nonlinearity;
+//!    then `diagnose` on the calibration histograms and on the linearity set;
 //! 6. write PNG figures and an HTML report.
 
 use std::fmt::Write as _;
@@ -51,6 +52,8 @@ pub struct DemoSummary {
     pub linearity: LinearitySummary,
     /// `diagnose` on the calibration histograms.
     pub diagnose: crate::commands::diagnose::DiagnoseSummary,
+    /// `diagnose` on the linearity set.
+    pub diagnose_linearity: crate::commands::diagnose::DiagnoseSummary,
     /// Wall time, s.
     pub seconds: f64,
 }
@@ -85,6 +88,7 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
     pb.finish_and_clear();
     // 5. What a diagnosis of the calibration histograms finds (issue: diagnose).
     let diagnose = crate::commands::diagnose::diagnose(&at("histograms.fits"), flatten, 1, Some(&at("diagnose")))?;
+    let diagnose_linearity = crate::commands::diagnose::diagnose(&lin_path, flatten, 1, Some(&at("diagnose-linearity")))?;
 
     let summary = DemoSummary {
         out_dir: out_dir.into(),
@@ -97,6 +101,7 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
         kcor,
         linearity,
         diagnose,
+        diagnose_linearity,
         seconds: start.elapsed().as_secs_f64(),
     };
     let json = serde_json::to_string_pretty(&summary).map_err(|e| HostError::Format { path: at("summary.json"), message: e.to_string() })?;
@@ -202,15 +207,18 @@ fn report_html(s: &DemoSummary, camera: &Camera, ramp: &RampParams, flat: &Flatt
         l.rms_pixelwise_max,
         l.rms_random_max
     );
-    let dg = &s.diagnose.diagnosis;
-    let _ = write!(
-        h,
-        "<h2>Diagnosis of the calibration histograms: <code>dncal diagnose</code></h2><p>Baseline (ideal ADCs): held-out RMS {:.2} of the expected noise. Findings: {}. \
-         Unexplained RMS after them: {:.3}. <a href=\"diagnose/report.html\">The diagnosis report</a>.</p>",
-        dg.baseline.rms,
-        if dg.findings.is_empty() { "none".to_string() } else { dg.findings.iter().map(|f| format!("{}{} (gain {:.1})", f.effect, f.adc.map_or(String::new(), |a| format!(" ADC {a}")), f.gain)).collect::<Vec<_>>().join(", ") },
-        dg.unexplained_rms
-    );
+    for (what, d, dir) in [("the calibration histograms", &s.diagnose, "diagnose"), ("the linearity set", &s.diagnose_linearity, "diagnose-linearity")] {
+        let dg = &d.diagnosis;
+        let _ = write!(
+            h,
+            "<h2>Diagnosis of {what}: <code>dncal diagnose</code></h2><p>Baseline ({}): held-out RMS {:.2} of the expected noise. Findings: {}. \
+             Unexplained RMS after them: {:.3}. <a href=\"{dir}/report.html\">The diagnosis report</a>, <a href=\"{dir}/model.toml\">the extended model</a>.</p>",
+            dg.baseline.model,
+            dg.baseline.rms,
+            if dg.findings.is_empty() { "none".to_string() } else { dg.findings.iter().map(|f| format!("{}{} (gain {:.1})", f.effect, f.adc.map_or(String::new(), |a| format!(" ADC {a}")), f.gain)).collect::<Vec<_>>().join(", ") },
+            dg.unexplained_rms
+        );
+    }
     let _ = write!(h, "<p>Run time {:.1} s.</p></body></html>", s.seconds);
     h
 }

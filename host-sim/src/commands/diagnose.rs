@@ -203,7 +203,22 @@ fn report(input: &Path, diagnosis: Diagnosis, model: Option<crate::camera::Camer
         for f in &diagnosis.findings {
             let _ = write!(h, "<tr><td>{}</td><td>{}</td><td>{:.1}</td><td>{:.3}</td><td>{:.3}</td><td>{:.2}</td><td>{}</td></tr>", f.effect, f.adc.map_or("-".into(), |a| a.to_string()), f.significance, f.rms_before, f.rms_after, f.gain, f.detail);
         }
-        let _ = write!(h, "</table><p>Unexplained: held-out RMS {:.3}.</p><figure><img src=\"residuals.png\" width=\"1000\"></figure></body></html>", diagnosis.unexplained_rms);
+        let _ = write!(h, "</table><p>Unexplained: held-out RMS {:.3}.</p><figure><img src=\"residuals.png\" width=\"1000\"></figure>", diagnosis.unexplained_rms);
+        // One figure per finding: the held-out residuals just before and just after it.
+        for (i, f) in diagnosis.findings.iter().enumerate() {
+            let Some(r) = &f.residuals else { continue };
+            let name = format!("finding-{i}-{}.png", f.effect);
+            let what = format!("{}{}", f.effect, f.adc.map_or(String::new(), |a| format!(" (ADC {a})")));
+            let series = [
+                Series { label: "before".into(), points: r.baseline.iter().map(|&(k, z)| (k as f64, z)).collect() },
+                Series { label: format!("with {what}"), points: r.extended.iter().map(|&(k, z)| (k as f64, z)).collect() },
+            ];
+            let axis = if f.effect == "adc-dnl" { "code (DN)" } else { x_label };
+            line_plot(&dir.join(&name), &format!("{what}: held-out residuals / noise, before and after (gain {:.2})", f.gain), axis, "normalized residual", &series, 1)?;
+            let _ = write!(h, "<h2>{what}</h2><p>{}</p><figure><img src=\"{name}\" width=\"1000\"></figure>", f.detail);
+            outputs.push(dir.join(name));
+        }
+        h += "</body></html>";
         if let Some(r) = &diagnosis.code_residuals {
             let codes_fig = dir.join("codes.png");
             let series = [

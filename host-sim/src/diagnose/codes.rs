@@ -149,6 +149,7 @@ pub fn diagnose_code_density(counts: &[u64], adc: usize, seed: u64) -> Result<(V
     let accepted = significance > SIGNIFICANCE && m1 < m0;
     if accepted {
         findings.push(Finding {
+            residuals: Some(AdcResiduals { baseline: codes.iter().copied().zip(z0.iter().copied()).collect(), extended: codes.iter().copied().zip(z1.iter().copied()).collect() }),
             effect: "adc-dnl".into(),
             adc: Some(adc),
             count: None,
@@ -172,6 +173,7 @@ pub fn diagnose_code_density(counts: &[u64], adc: usize, seed: u64) -> Result<(V
     if (mf - 1.0) / sd > SIGNIFICANCE {
         let st = by_residue(&codes, z_final);
         findings.push(Finding {
+            residuals: None,
             effect: "unexplained".into(),
             adc: Some(adc),
             count: None,

@@ -88,6 +88,7 @@ pub fn diagnose_histograms(h: &AdcHistograms, flatten: &FlattenParams, seed: u64
             let widths: Vec<f64> = codes.iter().map(|&k| f.normalized[k] - 1.0).collect();
             let top = &structure[0];
             findings.push(Finding {
+                residuals: Some(AdcResiduals { baseline: codes.iter().copied().zip(z0.iter().copied()).collect(), extended: codes.iter().copied().zip(z1.iter().copied()).collect() }),
                 effect: "adc-dnl".into(),
                 adc: Some(adc),
                 count: None,
@@ -109,6 +110,7 @@ pub fn diagnose_histograms(h: &AdcHistograms, flatten: &FlattenParams, seed: u64
         if (mf - 1.0) / sd > SIGNIFICANCE {
             let st = by_residue(&codes, z_final);
             findings.push(Finding {
+                residuals: None,
                 effect: "unexplained".into(),
                 adc: Some(adc),
                 count: None,

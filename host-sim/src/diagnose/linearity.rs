@@ -262,8 +262,26 @@ fn population(values: impl Iterator<Item = (usize, f64)>, n_adc: usize) -> (Vec<
     (per.clone(), centre, robust(&dev).1)
 }
 
+/// Per level, the RMS over the selected pixels (`sel` on the index into `scores`) of the
+/// held-out normalized residuals: the figures.
+fn by_level(scores: &[Option<Scored>], levels: usize, sel: impl Fn(usize) -> bool) -> Vec<(usize, f64)> {
+    let mut acc = vec![(0.0, 0usize); levels];
+    for (_, s) in scores.iter().enumerate().filter(|(j, _)| sel(*j)) {
+        for &(l, z) in s.iter().flat_map(|s| s.z.iter()) {
+            acc[l].0 += z * z;
+            acc[l].1 += 1;
+        }
+    }
+    acc.iter().enumerate().filter(|(_, a)| a.1 > 0).map(|(l, a)| (l, (a.0 / a.1 as f64).sqrt())).collect()
+}
+
+fn with_residuals(r: AdcResiduals, mut f: Finding) -> Finding {
+    f.residuals = Some(r);
+    f
+}
+
 fn finding(effect: &str, adc: Option<usize>, significance: f64, before: f64, after: f64, detail: String) -> Finding {
-    Finding { effect: effect.into(), adc, count: None, sigma_dn: None, significance, rms_before: before, rms_after: after, gain: before / after, detail }
+    Finding { effect: effect.into(), adc, count: None, sigma_dn: None, significance, rms_before: before, rms_after: after, gain: before / after, detail, residuals: None }
 }
 
 /// The levels of one pixel, split: (even levels, odd levels).
@@ -487,14 +505,16 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
         let on = |i: usize| adc_of(pixels[i]) == a && !estimating(i);
         let (ta, tb) = (totals(&glob, &on), totals(&own_curve, &on));
         adc_own[a] = true;
-        adc_findings[a] = Some(finding(
+        let on_j = |j: usize| on(good[j]);
+        let steps = AdcResiduals { baseline: by_level(&glob, nl, on_j), extended: by_level(&own_curve, nl, on_j) };
+        adc_findings[a] = Some(with_residuals(steps, finding(
             "adc-mismatch",
             Some(a),
             sig,
             ta.rms(),
             tb.rms(),
             format!("curvature: ADC {a}'s response bends by {:.3}% of full scale where the others' bends by {:.3}% (held-out levels of its pixels)", 100.0 * bend(adc_curves[a], 1.0), 100.0 * bend(global, 1.0)),
-        ));
+        )));
         global = curve_of(&|i| !adc_own[adc_of(pixels[i])]);
         glob = score_all(&|_| Response::Curve(global, top));
     }
@@ -505,7 +525,9 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     let sig = paired(&base, &glob, |j| follows(good[j]));
     let global_accepted = sig > SIGNIFICANCE && tb1.s < tb0.s;
     if global_accepted {
-        findings.push(finding(
+        let fol = |j: usize| follows(good[j]);
+        let steps = AdcResiduals { baseline: by_level(&base, nl, fol), extended: by_level(&glob, nl, fol) };
+        findings.push(with_residuals(steps, finding(
             "global-nonlinearity",
             None,
             sig,
@@ -515,7 +537,7 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
                 "all pixels bend alike in their own signal S: G(S) = S (1 + {:.3e} S/T + {:.3e} (S/T)^2 + {:.3e} (S/T)^3), T = {top}; {:.2}% of the signal at half scale, {:.2}% at full scale",
                 global[0], global[1], global[2], 100.0 * bend(global, 0.5) / 0.5, 100.0 * bend(global, 1.0)
             ),
-        ));
+        )));
     }
     let mut current: Vec<Option<Scored>> = (0..good.len())
         .map(|j| {
@@ -543,14 +565,15 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
             })
             .collect();
         let rms_spread = (spread.iter().map(|v| v * v).sum::<f64>() / spread.len().max(1) as f64).sqrt();
-        findings.push(finding(
+        let steps = AdcResiduals { baseline: by_level(&current, nl, |_| true), extended: by_level(&own, nl, |_| true) };
+        findings.push(with_residuals(steps, finding(
             "pixel-nonlinearity",
             None,
             sig,
             tcur.rms(),
             t3.rms(),
             format!("each pixel's own quartic (the paper's correction) beats the shared curve on held-out levels; the pixels' curves depart from it by {:.3}% rms of their signal at their highest held-out level", 100.0 * rms_spread),
-        ));
+        )));
         current = own;
         tcur = t3;
     }
@@ -671,6 +694,7 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     let worst = worst_bias(dark_noise).max_abs_bias_dn;
     if worst > accuracy_dn {
         findings.push(Finding {
+            residuals: None,
             effect: "insufficient-noise".into(),
             adc: None,
             count: None,
@@ -713,17 +737,6 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
             },
         ));
     }
-    // Figures: per level, the RMS of the held-out z over pixels, baseline and final.
-    let by_level = |scores: &[Option<Scored>]| -> Vec<(usize, f64)> {
-        let mut acc = vec![(0.0, 0usize); nl];
-        for s in scores.iter().flatten() {
-            for &(l, z) in &s.z {
-                acc[l].0 += z * z;
-                acc[l].1 += 1;
-            }
-        }
-        acc.iter().enumerate().filter(|(_, a)| a.1 > 0).map(|(l, a)| (l, (a.0 / a.1 as f64).sqrt())).collect()
-    };
     Ok(Diagnosis {
         measured,
         code_density: None,
@@ -742,7 +755,7 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
         },
         findings,
         unexplained_rms: tcur.rms(),
-        residuals: vec![AdcResiduals { baseline: by_level(&base), extended: by_level(&current) }],
+        residuals: vec![AdcResiduals { baseline: by_level(&base, nl, |_| true), extended: by_level(&current, nl, |_| true) }],
     })
 }
 

@@ -81,6 +81,9 @@ pub struct Finding {
     pub gain: f64,
     /// The evidence in words.
     pub detail: String,
+    /// Held-out residuals just before and just after this extension (for its figure).
+    #[serde(skip)]
+    pub residuals: Option<AdcResiduals>,
 }
 
 /// What `diagnose` concluded.

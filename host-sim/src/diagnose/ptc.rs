@@ -137,6 +137,7 @@ pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Res
             // How large the effect is, in DN and relative, at the largest residual.
             let (i, dz) = z1.iter().zip(&zcur).map(|((i, a), (_, b))| (*i, (b - a).abs())).fold((0, 0.0), |acc, v| if v.1 > acc.1 { v } else { acc });
             findings.push(Finding {
+                residuals: Some(AdcResiduals { baseline: zcur.clone(), extended: z1.clone() }),
                 effect: effect.into(),
                 adc: None,
                 count: None,
@@ -167,6 +168,7 @@ pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Res
     let worst = worst_bias(sigma_dn).max_abs_bias_dn;
     if worst > accuracy_dn {
         findings.push(Finding {
+            residuals: None,
             effect: "insufficient-noise".into(),
             adc: None,
             count: None,
@@ -180,6 +182,7 @@ pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Res
     }
     if (mcur - ecur) / sdcur > SIGNIFICANCE {
         findings.push(Finding {
+            residuals: None,
             effect: "unexplained".into(),
             adc: None,
             count: None,
