@@ -163,6 +163,10 @@ fn fit_and_score(model: Response, start: &[f64], fit: &[Point], test: &[Point]) 
     let iterations = if matches!(model, Response::Poly(_)) { 2 } else { 8 };
     for _ in 0..iterations {
         let (j, r) = jacobian(&p, fit, &mut grad);
+        // nalgebra's SVD panics on a NaN; a diverging Gauss-Newton step must not get there.
+        if !(j.iter().all(|v| v.is_finite()) && r.iter().all(|v| v.is_finite())) {
+            return None;
+        }
         let step = j.svd(true, true).solve(&r, 1e-12).ok()?;
         p.iter_mut().zip(step.iter()).for_each(|(a, d)| *a += d);
         if step.iter().zip(&p).all(|(d, a)| d.abs() <= 1e-12 * a.abs().max(1.0)) {
@@ -289,7 +293,9 @@ fn halves(set: &LinearitySet, x: &[f64], kappa: f64, valid: usize, p: usize) -> 
     let np = set.width * set.height;
     let n = f64::from(set.n_frames.max(1));
     let floor = 1.0 / (12.0 * n);
-    let pts = (0..valid).map(|l| Point { level: l, x: x[l], y: set.mean[l * np + p], sigma: (kappa * set.std[l * np + p].powi(2) / n).max(floor).sqrt() });
+    let pts = (0..valid)
+        .map(|l| Point { level: l, x: x[l], y: set.mean[l * np + p], sigma: (kappa * set.std[l * np + p].powi(2) / n).max(floor).sqrt() })
+        .filter(|q| q.x.is_finite() && q.y.is_finite() && q.sigma.is_finite());
     pts.partition(|q| q.level % 2 == 0)
 }
 
@@ -809,6 +815,46 @@ mod tests {
                     let got = d.findings.iter().find_map(|f| f.count).unwrap();
                     assert!((got as f64 - *count as f64).abs() <= 0.2 * *count as f64, "seed {seed}: {got} bad pixels for {count}");
                 }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod bad_input_tests {
+    use super::*;
+    use crate::hidden::{linearity_set, Plant};
+
+    /// Valid files with pathological content: a clear error or a diagnosis, never a panic
+    /// or a non-finite number in a finding.
+    #[test]
+    fn pathological_sets_give_an_error_or_a_finite_diagnosis() {
+        let small = Plant { width: 6, height: 5, levels: 12, ..Plant::default() };
+        let base = linearity_set(&small, &[], 3);
+        let mut cases: Vec<(&str, LinearitySet)> = Vec::new();
+        cases.push(("as drawn", base.clone()));
+        cases.push(("all masked", LinearitySet { mask: Some(vec![1; 30]), ..base.clone() }));
+        cases.push(("one frame", LinearitySet { n_frames: 1, ..base.clone() }));
+        cases.push(("zero noise", LinearitySet { std: vec![0.0; base.std.len()], ..base.clone() }));
+        cases.push(("nan means", LinearitySet { mean: vec![f64::NAN; base.mean.len()], ..base.clone() }));
+        cases.push(("all at the top code", LinearitySet { mean: vec![4095.0; base.mean.len()], ..base.clone() }));
+        cases.push(("zero voltages", LinearitySet { voltage: vec![0.0; base.levels], ..base.clone() }));
+        cases.push(("nan voltages", LinearitySet { voltage: vec![f64::NAN; base.levels], ..base.clone() }));
+        cases.push(("one ADC", LinearitySet { n_adc: 1, ..base.clone() }));
+        cases.push(("two ADCs", LinearitySet { n_adc: 2, ..base.clone() }));
+        cases.push(("more ADCs than columns", LinearitySet { n_adc: 8, ..base.clone() }));
+        let few = Plant { width: 4, height: 4, levels: 8, ..Plant::default() };
+        cases.push(("eight levels", linearity_set(&few, &[], 1)));
+        let flat = LinearitySet { mean: base.mean.iter().enumerate().map(|(i, _)| 100.0 + (i % 30) as f64).collect(), ..base.clone() };
+        cases.push(("no response", flat));
+        for (what, set) in cases {
+            match diagnose_linearity(&set, 0.01) {
+                Ok(d) => {
+                    for f in &d.findings {
+                        assert!(f.significance.is_finite() && f.rms_before.is_finite() && f.rms_after.is_finite(), "{what}: {f:?}");
+                    }
+                }
+                Err(e) => assert!(!e.is_empty(), "{what}"),
             }
         }
     }
