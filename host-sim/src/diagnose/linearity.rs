@@ -831,18 +831,19 @@ mod bad_input_tests {
     fn pathological_sets_give_an_error_or_a_finite_diagnosis() {
         let small = Plant { width: 6, height: 5, levels: 12, ..Plant::default() };
         let base = linearity_set(&small, &[], 3);
-        let mut cases: Vec<(&str, LinearitySet)> = Vec::new();
-        cases.push(("as drawn", base.clone()));
-        cases.push(("all masked", LinearitySet { mask: Some(vec![1; 30]), ..base.clone() }));
-        cases.push(("one frame", LinearitySet { n_frames: 1, ..base.clone() }));
-        cases.push(("zero noise", LinearitySet { std: vec![0.0; base.std.len()], ..base.clone() }));
-        cases.push(("nan means", LinearitySet { mean: vec![f64::NAN; base.mean.len()], ..base.clone() }));
-        cases.push(("all at the top code", LinearitySet { mean: vec![4095.0; base.mean.len()], ..base.clone() }));
-        cases.push(("zero voltages", LinearitySet { voltage: vec![0.0; base.levels], ..base.clone() }));
-        cases.push(("nan voltages", LinearitySet { voltage: vec![f64::NAN; base.levels], ..base.clone() }));
-        cases.push(("one ADC", LinearitySet { n_adc: 1, ..base.clone() }));
-        cases.push(("two ADCs", LinearitySet { n_adc: 2, ..base.clone() }));
-        cases.push(("more ADCs than columns", LinearitySet { n_adc: 8, ..base.clone() }));
+        let mut cases: Vec<(&str, LinearitySet)> = vec![
+            ("as drawn", base.clone()),
+            ("all masked", LinearitySet { mask: Some(vec![1; 30]), ..base.clone() }),
+            ("one frame", LinearitySet { n_frames: 1, ..base.clone() }),
+            ("zero noise", LinearitySet { std: vec![0.0; base.std.len()], ..base.clone() }),
+            ("nan means", LinearitySet { mean: vec![f64::NAN; base.mean.len()], ..base.clone() }),
+            ("all at the top code", LinearitySet { mean: vec![4095.0; base.mean.len()], ..base.clone() }),
+            ("zero voltages", LinearitySet { voltage: vec![0.0; base.levels], ..base.clone() }),
+            ("nan voltages", LinearitySet { voltage: vec![f64::NAN; base.levels], ..base.clone() }),
+            ("one ADC", LinearitySet { n_adc: 1, ..base.clone() }),
+            ("two ADCs", LinearitySet { n_adc: 2, ..base.clone() }),
+            ("more ADCs than columns", LinearitySet { n_adc: 8, ..base.clone() }),
+        ];
         let few = Plant { width: 4, height: 4, levels: 8, ..Plant::default() };
         cases.push(("eight levels", linearity_set(&few, &[], 1)));
         let flat = LinearitySet { mean: base.mean.iter().enumerate().map(|(i, _)| 100.0 + (i % 30) as f64).collect(), ..base.clone() };
