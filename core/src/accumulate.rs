@@ -347,17 +347,34 @@ impl Add for Exact {
 impl Add for Saturating {
     #[inline(always)]
     fn add(sum: &mut u32, entry: LutEntry, saturated: &mut u32) {
-        let (s, overflow) = sum.overflowing_add(entry.to_bits());
-        *sum = if overflow { u32::MAX } else { s };
+        let (s, overflow) = saturating_sum(*sum, entry);
+        *sum = s;
         *saturated += overflow as u32;
     }
 }
 
+/// The datapath's addition: `sum + entry`, clipped at `2^32 - 1`, and whether it clipped.
+/// Below 513 frames per state it never clips (module documentation), so a datapath that
+/// always adds this way (the FPGA model) is bit-exact with the exact mode.
+#[inline(always)]
+pub fn saturating_sum(sum: u32, entry: LutEntry) -> (u32, bool) {
+    let (s, overflow) = sum.overflowing_add(entry.to_bits());
+    (if overflow { u32::MAX } else { s }, overflow)
+}
+
+/// The datapath's lookup: the entry of raw code `raw` in `table`, a code above the top
+/// read as the top code, and whether it was above.
+#[inline(always)]
+pub fn lookup<const CODES: usize>(table: &[LutEntry; CODES], raw: u16) -> (LutEntry, bool) {
+    let (code, clipped) = Code::<CODES>::clamped(raw);
+    (table[code.index()], clipped)
+}
+
 #[inline(always)]
 fn add_pixel<A: Add, const CODES: usize>(table: &[LutEntry; CODES], raw: u16, sum: &mut u32, r: &mut LineReport) {
-    let (code, clipped) = Code::<CODES>::clamped(raw);
+    let (entry, clipped) = lookup(table, raw);
     r.out_of_range_codes += clipped as u32;
-    A::add(sum, table[code.index()], &mut r.saturated_additions);
+    A::add(sum, entry, &mut r.saturated_additions);
 }
 
 /// Adds `lut[adc(first_column + i)][codes[i]]` to `sums[i]`. `codes` and `sums` have the

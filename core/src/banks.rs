@@ -124,9 +124,10 @@ impl<const N: usize, const CODES: usize> LutBanks<N, CODES> {
         Ok(())
     }
 
-    /// Flips the banks if an activation is pending; only the corrector calls this, and
-    /// only between frames. The old active set becomes the (empty) staging bank.
-    pub(crate) fn swap_if_pending(&mut self) -> bool {
+    /// Flips the banks if an activation is pending. A datapath calls this only between
+    /// frames (the core's corrector and the FPGA model do). The old active set becomes the
+    /// (empty) staging bank.
+    pub fn swap_if_pending(&mut self) -> bool {
         if !self.pending {
             return false;
         }

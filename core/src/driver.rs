@@ -128,4 +128,10 @@ impl<SPI: SpiDevice> Datapath<SPI> {
             lut_swaps: self.read_reg(Reg::LutSwaps)?,
         })
     }
+
+    /// Pixels the datapath dropped because its input FIFO was full (an FPGA datapath
+    /// behind a camera that cannot be stalled; never silent).
+    pub fn fifo_overflows(&mut self) -> Result<u32, CoreError> {
+        self.read_reg(Reg::FifoOverflow)
+    }
 }

@@ -29,6 +29,7 @@
 //! | 0x28 | `FRAMES`      | RO     | frames completed                                                  |
 //! | 0x2C | `LUT_SWAPS`   | RO     | LUT bank swaps                                                    |
 //! | 0x30 | `INCOMPLETE`  | RO     | frames ended before all their lines arrived                       |
+//! | 0x34 | `FIFO_OVERFLOW`| RO    | pixels dropped by a full input FIFO (the FPGA datapath; 0 on the MCU) |
 
 /// Write a register.
 pub const CMD_WRITE_REG: u8 = 0x01;
@@ -73,11 +74,13 @@ pub enum Reg {
     LutSwaps = 0x2C,
     /// Incomplete frames counter.
     Incomplete = 0x30,
+    /// Pixels dropped by a full input FIFO.
+    FifoOverflow = 0x34,
 }
 
 impl Reg {
     /// Every register, for devices that decode addresses.
-    pub const ALL: [Reg; 13] = [
+    pub const ALL: [Reg; 14] = [
         Reg::Id,
         Reg::Control,
         Reg::Status,
@@ -91,6 +94,7 @@ impl Reg {
         Reg::Frames,
         Reg::LutSwaps,
         Reg::Incomplete,
+        Reg::FifoOverflow,
     ];
 
     /// The register at `addr`, if any.

@@ -1,0 +1,137 @@
+//! The FPGA model against the core, configured through the core's SPI driver: for any
+//! LUTs, frame size, tap count, memory timing and modulation sequence (with LUT swaps
+//! between frames while pixels are still in the pipeline), the sums, frame counts and
+//! counters are identical, as long as the FIFO never overflows; an overflow is counted
+//! and reported through the register map.
+
+use dncal_core::driver::Datapath;
+use dncal_core::{encode_image, image_len, Corrector, Geometry, LutBanks, Mvd1024eLuts, Weight};
+use dncal_fpga_model::{Config, Fpga};
+use proptest::prelude::*;
+
+fn luts(weights: &[Vec<f64>]) -> Mvd1024eLuts {
+    let w: Vec<Vec<Weight>> = weights.iter().map(|t| t.iter().map(|&x| Weight::from_num(x)).collect()).collect();
+    let refs: [&[Weight]; 4] = [&w[0], &w[1], &w[2], &w[3]];
+    Mvd1024eLuts::from_weights(&refs).unwrap()
+}
+
+fn image(l: &Mvd1024eLuts) -> Vec<u8> {
+    let mut buf = vec![0u8; image_len::<4, 4096>()];
+    encode_image(l, &mut buf).unwrap();
+    buf
+}
+
+/// Random widths in [0.9, 1.1) per code, scaled to sum to 4095 DN (an entry must stay
+/// below 2^23), from a seed (a cheap LCG: the test needs variety, not quality).
+fn weights(seed: u64) -> Vec<Vec<f64>> {
+    let mut s = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+    (0..4)
+        .map(|_| {
+            (0..4096)
+                .map(|_| {
+                    s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                    0.9 + 0.2 * ((s >> 11) as f64 / (1u64 << 53) as f64)
+                })
+                .collect::<Vec<f64>>()
+        })
+        .map(|t| {
+            let sum: f64 = t.iter().sum();
+            t.iter().map(|w| w * 4095.0 / sum).collect()
+        })
+        .collect()
+}
+
+#[derive(Debug, Clone)]
+struct Case {
+    taps: usize,
+    mem_latency: u32,
+    h_blank: u32,
+    width: u16,
+    height: u16,
+    states: u8,
+    first_column: u16,
+    frames: Vec<(u8, Vec<Vec<u16>>, Option<u64>)>,
+}
+
+fn case() -> impl Strategy<Value = Case> {
+    (1usize..=8, 0u32..40, 0u32..20, 1u16..=37, 1u16..=5, 1u8..=4, 0u16..=9).prop_flat_map(|(taps, mem_latency, h_blank, width, height, states, first_column)| {
+        let frame = (0..states, prop::collection::vec(prop::collection::vec(prop_oneof![9 => 0u16..4096, 1 => 4096u16..=u16::MAX], width as usize), height as usize), prop::option::weighted(0.3, any::<u64>()));
+        prop::collection::vec(frame, 1..7).prop_map(move |frames| Case { taps, mem_latency, h_blank, width, height, states, first_column, frames })
+    })
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
+    #[test]
+    fn the_fpga_model_is_bit_exact_with_the_core(c in case()) {
+        let geometry = Geometry::new(c.width, c.height, c.states, c.first_column).unwrap();
+        // Enough memory bandwidth for every tap (2 words per pixel) and a FIFO that holds
+        // a whole frame: no pixel may be dropped in this test.
+        let config = Config { taps: c.taps, fifo_depth: 4096, mem_latency: c.mem_latency, mem_words_per_cycle: 2 * c.taps as u32, h_blank: c.h_blank, v_blank: 3 };
+        let mut dp = Datapath::new(Fpga::new(config, Geometry::new(1, 1, 1, 0).unwrap()).unwrap());
+        dp.identify().unwrap();
+        dp.configure(geometry).unwrap();
+        let first = luts(&weights(1));
+        dp.upload_lut_image(&image(&first)).unwrap();
+
+        let mut banks = LutBanks::new(Mvd1024eLuts::ideal());
+        let mut sums = vec![0u32; geometry.sum_len()];
+        let mut core = Corrector::new(&mut banks, geometry, &mut sums).unwrap();
+        core.banks_mut().stage(&first);
+        core.request_activation().unwrap();
+
+        for (state, lines, new_lut) in &c.frames {
+            if let Some(seed) = new_lut {
+                let l = luts(&weights(*seed));
+                dp.upload_lut_image(&image(&l)).unwrap();
+                core.banks_mut().stage(&l);
+                core.request_activation().unwrap();
+            }
+            let refs: Vec<&[u16]> = lines.iter().map(|l| l.as_slice()).collect();
+            let mut fpga = dp.release();
+            fpga.stream_frame(*state, &refs).unwrap();
+            dp = Datapath::new(fpga);
+            core.begin_frame(*state).unwrap();
+            for (row, line) in lines.iter().enumerate() {
+                core.accumulate_line(row as u16, line).unwrap();
+            }
+            core.end_frame().unwrap();
+        }
+        let counters = dp.counters().unwrap();
+        prop_assert_eq!(dp.fifo_overflows().unwrap(), 0);
+        let mut fpga = dp.release();
+        fpga.drain();
+        for s in 0..c.states {
+            prop_assert_eq!(fpga.sums(s).unwrap(), core.sums().state(s).unwrap(), "state {}", s);
+            prop_assert_eq!(fpga.frames(s), core.sums().frames(s).get());
+        }
+        let st = core.status();
+        prop_assert_eq!(fpga.stats().out_of_range, st.out_of_range_codes);
+        prop_assert_eq!(counters.frames, st.frames);
+        prop_assert_eq!(counters.lut_swaps, st.lut_swaps);
+        prop_assert_eq!(fpga.stats().saturated, st.saturated_additions);
+    }
+}
+
+#[test]
+fn a_starved_memory_overflows_the_fifo_and_says_so() {
+    // 8 taps, 2 words per cycle (one pixel per cycle), a 64-pixel FIFO, no blanking:
+    // a 1024-pixel line arrives 8 times faster than it drains.
+    let config = Config { taps: 8, fifo_depth: 64, mem_latency: 10, mem_words_per_cycle: 2, h_blank: 0, v_blank: 0 };
+    let geometry = Geometry::new(1024, 2, 1, 0).unwrap();
+    let mut dp = Datapath::new(Fpga::new(config, geometry).unwrap());
+    let line = vec![100u16; 1024];
+    let mut fpga = dp.release();
+    fpga.stream_frame(0, &[&line, &line]).unwrap();
+    fpga.drain();
+    dp = Datapath::new(fpga);
+    let dropped = dp.fifo_overflows().unwrap();
+    let fpga = dp.release();
+    // Per line: 128 beats of 8 pixels in; 1 pixel out per cycle: 128 pass, the FIFO
+    // fills to 64 and the rest is dropped; the blanking-free second line finds it full.
+    assert!(dropped > 1000, "{dropped}");
+    assert_eq!(u64::from(dropped) + fpga.stats().pixels, 2048, "every pixel is either summed or counted as dropped");
+    let summed = fpga.sums(0).unwrap().iter().filter(|&&s| s != 0).count() as u64;
+    assert_eq!(summed, fpga.stats().pixels, "exactly the accepted pixels have sums");
+    assert_eq!(fpga.stats().fifo_high_water, 64);
+}
