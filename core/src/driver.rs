@@ -62,6 +62,12 @@ impl<SPI: SpiDevice> Datapath<SPI> {
         self.spi
     }
 
+    /// The device behind the bus, for a host that also drives its data path (a simulated
+    /// datapath receives frames this way; on hardware they come from the camera).
+    pub fn device_mut(&mut self) -> &mut SPI {
+        &mut self.spi
+    }
+
     /// Reads the ID register and checks it is a dncal datapath.
     pub fn identify(&mut self) -> Result<(), CoreError> {
         match self.read_reg(Reg::Id)? {

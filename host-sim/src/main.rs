@@ -26,6 +26,42 @@ struct Cli {
     command: Cmd,
 }
 
+/// Which datapath `stream` drives.
+#[derive(Args, Debug, Clone)]
+struct EngineArgs {
+    /// `core` (the correction core, as the MCU runs it) or `fpga` (the cycle-level
+    /// frame-grabber model, configured over SPI by the core's driver and compared with
+    /// the core sum by sum).
+    #[arg(long, default_value = "core")]
+    engine: String,
+    /// FPGA: pixels per clock (1 to 8).
+    #[arg(long, default_value_t = 4)]
+    taps: usize,
+    /// FPGA: input FIFO depth, pixels.
+    #[arg(long, default_value_t = 1024)]
+    fifo_depth: usize,
+    /// FPGA: sum-memory latency, cycles.
+    #[arg(long, default_value_t = 32)]
+    mem_latency: u32,
+    /// FPGA: sum-memory bandwidth, 32-bit words per clock (a pixel needs 2).
+    #[arg(long, default_value_t = 8)]
+    mem_words_per_cycle: u32,
+}
+
+impl EngineArgs {
+    fn engine(&self) -> Result<dncal_host::streaming::Engine, HostError> {
+        match self.engine.as_str() {
+            "core" => Ok(dncal_host::streaming::Engine::Core),
+            "fpga" => {
+                let config = dncal_fpga_model::Config { taps: self.taps, fifo_depth: self.fifo_depth, mem_latency: self.mem_latency, mem_words_per_cycle: self.mem_words_per_cycle, ..Default::default() };
+                config.validate().map_err(|e| HostError::Format { path: "--engine fpga".into(), message: e.to_string() })?;
+                Ok(dncal_host::streaming::Engine::Fpga(config))
+            }
+            other => Err(HostError::Format { path: "--engine".into(), message: format!("{other:?} is not an engine (core or fpga)") }),
+        }
+    }
+}
+
 #[derive(Args, Clone)]
 struct CameraArgs {
     /// Camera parameters (TOML; any field of the default MV-D1024E may be set), or the
@@ -140,6 +176,8 @@ enum Cmd {
         /// Seed of the frames.
         #[arg(long, default_value_t = 735)]
         seed: u64,
+        #[command(flatten)]
+        engine: EngineArgs,
         /// Print a JSON summary on stdout.
         #[arg(long)]
         json: bool,
@@ -474,23 +512,31 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
                 t
             })?;
         }
-        Cmd::Stream { camera, hist, flatten, frames, states, roi, seed, json } => {
+        Cmd::Stream { camera, hist, flatten, frames, states, roi, seed, engine, json } => {
             let cam = camera.camera()?;
             let mut p = StreamParams::full_frame(&cam, frames);
             p.states = states;
             p.seed = seed;
+            p.engine = engine.engine()?;
             if let Some(r) = roi {
                 let (w, h, x, y) = parse_roi(&r)?;
                 let fit = |v: usize| u16::try_from(v).map_err(|_| HostError::Format { path: "--roi".into(), message: format!("{v} does not fit 16 bits") });
                 (p.width, p.height, p.first_column, p.first_row) = (fit(w)?, fit(h)?, fit(x)?, fit(y)?);
             }
             let r = stream::stream(&cam, hist.as_deref(), &flatten.params(), &p)?;
-            let ok = r.mismatches == 0 && r.out_of_bound == 0;
+            let ok = r.mismatches == 0 && r.out_of_bound == 0 && r.fpga.as_ref().is_none_or(|f| f.mismatches_vs_core == 0 && f.mismatches_vs_reference == 0 && f.fifo_overflows == 0);
             print(json, &r, |r| {
-                format!(
+                let mut t = format!(
                     "{} frames, {} pixels through the core: {} mismatches against the float reference, max |error| {:.3e} DN (bound {:.3e} DN), core {:.3e} pixels/s, {:.1} s\n",
                     r.frames, r.pixels, r.mismatches, r.max_abs_err_dn, r.bound_dn, r.pixels_per_s, r.wall_s
-                )
+                );
+                if let Some(f) = &r.fpga {
+                    t += &format!(
+                        "fpga model ({} taps): {} mismatches against the core, {} against the float reference; {} cycles, {:.3} pixels per clock, FIFO high water {} pixels, {} dropped, latency up to {} cycles\n",
+                        f.taps, f.mismatches_vs_core, f.mismatches_vs_reference, f.cycles, f.pixels_per_clock, f.fifo_high_water, f.fifo_overflows, f.max_latency_cycles
+                    );
+                }
+                t
             })?;
             return Ok(if ok { ExitCode::SUCCESS } else { ExitCode::FAILURE });
         }

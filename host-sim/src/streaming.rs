@@ -10,13 +10,25 @@
 
 use std::time::Instant;
 
-use dncal_core::{Corrector, Geometry, LutBanks, LutSet, Status, Weight};
+use dncal_core::driver::Datapath;
+use dncal_core::{encode_image, image_len, Corrector, Geometry, LutBanks, LutSet, Status, Weight};
 use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::camera::Camera;
 use crate::reference::ReferenceLut;
 use crate::HostError;
+
+/// Which datapath sums the frames.
+#[derive(Debug, Clone, Default)]
+pub enum Engine {
+    /// The core's corrector (what the MCU firmware runs).
+    #[default]
+    Core,
+    /// The cycle-level FPGA model, configured over SPI by the core's driver; the core
+    /// runs alongside and the two are compared sum by sum.
+    Fpga(dncal_fpga_model::Config),
+}
 
 /// What to stream.
 #[derive(Debug, Clone, Serialize)]
@@ -39,6 +51,9 @@ pub struct StreamParams {
     pub modulation_depth: f64,
     /// Seed of the frames.
     pub seed: u64,
+    /// The datapath.
+    #[serde(skip)]
+    pub engine: Engine,
 }
 
 impl StreamParams {
@@ -54,6 +69,7 @@ impl StreamParams {
             peak_fraction: 0.9,
             modulation_depth: 0.2,
             seed: 735,
+            engine: Engine::Core,
         }
     }
 }
@@ -81,6 +97,34 @@ pub struct StreamReport {
     pub wall_s: f64,
     /// The datapath's counters.
     pub status: StatusReport,
+    /// `core` or `fpga`.
+    pub engine: String,
+    /// With the FPGA engine: its comparison with the core and its timing.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fpga: Option<FpgaReport>,
+}
+
+/// The FPGA engine's run.
+#[derive(Debug, Clone, Serialize)]
+pub struct FpgaReport {
+    /// Pixels per clock delivered by the camera link.
+    pub taps: usize,
+    /// Sums that differ from the core's (expected 0).
+    pub mismatches_vs_core: u64,
+    /// Sums that differ from the quantized float reference (expected 0).
+    pub mismatches_vs_reference: u64,
+    /// Pixel clocks for the whole stream, blanking included.
+    pub cycles: u64,
+    /// Pixels summed per clock over the stream.
+    pub pixels_per_clock: f64,
+    /// Largest input FIFO occupancy, pixels.
+    pub fifo_high_water: usize,
+    /// Pixels dropped by a full FIFO (expected 0; the sums then differ).
+    pub fifo_overflows: u32,
+    /// Largest cycles from a pixel's arrival to its write-back.
+    pub max_latency_cycles: u64,
+    /// Largest read-modify-writes in flight.
+    pub inflight_high_water: usize,
 }
 
 /// [`Status`] for JSON.
@@ -157,6 +201,19 @@ fn run_typed<const N: usize, const CODES: usize>(
     let mut ref_q = vec![0u64; geometry.sum_len()];
     let mut ref_f = vec![0f64; geometry.sum_len()];
     let mut corrector = Corrector::new(&mut banks, geometry, &mut sums).map_err(|e| HostError::core(ctx("corrector"), e))?;
+    let mut fpga = match &p.engine {
+        Engine::Core => None,
+        Engine::Fpga(config) => {
+            let model = dncal_fpga_model::Fpga::new(config.clone(), geometry).map_err(|e| HostError::Format { path: "--engine fpga".into(), message: e.to_string() })?;
+            let mut dp = Datapath::new(model);
+            dp.identify().map_err(|e| HostError::core(ctx("fpga identify"), e))?;
+            dp.configure(geometry).map_err(|e| HostError::core(ctx("fpga configure"), e))?;
+            let mut image = vec![0u8; image_len::<N, CODES>()];
+            encode_image(&*luts, &mut image).map_err(|e| HostError::core(ctx("LUT image"), e))?;
+            dp.upload_lut_image(&image).map_err(|e| HostError::core(ctx("fpga LUT upload (the model is built for 4 ADCs of 12 bits)"), e))?;
+            Some(dp)
+        }
+    };
     let cfg = &camera.config;
     let full_scale_photons = ((cfg.codes() - 1) as f64 - cfg.offset_dn) * cfg.gain_e_per_dn / cfg.qe;
     let peak = p.peak_fraction * full_scale_photons;
@@ -180,6 +237,10 @@ fn run_typed<const N: usize, const CODES: usize>(
         }
         corrector.end_frame().map_err(|e| HostError::core(ctx("end frame"), e))?;
         core_s += t.elapsed().as_secs_f64();
+        if let Some(dp) = fpga.as_mut() {
+            let refs: Vec<&[u16]> = lines.iter().map(|l| l.as_slice()).collect();
+            dp.device_mut().stream_frame(state, &refs).map_err(|e| HostError::Format { path: "--engine fpga".into(), message: e.to_string() })?;
+        }
         let base = state as usize * w * h;
         ref_q[base..base + w * h].par_chunks_mut(w).zip(ref_f[base..base + w * h].par_chunks_mut(w)).zip(&lines).for_each(|((q, f), line)| {
             for (x, &code) in line.iter().enumerate() {
@@ -199,7 +260,26 @@ fn run_typed<const N: usize, const CODES: usize>(
     let max_abs_err_dn = errors.iter().cloned().fold(0.0, f64::max);
     let out_of_bound = errors.iter().filter(|&&e| e > bound_dn).count() as u64;
     let pixels = p.frames as u64 * (w * h) as u64;
+    let fpga = fpga.map(|mut dp| {
+        let model = dp.device_mut();
+        model.drain();
+        let stats = model.stats();
+        let fpga_sums: Vec<u32> = (0..p.states).flat_map(|s| model.sums(s).unwrap_or(&[]).to_vec()).collect();
+        FpgaReport {
+            taps: model.config().taps,
+            mismatches_vs_core: fpga_sums.iter().zip(&sums).filter(|(a, b)| a != b).count() as u64 + sums.len().abs_diff(fpga_sums.len()) as u64,
+            mismatches_vs_reference: fpga_sums.iter().zip(&ref_q).filter(|(&s, &q)| s as u64 != q).count() as u64,
+            cycles: stats.cycles,
+            pixels_per_clock: stats.pixels as f64 / stats.cycles.max(1) as f64,
+            fifo_high_water: stats.fifo_high_water,
+            fifo_overflows: stats.fifo_overflows,
+            max_latency_cycles: stats.max_latency,
+            inflight_high_water: stats.inflight_high_water,
+        }
+    });
     Ok(StreamReport {
+        engine: if fpga.is_some() { "fpga" } else { "core" }.into(),
+        fpga,
         frames: p.frames,
         pixels,
         sum_pixels: sums.len() as u64,

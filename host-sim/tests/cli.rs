@@ -151,6 +151,31 @@ fn stream_reports_zero_mismatches_in_json() {
     assert!(s["pixels_per_s"].as_f64().unwrap() > 0.0);
 }
 
+/// `--engine fpga`: the simulated camera through the cycle-level FPGA model (configured
+/// over SPI by the core's driver), compared with the core and the float reference: zero
+/// mismatches at every tap count; with a starved memory the FIFO overflows, the command
+/// says so and fails.
+#[test]
+fn stream_through_the_fpga_model_matches_the_core() {
+    let dir = tempfile::tempdir().unwrap();
+    for taps in ["1", "3", "4", "8"] {
+        let s = stdout_json(&dncal(&["stream", "--engine", "fpga", "--taps", taps, "--mem-words-per-cycle", "16", "--frames", "5", "--roi", "70x12+3+40", "--json"], dir.path()));
+        assert_eq!(s["engine"], "fpga");
+        assert_eq!(s["mismatches"], 0);
+        let f = &s["fpga"];
+        assert_eq!(f["mismatches_vs_core"], 0, "{s}");
+        assert_eq!(f["mismatches_vs_reference"], 0, "{s}");
+        assert_eq!(f["fifo_overflows"], 0, "{s}");
+        assert!(f["cycles"].as_u64().unwrap() > 5 * 12 * 70 / taps.parse::<u64>().unwrap(), "{s}");
+    }
+    let out = dncal(&["stream", "--engine", "fpga", "--taps", "8", "--mem-words-per-cycle", "2", "--fifo-depth", "64", "--frames", "2", "--roi", "1024x4+0+0", "--json"], dir.path());
+    assert_eq!(out.status.code(), Some(1));
+    let s: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(s["fpga"]["fifo_overflows"].as_u64().unwrap() > 0 && s["fpga"]["mismatches_vs_core"].as_u64().unwrap() > 0, "{s}");
+    assert_clean_failure(&dncal(&["stream", "--engine", "fpga", "--taps", "9"], dir.path()), "--engine fpga", "taps");
+    assert_clean_failure(&dncal(&["stream", "--engine", "gpu"], dir.path()), "--engine", "not an engine");
+}
+
 #[test]
 fn emva_reads_the_real_measurement() {
     let descriptor = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/emva1288-ccd-12bit/EMVA1288_Data.txt");
