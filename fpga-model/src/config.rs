@@ -3,7 +3,7 @@
 use crate::FpgaError;
 
 /// Build-time parameters of the datapath.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct Config {
     /// Pixels delivered per pixel clock, 1 to 8 (Camera Link base to deca: 1 to 10 taps;
     /// we model up to 8).

@@ -25,6 +25,7 @@
 pub mod config;
 pub mod datapath;
 pub mod error;
+pub mod sizing;
 pub mod spi;
 
 pub use config::Config;

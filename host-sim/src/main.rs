@@ -314,6 +314,34 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
+    /// Size the frame-grabber datapath for a camera system (default: the K-Cor's two
+    /// 1024 x 1024 cameras at 150 frames/s), measured in the cycle-level FPGA model at 1,
+    /// 2, 4 and 8 taps; optionally write a LUT FITS file as `$readmemh` files.
+    FpgaSize {
+        /// Cameras (one datapath each).
+        #[arg(long, default_value_t = 2)]
+        cameras: u32,
+        /// Frame width and height, pixels.
+        #[arg(long, default_value_t = 1024)]
+        size: u16,
+        /// Frames per second per camera.
+        #[arg(long, default_value_t = 150.0)]
+        frame_rate: f64,
+        /// Modulation states (sum banks).
+        #[arg(long, default_value_t = 4)]
+        states: u8,
+        #[command(flatten)]
+        engine: EngineArgs,
+        /// LUT FITS file to write as `$readmemh` files (with --out).
+        #[arg(long, value_name = "FITS", requires = "out")]
+        lut: Option<PathBuf>,
+        /// Folder for the `$readmemh` files.
+        #[arg(short, long, requires = "lut")]
+        out: Option<PathBuf>,
+        /// Print a JSON summary on stdout.
+        #[arg(long)]
+        json: bool,
+    },
     /// Run the core on the Cortex-M4 firmware in QEMU and on the host; compare the sums.
     FirmwareCheck {
         /// Frames per modulation state.
@@ -673,13 +701,16 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
         Cmd::Demo { camera, out, frames, ramp, flatten, json } => {
             let cam = camera.camera()?;
             let s = demo::demo(&cam, &out, &ramp.params()?, &flatten.params(), frames)?;
-            let ok = s.stream.mismatches == 0 && s.stream.out_of_bound == 0;
+            let ok = s.stream.mismatches == 0 && s.stream.out_of_bound == 0 && s.stream_fpga.mismatches == 0 && s.stream_fpga.fpga.as_ref().is_some_and(|f| f.mismatches_vs_core == 0 && f.mismatches_vs_reference == 0 && f.fifo_overflows == 0);
             print(json, &s, |s| {
                 let mut t = format!("dncal demo on {}: {} ramp levels, {:.1} s\n", s.camera, s.ramp_levels, s.seconds);
                 t += &format!(
                     "stream: {} frames, {} pixels, {} mismatches, max |error| {:.3e} DN (bound {:.3e}), core {:.3e} pixels/s\n",
                     s.stream.frames, s.stream.pixels, s.stream.mismatches, s.stream.max_abs_err_dn, s.stream.bound_dn, s.stream.pixels_per_s
                 );
+                if let Some(f) = &s.stream_fpga.fpga {
+                    t += &format!("fpga model: {} frames, {} pixels, {} mismatches against the core, {} against the reference, {:.3} pixels per clock, {} dropped\n", s.stream_fpga.frames, s.stream_fpga.pixels, f.mismatches_vs_core, f.mismatches_vs_reference, f.pixels_per_clock, f.fifo_overflows);
+                }
                 t += &adc_text(&s.adc);
                 for (what, d) in [("histograms", &s.diagnose), ("linearity set", &s.diagnose_linearity)] {
                     let names: Vec<String> = d.diagnosis.findings.iter().map(|f| format!("{}{} (gain {:.2})", f.effect, f.adc.map_or(String::new(), |a| format!(" ADC {a}")), f.gain)).collect();
@@ -689,6 +720,31 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
                 t
             })?;
             return Ok(if ok { ExitCode::SUCCESS } else { ExitCode::FAILURE });
+        }
+        Cmd::FpgaSize { cameras, size, frame_rate, states, engine, lut, out, json } => {
+            let dncal_host::streaming::Engine::Fpga(config) = (EngineArgs { engine: "fpga".into(), ..engine }).engine()? else { unreachable!("asked for the fpga engine") };
+            if !(frame_rate.is_finite() && frame_rate > 0.0) || cameras == 0 || size == 0 {
+                return Err(HostError::Format { path: "fpga-size".into(), message: "cameras, size and frame rate must be positive".into() });
+            }
+            let system = dncal_fpga_model::sizing::System { cameras, width: size, height: size, frame_rate_hz: frame_rate, ..Default::default() };
+            let r = dncal_host::commands::fpga::fpga_size(&system, states, &config, lut.as_deref(), out.as_deref())?;
+            print(json, &r, |r| {
+                let s = &r.sizing;
+                let mut t = format!(
+                    "{} camera(s) of {}x{} at {} frames/s: {:.1} Mpixel/s; sum memory {:.2} GB/s (a 32-bit read and write per pixel), {:.1} MiB per camera for {} states\n",
+                    s.system.cameras, s.system.width, s.system.height, s.system.frame_rate_hz, s.pixels_per_s / 1e6, s.sum_bandwidth_bytes_per_s / 1e9, s.sum_memory_bytes as f64 / 1048576.0, states
+                );
+                for row in &s.taps {
+                    t += &format!(
+                        "{} taps: clock {:.1} MHz per camera, {} cycles per frame, {:.3} pixels/clock, latency {} cycles, FIFO high water {} ({} dropped), LUT BRAM {} bits; {}\n",
+                        row.taps, row.clock_mhz, row.cycles_per_frame, row.pixels_per_clock, row.latency_cycles, row.fifo_high_water, row.fifo_overflows, row.bram_bits, row.lut_access
+                    );
+                }
+                for f in &r.readmemh {
+                    t += &format!("wrote {}\n", f.display());
+                }
+                t
+            })?;
         }
         Cmd::FirmwareCheck { frames_per_state, states, size, seed, json } => return firmware_check(frames_per_state, states, size, seed, json),
     }

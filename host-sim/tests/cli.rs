@@ -53,6 +53,12 @@ fn demo_calibrates_streams_and_reports() {
     assert_eq!(s["stream"]["out_of_bound"], 0);
     assert_eq!(s["stream"]["frames"], 2);
     assert_eq!(s["stream"]["pixels"], 2 * 1024 * 1024);
+    // The FPGA engine on a 256 x 256 region: bit-exact with the core and the reference.
+    let f = &s["stream_fpga"]["fpga"];
+    assert_eq!((f["mismatches_vs_core"].as_u64(), f["mismatches_vs_reference"].as_u64(), f["fifo_overflows"].as_u64()), (Some(0), Some(0), Some(0)), "{f}");
+    assert_eq!(s["stream_fpga"]["pixels"], 2 * 256 * 256);
+    // Both diagnoses ran: the linearity set shows the camera's global curve.
+    assert!(s["diagnose_linearity"]["findings"].as_array().unwrap().iter().any(|f| f["effect"] == "global-nonlinearity"), "{}", s["diagnose_linearity"]);
     // Against the simulated ADCs' true code centers (the planted truth), the LUT must
     // beat the raw code on every ADC.
     let adcs = s["adc"]["adcs"].as_array().unwrap();
@@ -133,6 +139,40 @@ fn simulate_then_build_then_inspect() {
     assert!(text.status.success());
     let t = String::from_utf8_lossy(&text.stdout);
     assert!(t.contains("ADC 3:") && t.lines().count() > 4 * 4096, "{}", &t[..200.min(t.len())]);
+}
+
+/// `fpga-size`: the K-Cor system sized in the FPGA model (clock = measured cycles per frame
+/// x frame rate; no pixel dropped when the memory has 2 words per tap), and the LUTs as
+/// `$readmemh` files whose entries equal the LUT FITS file's.
+#[test]
+fn fpga_size_reports_the_clock_and_writes_readmemh() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let s = stdout_json(&dncal(&["fpga-size", "--size", "256", "--json"], d));
+    assert!((s["pixels_per_s"].as_f64().unwrap() - 2.0 * 256.0 * 256.0 * 150.0).abs() < 1e-6, "{s}");
+    assert!((s["sum_bandwidth_bytes_per_s"].as_f64().unwrap() - 8.0 * 2.0 * 256.0 * 256.0 * 150.0).abs() < 1e-3);
+    let rows = s["taps"].as_array().unwrap();
+    assert_eq!(rows.iter().map(|r| r["taps"].as_u64().unwrap()).collect::<Vec<_>>(), vec![1, 2, 4, 8]);
+    for r in rows {
+        let cycles = r["cycles_per_frame"].as_f64().unwrap();
+        let taps = r["taps"].as_f64().unwrap();
+        assert!(cycles >= 256.0 * 256.0 / taps, "{r}");
+        assert!((r["clock_mhz"].as_f64().unwrap() - cycles * 150.0 / 1e6).abs() < 1e-9, "{r}");
+        assert_eq!(r["fifo_overflows"], 0, "{r}");
+        assert_eq!(r["bram_bits"], 2 * 4 * 4096 * 23);
+    }
+    let out = dncal(&["simulate", "histograms", "-o", "h.fits", "--first-ramp", "40", "--last-ramp", "41"], d);
+    assert!(out.status.success());
+    assert!(dncal(&["lut", "build", "h.fits", "-o", "cal"], d).status.success());
+    let r = stdout_json(&dncal(&["fpga-size", "--size", "64", "--lut", "cal.fits", "-o", "hdl", "--json"], d));
+    assert_eq!(r["readmemh"].as_array().unwrap().len(), 4);
+    let lut = read_lut(&d.join("cal.fits")).unwrap();
+    for (a, table) in lut.tables.iter().enumerate() {
+        let text = std::fs::read_to_string(d.join(format!("hdl/lut_adc{a}.hex"))).unwrap();
+        let values: Vec<u32> = text.lines().filter(|l| !l.starts_with("//")).map(|l| u32::from_str_radix(l, 16).unwrap()).collect();
+        assert_eq!(&values, table, "ADC {a}");
+    }
+    assert_clean_failure(&dncal(&["fpga-size", "--lut", "missing.fits", "-o", "x"], d), "missing.fits", "No such file");
 }
 
 #[test]

@@ -3,7 +3,7 @@
 //! 1. simulate the paper's calibration: per-ADC histograms of ramps of 130..139 levels;
 //! 2. flatten them and build the LUTs in the core (LUT FITS and device image);
 //! 3. stream frames through the core and check them bit for bit against the float
-//!    reference;
+//!    reference; the same through the FPGA model on a 256 x 256 region;
 //! 4. measure how well the LUTs recover the ADCs' true code centers ([`super::adc`]);
 //! 5. the paper's other analyses: quantization map, K-Cor model, pixel-wise nonlinearity;
 //!    then `diagnose` on the calibration histograms and on the linearity set;
@@ -44,6 +44,8 @@ pub struct DemoSummary {
     pub adc: AdcReport,
     /// The streaming check.
     pub stream: StreamReport,
+    /// The streaming check through the FPGA model.
+    pub stream_fpga: StreamReport,
     /// Quantization bias at the camera's own read noise (paper section 2).
     pub quantization: SigmaReport,
     /// The K-Coronagraph model (section 4).
@@ -73,6 +75,10 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
     let params = StreamParams::full_frame(camera, frames);
     let stream = run_stream(camera, &luts.weights, &params, |n| pb.set_position(n))?;
     pb.finish_and_clear();
+    // The same LUTs through the FPGA model (4 taps) on a 256 x 256 region: compared with
+    // the core and the reference sum by sum.
+    let fpga_params = StreamParams { width: 256.min(params.width), height: 256.min(params.height), engine: crate::streaming::Engine::Fpga(dncal_fpga_model::Config::default()), ..params.clone() };
+    let stream_fpga = run_stream(camera, &luts.weights, &fpga_params, |_| {})?;
 
     // 4. The paper's other analyses (docs/paper.md): quantization, K-Cor, linearity.
     let pb = bar(3, "paper analyses");
@@ -97,6 +103,7 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
         ramp_levels: levels,
         adc,
         stream,
+        stream_fpga,
         quantization,
         kcor,
         linearity,
@@ -150,6 +157,15 @@ fn report_html(s: &DemoSummary, camera: &Camera, ramp: &RampParams, flat: &Flatt
          reference quantized by the core's rule; largest deviation from the f64 sums {:.3e} DN (bound {:.3e} DN); core throughput {:.3e} pixels/s.</p>",
         st.frames, st.pixels, 4, st.mismatches, st.max_abs_err_dn, st.bound_dn, st.pixels_per_s
     );
+    if let Some(f) = &s.stream_fpga.fpga {
+        let _ = write!(
+            h,
+            "<h2>Streaming through the FPGA model</h2><p>{} frames, {} pixels through the cycle-level frame-grabber model ({} taps, configured over SPI by the core's driver): \
+             <b>{} mismatches</b> against the core and {} against the float reference; {} pixel clocks, {:.3} pixels per clock, input FIFO high water {} pixels, {} dropped, \
+             latency up to {} cycles. Sizing for the K-Cor: <code>dncal fpga-size</code>.</p>",
+            s.stream_fpga.frames, s.stream_fpga.pixels, f.taps, f.mismatches_vs_core, f.mismatches_vs_reference, f.cycles, f.pixels_per_clock, f.fifo_high_water, f.fifo_overflows, f.max_latency_cycles
+        );
+    }
     h.push_str("<h2>LUTs and correction error</h2><table><tr><th>ADC</th><th>top offset before normalization (DN)</th><th>after (DN)</th><th>max |cumulative offset| (DN)</th><th>rms error raw (DN)</th><th>rms error with LUT (DN)</th><th>max raw (DN)</th><th>max with LUT (DN)</th></tr>");
     for a in &s.adc.adcs {
         let (l, e) = (&a.lut, a.truth.as_ref());

@@ -4,6 +4,7 @@
 pub mod adc;
 pub mod demo;
 pub mod diagnose;
+pub mod fpga;
 pub mod kcor;
 pub mod linearity;
 pub mod lut;

@@ -1,0 +1,49 @@
+//! `dncal fpga-size`: the frame-grabber datapath sized for a camera system, measured in
+//! the cycle-level model ([`dncal_fpga_model::sizing`]); and the LUTs as `$readmemh`
+//! files for an HDL implementation.
+
+use std::path::{Path, PathBuf};
+
+use dncal_core::Mvd1024eLuts;
+use dncal_fpga_model::sizing::{readmemh, size, Sizing, System};
+use dncal_fpga_model::Config;
+use serde::Serialize;
+
+use crate::fits::{read_lut, write_file_atomically};
+use crate::HostError;
+
+/// The report: the sizing and the files written.
+#[derive(Debug, Serialize)]
+pub struct FpgaSizeReport {
+    /// The model's build parameters (taps and blanking are set per row).
+    pub config: Config,
+    /// The sizing.
+    #[serde(flatten)]
+    pub sizing: Sizing,
+    /// `$readmemh` files written.
+    pub readmemh: Vec<PathBuf>,
+}
+
+/// Sizes for `system` at 1, 2, 4 and 8 taps; with `lut` and `out`, writes one
+/// `lut_adc{a}.hex` per ADC of the LUT FITS file into `out` (validated by the core first).
+pub fn fpga_size(system: &System, states: u8, config: &Config, lut: Option<&Path>, out: Option<&Path>) -> Result<FpgaSizeReport, HostError> {
+    let sizing = size(system, states, config, &[1, 2, 4, 8]).map_err(|e| HostError::Format { path: "fpga-size".into(), message: e.to_string() })?;
+    let mut files = Vec::new();
+    if let (Some(lut), Some(out)) = (lut, out) {
+        let t = read_lut(lut)?;
+        let bits: Vec<[u32; 4096]> = t
+            .tables
+            .iter()
+            .map(|v| <[u32; 4096]>::try_from(v.as_slice()).map_err(|_| HostError::Format { path: lut.into(), message: format!("a table of {} entries; the FPGA model is built for 4096", v.len()) }))
+            .collect::<Result<_, _>>()?;
+        let bits: [[u32; 4096]; 4] = bits.try_into().map_err(|v: Vec<_>| HostError::Format { path: lut.into(), message: format!("{} tables; the FPGA model is built for 4 ADCs", v.len()) })?;
+        let luts = Mvd1024eLuts::from_bits(&bits).map_err(|e| HostError::core(format!("{}", lut.display()), e))?;
+        std::fs::create_dir_all(out).map_err(|e| HostError::io(out, e))?;
+        for (a, table) in luts.tables().iter().enumerate() {
+            let path = out.join(format!("lut_adc{a}.hex"));
+            write_file_atomically(&path, readmemh(a, &table[..]))?;
+            files.push(path);
+        }
+    }
+    Ok(FpgaSizeReport { config: config.clone(), sizing, readmemh: files })
+}
