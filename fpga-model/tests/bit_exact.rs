@@ -135,3 +135,40 @@ fn a_starved_memory_overflows_the_fifo_and_says_so() {
     assert_eq!(summed, fpga.stats().pixels, "exactly the accepted pixels have sums");
     assert_eq!(fpga.stats().fifo_high_water, 64);
 }
+
+#[test]
+fn a_bad_or_partial_upload_never_reaches_the_active_tables() {
+    use dncal_core::regs::{control, Reg, CMD_LUT_DATA, CMD_WRITE_REG};
+    use dncal_core::CoreError;
+    use embedded_hal::spi::{Operation, SpiDevice};
+    let geometry = Geometry::new(16, 2, 1, 0).unwrap();
+    let mut dp = Datapath::new(Fpga::new(Config::default(), geometry).unwrap());
+    let good = luts(&weights(7));
+    dp.upload_lut_image(&image(&good)).unwrap();
+    // A corrupt image (one flipped bit) and a partial one (half the bytes, then commit).
+    let mut bad = image(&luts(&weights(8)));
+    bad[1000] ^= 0x04;
+    assert_eq!(dp.upload_lut_image(&bad).unwrap_err(), CoreError::StagingNotValid);
+    let partial = image(&luts(&weights(9)));
+    dp.write_reg(Reg::Control, control::LUT_BEGIN).unwrap();
+    for chunk in partial[..partial.len() / 2].chunks(256) {
+        let len = (chunk.len() as u16).to_le_bytes();
+        dp.device_mut().transaction(&mut [Operation::Write(&[CMD_LUT_DATA, len[0], len[1]]), Operation::Write(chunk)]).unwrap();
+    }
+    dp.write_reg(Reg::Control, control::LUT_COMMIT).unwrap();
+    assert!(!dp.status().unwrap().activation_pending, "a partial image is not activated");
+    // Malformed transactions are refused, not panics.
+    let fpga = dp.device_mut();
+    assert!(fpga.transaction(&mut []).is_err());
+    assert!(fpga.transaction(&mut [Operation::Write(&[0x7F])]).is_err());
+    assert!(fpga.transaction(&mut [Operation::Write(&[CMD_WRITE_REG, 0x99, 0, 0, 0, 0])]).is_err());
+    assert!(fpga.transaction(&mut [Operation::Write(&[CMD_LUT_DATA, 0xFF, 0xFF]), Operation::Write(&[0; 4])]).is_err());
+    assert!(fpga.transaction(&mut [Operation::Write(&[CMD_WRITE_REG, Reg::Width as u8, 0, 0, 0, 0])]).is_err(), "a zero width is refused");
+    // Frames are corrected with the good tables only.
+    let line: Vec<u16> = (0..16).map(|c| 100 * c as u16).collect();
+    fpga.stream_frame(0, &[&line, &line]).unwrap();
+    fpga.drain();
+    let want: Vec<u32> = line.iter().enumerate().map(|(c, &k)| good.tables()[c % 4][k as usize].to_bits()).collect();
+    assert_eq!(&fpga.sums(0).unwrap()[..16], &want[..]);
+    assert_eq!(&fpga.sums(0).unwrap()[16..], &want[..]);
+}
