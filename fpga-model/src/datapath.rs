@@ -48,6 +48,11 @@ pub struct Stats {
     pub lut_swaps: u32,
     /// Largest cycles from a pixel entering the FIFO to its write-back.
     pub max_latency: u64,
+    /// Read-modify-writes issued to a sum whose previous one was still in flight: a
+    /// design without forwarding would read a stale sum there (the model's update is
+    /// atomic, so its sums stay right; this counts where hardware would need forwarding).
+    /// Zero unless frames are shorter than the memory latency.
+    pub rmw_hazards: u32,
 }
 
 /// The timing of one frame through the model.
@@ -74,6 +79,8 @@ pub struct Fpga {
     fifo: VecDeque<(Pixel, u64)>,
     looked_up: Vec<(Pixel, dncal_core::LutEntry, u64)>,
     inflight: VecDeque<(u64, usize, dncal_core::LutEntry, u64)>,
+    /// Sum indices with a read-modify-write in flight, and how many.
+    inflight_at: std::collections::HashMap<usize, u32>,
     tokens: u64,
     pub(crate) stats: Stats,
     pub(crate) frame_open: Option<(u8, u16)>,
@@ -94,6 +101,7 @@ impl Fpga {
             fifo: VecDeque::new(),
             looked_up: Vec::new(),
             inflight: VecDeque::new(),
+            inflight_at: std::collections::HashMap::new(),
             tokens: 0,
             stats: Stats::default(),
             frame_open: None,
@@ -182,6 +190,12 @@ impl Fpga {
                 break;
             }
             self.inflight.pop_front();
+            if let Some(n) = self.inflight_at.get_mut(&index) {
+                *n -= 1;
+                if *n == 0 {
+                    self.inflight_at.remove(&index);
+                }
+            }
             let (sum, clipped) = saturating_sum(self.sums[index], entry);
             self.sums[index] = sum;
             self.stats.saturated = self.stats.saturated.saturating_add(clipped as u32);
@@ -189,6 +203,11 @@ impl Fpga {
         }
         // Last cycle's BRAM outputs issue their read-modify-writes.
         for (p, entry, entered) in self.looked_up.drain(..) {
+            let n = self.inflight_at.entry(p.index).or_insert(0);
+            if *n > 0 {
+                self.stats.rmw_hazards = self.stats.rmw_hazards.saturating_add(1);
+            }
+            *n += 1;
             self.inflight.push_back((cycle + u64::from(self.config.mem_latency), p.index, entry, entered));
         }
         self.stats.inflight_high_water = self.stats.inflight_high_water.max(self.inflight.len());

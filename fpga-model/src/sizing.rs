@@ -53,6 +53,8 @@ pub struct TapSizing {
     pub fifo_high_water: usize,
     /// Measured: pixels dropped (must be 0).
     pub fifo_overflows: u32,
+    /// Measured: read-modify-writes that would need forwarding (must be 0).
+    pub rmw_hazards: u32,
     /// How the taps reach the per-ADC tables.
     pub lut_access: &'static str,
     /// Block RAM for the LUTs, bits (both banks).
@@ -121,6 +123,7 @@ pub fn size(system: &System, states: u8, base: &Config, tap_counts: &[usize]) ->
             latency_cycles: st.max_latency,
             fifo_high_water: st.fifo_high_water,
             fifo_overflows: st.fifo_overflows,
+            rmw_hazards: st.rmw_hazards,
             lut_access: lut_access(taps),
             bram_bits: 2 * ADCS as u64 * CODES as u64 * ENTRY_BITS,
         });

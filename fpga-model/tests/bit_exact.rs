@@ -134,6 +134,20 @@ fn a_starved_memory_overflows_the_fifo_and_says_so() {
     let summed = fpga.sums(0).unwrap().iter().filter(|&&s| s != 0).count() as u64;
     assert_eq!(summed, fpga.stats().pixels, "exactly the accepted pixels have sums");
     assert_eq!(fpga.stats().fifo_high_water, 64);
+    assert_eq!(fpga.stats().rmw_hazards, 0, "two 1024-pixel lines never revisit a sum");
+}
+
+#[test]
+fn a_frame_shorter_than_the_memory_latency_shows_hazards() {
+    // A 2-pixel frame, no blanking, 50 cycles of latency: the second frame's pixels are
+    // issued while the first frame's writes to the same sums are in flight.
+    let config = Config { taps: 2, fifo_depth: 16, mem_latency: 50, mem_words_per_cycle: 4, h_blank: 0, v_blank: 0 };
+    let mut fpga = Fpga::new(config, Geometry::new(2, 1, 1, 0).unwrap()).unwrap();
+    let line = [5u16, 6];
+    fpga.stream_frame(0, &[&line]).unwrap();
+    fpga.stream_frame(0, &[&line]).unwrap();
+    fpga.drain();
+    assert_eq!(fpga.stats().rmw_hazards, 2);
 }
 
 #[test]

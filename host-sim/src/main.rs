@@ -560,8 +560,8 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
                 );
                 if let Some(f) = &r.fpga {
                     t += &format!(
-                        "fpga model ({} taps): {} mismatches against the core, {} against the float reference; {} cycles, {:.3} pixels per clock, FIFO high water {} pixels, {} dropped, latency up to {} cycles\n",
-                        f.taps, f.mismatches_vs_core, f.mismatches_vs_reference, f.cycles, f.pixels_per_clock, f.fifo_high_water, f.fifo_overflows, f.max_latency_cycles
+                        "fpga model ({} taps): {} mismatches against the core, {} against the float reference; {} cycles, {:.3} pixels per clock, FIFO high water {} pixels, {} dropped, latency up to {} cycles, {} read-modify-write hazards\n",
+                        f.taps, f.mismatches_vs_core, f.mismatches_vs_reference, f.cycles, f.pixels_per_clock, f.fifo_high_water, f.fifo_overflows, f.max_latency_cycles, f.rmw_hazards
                     );
                 }
                 t

@@ -125,6 +125,8 @@ pub struct FpgaReport {
     pub max_latency_cycles: u64,
     /// Largest read-modify-writes in flight.
     pub inflight_high_water: usize,
+    /// Read-modify-writes that would need forwarding in hardware (expected 0).
+    pub rmw_hazards: u32,
 }
 
 /// [`Status`] for JSON.
@@ -275,6 +277,7 @@ fn run_typed<const N: usize, const CODES: usize>(
             fifo_overflows: stats.fifo_overflows,
             max_latency_cycles: stats.max_latency,
             inflight_high_water: stats.inflight_high_water,
+            rmw_hazards: stats.rmw_hazards,
         }
     });
     Ok(StreamReport {

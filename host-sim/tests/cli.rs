@@ -159,6 +159,7 @@ fn fpga_size_reports_the_clock_and_writes_readmemh() {
         assert!(cycles >= 256.0 * 256.0 / taps, "{r}");
         assert!((r["clock_mhz"].as_f64().unwrap() - cycles * 150.0 / 1e6).abs() < 1e-9, "{r}");
         assert_eq!(r["fifo_overflows"], 0, "{r}");
+        assert_eq!(r["rmw_hazards"], 0, "{r}");
         assert_eq!(r["bram_bits"], 2 * 4 * 4096 * 23);
     }
     let out = dncal(&["simulate", "histograms", "-o", "h.fits", "--first-ramp", "40", "--last-ramp", "41"], d);
