@@ -723,8 +723,8 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
         }
         Cmd::FpgaSize { cameras, size, frame_rate, states, engine, lut, out, json } => {
             let dncal_host::streaming::Engine::Fpga(config) = (EngineArgs { engine: "fpga".into(), ..engine }).engine()? else { unreachable!("asked for the fpga engine") };
-            if !(frame_rate.is_finite() && frame_rate > 0.0) || cameras == 0 || size == 0 {
-                return Err(HostError::Format { path: "fpga-size".into(), message: "cameras, size and frame rate must be positive".into() });
+            if !(frame_rate.is_finite() && frame_rate > 0.0) || cameras == 0 || size == 0 || size > 8192 {
+                return Err(HostError::Format { path: "fpga-size".into(), message: "cameras and frame rate must be positive and the size 1 to 8192 pixels (the model holds a frame's sums in memory)".into() });
             }
             let system = dncal_fpga_model::sizing::System { cameras, width: size, height: size, frame_rate_hz: frame_rate, ..Default::default() };
             let r = dncal_host::commands::fpga::fpga_size(&system, states, &config, lut.as_deref(), out.as_deref())?;

@@ -174,6 +174,8 @@ fn fpga_size_reports_the_clock_and_writes_readmemh() {
         assert_eq!(&values, table, "ADC {a}");
     }
     assert_clean_failure(&dncal(&["fpga-size", "--lut", "missing.fits", "-o", "x"], d), "missing.fits", "No such file");
+    assert_clean_failure(&dncal(&["fpga-size", "--size", "60000"], d), "fpga-size", "8192");
+    assert_clean_failure(&dncal(&["fpga-size", "--states", "0"], d), "fpga-size", "");
 }
 
 #[test]
