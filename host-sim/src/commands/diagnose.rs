@@ -74,7 +74,13 @@ pub fn apply_measured(mut c: crate::camera::CameraConfig, d: &Diagnosis) -> crat
     let scale = c.full_well_e / g;
     c.nonlinearity = d.curve_per_dn.as_ref().map_or(Vec::new(), |b| b.iter().enumerate().map(|(k, b)| b * scale.powi(k as i32 + 1)).collect());
     c.pixel_nonlinearity_rms = match (m.pixel_b2_rms_per_dn, d.findings.iter().any(|f| f.effect == "pixel-nonlinearity")) {
-        (Some(r), true) if !c.nonlinearity.is_empty() => vec![r * scale],
+        (Some(r), true) => {
+            // A spread needs a term to spread: a zero shared a2 when no shared curve was found.
+            if c.nonlinearity.is_empty() {
+                c.nonlinearity = vec![0.0];
+            }
+            vec![r * scale]
+        }
         _ => Vec::new(),
     };
     c

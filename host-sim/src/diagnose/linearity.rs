@@ -236,6 +236,13 @@ impl Totals {
 /// noise-only spread of `Totals` would call a chance difference between two shared curves
 /// significant (it did, at 7.6 standard deviations, on a set with 1% pixel-to-pixel
 /// nonlinearity and no shared bend).
+///
+/// Known limit (an independent review): pixels are not independent where every pixel
+/// shares an error at a level (the light or the reference detector off at that level, an
+/// offset drift); that term enters every `D_p` alike and this test cannot see it: a 2e-4
+/// level error gave false `adc-mismatch` findings. Levels as the units (about 20) lack
+/// the power for effects concentrated at a few levels; the fix planned is a per-level
+/// common term in every model, estimated on the even rows.
 fn paired(a: &[Option<Scored>], b: &[Option<Scored>], sel: impl Fn(usize) -> bool) -> f64 {
     let d: Vec<f64> = a.iter().zip(b).enumerate().filter(|(j, _)| sel(*j)).filter_map(|(_, (a, b))| Some(a.as_ref()?.sum_sq() - b.as_ref()?.sum_sq())).collect();
     paired_sum(&d)
@@ -402,8 +409,11 @@ fn measure_camera(set: &LinearitySet, pixels: &[usize], good: &[usize], valid: &
 /// `insufficient-noise` check asks for.
 pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagnosis, String> {
     let (nl, np) = (set.levels, set.width * set.height);
-    if nl < 8 {
-        return Err(format!("{nl} levels: the held-out split needs at least 8"));
+    if nl < 11 {
+        return Err(format!("{nl} levels: the held-out split needs at least 11 (a quartic on the even levels and one on the odd ones)"));
+    }
+    if set.n_frames < 4 {
+        return Err(format!("{} frames per level: the noise of a mean from the frames' standard deviation needs at least 4", set.n_frames));
     }
     let nf = f64::from(set.n_frames);
     let kappa = if set.n_frames > 3 { (nf - 1.0) / (nf - 3.0) } else { 1.0 };
@@ -414,6 +424,9 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     }
     let x: Vec<f64> = set.voltage.iter().map(|v| v / vmax).collect();
     let valid = unsaturated_levels(set);
+    if median(set.std.clone()) <= 0.0 {
+        return Err("the standard deviations are zero at most pixels and levels: the noise of the means is unknown".into());
+    }
     let known_bad = |p: usize| set.mask.as_ref().is_some_and(|m| m[p] != 0);
     let n_adc = set.n_adc.max(1);
     let adc_of = |p: usize| (p % set.width) % n_adc;
@@ -437,6 +450,11 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     // bad-pixel flags.
     let pop_of = |k: usize| population(lines.iter().enumerate().filter(|(i, _)| estimating(*i)).filter_map(|(i, l)| Some((adc_of(pixels[i]), l.0.as_ref()?.params[k]))), n_adc);
     let (dark_pop, gain_pop) = ((pop_of(0).1, pop_of(0).2), (pop_of(1).1, pop_of(1).2));
+    // Each pixel is flagged against its own ADC's medians (an ADC offset is an
+    // `adc-mismatch`, not a quarter of the sensor gone bad; a review found 1018 such
+    // "bad pixels" with a 3 DN ADC offset and 0.2 DN of DSNU).
+    let (dark_adc, gain_adc) = (pop_of(0).0, pop_of(1).0);
+    let own_adc = |v: &[f64], i: usize, fallback: f64| v.get(adc_of(pixels[i])).copied().filter(|x| x.is_finite()).unwrap_or(fallback);
     // Bad pixels, flagged in each half independently.
     let tail = |chi2: f64, dof: usize| dof > 0 && ChiSquared::new(dof as f64).map(|c| c.sf(chi2) < 1e-6).unwrap_or(false);
     let bad_in = |i: usize, half: usize| -> Option<&'static str> {
@@ -448,10 +466,11 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
         if tail(q.chi2_fit, pts.len().saturating_sub(quartic.params())) {
             return Some("shape");
         }
-        if !(l.params[1] > 0.5 * gain_pop.0 && l.params[1] < 1.5 * gain_pop.0) {
+        let g_own = own_adc(&gain_adc, i, gain_pop.0);
+        if !(l.params[1] > 0.5 * g_own && l.params[1] < 1.5 * g_own) {
             return Some("gain");
         }
-        if (l.params[0] - dark_pop.0).abs() > 10.0 * dark_pop.1.max(1e-9) {
+        if (l.params[0] - own_adc(&dark_adc, i, dark_pop.0)).abs() > 10.0 * dark_pop.1.max(1e-9) {
             return Some("dark");
         }
         None
@@ -653,12 +672,12 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
         let map_z = |i: usize| -> Vec<f64> {
             match (&lines[i].1, &quartics[i].0) {
                 (Some(l), Some(q)) => {
-                    let mut z = vec![(l.params[0] - dark_pop.0) / dark_pop.1.max(1e-9), (l.params[1] - gain_pop.0) / gain_pop.1.max(1e-9)];
+                    let mut z = vec![(l.params[0] - own_adc(&dark_adc, i, dark_pop.0)) / dark_pop.1.max(1e-9), (l.params[1] - own_adc(&gain_adc, i, gain_pop.0)) / gain_pop.1.max(1e-9)];
                     z.extend(q.z.iter().map(|v| v.1));
                     z
                 }
                 // Stuck: its raw dark level against the population.
-                _ => vec![(set.mean[pixels[i]] - dark_pop.0) / dark_pop.1.max(1e-9)],
+                _ => vec![(set.mean[pixels[i]] - own_adc(&dark_adc, i, dark_pop.0)) / dark_pop.1.max(1e-9)],
             }
         };
         let (mut s_all, mut n_all, mut s_ok, mut n_ok) = (0.0, 0usize, 0.0, 0usize);
@@ -802,10 +821,6 @@ mod tests {
             let d = diagnose_linearity(&linearity_set(&Plant::default(), &hidden, 1000 + seed), 0.01).unwrap();
             let mut want: Vec<(String, Option<usize>)> = hidden.iter().map(|h| (h.expected().0.to_string(), h.expected().1)).collect();
             want.sort();
-            if std::env::var("DNCAL_SEEDS").is_ok() && named(&d) != want {
-                eprintln!("MISS seed {seed}, hidden {hidden:?}: {:?}", d.findings.iter().map(|f| (&f.effect, f.adc, f.significance, f.count)).collect::<Vec<_>>());
-                continue;
-            }
             assert_eq!(named(&d), want, "seed {seed}, hidden {hidden:?}: {:#?}", d.findings);
             for f in &d.findings {
                 assert!(f.gain > 1.1, "seed {seed}: {f:?}");
