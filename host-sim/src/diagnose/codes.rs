@@ -149,7 +149,7 @@ pub fn diagnose_code_density(counts: &[u64], adc: usize, seed: u64) -> Result<(V
     let accepted = significance > SIGNIFICANCE && m1 < m0;
     if accepted {
         findings.push(Finding {
-            residuals: Some(AdcResiduals { baseline: codes.iter().copied().zip(z0.iter().copied()).collect(), extended: codes.iter().copied().zip(z1.iter().copied()).collect() }),
+            residuals: Some(AdcResiduals::over(&codes, &z0, &z1)),
             effect: "adc-dnl".into(),
             adc: Some(adc),
             count: None,
@@ -169,23 +169,8 @@ pub fn diagnose_code_density(counts: &[u64], adc: usize, seed: u64) -> Result<(V
         });
     }
     let z_final = if accepted { &z1 } else { &z0 };
-    let mf = mean_sq(z_final);
-    if (mf - 1.0) / sd > SIGNIFICANCE {
-        let st = by_residue(&codes, z_final);
-        findings.push(Finding {
-            residuals: None,
-            effect: "unexplained".into(),
-            adc: Some(adc),
-            count: None,
-            sigma_dn: None,
-            significance: (mf - 1.0) / sd,
-            rms_before: mf.sqrt(),
-            rms_after: mf.sqrt(),
-            gain: 1.0,
-            detail: format!("code density: held-out residual {:.3} rms where 1 is noise; strongest residue structure mod {} (chi^2 {:.1} per class)", mf.sqrt(), st[0].modulus, st[0].chi2_per_class),
-        });
-    }
-    let residuals = AdcResiduals { baseline: codes.iter().copied().zip(z0.iter().copied()).collect(), extended: codes.iter().copied().zip(z_final.iter().copied()).collect() };
+    findings.extend(unexplained_by_residue(adc, &codes, z_final, "code density: "));
+    let residuals = AdcResiduals::over(&codes, &z0, z_final);
     Ok((findings, residuals, CodeDensity { codes_scored: codes.len(), rms_baseline: m0.sqrt(), rms_widths: m1.sqrt(), width_rms, by_residue: structure, widths: all_widths, class_widths }))
 }
 

@@ -88,7 +88,7 @@ pub fn diagnose_histograms(h: &AdcHistograms, flatten: &FlattenParams, seed: u64
             let widths: Vec<f64> = codes.iter().map(|&k| f.normalized[k] - 1.0).collect();
             let top = &structure[0];
             findings.push(Finding {
-                residuals: Some(AdcResiduals { baseline: codes.iter().copied().zip(z0.iter().copied()).collect(), extended: codes.iter().copied().zip(z1.iter().copied()).collect() }),
+                residuals: Some(AdcResiduals::over(&codes, &z0, &z1)),
                 effect: "adc-dnl".into(),
                 adc: Some(adc),
                 count: None,
@@ -106,25 +106,10 @@ pub fn diagnose_histograms(h: &AdcHistograms, flatten: &FlattenParams, seed: u64
                 ),
             });
         }
-        let mf = mean_sq(z_final);
-        if (mf - 1.0) / sd > SIGNIFICANCE {
-            let st = by_residue(&codes, z_final);
-            findings.push(Finding {
-                residuals: None,
-                effect: "unexplained".into(),
-                adc: Some(adc),
-                count: None,
-                sigma_dn: None,
-                significance: (mf - 1.0) / sd,
-                rms_before: mf.sqrt(),
-                rms_after: mf.sqrt(),
-                gain: 1.0,
-                detail: format!("held-out residual {:.3} rms where 1 is noise; strongest residue structure mod {} (chi^2 {:.1} per class)", mf.sqrt(), st[0].modulus, st[0].chi2_per_class),
-            });
-        }
+        findings.extend(unexplained_by_residue(adc, &codes, z_final, ""));
         all0.extend_from_slice(&z0);
         all_final.extend_from_slice(z_final);
-        residuals.push(AdcResiduals { baseline: codes.iter().copied().zip(z0.iter().copied()).collect(), extended: codes.iter().copied().zip(z_final.iter().copied()).collect() });
+        residuals.push(AdcResiduals::over(&codes, &z0, z_final));
     }
     Ok(Diagnosis {
         measured: Measured::default(),

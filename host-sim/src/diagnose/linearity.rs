@@ -66,7 +66,6 @@ use statrs::distribution::{ChiSquared, ContinuousCDF};
 use super::*;
 use crate::fits::LinearitySet;
 use crate::linearity::unsaturated_levels;
-use crate::quantization::worst_bias;
 
 /// A level response model of one pixel.
 #[derive(Debug, Clone, Copy)]
@@ -349,8 +348,7 @@ fn shared_curve(pixels: &[(&Vec<Point>, f64)], top: f64) -> [f64; 3] {
 /// pixel-to-pixel rms of the quadratic response term from the *covariance* of the
 /// pixels' even-level and odd-level quartics (their noises are independent, so the
 /// covariance over pixels is the spread of the true terms alone).
-#[allow(clippy::too_many_arguments)]
-fn measure_camera(set: &LinearitySet, pixels: &[usize], good: &[usize], valid: &[usize], quartics: &[(Option<Scored>, Option<Scored>)], dg: &[Option<[f64; 2]>], top: f64, bad: usize) -> Measured {
+fn measure_camera(set: &LinearitySet, pixels: &[usize], good: &[usize], valid: &[usize], quartics: &[(Option<Scored>, Option<Scored>)], top: f64, bad: usize) -> Measured {
     let np = set.width * set.height;
     let (mut s, mut v) = (Vec::new(), Vec::new());
     let dark = median(good.iter().map(|&i| set.mean[pixels[i]]).collect());
@@ -372,7 +370,6 @@ fn measure_camera(set: &LinearitySet, pixels: &[usize], good: &[usize], valid: &
     } else {
         (None, None)
     };
-    let _ = dg;
     // DSNU from the dark frames themselves, less their own noise; PRNU from the signal at
     // the level nearest half scale (fitted intercepts and slopes would absorb part of each
     // pixel's own curvature: they read 2.1 DN of DSNU where the camera had 0.9).
@@ -715,22 +712,8 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     }
     // Noise: the dark level's temporal noise against the quantization bias.
     let dark_noise = median(good.iter().map(|&i| set.std[pixels[i]]).collect());
-    let measured = measure_camera(set, &pixels, &good, &valid, &quartics, &dg, top, bad.iter().filter(|b| b.is_some()).count());
-    let worst = worst_bias(dark_noise).max_abs_bias_dn;
-    if worst > accuracy_dn {
-        findings.push(Finding {
-            residuals: None,
-            effect: "insufficient-noise".into(),
-            adc: None,
-            count: None,
-            sigma_dn: Some(dark_noise),
-            significance: worst / accuracy_dn,
-            rms_before: worst,
-            rms_after: worst,
-            gain: 1.0,
-            detail: format!("median dark noise {dark_noise:.3} DN leaves a worst-case averaging bias of {worst:.2e} DN, above {accuracy_dn} DN"),
-        });
-    }
+    let measured = measure_camera(set, &pixels, &good, &valid, &quartics, top, bad.iter().filter(|b| b.is_some()).count());
+    findings.extend(insufficient_noise("median dark noise", dark_noise, accuracy_dn));
     if tcur.excess() > SIGNIFICANCE {
         findings.push(finding(
             "unexplained",

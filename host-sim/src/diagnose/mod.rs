@@ -135,6 +135,47 @@ pub struct Measured {
     pub bad_fraction: Option<f64>,
 }
 
+/// `insufficient-noise` when a noise of `sigma_dn` ("{what} {sigma_dn} DN") leaves a
+/// worst-case averaging bias above `accuracy_dn` ([`crate::quantization::worst_bias`]).
+pub(crate) fn insufficient_noise(what: &str, sigma_dn: f64, accuracy_dn: f64) -> Option<Finding> {
+    let worst = crate::quantization::worst_bias(sigma_dn).max_abs_bias_dn;
+    (worst > accuracy_dn).then(|| Finding {
+        residuals: None,
+        effect: "insufficient-noise".into(),
+        adc: None,
+        count: None,
+        sigma_dn: Some(sigma_dn),
+        significance: worst / accuracy_dn,
+        rms_before: worst,
+        rms_after: worst,
+        gain: 1.0,
+        detail: format!("{what} {sigma_dn:.3} DN leaves a worst-case averaging bias of {worst:.2e} DN, above {accuracy_dn} DN"),
+    })
+}
+
+/// `unexplained` for ADC `adc` when the held-out residuals `z` over `codes` still have
+/// `mean z^2` more than [`SIGNIFICANCE`] `sqrt(2/N)` above 1; the detail (after
+/// `prefix`) names the strongest residue structure.
+pub(crate) fn unexplained_by_residue(adc: usize, codes: &[usize], z: &[f64], prefix: &str) -> Option<Finding> {
+    let sd = (2.0 / codes.len() as f64).sqrt();
+    let mf = mean_sq(z);
+    ((mf - 1.0) / sd > SIGNIFICANCE).then(|| {
+        let st = by_residue(codes, z);
+        Finding {
+            residuals: None,
+            effect: "unexplained".into(),
+            adc: Some(adc),
+            count: None,
+            sigma_dn: None,
+            significance: (mf - 1.0) / sd,
+            rms_before: mf.sqrt(),
+            rms_after: mf.sqrt(),
+            gain: 1.0,
+            detail: format!("{prefix}held-out residual {:.3} rms where 1 is noise; strongest residue structure mod {} (chi^2 {:.1} per class)", mf.sqrt(), st[0].modulus, st[0].chi2_per_class),
+        }
+    })
+}
+
 /// Held-out normalized residuals of one ADC, as (code, residual).
 #[derive(Debug, Clone, Default)]
 pub struct AdcResiduals {
@@ -142,6 +183,13 @@ pub struct AdcResiduals {
     pub baseline: Vec<(usize, f64)>,
     /// Against the model with the accepted findings.
     pub extended: Vec<(usize, f64)>,
+}
+
+impl AdcResiduals {
+    /// The residuals `before` and `after` at `codes`.
+    pub fn over(codes: &[usize], before: &[f64], after: &[f64]) -> Self {
+        AdcResiduals { baseline: codes.iter().copied().zip(before.iter().copied()).collect(), extended: codes.iter().copied().zip(after.iter().copied()).collect() }
+    }
 }
 
 pub(crate) fn mean_sq(z: &[f64]) -> f64 {

@@ -3,7 +3,6 @@
 
 use super::*;
 use crate::emva::PtcPoint;
-use crate::quantization::worst_bias;
 
 /// Which photon-transfer terms a response model has.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -165,21 +164,7 @@ pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Res
         .flatten()
         .map(|c| vec![c[2] / c[1].powi(2), c[3] / c[1].powi(3)]);
     let sigma_dn = used.iter().map(|p| p.dark_var_dn2).fold(f64::INFINITY, f64::min).max(0.0).sqrt();
-    let worst = worst_bias(sigma_dn).max_abs_bias_dn;
-    if worst > accuracy_dn {
-        findings.push(Finding {
-            residuals: None,
-            effect: "insufficient-noise".into(),
-            adc: None,
-            count: None,
-            sigma_dn: Some(sigma_dn),
-            significance: worst / accuracy_dn,
-            rms_before: worst,
-            rms_after: worst,
-            gain: 1.0,
-            detail: format!("dark noise {sigma_dn:.3} DN leaves a worst-case averaging bias of {worst:.2e} DN, above {accuracy_dn} DN"),
-        });
-    }
+    findings.extend(insufficient_noise("dark noise", sigma_dn, accuracy_dn));
     if (mcur - ecur) / sdcur > SIGNIFICANCE {
         findings.push(Finding {
             residuals: None,
