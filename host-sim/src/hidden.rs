@@ -13,6 +13,16 @@
 //! `h_a(o + d_p + G_p(g_p S_max x))`, `G_p(S) = S (1 + c2_p S/T + c3 (S/T)^2)`, where `h_a`
 //! is the ADC's transfer (identity, or a gain, offset or curvature mismatch acting on the
 //! whole analog level), `d_p` the DSNU, `g_p` the PRNU and `T` the top code.
+//!
+//! Lab imperfections common to every pixel of a level ([`Hidden::LevelErrors`]): the light
+//! at level `l` is `x_l (1 + eps_l)` where the reference detector reads `x_l` (source
+//! flicker against a diode that does not see it), and the black level is off by
+//! `delta_l` (a clamp that settles differently per acquisition). Both are drawn
+//! independently per level: a scientist who takes the levels in random order turns a slow
+//! drift into exactly that; a drift over levels taken in order is smooth in `x` and no
+//! analysis of one set can tell it from a shared nonlinearity.
+//! [`Plant::excess_noise`] makes the means noisier than the frames' standard deviations
+//! say (correlated frames), by a fraction of their variance.
 
 use rand::{rngs::StdRng, Rng, SeedableRng};
 use rand_distr::{ChiSquared, Distribution, Normal};
@@ -35,6 +45,13 @@ pub enum Hidden {
     /// `count` pixels are dead (no response), hot (always the top code) or kinked (a step
     /// of 20-100 DN at a random level).
     BadPixels { count: usize },
+    /// Per-level errors common to all pixels: the light off from the reference by
+    /// `rel_rms` (relative, rms) and the black level off by `offset_dn` (rms).
+    LevelErrors { rel_rms: f64, offset_dn: f64 },
+    /// `count` pixels whose mean jumps by `dn` rms from level to level (telegraph-like
+    /// pixels): below the bad-pixel threshold each, structure all the same. Not in
+    /// [`pick`]: diagnose names it `unexplained`.
+    SubtleBad { count: usize, dn: f64 },
 }
 
 impl Hidden {
@@ -45,6 +62,8 @@ impl Hidden {
             Hidden::PixelNonlinearity { .. } => ("pixel-nonlinearity", None),
             Hidden::AdcGain { adc, .. } | Hidden::AdcOffset { adc, .. } | Hidden::AdcCurvature { adc, .. } => ("adc-mismatch", Some(*adc)),
             Hidden::BadPixels { .. } => ("bad-pixels", None),
+            Hidden::LevelErrors { .. } => ("level-errors", None),
+            Hidden::SubtleBad { .. } => ("unexplained", None),
         }
     }
 }
@@ -75,11 +94,14 @@ pub struct Plant {
     pub dsnu_dn: f64,
     /// Black level, DN.
     pub offset_dn: f64,
+    /// Extra variance of the means beyond `var / N`, as a fraction of it (frames that are
+    /// not independent): a noise model off by a few percent, which is not structure.
+    pub excess_noise: f64,
 }
 
 impl Default for Plant {
     fn default() -> Self {
-        Plant { width: 64, height: 64, n_adc: 4, levels: 41, frames: 256, full_dn: 3600.0, gain_e_per_dn: 44.0, read_dn: 4.0, prnu: 0.01, dsnu_dn: 1.0, offset_dn: 60.0 }
+        Plant { width: 64, height: 64, n_adc: 4, levels: 41, frames: 256, full_dn: 3600.0, gain_e_per_dn: 44.0, read_dn: 4.0, prnu: 0.01, dsnu_dn: 1.0, offset_dn: 60.0, excess_noise: 0.0 }
     }
 }
 
@@ -89,7 +111,7 @@ pub fn pick(rng: &mut StdRng, n_adc: usize, how_many: usize) -> Vec<Hidden> {
     let mut out: Vec<Hidden> = Vec::new();
     let sign = |rng: &mut StdRng| if rng.random::<bool>() { 1.0 } else { -1.0 };
     while out.len() < how_many {
-        let kind = rng.random_range(0..6);
+        let kind = rng.random_range(0..7);
         let adc = rng.random_range(0..n_adc);
         let h = match kind {
             0 => Hidden::GlobalNonlinearity { c2: sign(rng) * rng.random_range(0.01..0.04) },
@@ -97,7 +119,14 @@ pub fn pick(rng: &mut StdRng, n_adc: usize, how_many: usize) -> Vec<Hidden> {
             2 => Hidden::AdcGain { adc, rel: sign(rng) * rng.random_range(0.01..0.03) },
             3 => Hidden::AdcOffset { adc, dn: sign(rng) * rng.random_range(1.0..3.0) },
             4 => Hidden::AdcCurvature { adc, e: sign(rng) * rng.random_range(0.005..0.02) },
-            _ => Hidden::BadPixels { count: rng.random_range(5..40) },
+            5 => Hidden::BadPixels { count: rng.random_range(5..40) },
+            // Either part or both, each at 0.5-3 times the noise of one pixel's mean at
+            // full scale (0.6 DN) or at dark (0.25 DN).
+            _ => match rng.random_range(0..3) {
+                0 => Hidden::LevelErrors { rel_rms: rng.random_range(1e-4..5e-4), offset_dn: 0.0 },
+                1 => Hidden::LevelErrors { rel_rms: 0.0, offset_dn: rng.random_range(0.1..0.8) },
+                _ => Hidden::LevelErrors { rel_rms: rng.random_range(1e-4..5e-4), offset_dn: rng.random_range(0.1..0.8) },
+            },
         };
         let clash = out.iter().any(|o| std::mem::discriminant(o) == std::mem::discriminant(&h) || (o.expected().1.is_some() && o.expected().1 == h.expected().1));
         if !clash {
@@ -117,6 +146,8 @@ pub fn linearity_set(plant: &Plant, hidden: &[Hidden], seed: u64) -> LinearitySe
     let mut c2 = vec![0.0; np];
     let (mut adc_gain, mut adc_offset, mut adc_bend) = (vec![1.0; plant.n_adc], vec![0.0; plant.n_adc], vec![0.0; plant.n_adc]);
     let mut bad_count = 0;
+    let (mut light, mut black) = (vec![0.0; nl], vec![0.0; nl]);
+    let (mut subtle, mut subtle_dn) = (0, 0.0);
     for e in hidden {
         match *e {
             Hidden::GlobalNonlinearity { c2: c } => c2.iter_mut().for_each(|v| *v += c),
@@ -125,6 +156,11 @@ pub fn linearity_set(plant: &Plant, hidden: &[Hidden], seed: u64) -> LinearitySe
             Hidden::AdcOffset { adc, dn } => adc_offset[adc] = dn,
             Hidden::AdcCurvature { adc, e } => adc_bend[adc] = e,
             Hidden::BadPixels { count } => bad_count = count,
+            Hidden::SubtleBad { count, dn } => (subtle, subtle_dn) = (count, dn),
+            Hidden::LevelErrors { rel_rms, offset_dn } => {
+                light.iter_mut().for_each(|v| *v = rel_rms * unit.sample(&mut rng));
+                black.iter_mut().for_each(|v| *v = offset_dn * unit.sample(&mut rng));
+            }
         }
     }
     let gain: Vec<f64> = (0..np).map(|_| 1.0 + plant.prnu * unit.sample(&mut rng)).collect();
@@ -141,16 +177,29 @@ pub fn linearity_set(plant: &Plant, hidden: &[Hidden], seed: u64) -> LinearitySe
             placed += 1;
         }
     }
+    // Subtle pixels: distinct from the bad ones.
+    let mut jumpy = vec![false; np];
+    let mut placed = 0;
+    while placed < subtle.min(np - bad_count) {
+        let p = rng.random_range(0..np);
+        if kind[p] == 0 && !jumpy[p] {
+            jumpy[p] = true;
+            placed += 1;
+        }
+    }
     let chi = ChiSquared::new(f64::from(plant.frames - 1)).expect("frames > 1");
     let n = f64::from(plant.frames);
     let (mut mean, mut std) = (vec![0.0; nl * np], vec![0.0; nl * np]);
     for l in 0..nl {
-        let x = l as f64 / (nl - 1) as f64;
+        let x = l as f64 / (nl - 1) as f64 * (1.0 + light[l]);
         for p in 0..np {
             let a = (p % w) % plant.n_adc;
             let s_lin = if kind[p] == 1 { 0.0 } else { gain[p] * plant.full_dn * x };
             let s = s_lin * (1.0 + c2[p] * s_lin / top);
-            let mut v = plant.offset_dn + dark[p] + s;
+            let mut v = plant.offset_dn + black[l] + dark[p] + s;
+            if jumpy[p] {
+                v += subtle_dn * unit.sample(&mut rng);
+            }
             if kind[p] == 3 && l >= kink[p].0 {
                 v += kink[p].1;
             }
@@ -160,7 +209,7 @@ pub fn linearity_set(plant: &Plant, hidden: &[Hidden], seed: u64) -> LinearitySe
             if kind[p] == 2 {
                 (mean[i], std[i]) = (top, 0.0);
             } else {
-                mean[i] = (code + (var / n).sqrt() * unit.sample(&mut rng)).min(top);
+                mean[i] = (code + (var * (1.0 + plant.excess_noise) / n).sqrt() * unit.sample(&mut rng)).min(top);
                 std[i] = (var * chi.sample(&mut rng) / (n - 1.0)).sqrt();
             }
         }

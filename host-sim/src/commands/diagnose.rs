@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::diagnose::{diagnose_code_density, diagnose_histograms, diagnose_linearity, diagnose_ptc, Diagnosis};
+use crate::diagnose::{diagnose_code_density, diagnose_histograms, diagnose_linearity, diagnose_ptc, Diagnosis, Finding};
 use crate::fits::{read_histograms, read_linearity, write_file_atomically};
 use crate::flatten::FlattenParams;
 use crate::plots::{line_plot, Series};
@@ -246,7 +246,14 @@ fn report(input: &Path, diagnosis: Diagnosis, model: Option<crate::camera::Camer
         }) {
             let path = dir.join("model.toml");
             let text = toml::to_string(m).map_err(|e| HostError::Format { path: path.clone(), message: e.to_string() })?;
-            let not_simulated: Vec<String> = diagnosis.findings.iter().filter(|f| f.effect == "adc-mismatch" || f.effect == "unexplained" || f.effect == "low-signal-nonlinearity").map(|f| format!("# not in the camera model yet: {}{}\n", f.effect, f.adc.map_or(String::new(), |a| format!(" (ADC {a})")))).collect();
+            // Level errors and excess noise belong to the measurement (the light source, the
+            // frames' independence), not to the camera: named, never simulated.
+            let note = |f: &Finding| match f.effect.as_str() {
+                "adc-mismatch" | "unexplained" | "low-signal-nonlinearity" => Some(format!("# not in the camera model yet: {}{}\n", f.effect, f.adc.map_or(String::new(), |a| format!(" (ADC {a})")))),
+                "level-errors" | "excess-noise" => Some(format!("# of the measurement, not the camera (not simulated): {}\n", f.effect)),
+                _ => None,
+            };
+            let not_simulated: Vec<String> = diagnosis.findings.iter().filter_map(note).collect();
             let text = format!("# The model `dncal diagnose` extended from {}: `dncal simulate --model` reads it.\n{}{text}", input.display(), not_simulated.concat());
             write_file_atomically(&path, &text)?;
             outputs.push(path);

@@ -56,6 +56,13 @@
 //! the odd-level dark and gain against the population plus the held-out levels of each
 //! pixel's own quartic, with and without the flagged pixels.
 //!
+//! ## What the measurement adds
+//! **`level-errors`** ([`super::levels`]): errors every pixel shares at a level, measured
+//! first and taken out of every pixel's means; the shared bend must then also stand out
+//! against them with levels as the units. **`excess-noise`**: what remains is a noise
+//! scaled by one factor (measured on even rows, the odd rows within 5 sigma with it, the
+//! pixels' held-out sums not overdispersed) rather than `unexplained` structure.
+//!
 //! Pixels in the set's MASK are known bad: they are left out and not counted.
 //! `insufficient-noise` compares the median dark noise with the quantization bias.
 
@@ -63,29 +70,35 @@ use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 
+use super::levels::{level_term, smooth_significance, LevelTerm};
 use super::*;
 use crate::fits::LinearitySet;
 use crate::linearity::unsaturated_levels;
 
 /// A level response model of one pixel.
 #[derive(Debug, Clone, Copy)]
-enum Response {
+pub(super) enum Response {
     /// `sum_k a_k x^k`, k = 0..=order.
     Poly(usize),
     /// `d + G(g x)` with the signal-domain curve `c` (c2, c3, c4) and top code `t`.
     Curve([f64; 3], f64),
+    /// `d + g x + G(g0 x) - g0 x`: the same curve at one gain `g0` for every pixel, an
+    /// additive term common to all (the smooth part of level errors, which does not
+    /// scale with a pixel's gain: in the signal domain, a smooth part of random errors
+    /// with large cancelling coefficients left 2.4 times the noise at the top level).
+    Common([f64; 3], f64, f64),
 }
 
 impl Response {
     fn params(self) -> usize {
         match self {
             Response::Poly(o) => o + 1,
-            Response::Curve(..) => 2,
+            Response::Curve(..) | Response::Common(..) => 2,
         }
     }
 
     /// Value at `x` and its gradient in the parameters.
-    fn eval(self, p: &[f64], x: f64, grad: &mut [f64]) -> f64 {
+    pub(super) fn eval(self, p: &[f64], x: f64, grad: &mut [f64]) -> f64 {
         match self {
             Response::Poly(o) => {
                 let mut v = 0.0;
@@ -106,23 +119,29 @@ impl Response {
                 grad[1] = x * slope;
                 p[0] + s * shape
             }
+            Response::Common(c, t, g0) => {
+                let u = g0 * x / t;
+                grad[0] = 1.0;
+                grad[1] = x;
+                p[0] + p[1] * x + g0 * x * u * (c[0] + c[1] * u + c[2] * u * u)
+            }
         }
     }
 }
 
 /// One level of one pixel: reference, mean, noise of the mean.
 #[derive(Debug, Clone, Copy)]
-struct Point {
-    level: usize,
-    x: f64,
-    y: f64,
-    sigma: f64,
+pub(super) struct Point {
+    pub level: usize,
+    pub x: f64,
+    pub y: f64,
+    pub sigma: f64,
 }
 
 /// A pixel's fit on one half and its score on the other.
 #[derive(Debug, Clone)]
-struct Scored {
-    params: Vec<f64>,
+pub(super) struct Scored {
+    pub params: Vec<f64>,
     /// Weighted residual sum of squares on the fitted half.
     chi2_fit: f64,
     /// Held-out normalized residuals, (level, z).
@@ -140,7 +159,7 @@ impl Scored {
 
 /// Weighted Gauss-Newton fit of `model` to `fit` (from `start`), scored on `test`.
 /// `None` when there are too few points or the normal matrix is singular.
-fn fit_and_score(model: Response, start: &[f64], fit: &[Point], test: &[Point]) -> Option<Scored> {
+pub(super) fn fit_and_score(model: Response, start: &[f64], fit: &[Point], test: &[Point]) -> Option<Scored> {
     let np = model.params();
     if fit.len() <= np {
         return None;
@@ -159,7 +178,7 @@ fn fit_and_score(model: Response, start: &[f64], fit: &[Point], test: &[Point]) 
         }
         (j, r)
     };
-    let iterations = if matches!(model, Response::Poly(_)) { 2 } else { 8 };
+    let iterations = if matches!(model, Response::Curve(..)) { 8 } else { 2 };
     for _ in 0..iterations {
         let (j, r) = jacobian(&p, fit, &mut grad);
         // nalgebra's SVD panics on a NaN; a diverging Gauss-Newton step must not get there.
@@ -187,7 +206,7 @@ fn fit_and_score(model: Response, start: &[f64], fit: &[Point], test: &[Point]) 
     })
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
+pub(super) fn median(mut v: Vec<f64>) -> f64 {
     v.retain(|x| x.is_finite());
     if v.is_empty() {
         return f64::NAN;
@@ -197,7 +216,7 @@ fn median(mut v: Vec<f64>) -> f64 {
 }
 
 /// Median and robust scatter (1.4826 x the median absolute deviation).
-fn robust(v: &[f64]) -> (f64, f64) {
+pub(super) fn robust(v: &[f64]) -> (f64, f64) {
     let m = median(v.to_vec());
     (m, 1.4826 * median(v.iter().map(|x| (x - m).abs()).collect()))
 }
@@ -236,12 +255,10 @@ impl Totals {
 /// significant (it did, at 7.6 standard deviations, on a set with 1% pixel-to-pixel
 /// nonlinearity and no shared bend).
 ///
-/// Known limit (an independent review): pixels are not independent where every pixel
-/// shares an error at a level (the light or the reference detector off at that level, an
-/// offset drift); that term enters every `D_p` alike and this test cannot see it: a 2e-4
-/// level error gave false `adc-mismatch` findings. Levels as the units (about 20) lack
-/// the power for effects concentrated at a few levels; the fix planned is a per-level
-/// common term in every model, estimated on the even rows.
+/// Pixels are not independent where every pixel shares an error at a level (the light
+/// off the reference, the black level off); that term enters every `D_p` alike and this
+/// test cannot see it (a 2e-4 level error gave false `adc-mismatch` findings), so it is
+/// measured and taken out first ([`super::levels`]).
 fn paired(a: &[Option<Scored>], b: &[Option<Scored>], sel: impl Fn(usize) -> bool) -> f64 {
     let d: Vec<f64> = a.iter().zip(b).enumerate().filter(|(j, _)| sel(*j)).filter_map(|(_, (a, b))| Some(a.as_ref()?.sum_sq() - b.as_ref()?.sum_sq())).collect();
     paired_sum(&d)
@@ -294,13 +311,17 @@ fn finding(effect: &str, adc: Option<usize>, significance: f64, before: f64, aft
     Finding { effect: effect.into(), adc, count: None, sigma_dn: None, significance, rms_before: before, rms_after: after, gain: before / after, detail, residuals: None }
 }
 
-/// The levels of one pixel, split: (even levels, odd levels).
-fn halves(set: &LinearitySet, x: &[f64], kappa: f64, valid: usize, p: usize) -> (Vec<Point>, Vec<Point>) {
+/// The levels of one pixel, split: (even levels, odd levels); less the common per-level
+/// term where one was accepted (its variance added to the noise).
+fn halves(set: &LinearitySet, x: &[f64], kappa: f64, valid: usize, p: usize, common: Option<&LevelTerm>) -> (Vec<Point>, Vec<Point>) {
     let np = set.width * set.height;
     let n = f64::from(set.n_frames.max(1));
     let floor = 1.0 / (12.0 * n);
     let pts = (0..valid)
-        .map(|l| Point { level: l, x: x[l], y: set.mean[l * np + p], sigma: (kappa * set.std[l * np + p].powi(2) / n).max(floor).sqrt() })
+        .map(|l| {
+            let (c, v) = common.and_then(|t| t.at(l)).unwrap_or((0.0, 0.0));
+            Point { level: l, x: x[l], y: set.mean[l * np + p] - c, sigma: ((kappa * set.std[l * np + p].powi(2) / n).max(floor) + v).sqrt() }
+        })
         .filter(|q| q.x.is_finite() && q.y.is_finite() && q.sigma.is_finite());
     pts.partition(|q| q.level % 2 == 0)
 }
@@ -433,7 +454,26 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     // its even and odd levels, so scoring a shared fit on its own pixels would reward it
     // for following their sample.
     let estimating = |i: usize| (pixels[i] / set.width) % 2 == 0;
-    let data: Vec<(Vec<Point>, Vec<Point>)> = pixels.par_iter().map(|&p| halves(set, &x, kappa, valid[p], p)).collect();
+    let mut data: Vec<(Vec<Point>, Vec<Point>)> = pixels.par_iter().map(|&p| halves(set, &x, kappa, valid[p], p, None)).collect();
+    // Errors every pixel shares at a level (the light off the reference, the black level
+    // off) first: found, they are taken out of every pixel's means before any model.
+    let levels_term = level_term(&data, &estimating, nl);
+    let mut findings = Vec::new();
+    let level_accepted = levels_term.significance > SIGNIFICANCE && levels_term.rms_after < levels_term.rms_before;
+    if level_accepted {
+        findings.push(finding(
+            "level-errors",
+            None,
+            levels_term.significance,
+            levels_term.rms_before,
+            levels_term.rms_after,
+            format!(
+                "every pixel is off alike at some levels, beyond any smooth response: light {:.2e} rms (relative) off the reference detector and black level {:.3} DN rms, independent from level to level (odd rows' level residuals against the even rows' estimate); taken out of every pixel's means; their smooth part cannot be told from a shared nonlinearity: a shared curve takes it, and is named only if it stands out against the level errors too",
+                levels_term.light_rel, levels_term.black_dn
+            ),
+        ));
+        data = pixels.par_iter().map(|&p| halves(set, &x, kappa, valid[p], p, Some(&levels_term))).collect();
+    }
 
     // Each pixel's quartic on either half: the shapes for the shared curves, and the
     // bad-pixel test of the pixel's own response.
@@ -479,10 +519,12 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     let is_good = |i: usize| bad[i].is_none() && quartics[i].0.is_some() && lines[i].0.is_some();
 
     // Shared curves from the good pixels' even-level quartics.
-    let curve_of = |sel: &dyn Fn(usize) -> bool| -> [f64; 3] {
+    // `at_gain`: every pixel at that gain (an additive common term), else its own.
+    let shared_of = |sel: &dyn Fn(usize) -> bool, at_gain: Option<f64>| -> [f64; 3] {
         let chosen: Vec<usize> = (0..pixels.len()).filter(|&i| is_good(i) && estimating(i) && sel(i)).collect();
-        shared_curve(&chosen.iter().filter_map(|&i| Some((&data[i].0, quartics[i].0.as_ref()?.params[1]))).collect::<Vec<_>>(), top)
+        shared_curve(&chosen.iter().filter_map(|&i| Some((&data[i].0, at_gain.unwrap_or(quartics[i].0.as_ref()?.params[1])))).collect::<Vec<_>>(), top)
     };
+    let curve_of = |sel: &dyn Fn(usize) -> bool| shared_of(sel, None);
     let adc_curves: Vec<[f64; 3]> = (0..n_adc).map(|a| curve_of(&|i| adc_of(pixels[i]) == a)).collect();
     let mut global = curve_of(&|_| true);
     if global.iter().any(|c| !c.is_finite()) {
@@ -506,7 +548,6 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     let all = |_: usize| true;
     let base = score_all(&|_| linear);
     let t0 = totals(&base, &all);
-    let mut findings = Vec::new();
     let bend = |c: [f64; 3], s: f64| s * (c[0] * s + c[1] * s * s + c[2] * s * s * s);
     // ADC curvature first: each ADC's own curve against the consensus of the others, on
     // its held-out pixels (so that one bending ADC is not mistaken for a shared bend).
@@ -544,8 +585,25 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     // consensus.
     let follows = |i: usize| !adc_own[adc_of(pixels[i])] && !estimating(i);
     let (tb0, tb1) = (totals(&base, &follows), totals(&glob, &follows));
-    let sig = paired(&base, &glob, |j| follows(good[j]));
+    let paired_sig = paired(&base, &glob, |j| follows(good[j]));
+    // With levels as the units too: a chance smooth part of level errors is common to
+    // every pixel and passes the test over pixels.
+    let level_sig = smooth_significance(&levels_term, &x, &|i| is_good(i) && !adc_own[adc_of(pixels[i])]);
+    let sig = paired_sig.min(level_sig);
     let global_accepted = sig > SIGNIFICANCE && tb1.s < tb0.s;
+    // Where level errors were found, the shared curve stays in the model either way: it
+    // takes their smooth part (named `global-nonlinearity` only when it stands out).
+    let absorb = level_accepted && !global_accepted;
+    let g0 = median(good.iter().filter(|&&i| estimating(i) && !adc_own[adc_of(pixels[i])]).filter_map(|&i| Some(quartics[i].0.as_ref()?.params[1])).collect());
+    let common = if absorb { shared_of(&|i| !adc_own[adc_of(pixels[i])], Some(g0)) } else { [0.0; 3] };
+    let follower_model = if global_accepted {
+        Response::Curve(global, top)
+    } else if absorb && common.iter().all(|c| c.is_finite()) {
+        Response::Common(common, top, g0)
+    } else {
+        linear
+    };
+    let followed = if matches!(follower_model, Response::Common(..)) { score_all(&|_| follower_model) } else { Vec::new() };
     if global_accepted {
         let fol = |j: usize| follows(good[j]);
         let steps = AdcResiduals { baseline: by_level(&base, nl, fol), extended: by_level(&glob, nl, fol) };
@@ -564,7 +622,15 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     let mut current: Vec<Option<Scored>> = (0..good.len())
         .map(|j| {
             let i = good[j];
-            if adc_own[adc_of(pixels[i])] { own_curve[j].clone() } else if global_accepted { glob[j].clone() } else { base[j].clone() }
+            if adc_own[adc_of(pixels[i])] {
+                own_curve[j].clone()
+            } else {
+                match follower_model {
+                    Response::Curve(..) => glob[j].clone(),
+                    Response::Common(..) => followed[j].clone(),
+                    _ => base[j].clone(),
+                }
+            }
         })
         .collect();
     let mut tcur = totals(&current, &all);
@@ -603,7 +669,7 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     // population estimated on even rows and scored on odd rows.
     let curve_for = |i: usize| {
         let a = adc_of(pixels[i]);
-        if adc_own[a] { Response::Curve(adc_curves[a], top) } else if global_accepted { Response::Curve(global, top) } else { linear }
+        if adc_own[a] { Response::Curve(adc_curves[a], top) } else { follower_model }
     };
     let dg: Vec<Option<[f64; 2]>> = good
         .par_iter()
@@ -714,7 +780,41 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     let dark_noise = median(good.iter().map(|&i| set.std[pixels[i]]).collect());
     let measured = measure_camera(set, &pixels, &good, &valid, &quartics, top, bad.iter().filter(|b| b.is_some()).count());
     findings.extend(insufficient_noise("median dark noise", dark_noise, accuracy_dn));
-    if tcur.excess() > SIGNIFICANCE {
+    // The noise model off by one factor everywhere (frames that are not independent) is
+    // not structure: the factor is measured on the pixels of even rows and the odd rows
+    // scored with it; only what that leaves is `unexplained`.
+    let (te, to) = (totals(&current, &|i| estimating(i)), totals(&current, &|i| !estimating(i)));
+    let k2 = te.s / te.e.max(1e-300);
+    let rescaled = (to.s - k2 * to.e) / (k2 * to.v.sqrt()).max(1e-300);
+    // And alike at every pixel: under a scaled noise each odd-row pixel's held-out sum
+    // `S_p` scatters about `k^2 tr C_p` by `k^2 sqrt(2 tr C_p^2)`; structure confined to
+    // some pixels (subtle bad pixels) overdisperses it. `(X - G) / sqrt(c G)` over the
+    // `G` pixels, `c = 2 + 12 / n` the variance of one term for `n` held-out levels.
+    let (mut x_sum, mut g, mut n_sum) = (0.0, 0.0, 0.0);
+    for (s, _) in current.iter().zip(&good).filter(|(_, &i)| !estimating(i)) {
+        if let Some(s) = s {
+            x_sum += (s.sum_sq() - k2 * s.tr).powi(2) / (k2 * k2 * 2.0 * s.tr2).max(1e-300);
+            g += 1.0;
+            n_sum += s.z.len() as f64;
+        }
+    }
+    let dispersion = if g > 0.0 { (x_sum - g) / ((2.0 + 12.0 * g / n_sum.max(1.0)) * g).sqrt() } else { 0.0 };
+    let noise_only = tcur.excess() > SIGNIFICANCE && k2 > 1.0 && rescaled <= SIGNIFICANCE && dispersion <= SIGNIFICANCE;
+    if noise_only {
+        findings.push(finding(
+            "excess-noise",
+            None,
+            tcur.excess(),
+            tcur.rms(),
+            tcur.rms() / k2.sqrt(),
+            format!(
+                "the means scatter {:.3} times more than the frames' standard deviations say ({:+.1}% of variance), alike at every level and pixel: frames that are not independent (drift or 1/f noise within a level); measured on even rows, odd rows then {rescaled:.1} standard deviations from their null",
+                k2.sqrt(),
+                100.0 * (k2 - 1.0)
+            ),
+        ));
+    }
+    if tcur.excess() > SIGNIFICANCE && !noise_only {
         findings.push(finding(
             "unexplained",
             None,
@@ -736,9 +836,10 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
                 let worst: Vec<String> = levels.iter().take(3).map(|(l, m, dn)| format!("level {l} ({dn:.0} DN): mean z^2 {m:.2}")).collect();
                 let per_adc: Vec<String> = (0..n_adc).map(|a| format!("{:.3}", totals(&current, &|i| adc_of(pixels[i]) == a).rms())).collect();
                 format!(
-                    "held-out levels still scatter {:.3} times their noise (null {:.3}) under the extended model; worst {}; RMS by ADC {}",
+                    "held-out levels still scatter {:.3} times their noise (null {:.3}) under the extended model; not a noise scaled alike everywhere (odd rows {rescaled:.1} standard deviations beyond the even rows' factor {:.3}, pixel-to-pixel dispersion {dispersion:.1}); worst {}; RMS by ADC {}",
                     tcur.rms(),
                     (tcur.e / tcur.n.max(1) as f64).sqrt(),
+                    k2.sqrt(),
                     worst.join(", "),
                     per_adc.join(" / ")
                 )
@@ -814,6 +915,83 @@ mod tests {
                     assert!((got as f64 - *count as f64).abs() <= 0.2 * *count as f64, "seed {seed}: {got} bad pixels for {count}");
                 }
             }
+        }
+    }
+}
+
+#[cfg(test)]
+mod lab_tests {
+    use super::*;
+    use crate::hidden::{linearity_set, Hidden, Plant};
+
+    fn names(d: &Diagnosis) -> Vec<String> {
+        d.findings.iter().map(|f| format!("{}{}", f.effect, f.adc.map_or(String::new(), |a| format!(" {a}")))).collect()
+    }
+
+    /// Level errors alone (light off the reference, black level off, per level) are
+    /// named `level-errors` and do not pass for an ADC mismatch or a shared bend.
+    #[test]
+    fn level_errors_alone_are_level_errors() {
+        let seeds: u64 = std::env::var("DNCAL_SEEDS").ok().and_then(|v| v.parse().ok()).unwrap_or(6);
+        for seed in 0..seeds {
+            let h = match seed % 3 {
+                0 => Hidden::LevelErrors { rel_rms: 2e-4, offset_dn: 0.0 },
+                1 => Hidden::LevelErrors { rel_rms: 0.0, offset_dn: 0.4 },
+                _ => Hidden::LevelErrors { rel_rms: 1e-3, offset_dn: 1.0 },
+            };
+            let d = diagnose_linearity(&linearity_set(&Plant::default(), std::slice::from_ref(&h), 500 + seed), 0.01).unwrap();
+            assert_eq!(names(&d), vec!["level-errors".to_string()], "seed {seed}, {h:?}: {:#?}", d.findings);
+        }
+    }
+
+    /// Means noisier than the frames say, by 5% of variance alike everywhere, are
+    /// `excess-noise`, with or without a real effect beside them; 2% is nothing.
+    #[test]
+    fn excess_noise_is_noise_not_structure() {
+        for seed in 0..3 {
+            let run = |e: f64, h: &[Hidden]| {
+                let mut got = names(&diagnose_linearity(&linearity_set(&Plant { excess_noise: e, ..Plant::default() }, h, 980 + seed), 0.01).unwrap());
+                got.sort();
+                got
+            };
+            assert_eq!(run(0.05, &[]), vec!["excess-noise"], "seed {seed}");
+            assert_eq!(run(0.05, &[Hidden::PixelNonlinearity { rms: 0.002 }]), vec!["excess-noise", "pixel-nonlinearity"], "seed {seed}");
+            assert!(run(0.02, &[]).is_empty(), "seed {seed}");
+        }
+    }
+
+    /// Structure in some pixels, each below the bad-pixel threshold, is `unexplained`: the
+    /// pixel-to-pixel dispersion keeps it from passing for a scaled noise (without that
+    /// check 300 pixels jumping by 0.5 DN rms were taken for 5% of excess noise).
+    #[test]
+    fn subtle_pixels_are_unexplained_not_excess_noise() {
+        for seed in 0..3 {
+            let d = diagnose_linearity(&linearity_set(&Plant::default(), &[Hidden::SubtleBad { count: 300, dn: 0.5 }], 960 + seed), 0.01).unwrap();
+            assert_eq!(names(&d), vec!["unexplained"], "seed {seed}: {:#?}", d.findings);
+        }
+    }
+
+    /// Level errors do not hide the camera's own effects at the low end of the blind
+    /// test's amplitudes, nor make them look like something else.
+    #[test]
+    fn level_errors_leave_the_cameras_effects_visible() {
+        let lab = Hidden::LevelErrors { rel_rms: 3e-4, offset_dn: 0.4 };
+        let cases = [
+            (Hidden::GlobalNonlinearity { c2: 0.01 }, "global-nonlinearity"),
+            (Hidden::GlobalNonlinearity { c2: -0.012 }, "global-nonlinearity"),
+            (Hidden::PixelNonlinearity { rms: 0.002 }, "pixel-nonlinearity"),
+            (Hidden::AdcCurvature { adc: 1, e: 0.005 }, "adc-mismatch 1"),
+            (Hidden::AdcGain { adc: 2, rel: -0.01 }, "adc-mismatch 2"),
+            (Hidden::AdcOffset { adc: 3, dn: 1.0 }, "adc-mismatch 3"),
+            (Hidden::BadPixels { count: 10 }, "bad-pixels"),
+        ];
+        for (seed, (h, name)) in cases.iter().enumerate() {
+            let d = diagnose_linearity(&linearity_set(&Plant::default(), &[h.clone(), lab.clone()], 700 + seed as u64), 0.01).unwrap();
+            let mut want = vec![name.to_string(), "level-errors".to_string()];
+            want.sort();
+            let mut got = names(&d);
+            got.sort();
+            assert_eq!(got, want, "{h:?}: {:#?}", d.findings);
         }
     }
 }

@@ -6,6 +6,7 @@
 
 mod codes;
 mod histograms;
+mod levels;
 mod linearity;
 mod ptc;
 
