@@ -128,6 +128,7 @@ pub fn ptc_model(set: &crate::emva::EmvaSet, summary: &crate::emva::PtcSummary, 
         read_noise_dn: Some(summary.dark_noise_dn),
         offset_dn: Some(dark_dn),
         full_scale_dn: Some(summary.saturation_dn),
+        saturated: true,
         ..Default::default()
     };
     apply_measured(c, d)
@@ -253,7 +254,10 @@ fn report(input: &Path, diagnosis: Diagnosis, model: Option<crate::camera::Camer
                 "level-errors" | "excess-noise" => Some(format!("# of the measurement, not the camera (not simulated): {}\n", f.effect)),
                 _ => None,
             };
-            let not_simulated: Vec<String> = diagnosis.findings.iter().filter_map(note).collect();
+            let mut not_simulated: Vec<String> = diagnosis.findings.iter().filter_map(note).collect();
+            if let (false, Some(f)) = (diagnosis.measured.saturated, diagnosis.measured.full_scale_dn) {
+                not_simulated.push(format!("# the data do not reach saturation: the full well is at least {f:.0} DN above dark; 1.1 times that is assumed\n"));
+            }
             let text = format!("# The model `dncal diagnose` extended from {}: `dncal simulate --model` reads it.\n{}{text}", input.display(), not_simulated.concat());
             write_file_atomically(&path, &text)?;
             outputs.push(path);

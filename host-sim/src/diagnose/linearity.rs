@@ -364,13 +364,28 @@ fn shared_curve(pixels: &[(&Vec<Point>, f64)], top: f64) -> [f64; 3] {
 
 /// The camera parameters a linearity set measures (for the model file): conversion gain
 /// and read noise from the pixels' temporal variance against their signal (median over
-/// pixels per level, a line over the levels below 70% of the range: `var = r^2 + 1/12 +
-/// S / G`), dark level and DSNU, PRNU, full scale, the fraction of bad pixels, and the
+/// pixels per level, corrected for the median of `chi^2`, a line over the levels below
+/// 70% of the range: `var = r^2 + 1/12 + S / G`), dark level and DSNU, PRNU (both about
+/// each pixel's own ADC), full scale and whether it is a saturation, the fraction of bad
+/// pixels, and the
 /// pixel-to-pixel rms of the quadratic response term from the *covariance* of the
 /// pixels' even-level and odd-level quartics (their noises are independent, so the
 /// covariance over pixels is the spread of the true terms alone).
 fn measure_camera(set: &LinearitySet, pixels: &[usize], good: &[usize], valid: &[usize], quartics: &[(Option<Scored>, Option<Scored>)], top: f64, bad: usize) -> Measured {
     let np = set.width * set.height;
+    // The median of `s^2` is `sigma^2` times the median of `chi^2_(N-1) / (N-1)`,
+    // `(1 - 2 / (9 (N-1)))^3` (Wilson-Hilferty): 0.26% low at 256 frames, and the gain
+    // with it.
+    let dof = f64::from(set.n_frames.max(2)) - 1.0;
+    let median_chi2 = (1.0 - 2.0 / (9.0 * dof)).powi(3);
+    let n_adc = set.n_adc.max(1);
+    let adc_of = |p: usize| (p % set.width) % n_adc;
+    // Pixel-to-pixel spreads about each pixel's own ADC's median: an ADC offset or gain is
+    // an `adc-mismatch`, not DSNU or PRNU.
+    let about_own_adc = |v: &[(usize, f64)]| -> (f64, f64) {
+        let (_, centre, scatter) = population(v.iter().copied(), n_adc);
+        (centre, scatter)
+    };
     let (mut s, mut v) = (Vec::new(), Vec::new());
     let dark = median(good.iter().map(|&i| set.mean[pixels[i]]).collect());
     for l in 1..set.levels {
@@ -383,7 +398,7 @@ fn measure_camera(set: &LinearitySet, pixels: &[usize], good: &[usize], valid: &
             break;
         }
         s.push(signal);
-        v.push(median(on.iter().map(|&p| set.std[l * np + p].powi(2)).collect()));
+        v.push(median(on.iter().map(|&p| set.std[l * np + p].powi(2)).collect()) / median_chi2);
     }
     let (gain, read) = if s.len() >= 3 {
         let (a, b, _) = crate::emva::fit_line(&s, &v);
@@ -395,11 +410,11 @@ fn measure_camera(set: &LinearitySet, pixels: &[usize], good: &[usize], valid: &
     // the level nearest half scale (fitted intercepts and slopes would absorb part of each
     // pixel's own curvature: they read 2.1 DN of DSNU where the camera had 0.9).
     let n_frames = f64::from(set.n_frames.max(1));
-    let (_, d_scatter) = robust(&good.iter().map(|&i| set.mean[pixels[i]]).collect::<Vec<_>>());
-    let d_noise = median(good.iter().map(|&i| set.std[pixels[i]].powi(2) / n_frames).collect());
+    let (_, d_scatter) = about_own_adc(&good.iter().map(|&i| (adc_of(pixels[i]), set.mean[pixels[i]])).collect::<Vec<_>>());
+    let d_noise = median(good.iter().map(|&i| set.std[pixels[i]].powi(2) / n_frames).collect()) / median_chi2;
     let half = s.iter().enumerate().min_by(|a, b| (a.1 - 0.5 * s.last().copied().unwrap_or(0.0) / 0.7).abs().total_cmp(&(b.1 - 0.5 * s.last().copied().unwrap_or(0.0) / 0.7).abs())).map_or(1, |(j, _)| j + 1);
-    let sig_half: Vec<f64> = good.iter().map(|&i| pixels[i]).filter(|&p| half < valid[p]).map(|p| set.mean[half * np + p] - set.mean[p]).collect();
-    let (gm, gs) = robust(&sig_half);
+    let sig_half: Vec<(usize, f64)> = good.iter().map(|&i| pixels[i]).filter(|&p| half < valid[p]).map(|p| (adc_of(p), set.mean[half * np + p] - set.mean[p])).collect();
+    let (gm, gs) = about_own_adc(&sig_half);
     let b2: Vec<(f64, f64)> = good
         .iter()
         .filter_map(|&i| {
@@ -416,6 +431,7 @@ fn measure_camera(set: &LinearitySet, pixels: &[usize], good: &[usize], valid: &
         read_noise_dn: read,
         offset_dn: Some(dark),
         full_scale_dn: Some(median(good.iter().map(|&i| pixels[i]).filter(|&p| valid[p] > 1).map(|p| set.mean[(valid[p] - 1) * np + p] - set.mean[p]).collect())),
+        saturated: good.iter().filter(|&&i| valid[pixels[i]] < set.levels).count() * 2 > good.len(),
         prnu_rms: Some(gs / gm),
         dsnu_dn: Some((d_scatter.powi(2) - d_noise).max(0.0).sqrt()),
         pixel_b2_rms_per_dn: (n > 10.0).then(|| cov.max(0.0).sqrt()),
@@ -926,6 +942,29 @@ mod lab_tests {
 
     fn names(d: &Diagnosis) -> Vec<String> {
         d.findings.iter().map(|f| format!("{}{}", f.effect, f.adc.map_or(String::new(), |a| format!(" {a}")))).collect()
+    }
+
+    /// The camera parameters written to the model file come back as planted (defaults:
+    /// 44 e-/DN, 4 DN read noise, 1% PRNU, 1 DN DSNU, no saturation), with an ADC's
+    /// offset and gain off that must not pass for DSNU or PRNU.
+    #[test]
+    fn measured_camera_parameters_are_the_planted_ones() {
+        let plant = Plant::default();
+        for seed in 0..3 {
+            let hidden = [Hidden::AdcOffset { adc: 1, dn: 3.0 }, Hidden::AdcGain { adc: 2, rel: 0.03 }];
+            let m = diagnose_linearity(&linearity_set(&plant, &hidden, 600 + seed), 0.01).unwrap().measured;
+            let g = m.gain_e_per_dn.unwrap();
+            assert!((g / plant.gain_e_per_dn - 1.0).abs() < 0.01, "seed {seed}: gain {g}");
+            let r = m.read_noise_dn.unwrap();
+            assert!((r - plant.read_dn).abs() < 0.05, "seed {seed}: read noise {r}");
+            let p = m.prnu_rms.unwrap();
+            assert!((p / plant.prnu - 1.0).abs() < 0.05, "seed {seed}: PRNU {p}");
+            let d = m.dsnu_dn.unwrap();
+            assert!((d / plant.dsnu_dn - 1.0).abs() < 0.05, "seed {seed}: DSNU {d}");
+            assert!(!m.saturated, "seed {seed}: nothing saturates at {} DN", plant.full_dn + plant.offset_dn);
+        }
+        let bright = Plant { full_dn: 4500.0, ..plant };
+        assert!(diagnose_linearity(&linearity_set(&bright, &[], 9), 0.01).unwrap().measured.saturated);
     }
 
     /// Level errors alone (light off the reference, black level off, per level) are

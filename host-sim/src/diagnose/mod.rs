@@ -126,6 +126,9 @@ pub struct Measured {
     pub offset_dn: Option<f64>,
     /// Largest signal above dark before saturation, DN.
     pub full_scale_dn: Option<f64>,
+    /// Whether the data reached saturation (else `full_scale_dn` is only the brightest
+    /// level: a lower bound of the full well).
+    pub saturated: bool,
     /// Pixel-to-pixel gain spread, relative rms.
     pub prnu_rms: Option<f64>,
     /// Pixel-to-pixel dark spread, DN rms.
