@@ -649,3 +649,19 @@ fn diagnose_recovers_the_simulated_cameras_nonlinearity() {
     let names2: Vec<&str> = s2["findings"].as_array().unwrap().iter().map(|f| f["effect"].as_str().unwrap()).collect();
     assert_eq!(names2, names, "{s2}");
 }
+
+/// The default camera's pipelined ADCs have their own DN error: in a linearity set it
+/// shows as level means off alike within each ADC, and is named `adc-dnl` on each ADC,
+/// not taken for the light (`level-errors`) or left `unexplained`; with ideal ADCs
+/// (`diagnose_recovers_the_simulated_cameras_nonlinearity`) it is not there.
+#[test]
+fn diagnose_names_the_simulated_adcs_dn_error_in_a_linearity_set() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let out = dncal(&["simulate", "linearity", "--roi", "64x64+480+480", "-o", "lin.fits"], d);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let s = stdout_json(&dncal(&["diagnose", "lin.fits", "--json"], d));
+    let names: Vec<String> = s["findings"].as_array().unwrap().iter().map(|f| format!("{} {}", f["effect"].as_str().unwrap(), f["adc"])).collect();
+    let want = ["adc-dnl 0", "adc-dnl 1", "adc-dnl 2", "adc-dnl 3", "global-nonlinearity null", "pixel-nonlinearity null"];
+    assert_eq!(names, want, "{s}");
+}

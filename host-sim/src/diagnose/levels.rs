@@ -17,6 +17,12 @@
 //! `L^2 / (L - 5)` for `L` levels) is the test. Where it is accepted, the even rows'
 //! estimate is taken out of every pixel's means before any model is fitted.
 //!
+//! An ADC's DN error looks the same from one ADC: its pixels' means are off at a level by
+//! its integral nonlinearity at the codes they read. So each ADC's departure from the
+//! common term is tested the same way (even rows against odd rows); where one stands out
+//! the term is taken per ADC, and the caller names those ADCs `adc-dnl` instead of calling
+//! the common part the light's.
+//!
 //! The smooth part of random level errors stays and looks like a shared bend, so the
 //! shared bend is also tested with levels as the units ([`smooth_significance`]): the
 //! pixels' common residual from straight lines, fitted by `1, x, .., x^4` with each
@@ -28,6 +34,9 @@ use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 
 use super::linearity::{fit_and_score, median, robust, Point, Response};
+
+/// One level's residuals `(r, sigma)` from the pixels of even rows and of odd rows.
+type Halves = [Vec<(f64, f64)>; 2];
 
 /// Pixels a level's estimate needs.
 const MIN_PIXELS: usize = 10;
@@ -45,6 +54,15 @@ pub(super) struct LevelTerm {
     /// from the even rows' in theirs.
     pub rms_before: f64,
     pub rms_after: f64,
+    /// Per ADC, when the ADCs' own terms differ beyond noise (an ADC's integral
+    /// nonlinearity at the codes its pixels read, not the light): each ADC's term from
+    /// the estimating pixels `(c, var)` per level, and per ADC the agreement of its
+    /// departure from the common term between even and odd rows, in standard deviations.
+    pub per_adc: Option<Vec<Vec<(f64, f64)>>>,
+    pub adc_significance: Vec<f64>,
+    /// Per ADC, held out: the RMS of the odd rows' own term in its noise, and of its
+    /// difference from the even rows' in theirs.
+    pub adc_rms: Vec<(f64, f64)>,
     /// The level errors' spread: light (relative, rms) and black level (DN, rms).
     pub light_rel: f64,
     pub black_dn: f64,
@@ -61,9 +79,13 @@ impl LevelTerm {
         self.black_dn.powi(2) + (self.light_rel * s).powi(2)
     }
 
-    /// `(c, var)` at `level` from the estimating pixels, when there is one.
-    pub fn at(&self, level: usize) -> Option<(f64, f64)> {
-        let (c, v) = (*self.c.get(level)?, *self.var.get(level)?);
+    /// `(c, var)` at `level` for a pixel on `adc`, from the estimating pixels, when there
+    /// is one: the ADC's own where the ADCs differ.
+    pub fn at(&self, level: usize, adc: usize) -> Option<(f64, f64)> {
+        let (c, v) = match &self.per_adc {
+            Some(per) => *per.get(adc)?.get(level)?,
+            None => (*self.c.get(level)?, *self.var.get(level)?),
+        };
         (c.is_finite() && v.is_finite()).then_some((c, v))
     }
 }
@@ -90,7 +112,8 @@ fn clipped_mean(v: &[(f64, f64)]) -> (f64, f64) {
 
 /// Estimates the common per-level term from every pixel's levels (`data[i]` = even and
 /// odd levels of pixel `i`), the pixels with `estimating(i)` against the others.
-pub(super) fn level_term(data: &[(Vec<Point>, Vec<Point>)], estimating: &(dyn Fn(usize) -> bool + Sync), levels: usize) -> LevelTerm {
+/// `adc[i]` is pixel `i`'s ADC, of `n_adc`.
+pub(super) fn level_term(data: &[(Vec<Point>, Vec<Point>)], estimating: &(dyn Fn(usize) -> bool + Sync), adc: &[usize], n_adc: usize, levels: usize) -> LevelTerm {
     let quartic = Response::Poly(4);
     let line = Response::Poly(1);
     // Per pixel: its quartic's and its straight line's residuals on all its levels.
@@ -115,18 +138,57 @@ pub(super) fn level_term(data: &[(Vec<Point>, Vec<Point>)], estimating: &(dyn Fn
             (quart, lin)
         })
         .collect();
-    let mut per: Vec<[Vec<(f64, f64)>; 2]> = vec![[Vec::new(), Vec::new()]; levels];
+    let mut per: Vec<Halves> = vec![[Vec::new(), Vec::new()]; levels];
+    let mut by_adc: Vec<Vec<Halves>> = vec![vec![[Vec::new(), Vec::new()]; levels]; n_adc];
     let mut signal: Vec<Vec<f64>> = vec![Vec::new(); levels];
     for (i, (quart, _)) in fits.iter().enumerate() {
         let half = usize::from(!estimating(i));
         for &(l, r, s, sig) in quart {
             if l < levels {
                 per[l][half].push((r, s));
+                if let Some(a) = by_adc.get_mut(adc[i]) {
+                    a[l][half].push((r, s));
+                }
                 signal[l].push(sig);
             }
         }
     }
     let est: Vec<[(f64, f64); 2]> = per.par_iter().map(|h| [clipped_mean(&h[0]), clipped_mean(&h[1])]).collect();
+    // Each ADC's departure from the common term, even rows against odd rows (its variance
+    // about `v_a - v`: the common term holds the ADC's own pixels).
+    let adc_est: Vec<Vec<[(f64, f64); 2]>> = by_adc.par_iter().map(|a| a.iter().map(|h| [clipped_mean(&h[0]), clipped_mean(&h[1])]).collect()).collect();
+    let adc_significance: Vec<f64> = if n_adc >= 2 {
+        adc_est
+            .iter()
+            .map(|a| {
+                let d: Vec<(f64, f64)> = (0..levels)
+                    .filter_map(|l| {
+                        let side = |h: usize| {
+                            let ((ca, va), (c, v)) = (a[l][h], est[l][h]);
+                            let var = va - v;
+                            (ca.is_finite() && c.is_finite() && var > 0.0).then(|| (ca - c) / var.sqrt())
+                        };
+                        Some((side(0)?, side(1)?))
+                    })
+                    .collect();
+                let n = d.len() as f64;
+                if d.len() > 8 { d.iter().map(|(a, b)| a * b).sum::<f64>() / (n / (n - 5.0).sqrt()) } else { 0.0 }
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let adc_rms: Vec<(f64, f64)> = adc_est
+        .iter()
+        .map(|a| {
+            let ok: Vec<&[(f64, f64); 2]> = a.iter().filter(|h| h.iter().all(|(c, v)| c.is_finite() && *v > 0.0)).collect();
+            let n = ok.len().max(1) as f64;
+            let before = (ok.iter().map(|h| h[1].0 * h[1].0 / h[1].1).sum::<f64>() / n).sqrt();
+            let after = (ok.iter().map(|h| (h[1].0 - h[0].0).powi(2) / (h[1].1 + h[0].1)).sum::<f64>() / n).sqrt();
+            (before, after)
+        })
+        .collect();
+    let per_adc = adc_significance.iter().any(|&t| t > super::SIGNIFICANCE).then(|| adc_est.iter().map(|a| a.iter().map(|h| h[0]).collect()).collect());
     let signal: Vec<f64> = signal.into_iter().map(median).collect();
     // Agreement of the halves, over the levels where both have an estimate.
     let both: Vec<(usize, f64, f64)> = (0..levels)
@@ -163,6 +225,9 @@ pub(super) fn level_term(data: &[(Vec<Point>, Vec<Point>)], estimating: &(dyn Fn
         c: est.iter().map(|e| e[0].0).collect(),
         var: est.iter().map(|e| e[0].1).collect(),
         significance,
+        per_adc,
+        adc_significance,
+        adc_rms,
         rms_before,
         rms_after,
         light_rel: light2.sqrt(),

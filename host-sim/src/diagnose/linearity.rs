@@ -319,7 +319,7 @@ fn halves(set: &LinearitySet, x: &[f64], kappa: f64, valid: usize, p: usize, com
     let floor = 1.0 / (12.0 * n);
     let pts = (0..valid)
         .map(|l| {
-            let (c, v) = common.and_then(|t| t.at(l)).unwrap_or((0.0, 0.0));
+            let (c, v) = common.and_then(|t| t.at(l, (p % set.width) % set.n_adc.max(1))).unwrap_or((0.0, 0.0));
             Point { level: l, x: x[l], y: set.mean[l * np + p] - c, sigma: ((kappa * set.std[l * np + p].powi(2) / n).max(floor) + v).sqrt() }
         })
         .filter(|q| q.x.is_finite() && q.y.is_finite() && q.sigma.is_finite());
@@ -473,10 +473,24 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     let mut data: Vec<(Vec<Point>, Vec<Point>)> = pixels.par_iter().map(|&p| halves(set, &x, kappa, valid[p], p, None)).collect();
     // Errors every pixel shares at a level (the light off the reference, the black level
     // off) first: found, they are taken out of every pixel's means before any model.
-    let levels_term = level_term(&data, &estimating, nl);
+    let adcs: Vec<usize> = pixels.iter().map(|&p| adc_of(p)).collect();
+    let levels_term = level_term(&data, &estimating, &adcs, n_adc, nl);
     let mut findings = Vec::new();
     let level_accepted = levels_term.significance > SIGNIFICANCE && levels_term.rms_after < levels_term.rms_before;
-    if level_accepted {
+    // Where the ADCs' own terms differ, the error is (at least partly) the ADCs': their
+    // integral nonlinearity at the codes their pixels read. Named per ADC, and the common
+    // part is not called the light's (the ADCs' mean DN error is common too).
+    for (a, &t) in levels_term.adc_significance.iter().enumerate().filter(|(_, t)| **t > SIGNIFICANCE) {
+        findings.push(finding(
+            "adc-dnl",
+            Some(a),
+            t,
+            levels_term.adc_rms[a].0,
+            levels_term.adc_rms[a].1,
+            format!("ADC {a}'s pixels are off alike at some levels, unlike the other ADCs' (its departure from the common level term agrees between even and odd rows at {t:.1} standard deviations): the ADC's integral nonlinearity (DN error) at the codes its pixels read, which a linearity set sees only as level means; its own term is taken out of its pixels' means"),
+        ));
+    }
+    if level_accepted && levels_term.per_adc.is_none() {
         findings.push(finding(
             "level-errors",
             None,
@@ -488,6 +502,8 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
                 levels_term.light_rel, levels_term.black_dn
             ),
         ));
+    }
+    if level_accepted || levels_term.per_adc.is_some() {
         data = pixels.par_iter().map(|&p| halves(set, &x, kappa, valid[p], p, Some(&levels_term))).collect();
     }
 
