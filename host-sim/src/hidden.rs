@@ -97,11 +97,14 @@ pub struct Plant {
     /// Extra variance of the means beyond `var / N`, as a fraction of it (frames that are
     /// not independent): a noise model off by a few percent, which is not structure.
     pub excess_noise: f64,
+    /// Draw every frame and round it to a code (slow: for low-noise sets, where the
+    /// sufficient statistics' Gaussian shortcut does not hold).
+    pub quantized: bool,
 }
 
 impl Default for Plant {
     fn default() -> Self {
-        Plant { width: 64, height: 64, n_adc: 4, levels: 41, frames: 256, full_dn: 3600.0, gain_e_per_dn: 44.0, read_dn: 4.0, prnu: 0.01, dsnu_dn: 1.0, offset_dn: 60.0, excess_noise: 0.0 }
+        Plant { width: 64, height: 64, n_adc: 4, levels: 41, frames: 256, full_dn: 3600.0, gain_e_per_dn: 44.0, read_dn: 4.0, prnu: 0.01, dsnu_dn: 1.0, offset_dn: 60.0, excess_noise: 0.0, quantized: false }
     }
 }
 
@@ -208,6 +211,16 @@ pub fn linearity_set(plant: &Plant, hidden: &[Hidden], seed: u64) -> LinearitySe
             let i = l * np + p;
             if kind[p] == 2 {
                 (mean[i], std[i]) = (top, 0.0);
+            } else if plant.quantized {
+                let sd = (var - 1.0 / 12.0).max(0.0).sqrt();
+                let (mut s1, mut s2) = (0.0, 0.0);
+                for _ in 0..plant.frames {
+                    let q = (code + sd * unit.sample(&mut rng)).round().clamp(0.0, top);
+                    s1 += q;
+                    s2 += q * q;
+                }
+                mean[i] = s1 / n;
+                std[i] = ((s2 - s1 * s1 / n) / (n - 1.0)).max(0.0).sqrt();
             } else {
                 mean[i] = (code + (var * (1.0 + plant.excess_noise) / n).sqrt() * unit.sample(&mut rng)).min(top);
                 std[i] = (var * chi.sample(&mut rng) / (n - 1.0)).sqrt();

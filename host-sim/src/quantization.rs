@@ -154,6 +154,43 @@ pub fn worst_bias(sigma: f64) -> WorstBias {
     WorstBias { sigma, max_abs_bias_dn: best, at_lambda_frac: best_x }
 }
 
+/// The mean square of `delta` over `lambda'` uniform in [0, 1), DN^2: from the Fourier
+/// series, `sum_{m>=1} exp(-4 pi^2 m^2 sigma^2) / (2 pi^2 m^2)`; 1/12 without noise (a
+/// mean of identical codes is off by up to half a code), 2.6e-6 at 0.5 DN. Where the
+/// noise is too low to average below a code, this is the error of a mean that its
+/// frames' spread does not show: the variance floor of a mean across levels.
+pub fn mean_square_bias(sigma: f64) -> f64 {
+    use std::f64::consts::PI;
+    let mut sum = 0.0;
+    for m in 1..100_000u32 {
+        let mf = f64::from(m);
+        let term = (-4.0 * PI * PI * mf * mf * sigma * sigma).exp() / (2.0 * PI * PI * mf * mf);
+        sum += term;
+        if term < 1e-18 * sum.max(1e-300) {
+            break;
+        }
+    }
+    sum
+}
+
+/// The analog noise rms (DN) behind quantized frames whose variance, averaged over
+/// readouts spread evenly within a code (pixels at one level), is `v` DN^2: the inverse of
+/// `V(sigma) = sigma^2 + 1/12 - mean_square_bias(sigma)` (the readout error is the noise
+/// plus a uniform rounding, whose total variance splits into the frames' spread and the
+/// square of the means' bias), by bisection. 0 for `v <= 0`.
+pub fn sigma_from_quantized_variance(v: f64) -> f64 {
+    if v.is_nan() || v <= 0.0 {
+        return 0.0;
+    }
+    let f = |s: f64| s * s + 1.0 / 12.0 - mean_square_bias(s);
+    let (mut lo, mut hi) = (0.0, v.sqrt() + 1.0);
+    for _ in 0..60 {
+        let mid = 0.5 * (lo + hi);
+        if f(mid) < v { lo = mid } else { hi = mid }
+    }
+    0.5 * (lo + hi)
+}
+
 /// The smallest noise rms (DN) whose worst-case bias is at most `bias` DN: a scan upward
 /// in steps of 0.001 DN from 0 to the first noise level that meets it, then bisection
 /// between it and the step below. `None` for `bias <= 0` (no finite noise reaches zero)
@@ -287,4 +324,38 @@ mod tests {
         assert_eq!(sigma_for_bias(0.6), Some(0.0));
         assert_eq!(sigma_for_bias(0.0), None);
     }
+
+    /// The closed form against a direct average of `bias_gaussian` over `lambda'`.
+    #[test]
+    fn mean_square_bias_is_the_average_of_the_squared_bias() {
+        for sigma in [0.0, 0.05, 0.1, 0.2, 0.3, 0.5] {
+            let n = 20_000;
+            let direct = (0..n).map(|i| bias_gaussian((i as f64 + 0.5) / n as f64, sigma).powi(2)).sum::<f64>() / n as f64;
+            let closed = mean_square_bias(sigma);
+            assert!((closed - direct).abs() <= 1e-3 * direct + 1e-12, "sigma {sigma}: {closed} vs {direct}");
+        }
+        assert!((mean_square_bias(0.0) - 1.0 / 12.0).abs() < 1e-4);
+    }
+
+
+    /// Pixels spread evenly within a code, frames of analog noise `sigma` rounded: the
+    /// mean of their frame variances gives `sigma` back (Monte Carlo, 4000 x 64 frames).
+    #[test]
+    fn the_analog_noise_comes_back_from_quantized_frames() {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(5);
+        for sigma in [0.05, 0.1, 0.17, 0.3, 0.6] {
+            let normal = Normal::new(0.0, sigma).unwrap();
+            let (pixels, frames) = (4000, 64);
+            let mut mean_var = 0.0;
+            for p in 0..pixels {
+                let lambda = 100.0 + (p as f64 + 0.5) / pixels as f64;
+                let q: Vec<f64> = (0..frames).map(|_| (lambda + normal.sample(&mut rng)).round()).collect();
+                let m = q.iter().sum::<f64>() / frames as f64;
+                mean_var += q.iter().map(|v| (v - m).powi(2)).sum::<f64>() / (frames - 1) as f64 / pixels as f64;
+            }
+            let back = sigma_from_quantized_variance(mean_var);
+            assert!((back / sigma - 1.0).abs() < 0.03, "sigma {sigma}: {back} from variance {mean_var}");
+        }
+    }
+
 }
