@@ -54,7 +54,8 @@
 //! kinks, jumps), a gain outside 0.5-1.5 of the median (dead, as [`crate::linearity`]
 //! masks), a dark level more than 10 robust sigma off (hot). The before/after RMS is over
 //! the odd-level dark and gain against the population plus the held-out levels of each
-//! pixel's own quartic, with and without the flagged pixels.
+//! pixel's own quartic, with and without the pixels flagged on the even levels alone (held out: every score is
+//! of the odd levels).
 //!
 //! ## What the measurement adds
 //! **`level-errors`** ([`super::levels`]): errors every pixel shares at a level, measured
@@ -798,21 +799,24 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
                 _ => vec![(set.mean[pixels[i]] - own_adc(&dark_adc, i, dark_pop.0)) / dark_pop.1.max(1e-9)],
             }
         };
+        // Scored held out: the pixels set apart are those flagged on the even levels alone,
+        // and every score is of the odd levels (the odd-level fit's dark and gain, the
+        // even-level quartic's residuals there); the count needs both halves.
         let (mut s_all, mut n_all, mut s_ok, mut n_ok) = (0.0, 0usize, 0.0, 0usize);
-        for (i, flag) in bad.iter().enumerate() {
+        for i in 0..pixels.len() {
             let z = map_z(i);
             let s: f64 = z.iter().map(|v| v * v).sum();
             s_all += s;
             n_all += z.len();
-            if flag.is_none() {
+            if bad_in(i, 0).is_none() {
                 s_ok += s;
                 n_ok += z.len();
             }
         }
         let (before, after) = ((s_all / n_all.max(1) as f64).sqrt(), (s_ok / n_ok.max(1) as f64).sqrt());
         let kinds = |k: &str| flagged.iter().filter(|&&i| bad[i] == Some(k)).count();
-        // Each pixel is flagged at 1e-6 or beyond in two independent halves: the
-        // significance is that of the excess over the expected false count.
+        // The significance is that of the set-apart pixels' odd-level excess over what
+        // noise leaves in them (one per residual).
         let removed = (n_all - n_ok) as f64;
         let significance = (s_all - s_ok - removed) / (2.0 * n_all as f64).sqrt();
         if significance > SIGNIFICANCE {
