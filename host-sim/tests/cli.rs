@@ -660,8 +660,13 @@ fn diagnose_names_the_simulated_adcs_dn_error_in_a_linearity_set() {
     let d = dir.path();
     let out = dncal(&["simulate", "linearity", "--roi", "64x64+480+480", "-o", "lin.fits"], d);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let s = stdout_json(&dncal(&["diagnose", "lin.fits", "--json"], d));
+    let s = stdout_json(&dncal(&["diagnose", "lin.fits", "--json", "-o", "rep"], d));
     let names: Vec<String> = s["findings"].as_array().unwrap().iter().map(|f| format!("{} {}", f["effect"].as_str().unwrap(), f["adc"])).collect();
     let want = ["adc-dnl 0", "adc-dnl 1", "adc-dnl 2", "adc-dnl 3", "global-nonlinearity null", "pixel-nonlinearity null"];
     assert_eq!(names, want, "{s}");
+    // Each finding has its figure in the report.
+    for (i, f) in s["findings"].as_array().unwrap().iter().enumerate() {
+        let png = d.join(format!("rep/finding-{i}-{}.png", f["effect"].as_str().unwrap()));
+        assert!(std::fs::metadata(&png).map(|m| m.len() > 1000).unwrap_or(false), "{} missing", png.display());
+    }
 }

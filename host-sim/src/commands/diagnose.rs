@@ -220,7 +220,8 @@ fn report(input: &Path, diagnosis: Diagnosis, model: Option<crate::camera::Camer
                 Series { label: "before".into(), points: r.baseline.iter().map(|&(k, z)| (k as f64, z)).collect() },
                 Series { label: format!("with {what}"), points: r.extended.iter().map(|&(k, z)| (k as f64, z)).collect() },
             ];
-            let axis = if f.effect == "adc-dnl" { "code (DN)" } else { x_label };
+            // An ADC's code widths are seen by code, except in a linearity set (by level).
+            let axis = if f.effect == "adc-dnl" && diagnosis.baseline.kind != "linearity-set" { "code (DN)" } else { x_label };
             line_plot(&dir.join(&name), &format!("{what}: held-out residuals / noise, before and after (gain {:.2})", f.gain), axis, "normalized residual", &series, 1)?;
             let _ = write!(h, "<h2>{what}</h2><p>{}</p><figure><img src=\"{name}\" width=\"1000\"></figure>", f.detail);
             outputs.push(dir.join(name));

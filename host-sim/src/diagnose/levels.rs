@@ -34,6 +34,17 @@ use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 
 use super::linearity::{fit_and_score, median, robust, Point, Response};
+use super::AdcResiduals;
+
+/// Held out by level: the odd rows' estimate in its noise, and its difference from the
+/// even rows' in theirs.
+fn held_out_by_level(est: &[[(f64, f64); 2]]) -> AdcResiduals {
+    let ok = |h: &[(f64, f64); 2]| h.iter().all(|(c, v)| c.is_finite() && *v > 0.0);
+    AdcResiduals {
+        baseline: est.iter().enumerate().filter(|(_, h)| ok(h)).map(|(l, h)| (l, h[1].0 / h[1].1.sqrt())).collect(),
+        extended: est.iter().enumerate().filter(|(_, h)| ok(h)).map(|(l, h)| (l, (h[1].0 - h[0].0) / (h[1].1 + h[0].1).sqrt())).collect(),
+    }
+}
 
 /// One level's residuals `(r, sigma)` from the pixels of even rows and of odd rows.
 type Halves = [Vec<(f64, f64)>; 2];
@@ -63,6 +74,9 @@ pub(super) struct LevelTerm {
     /// Per ADC, held out: the RMS of the odd rows' own term in its noise, and of its
     /// difference from the even rows' in theirs.
     pub adc_rms: Vec<(f64, f64)>,
+    /// The same by level, for the figures: common, and per ADC.
+    pub by_level: AdcResiduals,
+    pub adc_by_level: Vec<AdcResiduals>,
     /// The level errors' spread: light (relative, rms) and black level (DN, rms).
     pub light_rel: f64,
     pub black_dn: f64,
@@ -221,7 +235,11 @@ pub(super) fn level_term(data: &[(Vec<Point>, Vec<Point>)], estimating: &(dyn Fn
         let scale = nl / (nl - 5.0);
         (black2, light2) = (black2 * scale, light2 * scale);
     }
+    let by_level = held_out_by_level(&est);
+    let adc_by_level: Vec<AdcResiduals> = adc_est.iter().map(|a| held_out_by_level(a)).collect();
     LevelTerm {
+        by_level,
+        adc_by_level,
         c: est.iter().map(|e| e[0].0).collect(),
         var: est.iter().map(|e| e[0].1).collect(),
         significance,

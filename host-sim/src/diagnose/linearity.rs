@@ -505,17 +505,17 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     // integral nonlinearity at the codes their pixels read. Named per ADC, and the common
     // part is not called the light's (the ADCs' mean DN error is common too).
     for (a, &t) in levels_term.adc_significance.iter().enumerate().filter(|(_, t)| **t > SIGNIFICANCE) {
-        findings.push(finding(
+        findings.push(with_residuals(levels_term.adc_by_level[a].clone(), finding(
             "adc-dnl",
             Some(a),
             t,
             levels_term.adc_rms[a].0,
             levels_term.adc_rms[a].1,
             format!("ADC {a}'s pixels are off alike at some levels, unlike the other ADCs' (its departure from the common level term agrees between even and odd rows at {t:.1} standard deviations): the ADC's integral nonlinearity (DN error) at the codes its pixels read, which a linearity set sees only as level means; its own term is taken out of its pixels' means"),
-        ));
+        )));
     }
     if level_accepted && levels_term.per_adc.is_none() {
-        findings.push(finding(
+        findings.push(with_residuals(levels_term.by_level.clone(), finding(
             "level-errors",
             None,
             levels_term.significance,
@@ -525,7 +525,7 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
                 "every pixel is off alike at some levels, beyond any smooth response: light {:.2e} rms (relative) off the reference detector and black level {:.3} DN rms, independent from level to level (odd rows' level residuals against the even rows' estimate); taken out of every pixel's means; their smooth part cannot be told from a shared nonlinearity: a shared curve takes it, and is named only if it stands out against the level errors too",
                 levels_term.light_rel, levels_term.black_dn
             ),
-        ));
+        )));
     }
     if level_accepted || levels_term.per_adc.is_some() {
         data = pixels.par_iter().map(|&p| halves(set, &x, kappa, &bias2, valid[p], p, Some(&levels_term))).collect();
@@ -860,7 +860,9 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     let dispersion = if g > 0.0 { (x_sum - g) / ((2.0 + 12.0 * g / n_sum.max(1.0)) * g).sqrt() } else { 0.0 };
     let noise_only = tcur.excess() > SIGNIFICANCE && k2 > 1.0 && rescaled <= SIGNIFICANCE && dispersion <= SIGNIFICANCE;
     if noise_only {
-        findings.push(finding(
+        let rms = by_level(&current, nl, |_| true);
+        let scaled = rms.iter().map(|&(l, r)| (l, r / k2.sqrt())).collect();
+        findings.push(with_residuals(AdcResiduals { baseline: rms, extended: scaled }, finding(
             "excess-noise",
             None,
             tcur.excess(),
@@ -871,7 +873,7 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
                 k2.sqrt(),
                 100.0 * (k2 - 1.0)
             ),
-        ));
+        )));
     }
     if tcur.excess() > SIGNIFICANCE && !noise_only {
         findings.push(finding(
