@@ -538,7 +538,8 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     let quartics: Vec<(Option<Scored>, Option<Scored>)> = data.par_iter().map(|(ev, od)| (fit_and_score(quartic, &zero5, ev, od), fit_and_score(quartic, &zero5, od, ev))).collect();
     // Dark and gain per pixel from each half (the linear response), for the maps.
     let linear = Response::Poly(1);
-    let lines: Vec<(Option<Scored>, Option<Scored>)> = data.par_iter().map(|(ev, od)| (fit_and_score(linear, &[0.0; 2], ev, od), fit_and_score(linear, &[0.0; 2], od, ev))).collect();
+    // (Their parameters only: no held-out score is read from them.)
+    let lines: Vec<(Option<Scored>, Option<Scored>)> = data.par_iter().map(|(ev, od)| (fit_and_score(linear, &[0.0; 2], ev, &[]), fit_and_score(linear, &[0.0; 2], od, &[]))).collect();
     // The population of dark (k = 0) and gain (k = 1) from the even-level fits, for the
     // bad-pixel flags.
     let pop_of = |k: usize| population(lines.iter().enumerate().filter(|(i, _)| estimating(*i)).filter_map(|(i, l)| Some((adc_of(pixels[i]), l.0.as_ref()?.params[k]))), n_adc);
