@@ -21,7 +21,8 @@ struct Pixel {
     bank: u64,
 }
 
-/// Counters and high-water marks since the model was built (or `CLEAR_SUMS`).
+/// Counters and high-water marks since the model was built (`CLEAR_SUMS` clears the sums
+/// and frame counts only).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct Stats {
     /// Pixel clocks run.
@@ -53,12 +54,17 @@ pub struct Stats {
     /// atomic, so its sums stay right; this counts where hardware would need forwarding).
     /// Zero unless frames are shorter than the memory latency.
     pub rmw_hazards: u32,
+    /// LUT uploads begun while pixels that entered with the previous tables were still
+    /// queued: hardware has two banks, and the upload overwrites the one those pixels
+    /// still need (the model keeps a copy, so its sums stay right; this counts where a
+    /// design needs an interlock: hold `LUT_BEGIN` until the FIFO has drained).
+    pub lut_overwrite_hazards: u32,
 }
 
 /// The timing of one frame through the model.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct FrameTiming {
-    /// Cycles from the frame's first beat to the end of its vertical blanking.
+    /// Cycles of the frame: its vertical blanking (which comes first), then its lines.
     pub cycles: u64,
     /// Cycles with line-valid high.
     pub active_cycles: u64,
@@ -90,6 +96,7 @@ impl Fpga {
     /// A datapath of `config` with geometry `geometry`, ideal LUTs, zero sums.
     pub fn new(config: Config, geometry: Geometry) -> Result<Self, FpgaError> {
         config.validate()?;
+        config.holds(&geometry)?;
         Ok(Fpga {
             config,
             geometry,
@@ -145,6 +152,7 @@ impl Fpga {
         if self.frame_open.is_some() {
             return Err(FpgaError::Config("geometry", "cannot change while a frame is open".into()));
         }
+        self.config.holds(&geometry)?;
         self.drain();
         self.geometry = geometry;
         self.clear_sums();
@@ -172,8 +180,19 @@ impl Fpga {
         }
     }
 
+    /// A `LUT_BEGIN`: the staging bank is overwritten from here on (see
+    /// [`Stats::lut_overwrite_hazards`]).
+    pub(crate) fn begin_upload(&mut self) {
+        if self.fifo.front().is_some_and(|(p, _)| p.bank < self.bank_epoch) {
+            self.stats.lut_overwrite_hazards = self.stats.lut_overwrite_hazards.saturating_add(1);
+        }
+        self.banks.begin_upload();
+    }
+
     /// The frame-boundary action of a `LUT_COMMIT` (as the core's corrector: at once if
-    /// no frame is open, otherwise when the open frame ends).
+    /// no frame is open, otherwise when the open frame ends). Register traffic takes no
+    /// cycles in the model and frames are streamed whole, so over SPI no frame is ever
+    /// open here: the swap happens at once; the frame-boundary path is the core's.
     pub(crate) fn activation_requested(&mut self) {
         if self.frame_open.is_none() {
             self.swap_if_pending();
@@ -212,8 +231,13 @@ impl Fpga {
         }
         self.stats.inflight_high_water = self.stats.inflight_high_water.max(self.inflight.len());
         // Lookups: as many pixels as taps and the memory bandwidth allow (2 words each).
+        // The bucket holds one cycle's words (two when a cycle brings one, so that a pixel
+        // can issue every other cycle; one more when it brings an odd number, so that the
+        // half pixel left over is not lost): no burst above the memory's bandwidth (the
+        // first version held four cycles' words and issued 4 pixels in a cycle on a
+        // 2-word memory after a blanking).
         let words = u64::from(self.config.mem_words_per_cycle);
-        self.tokens = (self.tokens + words).min(words.max(2) * 4);
+        self.tokens = (self.tokens + words).min(words.max(2) + words % 2);
         let mut issued = 0;
         while issued < self.config.taps && self.tokens >= 2 {
             let Some((p, entered)) = self.fifo.pop_front() else { break };

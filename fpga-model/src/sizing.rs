@@ -6,8 +6,8 @@ use dncal_core::Geometry;
 use crate::datapath::{ADCS, CODES};
 use crate::{Config, Fpga, FpgaError};
 
-/// Bits of one LUT entry in block RAM (12 integer + 11 fractional).
-pub const ENTRY_BITS: u64 = 23;
+/// Bits of one LUT entry in block RAM (12 integer + 11 fractional): the core's entry limit.
+pub const ENTRY_BITS: u64 = dncal_core::LUT_ENTRY_LIMIT.trailing_zeros() as u64;
 
 /// The camera system to size for.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
@@ -22,7 +22,8 @@ pub struct System {
     pub frame_rate_hz: f64,
     /// Horizontal blanking as a fraction of a line's active time.
     pub h_blank_fraction: f64,
-    /// Vertical blanking as a fraction of a frame's active time.
+    /// Vertical blanking as a fraction of a frame's line time (active plus horizontal
+    /// blanking).
     pub v_blank_fraction: f64,
 }
 
@@ -51,6 +52,9 @@ pub struct TapSizing {
     pub latency_cycles: u64,
     /// Measured: largest input FIFO occupancy, pixels.
     pub fifo_high_water: usize,
+    /// Measured: largest number of read-modify-writes in flight: the queue the design
+    /// needs between the sum memory's read and its write-back (about taps x latency).
+    pub inflight_high_water: usize,
     /// Measured: pixels dropped (must be 0).
     pub fifo_overflows: u32,
     /// Measured: read-modify-writes that would need forwarding (must be 0).
@@ -96,6 +100,15 @@ pub fn lut_access(taps: usize) -> &'static str {
 /// per tap count in the model built from `base` (its taps, blanking and memory bandwidth
 /// are replaced: 2 words per tap per clock).
 pub fn size(system: &System, states: u8, base: &Config, tap_counts: &[usize]) -> Result<Sizing, FpgaError> {
+    let fraction = |what: &'static str, f: f64| if f.is_finite() && (0.0..=1.0).contains(&f) { Ok(()) } else { Err(FpgaError::Config(what, format!("must be a fraction from 0 to 1, got {f}"))) };
+    fraction("h_blank_fraction", system.h_blank_fraction)?;
+    fraction("v_blank_fraction", system.v_blank_fraction)?;
+    if !(system.frame_rate_hz.is_finite() && system.frame_rate_hz > 0.0) {
+        return Err(FpgaError::Config("frame_rate_hz", format!("must be positive, got {}", system.frame_rate_hz)));
+    }
+    if let Some(&t) = tap_counts.iter().find(|t| !(1..=8).contains(*t)) {
+        return Err(FpgaError::Config("taps", format!("must be 1 to 8, got {t}")));
+    }
     let pixels_per_frame = f64::from(system.width) * f64::from(system.height);
     let pixels_per_s = pixels_per_frame * system.frame_rate_hz * f64::from(system.cameras);
     let geometry = Geometry::new(system.width, system.height, states, 0)?;
@@ -122,6 +135,7 @@ pub fn size(system: &System, states: u8, base: &Config, tap_counts: &[usize]) ->
             pixels_per_clock: st.pixels as f64 / timing.cycles as f64,
             latency_cycles: st.max_latency,
             fifo_high_water: st.fifo_high_water,
+            inflight_high_water: st.inflight_high_water,
             fifo_overflows: st.fifo_overflows,
             rmw_hazards: st.rmw_hazards,
             lut_access: lut_access(taps),
@@ -175,4 +189,18 @@ mod tests {
         assert_eq!(lines[0], "000400");
         assert_eq!(lines[4095], format!("{:06x}", (2 * 4095 + 1) << 10));
     }
+
+    /// Bad systems and tap counts are errors, never a panic, a wrap or NaN clocks.
+    #[test]
+    fn bad_systems_are_refused() {
+        let ok = System::default();
+        let base = Config::default();
+        assert!(size(&ok, 1, &base, &[0]).is_err());
+        assert!(size(&ok, 1, &base, &[1 << 31]).is_err());
+        assert!(size(&System { h_blank_fraction: 1e30, ..ok.clone() }, 1, &base, &[1]).is_err());
+        assert!(size(&System { v_blank_fraction: f64::NAN, ..ok.clone() }, 1, &base, &[1]).is_err());
+        assert!(size(&System { frame_rate_hz: f64::NAN, ..ok.clone() }, 1, &base, &[1]).is_err());
+        assert!(size(&System { frame_rate_hz: -1.0, ..ok }, 1, &base, &[1]).is_err());
+    }
+
 }

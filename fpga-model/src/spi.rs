@@ -54,7 +54,7 @@ impl Fpga {
         let new = match reg {
             Reg::Control => {
                 if value & control::LUT_BEGIN != 0 {
-                    self.banks.begin_upload();
+                    self.begin_upload();
                 }
                 if value & control::LUT_COMMIT != 0 && self.banks.finish_upload().is_ok() && self.banks.request_activation().is_ok() {
                     self.activation_requested();

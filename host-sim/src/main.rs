@@ -330,8 +330,12 @@ enum Cmd {
         /// Modulation states (sum banks).
         #[arg(long, default_value_t = 4)]
         states: u8,
-        #[command(flatten)]
-        engine: EngineArgs,
+        /// Input FIFO depth, pixels (taps, blanking and memory bandwidth are set per row).
+        #[arg(long, default_value_t = 1024)]
+        fifo_depth: usize,
+        /// Sum-memory latency, cycles.
+        #[arg(long, default_value_t = 32)]
+        mem_latency: u32,
         /// LUT FITS file to write as `$readmemh` files (with --out).
         #[arg(long, value_name = "FITS", requires = "out")]
         lut: Option<PathBuf>,
@@ -721,8 +725,9 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
             })?;
             return Ok(if ok { ExitCode::SUCCESS } else { ExitCode::FAILURE });
         }
-        Cmd::FpgaSize { cameras, size, frame_rate, states, engine, lut, out, json } => {
-            let dncal_host::streaming::Engine::Fpga(config) = (EngineArgs { engine: "fpga".into(), ..engine }).engine()? else { unreachable!("asked for the fpga engine") };
+        Cmd::FpgaSize { cameras, size, frame_rate, states, fifo_depth, mem_latency, lut, out, json } => {
+            let config = dncal_fpga_model::Config { fifo_depth, mem_latency, ..Default::default() };
+            config.validate().map_err(|e| HostError::Format { path: "fpga-size".into(), message: e.to_string() })?;
             if !(frame_rate.is_finite() && frame_rate > 0.0) || cameras == 0 || size == 0 || size > 8192 {
                 return Err(HostError::Format { path: "fpga-size".into(), message: "cameras and frame rate must be positive and the size 1 to 8192 pixels (the model holds a frame's sums in memory)".into() });
             }
@@ -736,8 +741,8 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
                 );
                 for row in &s.taps {
                     t += &format!(
-                        "{} taps: clock {:.1} MHz per camera, {} cycles per frame, {:.3} pixels/clock, latency {} cycles, FIFO high water {} ({} dropped), LUT BRAM {} bits; {}\n",
-                        row.taps, row.clock_mhz, row.cycles_per_frame, row.pixels_per_clock, row.latency_cycles, row.fifo_high_water, row.fifo_overflows, row.bram_bits, row.lut_access
+                        "{} taps: clock {:.1} MHz per camera, {} cycles per frame, {:.3} pixels/clock, latency {} cycles, FIFO high water {} ({} dropped), read-modify-writes in flight up to {}, LUT BRAM {} bits; {}\n",
+                        row.taps, row.clock_mhz, row.cycles_per_frame, row.pixels_per_clock, row.latency_cycles, row.fifo_high_water, row.fifo_overflows, row.inflight_high_water, row.bram_bits, row.lut_access
                     );
                 }
                 for f in &r.readmemh {

@@ -15,8 +15,10 @@ use crate::HostError;
 /// The report: the sizing and the files written.
 #[derive(Debug, Serialize)]
 pub struct FpgaSizeReport {
-    /// The model's build parameters (taps and blanking are set per row).
-    pub config: Config,
+    /// The model's FIFO depth and memory latency (taps, blanking and memory bandwidth are
+    /// set per row).
+    pub fifo_depth: usize,
+    pub mem_latency: u32,
     /// The sizing.
     #[serde(flatten)]
     pub sizing: Sizing,
@@ -45,5 +47,5 @@ pub fn fpga_size(system: &System, states: u8, config: &Config, lut: Option<&Path
             files.push(path);
         }
     }
-    Ok(FpgaSizeReport { config: config.clone(), sizing, readmemh: files })
+    Ok(FpgaSizeReport { fifo_depth: config.fifo_depth, mem_latency: config.mem_latency, sizing, readmemh: files })
 }
