@@ -7,7 +7,9 @@ use dncal_core::{AdcMap, Geometry, LutBanks, Mvd1024eLuts};
 
 use crate::{Config, FpgaError};
 
-/// ADCs of the modelled camera (column c is read by ADC c mod 4).
+/// ADCs of the modelled camera (column c is read by ADC c mod 4). With [`CODES`], the
+/// core's `Mvd1024eLuts`: the banks below are `LutBanks<ADCS, CODES>` built from it, so
+/// the compiler holds the two to the same numbers.
 pub const ADCS: usize = 4;
 /// Codes per ADC.
 pub const CODES: usize = 4096;
