@@ -52,6 +52,9 @@ pub enum Hidden {
     /// pixels): below the bad-pixel threshold each, structure all the same. Not in
     /// [`pick`]: diagnose names it `unexplained`.
     SubtleBad { count: usize, dn: f64 },
+    /// A charge loss every pixel shares at low signal: `S - dn (1 - exp(-S / 100 DN))`.
+    /// Not in [`pick`]: diagnose names it `low-signal-nonlinearity`.
+    ChargeLoss { dn: f64 },
 }
 
 impl Hidden {
@@ -64,6 +67,7 @@ impl Hidden {
             Hidden::BadPixels { .. } => ("bad-pixels", None),
             Hidden::LevelErrors { .. } => ("level-errors", None),
             Hidden::SubtleBad { .. } => ("unexplained", None),
+            Hidden::ChargeLoss { .. } => ("low-signal-nonlinearity", None),
         }
     }
 }
@@ -151,6 +155,7 @@ pub fn linearity_set(plant: &Plant, hidden: &[Hidden], seed: u64) -> LinearitySe
     let mut bad_count = 0;
     let (mut light, mut black) = (vec![0.0; nl], vec![0.0; nl]);
     let (mut subtle, mut subtle_dn) = (0, 0.0);
+    let mut loss = 0.0;
     for e in hidden {
         match *e {
             Hidden::GlobalNonlinearity { c2: c } => c2.iter_mut().for_each(|v| *v += c),
@@ -160,6 +165,7 @@ pub fn linearity_set(plant: &Plant, hidden: &[Hidden], seed: u64) -> LinearitySe
             Hidden::AdcCurvature { adc, e } => adc_bend[adc] = e,
             Hidden::BadPixels { count } => bad_count = count,
             Hidden::SubtleBad { count, dn } => (subtle, subtle_dn) = (count, dn),
+            Hidden::ChargeLoss { dn } => loss = dn,
             Hidden::LevelErrors { rel_rms, offset_dn } => {
                 light.iter_mut().for_each(|v| *v = rel_rms * unit.sample(&mut rng));
                 black.iter_mut().for_each(|v| *v = offset_dn * unit.sample(&mut rng));
@@ -198,7 +204,7 @@ pub fn linearity_set(plant: &Plant, hidden: &[Hidden], seed: u64) -> LinearitySe
         for p in 0..np {
             let a = (p % w) % plant.n_adc;
             let s_lin = if kind[p] == 1 { 0.0 } else { gain[p] * plant.full_dn * x };
-            let s = s_lin * (1.0 + c2[p] * s_lin / top);
+            let s = s_lin * (1.0 + c2[p] * s_lin / top) - loss * (1.0 - (-s_lin / 100.0).exp());
             let mut v = plant.offset_dn + black[l] + dark[p] + s;
             if jumpy[p] {
                 v += subtle_dn * unit.sample(&mut rng);

@@ -71,7 +71,7 @@ use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 
-use super::levels::{level_term, smooth_significance, LevelTerm};
+use super::levels::{level_term, smooth_significance, LevelTerm, Shape};
 use super::*;
 use crate::fits::LinearitySet;
 use crate::linearity::unsaturated_levels;
@@ -315,13 +315,14 @@ fn finding(effect: &str, adc: Option<usize>, significance: f64, before: f64, aft
 /// The levels of one pixel, split: (even levels, odd levels); less the common per-level
 /// term where one was accepted (its variance added to the noise). `bias2[l]` is the
 /// mean square quantization error of a mean at level `l` ([`quantization_floor`]).
-fn halves(set: &LinearitySet, x: &[f64], kappa: f64, bias2: &[f64], valid: usize, p: usize, common: Option<&LevelTerm>) -> (Vec<Point>, Vec<Point>) {
+/// `common` is the term and the pixel's gain ratio ([`LevelTerm::at`]).
+fn halves(set: &LinearitySet, x: &[f64], kappa: f64, bias2: &[f64], valid: usize, p: usize, common: Option<(&LevelTerm, f64)>) -> (Vec<Point>, Vec<Point>) {
     let np = set.width * set.height;
     let n = f64::from(set.n_frames.max(1));
     let floor = 1.0 / (12.0 * n);
     let pts = (0..valid)
         .map(|l| {
-            let (c, v) = common.and_then(|t| t.at(l, (p % set.width) % set.n_adc.max(1))).unwrap_or((0.0, 0.0));
+            let (c, v) = common.and_then(|(t, ratio)| t.at(l, (p % set.width) % set.n_adc.max(1), ratio)).unwrap_or((0.0, 0.0));
             Point { level: l, x: x[l], y: set.mean[l * np + p] - c, sigma: ((kappa * set.std[l * np + p].powi(2) / n).max(floor) + bias2[l] + v).sqrt() }
         })
         .filter(|q| q.x.is_finite() && q.y.is_finite() && q.sigma.is_finite());
@@ -515,20 +516,26 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
         )));
     }
     if level_accepted && levels_term.per_adc.is_none() {
-        findings.push(with_residuals(levels_term.by_level.clone(), finding(
-            "level-errors",
-            None,
-            levels_term.significance,
-            levels_term.rms_before,
-            levels_term.rms_after,
-            format!(
-                "every pixel is off alike at some levels, beyond any smooth response: light {:.2e} rms (relative) off the reference detector and black level {:.3} DN rms, independent from level to level (odd rows' level residuals against the even rows' estimate); taken out of every pixel's means; their smooth part cannot be told from a shared nonlinearity: a shared curve takes it, and is named only if it stands out against the level errors too",
+        // Named by its shape: random errors of the measurement, or a response every pixel
+        // shares that no quartic follows (a charge loss at low signal was taken for level
+        // errors until the shape was looked at).
+        let (effect, detail) = match levels_term.shape {
+            Shape::Random => ("level-errors", format!(
+                "every pixel is off alike at some levels, beyond any smooth response, uncorrelated from level to level and spread over the range: light {:.2e} rms (relative) off the reference detector and black level {:.3} DN rms (odd rows' level residuals against the even rows' estimate); taken out of every pixel's means (the light's part scaled by each pixel's gain); their smooth part cannot be told from a shared nonlinearity: a shared curve takes it, and is named only if it stands out against the level errors too",
                 levels_term.light_rel, levels_term.black_dn
-            ),
-        )));
+            )),
+            Shape::LowSignal { share } => ("low-signal-nonlinearity", format!(
+                "every pixel departs alike from any smooth response at the lowest signals: {:.0}% of the agreement between even and odd rows lies in the lowest 10% of the range (an offset or a charge loss); taken out of every pixel's means",
+                100.0 * share
+            )),
+            Shape::Correlated { rho } => ("unexplained", format!(
+                "every pixel departs alike from any smooth response, correlated from level to level (lag-1 correlation {rho:.2} over the levels by signal): a shared response no quartic follows, not random level errors; taken out of every pixel's means"
+            )),
+        };
+        findings.push(with_residuals(levels_term.by_level.clone(), finding(effect, None, levels_term.significance, levels_term.rms_before, levels_term.rms_after, detail)));
     }
     if level_accepted || levels_term.per_adc.is_some() {
-        data = pixels.par_iter().map(|&p| halves(set, &x, kappa, &bias2, valid[p], p, Some(&levels_term))).collect();
+        data = pixels.par_iter().enumerate().map(|(i, &p)| halves(set, &x, kappa, &bias2, valid[p], p, Some((&levels_term, levels_term.gain_ratio[i])))).collect();
     }
 
     // Each pixel's quartic on either half: the shapes for the shared curves, and the
@@ -845,7 +852,9 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     // scored with it; only what that leaves is `unexplained`.
     let (te, to) = (totals(&current, &|i| estimating(i)), totals(&current, &|i| !estimating(i)));
     let k2 = te.s / te.e.max(1e-300);
-    let rescaled = (to.s - k2 * to.e) / (k2 * to.v.sqrt()).max(1e-300);
+    // The factor's own noise (the even rows are as many as the odd ones) is in the
+    // denominator: without it the null spread was 1.4, not 1.
+    let rescaled = (to.s - k2 * to.e) / (k2 * (to.v + (to.e / te.e.max(1e-300)).powi(2) * te.v).sqrt()).max(1e-300);
     // And alike at every pixel: under a scaled noise each odd-row pixel's held-out sum
     // `S_p` scatters about `k^2 tr C_p` by `k^2 sqrt(2 tr C_p^2)`; structure confined to
     // some pixels (subtle bad pixels) overdisperses it. `(X - G) / sqrt(c G)` over the
@@ -867,8 +876,8 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
             "excess-noise",
             None,
             tcur.excess(),
-            tcur.rms(),
-            tcur.rms() / k2.sqrt(),
+            to.rms(),
+            to.rms() / k2.sqrt(),
             format!(
                 "the means scatter {:.3} times more than the frames' standard deviations say ({:+.1}% of variance), alike at every level and pixel: frames that are not independent (drift or 1/f noise within a level); measured on even rows, odd rows then {rescaled:.1} standard deviations from their null",
                 k2.sqrt(),
@@ -1043,6 +1052,43 @@ mod lab_tests {
             };
             let d = diagnose_linearity(&linearity_set(&Plant::default(), std::slice::from_ref(&h), 500 + seed), 0.01).unwrap();
             assert_eq!(names(&d), vec!["level-errors".to_string()], "seed {seed}, {h:?}: {:#?}", d.findings);
+        }
+    }
+
+    /// An ADC's gain off beside light errors (both within the blind test's ranges): the
+    /// light's part of the level term scales with each pixel's gain, so the ADC is an
+    /// `adc-mismatch` and not also an `adc-dnl` (16 of 20 seeds were, when the term was
+    /// one DN amount for all pixels).
+    #[test]
+    fn light_errors_scale_with_the_pixels_gain() {
+        for seed in 0..6 {
+            let hidden = [Hidden::AdcGain { adc: 1, rel: 0.03 }, Hidden::LevelErrors { rel_rms: 5e-4, offset_dn: 0.0 }];
+            let d = diagnose_linearity(&linearity_set(&Plant::default(), &hidden, 820 + seed), 0.01).unwrap();
+            let mut got = names(&d);
+            got.sort();
+            assert_eq!(got, vec!["adc-mismatch 1", "level-errors"], "seed {seed}: {:#?}", d.findings);
+        }
+    }
+
+    /// A charge loss every pixel shares at low signal is the camera's
+    /// `low-signal-nonlinearity`, not the measurement's `level-errors` (it was, 40 of 40,
+    /// before the term's shape was looked at).
+    #[test]
+    fn a_shared_charge_loss_is_low_signal_nonlinearity() {
+        for (seed, dn) in [0.5, 1.0, 2.0, 5.0].into_iter().enumerate() {
+            let d = diagnose_linearity(&linearity_set(&Plant::default(), &[Hidden::ChargeLoss { dn }], 840 + seed as u64), 0.01).unwrap();
+            assert_eq!(names(&d), vec!["low-signal-nonlinearity"], "{dn} DN: {:#?}", d.findings);
+        }
+    }
+
+    /// Large level errors and no bend: no shared bend named (the bend's test against the
+    /// level errors uses an F reference: their variance is estimated from the levels).
+    #[test]
+    fn large_level_errors_make_no_bend() {
+        let seeds: u64 = std::env::var("DNCAL_SEEDS").ok().and_then(|v| v.parse().ok()).unwrap_or(8);
+        for seed in 0..seeds {
+            let d = diagnose_linearity(&linearity_set(&Plant::default(), &[Hidden::LevelErrors { rel_rms: 1e-3, offset_dn: 1.0 }], 860 + seed), 0.01).unwrap();
+            assert_eq!(names(&d), vec!["level-errors"], "seed {seed}: {:#?}", d.findings);
         }
     }
 
