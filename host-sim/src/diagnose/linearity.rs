@@ -1061,8 +1061,10 @@ mod lab_tests {
     /// one DN amount for all pixels).
     #[test]
     fn light_errors_scale_with_the_pixels_gain() {
-        for seed in 0..6 {
-            let hidden = [Hidden::AdcGain { adc: 1, rel: 0.03 }, Hidden::LevelErrors { rel_rms: 5e-4, offset_dn: 0.0 }];
+        for seed in 0..9 {
+            // Light only, black only, both.
+            let lab = [Hidden::LevelErrors { rel_rms: 5e-4, offset_dn: 0.0 }, Hidden::LevelErrors { rel_rms: 0.0, offset_dn: 1.0 }, Hidden::LevelErrors { rel_rms: 5e-4, offset_dn: 1.0 }][seed as usize % 3].clone();
+            let hidden = [Hidden::AdcGain { adc: 1, rel: 0.03 }, lab];
             let d = diagnose_linearity(&linearity_set(&Plant::default(), &hidden, 820 + seed), 0.01).unwrap();
             let mut got = names(&d);
             got.sort();
