@@ -47,6 +47,20 @@ fn held_out_by_level(est: &[[(f64, f64); 2]]) -> AdcResiduals {
     }
 }
 
+/// RMS of the held-out residuals before and after a level term ([`held_out_by_level`]).
+pub(super) fn held_out_rms(r: &AdcResiduals) -> (f64, f64) {
+    let rms = |v: &[(usize, f64)]| (v.iter().map(|(_, z)| z * z).sum::<f64>() / v.len().max(1) as f64).sqrt();
+    (rms(&r.baseline), rms(&r.extended))
+}
+
+/// The agreement of two independent estimates over levels, each in its own noise
+/// (`(a_l, b_l)`): `sum a b / sqrt(tr(A B))`, `tr(A B)` about `L^2 / (L - 5)` after the
+/// quartic's projection; 0 with 8 levels or fewer.
+fn agreement(pairs: &[(f64, f64)]) -> f64 {
+    let n = pairs.len() as f64;
+    if pairs.len() > 8 { pairs.iter().map(|(a, b)| a * b).sum::<f64>() / (n / (n - 5.0).sqrt()) } else { 0.0 }
+}
+
 /// One level's residuals `(r, sigma)` from the pixels of even rows and of odd rows.
 type Halves = [Vec<(f64, f64)>; 2];
 
@@ -62,20 +76,14 @@ pub(super) struct LevelTerm {
     pub var: Vec<f64>,
     /// The agreement of the two in standard deviations.
     pub significance: f64,
-    /// Held-out: the RMS of the odd rows' estimate in its noise, and of its difference
-    /// from the even rows' in theirs.
-    pub rms_before: f64,
-    pub rms_after: f64,
     /// Per ADC, when the ADCs' own terms differ beyond noise (an ADC's integral
     /// nonlinearity at the codes its pixels read, not the light): each ADC's term from
     /// the estimating pixels `(c, var)` per level, and per ADC the agreement of its
     /// departure from the common term between even and odd rows, in standard deviations.
     pub per_adc: Option<Vec<Vec<(f64, f64)>>>,
     pub adc_significance: Vec<f64>,
-    /// Per ADC, held out: the RMS of the odd rows' own term in its noise, and of its
-    /// difference from the even rows' in theirs.
-    pub adc_rms: Vec<(f64, f64)>,
-    /// The same by level, for the figures: common, and per ADC.
+    /// Held out by level, common and per ADC: the odd rows' estimate in its noise, and
+    /// its difference from the even rows' in theirs ([`held_out_rms`] for their RMS).
     pub by_level: AdcResiduals,
     pub adc_by_level: Vec<AdcResiduals>,
     /// The level errors' spread: light (relative, rms) and black level (DN, rms).
@@ -216,10 +224,7 @@ pub(super) fn level_term(data: &[(Vec<Point>, Vec<Point>)], estimating: &(dyn Fn
         .map(|l| (l, est[l][0].0 / est[l][0].1.sqrt(), est[l][1].0 / est[l][1].1.sqrt()))
         .collect();
     let nl = both.len() as f64;
-    let significance = if both.len() > 8 { both.iter().map(|(_, a, b)| a * b).sum::<f64>() / (nl / (nl - 5.0).sqrt()) } else { 0.0 };
-    let rms = |f: &dyn Fn(usize) -> f64| (both.iter().map(|&(l, ..)| f(l).powi(2)).sum::<f64>() / nl.max(1.0)).sqrt();
-    let rms_before = rms(&|l| est[l][1].0 / est[l][1].1.sqrt());
-    let rms_after = rms(&|l| (est[l][1].0 - est[l][0].0) / (est[l][1].1 + est[l][0].1).sqrt());
+    let significance = agreement(&both.iter().map(|&(_, a, b)| (a, b)).collect::<Vec<_>>());
     // tau^2 = black^2 + light^2 S^2 from E[c_e c_o] (the noises are independent), weighted
     // by the products' noise; scaled back through the quartic's projection (L / (L - 5)).
     let (mut black2, mut light2) = (0.0, 0.0);
@@ -273,13 +278,13 @@ pub(super) fn level_term(data: &[(Vec<Point>, Vec<Point>)], estimating: &(dyn Fn
             .iter()
             .enumerate()
             .map(|(ai, a)| {
+                // The common term as this ADC's pixels would see it: light and black level
+                // both through the ADC's gain (a 3% ADC gain beside 1 DN of black-level
+                // errors read as `adc-dnl` in 14 of 16 sets when only the light's share was
+                // scaled).
+                let scale = adc_gain_ratio[ai];
                 let d: Vec<(f64, f64)> = (0..levels)
                     .filter_map(|l| {
-                        // The common term as this ADC's pixels would see it: light and
-                        // black level both through the ADC's gain (a 3% ADC gain beside
-                        // 1 DN of black-level errors read as `adc-dnl` in 14 of 16 sets
-                        // when only the light's share was scaled).
-                        let scale = adc_gain_ratio[ai];
                         let side = |h: usize| {
                             let ((ca, va), (c, v)) = (a[l][h], est[l][h]);
                             let var = va - v * scale * scale;
@@ -288,23 +293,12 @@ pub(super) fn level_term(data: &[(Vec<Point>, Vec<Point>)], estimating: &(dyn Fn
                         Some((side(0)?, side(1)?))
                     })
                     .collect();
-                let n = d.len() as f64;
-                if d.len() > 8 { d.iter().map(|(a, b)| a * b).sum::<f64>() / (n / (n - 5.0).sqrt()) } else { 0.0 }
+                agreement(&d)
             })
             .collect()
     } else {
         Vec::new()
     };
-    let adc_rms: Vec<(f64, f64)> = adc_est
-        .iter()
-        .map(|a| {
-            let ok: Vec<&[(f64, f64); 2]> = a.iter().filter(|h| h.iter().all(|(c, v)| c.is_finite() && *v > 0.0)).collect();
-            let n = ok.len().max(1) as f64;
-            let before = (ok.iter().map(|h| h[1].0 * h[1].0 / h[1].1).sum::<f64>() / n).sqrt();
-            let after = (ok.iter().map(|h| (h[1].0 - h[0].0).powi(2) / (h[1].1 + h[0].1)).sum::<f64>() / n).sqrt();
-            (before, after)
-        })
-        .collect();
     let per_adc = adc_significance.iter().any(|&t| t > super::SIGNIFICANCE).then(|| adc_est.iter().map(|a| a.iter().map(|h| h[0]).collect()).collect());
     let by_level = held_out_by_level(&est);
     let adc_by_level: Vec<AdcResiduals> = adc_est.iter().map(|a| held_out_by_level(a)).collect();
@@ -316,9 +310,6 @@ pub(super) fn level_term(data: &[(Vec<Point>, Vec<Point>)], estimating: &(dyn Fn
         significance,
         per_adc,
         adc_significance,
-        adc_rms,
-        rms_before,
-        rms_after,
         light_rel: light2.sqrt(),
         black_dn: black2.sqrt(),
         gain_ratio,
@@ -332,8 +323,8 @@ pub(super) fn level_term(data: &[(Vec<Point>, Vec<Point>)], estimating: &(dyn Fn
 /// The shared bend with levels as the units: the common residual of the selected pixels'
 /// straight lines (`sel` on the index into the pixels), fitted by `1, x, .., x^4` with
 /// each level's variance the noise of the mean plus the level errors' `tau^2`, and the
-/// Wald statistic of the `x^2 .. x^4` terms as a one-sided normal deviate
-/// (Wilson-Hilferty). `x` is the reference per level.
+/// Wald statistic of the `x^2 .. x^4` terms against `F(3, L - 5)` as a one-sided normal
+/// deviate. `x` is the reference per level.
 pub(super) fn smooth_significance(term: &LevelTerm, x: &[f64], sel: &(dyn Fn(usize) -> bool + Sync)) -> f64 {
     let levels = x.len();
     let mut per: Vec<Vec<(f64, f64)>> = vec![Vec::new(); levels];

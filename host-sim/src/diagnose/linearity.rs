@@ -71,7 +71,7 @@ use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 
-use super::levels::{level_term, smooth_significance, LevelTerm, Shape};
+use super::levels::{held_out_rms, level_term, smooth_significance, LevelTerm, Shape};
 use super::*;
 use crate::fits::LinearitySet;
 use crate::linearity::unsaturated_levels;
@@ -501,17 +501,19 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     let adcs: Vec<usize> = pixels.iter().map(|&p| adc_of(p)).collect();
     let levels_term = level_term(&data, &estimating, &adcs, n_adc, nl);
     let mut findings = Vec::new();
-    let level_accepted = levels_term.significance > SIGNIFICANCE && levels_term.rms_after < levels_term.rms_before;
+    let (level_before, level_after) = held_out_rms(&levels_term.by_level);
+    let level_accepted = levels_term.significance > SIGNIFICANCE && level_after < level_before;
     // Where the ADCs' own terms differ, the error is (at least partly) the ADCs': their
     // integral nonlinearity at the codes their pixels read. Named per ADC, and the common
     // part is not called the light's (the ADCs' mean DN error is common too).
     for (a, &t) in levels_term.adc_significance.iter().enumerate().filter(|(_, t)| **t > SIGNIFICANCE) {
+        let (before, after) = held_out_rms(&levels_term.adc_by_level[a]);
         findings.push(with_residuals(levels_term.adc_by_level[a].clone(), finding(
             "adc-dnl",
             Some(a),
             t,
-            levels_term.adc_rms[a].0,
-            levels_term.adc_rms[a].1,
+            before,
+            after,
             format!("ADC {a}'s pixels are off alike at some levels, unlike the other ADCs' (its departure from the common level term agrees between even and odd rows at {t:.1} standard deviations): the ADC's integral nonlinearity (DN error) at the codes its pixels read, which a linearity set sees only as level means; its own term is taken out of its pixels' means"),
         )));
     }
@@ -532,7 +534,7 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
                 "every pixel departs alike from any smooth response, correlated from level to level (lag-1 correlation {rho:.2} over the levels by signal): a shared response no quartic follows, not random level errors; taken out of every pixel's means"
             )),
         };
-        findings.push(with_residuals(levels_term.by_level.clone(), finding(effect, None, levels_term.significance, levels_term.rms_before, levels_term.rms_after, detail)));
+        findings.push(with_residuals(levels_term.by_level.clone(), finding(effect, None, levels_term.significance, level_before, level_after, detail)));
     }
     if level_accepted || levels_term.per_adc.is_some() {
         data = pixels.par_iter().enumerate().map(|(i, &p)| halves(set, &x, kappa, &bias2, valid[p], p, Some((&levels_term, levels_term.gain_ratio[i])))).collect();
@@ -576,10 +578,14 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
         }
         None
     };
-    let bad: Vec<Option<&'static str>> = (0..pixels.len()).map(|i| match (bad_in(i, 0), bad_in(i, 1)) {
-        (Some(a), Some(_)) => Some(a),
-        _ => None,
-    }).collect();
+    // The flags on the even levels (for the held-out bad-pixel score) and on both.
+    let flagged_even: Vec<Option<&'static str>> = (0..pixels.len()).map(|i| bad_in(i, 0)).collect();
+    let bad: Vec<Option<&'static str>> = (0..pixels.len())
+        .map(|i| match (flagged_even[i], bad_in(i, 1)) {
+            (Some(a), Some(_)) => Some(a),
+            _ => None,
+        })
+        .collect();
     let is_good = |i: usize| bad[i].is_none() && quartics[i].0.is_some() && lines[i].0.is_some();
 
     // Shared curves from the good pixels' even-level quartics.
@@ -811,12 +817,12 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
         // and every score is of the odd levels (the odd-level fit's dark and gain, the
         // even-level quartic's residuals there); the count needs both halves.
         let (mut s_all, mut n_all, mut s_ok, mut n_ok) = (0.0, 0usize, 0.0, 0usize);
-        for i in 0..pixels.len() {
+        for (i, even) in flagged_even.iter().enumerate() {
             let z = map_z(i);
             let s: f64 = z.iter().map(|v| v * v).sum();
             s_all += s;
             n_all += z.len();
-            if bad_in(i, 0).is_none() {
+            if even.is_none() {
                 s_ok += s;
                 n_ok += z.len();
             }
