@@ -24,7 +24,7 @@
 //! the common part the light's.
 //!
 //! The smooth part of random level errors stays and looks like a shared bend, so the
-//! shared bend is also tested with levels as the units ([`smooth_significance`]): the
+//! shared bend is also tested with levels as the units ([`wald`] with [`Block::Bend`]): the
 //! pixels' common residual from straight lines, fitted by `1, x, .., x^4` with each
 //! level's variance its noise plus the level-error variance measured here, and the bend
 //! terms `x^2 .. x^4` accepted by a Wald test. The variance of the level errors is read
@@ -37,13 +37,13 @@ use statrs::distribution::ContinuousCDF;
 use super::linearity::{fit_and_score, median, robust, Point, Response};
 use super::AdcResiduals;
 
-/// Held out by level: the odd rows' estimate in its noise, and its difference from the
-/// even rows' in theirs.
-fn held_out_by_level(est: &[[(f64, f64); 2]]) -> AdcResiduals {
-    let ok = |h: &[(f64, f64); 2]| h.iter().all(|(c, v)| c.is_finite() && *v > 0.0);
+/// Held out by level, over the levels `on`: the odd rows' estimate in its noise, and its
+/// difference from the even rows' in theirs.
+fn held_out_by_level(est: &[[(f64, f64); 2]], on: impl Fn(usize) -> bool) -> AdcResiduals {
+    let ok = |l: usize, h: &[(f64, f64); 2]| on(l) && h.iter().all(|(c, v)| c.is_finite() && *v > 0.0);
     AdcResiduals {
-        baseline: est.iter().enumerate().filter(|(_, h)| ok(h)).map(|(l, h)| (l, h[1].0 / h[1].1.sqrt())).collect(),
-        extended: est.iter().enumerate().filter(|(_, h)| ok(h)).map(|(l, h)| (l, (h[1].0 - h[0].0) / (h[1].1 + h[0].1).sqrt())).collect(),
+        baseline: est.iter().enumerate().filter(|(l, h)| ok(*l, h)).map(|(l, h)| (l, h[1].0 / h[1].1.sqrt())).collect(),
+        extended: est.iter().enumerate().filter(|(l, h)| ok(*l, h)).map(|(l, h)| (l, (h[1].0 - h[0].0) / (h[1].1 + h[0].1).sqrt())).collect(),
     }
 }
 
@@ -82,24 +82,38 @@ pub(super) struct LevelTerm {
     /// departure from the common term between even and odd rows, in standard deviations.
     pub per_adc: Option<Vec<Vec<(f64, f64)>>>,
     pub adc_significance: Vec<f64>,
-    /// Held out by level, common and per ADC: the odd rows' estimate in its noise, and
-    /// its difference from the even rows' in theirs ([`held_out_rms`] for their RMS).
+    /// Held out by level, common and per ADC, over the levels the tests use: the odd
+    /// rows' estimate in its noise, and its difference from the even rows' in theirs
+    /// ([`held_out_rms`] for their RMS); the same over the skipped levels.
     pub by_level: AdcResiduals,
     pub adc_by_level: Vec<AdcResiduals>,
-    /// The level errors' spread: light (relative, rms) and black level (DN, rms).
+    pub skipped_by_level: AdcResiduals,
+    /// The levels that took no part in the fits and tests (their term extrapolated).
+    pub skip: Vec<bool>,
+    /// The level errors' spread: light (relative, rms) and black level (DN, rms), and the
+    /// covariance of the estimates of their squares (black^2 in DN^2, light^2).
     pub light_rel: f64,
     pub black_dn: f64,
-    /// Each pixel's gain over the median (index into the caller's pixels; 1 where it has
-    /// no fit), and each ADC's median of it: the light's part of the term scales with it.
-    pub gain_ratio: Vec<f64>,
-    pub adc_gain_ratio: Vec<f64>,
+    tau_cov: [[f64; 2]; 2],
+    /// Each pixel's quartic over all its levels (index into the caller's pixels; `None`
+    /// where it has none), the reference per level, and per level the median over pixels
+    /// of their slopes there, DN per reference unit: a level's error moves a pixel's mean
+    /// by its local slope (the light's part) or its ADC's (the black level's), and an ADC
+    /// that bends changes its slope along the range (one gain per pixel left a 1% bend
+    /// beside large level errors reading as `adc-dnl` in 8 of 12 sets).
+    quartic: Vec<Option<[f64; 5]>>,
+    x: Vec<f64>,
+    slope_median: Vec<f64>,
+    /// Per ADC and level, the median of its pixels' slope ratios ([`LevelTerm::slope_ratio`]).
+    pub adc_ratio: Vec<Vec<f64>>,
     /// What the term looks like over the levels (random errors, or a response).
     pub shape: Shape,
     /// Mean signal per level, DN above dark.
     pub signal: Vec<f64>,
     /// Per pixel (index into the caller's pixels), its straight line's residuals on all
-    /// levels: (level, residual DN, sigma DN).
+    /// levels: (level, residual DN, sigma DN), and its ADC.
     pub line_residuals: Vec<Vec<(usize, f64, f64)>>,
+    adc: Vec<usize>,
 }
 
 /// The shape of the common term over the levels, ordered by signal: level errors are
@@ -116,7 +130,36 @@ pub(super) enum Shape {
     Correlated { rho: f64 },
 }
 
+/// The slope of `sum_k q_k x^k` at `x`.
+fn slope(q: &[f64; 5], x: f64) -> f64 {
+    q[1] + x * (2.0 * q[2] + x * (3.0 * q[3] + x * 4.0 * q[4]))
+}
+
+/// A quartic's slope at `x` over the median slope `m` there (1 where either is unknown).
+fn slope_over(q: Option<&[f64; 5]>, x: f64, m: f64) -> f64 {
+    let r = q.map_or(f64::NAN, |q| slope(q, x) / m);
+    if r.is_finite() && m > 0.0 { r } else { 1.0 }
+}
+
 impl LevelTerm {
+    /// Pixel `i`'s slope at `level` over the median pixel's there (1 where either is
+    /// unknown).
+    pub fn slope_ratio(&self, i: usize, level: usize) -> f64 {
+        let (Some(q), Some(&x), Some(&m)) = (self.quartic.get(i), self.x.get(level), self.slope_median.get(level)) else { return 1.0 };
+        slope_over(q.as_ref(), x, m)
+    }
+
+    /// Only the levels `on` keep their term (a departure at the lowest signals accepted
+    /// where the level errors are not).
+    pub fn keep_only(&mut self, on: impl Fn(usize) -> bool) {
+        for l in (0..self.c.len()).filter(|&l| !on(l)) {
+            (self.c[l], self.var[l]) = (0.0, 0.0);
+        }
+        for a in self.per_adc.iter_mut().flatten() {
+            a.iter_mut().enumerate().filter(|(l, _)| !on(*l)).for_each(|(_, cv)| *cv = (0.0, 0.0));
+        }
+    }
+
     /// The light's share of the variance at level `l`.
     fn light_share(&self, l: usize) -> f64 {
         let s = self.signal.get(l).copied().unwrap_or(0.0);
@@ -129,12 +172,20 @@ impl LevelTerm {
         self.black_dn.powi(2) + (self.light_rel * s).powi(2)
     }
 
-    /// `(c, var)` at `level` for a pixel on `adc` with gain ratio `ratio`, from the
-    /// estimating pixels, when there is one: the ADC's own where the ADCs differ; the
-    /// light's share scaled by the pixel's gain against the pixels the term came from (a
-    /// fixed DN amount left an ADC with 3% more gain a residual that read as `adc-dnl`).
-    pub fn at(&self, level: usize, adc: usize, ratio: f64) -> Option<(f64, f64)> {
-        let adc_ratio = self.adc_gain_ratio.get(adc).copied().unwrap_or(1.0);
+    /// The variance of the estimate of `tau^2` at signal `s`, DN^4.
+    fn tau2_var(&self, s: f64) -> f64 {
+        let v = [1.0, s * s];
+        let c = &self.tau_cov;
+        (v[0] * (c[0][0] * v[0] + c[0][1] * v[1]) + v[1] * (c[1][0] * v[0] + c[1][1] * v[1])).max(0.0)
+    }
+
+    /// `(c, var)` at `level` for pixel `i` on `adc`, from the estimating pixels, when
+    /// there is one: the ADC's own where the ADCs differ; the light's share scaled by the
+    /// pixel's slope there against the pixels the term came from (a fixed DN amount left
+    /// an ADC with 3% more gain a residual that read as `adc-dnl`).
+    pub fn at(&self, level: usize, adc: usize, i: usize) -> Option<(f64, f64)> {
+        let ratio = self.slope_ratio(i, level);
+        let adc_ratio = self.adc_ratio.get(adc).and_then(|r| r.get(level)).copied().unwrap_or(1.0);
         // The black level's part goes through the ADC's gain (an analog offset ahead of
         // it), the light's through the pixel's; a per-ADC term already carries its ADC's.
         let (c, v, base, black) = match &self.per_adc {
@@ -172,18 +223,24 @@ fn clipped_mean(v: &[(f64, f64)]) -> (f64, f64) {
 
 /// Estimates the common per-level term from every pixel's levels (`data[i]` = even and
 /// odd levels of pixel `i`), the pixels with `estimating(i)` against the others.
-/// `adc[i]` is pixel `i`'s ADC, of `n_adc`.
-pub(super) fn level_term(data: &[(Vec<Point>, Vec<Point>)], estimating: &(dyn Fn(usize) -> bool + Sync), adc: &[usize], n_adc: usize, levels: usize) -> LevelTerm {
+/// `adc[i]` is pixel `i`'s ADC, of `n_adc`. Levels with `skip[l]` take no part in the
+/// pixels' fits or in the tests: their term is what the fits of the others leave there (a
+/// departure at the lowest signals, which a quartic over all levels spreads over the range
+/// where it passes for level errors).
+pub(super) fn level_term(data: &[(Vec<Point>, Vec<Point>)], estimating: &(dyn Fn(usize) -> bool + Sync), adc: &[usize], n_adc: usize, skip: &[bool]) -> LevelTerm {
+    let levels = skip.len();
+    let skipped = |l: usize| skip.get(l).copied().unwrap_or(false);
     let quartic = Response::Poly(4);
     let line = Response::Poly(1);
     // Per pixel: its quartic's and its straight line's residuals on all its levels.
-    type Residuals = (Vec<(usize, f64, f64, f64)>, Vec<(usize, f64, f64)>, f64);
+    type Residuals = (Vec<(usize, f64, f64, f64)>, Vec<(usize, f64, f64)>, Option<[f64; 5]>);
     let fits: Vec<Residuals> = data
         .par_iter()
         .map(|(ev, od)| {
             let all: Vec<Point> = ev.iter().chain(od).copied().collect();
-            let (Some(q), Some(l)) = (fit_and_score(quartic, &[0.0; 5], &all, &[]), fit_and_score(line, &[0.0; 2], &all, &[])) else {
-                return (Vec::new(), Vec::new(), f64::NAN);
+            let used: Vec<Point> = all.iter().filter(|p| !skipped(p.level)).copied().collect();
+            let (Some(q), Some(l)) = (fit_and_score(quartic, &[0.0; 5], &used, &[]), fit_and_score(line, &[0.0; 2], &used, &[])) else {
+                return (Vec::new(), Vec::new(), None);
             };
             let mut grad = [0.0; 5];
             let at0 = quartic.eval(&q.params, 0.0, &mut grad);
@@ -195,12 +252,25 @@ pub(super) fn level_term(data: &[(Vec<Point>, Vec<Point>)], estimating: &(dyn Fn
                 })
                 .collect();
             let lin = all.iter().map(|p| (p.level, p.y - line.eval(&l.params, p.x, &mut grad), p.sigma)).collect();
-            (quart, lin, q.params[1])
+            (quart, lin, q.params.get(..5).and_then(|p| p.try_into().ok()))
         })
         .collect();
-    let g_median = median(fits.iter().map(|f| f.2).collect());
-    let gain_ratio: Vec<f64> = fits.iter().map(|f| if f.2.is_finite() && g_median > 0.0 { f.2 / g_median } else { 1.0 }).collect();
-    let adc_gain_ratio: Vec<f64> = (0..n_adc).map(|a| median(gain_ratio.iter().zip(adc).filter(|(_, &b)| b == a).map(|(r, _)| *r).collect())).map(|r| if r.is_finite() { r } else { 1.0 }).collect();
+    // The reference per level, and the pixels' local slopes there.
+    let mut x = vec![f64::NAN; levels];
+    for p in data.iter().flat_map(|(ev, od)| ev.iter().chain(od)) {
+        if let Some(v) = x.get_mut(p.level) {
+            *v = p.x;
+        }
+    }
+    let slope_median: Vec<f64> = x.par_iter().map(|&xl| median(fits.iter().filter_map(|f| Some(slope(f.2.as_ref()?, xl))).filter(|s| s.is_finite()).collect())).collect();
+    let adc_ratio: Vec<Vec<f64>> = (0..n_adc)
+        .map(|a| {
+            (0..levels)
+                .map(|l| median(fits.iter().zip(adc).filter(|(_, &b)| b == a).map(|(f, _)| slope_over(f.2.as_ref(), x[l], slope_median[l])).collect()))
+                .map(|r| if r.is_finite() { r } else { 1.0 })
+                .collect()
+        })
+        .collect();
     let mut per: Vec<Halves> = vec![[Vec::new(), Vec::new()]; levels];
     let mut by_adc: Vec<Vec<Halves>> = vec![vec![[Vec::new(), Vec::new()]; levels]; n_adc];
     let mut signal: Vec<Vec<f64>> = vec![Vec::new(); levels];
@@ -220,34 +290,65 @@ pub(super) fn level_term(data: &[(Vec<Point>, Vec<Point>)], estimating: &(dyn Fn
     let signal: Vec<f64> = signal.into_iter().map(median).collect();
     // Agreement of the halves, over the levels where both have an estimate.
     let both: Vec<(usize, f64, f64)> = (0..levels)
-        .filter(|&l| est[l].iter().all(|(c, v)| c.is_finite() && *v > 0.0))
+        .filter(|&l| !skipped(l) && est[l].iter().all(|(c, v)| c.is_finite() && *v > 0.0))
         .map(|l| (l, est[l][0].0 / est[l][0].1.sqrt(), est[l][1].0 / est[l][1].1.sqrt()))
         .collect();
     let nl = both.len() as f64;
     let significance = agreement(&both.iter().map(|&(_, a, b)| (a, b)).collect::<Vec<_>>());
-    // tau^2 = black^2 + light^2 S^2 from E[c_e c_o] (the noises are independent), weighted
-    // by the products' noise; scaled back through the quartic's projection (L / (L - 5)).
+    // tau^2 = black^2 + light^2 S^2 from E[c_e c_o] (the noises are independent), each
+    // product weighted by its variance `(t + v_e)(t + v_o) + t^2` at the current `tau^2`
+    // (`t`), iterated from `t = 0`; scaled back through the quartic's projection
+    // (L / (L - 5)). Weighted by the noises alone, the quiet low levels carried the fit:
+    // its `tau^2` had the spread of a few levels', and a test against it at the low levels
+    // passed 5 sigma in 4 of 300 sets of level errors alone.
     let (mut black2, mut light2) = (0.0, 0.0);
+    let mut tau_cov = [[0.0; 2]; 2];
     if both.len() > 8 {
-        let rows: Vec<(f64, f64, f64)> = both.iter().map(|&(l, ..)| (est[l][0].0 * est[l][1].0, signal[l].powi(2), 1.0 / (est[l][0].1 * est[l][1].1))).collect();
-        let fit = |cols: &[usize]| -> Vec<f64> {
-            let k = cols.len();
-            let b = DMatrix::from_fn(rows.len(), k, |i, j| if cols[j] == 0 { rows[i].2.sqrt() } else { rows[i].1 * rows[i].2.sqrt() });
-            let y = DVector::from_iterator(rows.len(), rows.iter().map(|r| r.0 * r.2.sqrt()));
-            b.svd(true, true).solve(&y, 1e-12).map(|s| s.iter().copied().collect()).unwrap_or(vec![0.0; k])
-        };
-        let both_terms = fit(&[0, 1]);
-        (black2, light2) = match (both_terms[0] >= 0.0, both_terms[1] >= 0.0) {
-            (true, true) => (both_terms[0], both_terms[1]),
-            (true, false) => (fit(&[0])[0].max(0.0), 0.0),
-            (false, true) => (0.0, fit(&[1])[0].max(0.0)),
-            (false, false) => (0.0, 0.0),
-        };
         let scale = nl / (nl - 5.0);
-        (black2, light2) = (black2 * scale, light2 * scale);
+        for _ in 0..4 {
+            let rows: Vec<(f64, f64, f64)> = both
+                .iter()
+                .map(|&(l, ..)| {
+                    let s2 = signal[l].powi(2);
+                    let t = (black2 + light2 * s2) / scale;
+                    (est[l][0].0 * est[l][1].0, s2, 1.0 / ((t + est[l][0].1) * (t + est[l][1].1) + t * t))
+                })
+                .collect();
+            // The weighted fit on the columns `cols` (0: black, 1: light), as (black^2,
+            // light^2) and their covariance.
+            let fit = |cols: &[usize]| -> ([f64; 2], [[f64; 2]; 2]) {
+                let k = cols.len();
+                let b = DMatrix::from_fn(rows.len(), k, |i, j| if cols[j] == 0 { rows[i].2.sqrt() } else { rows[i].1 * rows[i].2.sqrt() });
+                let y = DVector::from_iterator(rows.len(), rows.iter().map(|r| r.0 * r.2.sqrt()));
+                let (mut beta, mut cov) = ([0.0; 2], [[0.0; 2]; 2]);
+                if let Some(inv) = (b.transpose() * &b).try_inverse() {
+                    let sol = &inv * b.transpose() * y;
+                    for (j, &cj) in cols.iter().enumerate() {
+                        beta[cj] = sol[j];
+                        for (m, &cm) in cols.iter().enumerate() {
+                            cov[cj][cm] = inv[(j, m)];
+                        }
+                    }
+                }
+                (beta, cov)
+            };
+            // Where one square comes out negative it is taken as 0 and the other refitted
+            // alone; the covariance stays the pair's (the clamp does not make the estimate
+            // surer: 0 DN of black level beside 1 DN planted gave a test against it 6 sigma).
+            let (terms, cov) = fit(&[0, 1]);
+            let terms = match (terms[0] >= 0.0, terms[1] >= 0.0) {
+                (true, true) => terms,
+                (true, false) => fit(&[0]).0,
+                (false, true) => fit(&[1]).0,
+                (false, false) => [0.0; 2],
+            };
+            (black2, light2) = (terms[0].max(0.0) * scale, terms[1].max(0.0) * scale);
+            tau_cov = cov.map(|r| r.map(|c| c * scale * scale));
+        }
     }
-    // The shape over the levels ordered by signal: where the halves agree (their
-    // products), and how the mean estimate runs from level to level.
+    // The shape over the levels ordered by signal: how the mean estimate runs from level
+    // to level. Random errors are uncorrelated from level to level (after the quartic's
+    // projection, about -1/L); a response is not.
     let shape = {
         let mut ordered: Vec<(f64, f64, f64)> = both.iter().map(|&(l, a, b)| (signal[l], a * b, 0.5 * (a + b))).collect();
         ordered.sort_by(|x, y| x.0.total_cmp(&y.0));
@@ -260,8 +361,8 @@ pub(super) fn level_term(data: &[(Vec<Point>, Vec<Point>)], estimating: &(dyn Fn
         // A departure at the lowest signals puts most of the halves' agreement there (a
         // charge loss of 0.5 DN: 82%); random errors spread it, though in noise units the
         // quiet low levels weigh about six times more (random black-level errors reached
-        // 52% in 1 of 100 sets, hence 70%). Random errors are uncorrelated from level to
-        // level (after the quartic's projection, about -1/L); a response is not.
+        // 52% in 1 of 100 sets, hence 70%). Beside level errors the share is diluted: see
+        // [`Block::Levels`].
         if total > 0.0 && lows >= 2 && low / total > 0.7 {
             Shape::LowSignal { share: low / total }
         } else if nl > 8.0 && rho > 4.0 / nl.sqrt() {
@@ -282,9 +383,10 @@ pub(super) fn level_term(data: &[(Vec<Point>, Vec<Point>)], estimating: &(dyn Fn
                 // both through the ADC's gain (a 3% ADC gain beside 1 DN of black-level
                 // errors read as `adc-dnl` in 14 of 16 sets when only the light's share was
                 // scaled).
-                let scale = adc_gain_ratio[ai];
                 let d: Vec<(f64, f64)> = (0..levels)
+                    .filter(|&l| !skipped(l))
                     .filter_map(|l| {
+                        let scale = adc_ratio[ai][l];
                         let side = |h: usize| {
                             let ((ca, va), (c, v)) = (a[l][h], est[l][h]);
                             let var = va - v * scale * scale;
@@ -300,11 +402,15 @@ pub(super) fn level_term(data: &[(Vec<Point>, Vec<Point>)], estimating: &(dyn Fn
         Vec::new()
     };
     let per_adc = adc_significance.iter().any(|&t| t > super::SIGNIFICANCE).then(|| adc_est.iter().map(|a| a.iter().map(|h| h[0]).collect()).collect());
-    let by_level = held_out_by_level(&est);
-    let adc_by_level: Vec<AdcResiduals> = adc_est.iter().map(|a| held_out_by_level(a)).collect();
+    let by_level = held_out_by_level(&est, |l| !skipped(l));
+    let skipped_by_level = held_out_by_level(&est, skipped);
+    let adc_by_level: Vec<AdcResiduals> = adc_est.iter().map(|a| held_out_by_level(a, |l| !skipped(l))).collect();
+    let (line_residuals, quartic) = fits.into_iter().map(|f| (f.1, f.2)).unzip();
     LevelTerm {
         by_level,
         adc_by_level,
+        skipped_by_level,
+        skip: skip.to_vec(),
         c: est.iter().map(|e| e[0].0).collect(),
         var: est.iter().map(|e| e[0].1).collect(),
         significance,
@@ -312,60 +418,104 @@ pub(super) fn level_term(data: &[(Vec<Point>, Vec<Point>)], estimating: &(dyn Fn
         adc_significance,
         light_rel: light2.sqrt(),
         black_dn: black2.sqrt(),
-        gain_ratio,
-        adc_gain_ratio,
+        tau_cov,
+        quartic,
+        x,
+        slope_median,
+        adc_ratio,
         shape,
         signal,
-        line_residuals: fits.into_iter().map(|f| f.1).collect(),
+        line_residuals,
+        adc: adc.to_vec(),
     }
 }
 
-/// The shared bend with levels as the units: the common residual of the selected pixels'
-/// straight lines (`sel` on the index into the pixels), fitted by `1, x, .., x^4` with
-/// each level's variance the noise of the mean plus the level errors' `tau^2`, and the
-/// Wald statistic of the `x^2 .. x^4` terms against `F(3, L - 5)` as a one-sided normal
-/// deviate. `x` is the reference per level.
-pub(super) fn smooth_significance(term: &LevelTerm, x: &[f64], sel: &(dyn Fn(usize) -> bool + Sync)) -> f64 {
+/// What [`wald`] tests beyond `1, x, .., x^4`.
+#[derive(Debug, Clone, Copy)]
+pub(super) enum Block<'a> {
+    /// The bend: the `x^2 .. x^4` terms.
+    Bend,
+    /// A free offset at each level `l` with `on[l]` (a departure at those levels that no
+    /// quartic through the others follows).
+    Levels(&'a [bool]),
+}
+
+/// A shared response with levels as the units: the common residual of the selected
+/// pixels' straight lines (`sel` on the index into the pixels), fitted by `1, x, .., x^4`
+/// and the `block`'s terms with each level's variance the noise of the mean plus the
+/// level errors' `tau^2`, and the Wald statistic of the block against `F(k, L - p)` (`k`
+/// tested of `p` terms) as a one-sided normal deviate. `x` is the reference per level.
+pub(super) fn wald(term: &LevelTerm, x: &[f64], sel: &(dyn Fn(usize) -> bool + Sync), block: Block) -> f64 {
     let levels = x.len();
-    let mut per: Vec<Vec<(f64, f64)>> = vec![Vec::new(); levels];
-    for (_, res) in term.line_residuals.iter().enumerate().filter(|(i, _)| sel(*i)) {
+    // Each ADC's clipped mean, then their plain mean: one clip over all pixels cut an
+    // ADC whose line bends away from the others' at some levels and not at others (a
+    // false low-signal departure at 12 sigma beside a 1.4% ADC curvature), and weights
+    // that change from level to level would mix the ADCs' curves into no polynomial.
+    let n_adc = term.adc.iter().copied().max().map_or(1, |a| a + 1);
+    let mut per: Vec<Vec<Vec<(f64, f64)>>> = vec![vec![Vec::new(); levels]; n_adc];
+    for (i, res) in term.line_residuals.iter().enumerate().filter(|(i, _)| sel(*i)) {
         for &(l, r, s) in res {
             if l < levels {
-                per[l].push((r, s));
+                per[term.adc[i]][l].push((r, s));
             }
         }
     }
-    let rows: Vec<(f64, f64, f64)> = (0..levels)
+    per.retain(|a| a.iter().any(|v| !v.is_empty()));
+    let rows: Vec<(usize, f64, f64, f64)> = (0..levels)
         .filter_map(|l| {
-            let (c, v) = clipped_mean(&per[l]);
-            let u = v + term.tau2(term.signal[l]);
-            (c.is_finite() && u > 0.0 && x[l].is_finite()).then_some((x[l], c, u))
+            let each: Vec<(f64, f64)> = per.iter().map(|a| clipped_mean(&a[l])).collect();
+            let k = each.len() as f64;
+            let (c, v) = (each.iter().map(|e| e.0).sum::<f64>() / k, each.iter().map(|e| e.1).sum::<f64>() / (k * k));
+            // A block of levels is tested against an upper bound of the level errors'
+            // variance there (estimate plus twice its standard error): it is extrapolated
+            // from the levels above, and black-level errors beside larger light errors rest
+            // on a few of them (with the estimate alone, 4 of 300 sets of level errors
+            // alone passed 5 sigma at the lowest levels).
+            let s = term.signal[l];
+            let bound = if matches!(block, Block::Levels(_)) { 2.0 * term.tau2_var(s).sqrt() } else { 0.0 };
+            let u = v + term.tau2(s) + bound;
+            // The skipped levels take part only in the test of their own departure.
+            let used = matches!(block, Block::Levels(_)) || !term.skip.get(l).copied().unwrap_or(false);
+            (used && c.is_finite() && u > 0.0 && x[l].is_finite()).then_some((l, x[l], c, u))
         })
         .collect();
-    if rows.len() < 8 {
+    let free: Vec<usize> = match block {
+        Block::Bend => Vec::new(),
+        Block::Levels(on) => rows.iter().map(|r| r.0).filter(|&l| on.get(l).copied().unwrap_or(false)).collect(),
+    };
+    let (cols, tested) = match block {
+        Block::Bend => (5, 2..5),
+        Block::Levels(_) => (5 + free.len(), 5..5 + free.len()),
+    };
+    let k = tested.len();
+    if k == 0 || rows.len() < cols + 3 {
         return 0.0;
     }
     let n = rows.len();
-    let b = DMatrix::from_fn(n, 5, |i, k| rows[i].0.powi(k as i32) / rows[i].2.sqrt());
-    let y = DVector::from_iterator(n, rows.iter().map(|r| r.1 / r.2.sqrt()));
+    let b = DMatrix::from_fn(n, cols, |i, j| {
+        let (l, xl, _, u) = rows[i];
+        let v = if j < 5 { xl.powi(j as i32) } else { f64::from(u8::from(free[j - 5] == l)) };
+        v / u.sqrt()
+    });
+    let y = DVector::from_iterator(n, rows.iter().map(|r| r.2 / r.3.sqrt()));
     if !(b.iter().all(|v| v.is_finite()) && y.iter().all(|v| v.is_finite())) {
         return 0.0;
     }
     let Some(cov) = (b.transpose() * &b).try_inverse() else { return 0.0 };
     let beta = &cov * b.transpose() * y;
-    let bend = beta.rows(2, 3).into_owned();
-    let Some(inv) = cov.view((2, 2), (3, 3)).into_owned().try_inverse() else { return 0.0 };
-    let chi2 = (bend.transpose() * inv * &bend)[(0, 0)];
-    // Against F(3, L - 5), not chi^2_3: the level errors' variance is itself estimated
+    let part = beta.rows(tested.start, k).into_owned();
+    let Some(inv) = cov.view((tested.start, tested.start), (k, k)).into_owned().try_inverse() else { return 0.0 };
+    let chi2 = (part.transpose() * inv * &part)[(0, 0)];
+    // Against F(k, L - p), not chi^2_k: the level errors' variance is itself estimated
     // from those levels (with chi^2_3, 2 of 600 sets with large level errors and no bend
     // passed 5 sigma). As a one-sided normal deviate; past f64's tail, Wilson-Hilferty.
-    let dof = (n - 5) as f64;
-    let k = 3.0;
-    let p = statrs::distribution::FisherSnedecor::new(k, dof).map(|f| f.sf(chi2 / k)).unwrap_or(f64::NAN);
+    let dof = (n - cols) as f64;
+    let kf = k as f64;
+    let p = statrs::distribution::FisherSnedecor::new(kf, dof).map(|f| f.sf(chi2 / kf)).unwrap_or(f64::NAN);
     if p.is_finite() && p > 1e-300 {
         -statrs::distribution::Normal::standard().inverse_cdf(p.min(0.5))
     } else {
-        let h = 2.0 / (9.0 * k);
-        ((chi2 / k).cbrt() - (1.0 - h)) / h.sqrt()
+        let h = 2.0 / (9.0 * kf);
+        ((chi2 / kf).cbrt() - (1.0 - h)) / h.sqrt()
     }
 }
