@@ -145,16 +145,31 @@ pub(super) struct Scored {
     pub params: Vec<f64>,
     /// Weighted residual sum of squares on the fitted half.
     chi2_fit: f64,
-    /// Held-out normalized residuals, (level, z).
-    z: Vec<(usize, f64)>,
+    /// Held-out normalized residuals, (level, z), compact (every model keeps one per
+    /// pixel and level: they are most of the memory; f32 keeps z to 1e-7).
+    z: Vec<Z>,
     /// `tr C` and `tr C^2` of the held-out residuals' null covariance.
     tr: f64,
     tr2: f64,
 }
 
+/// One held-out normalized residual: level and `z`.
+#[derive(Debug, Clone, Copy)]
+struct Z(u16, f32);
+
+impl Z {
+    fn level(self) -> usize {
+        usize::from(self.0)
+    }
+
+    fn z(self) -> f64 {
+        f64::from(self.1)
+    }
+}
+
 impl Scored {
     fn sum_sq(&self) -> f64 {
-        self.z.iter().map(|(_, v)| v * v).sum()
+        self.z.iter().map(|v| v.z() * v.z()).sum()
     }
 }
 
@@ -201,7 +216,7 @@ pub(super) fn fit_and_score(model: Response, start: &[f64], fit: &[Point], test:
     Some(Scored {
         params: p,
         chi2_fit: rf.norm_squared(),
-        z: test.iter().zip(rt.iter()).map(|(q, &z)| (q.level, z)).collect(),
+        z: test.iter().zip(rt.iter()).map(|(q, &z)| Z(u16::try_from(q.level).unwrap_or(u16::MAX), z as f32)).collect(),
         tr: n + tr_m,
         tr2: n + 2.0 * tr_m + (&m * &m).trace(),
     })
@@ -295,7 +310,7 @@ fn population(values: impl Iterator<Item = (usize, f64)>, n_adc: usize) -> (Vec<
 fn by_level(scores: &[Option<Scored>], levels: usize, sel: impl Fn(usize) -> bool) -> Vec<(usize, f64)> {
     let mut acc = vec![(0.0, 0usize); levels];
     for (_, s) in scores.iter().enumerate().filter(|(j, _)| sel(*j)) {
-        for &(l, z) in s.iter().flat_map(|s| s.z.iter()) {
+        for (l, z) in s.iter().flat_map(|s| s.z.iter()).map(|v| (v.level(), v.z())) {
             acc[l].0 += z * z;
             acc[l].1 += 1;
         }
@@ -491,6 +506,9 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     let (nl, np) = (set.levels, set.width * set.height);
     if nl < 11 {
         return Err(format!("{nl} levels: the held-out split needs at least 11 (a quartic on the even levels and one on the odd ones)"));
+    }
+    if nl > usize::from(u16::MAX) {
+        return Err(format!("{nl} levels: at most {} are diagnosed (levels are indexed in 16 bits)", u16::MAX));
     }
     if set.n_frames < 4 {
         return Err(format!("{} frames per level: the noise of a mean from the frames' standard deviation needs at least 4", set.n_frames));
@@ -777,7 +795,7 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
                 let (a, b) = (a.as_ref()?, b.as_ref()?);
                 let q = data[i].1.last()?;
                 let d = lines[i].0.as_ref()?.params[0];
-                Some(((b.z.last()?.1 - a.z.last()?.1) * q.sigma / (q.y - d)).abs())
+                Some(((b.z.last()?.z() - a.z.last()?.z()) * q.sigma / (q.y - d)).abs())
             })
             .collect();
         let rms_spread = (spread.iter().map(|v| v * v).sum::<f64>() / spread.len().max(1) as f64).sqrt();
@@ -864,7 +882,7 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
             match (&lines[i].1, &quartics[i].0) {
                 (Some(l), Some(q)) => {
                     let mut z = vec![(l.params[0] - own_adc(&dark_adc, i, dark_pop.0)) / dark_pop.1.max(1e-9), (l.params[1] - own_adc(&gain_adc, i, gain_pop.0)) / gain_pop.1.max(1e-9)];
-                    z.extend(q.z.iter().map(|v| v.1));
+                    z.extend(q.z.iter().map(|v| v.z()));
                     z
                 }
                 // Stuck: its raw dark level against the population.
@@ -960,7 +978,7 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
                 // Where: the levels with the largest mean z^2 over pixels, and per ADC.
                 let mut lv = vec![(0.0, 0usize, 0.0); nl];
                 for (s, &i) in current.iter().zip(&good) {
-                    for &(l, z) in s.iter().flat_map(|s| s.z.iter()) {
+                    for (l, z) in s.iter().flat_map(|s| s.z.iter()).map(|v| (v.level(), v.z())) {
                         lv[l].0 += z * z;
                         lv[l].1 += 1;
                         lv[l].2 += set.mean[l * np + pixels[i]];
