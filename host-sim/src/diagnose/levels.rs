@@ -451,12 +451,18 @@ pub(super) fn wald(term: &LevelTerm, x: &[f64], sel: &(dyn Fn(usize) -> bool + S
     // ADC whose line bends away from the others' at some levels and not at others (a
     // false low-signal departure at 12 sigma beside a 1.4% ADC curvature), and weights
     // that change from level to level would mix the ADCs' curves into no polynomial.
+    // With too few pixels per ADC for their own clipped means (a 6 x 6 sensor), one
+    // clip over all (it turned the bend's test off: no row, significance 0).
     let n_adc = term.adc.iter().copied().max().map_or(1, |a| a + 1);
+    let mut counts = vec![0usize; n_adc];
+    (0..term.adc.len()).filter(|&i| sel(i)).for_each(|i| counts[term.adc[i]] += 1);
+    let pooled = counts.iter().any(|&c| c > 0 && c < 2 * MIN_PIXELS);
+    let group = |i: usize| if pooled { 0 } else { term.adc[i] };
     let mut per: Vec<Vec<Vec<(f64, f64)>>> = vec![vec![Vec::new(); levels]; n_adc];
     for (i, res) in term.line_residuals.iter().enumerate().filter(|(i, _)| sel(*i)) {
         for &(l, r, s) in res {
             if l < levels {
-                per[term.adc[i]][l].push((r, s));
+                per[group(i)][l].push((r, s));
             }
         }
     }
