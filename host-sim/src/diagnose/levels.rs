@@ -223,11 +223,12 @@ fn clipped_mean(v: &[(f64, f64)]) -> (f64, f64) {
 
 /// Estimates the common per-level term from every pixel's levels (`data[i]` = even and
 /// odd levels of pixel `i`), the pixels with `estimating(i)` against the others.
-/// `adc[i]` is pixel `i`'s ADC, of `n_adc`. Levels with `skip[l]` take no part in the
+/// `x` is the reference per level, `adc[i]` pixel `i`'s ADC, of `n_adc`. Levels with
+/// `skip[l]` take no part in the
 /// pixels' fits or in the tests: their term is what the fits of the others leave there (a
 /// departure at the lowest signals, which a quartic over all levels spreads over the range
 /// where it passes for level errors).
-pub(super) fn level_term(data: &[(Vec<Point>, Vec<Point>)], estimating: &(dyn Fn(usize) -> bool + Sync), adc: &[usize], n_adc: usize, skip: &[bool]) -> LevelTerm {
+pub(super) fn level_term(data: &[(Vec<Point>, Vec<Point>)], x: &[f64], estimating: &(dyn Fn(usize) -> bool + Sync), adc: &[usize], n_adc: usize, skip: &[bool]) -> LevelTerm {
     let levels = skip.len();
     let skipped = |l: usize| skip.get(l).copied().unwrap_or(false);
     let quartic = Response::Poly(4);
@@ -255,13 +256,7 @@ pub(super) fn level_term(data: &[(Vec<Point>, Vec<Point>)], estimating: &(dyn Fn
             (quart, lin, q.params.get(..5).and_then(|p| p.try_into().ok()))
         })
         .collect();
-    // The reference per level, and the pixels' local slopes there.
-    let mut x = vec![f64::NAN; levels];
-    for p in data.iter().flat_map(|(ev, od)| ev.iter().chain(od)) {
-        if let Some(v) = x.get_mut(p.level) {
-            *v = p.x;
-        }
-    }
+    // The pixels' local slopes at each level.
     let slope_median: Vec<f64> = x.par_iter().map(|&xl| median(fits.iter().filter_map(|f| Some(slope(f.2.as_ref()?, xl))).filter(|s| s.is_finite()).collect())).collect();
     let adc_ratio: Vec<Vec<f64>> = (0..n_adc)
         .map(|a| {
@@ -420,7 +415,7 @@ pub(super) fn level_term(data: &[(Vec<Point>, Vec<Point>)], estimating: &(dyn Fn
         black_dn: black2.sqrt(),
         tau_cov,
         quartic,
-        x,
+        x: x.to_vec(),
         slope_median,
         adc_ratio,
         shape,
@@ -444,8 +439,9 @@ pub(super) enum Block<'a> {
 /// pixels' straight lines (`sel` on the index into the pixels), fitted by `1, x, .., x^4`
 /// and the `block`'s terms with each level's variance the noise of the mean plus the
 /// level errors' `tau^2`, and the Wald statistic of the block against `F(k, L - p)` (`k`
-/// tested of `p` terms) as a one-sided normal deviate. `x` is the reference per level.
-pub(super) fn wald(term: &LevelTerm, x: &[f64], sel: &(dyn Fn(usize) -> bool + Sync), block: Block) -> f64 {
+/// tested of `p` terms) as a one-sided normal deviate.
+pub(super) fn wald(term: &LevelTerm, sel: &(dyn Fn(usize) -> bool + Sync), block: Block) -> f64 {
+    let x = &term.x;
     let levels = x.len();
     // Each ADC's clipped mean, then their plain mean: one clip over all pixels cut an
     // ADC whose line bends away from the others' at some levels and not at others (a

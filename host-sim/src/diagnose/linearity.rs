@@ -331,8 +331,6 @@ fn finding(effect: &str, adc: Option<usize>, significance: f64, before: f64, aft
 /// measurement, or a response every pixel shares that no quartic follows.
 fn level_finding(term: &LevelTerm) -> Finding {
     let (before, after) = held_out_rms(&term.by_level);
-    // Named by its shape: random errors of the measurement, or a response every pixel
-    // shares that no quartic follows.
     let (effect, detail) = match term.shape {
         Shape::Random => ("level-errors", format!(
             "every pixel is off alike at some levels, beyond any smooth response, uncorrelated from level to level and spread over the range: light {:.2e} rms (relative) off the reference detector and black level {:.3} DN rms (odd rows' level residuals against the even rows' estimate); taken out of every pixel's means (the light's part scaled by each pixel's local slope, the black level's by its ADC's); their smooth part cannot be told from a shared nonlinearity: a shared curve takes it, and is named only if it stands out against the level errors too",
@@ -539,7 +537,7 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     // Errors every pixel shares at a level (the light off the reference, the black level
     // off) first: found, they are taken out of every pixel's means before any model.
     let adcs: Vec<usize> = pixels.iter().map(|&p| adc_of(p)).collect();
-    let mut levels_term = level_term(&data, &estimating, &adcs, n_adc, &vec![false; nl]);
+    let mut levels_term = level_term(&data, &x, &estimating, &adcs, n_adc, &vec![false; nl]);
     let mut findings = Vec::new();
     let accepted = |t: &LevelTerm| {
         let (before, after) = held_out_rms(&t.by_level);
@@ -560,15 +558,14 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     let (low, guard) = (below(0.1), below(0.2));
     let room = count(&low) >= 2 && nl - count(&low) >= 11;
     let smooth_or_low = matches!(levels_term.shape, Shape::Random | Shape::LowSignal { .. });
-    let mut low_named = false;
     if accepted(&levels_term) && levels_term.per_adc.is_none() && smooth_or_low && room {
-        let skipped = level_term(&data, &estimating, &adcs, n_adc, &low);
+        let skipped = level_term(&data, &x, &estimating, &adcs, n_adc, &low);
         // (A term taken per ADC without its `adc-dnl` finding would hide the ADCs.)
         if skipped.per_adc.is_none() {
             let low_finding = if let Shape::LowSignal { .. } = levels_term.shape {
                 Some(level_finding(&levels_term))
             } else {
-                let sig = wald(&skipped, &x, &|_| true, Block::Levels(&low));
+                let sig = wald(&skipped, &|_| true, Block::Levels(&low));
                 let (before, after) = held_out_rms(&skipped.skipped_by_level);
                 (sig > SIGNIFICANCE && after < before).then(|| {
                     let lows = count(&low);
@@ -582,27 +579,29 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
                     ))
                 })
             };
-            low_named = low_finding.is_some();
-            // Level errors beside a named departure are judged above 20% of the top
-            // signal: a charge loss's tail reaches the first levels above 10%, and the
-            // quartic's ripple there made `level-errors` of 7-20 DN losses alone.
-            // (With too few levels above 20%, or a term there taken per ADC, the one above
-            // 10%: at 13 levels a re-review found the whole test skipped.)
-            let above = (low_named && count(&guard) > count(&low) && nl - count(&guard) >= 11).then(|| level_term(&data, &estimating, &adcs, n_adc, &guard));
-            let level_errors = above.filter(|t| t.per_adc.is_none()).unwrap_or_else(|| skipped.clone());
-            let named_errors = (accepted(&level_errors) && level_errors.shape == Shape::Random).then(|| level_finding(&level_errors));
-            if !low_named {
-                findings.push(level_finding(&levels_term));
-            }
-            let errors_found = named_errors.is_some() || !low_named;
-            findings.extend(low_finding);
-            if low_named {
-                findings.extend(named_errors);
-            }
-            // Beside a named departure, the term is the one from the levels above 20%:
-            // the levels between carry its tail, which bent the quartics through them (a
-            // 10 DN loss alone left a 5 sigma `global-nonlinearity`).
-            levels_term = if low_named { level_errors } else { skipped };
+            let (term, errors_found) = match low_finding {
+                Some(low_finding) => {
+                    // Level errors beside a named departure are judged above 20% of the
+                    // top signal, and the term is the one from there: a charge loss's tail
+                    // reaches the first levels above 10%, and the quartic's ripple there
+                    // made `level-errors` of 7-20 DN losses alone (and left a 10 DN loss
+                    // a 5 sigma `global-nonlinearity`). With too few levels above 20%, or
+                    // a term there taken per ADC, the one above 10% (at 13 levels a
+                    // re-review found the whole test skipped).
+                    let above = (count(&guard) > count(&low) && nl - count(&guard) >= 11).then(|| level_term(&data, &x, &estimating, &adcs, n_adc, &guard));
+                    let level_errors = above.filter(|t| t.per_adc.is_none()).unwrap_or(skipped);
+                    let named_errors = (accepted(&level_errors) && level_errors.shape == Shape::Random).then(|| level_finding(&level_errors));
+                    let found = named_errors.is_some();
+                    findings.push(low_finding);
+                    findings.extend(named_errors);
+                    (level_errors, found)
+                }
+                None => {
+                    findings.push(level_finding(&levels_term));
+                    (skipped, true)
+                }
+            };
+            levels_term = term;
             // Where the levels above show no errors of their own, only the term below 20%
             // of the top signal is taken out (the departure and its tail).
             if !errors_found {
@@ -629,8 +628,7 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     if !handled && level_accepted && levels_term.per_adc.is_none() {
         findings.push(level_finding(&levels_term));
     }
-    let low_accepted = low_named;
-    if level_accepted || low_accepted || levels_term.per_adc.is_some() {
+    if level_accepted || levels_term.per_adc.is_some() {
         data = pixels.par_iter().enumerate().map(|(i, &p)| halves(set, &x, kappa, &bias2, valid[p], p, Some((&levels_term, i)))).collect();
     }
 
@@ -752,7 +750,7 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     let paired_sig = paired(&base, &glob, |j| follows(good[j]));
     // With levels as the units too: a chance smooth part of level errors is common to
     // every pixel and passes the test over pixels.
-    let level_sig = wald(&levels_term, &x, &|i| is_good(i) && !adc_own[adc_of(pixels[i])], Block::Bend);
+    let level_sig = wald(&levels_term, &|i| is_good(i) && !adc_own[adc_of(pixels[i])], Block::Bend);
     let sig = paired_sig.min(level_sig);
     let global_accepted = sig > SIGNIFICANCE && tb1.s < tb0.s;
     // Where level errors were found, the shared curve stays in the model either way: it
