@@ -6,6 +6,9 @@ cd "$(dirname "$0")/.."
 scripts/firmware.sh install
 # The FITS interchange tests open our files in astropy (the astronomers' reference reader).
 python3 -c "import astropy, numpy" 2>/dev/null || python3 -m pip install --quiet astropy numpy
+# The EMVA 1288 reference implementation (emva1288 1.0.2, numpy<2) in a venv of its own,
+# the oracle of host-sim/tests/emva_reference.rs (the test also makes it when missing).
+scripts/emva-venv.sh >/dev/null
 cargo test --workspace --locked
 cargo clippy --workspace --all-targets --locked -- -D warnings
 # The core must also build with defmt on (as the firmware uses it) and stay warning-free.

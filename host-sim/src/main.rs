@@ -306,10 +306,18 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
-    /// Photon transfer of a measured EMVA 1288 set: gain, QE, dark noise, linearity.
+    /// The EMVA 1288 datasheet of a measured set: gain, QE, dark noise, saturation, SNR,
+    /// sensitivity threshold, dynamic range, linearity, dark current, DSNU, PRNU, defects.
     Emva {
         /// The set's descriptor (EMVA1288_Data.txt); its images must lie inside its folder.
         descriptor: PathBuf,
+        /// The standard's release whose definitions apply: 3.1 or 4.0 (default: the
+        /// descriptor's `v` record; 3.1 when it has none).
+        #[arg(long, value_parser = parse_release)]
+        release: Option<dncal_host::emva::Release>,
+        /// Write the datasheet (datasheet.html with its plots, datasheet.json) here.
+        #[arg(short, long)]
+        out: Option<PathBuf>,
         /// Print a JSON summary on stdout.
         #[arg(long)]
         json: bool,
@@ -458,6 +466,91 @@ fn print<T: Serialize>(json: bool, value: &T, text: impl FnOnce(&T) -> String) -
         Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(HostError::io("stdout", e)),
         _ => Ok(()),
     }
+}
+
+/// Parses `--release`.
+fn parse_release(s: &str) -> Result<dncal_host::emva::Release, String> {
+    dncal_host::emva::Release::parse(s)
+}
+
+/// The datasheet as text: one quantity a line, `-` with the reason where the set does
+/// not give it.
+fn emva_text(descriptor: &std::path::Path, set: &dncal_host::emva::EmvaSet, s: &dncal_host::emva::Datasheet) -> String {
+    let t = &s.temporal;
+    let value = |key: &str, v: Option<f64>, unit: &str, digits: usize| match v {
+        Some(v) => format!("{v:.digits$}{unit}"),
+        None => format!("- ({})", t.why.get(key).map_or("not measured", String::as_str)),
+    };
+    let release = match t.release {
+        dncal_host::emva::Release::R3 => "3.1",
+        dncal_host::emva::Release::R4 => "4.0",
+    };
+    let sp = &s.spatial;
+    let mut out = format!(
+        "{}: {} bits, {}x{}, {} photon-transfer levels; EMVA 1288 Release {release} definitions (descriptor v {})\n",
+        descriptor.display(),
+        set.bits,
+        set.width,
+        set.height,
+        t.levels,
+        s.version.as_deref().unwrap_or("none")
+    );
+    for key in ["levels", "saturation"] {
+        if let Some(note) = t.why.get(key) {
+            out += &format!("note: {note}\n");
+        }
+    }
+    out += &format!(
+        "system gain K            {:.4} DN/e- ({:.3} e-/DN), {} levels up to 70% of saturation\n\
+         responsivity R           {:.5} DN/photon\n\
+         quantum efficiency       {:.1} %\n\
+         dark noise               {:.3} DN (measured {:.3} DN) = {} \n\
+         saturation               {:.1} DN above dark at {}\n\
+         saturation capacity      {}\n\
+         SNR max                  {} ({})\n\
+         sensitivity threshold    {} ({})\n\
+         dynamic range            {} ({})\n\
+         linearity error          {} .. {}; mean |deviation| {}\n\
+         dark current             {} (mean), {} (variance)\n\
+         DSNU                     {} = {}; row {}, column {}, pixel {}\n\
+         PRNU                     {}; row {}, column {}, pixel {}\n",
+        t.gain_dn_per_e,
+        t.gain_e_per_dn,
+        t.gain_fit_levels,
+        t.responsivity_dn_per_photon,
+        100.0 * t.quantum_efficiency,
+        t.dark_noise_dn,
+        t.dark_noise_measured_dn,
+        value("dark_noise_e", t.dark_noise_e, " e-", 2),
+        t.saturation_dn,
+        value("saturation_photons", t.saturation_photons, " photons", 0),
+        value("saturation_capacity_e", t.saturation_capacity_e, " e-", 0),
+        value("snr_max", t.snr_max, "", 1),
+        value("snr_max_db", t.snr_max_db, " dB", 1),
+        value("sensitivity_threshold_photons", t.sensitivity_threshold_photons, " photons", 2),
+        value("sensitivity_threshold_e", t.sensitivity_threshold_e, " e-", 2),
+        value("dynamic_range", t.dynamic_range, "", 0),
+        value("dynamic_range_db", t.dynamic_range_db, " dB", 1),
+        value("linearity_error_min_pct", t.linearity_error_min_pct, " %", 3),
+        value("linearity_error_max_pct", t.linearity_error_max_pct, " %", 3),
+        value("linearity_error_pct", t.linearity_error_pct, " %", 3),
+        value("dark_current_mean_e_per_s", t.dark_current_mean_e_per_s, " e-/s", 2),
+        value("dark_current_var_e_per_s", t.dark_current_var_e_per_s, " e-/s", 2),
+        value("dsnu_dn", sp.dsnu_dn, " DN", 3),
+        value("dsnu_e", sp.dsnu_e, " e-", 2),
+        value("dsnu_row_e", sp.dsnu_row_e, " e-", 2),
+        value("dsnu_col_e", sp.dsnu_col_e, " e-", 2),
+        value("dsnu_pixel_e", sp.dsnu_pixel_e, " e-", 2),
+        value("prnu_pct", sp.prnu_pct, " %", 3),
+        value("prnu_row_pct", sp.prnu_row_pct, " %", 3),
+        value("prnu_col_pct", sp.prnu_col_pct, " %", 3),
+        value("prnu_pixel_pct", sp.prnu_pixel_pct, " %", 3),
+    );
+    out += &match &sp.defect_pixels {
+        Some(d) => format!("defect pixels            hot {}, dead {}, high PRNU {} ({} in all; dncal's criteria, docs/emva.md)\n", d.hot, d.dead, d.high_prnu, d.total),
+        None => format!("defect pixels            - ({})\n", t.why.get("defect_pixels").map_or("not measured", String::as_str)),
+    };
+    out
 }
 
 /// One `wrote PATH` line per file written.
@@ -675,32 +768,14 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
                 (None, None) => {}
             }
         }
-        Cmd::Emva { descriptor, json } => {
+        Cmd::Emva { descriptor, release, out, json } => {
             let set = dncal_host::emva::read_descriptor(&descriptor)?;
-            let ptc = dncal_host::emva::photon_transfer(&set)?;
-            let s = dncal_host::emva::summarize(&descriptor, &ptc)?;
-            print(json, &s, |s| {
-                format!(
-                    "{}: {} bits, {}x{}, {} illuminated levels\n\
-                     gain K = {:.4} DN/e- ({:.2} e-/DN, R^2 {:.5}); responsivity {:.5} DN/photon (R^2 {:.6}); QE {:.3}\n\
-                     dark noise {:.3} DN = {:.2} e-; saturation {:.1} DN above dark at {:.0} photons\n",
-                    descriptor.display(),
-                    set.bits,
-                    set.width,
-                    set.height,
-                    s.levels,
-                    s.gain_dn_per_e,
-                    s.gain_e_per_dn,
-                    s.gain_r2,
-                    s.responsivity_dn_per_photon,
-                    s.linearity_r2,
-                    s.quantum_efficiency,
-                    s.dark_noise_dn,
-                    s.dark_noise_e,
-                    s.saturation_dn,
-                    s.saturation_photons
-                )
-            })?;
+            let sheet = dncal_host::emva::datasheet(&set, release)?;
+            let written = match &out {
+                Some(dir) => dncal_host::emva::html::write_datasheet(dir, &descriptor, &sheet)?,
+                None => Vec::new(),
+            };
+            print(json, &sheet, |s| emva_text(&descriptor, &set, s) + &wrote(&written))?;
         }
         Cmd::Demo { camera, out, frames, ramp, flatten, json } => {
             let cam = camera.camera()?;

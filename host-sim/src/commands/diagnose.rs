@@ -166,7 +166,7 @@ pub fn diagnose(input: &Path, flatten: &FlattenParams, seed: u64, out_dir: Optio
         d.findings.extend(findings);
         d.code_density = Some(density);
         d.code_residuals = Some(residuals);
-        let summary = crate::emva::summarize(input, &points)?;
+        let summary = crate::emva::summarize(input, &points, crate::emva::Release::from_version(set.version.as_deref()))?;
         let dark = points.first().map_or(0.0, |p| p.dark_mean_dn);
         model = Some(ptc_model(&set, &summary, dark, &mut d));
         d

@@ -231,6 +231,7 @@ mod tests {
                     dark_var_dn2: 9.0,
                     frame_diff_dn: a - b,
                     dark_frame_diff_dn: da - db,
+                    top_fraction: 0.0,
                 }
             })
             .collect()

@@ -1,0 +1,31 @@
+//! EMVA 1288 measurement sets and their datasheet.
+//!
+//! - [`descriptor`]: the standard's text descriptor and its images (temporal and spatial
+//!   series);
+//! - [`temporal`]: the photon-transfer curve of the two-frame levels;
+//! - [`datasheet`]: the temporal quantities (gain, QE, dark noise, saturation, SNR,
+//!   sensitivity threshold, dynamic range, linearity, dark current);
+//! - [`spatial`]: DSNU and PRNU with their row, column and pixel parts, spectrograms,
+//!   histograms and defect pixels from the many-frame series;
+//! - [`sheet`]: the whole datasheet of a set; [`html`]: it as a folder with the plots;
+//! - [`fit`]: the standard's three straight-line fits.
+
+pub mod datasheet;
+pub mod descriptor;
+pub mod fit;
+pub mod html;
+pub mod sheet;
+pub mod spatial;
+pub mod temporal;
+
+pub use datasheet::{summarize_points, PtcSummary, Release};
+pub use descriptor::{code_histogram, load_image, read_descriptor, EmvaLevel, EmvaSet, LevelKind, Series};
+pub use fit::fit_line;
+pub use sheet::{datasheet, Datasheet};
+pub use temporal::{photon_transfer, PtcPoint};
+
+/// The temporal datasheet of `points` with `release`'s definitions; an error names the
+/// descriptor `path`.
+pub fn summarize(path: &std::path::Path, points: &[PtcPoint], release: Release) -> Result<PtcSummary, crate::HostError> {
+    summarize_points(points, release).map_err(|message| crate::HostError::Format { path: path.to_path_buf(), message })
+}

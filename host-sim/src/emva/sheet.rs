@@ -1,0 +1,197 @@
+//! The whole EMVA 1288 datasheet of a set: the temporal part ([`super::datasheet`]) and
+//! the spatial part ([`super::spatial`]) with its spectrograms, logarithmic histograms
+//! and defect-pixel counts.
+
+use serde::Serialize;
+
+use super::datasheet::{summarize_points, PtcSummary, Release};
+use super::spatial::{accumulated_percent, defect_pixels, high_pass_5x5, histogram, spatial_pair, spectrogram, Components, DefectPixels, Histogram};
+use super::{photon_transfer, EmvaSet};
+use crate::HostError;
+
+/// Most bins of a histogram (the reference's `_histogram_Qmax`).
+const HISTOGRAM_BINS: usize = 256;
+
+/// The four spectrograms, on `N/2 + 1` (horizontal) or `M/2 + 1` (vertical) frequencies
+/// `0 ..= 0.5` cycles per pixel.
+#[derive(Debug, Clone, Serialize)]
+pub struct Spectrograms {
+    /// DSNU along the rows, DN (amplitude of the dark averaged image).
+    pub dsnu_horizontal_dn: Vec<f64>,
+    /// DSNU down the columns, DN.
+    pub dsnu_vertical_dn: Vec<f64>,
+    /// PRNU along the rows, % of the mean signal above dark.
+    pub prnu_horizontal_pct: Vec<f64>,
+    /// PRNU down the columns, %.
+    pub prnu_vertical_pct: Vec<f64>,
+}
+
+/// The logarithmic histograms of the defect-pixel characterization.
+#[derive(Debug, Clone, Serialize)]
+pub struct DefectHistograms {
+    /// Dark averaged image about its mean, DN.
+    pub dsnu: Histogram,
+    /// Share of pixels whose |dark deviation| is at or beyond each bin, %.
+    pub dsnu_accumulated: Histogram,
+    /// The accumulated percentages of `dsnu_accumulated`.
+    pub dsnu_accumulated_pct: Vec<f64>,
+    /// High-pass filtered (5 x 5) averaged image above dark, DN.
+    pub prnu: Histogram,
+    /// |high-pass deviation| bins.
+    pub prnu_accumulated: Histogram,
+    /// Share of pixels at or beyond each bin, %.
+    pub prnu_accumulated_pct: Vec<f64>,
+}
+
+/// The spatial part of the datasheet.
+#[derive(Debug, Clone, Serialize)]
+pub struct SpatialSummary {
+    /// Frames averaged in the bright and dark spatial series.
+    pub spatial_frames: Option<(usize, usize)>,
+    /// Photons per pixel of the bright spatial series.
+    pub spatial_photons: Option<f64>,
+    /// DSNU, DN.
+    pub dsnu_dn: Option<f64>,
+    /// DSNU, e-.
+    pub dsnu_e: Option<f64>,
+    /// Row part of the DSNU, e-.
+    pub dsnu_row_e: Option<f64>,
+    /// Column part, e-.
+    pub dsnu_col_e: Option<f64>,
+    /// Pixel part, e-.
+    pub dsnu_pixel_e: Option<f64>,
+    /// PRNU, %.
+    pub prnu_pct: Option<f64>,
+    /// Row part of the PRNU, %.
+    pub prnu_row_pct: Option<f64>,
+    /// Column part, %.
+    pub prnu_col_pct: Option<f64>,
+    /// Pixel part, %.
+    pub prnu_pixel_pct: Option<f64>,
+    /// The variance components of the bright and dark series.
+    pub components: Option<(Components, Components)>,
+    /// Spectrograms.
+    pub spectrograms: Option<Spectrograms>,
+    /// Histograms.
+    pub histograms: Option<DefectHistograms>,
+    /// Defect-pixel counts (dncal's criteria: [`DefectPixels`]).
+    pub defect_pixels: Option<DefectPixels>,
+}
+
+/// The datasheet of a set.
+#[derive(Debug, Clone, Serialize)]
+pub struct Datasheet {
+    /// The descriptor's `v` record.
+    pub version: Option<String>,
+    /// Temporal part.
+    #[serde(flatten)]
+    pub temporal: PtcSummary,
+    /// Spatial part.
+    #[serde(flatten)]
+    pub spatial: SpatialSummary,
+}
+
+/// `sqrt(variance) / scale` when the variance is positive; else `None` with the reason
+/// under `key`.
+fn root(why: &mut std::collections::BTreeMap<String, String>, key: &str, variance: f64, scale: f64, what: &str) -> Option<f64> {
+    if variance.is_finite() && variance >= 0.0 && scale.is_finite() && scale > 0.0 {
+        Some(variance.sqrt() / scale)
+    } else {
+        why.insert(key.into(), format!("{what} variance {variance:.4e} DN^2 is negative: below what the spatial series resolves"));
+        None
+    }
+}
+
+/// The whole datasheet of `set` with `release`'s definitions (the descriptor's `v`
+/// record when `None`).
+pub fn datasheet(set: &EmvaSet, release: Option<Release>) -> Result<Datasheet, HostError> {
+    let release = release.unwrap_or_else(|| Release::from_version(set.version.as_deref()));
+    let points = photon_transfer(set)?;
+    let mut temporal = summarize_points(&points, release).map_err(|message| HostError::Format { path: set.path.clone(), message })?;
+    let pair = spatial_pair(set)?;
+    let why = &mut temporal.why;
+    let k = temporal.gain_dn_per_e;
+    let mut s = SpatialSummary {
+        spatial_frames: None,
+        spatial_photons: None,
+        dsnu_dn: None,
+        dsnu_e: None,
+        dsnu_row_e: None,
+        dsnu_col_e: None,
+        dsnu_pixel_e: None,
+        prnu_pct: None,
+        prnu_row_pct: None,
+        prnu_col_pct: None,
+        prnu_pixel_pct: None,
+        components: None,
+        spectrograms: None,
+        histograms: None,
+        defect_pixels: None,
+    };
+    let Some((bright, dark)) = pair else {
+        for key in ["dsnu_dn", "dsnu_e", "dsnu_row_e", "dsnu_col_e", "dsnu_pixel_e", "prnu_pct", "prnu_row_pct", "prnu_col_pct", "prnu_pixel_pct", "defect_pixels"] {
+            why.insert(key.into(), "no spatial series (a bright and a dark level of more than two frames)".into());
+        }
+        return Ok(Datasheet { version: set.version.clone(), temporal, spatial: s });
+    };
+    let (b, d) = (bright.components(release), dark.components(release));
+    let signal = b.mean_dn - d.mean_dn;
+    s.spatial_frames = Some((bright.frames, dark.frames));
+    s.spatial_photons = Some(bright.photons);
+    s.dsnu_dn = root(why, "dsnu_dn", d.total_dn2, 1.0, "the dark spatial");
+    s.dsnu_e = root(why, "dsnu_e", d.total_dn2, k, "the dark spatial");
+    s.dsnu_row_e = root(why, "dsnu_row_e", d.row_dn2, k, "the dark row");
+    s.dsnu_col_e = root(why, "dsnu_col_e", d.col_dn2, k, "the dark column");
+    s.dsnu_pixel_e = root(why, "dsnu_pixel_e", d.pixel_dn2, k, "the dark pixel");
+    if signal > 0.0 {
+        let pct = signal / 100.0;
+        s.prnu_pct = root(why, "prnu_pct", b.total_dn2 - d.total_dn2, pct, "the bright minus dark spatial");
+        s.prnu_row_pct = root(why, "prnu_row_pct", b.row_dn2 - d.row_dn2, pct, "the bright minus dark row");
+        s.prnu_col_pct = root(why, "prnu_col_pct", b.col_dn2 - d.col_dn2, pct, "the bright minus dark column");
+        s.prnu_pixel_pct = root(why, "prnu_pixel_pct", b.pixel_dn2 - d.pixel_dn2, pct, "the bright minus dark pixel");
+    } else {
+        for key in ["prnu_pct", "prnu_row_pct", "prnu_col_pct", "prnu_pixel_pct"] {
+            why.insert(key.into(), format!("the bright spatial series is {signal:.3} DN above dark: no photo response to compare"));
+        }
+    }
+    s.components = Some((b, d));
+    s.defect_pixels = Some(defect_pixels(&bright, &dark, b.stack_var_dn2, d.stack_var_dn2));
+
+    let (rows, cols) = (bright.rows, bright.cols);
+    let (lb, ld) = (bright.frames as f64, dark.frames as f64);
+    let dark_mean_image: Vec<f64> = dark.sum.iter().map(|&v| v as f64 / ld).collect();
+    let above: Vec<f64> = bright.sum.iter().zip(&dark.sum).map(|(&b, &d)| b as f64 / lb - d as f64 / ld).collect();
+    let to_pct = |v: Vec<f64>| v.into_iter().map(|a| 100.0 * a / signal).collect::<Vec<f64>>();
+    s.spectrograms = Some(Spectrograms {
+        dsnu_horizontal_dn: spectrogram(&dark_mean_image, rows, cols, false),
+        dsnu_vertical_dn: spectrogram(&dark_mean_image, rows, cols, true),
+        prnu_horizontal_pct: to_pct(spectrogram(&above, rows, cols, false)),
+        prnu_vertical_pct: to_pct(spectrogram(&above, rows, cols, true)),
+    });
+
+    // Histograms in integers, as the reference keeps them: the dark sum image, and the
+    // high-pass filtered bright-minus-dark sum image (25 x the filtered value).
+    let dark_sum_mean = dark.sum.iter().sum::<i64>() as f64 / dark.sum.len() as f64;
+    let mut dsnu = histogram(&dark.sum, HISTOGRAM_BINS, ld);
+    dsnu.bins.iter_mut().for_each(|b| *b -= dark_sum_mean / ld);
+    let centre = dark_sum_mean.trunc() as i64;
+    let dsnu_abs: Vec<i64> = dark.sum.iter().map(|&v| (v - centre).abs()).collect();
+    let dsnu_accumulated = histogram(&dsnu_abs, HISTOGRAM_BINS, ld);
+    // Bright minus dark as the reference forms it (sum images; equal frame counts).
+    let diff: Vec<i64> = bright.sum.iter().zip(&dark.sum).map(|(&b, &d)| b - d).collect();
+    let (filtered, _, _) = high_pass_5x5(&diff, rows, cols);
+    let prnu_scale = lb * 25.0;
+    let prnu = histogram(&filtered, HISTOGRAM_BINS, prnu_scale);
+    let filtered_mean = if filtered.is_empty() { 0.0 } else { filtered.iter().sum::<i64>() as f64 / filtered.len() as f64 };
+    let prnu_abs: Vec<i64> = filtered.iter().map(|&v| (v - filtered_mean.trunc() as i64).abs()).collect();
+    let prnu_accumulated = histogram(&prnu_abs, HISTOGRAM_BINS, prnu_scale);
+    s.histograms = Some(DefectHistograms {
+        dsnu_accumulated_pct: accumulated_percent(&dsnu_accumulated),
+        dsnu,
+        dsnu_accumulated,
+        prnu_accumulated_pct: accumulated_percent(&prnu_accumulated),
+        prnu,
+        prnu_accumulated,
+    });
+    Ok(Datasheet { version: set.version.clone(), temporal, spatial: s })
+}
