@@ -161,8 +161,8 @@ pub fn diagnose(input: &Path, flatten: &FlattenParams, seed: u64, out_dir: Optio
         let mut d = diagnose_ptc(&points, set.width * set.height, 0.01).map_err(|m| HostError::Format { path: input.into(), message: m })?;
         // The frames' code density: the single ADC's code widths (the descriptor's camera
         // has one output; a multi-output camera's columns would need splitting by ADC).
-        let counts = crate::emva::code_histogram(&set)?;
-        let (findings, residuals, density) = diagnose_code_density(&counts, 0, seed).map_err(|m| HostError::Format { path: input.into(), message: format!("code density: {m}") })?;
+        let (a, b) = crate::emva::code_histogram_halves(&set)?;
+        let (findings, residuals, density) = diagnose_code_density(&a, &b, 0).map_err(|m| HostError::Format { path: input.into(), message: format!("code density: {m}") })?;
         d.findings.extend(findings);
         d.code_density = Some(density);
         d.code_residuals = Some(residuals);

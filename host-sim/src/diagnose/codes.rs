@@ -8,20 +8,24 @@
 //! degree [`DEGREE`] over `k +- HALF` codes) of the counts, which follows such peaks
 //! while averaging a code-to-code pattern over 2 HALF + 1 codes.
 //!
-//! Held out as for histogram sets: the counts are split by binomial thinning into two
-//! independent Poisson halves A and B of the same expectation.
-//! - **baseline** (ideal ADC): `E0_k = s sum_j L_j A_(k+j)`, variance
-//!   `E0_k + s^2 sum_j L_j^2 A_(k+j)` (B's Poisson noise and the smoother's).
-//! - **`adc-dnl`**: the widths are A's counts over the smooth density, so `E1_k = s A_k`,
-//!   variance `s A_k (1 + s)`.
+//! Held out **by levels**: the levels (in photon order) go alternately to two halves A
+//! and B, each half's frames making its own code histogram. A pattern of code widths is
+//! locked to the codes and shows in both halves; the lumps of the illumination (narrow
+//! peaks of discrete levels, a peak shape the local polynomial cannot follow) are locked
+//! to each half's own levels and do not. (A binomial split of all counts, as for
+//! histogram sets, shares the lumps between its halves: on a quantization-limited 8-bit
+//! camera of the reference implementation's simulator it named `adc-dnl` at 100-130
+//! sigma with an ideal ADC.) With `Lo_j` the local polynomial's weights *without* the
+//! centre code (each code predicted from its 16 neighbours):
+//! - **baseline** (ideal ADC): `E0_k = sum_j Lo_j B_(k+j)`, variance `E0_k + sum_j Lo_j^2
+//!   B_(k+j)`.
+//! - **`adc-dnl`**: the widths fitted on A, `w_k = A_k / sum_j Lo_j A_(k+j)`, predict B:
+//!   `E1_k = w_k E0_k`, variance `E1_k + E1_k^2 / A_k + w_k^2 sum_j Lo_j^2 B_(k+j)`.
 //!
-//! Scored: codes whose whole window has at least 20 counts in A (peaks, not gaps) that
-//! vary by less than a factor [`MAX_SPAN`] (a peak the quartic can follow), away from
-//! code 0 and the top code. Accepted when `(mean z0^2 - mean z1^2) / sqrt(2/N) > 5`.
+//! Scored: codes whose whole window has at least 20 counts in each half (peaks, not gaps)
+//! that vary by less than a factor [`MAX_SPAN`] (a peak the quartic can follow), away
+//! from code 0 and the top code. Accepted when `(mean z0^2 - mean z1^2) / sqrt(2/N) > 5`.
 //! The widths are reported by code residue (mod 2 to 512), the periods of ADC structure.
-
-use rand::SeedableRng;
-use rand_distr::{Binomial, Distribution};
 
 use super::*;
 
@@ -55,13 +59,19 @@ pub struct CodeDensity {
     pub widths: Vec<f64>,
 }
 
-/// The Savitzky-Golay weights `L_j`, j = -HALF..=HALF: the value at 0 of the least-squares
-/// polynomial of degree [`DEGREE`] through the window.
-fn smoothing_weights() -> Vec<f64> {
+/// The weights `Lo_j` of the same polynomial fitted to the window *without* its centre
+/// code (`Lo_0 = 0`): each code predicted from its neighbours only, so that a code's own
+/// count (and its own width) is not in its baseline.
+fn leave_one_out_weights() -> Vec<f64> {
     let n = 2 * HALF + 1;
-    let x = nalgebra::DMatrix::from_fn(n, DEGREE + 1, |r, c| (r as f64 - HALF as f64).powi(c as i32));
+    let rows: Vec<usize> = (0..n).filter(|&r| r != HALF).collect();
+    let x = nalgebra::DMatrix::from_fn(rows.len(), DEGREE + 1, |r, c| (rows[r] as f64 - HALF as f64).powi(c as i32));
     let pinv = (x.transpose() * &x).try_inverse().expect("a Vandermonde matrix of distinct points") * x.transpose();
-    pinv.row(0).iter().copied().collect()
+    let mut out = vec![0.0; n];
+    for (i, &r) in rows.iter().enumerate() {
+        out[r] = pinv[(0, i)];
+    }
+    out
 }
 
 /// The widths of a pattern of period `m = ratios.len()` from the mean measured ratios
@@ -90,81 +100,94 @@ fn unfold_period(ratios: &[f64], l: &[f64]) -> Vec<f64> {
     w
 }
 
-/// The test on `counts` (one ADC's code histogram); `seed` drives the split.
-pub fn diagnose_code_density(counts: &[u64], adc: usize, seed: u64) -> Result<(Vec<Finding>, AdcResiduals, CodeDensity), String> {
-    let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
-    let a: Vec<u64> = counts.iter().map(|&c| if c == 0 { 0 } else { Binomial::new(c, 0.5).map(|d| d.sample(&mut rng)).unwrap_or(c / 2) }).collect();
-    let b: Vec<u64> = counts.iter().zip(&a).map(|(c, a)| c - a).collect();
-    let l = smoothing_weights();
-    let top = counts.len().saturating_sub(1);
-    // Inside the peaks, and only where the density changes by less than a factor
-    // [`MAX_SPAN`] across the window: a quartic cannot follow a peak much narrower than
-    // the window (the real CCD's dark peak, 3 DN rms, left residuals of 150 sigma).
-    let codes: Vec<usize> = (HALF + 1..top.saturating_sub(HALF))
-        .filter(|&k| {
-            let w = &a[k - HALF..=k + HALF];
-            let (lo, hi) = (w.iter().min().copied().unwrap_or(0), w.iter().max().copied().unwrap_or(0));
-            lo >= 20 && (hi as f64) <= MAX_SPAN * lo as f64
-        })
-        .collect();
+/// The test on one ADC's code histograms of two halves of the levels, `a` and `b` (see
+/// the module documentation).
+pub fn diagnose_code_density(a: &[u64], b: &[u64], adc: usize) -> Result<(Vec<Finding>, AdcResiduals, CodeDensity), String> {
+    let l = leave_one_out_weights();
+    let top = a.len().min(b.len()).saturating_sub(1);
+    // Inside the peaks of both halves, and only where the density changes by less than a
+    // factor [`MAX_SPAN`] across the window: a quartic cannot follow a peak much narrower
+    // than the window (the real CCD's dark peak, 3 DN rms, left residuals of 150 sigma).
+    let followable = |h: &[u64], k: usize| {
+        let w = &h[k - HALF..=k + HALF];
+        let (lo, hi) = (w.iter().min().copied().unwrap_or(0), w.iter().max().copied().unwrap_or(0));
+        lo >= 20 && (hi as f64) <= MAX_SPAN * lo as f64
+    };
+    let codes: Vec<usize> = (HALF + 1..top.saturating_sub(HALF)).filter(|&k| followable(a, k) && followable(b, k)).collect();
     if codes.len() < 64 {
-        return Err(format!("only {} codes lie inside illuminated peaks with 20 or more counts; the code-density test needs 64", codes.len()));
+        return Err(format!("only {} codes lie inside illuminated peaks with 20 or more counts in both halves of the levels; the code-density test needs 64", codes.len()));
     }
-    let smooth = |k: usize| -> (f64, f64) {
+    let smooth = |h: &[u64], k: usize| -> (f64, f64) {
         (0..l.len()).fold((0.0, 0.0), |(v, var), j| {
-            let c = a[k + j - HALF] as f64;
+            let c = h[k + j - HALF] as f64;
             (v + l[j] * c, var + l[j] * l[j] * c)
         })
     };
-    let sa: f64 = codes.iter().map(|&k| a[k] as f64).sum();
-    let sb: f64 = codes.iter().map(|&k| b[k] as f64).sum();
-    let s = sb / sa;
-    let (mut z0, mut z1, mut widths, mut noise) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
-    for &k in &codes {
-        let (m, var_m) = smooth(k);
-        let e0 = (s * m).max(1e-9);
-        z0.push((b[k] as f64 - e0) / (e0 + s * s * var_m).sqrt());
-        let e1 = s * a[k] as f64;
-        z1.push((b[k] as f64 - e1) / (e1 * (1.0 + s)).sqrt());
-        widths.push(a[k] as f64 / m.max(1e-9));
-        // The Poisson variance of that ratio: the smooth density holds the code's own count
-        // with weight `L_0` (and `sum L_j^2 = L_0`), which takes that share of the noise
-        // and of a width of the code's own.
-        noise.push((1.0 - l[HALF]) * a[k] as f64 / (m * m).max(1e-18));
+    // Per code: each half's smooth (value, variance) and width ratio with its Poisson
+    // variance (the code's own count and its neighbours' in the smooth).
+    let var_ratio = |c: f64, m: f64, var_m: f64| c / (m * m).max(1e-18) + c * c * var_m / (m * m * m * m).max(1e-300);
+    let per_code: Vec<((f64, f64), (f64, f64))> = codes.iter().map(|&k| (smooth(a, k), smooth(b, k))).collect();
+    let wa: Vec<f64> = codes.iter().zip(&per_code).map(|(&k, ((ma, _), _))| a[k] as f64 / ma.max(1e-9)).collect();
+    let wb: Vec<f64> = codes.iter().zip(&per_code).map(|(&k, (_, (mb, _)))| b[k] as f64 / mb.max(1e-9)).collect();
+    let noise_a: Vec<f64> = codes.iter().zip(&per_code).map(|(&k, &((ma, va), _))| var_ratio(a[k] as f64, ma, va)).collect();
+    let noise_b: Vec<f64> = codes.iter().zip(&per_code).map(|(&k, &(_, (mb, vb)))| var_ratio(b[k] as f64, mb, vb)).collect();
+    // The local polynomial's misfit to each half's own lumps, relative: what the halves'
+    // ratios differ by beyond their Poisson noise (a width pattern cancels in the
+    // difference). It is in every prediction of one half from a smooth, so in both
+    // scores' variance: without it a set with misfit reads as `unexplained`, and an
+    // accepted width pattern leaves the misfit of the half it came from.
+    let misfit2 = (wa.iter().zip(&wb).zip(noise_a.iter().zip(&noise_b)).map(|((x, y), (na, nb))| (x - y).powi(2) - na - nb).sum::<f64>() / (2.0 * codes.len() as f64)).max(0.0);
+    let (mut z0, mut z1) = (Vec::new(), Vec::new());
+    for (j, &k) in codes.iter().enumerate() {
+        let ((ma, var_a), (mb, var_b)) = per_code[j];
+        let w = wa[j];
+        let e0 = mb.max(1e-9);
+        z0.push((b[k] as f64 - e0) / (e0 + var_b + e0 * e0 * misfit2).sqrt());
+        let e1 = (w * e0).max(1e-9);
+        let width_var = 1.0 / (a[k] as f64).max(1.0) + var_a / (ma * ma).max(1e-18);
+        z1.push((b[k] as f64 - e1) / (e1 + e1 * e1 * (width_var + 2.0 * misfit2) + w * w * var_b).sqrt());
     }
+    let noise: Vec<f64> = noise_a.iter().zip(&noise_b).map(|(x, y)| (x + y) / 4.0).collect();
     let n = codes.len() as f64;
     let sd = (2.0 / n).sqrt();
     let (m0, m1) = (mean_sq(&z0), mean_sq(&z1));
     let structure = by_residue(&codes, &z0);
     let strongest = structure.iter().find(|r| r.modulus <= 16).map_or(4, |r| r.modulus);
-    let ratios: Vec<f64> = (0..strongest)
-        .map(|c| {
-            let v: Vec<f64> = codes.iter().zip(&widths).filter(|(k, _)| *k % strongest == c).map(|(_, w)| *w).collect();
-            v.iter().sum::<f64>() / v.len().max(1) as f64
-        })
-        .collect();
-    let class_widths = unfold_period(&ratios, &l);
-    // Each measured width carries its count's Poisson noise (1.9% rms for an ideal ADC at
-    // the tests' counts, all of it in the model file before this): the spread beyond the
-    // class pattern and the noise is `tau^2`, each code's width is shrunk toward its
+    let class_means = |w: &[f64]| -> Vec<f64> {
+        (0..strongest)
+            .map(|c| {
+                let v: Vec<f64> = codes.iter().zip(w).filter(|(k, _)| *k % strongest == c).map(|(_, w)| *w).collect();
+                v.iter().sum::<f64>() / v.len().max(1) as f64
+            })
+            .collect()
+    };
+    let widths: Vec<f64> = wa.iter().zip(&wb).map(|(x, y)| (x + y) / 2.0).collect();
+    let ratios = class_means(&widths);
+    let unfolded = unfold_period(&ratios, &l);
+    // The widths of each half carry their counts' Poisson noise (1.9% rms for an ideal
+    // ADC at the tests' counts) and the misfit of the local polynomial to that half's own
+    // lumps; neither is shared by the two halves, a width pattern is. So the pattern's
+    // variance is the mean product of the halves' departures (by class, unfolded), the
+    // spread beyond it `tau^2` the same over codes; each code's width is shrunk toward its
     // class's by `tau^2 / (tau^2 + var)` (empirical Bayes), and the rms reported is the
-    // pattern's and `tau`'s, the noise taken out.
-    let own = 1.0 - l[HALF];
-    let off = |j: usize, k: usize| widths[j] - ratios[k % strongest];
-    let tau2 = (codes.iter().enumerate().map(|(j, &k)| off(j, k).powi(2) - noise[j]).sum::<f64>() / n).max(0.0) / own;
-    // The class means carry the noise of their codes too.
-    let class_noise = (0..strongest)
-        .map(|c| {
-            let v: Vec<f64> = codes.iter().zip(&noise).filter(|(k, _)| *k % strongest == c).map(|(_, v)| *v / own).collect();
-            v.iter().sum::<f64>() / (v.len() as f64).powi(2).max(1.0)
-        })
-        .sum::<f64>()
-        / strongest as f64;
-    let pattern2 = ((0..counts.len()).map(|k| (class_widths[k % strongest] - 1.0).powi(2)).sum::<f64>() / counts.len().max(1) as f64 - class_noise).max(0.0);
+    // pattern's and `tau`'s.
+    let (ua, ub) = (unfold_period(&class_means(&wa), &l), unfold_period(&class_means(&wb), &l));
+    let pattern2 = (ua.iter().zip(&ub).map(|(x, y)| (x - 1.0) * (y - 1.0)).sum::<f64>() / strongest as f64).max(0.0);
+    // The class pattern shrunk by the share of it the halves reproduce: unfolding divides
+    // by the smoother's own share of the pattern, which for a period the window nearly
+    // follows (a smooth pattern over 16 codes) is small and amplifies noise (an ideal
+    // ADC read a 1.2% period-16 sinusoid before this).
+    let seen2 = unfolded.iter().map(|u| (u - 1.0).powi(2)).sum::<f64>() / strongest as f64;
+    let keep = if seen2 > 0.0 { (pattern2 / seen2).min(1.0) } else { 0.0 };
+    let class_widths: Vec<f64> = unfolded.iter().map(|u| 1.0 + keep * (u - 1.0)).collect();
+    let (ra, rb) = (class_means(&wa), class_means(&wb));
+    let tau2 = (codes.iter().enumerate().map(|(j, &k)| (wa[j] - ra[k % strongest]) * (wb[j] - rb[k % strongest])).sum::<f64>() / n).max(0.0);
     let width_rms = (pattern2 + tau2).sqrt();
-    let mut all_widths: Vec<f64> = (0..counts.len()).map(|k| class_widths[k % strongest]).collect();
+    let n_codes = a.len();
+    let mut all_widths: Vec<f64> = (0..n_codes).map(|k| class_widths[k % strongest]).collect();
     for (j, &k) in codes.iter().enumerate() {
-        all_widths[k] = (class_widths[k % strongest] + tau2 / (tau2 + noise[j] / own).max(1e-300) * off(j, k)).max(1e-6);
+        let off = widths[j] - ratios[k % strongest];
+        all_widths[k] = (class_widths[k % strongest] + tau2 / (tau2 + noise[j]).max(1e-300) * off).max(1e-6);
     }
     let mut findings = Vec::new();
     let significance = (m0 - m1) / sd;
@@ -181,7 +204,7 @@ pub fn diagnose_code_density(counts: &[u64], adc: usize, seed: u64) -> Result<(V
             rms_after: m1.sqrt(),
             gain: (m0 / m1).sqrt(),
             detail: format!(
-                "code density of all frames: widths differ from uniform by {:.2}% rms ({:.2}% the pattern by code mod {strongest}, {:.2}% code to code beyond it; the counts' Poisson noise taken out) over {} codes inside the illuminated peaks (fitted on one binomial half of the counts, scored on the other); strongest structure mod {} (chi^2 {:.1} per class), mean widths by code mod {strongest}: {}",
+                "code density of all frames: widths differ from uniform by {:.2}% rms ({:.2}% the pattern by code mod {strongest}, {:.2}% code to code beyond it; the counts' Poisson noise taken out) over {} codes inside the illuminated peaks (fitted on the frames of alternate levels, scored on the others'); strongest structure mod {} (chi^2 {:.1} per class), mean widths by code mod {strongest}: {}",
                 100.0 * width_rms,
                 100.0 * pattern2.sqrt(),
                 100.0 * tau2.sqrt(),
@@ -202,14 +225,29 @@ pub fn diagnose_code_density(counts: &[u64], adc: usize, seed: u64) -> Result<(V
 mod tests {
     use super::*;
     use crate::camera::exact::phi;
-    use rand::Rng;
+    use rand::{Rng, SeedableRng};
+    use rand_distr::Distribution;
     use rand_distr::Poisson;
 
-    /// A photon-transfer set's code histogram: 50 levels from 60 to 3900 DN, each a
-    /// Gaussian peak of the read noise (3 DN), shot noise (K = 0.25 DN/e-) and a 1% PRNU
-    /// spread, 600,000 samples per level (two 640 x 480 frames), through an ADC of code
-    /// widths `widths` (transition into code k at `-1/2 + sum_(j<k) w_j`).
-    fn lumpy(widths: &[f64], seed: u64) -> Vec<u64> {
+    /// A photon-transfer set's code histograms, levels alternately in halves A and B:
+    /// 50 levels from 60 to 3900 DN, each a Gaussian peak of the read noise (3 DN), shot
+    /// noise (K = 0.25 DN/e-) and a 1% PRNU spread, 600,000 samples per level (two 640 x
+    /// 480 frames), through an ADC of code widths `widths` (transition into code k at
+    /// `-1/2 + sum_(j<k) w_j`).
+    fn lumpy(widths: &[f64], seed: u64) -> (Vec<u64>, Vec<u64>) {
+        let levels: Vec<(f64, f64)> = (0..50)
+            .map(|i| {
+                let mu = 60.0 + 3840.0 * (i as f64 / 49.0).powf(1.3);
+                (mu, (9.0 + 0.25 * mu + (0.01 * mu).powi(2)).sqrt())
+            })
+            .collect();
+        halves(widths, &levels, 600_000.0, seed)
+    }
+
+    /// The code histograms of Gaussian `levels` (mean, sd in DN) of `samples` each
+    /// through an ADC of code widths `widths`, even levels in the first half, odd in the
+    /// second.
+    fn halves(widths: &[f64], levels: &[(f64, f64)], samples: f64, seed: u64) -> (Vec<u64>, Vec<u64>) {
         let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
         let mut edge = vec![f64::NEG_INFINITY];
         let mut t = -0.5;
@@ -218,36 +256,64 @@ mod tests {
             edge.push(t);
         }
         edge.push(f64::INFINITY);
-        let levels: Vec<(f64, f64)> = (0..50)
-            .map(|i| {
-                let mu = 60.0 + 3840.0 * (i as f64 / 49.0).powf(1.3);
-                (mu, (9.0 + 0.25 * mu + (0.01 * mu).powi(2)).sqrt())
-            })
-            .collect();
-        (0..widths.len())
-            .map(|k| {
-                let p: f64 = levels.iter().map(|&(mu, s)| phi((edge[k + 1] - mu) / s) - phi((edge[k] - mu) / s)).sum();
-                let lambda = 600_000.0 * p;
-                if lambda > 0.0 { Poisson::new(lambda).map(|d| d.sample(&mut rng) as u64).unwrap_or(0) } else { 0 }
-            })
-            .collect()
+        let mut draw = |part: usize| -> Vec<u64> {
+            (0..widths.len())
+                .map(|k| {
+                    let p: f64 = levels.iter().skip(part).step_by(2).map(|&(mu, s)| phi((edge[k + 1] - mu) / s) - phi((edge[k] - mu) / s)).sum();
+                    let lambda = samples * p;
+                    if lambda > 0.0 { Poisson::new(lambda).map(|d| d.sample(&mut rng) as u64).unwrap_or(0) } else { 0 }
+                })
+                .collect()
+        };
+        let a = draw(0);
+        (a, draw(1))
+    }
+
+    /// A quantization-limited 8-bit camera in the way the reference implementation's
+    /// simulator makes one: 50 levels over 256 codes, each a narrow peak (0.3 to 3 DN)
+    /// with gaps between, an ideal ADC. The lumps are each half's own: no `adc-dnl`, in
+    /// 19 of 20 seeds (it was named at 100-130 sigma with a binomial split of all counts).
+    #[test]
+    fn narrow_discrete_levels_through_an_ideal_adc_give_no_dnl() {
+        let mut alarms = 0;
+        for seed in 0..20u64 {
+            let levels: Vec<(f64, f64)> = (0..50).map(|i| {
+                let mu = 3.0 + 4.9 * i as f64 + 0.37 * (seed as f64);
+                (mu, (0.09 + 0.01 * mu).sqrt() + 0.05 * mu / 25.0)
+            }).collect();
+            match diagnose_code_density_pair(&halves(&[1.0; 256], &levels, 38_400.0, seed)) {
+                Ok((f, _, _)) if !f.is_empty() => {
+                    alarms += 1;
+                    eprintln!("seed {seed}: {f:?}");
+                }
+                _ => {}
+            }
+        }
+        assert!(alarms <= 1, "{alarms} alarms");
+    }
+
+    fn diagnose_code_density_pair((a, b): &(Vec<u64>, Vec<u64>)) -> Result<(Vec<Finding>, AdcResiduals, CodeDensity), String> {
+        diagnose_code_density(a, b, 0)
     }
 
     #[test]
     fn an_ideal_adc_under_lumpy_light_gives_no_finding_in_19_of_20_seeds() {
         let mut alarms = 0;
         for seed in 0..20 {
-            let (f, _, cd) = diagnose_code_density(&lumpy(&[1.0; 4096], seed), 0, seed).unwrap();
+            let (f, _, cd) = diagnose_code_density_pair(&lumpy(&[1.0; 4096], seed)).unwrap();
             if !f.is_empty() {
                 alarms += 1;
                 eprintln!("seed {seed}: {f:?}");
             }
-            assert!((cd.rms_baseline - 1.0).abs() < 0.05, "seed {seed}: {}", cd.rms_baseline);
+            // Calibrated: 0.92-0.99 over these seeds (the misfit's variance, added alike at
+            // every code, is where the misfit is not).
+            assert!((0.85..1.05).contains(&cd.rms_baseline), "seed {seed}: {}", cd.rms_baseline);
             // The widths for the model: no Poisson noise passed for DN error (1.9% rms
             // before the noise was taken out; the strongest period picked from noise
-            // leaves up to 0.9% in the reported rms).
+            // leaves up to 0.9% in the reported rms, and with half the levels per half
+            // up to 1% in the model: 0.6% with the binomial halves of all the counts).
             let rms = (cd.widths.iter().map(|w| (w - 1.0).powi(2)).sum::<f64>() / cd.widths.len() as f64).sqrt();
-            assert!(cd.width_rms < 0.01 && rms < 0.006, "seed {seed}: width rms {} reported, {rms} in the model", cd.width_rms);
+            assert!(cd.width_rms < 0.01 && rms < 0.01, "seed {seed}: width rms {} reported, {rms} in the model; classes {:?}", cd.width_rms, cd.class_widths);
         }
         assert!(alarms <= 1, "{alarms} alarms");
     }
@@ -262,7 +328,7 @@ mod tests {
             let pattern = [1.0 + amp, 1.0 + amp / 2.0, 1.0 - amp / 2.0, 1.0 - amp];
             let normal = rand_distr::Normal::new(0.0, 0.01).unwrap();
             let widths: Vec<f64> = (0..4096).map(|k| pattern[k % 4] + normal.sample(&mut gen)).collect();
-            let (f, _, cd) = diagnose_code_density(&lumpy(&widths, seed), 0, seed).unwrap();
+            let (f, _, cd) = diagnose_code_density_pair(&lumpy(&widths, seed)).unwrap();
             assert_eq!(f.len(), 1, "seed {seed}, amp {amp}: {f:?}");
             assert_eq!((f[0].effect.as_str(), f[0].adc), ("adc-dnl", Some(0)));
             assert!(f[0].gain > 1.1 && (f[0].rms_after - 1.0).abs() < 0.1, "{:?}", f[0]);

@@ -333,10 +333,21 @@ pub fn load_image(set: &EmvaSet, image: &Path) -> Result<Vec<u16>, HostError> {
     Ok(codes)
 }
 
-/// The code histogram of every frame of `set` (bright and dark levels), `2^bits` bins:
-/// the data of a code-density test of the camera's ADC. Frames are loaded in parallel.
-pub fn code_histogram(set: &EmvaSet) -> Result<Vec<u64>, HostError> {
-    let images: Vec<&PathBuf> = set.levels.iter().flat_map(|l| l.images.iter()).collect();
+/// The code histograms of the frames of `set`'s levels in two halves, `2^bits` bins
+/// each: the levels in photon order (then exposure; dark levels first) alternately in
+/// the first and the second. The data of a code-density test of the camera's ADC held
+/// out by levels (`diagnose::codes`). Frames are loaded in parallel.
+pub fn code_histogram_halves(set: &EmvaSet) -> Result<(Vec<u64>, Vec<u64>), HostError> {
+    let mut order: Vec<&EmvaLevel> = set.levels.iter().collect();
+    order.sort_by(|a, b| a.photons().total_cmp(&b.photons()).then(a.exposure.total_cmp(&b.exposure)));
+    let half = |part: usize| -> Vec<&EmvaLevel> { order.iter().skip(part).step_by(2).copied().collect() };
+    Ok((code_histogram(set, &half(0))?, code_histogram(set, &half(1))?))
+}
+
+/// The code histogram of every frame of `levels` of `set`, `2^bits` bins. Frames are
+/// loaded in parallel.
+pub fn code_histogram(set: &EmvaSet, levels: &[&EmvaLevel]) -> Result<Vec<u64>, HostError> {
+    let images: Vec<&PathBuf> = levels.iter().flat_map(|l| l.images.iter()).collect();
     let bins = 1usize << set.bits;
     images
         .par_iter()
