@@ -32,6 +32,64 @@ What differs from DatasetGenerator as shipped, and why:
   * The DSNU image (e-, Gaussian) and PRNU image (1 + Gaussian) are drawn
     from numpy Generators seeded from --seed; the camera's own noise uses
     Camera(seed=--seed).
+
+Hidden effects the reference's camera lacks (all off by default):
+  The camera is EffectsCamera, a subclass of emva1288.camera.camera.Camera
+  whose grab() runs the reference's own Camera.grab unchanged except for its
+  one np.rint call: for the duration of the call, the name `np` inside
+  emva1288.camera.camera is a stand-in that forwards everything to numpy but
+  hands rint's argument, the analog image K * electrons + U(-0.5, 0.5) +
+  blackoffset, to our quantizer, which writes the codes in place; the
+  reference then clips to [0, 2^bits-1] and casts as before. So photons, dark
+  signal and current, PRNU/DSNU, full-well and ADC clipping and every random
+  draw (the uniform dither included) are the reference's own, and with no
+  effect enabled the quantizer is np.rint and the frames are byte-identical
+  to the plain Camera's for the same seed. The generator's own offset/gain
+  searches and PointsGenerator's dark grab also see the effects.
+  * --adcs N: column c is read by ADC c mod N (only matters with DNL).
+  * --dnl-rms R, --dnl-adc A|all: differential nonlinearity of ADC A (or of
+    every ADC, each its own draw). Code widths w_k = 1 + R g_k, g_k standard
+    normal from numpy.random.default_rng([seed, 4, adc]), clipped to >= 0.2,
+    then scaled so the mean over the interior codes 1..2^bits-2 is exactly 1
+    (w_0 and w_{2^bits-1} are open-ended and recorded as 1). The transition
+    from code k-1 to k sits at t_k = 0.5 + sum_{j=1}^{k-1} w_j (ideal: k - 0.5,
+    np.rint's edges), and the code is np.searchsorted(t, analog, 'right'),
+    i.e. the number of edges <= analog (np.rint rounds exact halves to even,
+    this rounds them up; with a continuous analog value that never matters).
+  * --compress A: x = analog - blackoffset becomes x * (1 - A (x/x_max)^3),
+    x_max = 2^bits - 1, before quantization (A = 0.05: 5% low at x_max). Past
+    the curve's peak, x_peak = x_max (4A)^(-1/3) (1.71 x_max at A = 0.05),
+    it is held at its peak value so that a brighter pixel never comes out
+    darker (only reached when K * u_esat is well above the ADC range).
+    Note: the reference's PointsGenerator puts the top level at an analog
+    mean of about 2^bits - 1, which compression pulls below full scale, so a
+    compressed exposure series may never fully saturate.
+  truth.json records adcs, dnl_adc, dnl_rms {planted, realized per ADC},
+  dnl_widths {adc: [w_0 .. w_{2^bits-1}]}, compress and compress_formula; its
+  expected_reference block ignores the effects.
+
+Preset: a quantization-limited 8-bit camera (existing options only). Small
+gain, full well above the ADC range (255 DN = 127500 e- < 150000 e-), and a
+planted offset that puts the dark level on a code (analog dark mean 4.98 +
+0.002 * 10 e- = 5.00 DN), so the generator's 50 photon levels land on whole
+codes 5 DN apart (15, 20, 25, ... DN: the dark mean plus 250 (k+1)/50) and
+the low levels' temporal noise is mostly the reference's uniform dither:
+narrow code peaks 5 codes apart, lumpy code occupancy:
+
+    "$VENV_PY" scripts/emva_simulate.py --out /tmp/emva8q --bits 8 \
+        --K 0.002 --u-esat 150000 --sigma2-dark 0.5 --blackoffset 4.98 \
+        --exposure-fixed 1000000
+
+Seed 1288, temporal noise sqrt(var(A - B) / 2) read back from the frames:
+dark 0.06 DN (99.96% of the pixels on code 5), then 0.36, 0.40, 0.43, 0.45,
+0.47, 0.49, 0.496 DN at 15..45 DN, 0.50 at 50 DN and rising; each of those
+levels has 3 codes with >= 1% of its pixels, and below 45 DN the two codes
+between neighbouring peaks are empty. The dither's share of the variance
+here is E[|d| (1 - |d|)] for an analog value d off the nearest code, not the
+1/12 DN^2 the reference subtracts, so the reference's K comes out about
+0.0035 (planted 0.002) and its s2_ydark is clamped at 0.24 DN^2. With
+--K 0.02 --u-esat 15000 and no planted offset the first levels are already
+0.54 to 0.63 DN.
 """
 
 import argparse
@@ -46,6 +104,8 @@ from PIL import Image
 
 import emva1288
 from emva1288.camera import routines as cam_routines
+from emva1288.camera import camera as camera_module
+from emva1288.camera import dataset_generator as dataset_generator_module
 from emva1288.camera.bad_images import bad_pixel
 from emva1288.camera.camera import Camera
 from emva1288.camera.dataset_generator import DatasetGenerator
@@ -61,6 +121,105 @@ DESCRIPTOR = "EMVA1288descriptor.txt"
 
 def log(*a):
     print(*a, file=sys.stderr)
+
+
+def dnl_widths(bits, rms, seed, adc):
+    """Code widths (LSB) of one ADC: w_k = 1 + rms * g_k, clipped >= 0.2 and
+    scaled to a mean of exactly 1 over the interior codes 1..2^bits-2; the
+    open-ended end codes 0 and 2^bits-1 are recorded as 1."""
+    n = 2 ** bits
+    g = np.random.default_rng([seed, 4, adc]).standard_normal(n)
+    w = np.ones(n)
+    interior = np.clip(1.0 + rms * g[1:n - 1], 0.2, None)
+    w[1:n - 1] = interior / interior.mean()
+    return w
+
+
+def code_edges(widths):
+    """Transition levels t_k, k = 1..2^bits-1: t_k = 0.5 + sum_{j=1}^{k-1} w_j
+    (all widths 1: t_k = k - 0.5, the edges of np.rint)."""
+    n = len(widths)
+    return 0.5 + np.concatenate(([0.0], np.cumsum(widths[1:n - 1])))
+
+
+class Quantizer:
+    """Our rule for turning the camera's analog image (DN, float) into codes.
+
+    Called in place on the array the reference would np.rint. With no effect
+    it is exactly np.rint. compress: global cubic compression above the black
+    offset; dnl: {adc: edges} for ADCs with differential nonlinearity, ADC a
+    reading the columns a, a + adcs, a + 2 adcs, ...
+    """
+
+    def __init__(self, bits, adcs=1, dnl=None, compress=0.0):
+        self.x_max = float(2 ** bits - 1)
+        self.adcs = int(adcs)
+        self.dnl = dict(dnl or {})
+        self.compress = float(compress)
+        if self.compress > 0:
+            self.x_peak = self.x_max * (4.0 * self.compress) ** (-1.0 / 3.0)
+
+    @property
+    def active(self):
+        return bool(self.dnl) or self.compress != 0.0
+
+    def __call__(self, img, blackoffset):
+        analog = img
+        if self.compress != 0.0:
+            x = np.minimum(img - blackoffset, self.x_peak)
+            analog = blackoffset + x * (1.0 - self.compress * (x / self.x_max) ** 3)
+        codes = np.rint(analog)
+        for adc, edges in self.dnl.items():
+            codes[:, adc::self.adcs] = np.searchsorted(
+                edges, analog[:, adc::self.adcs], side="right")
+        img[...] = codes
+
+
+class _NumpyWithOurRint:
+    """Stands in for numpy inside emva1288.camera.camera during one grab:
+    everything is numpy's except rint(img, img), which hands the analog image
+    to the quantizer (the reference calls rint once per grab, in place)."""
+
+    def __init__(self, quantize):
+        self._quantize = quantize
+        self.calls = 0
+
+    def __getattr__(self, name):
+        return getattr(np, name)
+
+    def rint(self, x, out=None):
+        if out is not x or not isinstance(x, np.ndarray) or x.dtype.kind != "f":
+            raise RuntimeError("emva1288 Camera.grab no longer calls "
+                               "np.rint(img, img) on a float image")
+        self.calls += 1
+        self._quantize(x)
+        return x
+
+
+class EffectsCamera(Camera):
+    """The reference's Camera, quantized by a Quantizer (see the docstring)."""
+
+    def __init__(self, quantizer=None, **kwargs):
+        super().__init__(**kwargs)
+        self.quantizer = quantizer
+
+    def grab(self, radiance, temperature=None, f_number=None):
+        if self.quantizer is None:
+            return super().grab(radiance, temperature=temperature,
+                                f_number=f_number)
+        hook = _NumpyWithOurRint(lambda img: self.quantizer(img, self.blackoffset))
+        if camera_module.np is not np:
+            raise RuntimeError("emva1288.camera.camera.np is already replaced")
+        camera_module.np = hook
+        try:
+            img = super().grab(radiance, temperature=temperature,
+                               f_number=f_number)
+        finally:
+            camera_module.np = np
+        if hook.calls != 1:
+            raise RuntimeError("Camera.grab called np.rint %d times, expected 1"
+                               % hook.calls)
+        return img
 
 
 class PngDatasetGenerator(DatasetGenerator):
@@ -105,7 +264,11 @@ class PngDatasetGenerator(DatasetGenerator):
 def parse_args(argv):
     p = argparse.ArgumentParser(
         description="EMVA 1288 data set from the reference (emva1288 1.0.2) "
-                    "camera simulator, with truth.json.")
+                    "camera simulator, with truth.json.",
+        epilog="Quantization-limited 8-bit preset (noise < 0.5 DN at the dark "
+               "and the first 7 levels, narrow code peaks 5 DN apart): --bits 8 "
+               "--K 0.002 --u-esat 150000 --sigma2-dark 0.5 --blackoffset 4.98 "
+               "--exposure-fixed 1000000. See the module docstring.")
     p.add_argument("--out", required=True, metavar="DIR",
                    help="output directory (DIR/images must not exist, see --force)")
     p.add_argument("--force", action="store_true",
@@ -175,7 +338,36 @@ def parse_args(argv):
     e.add_argument("--exposure-max", type=float, default=500000000.0,
                    help="ns (default 500000000, the camera's)")
 
+    h = p.add_argument_group("hidden effects (the reference's camera has none)")
+    h.add_argument("--adcs", type=int, default=1, metavar="N",
+                   help="column-interleaved ADCs, column c on ADC c mod N (default 1)")
+    h.add_argument("--dnl-rms", type=float, default=0.0, metavar="R",
+                   help="rms of the code widths (LSB) of the DNL ADC(s): "
+                        "w_k = 1 + R g_k (default 0 = no DNL)")
+    h.add_argument("--dnl-adc", default="0", metavar="A",
+                   help="which ADC has DNL: 0..N-1 or 'all' (default 0)")
+    h.add_argument("--compress", type=float, default=0.0, metavar="A",
+                   help="compressive response: x = analog - offset becomes "
+                        "x (1 - A (x/x_max)^3), x_max = 2^bits - 1 (default 0)")
+
     a = p.parse_args(argv)
+    if a.adcs < 1 or a.adcs > a.width:
+        p.error("--adcs must be in 1..width")
+    if not a.dnl_rms >= 0:
+        p.error("--dnl-rms must be >= 0")
+    if a.dnl_adc == "all":
+        a.dnl_adcs = list(range(a.adcs))
+    else:
+        try:
+            a.dnl_adcs = [int(a.dnl_adc)]
+        except ValueError:
+            p.error("--dnl-adc must be an ADC number or 'all'")
+        if not 0 <= a.dnl_adcs[0] < a.adcs:
+            p.error("--dnl-adc must be in 0..%d (--adcs %d)" % (a.adcs - 1, a.adcs))
+    if a.dnl_rms == 0:
+        a.dnl_adcs = []
+    if not 0 <= a.compress < 1:
+        p.error("--compress must be in [0, 1)")
     if a.L < 3:
         p.error("--L must be >= 3 (a series of 2 frames is read as temporal)")
     if a.steps < 2:
@@ -269,9 +461,22 @@ def main(argv):
     else:
         bo_source = "generator's search (<= 0.5% of dark pixels at 0 DN)"
 
-    gen = PngDatasetGenerator(steps=a.steps, L=a.L, version=a.version,
-                              image_format="png", outdir=out,
-                              exposure_fixed=a.exposure_fixed, **cam_kwargs)
+    # Hidden effects: our quantizer inside the reference's own grab.
+    widths = {adc: dnl_widths(a.bits, a.dnl_rms, a.seed, adc) for adc in a.dnl_adcs}
+    quantizer = Quantizer(a.bits, adcs=a.adcs, compress=a.compress,
+                          dnl={adc: code_edges(w) for adc, w in widths.items()})
+    cam_kwargs["quantizer"] = quantizer
+
+    # DatasetGenerator builds its camera as dataset_generator.Cam(**kwargs).
+    if dataset_generator_module.Cam is not Camera:
+        raise RuntimeError("emva1288.camera.dataset_generator.Cam is not Camera")
+    dataset_generator_module.Cam = EffectsCamera
+    try:
+        gen = PngDatasetGenerator(steps=a.steps, L=a.L, version=a.version,
+                                  image_format="png", outdir=out,
+                                  exposure_fixed=a.exposure_fixed, **cam_kwargs)
+    finally:
+        dataset_generator_module.Cam = Camera
     cam = gen.cam
     descriptor = gen.descriptor_path
     t_gen = time.time() - t0
@@ -391,8 +596,30 @@ def main(argv):
             "frames, clipped as the camera clips (PRNU1288 null when the bright "
             "spatial variance is below the dark one, as the reference then gives NaN)",
         ],
+        "adcs": a.adcs,
+        "dnl_adc": a.dnl_adcs,
+        "dnl_rms": {
+            "planted": a.dnl_rms if a.dnl_adcs else 0.0,
+            "realized": {str(adc): float(np.sqrt(np.mean((w[1:-1] - 1.0) ** 2)))
+                         for adc, w in widths.items()},
+        },
+        "dnl_widths": {str(adc): w.tolist() for adc, w in widths.items()},
+        "dnl_rule": "column c is read by ADC c mod adcs; a DNL ADC's code is "
+                    "searchsorted(t, analog, 'right') with t_k = 0.5 + "
+                    "sum_{j=1}^{k-1} w_j, k = 1..2^bits-1 (w_0, w_max nominal 1); "
+                    "other ADCs: rint(analog); then clip to [0, 2^bits-1]. "
+                    "dnl_rms.realized: rms of w - 1 over codes 1..2^bits-2",
+        "compress": a.compress,
+        "compress_formula": "analog = blackoffset + x * (1 - compress * (x / x_max)^3), "
+                            "x = min(analog_camera - blackoffset, x_peak), "
+                            "x_max = 2^bits - 1 = %d, x_peak = x_max * "
+                            "(4 compress)^(-1/3); applied before quantization"
+                            % img_max,
         "generation_seconds": round(t_gen, 3),
     }
+    if quantizer.active:
+        truth["notes"].append(
+            "hidden effects (dnl_*, compress) are not in expected_reference")
     with open(os.path.join(out, "truth.json"), "w") as f:
         json.dump(truth, f, indent=1)
         f.write("\n")

@@ -720,6 +720,9 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
                 for f in &d.findings {
                     t += &format!("  {}{}: significance {:.1}, RMS {:.3} -> {:.3} (gain {:.2}); {}\n", f.effect, f.adc.map_or(String::new(), |a| format!(" (ADC {a})")), f.significance, f.rms_before, f.rms_after, f.gain, f.detail);
                 }
+                for note in &d.not_tested {
+                    t += &format!("  not tested: {note}\n");
+                }
                 t += &format!("  unexplained RMS {:.3}\n", d.unexplained_rms);
                 t
             };

@@ -99,11 +99,13 @@ pub fn linearity_model(set: &crate::fits::LinearitySet, d: &Diagnosis) -> crate:
 }
 
 /// The camera model of a photon-transfer set's diagnosis: bit depth, size, one ADC,
-/// conversion gain, QE, dark noise, dark level and saturation from the EMVA 1288 summary,
-/// the shared response curve if accepted, and the code widths of the frames' code density
-/// if `adc-dnl` was accepted (ideal otherwise). PRNU, DSNU and bad pixels are zero, not
-/// guessed: the photon-transfer diagnosis does not measure them (yet).
-pub fn ptc_model(set: &crate::emva::EmvaSet, summary: &crate::emva::PtcSummary, dark_dn: f64, d: &mut Diagnosis) -> crate::camera::CameraConfig {
+/// conversion gain, QE, dark noise, dark level and saturation from the EMVA 1288
+/// datasheet, the shared response curve if accepted, and the code widths of the frames'
+/// code density if `adc-dnl` was accepted (ideal otherwise); PRNU and DSNU from the
+/// spatial series and the share of `bad-pixels` where the set has one (zero, not guessed,
+/// where it has none).
+pub fn ptc_model(set: &crate::emva::EmvaSet, sheet: &crate::emva::Datasheet, dark_dn: f64, d: &mut Diagnosis) -> crate::camera::CameraConfig {
+    let summary = &sheet.temporal;
     let mut c = crate::camera::CameraConfig {
         bits: set.bits,
         n_adc: 1,
@@ -128,11 +130,42 @@ pub fn ptc_model(set: &crate::emva::EmvaSet, summary: &crate::emva::PtcSummary, 
         read_noise_dn: Some(summary.dark_noise_dn),
         offset_dn: Some(dark_dn),
         full_scale_dn: Some(summary.saturation_dn),
-        saturated: true,
+        saturated: summary.saturation_reached,
+        prnu_rms: sheet.spatial.prnu_pct.map(|p| p / 100.0),
+        dsnu_dn: sheet.spatial.dsnu_dn,
+        bad_fraction: d.findings.iter().find(|f| f.effect == "bad-pixels").and_then(|f| f.count).map(|n| n as f64 / (set.width * set.height).max(1) as f64),
         ..Default::default()
     };
     apply_measured(c, d)
 }
+
+/// The all-columns code-density findings of an EMVA set, or, where some of four
+/// interleaved ADCs (column c read by ADC c mod 4, as the MV-D1024E's) show a width
+/// pattern and others do not, the findings of those ADCs only (a pattern on one ADC,
+/// diluted, can pass for all columns').
+fn code_density_by_adc(set: &crate::emva::EmvaSet, mut findings: Vec<Finding>) -> Result<Vec<Finding>, HostError> {
+    if set.width < 2 * INTERLEAVED_ADCS {
+        return Ok(findings);
+    }
+    let mut by_adc = Vec::new();
+    for adc in 0..INTERLEAVED_ADCS {
+        let (a, b) = crate::emva::code_histogram_halves(set, Some((INTERLEAVED_ADCS, adc)))?;
+        by_adc.push(diagnose_code_density(&a, &b, adc).ok().map(|(f, _, _)| f.into_iter().filter(|f| f.effect == "adc-dnl").collect::<Vec<_>>()));
+    }
+    let named = by_adc.iter().filter(|f| f.as_ref().is_some_and(|f| !f.is_empty())).count();
+    let tested = by_adc.iter().filter(|f| f.is_some()).count();
+    if tested == INTERLEAVED_ADCS && named > 0 && named < INTERLEAVED_ADCS {
+        findings.retain(|f| f.effect != "adc-dnl");
+        for mut f in by_adc.into_iter().flatten().flatten() {
+            f.detail = format!("columns c mod {INTERLEAVED_ADCS} = {} only: {}", f.adc.unwrap_or(0), f.detail);
+            findings.push(f);
+        }
+    }
+    Ok(findings)
+}
+
+/// The interleaved ADCs an EMVA set's columns are tested as (column c by ADC c mod 4).
+const INTERLEAVED_ADCS: usize = 4;
 
 /// One input's diagnosis and the files written for it.
 #[derive(Debug, Serialize)]
@@ -159,16 +192,25 @@ pub fn diagnose(input: &Path, flatten: &FlattenParams, seed: u64, out_dir: Optio
         let set = crate::emva::read_descriptor(input)?;
         let points = crate::emva::photon_transfer(&set)?;
         let mut d = diagnose_ptc(&points, set.width * set.height, 0.01).map_err(|m| HostError::Format { path: input.into(), message: m })?;
-        // The frames' code density: the single ADC's code widths (the descriptor's camera
-        // has one output; a multi-output camera's columns would need splitting by ADC).
-        let (a, b) = crate::emva::code_histogram_halves(&set)?;
-        let (findings, residuals, density) = diagnose_code_density(&a, &b, 0).map_err(|m| HostError::Format { path: input.into(), message: format!("code density: {m}") })?;
-        d.findings.extend(findings);
-        d.code_density = Some(density);
-        d.code_residuals = Some(residuals);
-        let summary = crate::emva::summarize(input, &points, crate::emva::Release::from_version(set.version.as_deref()))?;
+        // The frames' code density: all columns as one ADC, then the columns of each of
+        // four interleaved ADCs (column c read by ADC c mod 4, as the MV-D1024E's): where
+        // some of them show a width pattern and others do not, it is named on those ADCs
+        // only (a pattern on one ADC, diluted, can pass for all columns').
+        let (a, b) = crate::emva::code_histogram_halves(&set, None)?;
+        match diagnose_code_density(&a, &b, 0) {
+            Ok((findings, residuals, density)) => {
+                d.findings.extend(code_density_by_adc(&set, findings)?);
+                d.code_density = Some(density);
+                d.code_residuals = Some(residuals);
+            }
+            // A quantization-limited camera's narrow levels may leave too few codes with
+            // counts in both halves: the ADC is then not tested, and the rest still is.
+            Err(m) => d.not_tested.push(format!("adc-dnl (code density): {m}")),
+        }
+        d.findings.extend(crate::diagnose::diagnose_defects(&set)?);
+        let sheet = crate::emva::datasheet(&set, None)?;
         let dark = points.first().map_or(0.0, |p| p.dark_mean_dn);
-        model = Some(ptc_model(&set, &summary, dark, &mut d));
+        model = Some(ptc_model(&set, &sheet, dark, &mut d));
         d
     } else {
         let hist = match read_histograms(input) {

@@ -112,6 +112,7 @@ pub fn diagnose_histograms(h: &AdcHistograms, flatten: &FlattenParams, seed: u64
         residuals.push(AdcResiduals::over(&codes, &z0, z_final));
     }
     Ok(Diagnosis {
+        not_tested: Vec::new(),
         measured: Measured::default(),
         code_density: None,
         code_residuals: None,

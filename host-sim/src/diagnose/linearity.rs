@@ -1016,6 +1016,7 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
         ));
     }
     Ok(Diagnosis {
+        not_tested: Vec::new(),
         measured,
         code_density: None,
         code_residuals: None,

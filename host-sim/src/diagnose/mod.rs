@@ -2,15 +2,18 @@
 //! catalog of model extensions, each accepted only if it improves the fit on held-out data.
 //!
 //! One submodule per data kind: [`histograms`], [`ptc`] (EMVA 1288 photon transfer) with
-//! [`codes`] (the code density of its frames), [`linearity`] (linearity sets).
+//! [`codes`] (the code density of its frames) and [`defects`] (the defect pixels of its
+//! spatial series), [`linearity`] (linearity sets).
 
 mod codes;
+mod defects;
 mod histograms;
 mod levels;
 mod linearity;
 mod ptc;
 
 pub use codes::{diagnose_code_density, CodeDensity};
+pub use defects::diagnose_defects;
 pub use histograms::diagnose_histograms;
 pub use linearity::diagnose_linearity;
 pub use ptc::diagnose_ptc;
@@ -112,6 +115,10 @@ pub struct Diagnosis {
     /// Camera parameters the data measure (for the model file).
     #[serde(skip)]
     pub measured: Measured,
+    /// Tests the data could not carry, and why (a finding not tested is not a finding
+    /// absent).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub not_tested: Vec<String>,
 }
 
 /// Camera parameters a diagnosis measured on the way, each `None` when the data do not

@@ -180,6 +180,7 @@ pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Res
         });
     }
     Ok(Diagnosis {
+        not_tested: Vec::new(),
         measured: Measured::default(),
         code_density: None,
         code_residuals: None,

@@ -337,24 +337,30 @@ pub fn load_image(set: &EmvaSet, image: &Path) -> Result<Vec<u16>, HostError> {
 /// each: the levels in photon order (then exposure; dark levels first) alternately in
 /// the first and the second. The data of a code-density test of the camera's ADC held
 /// out by levels (`diagnose::codes`). Frames are loaded in parallel.
-pub fn code_histogram_halves(set: &EmvaSet) -> Result<(Vec<u64>, Vec<u64>), HostError> {
+/// With `columns = Some((n, c))` only the columns `x` with `x mod n = c` count: the
+/// pixels of one of `n` interleaved ADCs.
+pub fn code_histogram_halves(set: &EmvaSet, columns: Option<(usize, usize)>) -> Result<(Vec<u64>, Vec<u64>), HostError> {
     let mut order: Vec<&EmvaLevel> = set.levels.iter().collect();
     order.sort_by(|a, b| a.photons().total_cmp(&b.photons()).then(a.exposure.total_cmp(&b.exposure)));
     let half = |part: usize| -> Vec<&EmvaLevel> { order.iter().skip(part).step_by(2).copied().collect() };
-    Ok((code_histogram(set, &half(0))?, code_histogram(set, &half(1))?))
+    Ok((code_histogram(set, &half(0), columns)?, code_histogram(set, &half(1), columns)?))
 }
 
-/// The code histogram of every frame of `levels` of `set`, `2^bits` bins. Frames are
-/// loaded in parallel.
-pub fn code_histogram(set: &EmvaSet, levels: &[&EmvaLevel]) -> Result<Vec<u64>, HostError> {
+/// The code histogram of every frame of `levels` of `set`, `2^bits` bins, of the columns
+/// `columns` selects (see [`code_histogram_halves`]). Frames are loaded in parallel.
+pub fn code_histogram(set: &EmvaSet, levels: &[&EmvaLevel], columns: Option<(usize, usize)>) -> Result<Vec<u64>, HostError> {
+    let width = set.width;
+    let keep = move |i: usize| columns.is_none_or(|(n, c)| (i % width) % n.max(1) == c);
     let images: Vec<&PathBuf> = levels.iter().flat_map(|l| l.images.iter()).collect();
     let bins = 1usize << set.bits;
     images
         .par_iter()
         .map(|image| {
             let mut h = vec![0u64; bins];
-            for c in load_image(set, image)? {
-                h[c as usize] += 1;
+            for (i, c) in load_image(set, image)?.into_iter().enumerate() {
+                if keep(i) {
+                    h[c as usize] += 1;
+                }
             }
             Ok(h)
         })

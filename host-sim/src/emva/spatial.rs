@@ -74,9 +74,15 @@ pub struct Components {
 impl SpatialSeries {
     /// Sums the frames of `level` (loaded in parallel).
     pub fn load(set: &EmvaSet, level: &EmvaLevel) -> Result<SpatialSeries, HostError> {
+        SpatialSeries::load_frames(set, level, 0..level.images.len())
+    }
+
+    /// Sums the frames `frames` of `level` (loaded in parallel): a part of the series, for
+    /// results held out by frames.
+    pub fn load_frames(set: &EmvaSet, level: &EmvaLevel, frames: std::ops::Range<usize>) -> Result<SpatialSeries, HostError> {
         let n = set.width * set.height;
-        let (sum, sum_sq) = level
-            .images
+        let images = level.images.get(frames).unwrap_or(&[]);
+        let (sum, sum_sq) = images
             .par_iter()
             .map(|image| load_image(set, image))
             .try_fold(
@@ -100,7 +106,7 @@ impl SpatialSeries {
                 },
             )?;
         Ok(SpatialSeries {
-            frames: level.images.len(),
+            frames: images.len(),
             rows: set.height,
             cols: set.width,
             photons: level.photons(),
@@ -152,6 +158,13 @@ impl SpatialSeries {
 /// The bright and dark spatial series of `set`, or why there are none: the standard
 /// takes exactly one of each, at one exposure.
 pub fn spatial_pair(set: &EmvaSet) -> Result<Option<(SpatialSeries, SpatialSeries)>, HostError> {
+    let Some((b, d)) = spatial_levels(set)? else { return Ok(None) };
+    let (b, d) = rayon::join(|| SpatialSeries::load(set, b), || SpatialSeries::load(set, d));
+    Ok(Some((b?, d?)))
+}
+
+/// The bright and dark spatial levels of `set` (see [`spatial_pair`]).
+pub fn spatial_levels(set: &EmvaSet) -> Result<Option<(&EmvaLevel, &EmvaLevel)>, HostError> {
     let spatial: Vec<&EmvaLevel> = set.levels.iter().filter(|l| l.series() == Some(Series::Spatial)).collect();
     if spatial.is_empty() {
         return Ok(None);
@@ -168,8 +181,7 @@ pub fn spatial_pair(set: &EmvaSet) -> Result<Option<(SpatialSeries, SpatialSerie
     if b.exposure != d.exposure {
         return Err(at_line(&set.path, d.line, format!("the dark spatial series has exposure {}, the bright one {}", d.exposure, b.exposure)));
     }
-    let (b, d) = rayon::join(|| SpatialSeries::load(set, b), || SpatialSeries::load(set, d));
-    Ok(Some((b?, d?)))
+    Ok(Some((b, d)))
 }
 
 /// A spectrogram as EMVA 1288 defines it (Release 3.1 section 8.6): each row's discrete
@@ -330,17 +342,62 @@ fn robust(v: &[f64]) -> (f64, f64) {
     (centre, 1.4826 * median(&mut work))
 }
 
+/// A pixel's defect kinds, bits of [`classify_defects`]'s map.
+pub const HOT: u8 = 1;
+/// Dead.
+pub const DEAD: u8 = 2;
+/// High PRNU.
+pub const HIGH_PRNU: u8 = 4;
+
 /// Counts the defect pixels of a bright and a dark spatial series (see [`DefectPixels`]).
 pub fn defect_pixels(bright: &SpatialSeries, dark: &SpatialSeries, bright_stack_dn2: f64, dark_stack_dn2: f64) -> DefectPixels {
+    let (kind, hot_threshold, prnu_threshold) = classify_defects(bright, dark, bright_stack_dn2, dark_stack_dn2);
+    let cols = dark.cols;
+    let count = |bit: u8| kind.iter().filter(|&&k| k & bit != 0).count();
+    DefectPixels {
+        hot: count(HOT),
+        dead: count(DEAD),
+        high_prnu: count(HIGH_PRNU),
+        total: kind.iter().filter(|&&k| k != 0).count(),
+        hot_threshold_dn: hot_threshold,
+        prnu_threshold_dn: prnu_threshold,
+        positions: kind.iter().enumerate().filter(|(_, &k)| k != 0).take(1000).map(|(i, _)| (i / cols, i % cols)).collect(),
+    }
+}
+
+/// Every pixel's defect classification (see [`DefectPixels`]).
+#[derive(Debug, Clone)]
+pub struct DefectMap {
+    /// Kinds, row-major ([`HOT`], [`DEAD`], [`HIGH_PRNU`] bits).
+    pub kind: Vec<u8>,
+    /// The larger of the pixel's dark departure and response departure, in their robust
+    /// standard deviations (the border's response departure is 0).
+    pub score: Vec<f64>,
+    /// The hot threshold, DN.
+    pub hot_threshold_dn: f64,
+    /// The high-PRNU threshold, DN.
+    pub prnu_threshold_dn: f64,
+}
+
+/// The defect kinds of every pixel, row-major ([`HOT`], [`DEAD`], [`HIGH_PRNU`] bits),
+/// and the hot and high-PRNU thresholds, DN (see [`DefectPixels`]).
+pub fn classify_defects(bright: &SpatialSeries, dark: &SpatialSeries, bright_stack_dn2: f64, dark_stack_dn2: f64) -> (Vec<u8>, f64, f64) {
+    let map = defect_map(bright, dark, bright_stack_dn2, dark_stack_dn2);
+    (map.kind, map.hot_threshold_dn, map.prnu_threshold_dn)
+}
+
+/// The whole classification, with each pixel's score.
+pub fn defect_map(bright: &SpatialSeries, dark: &SpatialSeries, bright_stack_dn2: f64, dark_stack_dn2: f64) -> DefectMap {
     let (rows, cols) = (dark.rows, dark.cols);
     let (lb, ld) = (bright.frames as f64, dark.frames as f64);
     let dark_mean: Vec<f64> = dark.sum.iter().map(|&v| v as f64 / ld).collect();
     let (dark_centre, dark_sigma) = robust(&dark_mean);
     let hot_threshold = DEFECT_SIGMAS * dark_sigma.max((dark_stack_dn2 / ld).sqrt());
-    let mut kind = vec![0u8; rows * cols]; // bit 0 hot, 1 dead, 2 high PRNU
+    let mut kind = vec![0u8; rows * cols];
+    let mut score: Vec<f64> = dark_mean.iter().map(|v| (v - dark_centre).abs() * DEFECT_SIGMAS / hot_threshold.max(1e-300)).collect();
     for (k, &v) in kind.iter_mut().zip(&dark_mean) {
         if v - dark_centre > hot_threshold {
-            *k |= 1;
+            *k |= HOT;
         }
     }
     // Bright minus dark in units of 1/(lb ld) DN, exact in integers; each interior pixel
@@ -365,22 +422,14 @@ pub fn defect_pixels(bright: &SpatialSeries, dark: &SpatialSeries, bright_stack_
     let prnu_threshold = DEFECT_SIGMAS * dev_sigma.max(temporal);
     for (i, &(value, neighbourhood)) in local.iter().enumerate() {
         let at = (i / fc + 2) * cols + i % fc + 2;
+        score[at] = score[at].max((value - neighbourhood - dev_centre).abs() * DEFECT_SIGMAS / prnu_threshold.max(1e-300));
         if neighbourhood > 0.0 && value < DEAD_RESPONSE * neighbourhood {
-            kind[at] |= 2;
+            kind[at] |= DEAD;
         } else if (value - neighbourhood - dev_centre).abs() > prnu_threshold {
-            kind[at] |= 4;
+            kind[at] |= HIGH_PRNU;
         }
     }
-    let count = |bit: u8| kind.iter().filter(|&&k| k & bit != 0).count();
-    DefectPixels {
-        hot: count(1),
-        dead: count(2),
-        high_prnu: count(4),
-        total: kind.iter().filter(|&&k| k != 0).count(),
-        hot_threshold_dn: hot_threshold,
-        prnu_threshold_dn: prnu_threshold,
-        positions: kind.iter().enumerate().filter(|(_, &k)| k != 0).take(1000).map(|(i, _)| (i / cols, i % cols)).collect(),
-    }
+    DefectMap { kind, score, hot_threshold_dn: hot_threshold, prnu_threshold_dn: prnu_threshold }
 }
 
 #[cfg(test)]
