@@ -155,3 +155,15 @@ fn a_clean_linear_camera_that_saturates_is_characterized() {
     let sigma_d = v["dark_noise_e"].as_f64().unwrap();
     assert!((sigma_d - 8.0).abs() < 0.8, "sigma_d {sigma_d}");
 }
+
+#[test]
+fn repeated_levels_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    // Photon counts copied from one line to all: the second level repeats the first's
+    // exposure and photons (the reference implementation refuses it too).
+    let d = write_set(dir.path(), &photons(20, 20000.0), linear);
+    let text = std::fs::read_to_string(&d).unwrap();
+    let same: String = text.lines().map(|l| if l.starts_with("b ") { "b 1000.0 5000\n".to_string() } else { format!("{l}\n") }).collect();
+    std::fs::write(&d, same).unwrap();
+    assert_refused(&dncal(&["emva", d.to_str().unwrap()]), &d, "one level per exposure and photon count");
+}

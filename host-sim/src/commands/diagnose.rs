@@ -207,7 +207,10 @@ pub fn diagnose(input: &Path, flatten: &FlattenParams, seed: u64, out_dir: Optio
             // counts in both halves: the ADC is then not tested, and the rest still is.
             Err(m) => d.not_tested.push(format!("adc-dnl (code density): {m}")),
         }
-        d.findings.extend(crate::diagnose::diagnose_defects(&set)?);
+        match crate::diagnose::diagnose_defects(&set)? {
+            crate::diagnose::DefectOutcome::Tested(found) => d.findings.extend(found),
+            crate::diagnose::DefectOutcome::NotTested(why) => d.not_tested.push(why),
+        }
         let sheet = crate::emva::datasheet(&set, None)?;
         let dark = points.first().map_or(0.0, |p| p.dark_mean_dn);
         model = Some(ptc_model(&set, &sheet, dark, &mut d));

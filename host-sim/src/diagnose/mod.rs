@@ -13,7 +13,7 @@ mod linearity;
 mod ptc;
 
 pub use codes::{diagnose_code_density, CodeDensity};
-pub use defects::diagnose_defects;
+pub use defects::{diagnose_defects, DefectOutcome};
 pub use histograms::diagnose_histograms;
 pub use linearity::diagnose_linearity;
 pub use ptc::diagnose_ptc;

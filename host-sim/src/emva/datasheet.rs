@@ -217,6 +217,9 @@ pub fn summarize_points(points: &[PtcPoint], release: Release) -> Result<PtcSumm
     if let Some(bad) = p.iter().find(|q| !(q.mean_dn.is_finite() && q.var_dn2.is_finite() && q.dark_var_dn2.is_finite())) {
         return Err(format!("level at line {} has no finite mean or variance", bad.line));
     }
+    if p.first().map(|q| q.photons) == p.last().map(|q| q.photons) {
+        return Err("every illuminated level states the same photon count: the responsivity and linearity cannot be measured".into());
+    }
     let mut why = BTreeMap::new();
     if p.len() < STANDARD_LEVELS {
         why.insert("levels".into(), format!("{} levels; the standard asks for at least {STANDARD_LEVELS}", p.len()));
@@ -409,6 +412,29 @@ pub fn summarize_points(points: &[PtcPoint], release: Release) -> Result<PtcSumm
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Levels at different exposures that all state the same photon count: refused (the
+    /// responsivity and linearity have no lever arm), with one line saying so.
+    #[test]
+    fn one_photon_count_for_every_level_is_refused() {
+        let points: Vec<PtcPoint> = (1..=10)
+            .map(|i| PtcPoint {
+                line: i,
+                dark_line: 100 + i,
+                exposure: i as f64,
+                photons: 5000.0,
+                mean_dn: 100.0 * i as f64,
+                var_dn2: 25.0 * i as f64 + 4.0,
+                dark_mean_dn: 10.0,
+                dark_var_dn2: 4.0,
+                frame_diff_dn: 0.0,
+                dark_frame_diff_dn: 0.0,
+                top_fraction: 0.0,
+            })
+            .collect();
+        let err = summarize_points(&points, Release::R3).unwrap_err();
+        assert!(err.contains("same photon count"), "{err}");
+    }
 
     #[test]
     fn saturation_search_tolerates_one_level_dips_and_stops_at_the_turnover() {

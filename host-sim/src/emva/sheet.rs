@@ -96,6 +96,9 @@ pub struct Datasheet {
 fn root(why: &mut std::collections::BTreeMap<String, String>, key: &str, variance: f64, scale: f64, what: &str) -> Option<f64> {
     if variance.is_finite() && variance >= 0.0 && scale.is_finite() && scale > 0.0 {
         Some(variance.sqrt() / scale)
+    } else if variance.is_nan() {
+        why.insert(key.into(), "the row, column and pixel split needs at least 2 rows and 2 columns with MN > M + N".into());
+        None
     } else {
         why.insert(key.into(), format!("{what} variance {variance:.4e} DN^2 is negative: below what the spatial series resolves"));
         None

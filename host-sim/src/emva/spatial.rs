@@ -143,7 +143,10 @@ impl SpatialSeries {
         let row_means: Vec<f64> = mean_image.chunks_exact(self.cols).map(|row| row.iter().sum::<f64>() / n).collect();
         let cav = col_means.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / n - stack / (l * m);
         let rav = row_means.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / m - stack / (l * n);
+        // The split needs M, N >= 2 and MN > M + N; a 2 x 2 or one-line image has none.
         let d = m * n - m - n;
+        let split = rows_cols_ok(self.rows, self.cols);
+        let d = if split { d } else { f64::NAN };
         Components {
             mean_dn: mean,
             stack_var_dn2: stack,
@@ -153,6 +156,12 @@ impl SpatialSeries {
             pixel_dn2: m * n / d * (total - cav - rav),
         }
     }
+}
+
+/// Whether a `rows x cols` image can be split into row, column and pixel parts: at least
+/// two of each and `MN > M + N`.
+pub fn rows_cols_ok(rows: usize, cols: usize) -> bool {
+    rows >= 2 && cols >= 2 && rows * cols > rows + cols
 }
 
 /// The bright and dark spatial series of `set`, or why there are none: the standard
@@ -480,6 +489,20 @@ mod tests {
             ("total", c.total_dn2 / scale, 4.0 + 9.0 + 2.25, 0.15),
         ] {
             assert!((got / planted - 1.0).abs() < tolerance, "{what}: {got} for {planted}");
+        }
+    }
+
+    /// A 2 x 2 image (MN = M + N) or a single row or column has no row/column/pixel split:
+    /// NaN (reported as null with its reason), where the formulas would divide by zero or
+    /// by a negative number; the total stays.
+    #[test]
+    fn degenerate_sizes_have_no_split() {
+        assert!(!rows_cols_ok(2, 2) && !rows_cols_ok(1, 24) && !rows_cols_ok(24, 1) && rows_cols_ok(3, 3));
+        for (rows, cols) in [(2, 2), (1, 6), (6, 1)] {
+            let frames: Vec<Vec<i64>> = (0..3).map(|f| (0..rows * cols).map(|i| 10 + i as i64 + f).collect()).collect();
+            let c = series(&frames, rows, cols).components(Release::R3);
+            assert!(c.row_dn2.is_nan() && c.col_dn2.is_nan() && c.pixel_dn2.is_nan(), "{rows} x {cols}: {c:?}");
+            assert!(c.total_dn2.is_finite());
         }
     }
 

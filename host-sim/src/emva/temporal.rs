@@ -100,8 +100,8 @@ fn level_statistics(set: &EmvaSet, level: &EmvaLevel) -> Result<PairStatistics, 
 
 /// The photon-transfer curve: one point per illuminated temporal level, sorted by photons
 /// (then exposure), each with the temporal dark level of exactly the same exposure,
-/// compared as numbers (`40000` matches `40000.0`); the first such dark level in the
-/// descriptor if there are several. A level with no exact match is an error naming its
+/// compared as numbers (`40000` matches `40000.0`); a second temporal level of the same
+/// exposure and photon count (dark or bright) is an error. A level with no exact match is an error naming its
 /// line and the nearest dark exposure: dark signal and noise grow with exposure, and
 /// substituting or interpolating another exposure would bias both mean and variance
 /// silently. A level of one frame is an error; spatial series (more than two frames) are
@@ -111,6 +111,20 @@ pub fn photon_transfer(set: &EmvaSet) -> Result<Vec<PtcPoint>, HostError> {
         return Err(at_line(&set.path, single.line, "a level needs at least two frames (two: a photon-transfer point; more: a spatial series)"));
     }
     let temporal = |i: &usize| set.levels[*i].series() == Some(Series::Temporal);
+    // One temporal level per (exposure, photons), as the reference implementation
+    // requires: a repeated one would be a second measurement of the same point, which
+    // the standard's fits do not expect (and which photon counts copied by mistake make).
+    let keys: Vec<usize> = (0..set.levels.len()).filter(temporal).collect();
+    for (n, &i) in keys.iter().enumerate() {
+        let (a, pa) = (&set.levels[i], set.levels[i].photons());
+        if let Some(&j) = keys[..n].iter().find(|&&j| set.levels[j].exposure == a.exposure && set.levels[j].photons() == pa) {
+            return Err(at_line(
+                &set.path,
+                a.line,
+                format!("a second two-frame level with exposure {} and {} photons (the first at line {}): one level per exposure and photon count", a.exposure, pa, set.levels[j].line),
+            ));
+        }
+    }
     let darks: Vec<usize> = (0..set.levels.len()).filter(temporal).filter(|&i| set.levels[i].kind == LevelKind::Dark).collect();
     let mut pairs = Vec::new();
     for (i, level) in set.levels.iter().enumerate().filter(|(i, _)| temporal(i)) {
