@@ -308,13 +308,11 @@ pub const DEAD_RESPONSE: f64 = 0.5;
 ///   robust standard deviations (1.4826 x the median absolute deviation, at least the
 ///   temporal noise of the average);
 /// - **dead**: the averaged bright-minus-dark image below [`DEAD_RESPONSE`] of the
-///   median of its `5 x 5` neighbourhood;
+///   median of its `5 x 5` neighbourhood (clipped at the edges, at least `3 x 3`);
 /// - **high PRNU**: not dead, and the averaged bright-minus-dark image off the median of
 ///   its `5 x 5` neighbourhood by more than [`DEFECT_SIGMAS`] robust standard deviations
 ///   of that difference (a median high-pass: the standard's box high-pass would let one
 ///   dead pixel push its neighbours over the threshold).
-///
-/// Pixels within 2 of the border (no full neighbourhood) are counted only as hot.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct DefectPixels {
     /// Hot pixels.
@@ -415,22 +413,28 @@ pub fn defect_map(bright: &SpatialSeries, dark: &SpatialSeries, bright_stack_dn2
     // plane the median of the symmetric window is the centre value, so gradients cancel).
     let response: Vec<i64> = bright.sum.iter().zip(&dark.sum).map(|(&b, &d)| b * dark.frames as i64 - d * bright.frames as i64).collect();
     let unit = lb * ld;
-    let (fr, fc) = (rows.saturating_sub(4), cols.saturating_sub(4));
-    let local: Vec<(f64, f64)> = (0..fr * fc)
+    // Each pixel against the median of the 5 x 5 window around it, clipped at the image's
+    // edges (at least 3 x 3 pixels: a corner's), so that border pixels are classified too.
+    let local: Vec<Option<(f64, f64)>> = (0..rows * cols)
         .into_par_iter()
         .map(|i| {
-            let (r, c) = (i / fc, i % fc);
-            let mut window: Vec<i64> = (0..5).flat_map(|dr| response[(r + dr) * cols + c..(r + dr) * cols + c + 5].iter().copied()).collect();
-            let (_, &mut med, _) = window.select_nth_unstable(12);
-            (response[(r + 2) * cols + c + 2] as f64 / unit, med as f64 / unit)
+            let (r, c) = (i / cols, i % cols);
+            let (r0, r1, c0, c1) = (r.saturating_sub(2), (r + 3).min(rows), c.saturating_sub(2), (c + 3).min(cols));
+            let mut window: Vec<i64> = (r0..r1).flat_map(|rr| response[rr * cols + c0..rr * cols + c1].iter().copied()).collect();
+            if window.len() < 9 {
+                return None;
+            }
+            let mid = window.len() / 2;
+            let (_, &mut med, _) = window.select_nth_unstable(mid);
+            Some((response[i] as f64 / unit, med as f64 / unit))
         })
         .collect();
-    let deviation: Vec<f64> = local.iter().map(|(v, m)| v - m).collect();
+    let deviation: Vec<f64> = local.iter().flatten().map(|(v, m)| v - m).collect();
     let (dev_centre, dev_sigma) = robust(&deviation);
     let temporal = (bright_stack_dn2 / lb + dark_stack_dn2 / ld).sqrt();
     let prnu_threshold = DEFECT_SIGMAS * dev_sigma.max(temporal);
-    for (i, &(value, neighbourhood)) in local.iter().enumerate() {
-        let at = (i / fc + 2) * cols + i % fc + 2;
+    for (at, l) in local.iter().enumerate() {
+        let Some(&(value, neighbourhood)) = l.as_ref() else { continue };
         score[at] = score[at].max((value - neighbourhood - dev_centre).abs() * DEFECT_SIGMAS / prnu_threshold.max(1e-300));
         if neighbourhood > 0.0 && value < DEAD_RESPONSE * neighbourhood {
             kind[at] |= DEAD;
@@ -543,8 +547,9 @@ mod tests {
         assert_eq!(spiked[cols - 4 + 2], 2400, "25 x 100 minus its own share in the box");
     }
 
-    /// Planted defects on a smooth illumination gradient with Gaussian nonuniformity: each
-    /// kind counted exactly, nothing else (6 sigma over 4,096 pixels: no false ones).
+    /// Planted defects on a smooth illumination gradient with Gaussian nonuniformity, some
+    /// on the border: each kind counted exactly, nothing else (6 sigma over 4,096 pixels:
+    /// no false ones).
     #[test]
     fn defect_pixels_count_planted_hot_dead_and_high_prnu_pixels() {
         use rand::SeedableRng;
@@ -555,8 +560,10 @@ mod tests {
         let offset: Vec<f64> = (0..rows * cols).map(|_| 100.0 + dsnu.sample(&mut rng)).collect();
         let mut gain: Vec<f64> = (0..rows * cols).map(|_| 1.0 + prnu.sample(&mut rng)).collect();
         let hot = [5 * cols + 9, 40 * cols + 1, 63 * cols + 63];
-        let dead = [10 * cols + 10, 30 * cols + 50];
-        let high = [20 * cols + 20, 50 * cols + 33, 33 * cols + 44, 12 * cols + 40];
+        // One dead pixel on the top edge and one high-PRNU pixel on the right edge: the
+        // window is clipped there, not the pixel left out.
+        let dead = [10 * cols + 10, 30 * cols + 50, 7];
+        let high = [20 * cols + 20, 50 * cols + 33, 33 * cols + 44, 12 * cols + 40, 40 * cols + 63];
         let mut offset_hot = offset.clone();
         hot.iter().for_each(|&i| offset_hot[i] += 80.0);
         dead.iter().for_each(|&i| gain[i] = 0.0);
@@ -575,7 +582,7 @@ mod tests {
         let (b, d) = (series(&bright, rows, cols), series(&dark, rows, cols));
         let (cb, cd) = (b.components(Release::R3), d.components(Release::R3));
         let found = defect_pixels(&b, &d, cb.stack_var_dn2, cd.stack_var_dn2);
-        assert_eq!((found.hot, found.dead, found.high_prnu, found.total), (3, 2, 4, 9), "{found:?}");
+        assert_eq!((found.hot, found.dead, found.high_prnu, found.total), (3, 3, 5, 11), "{found:?}");
         let mut planted: Vec<(usize, usize)> = hot.iter().chain(&dead).chain(&high).map(|&i| (i / cols, i % cols)).collect();
         planted.sort_unstable();
         assert_eq!(found.positions, planted);
