@@ -313,7 +313,7 @@ enum Cmd {
         descriptor: PathBuf,
         /// The standard's release whose definitions apply: 3.1 or 4.0 (default: the
         /// descriptor's `v` record; 3.1 when it has none).
-        #[arg(long, value_parser = parse_release)]
+        #[arg(long, value_parser = dncal_host::emva::Release::parse)]
         release: Option<dncal_host::emva::Release>,
         /// Write the datasheet (datasheet.html with its plots, datasheet.json) here.
         #[arg(short, long)]
@@ -468,18 +468,13 @@ fn print<T: Serialize>(json: bool, value: &T, text: impl FnOnce(&T) -> String) -
     }
 }
 
-/// Parses `--release`.
-fn parse_release(s: &str) -> Result<dncal_host::emva::Release, String> {
-    dncal_host::emva::Release::parse(s)
-}
-
 /// The datasheet as text: one quantity a line, `-` with the reason where the set does
 /// not give it.
 fn emva_text(descriptor: &std::path::Path, set: &dncal_host::emva::EmvaSet, s: &dncal_host::emva::Datasheet) -> String {
     let t = &s.temporal;
     let value = |key: &str, v: Option<f64>, unit: &str, digits: usize| match v {
         Some(v) => format!("{v:.digits$}{unit}"),
-        None => format!("- ({})", t.why.get(key).map_or("not measured", String::as_str)),
+        None => format!("- ({})", s.why(key)),
     };
     let release = match t.release {
         dncal_host::emva::Release::R3 => "3.1",
@@ -548,7 +543,7 @@ fn emva_text(descriptor: &std::path::Path, set: &dncal_host::emva::EmvaSet, s: &
     );
     out += &match &sp.defect_pixels {
         Some(d) => format!("defect pixels            hot {}, dead {}, high PRNU {} ({} in all; dncal's criteria, docs/emva.md)\n", d.hot, d.dead, d.high_prnu, d.total),
-        None => format!("defect pixels            - ({})\n", t.why.get("defect_pixels").map_or("not measured", String::as_str)),
+        None => format!("defect pixels            - ({})\n", s.why("defect_pixels")),
     };
     out
 }

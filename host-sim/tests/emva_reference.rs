@@ -20,6 +20,12 @@ fn root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
+/// The real CCD's descriptor, read from ../shared (never copied); `DNCAL_EMVA_DIR`
+/// overrides the folder.
+fn ccd_descriptor() -> PathBuf {
+    std::env::var_os("DNCAL_EMVA_DIR").map(PathBuf::from).unwrap_or_else(|| root().join("../shared/data/emva1288-ccd-12bit")).join("EMVA1288_Data.txt")
+}
+
 /// The venv's python, made when missing.
 fn venv_python() -> PathBuf {
     let out = Command::new(root().join("scripts/emva-venv.sh")).output().expect("scripts/emva-venv.sh runs");
@@ -173,10 +179,7 @@ fn compare_curves(name: &str, ours: &Value, theirs: &Value) -> Vec<String> {
 #[test]
 fn the_real_ccd_agrees_with_the_reference() {
     let py = venv_python();
-    let descriptor = std::env::var_os("DNCAL_EMVA_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| root().join("../shared/data/emva1288-ccd-12bit"))
-        .join("EMVA1288_Data.txt");
+    let descriptor = ccd_descriptor();
     let failures = compare("real CCD (../shared/data/emva1288-ccd-12bit)", &dncal(&descriptor, &[]), &reference(&py, &descriptor));
     assert!(failures.is_empty(), "{failures:#?}");
 }
@@ -214,10 +217,7 @@ fn sets_from_the_reference_simulator_agree_with_the_reference() {
 #[test]
 fn release_4_differences_are_the_standards_formulas() {
     let py = venv_python();
-    let descriptor = std::env::var_os("DNCAL_EMVA_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| root().join("../shared/data/emva1288-ccd-12bit"))
-        .join("EMVA1288_Data.txt");
+    let descriptor = ccd_descriptor();
     let (ours, r) = (dncal(&descriptor, &["--release", "4.0"]), reference(&py, &descriptor));
     assert_eq!(ours["release"], "4.0");
     assert!(ours["why"]["saturation"].is_null(), "saturation by overflow: {}", ours["why"]["saturation"]);

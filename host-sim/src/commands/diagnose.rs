@@ -139,19 +139,13 @@ pub fn ptc_model(set: &crate::emva::EmvaSet, sheet: &crate::emva::Datasheet, dar
     apply_measured(c, d)
 }
 
-/// The all-columns code-density findings of an EMVA set, or, where some of four
-/// interleaved ADCs (column c read by ADC c mod 4, as the MV-D1024E's) show a width
-/// pattern and others do not, the findings of those ADCs only (a pattern on one ADC,
-/// diluted, can pass for all columns').
-fn code_density_by_adc(set: &crate::emva::EmvaSet, mut findings: Vec<Finding>) -> Result<Vec<Finding>, HostError> {
-    if set.width < 2 * INTERLEAVED_ADCS {
-        return Ok(findings);
-    }
-    let mut by_adc = Vec::new();
-    for adc in 0..INTERLEAVED_ADCS {
-        let (a, b) = crate::emva::code_histogram_halves(set, Some((INTERLEAVED_ADCS, adc)))?;
-        by_adc.push(diagnose_code_density(&a, &b, adc).ok().map(|(f, _, _)| f.into_iter().filter(|f| f.effect == "adc-dnl").collect::<Vec<_>>()));
-    }
+/// The all-columns code-density `findings` of an EMVA set, or, where some of four
+/// interleaved ADCs (column c read by ADC c mod 4, as the MV-D1024E's; `[a, b]` the two
+/// halves' histograms per ADC) show a width pattern and others do not, the findings of
+/// those ADCs only (a pattern on one ADC, diluted, can pass for all columns').
+fn code_density_by_adc([a, b]: &[Vec<Vec<u64>>; 2], mut findings: Vec<Finding>) -> Vec<Finding> {
+    let by_adc: Vec<Option<Vec<Finding>>> =
+        a.iter().zip(b).enumerate().map(|(adc, (a, b))| diagnose_code_density(a, b, adc).ok().map(|(f, _, _)| f.into_iter().filter(|f| f.effect == "adc-dnl").collect())).collect();
     let named = by_adc.iter().filter(|f| f.as_ref().is_some_and(|f| !f.is_empty())).count();
     let tested = by_adc.iter().filter(|f| f.is_some()).count();
     if tested == INTERLEAVED_ADCS && named > 0 && named < INTERLEAVED_ADCS {
@@ -161,7 +155,7 @@ fn code_density_by_adc(set: &crate::emva::EmvaSet, mut findings: Vec<Finding>) -
             findings.push(f);
         }
     }
-    Ok(findings)
+    findings
 }
 
 /// The interleaved ADCs an EMVA set's columns are tested as (column c by ADC c mod 4).
@@ -196,10 +190,15 @@ pub fn diagnose(input: &Path, flatten: &FlattenParams, seed: u64, out_dir: Optio
         // four interleaved ADCs (column c read by ADC c mod 4, as the MV-D1024E's): where
         // some of them show a width pattern and others do not, it is named on those ADCs
         // only (a pattern on one ADC, diluted, can pass for all columns').
-        let (a, b) = crate::emva::code_histogram_halves(&set, None)?;
+        // One pass over the frames: each half's histogram per column class, summed for
+        // all columns.
+        let classes = if set.width >= 2 * INTERLEAVED_ADCS { INTERLEAVED_ADCS } else { 1 };
+        let halves = crate::emva::code_histogram_halves(&set, classes)?;
+        let pooled = |h: &[Vec<u64>]| -> Vec<u64> { (0..h[0].len()).map(|k| h.iter().map(|c| c[k]).sum()).collect() };
+        let (a, b) = (pooled(&halves[0]), pooled(&halves[1]));
         match diagnose_code_density(&a, &b, 0) {
             Ok((findings, residuals, density)) => {
-                d.findings.extend(code_density_by_adc(&set, findings)?);
+                d.findings.extend(if classes == INTERLEAVED_ADCS { code_density_by_adc(&halves, findings) } else { findings });
                 d.code_density = Some(density);
                 d.code_residuals = Some(residuals);
             }
@@ -211,7 +210,7 @@ pub fn diagnose(input: &Path, flatten: &FlattenParams, seed: u64, out_dir: Optio
             crate::diagnose::DefectOutcome::Tested(found) => d.findings.extend(found),
             crate::diagnose::DefectOutcome::NotTested(why) => d.not_tested.push(why),
         }
-        let sheet = crate::emva::datasheet(&set, None)?;
+        let sheet = crate::emva::datasheet_of(&set, &points, None)?;
         let dark = points.first().map_or(0.0, |p| p.dark_mean_dn);
         model = Some(ptc_model(&set, &sheet, dark, &mut d));
         d

@@ -162,7 +162,9 @@ pub fn diagnose_code_density(a: &[u64], b: &[u64], adc: usize) -> Result<(Vec<Fi
             .collect()
     };
     let widths: Vec<f64> = wa.iter().zip(&wb).map(|(x, y)| (x + y) / 2.0).collect();
-    let ratios = class_means(&widths);
+    // Each half's class means, and of the mean widths their mean (the class mean is linear).
+    let (ra, rb) = (class_means(&wa), class_means(&wb));
+    let ratios: Vec<f64> = ra.iter().zip(&rb).map(|(x, y)| (x + y) / 2.0).collect();
     let unfolded = unfold_period(&ratios, &l);
     // The widths of each half carry their counts' Poisson noise (1.9% rms for an ideal
     // ADC at the tests' counts) and the misfit of the local polynomial to that half's own
@@ -171,7 +173,7 @@ pub fn diagnose_code_density(a: &[u64], b: &[u64], adc: usize) -> Result<(Vec<Fi
     // spread beyond it `tau^2` the same over codes; each code's width is shrunk toward its
     // class's by `tau^2 / (tau^2 + var)` (empirical Bayes), and the rms reported is the
     // pattern's and `tau`'s.
-    let (ua, ub) = (unfold_period(&class_means(&wa), &l), unfold_period(&class_means(&wb), &l));
+    let (ua, ub) = (unfold_period(&ra, &l), unfold_period(&rb, &l));
     let pattern2 = (ua.iter().zip(&ub).map(|(x, y)| (x - 1.0) * (y - 1.0)).sum::<f64>() / strongest as f64).max(0.0);
     // The class pattern shrunk by the share of it the halves reproduce: unfolding divides
     // by the smoother's own share of the pattern, which for a period the window nearly
@@ -180,7 +182,6 @@ pub fn diagnose_code_density(a: &[u64], b: &[u64], adc: usize) -> Result<(Vec<Fi
     let seen2 = unfolded.iter().map(|u| (u - 1.0).powi(2)).sum::<f64>() / strongest as f64;
     let keep = if seen2 > 0.0 { (pattern2 / seen2).min(1.0) } else { 0.0 };
     let class_widths: Vec<f64> = unfolded.iter().map(|u| 1.0 + keep * (u - 1.0)).collect();
-    let (ra, rb) = (class_means(&wa), class_means(&wb));
     let tau2 = (codes.iter().enumerate().map(|(j, &k)| (wa[j] - ra[k % strongest]) * (wb[j] - rb[k % strongest])).sum::<f64>() / n).max(0.0);
     let width_rms = (pattern2 + tau2).sqrt();
     let n_codes = a.len();

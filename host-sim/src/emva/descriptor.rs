@@ -333,39 +333,39 @@ pub fn load_image(set: &EmvaSet, image: &Path) -> Result<Vec<u16>, HostError> {
     Ok(codes)
 }
 
-/// The code histograms of the frames of `set`'s levels in two halves, `2^bits` bins
-/// each: the levels in photon order (then exposure; dark levels first) alternately in
-/// the first and the second. The data of a code-density test of the camera's ADC held
-/// out by levels (`diagnose::codes`). Frames are loaded in parallel.
-/// With `columns = Some((n, c))` only the columns `x` with `x mod n = c` count: the
-/// pixels of one of `n` interleaved ADCs.
-pub fn code_histogram_halves(set: &EmvaSet, columns: Option<(usize, usize)>) -> Result<(Vec<u64>, Vec<u64>), HostError> {
+/// The code histograms of the frames of `set`'s levels in two halves, per column class:
+/// the levels in photon order (then exposure; dark levels first) go alternately to the
+/// first and the second half; within each, column `x` counts in class `x mod classes`
+/// (the pixels of one of `classes` interleaved ADCs; 1: all columns). `2^bits` bins each.
+/// The data of a code-density test of the camera's ADCs held out by levels
+/// (`diagnose::codes`). Every frame is read once, frames in parallel.
+pub fn code_histogram_halves(set: &EmvaSet, classes: usize) -> Result<[Vec<Vec<u64>>; 2], HostError> {
     let mut order: Vec<&EmvaLevel> = set.levels.iter().collect();
     order.sort_by(|a, b| a.photons().total_cmp(&b.photons()).then(a.exposure.total_cmp(&b.exposure)));
     let half = |part: usize| -> Vec<&EmvaLevel> { order.iter().skip(part).step_by(2).copied().collect() };
-    Ok((code_histogram(set, &half(0), columns)?, code_histogram(set, &half(1), columns)?))
+    Ok([code_histograms(set, &half(0), classes)?, code_histograms(set, &half(1), classes)?])
 }
 
-/// The code histogram of every frame of `levels` of `set`, `2^bits` bins, of the columns
-/// `columns` selects (see [`code_histogram_halves`]). Frames are loaded in parallel.
-pub fn code_histogram(set: &EmvaSet, levels: &[&EmvaLevel], columns: Option<(usize, usize)>) -> Result<Vec<u64>, HostError> {
-    let width = set.width;
-    let keep = move |i: usize| columns.is_none_or(|(n, c)| (i % width) % n.max(1) == c);
+/// The code histograms of every frame of `levels` of `set`, one per column class `x mod
+/// classes`, `2^bits` bins (see [`code_histogram_halves`]). Frames are loaded in parallel.
+pub fn code_histograms(set: &EmvaSet, levels: &[&EmvaLevel], classes: usize) -> Result<Vec<Vec<u64>>, HostError> {
+    let (width, classes) = (set.width, classes.max(1));
     let images: Vec<&PathBuf> = levels.iter().flat_map(|l| l.images.iter()).collect();
     let bins = 1usize << set.bits;
+    let empty = || vec![vec![0u64; bins]; classes];
     images
         .par_iter()
         .map(|image| {
-            let mut h = vec![0u64; bins];
+            let mut h = empty();
             for (i, c) in load_image(set, image)?.into_iter().enumerate() {
-                if keep(i) {
-                    h[c as usize] += 1;
-                }
+                h[(i % width) % classes][c as usize] += 1;
             }
             Ok(h)
         })
-        .try_reduce(|| vec![0u64; bins], |mut a, b| {
-            a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
+        .try_reduce(empty, |mut a, b| {
+            for (x, y) in a.iter_mut().zip(&b) {
+                x.iter_mut().zip(y).for_each(|(x, y)| *x += y);
+            }
             Ok(a)
         })
 }

@@ -19,7 +19,7 @@ fn esc(s: &str) -> String {
 fn row(sheet: &Datasheet, name: &str, key: &str, value: Option<f64>, unit: &str, digits: usize) -> String {
     let shown = match value {
         Some(v) => format!("{v:.digits$} {unit}"),
-        None => format!("&ndash; <small>({})</small>", esc(sheet.temporal.why.get(key).map_or("not measured", String::as_str))),
+        None => format!("&ndash; <small>({})</small>", esc(sheet.why(key))),
     };
     format!("<tr><td>{name}</td><td>{shown}</td><td><code>{key}</code></td></tr>\n")
 }
@@ -171,7 +171,7 @@ pub fn write_datasheet(dir: &Path, descriptor: &Path, sheet: &Datasheet) -> Resu
                 d.hot, d.hot_threshold_dn, d.dead, d.high_prnu, d.prnu_threshold_dn, d.total
             );
         }
-        None => html += &format!("<h2>Defect pixels</h2><p>{}</p>", esc(t.why.get("defect_pixels").map_or("not measured", String::as_str))),
+        None => html += &format!("<h2>Defect pixels</h2><p>{}</p>", esc(sheet.why("defect_pixels"))),
     }
     for (file, caption) in [
         ("photon_transfer.png", "Photon transfer"),

@@ -19,9 +19,9 @@ pub mod spatial;
 pub mod temporal;
 
 pub use datasheet::{summarize_points, PtcSummary, Release};
-pub use descriptor::{code_histogram, code_histogram_halves, load_image, read_descriptor, EmvaLevel, EmvaSet, LevelKind, Series};
+pub use descriptor::{code_histogram_halves, code_histograms, load_image, read_descriptor, EmvaLevel, EmvaSet, LevelKind, Series};
 pub use fit::fit_line;
-pub use sheet::{datasheet, Datasheet};
+pub use sheet::{datasheet, datasheet_of, Datasheet};
 pub use temporal::{photon_transfer, PtcPoint};
 
 /// The temporal datasheet of `points` with `release`'s definitions; an error names the

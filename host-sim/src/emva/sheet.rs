@@ -4,9 +4,9 @@
 
 use serde::Serialize;
 
-use super::datasheet::{summarize_points, PtcSummary, Release};
+use super::datasheet::{PtcSummary, Release};
 use super::spatial::{accumulated_percent, defect_pixels, high_pass_5x5, histogram, spatial_pair, spectrogram, Components, DefectPixels, Histogram};
-use super::{photon_transfer, EmvaSet};
+use super::{photon_transfer, EmvaSet, PtcPoint};
 use crate::HostError;
 
 /// Most bins of a histogram (the reference's `_histogram_Qmax`).
@@ -43,8 +43,8 @@ pub struct DefectHistograms {
     pub prnu_accumulated_pct: Vec<f64>,
 }
 
-/// The spatial part of the datasheet.
-#[derive(Debug, Clone, Serialize)]
+/// The spatial part of the datasheet (all `None` without a spatial series).
+#[derive(Debug, Clone, Default, Serialize)]
 pub struct SpatialSummary {
     /// Frames averaged in the bright and dark spatial series.
     pub spatial_frames: Option<(usize, usize)>,
@@ -91,6 +91,13 @@ pub struct Datasheet {
     pub spatial: SpatialSummary,
 }
 
+impl Datasheet {
+    /// Why the value under `key` is missing (`not measured` where no reason was given).
+    pub fn why(&self, key: &str) -> &str {
+        self.temporal.why.get(key).map_or("not measured", String::as_str)
+    }
+}
+
 /// `sqrt(variance) / scale` when the variance is positive; else `None` with the reason
 /// under `key`.
 fn root(why: &mut std::collections::BTreeMap<String, String>, key: &str, variance: f64, scale: f64, what: &str) -> Option<f64> {
@@ -108,29 +115,18 @@ fn root(why: &mut std::collections::BTreeMap<String, String>, key: &str, varianc
 /// The whole datasheet of `set` with `release`'s definitions (the descriptor's `v`
 /// record when `None`).
 pub fn datasheet(set: &EmvaSet, release: Option<Release>) -> Result<Datasheet, HostError> {
+    datasheet_of(set, &photon_transfer(set)?, release)
+}
+
+/// The datasheet of `set` from its photon-transfer `points` ([`photon_transfer`]), for a
+/// caller that has them already.
+pub fn datasheet_of(set: &EmvaSet, points: &[PtcPoint], release: Option<Release>) -> Result<Datasheet, HostError> {
     let release = release.unwrap_or_else(|| Release::from_version(set.version.as_deref()));
-    let points = photon_transfer(set)?;
-    let mut temporal = summarize_points(&points, release).map_err(|message| HostError::Format { path: set.path.clone(), message })?;
+    let mut temporal = super::summarize(&set.path, points, release)?;
     let pair = spatial_pair(set)?;
     let why = &mut temporal.why;
     let k = temporal.gain_dn_per_e;
-    let mut s = SpatialSummary {
-        spatial_frames: None,
-        spatial_photons: None,
-        dsnu_dn: None,
-        dsnu_e: None,
-        dsnu_row_e: None,
-        dsnu_col_e: None,
-        dsnu_pixel_e: None,
-        prnu_pct: None,
-        prnu_row_pct: None,
-        prnu_col_pct: None,
-        prnu_pixel_pct: None,
-        components: None,
-        spectrograms: None,
-        histograms: None,
-        defect_pixels: None,
-    };
+    let mut s = SpatialSummary::default();
     let Some((bright, dark)) = pair else {
         for key in ["dsnu_dn", "dsnu_e", "dsnu_row_e", "dsnu_col_e", "dsnu_pixel_e", "prnu_pct", "prnu_row_pct", "prnu_col_pct", "prnu_pixel_pct", "defect_pixels"] {
             why.insert(key.into(), "no spatial series (a bright and a dark level of more than two frames)".into());

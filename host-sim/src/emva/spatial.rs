@@ -349,7 +349,7 @@ fn robust(v: &[f64]) -> (f64, f64) {
     (centre, 1.4826 * median(&mut work))
 }
 
-/// A pixel's defect kinds, bits of [`classify_defects`]'s map.
+/// A pixel's defect kinds, bits of [`DefectMap::kind`].
 pub const HOT: u8 = 1;
 /// Dead.
 pub const DEAD: u8 = 2;
@@ -358,7 +358,7 @@ pub const HIGH_PRNU: u8 = 4;
 
 /// Counts the defect pixels of a bright and a dark spatial series (see [`DefectPixels`]).
 pub fn defect_pixels(bright: &SpatialSeries, dark: &SpatialSeries, bright_stack_dn2: f64, dark_stack_dn2: f64) -> DefectPixels {
-    let (kind, hot_threshold, prnu_threshold) = classify_defects(bright, dark, bright_stack_dn2, dark_stack_dn2);
+    let DefectMap { kind, hot_threshold_dn, prnu_threshold_dn, .. } = defect_map(bright, dark, bright_stack_dn2, dark_stack_dn2);
     let cols = dark.cols;
     let count = |bit: u8| kind.iter().filter(|&&k| k & bit != 0).count();
     DefectPixels {
@@ -366,8 +366,8 @@ pub fn defect_pixels(bright: &SpatialSeries, dark: &SpatialSeries, bright_stack_
         dead: count(DEAD),
         high_prnu: count(HIGH_PRNU),
         total: kind.iter().filter(|&&k| k != 0).count(),
-        hot_threshold_dn: hot_threshold,
-        prnu_threshold_dn: prnu_threshold,
+        hot_threshold_dn,
+        prnu_threshold_dn,
         positions: kind.iter().enumerate().filter(|(_, &k)| k != 0).take(1000).map(|(i, _)| (i / cols, i % cols)).collect(),
     }
 }
@@ -386,14 +386,7 @@ pub struct DefectMap {
     pub prnu_threshold_dn: f64,
 }
 
-/// The defect kinds of every pixel, row-major ([`HOT`], [`DEAD`], [`HIGH_PRNU`] bits),
-/// and the hot and high-PRNU thresholds, DN (see [`DefectPixels`]).
-pub fn classify_defects(bright: &SpatialSeries, dark: &SpatialSeries, bright_stack_dn2: f64, dark_stack_dn2: f64) -> (Vec<u8>, f64, f64) {
-    let map = defect_map(bright, dark, bright_stack_dn2, dark_stack_dn2);
-    (map.kind, map.hot_threshold_dn, map.prnu_threshold_dn)
-}
-
-/// The whole classification, with each pixel's score.
+/// Every pixel's defect kinds and score (see [`DefectPixels`] for the criteria).
 pub fn defect_map(bright: &SpatialSeries, dark: &SpatialSeries, bright_stack_dn2: f64, dark_stack_dn2: f64) -> DefectMap {
     let (rows, cols) = (dark.rows, dark.cols);
     let (lb, ld) = (bright.frames as f64, dark.frames as f64);
