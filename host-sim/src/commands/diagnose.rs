@@ -142,20 +142,22 @@ pub fn ptc_model(set: &crate::emva::EmvaSet, sheet: &crate::emva::Datasheet, dar
 /// The all-columns code-density `findings` of an EMVA set, or, where some of four
 /// interleaved ADCs (column c read by ADC c mod 4, as the MV-D1024E's; `[a, b]` the two
 /// halves' histograms per ADC) show a width pattern and others do not, the findings of
-/// those ADCs only (a pattern on one ADC, diluted, can pass for all columns').
-fn code_density_by_adc([a, b]: &[Vec<Vec<u64>>; 2], mut findings: Vec<Finding>) -> Vec<Finding> {
+/// those ADCs only (a pattern on one ADC, diluted, can pass for all columns'), with the
+/// list of those ADCs.
+fn code_density_by_adc([a, b]: &[Vec<Vec<u64>>; 2], mut findings: Vec<Finding>) -> (Vec<Finding>, Vec<usize>) {
     let by_adc: Vec<Option<Vec<Finding>>> =
         a.iter().zip(b).enumerate().map(|(adc, (a, b))| diagnose_code_density(a, b, adc).ok().map(|(f, _, _)| f.into_iter().filter(|f| f.effect == "adc-dnl").collect())).collect();
-    let named = by_adc.iter().filter(|f| f.as_ref().is_some_and(|f| !f.is_empty())).count();
+    let named: Vec<usize> = by_adc.iter().enumerate().filter(|(_, f)| f.as_ref().is_some_and(|f| !f.is_empty())).map(|(adc, _)| adc).collect();
     let tested = by_adc.iter().filter(|f| f.is_some()).count();
-    if tested == INTERLEAVED_ADCS && named > 0 && named < INTERLEAVED_ADCS {
+    if tested == INTERLEAVED_ADCS && !named.is_empty() && named.len() < INTERLEAVED_ADCS {
         findings.retain(|f| f.effect != "adc-dnl");
         for mut f in by_adc.into_iter().flatten().flatten() {
             f.detail = format!("columns c mod {INTERLEAVED_ADCS} = {} only: {}", f.adc.unwrap_or(0), f.detail);
             findings.push(f);
         }
+        return (findings, named);
     }
-    findings
+    (findings, Vec::new())
 }
 
 /// The interleaved ADCs an EMVA set's columns are tested as (column c by ADC c mod 4).
@@ -185,7 +187,6 @@ pub fn diagnose(input: &Path, flatten: &FlattenParams, seed: u64, out_dir: Optio
     let diagnosis = if is_descriptor {
         let set = crate::emva::read_descriptor(input)?;
         let points = crate::emva::photon_transfer(&set)?;
-        let mut d = diagnose_ptc(&points, set.width * set.height, 0.01).map_err(|m| HostError::Format { path: input.into(), message: m })?;
         // The frames' code density: all columns as one ADC, then the columns of each of
         // four interleaved ADCs (column c read by ADC c mod 4, as the MV-D1024E's): where
         // some of them show a width pattern and others do not, it is named on those ADCs
@@ -196,15 +197,37 @@ pub fn diagnose(input: &Path, flatten: &FlattenParams, seed: u64, out_dir: Optio
         let halves = crate::emva::code_histogram_halves(&set, classes)?;
         let pooled = |h: &[Vec<u64>]| -> Vec<u64> { (0..h[0].len()).map(|k| h.iter().map(|c| c[k]).sum()).collect() };
         let (a, b) = (pooled(&halves[0]), pooled(&halves[1]));
+        let (mut code_findings, mut dnl_adcs, mut code_density, mut not_tested) = (Vec::new(), Vec::new(), None, Vec::new());
         match diagnose_code_density(&a, &b, 0) {
             Ok((findings, residuals, density)) => {
-                d.findings.extend(if classes == INTERLEAVED_ADCS { code_density_by_adc(&halves, findings) } else { findings });
-                d.code_density = Some(density);
-                d.code_residuals = Some(residuals);
+                (code_findings, dnl_adcs) = if classes == INTERLEAVED_ADCS { code_density_by_adc(&halves, findings) } else { (findings, Vec::new()) };
+                code_density = Some((density, residuals));
             }
             // A quantization-limited camera's narrow levels may leave too few codes with
             // counts in both halves: the ADC is then not tested, and the rest still is.
-            Err(m) => d.not_tested.push(format!("adc-dnl (code density): {m}")),
+            Err(m) => not_tested.push(format!("adc-dnl (code density): {m}")),
+        }
+        // An ADC with named code widths has integral nonlinearity too (its cumulative code
+        // offsets, about 2 DN at 3% rms DNL), which moves its level means: the photon
+        // transfer is then diagnosed on the other ADCs' columns (with all columns, 3% on
+        // one ADC of four read as `global-nonlinearity` at 107 sigma and `unexplained` at 80).
+        let (ptc_points, ptc_pixels) = if dnl_adcs.is_empty() {
+            (points.clone(), set.width * set.height)
+        } else {
+            let columns: Vec<bool> = (0..set.width).map(|c| !dnl_adcs.contains(&(c % INTERLEAVED_ADCS))).collect();
+            let kept = columns.iter().filter(|c| **c).count();
+            (crate::emva::photon_transfer_columns(&set, &columns)?, kept * set.height)
+        };
+        let mut d = diagnose_ptc(&ptc_points, ptc_pixels, 0.01).map_err(|m| HostError::Format { path: input.into(), message: m })?;
+        if !dnl_adcs.is_empty() {
+            let list: Vec<String> = dnl_adcs.iter().map(|a| a.to_string()).collect();
+            d.baseline.model += &format!("; the columns of ADC {} left out (named code widths: their integral nonlinearity moves the level means)", list.join(", "));
+        }
+        d.findings.extend(code_findings);
+        d.not_tested.extend(not_tested);
+        if let Some((density, residuals)) = code_density {
+            d.code_density = Some(density);
+            d.code_residuals = Some(residuals);
         }
         match crate::diagnose::diagnose_defects(&set)? {
             crate::diagnose::DefectOutcome::Tested(found) => d.findings.extend(found),

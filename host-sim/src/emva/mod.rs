@@ -22,7 +22,7 @@ pub use datasheet::{summarize_points, PtcSummary, Release};
 pub use descriptor::{code_histogram_halves, code_histograms, load_image, read_descriptor, EmvaLevel, EmvaSet, LevelKind, Series};
 pub use fit::fit_line;
 pub use sheet::{datasheet, datasheet_of, Datasheet};
-pub use temporal::{photon_transfer, PtcPoint};
+pub use temporal::{photon_transfer, photon_transfer_columns, PtcPoint};
 
 /// The temporal datasheet of `points` with `release`'s definitions; an error names the
 /// descriptor `path`.

@@ -68,13 +68,21 @@ struct PairStatistics {
 /// Mean and temporal variance of a frame pair; the difference of the frame means shows
 /// frame-to-frame (common-mode) changes that the variance of the difference removes.
 /// Sums are exact integers (i128), so the only rounding is the final division.
-fn pair_statistics(a: &[u16], b: &[u16], top: u16) -> PairStatistics {
-    let n = a.len().min(b.len()) as i128;
+/// `columns`, if given, selects the columns used (one flag per column of a row; the
+/// images are rows of `columns.len()` pixels).
+fn pair_statistics(a: &[u16], b: &[u16], top: u16, columns: Option<&[bool]>) -> PairStatistics {
+    let len = a.len().min(b.len());
+    let used = |i: &usize| columns.is_none_or(|c| c[i % c.len()]);
+    let n = match columns {
+        None => len,
+        Some([]) => 0,
+        Some(_) => (0..len).filter(used).count(),
+    } as i128;
     if n == 0 {
         return PairStatistics { mean: f64::NAN, var: f64::NAN, diff: f64::NAN, top_fraction: f64::NAN };
     }
     let (mut sum, mut diff, mut diff2, mut at_top) = (0i128, 0i128, 0i128, 0u64);
-    for (&x, &y) in a.iter().zip(b) {
+    for (_, (&x, &y)) in a.iter().zip(b).enumerate().filter(|(i, _)| used(i)) {
         let d = x as i128 - y as i128;
         sum += x as i128 + y as i128;
         diff += d;
@@ -90,12 +98,12 @@ fn pair_statistics(a: &[u16], b: &[u16], top: u16) -> PairStatistics {
 }
 
 /// The statistics of a level's first two frames.
-fn level_statistics(set: &EmvaSet, level: &EmvaLevel) -> Result<PairStatistics, HostError> {
+fn level_statistics(set: &EmvaSet, level: &EmvaLevel, columns: Option<&[bool]>) -> Result<PairStatistics, HostError> {
     let [a, b, ..] = &level.images[..] else {
         return Err(at_line(&set.path, level.line, "the photon-transfer curve needs two frames per level"));
     };
     let (a, b) = (load_image(set, a)?, load_image(set, b)?);
-    Ok(pair_statistics(&a, &b, ((1u32 << set.bits) - 1) as u16))
+    Ok(pair_statistics(&a, &b, ((1u32 << set.bits) - 1) as u16, columns))
 }
 
 /// The photon-transfer curve: one point per illuminated temporal level, sorted by photons
@@ -107,6 +115,20 @@ fn level_statistics(set: &EmvaSet, level: &EmvaLevel) -> Result<PairStatistics, 
 /// silently. A level of one frame is an error; spatial series (more than two frames) are
 /// left out. Levels are loaded in parallel.
 pub fn photon_transfer(set: &EmvaSet) -> Result<Vec<PtcPoint>, HostError> {
+    photon_transfer_of(set, None)
+}
+
+/// The photon-transfer curve of the columns `c` with `columns[c]` (one flag per column
+/// of the set): `diagnose` leaves out the columns of an ADC whose code widths it named,
+/// since that ADC's integral nonlinearity moves its level means.
+pub fn photon_transfer_columns(set: &EmvaSet, columns: &[bool]) -> Result<Vec<PtcPoint>, HostError> {
+    if columns.len() != set.width || !columns.contains(&true) {
+        return Err(HostError::Format { path: set.path.clone(), message: format!("a column selection of {} flags, {} set, for {} columns", columns.len(), columns.iter().filter(|c| **c).count(), set.width) });
+    }
+    photon_transfer_of(set, Some(columns))
+}
+
+fn photon_transfer_of(set: &EmvaSet, columns: Option<&[bool]>) -> Result<Vec<PtcPoint>, HostError> {
     if let Some(single) = set.levels.iter().find(|l| l.series().is_none()) {
         return Err(at_line(&set.path, single.line, "a level needs at least two frames (two: a photon-transfer point; more: a spatial series)"));
     }
@@ -148,7 +170,7 @@ pub fn photon_transfer(set: &EmvaSet) -> Result<Vec<PtcPoint>, HostError> {
     needed.dedup();
     let stats: Vec<(usize, PairStatistics)> = needed
         .par_iter()
-        .map(|&i| level_statistics(set, &set.levels[i]).map(|s| (i, s)))
+        .map(|&i| level_statistics(set, &set.levels[i], columns).map(|s| (i, s)))
         .collect::<Result<_, _>>()?;
     const MISSING: PairStatistics = PairStatistics { mean: f64::NAN, var: f64::NAN, diff: f64::NAN, top_fraction: f64::NAN };
     let of = |i: usize| stats.iter().find(|(j, _)| *j == i).map_or(MISSING, |(_, s)| *s);
@@ -213,8 +235,11 @@ mod tests {
     #[test]
     fn pair_statistics_match_hand_values() {
         // a - b = [0, 1, 2, 3]: variance 1.25, half of it 0.625; mean (10 + 4) / 8.
-        assert_eq!(pair_statistics(&[1, 2, 3, 4], &[1, 1, 1, 1], 4), PairStatistics { mean: 1.75, var: 0.625, diff: 1.5, top_fraction: 0.125 });
-        assert_eq!(pair_statistics(&[7; 9], &[7; 9], 4095), PairStatistics { mean: 7.0, var: 0.0, diff: 0.0, top_fraction: 0.0 });
+        assert_eq!(pair_statistics(&[1, 2, 3, 4], &[1, 1, 1, 1], 4, None), PairStatistics { mean: 1.75, var: 0.625, diff: 1.5, top_fraction: 0.125 });
+        // Rows of two columns, the first column only: a = 1, 3 and b = 1, 1.
+        assert_eq!(pair_statistics(&[1, 2, 3, 4], &[1, 1, 1, 1], 4, Some(&[true, false])), PairStatistics { mean: 1.5, var: 0.5, diff: 1.0, top_fraction: 0.0 });
+        assert!(pair_statistics(&[1, 2], &[1, 2], 4, Some(&[false, false])).mean.is_nan());
+        assert_eq!(pair_statistics(&[7; 9], &[7; 9], 4095, None), PairStatistics { mean: 7.0, var: 0.0, diff: 0.0, top_fraction: 0.0 });
     }
 
     #[test]
