@@ -87,10 +87,12 @@ pub fn write_datasheet(dir: &Path, descriptor: &Path, sheet: &Datasheet) -> Resu
     if let (Some(sp), Some(h)) = (&s.spectrograms, &s.histograms) {
         let freq = |n: usize| move |i: usize| i as f64 / (2.0 * (n.max(2) - 1) as f64);
         let curve = |v: &[f64]| -> Vec<(f64, f64)> { v.iter().enumerate().skip(1).map(|(i, &a)| (freq(v.len())(i), log(a))).collect() };
+        // Release 4.0 takes the spectrograms and histograms of high-pass filtered images.
+        let r4 = t.release == Release::R4;
         let spec = dir.join("spectrograms.png");
         line_plot(
             &spec,
-            "Spectrograms (frequency 0 left out)",
+            if r4 { "Spectrograms of the high-pass filtered images (frequency 0 left out)" } else { "Spectrograms (frequency 0 left out)" },
             "cycles per pixel",
             "log10 amplitude (DSNU: DN; PRNU: %)",
             &[
@@ -109,8 +111,8 @@ pub fn write_datasheet(dir: &Path, descriptor: &Path, sheet: &Datasheet) -> Resu
             "deviation (DN)",
             "log10 (pixels + 1)",
             &[
-                Series { label: "DSNU: dark image about its mean".into(), points: log_counts(&h.dsnu.bins, &h.dsnu.counts) },
-                Series { label: "PRNU: 5x5 high-pass filtered bright - dark".into(), points: log_counts(&h.prnu.bins, &h.prnu.counts) },
+                Series { label: format!("DSNU: {}dark image about its mean", if r4 { "high-pass filtered " } else { "" }), points: log_counts(&h.dsnu.bins, &h.dsnu.counts) },
+                Series { label: format!("PRNU: {} high-pass filtered bright - dark", if r4 { "Release 4.0" } else { "5x5" }), points: log_counts(&h.prnu.bins, &h.prnu.counts) },
             ],
             2,
         )?;

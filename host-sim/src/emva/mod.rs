@@ -13,6 +13,7 @@
 pub mod datasheet;
 pub mod descriptor;
 pub mod fit;
+pub mod highpass;
 pub mod html;
 pub mod sheet;
 pub mod spatial;

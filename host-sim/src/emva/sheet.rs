@@ -5,6 +5,7 @@
 use serde::Serialize;
 
 use super::datasheet::{PtcSummary, Release};
+use super::highpass;
 use super::spatial::{accumulated_percent, defect_pixels, high_pass_5x5, histogram, spatial_pair, spectrogram, Components, DefectPixels, Histogram};
 use super::{photon_transfer, EmvaSet, PtcPoint};
 use crate::HostError;
@@ -16,7 +17,8 @@ const HISTOGRAM_BINS: usize = 256;
 /// `0 ..= 0.5` cycles per pixel.
 #[derive(Debug, Clone, Serialize)]
 pub struct Spectrograms {
-    /// DSNU along the rows, DN (amplitude of the dark averaged image).
+    /// DSNU along the rows, DN (amplitude of the dark averaged image; Release 4.0: of
+    /// the high-pass filtered one).
     pub dsnu_horizontal_dn: Vec<f64>,
     /// DSNU down the columns, DN.
     pub dsnu_vertical_dn: Vec<f64>,
@@ -29,13 +31,14 @@ pub struct Spectrograms {
 /// The logarithmic histograms of the defect-pixel characterization.
 #[derive(Debug, Clone, Serialize)]
 pub struct DefectHistograms {
-    /// Dark averaged image about its mean, DN.
+    /// Dark averaged image about its mean, DN (Release 4.0: high-pass filtered).
     pub dsnu: Histogram,
     /// Share of pixels whose |dark deviation| is at or beyond each bin, %.
     pub dsnu_accumulated: Histogram,
     /// The accumulated percentages of `dsnu_accumulated`.
     pub dsnu_accumulated_pct: Vec<f64>,
-    /// High-pass filtered (5 x 5) averaged image above dark, DN.
+    /// High-pass filtered averaged image above dark, DN (5 x 5 box; Release 4.0: its
+    /// filter, [`highpass`]).
     pub prnu: Histogram,
     /// |high-pass deviation| bins.
     pub prnu_accumulated: Histogram,
@@ -137,6 +140,15 @@ pub fn datasheet_of(set: &EmvaSet, points: &[PtcPoint], release: Option<Release>
     let signal = b.mean_dn - d.mean_dn;
     s.spatial_frames = Some((bright.frames, dark.frames));
     s.spatial_photons = Some(bright.photons);
+    let (rows, cols) = (bright.rows, bright.cols);
+    let filtered = release == Release::R4;
+    if filtered && !highpass::fits(rows, cols) {
+        for key in ["dsnu_dn", "dsnu_e", "dsnu_row_e", "dsnu_col_e", "dsnu_pixel_e", "prnu_pct", "prnu_row_pct", "prnu_col_pct", "prnu_pixel_pct"] {
+            why.insert(key.into(), format!("Release 4.0 high-pass filters the nonuniformity images over 19 x 19 pixels: a {rows} x {cols} image is too small (at least 20 x 20)"));
+        }
+        s.defect_pixels = Some(defect_pixels(&bright, &dark, b.stack_var_dn2, d.stack_var_dn2));
+        return Ok(Datasheet { version: set.version.clone(), temporal, spatial: s });
+    }
     s.dsnu_dn = root(why, "dsnu_dn", d.total_dn2, 1.0, "the dark spatial");
     s.dsnu_e = root(why, "dsnu_e", d.total_dn2, k, "the dark spatial");
     s.dsnu_row_e = root(why, "dsnu_row_e", d.row_dn2, k, "the dark row");
@@ -156,30 +168,44 @@ pub fn datasheet_of(set: &EmvaSet, points: &[PtcPoint], release: Option<Release>
     s.components = Some((b, d));
     s.defect_pixels = Some(defect_pixels(&bright, &dark, b.stack_var_dn2, d.stack_var_dn2));
 
-    let (rows, cols) = (bright.rows, bright.cols);
     let (lb, ld) = (bright.frames as f64, dark.frames as f64);
-    let dark_mean_image: Vec<f64> = dark.sum.iter().map(|&v| v as f64 / ld).collect();
-    let above: Vec<f64> = bright.sum.iter().zip(&dark.sum).map(|(&b, &d)| b as f64 / lb - d as f64 / ld).collect();
+    // Release 4.0: spectrograms and histograms of the filtered images (section 8.1), in
+    // integers SCALE times the filtered sums; Release 3.1 as the reference: unfiltered,
+    // the PRNU histogram of the 5 x 5 high-pass image.
+    let (dark_sum, dark_rows, dark_cols, dark_scale) = if filtered {
+        let (f, r, c) = highpass::high_pass(&dark.sum, rows, cols);
+        (f, r, c, ld * highpass::SCALE as f64)
+    } else {
+        (dark.sum.clone(), rows, cols, ld)
+    };
+    let (bright_sum, _, _) = if filtered { highpass::high_pass(&bright.sum, rows, cols) } else { (bright.sum.clone(), rows, cols) };
+    let dark_mean_image: Vec<f64> = dark_sum.iter().map(|&v| v as f64 / dark_scale).collect();
+    let bright_scale = dark_scale / ld * lb;
+    let above: Vec<f64> = bright_sum.iter().zip(&dark_sum).map(|(&b, &d)| b as f64 / bright_scale - d as f64 / dark_scale).collect();
     let to_pct = |v: Vec<f64>| v.into_iter().map(|a| 100.0 * a / signal).collect::<Vec<f64>>();
     s.spectrograms = Some(Spectrograms {
-        dsnu_horizontal_dn: spectrogram(&dark_mean_image, rows, cols, false),
-        dsnu_vertical_dn: spectrogram(&dark_mean_image, rows, cols, true),
-        prnu_horizontal_pct: to_pct(spectrogram(&above, rows, cols, false)),
-        prnu_vertical_pct: to_pct(spectrogram(&above, rows, cols, true)),
+        dsnu_horizontal_dn: spectrogram(&dark_mean_image, dark_rows, dark_cols, false),
+        dsnu_vertical_dn: spectrogram(&dark_mean_image, dark_rows, dark_cols, true),
+        prnu_horizontal_pct: to_pct(spectrogram(&above, dark_rows, dark_cols, false)),
+        prnu_vertical_pct: to_pct(spectrogram(&above, dark_rows, dark_cols, true)),
     });
 
     // Histograms in integers, as the reference keeps them: the dark sum image, and the
-    // high-pass filtered bright-minus-dark sum image (25 x the filtered value).
-    let dark_sum_mean = dark.sum.iter().sum::<i64>() as f64 / dark.sum.len() as f64;
-    let mut dsnu = histogram(&dark.sum, HISTOGRAM_BINS, ld);
-    dsnu.bins.iter_mut().for_each(|b| *b -= dark_sum_mean / ld);
+    // high-pass filtered bright-minus-dark sum image (25 x the filtered value; Release
+    // 4.0: both filtered, SCALE x).
+    let dark_sum_mean = dark_sum.iter().sum::<i64>() as f64 / dark_sum.len().max(1) as f64;
+    let mut dsnu = histogram(&dark_sum, HISTOGRAM_BINS, dark_scale);
+    dsnu.bins.iter_mut().for_each(|b| *b -= dark_sum_mean / dark_scale);
     let centre = dark_sum_mean.trunc() as i64;
-    let dsnu_abs: Vec<i64> = dark.sum.iter().map(|&v| (v - centre).abs()).collect();
-    let dsnu_accumulated = histogram(&dsnu_abs, HISTOGRAM_BINS, ld);
+    let dsnu_abs: Vec<i64> = dark_sum.iter().map(|&v| (v - centre).abs()).collect();
+    let dsnu_accumulated = histogram(&dsnu_abs, HISTOGRAM_BINS, dark_scale);
     // Bright minus dark as the reference forms it (sum images; equal frame counts).
-    let diff: Vec<i64> = bright.sum.iter().zip(&dark.sum).map(|(&b, &d)| b - d).collect();
-    let (filtered, _, _) = high_pass_5x5(&diff, rows, cols);
-    let prnu_scale = lb * 25.0;
+    let (filtered, prnu_scale) = if filtered {
+        (bright_sum.iter().zip(&dark_sum).map(|(&b, &d)| b - d).collect::<Vec<i64>>(), bright_scale)
+    } else {
+        let diff: Vec<i64> = bright.sum.iter().zip(&dark.sum).map(|(&b, &d)| b - d).collect();
+        (high_pass_5x5(&diff, rows, cols).0, lb * 25.0)
+    };
     let prnu = histogram(&filtered, HISTOGRAM_BINS, prnu_scale);
     let filtered_mean = if filtered.is_empty() { 0.0 } else { filtered.iter().sum::<i64>() as f64 / filtered.len() as f64 };
     let prnu_abs: Vec<i64> = filtered.iter().map(|&v| (v - filtered_mean.trunc() as i64).abs()).collect();

@@ -28,6 +28,7 @@ use rustfft::{num_complex::Complex, FftPlanner};
 use serde::Serialize;
 
 use super::descriptor::at_line;
+use super::highpass::{high_pass, NoiseGains, SCALE};
 use super::Release;
 use super::{load_image, EmvaLevel, EmvaSet, LevelKind, Series};
 use crate::HostError;
@@ -117,13 +118,15 @@ impl SpatialSeries {
         })
     }
 
-    /// The variance components (module documentation); Release 4.0 (eq. 35) takes the
-    /// spatial variance over `MN` instead of `MN - 1`.
+    /// The variance components (module documentation). Release 4.0 takes the spatial
+    /// variance over `MN` instead of `MN - 1` (eq. 35), and all of them from the averaged
+    /// image high-pass filtered ([`super::highpass`], section 8.1), with the temporal
+    /// noise taken out as it passes the filter; the mean stays the unfiltered image's.
+    /// An image too small for the filter (under 20 x 20) gives NaN variances.
     pub fn components(&self, release: Release) -> Components {
-        let (l, m, n) = (self.frames as f64, self.rows as f64, self.cols as f64);
+        let l = self.frames as f64;
         let pixels = self.sum.len() as f64;
-        let mean_image: Vec<f64> = self.sum.iter().map(|&s| s as f64 / l).collect();
-        let mean = mean_image.iter().sum::<f64>() / pixels;
+        let mean = self.sum.iter().map(|&s| s as f64).sum::<f64>() / l / pixels;
         // Per-pixel temporal variance (1/(L-1)), from exact integer moments.
         let stack: f64 = self
             .sum
@@ -133,29 +136,41 @@ impl SpatialSeries {
             .sum::<f64>()
             / (l * (l - 1.0))
             / pixels;
-        let dof = match release {
-            Release::R3 => pixels - 1.0,
-            Release::R4 => pixels,
+        let parts = match release {
+            Release::R3 => {
+                let image: Vec<f64> = self.sum.iter().map(|&s| s as f64 / l).collect();
+                variance_parts(&image, self.rows, self.cols, pixels - 1.0, stack / l, NoiseGains::unfiltered(self.rows, self.cols))
+            }
+            Release::R4 => {
+                let (filtered, rows, cols) = high_pass(&self.sum, self.rows, self.cols);
+                let image: Vec<f64> = filtered.iter().map(|&s| s as f64 / l / SCALE as f64).collect();
+                if image.is_empty() {
+                    [f64::NAN; 4]
+                } else {
+                    variance_parts(&image, rows, cols, (rows * cols) as f64, stack / l, NoiseGains::filtered(rows, cols))
+                }
+            }
         };
-        let measured = mean_image.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / dof;
-        let total = measured - stack / l;
-        let col_means: Vec<f64> = (0..self.cols).map(|c| (0..self.rows).map(|r| mean_image[r * self.cols + c]).sum::<f64>() / m).collect();
-        let row_means: Vec<f64> = mean_image.chunks_exact(self.cols).map(|row| row.iter().sum::<f64>() / n).collect();
-        let cav = col_means.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / n - stack / (l * m);
-        let rav = row_means.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / m - stack / (l * n);
-        // The split needs M, N >= 2 and MN > M + N; a 2 x 2 or one-line image has none.
-        let d = m * n - m - n;
-        let split = rows_cols_ok(self.rows, self.cols);
-        let d = if split { d } else { f64::NAN };
-        Components {
-            mean_dn: mean,
-            stack_var_dn2: stack,
-            total_dn2: total,
-            col_dn2: (m * n - m) / d * cav - n / d * (total - rav),
-            row_dn2: (m * n - n) / d * rav - m / d * (total - cav),
-            pixel_dn2: m * n / d * (total - cav - rav),
-        }
+        let [total_dn2, row_dn2, col_dn2, pixel_dn2] = parts;
+        Components { mean_dn: mean, stack_var_dn2: stack, total_dn2, row_dn2, col_dn2, pixel_dn2 }
     }
+}
+
+/// The total, row, column and pixel variances (eqs. 37-41) of a `rows x cols` averaged
+/// image, its spatial variance over `dof`, with the temporal noise `temporal` (`sigma^2
+/// / L`, DN^2) taken out as it passes to a pixel, a column mean and a row mean (`gains`).
+fn variance_parts(image: &[f64], rows: usize, cols: usize, dof: f64, temporal: f64, gains: NoiseGains) -> [f64; 4] {
+    let (m, n) = (rows as f64, cols as f64);
+    let mean = image.iter().sum::<f64>() / image.len() as f64;
+    let measured = image.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / dof;
+    let total = measured - temporal * gains.pixel;
+    let col_means: Vec<f64> = (0..cols).map(|c| (0..rows).map(|r| image[r * cols + c]).sum::<f64>() / m).collect();
+    let row_means: Vec<f64> = image.chunks_exact(cols).map(|row| row.iter().sum::<f64>() / n).collect();
+    let cav = col_means.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / n - temporal * gains.col_mean;
+    let rav = row_means.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / m - temporal * gains.row_mean;
+    // The split needs M, N >= 2 and MN > M + N; a 2 x 2 or one-line image has none.
+    let d = if rows_cols_ok(rows, cols) { m * n - m - n } else { f64::NAN };
+    [total, (m * n - n) / d * rav - m / d * (total - cav), (m * n - m) / d * cav - n / d * (total - rav), m * n / d * (total - cav - rav)]
 }
 
 /// Whether a `rows x cols` image can be split into row, column and pixel parts: at least
@@ -487,6 +502,39 @@ mod tests {
         ] {
             assert!((got / planted - 1.0).abs() < tolerance, "{what}: {got} for {planted}");
         }
+    }
+
+    /// Release 4.0's filter keeps a white pixel pattern (1% PRNU at 1000 DN, 100 DN^2) and
+    /// drops a 3% illumination fall-off towards the corners that Release 3.1 counts: the
+    /// filtered total and pixel variances are the planted one times the filter's white
+    /// gain 0.9885 (within 3%: 182 x 182 filtered pixels), the temporal noise (5 DN rms
+    /// over 4 frames) taken out as it passes the filter; 3.1's total is well above it.
+    #[test]
+    fn release_4_filters_out_the_illumination() {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, Normal};
+        let (rows, cols, frames) = (200, 200, 4);
+        let mut rng = rand::rngs::StdRng::seed_from_u64(40);
+        let pattern = Normal::new(0.0, 10.0).unwrap();
+        let e: Vec<f64> = (0..rows * cols).map(|_| pattern.sample(&mut rng)).collect();
+        let light = |i: usize| {
+            let (y, x) = ((i / cols) as f64 / (rows - 1) as f64 - 0.5, (i % cols) as f64 / (cols - 1) as f64 - 0.5);
+            1000.0 * (1.0 - 0.06 * (x * x + y * y))
+        };
+        let temporal = Normal::new(0.0, 5.0).unwrap();
+        let list: Vec<Vec<i64>> =
+            (0..frames).map(|_| (0..rows * cols).map(|i| (16.0 * (light(i) + e[i] + temporal.sample(&mut rng))).round() as i64).collect()).collect();
+        let scale = 256.0;
+        let planted = 100.0 * super::super::highpass::NoiseGains::filtered(rows - 18, cols - 18).pixel;
+        let s = series(&list, rows, cols);
+        let (r3, r4) = (s.components(Release::R3), s.components(Release::R4));
+        assert!((r4.total_dn2 / scale / planted - 1.0).abs() < 0.03, "4.0 total {} for {planted}", r4.total_dn2 / scale);
+        assert!((r4.pixel_dn2 / scale / planted - 1.0).abs() < 0.03, "4.0 pixel {} for {planted}", r4.pixel_dn2 / scale);
+        assert!(r3.total_dn2 / scale > 1.3 * 100.0, "3.1 total {} should include the fall-off", r3.total_dn2 / scale);
+        assert_eq!(r3.mean_dn, r4.mean_dn);
+        // Too small for the filter: no variances, and the datasheet says why.
+        let small = series(&[vec![5; 19 * 40], vec![6; 19 * 40]], 19, 40).components(Release::R4);
+        assert!(small.total_dn2.is_nan() && small.pixel_dn2.is_nan());
     }
 
     /// A 2 x 2 image (MN = M + N) or a single row or column has no row/column/pixel split:
