@@ -103,6 +103,13 @@ pub struct LutTables {
     pub frac_bits: u32,
     /// `tables[adc][code]`: corrected value of `code` in units of 2^-frac_bits DN.
     pub tables: Vec<Vec<u32>>,
+    /// The per-code weights the core built the tables from (raw bits of
+    /// [`dncal_core::Weight`], 2^-24 DN), extension `WEIGHTS`: what `lut export` needs
+    /// (the centers alone do not determine the code widths). `None` in files without it.
+    pub weights: Option<Vec<Vec<u32>>>,
+    /// For tables imported from K-Coronagraph files, their scaling `B` (last entry
+    /// `2^B - 1`), key `KCORBITS`: `lut export --format kcor` writes it by default.
+    pub kcor_bits: Option<u32>,
 }
 
 impl LutTables {
@@ -267,7 +274,15 @@ pub fn write_lut(path: &Path, lut: &LutTables) -> Result<(), HostError> {
         let mut out = FitsWriter::create(tmp, path, ImageType::UnsignedLong, &[lut.n_adc(), codes])?;
         out.adc_keys(bit_depth, lut.n_adc())?;
         out.key("FRACBITS", (i64::from(lut.frac_bits), "entries in units of 2^-FRACBITS DN"))?;
+        if let Some(b) = lut.kcor_bits {
+            out.key("KCORBITS", (i64::from(b), "imported from K-Cor tables ending at 2^KCORBITS - 1"))?;
+        }
         out.image(&flat)?;
+        if let Some(w) = &lut.weights {
+            out.add_image("WEIGHTS", ImageType::UnsignedLong, &[lut.n_adc(), codes])?;
+            out.key("FRACBITS", (24, "code widths in units of 2^-FRACBITS DN"))?;
+            out.image(&w.concat())?;
+        }
         out.finish()
     })
 }
@@ -450,7 +465,29 @@ pub fn read_lut(path: &Path) -> Result<LutTables, HostError> {
         r.error(format!("entry {v} at ADC {}, code {} is outside 0 to 2^32 - 1", i / codes, i % codes))
     })?;
     let tables = flat.chunks(codes).map(<[u32]>::to_vec).collect();
-    Ok(LutTables { frac_bits: FRAC_BITS, tables })
+    let kcor_bits = match r.int_key(0, PRIMARY, "KCORBITS")? {
+        None => None,
+        Some(b) if b == 22 || b == 23 => Some(b as u32),
+        Some(b) => return Err(r.error(format!("KCORBITS = {b}; K-Cor tables end at 2^22 - 1 or 2^23 - 1"))),
+    };
+    let weights = match r.extension("WEIGHTS")? {
+        None => None,
+        Some(hdu) => {
+            let frac = r.required_int(hdu, "extension WEIGHTS", "FRACBITS")?;
+            if frac != 24 {
+                return Err(r.error(format!("extension WEIGHTS has FRACBITS = {frac}; dncal weights have 24")));
+            }
+            let w_image = r.image(hdu, "extension WEIGHTS", 2)?;
+            if w_image.naxes != image.naxes {
+                return Err(r.error(format!("extension WEIGHTS is {} but the tables are {}", shape_text(&w_image.naxes), shape_text(&image.naxes))));
+            }
+            let flat: Vec<u32> = r.integer_pixels(&w_image, "weights")?.convert().map_err(|(i, v)| {
+                r.error(format!("weight {v} at ADC {}, code {} is outside 0 to 2^32 - 1", i / codes, i % codes))
+            })?;
+            Some(flat.chunks(codes).map(<[u32]>::to_vec).collect())
+        }
+    };
+    Ok(LutTables { frac_bits: FRAC_BITS, tables, weights, kcor_bits })
 }
 
 /// How messages name the primary HDU.
@@ -791,6 +828,12 @@ fn check_lut(lut: &LutTables) -> Result<u32, String> {
     }
     let bit_depth = codes.trailing_zeros();
     check_tables(bit_depth, &lut.tables, "entries")?;
+    if let Some(w) = &lut.weights {
+        if w.len() != lut.tables.len() {
+            return Err(format!("weights for {} ADCs, tables for {}", w.len(), lut.tables.len()));
+        }
+        check_tables(bit_depth, w, "weights")?;
+    }
     Ok(bit_depth)
 }
 
@@ -1040,7 +1083,7 @@ mod tests {
             (0..4u32).map(|a| (0..8u32).map(|k| (2 * k + 1) * 1024 + a).collect()).collect();
         tables[3][7] = u32::MAX;
         tables[0][0] = 0;
-        LutTables { frac_bits: FRAC_BITS, tables }
+        LutTables { frac_bits: FRAC_BITS, tables, weights: None, kcor_bits: None }
     }
 
     #[test]
@@ -1279,6 +1322,16 @@ mod tests {
         assert_eq!(r.key::<f64>(0, PRIMARY, "BZERO").unwrap(), Some(2_147_483_648.0));
         assert_eq!(r.required_int(0, PRIMARY, "FRACBITS").unwrap(), 11);
         assert_eq!(r.required_int(0, PRIMARY, "BITDEPTH").unwrap(), 3);
+        // With the weights extension and the K-Cor scaling.
+        let mut with = lut();
+        with.weights = Some((0..4u32).map(|a| (0..8u32).map(|k| (1 << 24) + 1000 * k + a).collect()).collect());
+        with.kcor_bits = Some(23);
+        write_lut(&p, &with).unwrap();
+        assert_eq!(read_lut(&p).unwrap(), with);
+        // Weights of the wrong shape are refused before anything is written.
+        let q = dir.path().join("bad.fits");
+        with.weights.as_mut().unwrap()[2].pop();
+        assert!(write_lut(&q, &with).is_err() && !q.exists());
     }
 
     #[test]
@@ -1300,13 +1353,13 @@ mod tests {
         let w = dir.path().join("w.fits");
         let bad_frac = LutTables { frac_bits: 12, ..lut() };
         assert_rejects(write_lut(&w, &bad_frac), &w, "12 fractional bits; dncal LUT entries have 11");
-        let odd = LutTables { frac_bits: 11, tables: vec![vec![0; 6]] };
+        let odd = LutTables { frac_bits: 11, tables: vec![vec![0; 6]], weights: None, kcor_bits: None };
         assert_rejects(write_lut(&w, &odd), &w, "tables of 6 entries");
-        let one_code = LutTables { frac_bits: 11, tables: vec![vec![0; 1]] };
+        let one_code = LutTables { frac_bits: 11, tables: vec![vec![0; 1]], weights: None, kcor_bits: None };
         assert_rejects(write_lut(&w, &one_code), &w, "bit depth 0");
-        let ragged = LutTables { frac_bits: 11, tables: vec![vec![0; 4], vec![0; 2]] };
+        let ragged = LutTables { frac_bits: 11, tables: vec![vec![0; 4], vec![0; 2]], weights: None, kcor_bits: None };
         assert_rejects(write_lut(&w, &ragged), &w, "ADC 1 has 2 entries");
-        let none = LutTables { frac_bits: 11, tables: vec![] };
+        let none = LutTables { frac_bits: 11, tables: vec![], weights: None, kcor_bits: None };
         assert_rejects(write_lut(&w, &none), &w, "tables of 0 entries");
         assert!(!w.exists());
     }

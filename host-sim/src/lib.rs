@@ -16,6 +16,7 @@ pub mod fits;
 pub mod hidden;
 pub mod flatten;
 pub mod kcor;
+pub mod kcor_tables;
 pub mod linearity;
 pub mod plots;
 pub mod quantization;

@@ -429,8 +429,41 @@ enum LutCmd {
         #[arg(long)]
         json: bool,
     },
-    /// Show the tables, steps (normalized histograms) and cumulative offsets of a LUT
-    /// FITS or device image.
+    /// Read the K-Coronagraph's deployed tables (4096 little-endian u32 per ADC, ending at
+    /// 2^22 - 1 or 2^23 - 1): writes our LUT FITS (with the code widths) and device image.
+    Import {
+        /// The four tables of ADC 0-3, or one prefix (the files starting with it and
+        /// containing adc0 .. adc3) or path with {adc} in it.
+        #[arg(long, required = true, num_args = 1..=4, value_name = "FILE")]
+        kcor: Vec<String>,
+        /// Output: OUT.fits (LUT) and OUT.bin (device image); OUT may end in .fits.
+        #[arg(short, long)]
+        out: PathBuf,
+        /// Print a JSON summary on stdout.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Write a LUT FITS (from `lut build` or `lut import`) as the four files a K-Cor DAQ
+    /// loads: PREFIX_adc0.bin .. PREFIX_adc3.bin (or PREFIX with {adc} replaced).
+    Export {
+        /// LUT FITS.
+        lut: PathBuf,
+        /// The file format to write.
+        #[arg(long, value_parser = ["kcor"])]
+        format: String,
+        /// Output prefix.
+        #[arg(short, long)]
+        out: String,
+        /// Scaling: the last entry is 2^BITS - 1 (22 or 23); default the imported
+        /// tables' own, else 23.
+        #[arg(long)]
+        bits: Option<u32>,
+        /// Print a JSON summary on stdout.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Show the tables, steps (each the mean width of two neighbouring codes) and
+    /// cumulative offsets of a LUT FITS or device image.
     Inspect {
         /// LUT FITS or device image.
         file: PathBuf,
@@ -614,6 +647,20 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
                 }
                 t
             })?;
+        }
+        Cmd::Lut { what: LutCmd::Import { kcor, out, json } } => {
+            let s = lut::import_kcor(&kcor, &out)?;
+            print(json, &s, |s| {
+                let mut t = format!("read {} K-Cor tables (last entry 2^{} - 1)\nwrote {} and {}\n", s.inputs.len(), s.kcor_bits, s.lut_fits.display(), s.device_image.display());
+                for a in &s.adcs {
+                    t += &format!("ADC {}: K-Cor steps {:.4}..{:.4} DN, top entry {}, largest rounding {:.2e} DN\n", a.adc, a.step_range.0, a.step_range.1, a.top_entry, a.max_rounding_dn);
+                }
+                t
+            })?;
+        }
+        Cmd::Lut { what: LutCmd::Export { lut: file, format: _, out, bits, json } } => {
+            let s = lut::export_kcor(&file, &out, bits)?;
+            print(json, &s, |s| format!("read {}\nwrote {} (K-Cor tables, last entry 2^{} - 1)\n", s.input.display(), s.outputs.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", "), s.kcor_bits))?;
         }
         Cmd::Lut { what: LutCmd::Inspect { file, table, json } } => {
             let s = lut::inspect(&file)?;

@@ -134,6 +134,21 @@ fn simulate_then_build_then_inspect() {
             }
         }
     }
+    // The K-Cor export of a LUT dncal built: the inclusive cumulative widths scaled to
+    // 2^23 - 1 at the top, recomputed here naively in floats from the LUT's weights.
+    let weights = lut.weights.as_ref().expect("lut build keeps the weights");
+    let e = stdout_json(&dncal(&["lut", "export", "--format", "kcor", "cal.fits", "-o", "kcor", "--json"], dir.path()));
+    assert_eq!(e["kcor_bits"], 23);
+    for (a, w) in weights.iter().enumerate() {
+        let bytes = std::fs::read(dir.path().join(format!("kcor_adc{a}.bin"))).unwrap();
+        let got: Vec<u32> = bytes.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+        let total: f64 = w.iter().map(|&b| b as f64).sum();
+        let mut cumulative = 0.0;
+        for (k, (&b, &g)) in w.iter().zip(&got).enumerate() {
+            cumulative += b as f64;
+            assert_eq!(g as f64, (8_388_607.0 * cumulative / total).round(), "ADC {a} code {k}");
+        }
+    }
     // Readable output too.
     let text = dncal(&["lut", "inspect", "cal.bin", "--table"], dir.path());
     assert!(text.status.success());

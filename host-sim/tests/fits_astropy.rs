@@ -127,7 +127,7 @@ out = []
 with fits.open(sys.argv[1]) as hdul:
     hdul.verify("exception")
     for hdu in hdul:
-        keys = ("BITPIX", "NAXIS", "BZERO", "BSCALE", "BITDEPTH", "NADC", "ADCMAP", "FRACBITS", "NFRAMES", "BUNIT", "EXTNAME")
+        keys = ("BITPIX", "NAXIS", "BZERO", "BSCALE", "BITDEPTH", "NADC", "ADCMAP", "FRACBITS", "KCORBITS", "NFRAMES", "BUNIT", "EXTNAME")
         d = {"name": hdu.name, "class": type(hdu).__name__, "header": {k: hdu.header[k] for k in keys if k in hdu.header}}
         if isinstance(hdu, fits.BinTableHDU):
             d["columns"] = {
@@ -210,7 +210,7 @@ fn astropy_opens_our_lut_as_uint32() {
     let path = dir.path().join("lut.fits");
     let mut tables: Vec<Vec<u32>> = (0..2u32).map(|a| (0..16u32).map(|k| 1024 * (2 * k + 1) + a).collect()).collect();
     tables[1][15] = u32::MAX; // above 2^31: astropy reads it right only through BZERO
-    write_lut(&path, &LutTables { frac_bits: 11, tables: tables.clone() }).unwrap();
+    write_lut(&path, &LutTables { frac_bits: 11, tables: tables.clone(), weights: None, kcor_bits: None }).unwrap();
     let hdus = astropy_describe(&path);
     assert_eq!(hdus.len(), 1);
     let p = &hdus[0];
@@ -223,6 +223,19 @@ fn astropy_opens_our_lut_as_uint32() {
     assert_eq!(p["dtype"], "uint32");
     let expected: Vec<u64> = tables.concat().into_iter().map(u64::from).collect();
     assert_eq!(json_u64(&p["values"]), expected);
+
+    // With the code widths (extension WEIGHTS) and an imported K-Cor scaling.
+    let weights: Vec<Vec<u32>> = (0..2u32).map(|a| (0..16u32).map(|k| (1 << 24) + 977 * k + a).collect()).collect();
+    write_lut(&path, &LutTables { frac_bits: 11, tables, weights: Some(weights.clone()), kcor_bits: Some(22) }).unwrap();
+    let hdus = astropy_describe(&path);
+    assert_eq!(hdus.len(), 2);
+    assert_eq!(hdus[0]["header"]["KCORBITS"], 22);
+    let w = &hdus[1];
+    assert_eq!(w["name"], "WEIGHTS");
+    assert_eq!(w["header"]["FRACBITS"], 24);
+    assert_eq!(w["shape"], serde_json::json!([2, 16]));
+    assert_eq!(w["dtype"], "uint32");
+    assert_eq!(json_u64(&w["values"]), weights.concat().into_iter().map(u64::from).collect::<Vec<u64>>());
 }
 
 #[test]

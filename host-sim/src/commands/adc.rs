@@ -12,7 +12,7 @@ use crate::camera::calibration::RampParams;
 use crate::camera::{Camera, PipelinedAdc};
 use crate::commands::lut::{build_luts, summarize, AdcLutSummary, BuiltLuts};
 use crate::commands::progress::bar;
-use crate::fits::{read_histograms, write_file_atomically, write_histograms, write_lut, AdcHistograms, LutTables};
+use crate::fits::{read_histograms, write_file_atomically, write_histograms, write_lut, AdcHistograms};
 use crate::flatten::{cumulative_offsets, FlattenParams};
 use crate::plots::{line_plot, Series};
 use crate::HostError;
@@ -218,7 +218,7 @@ pub fn run(camera: &Camera, hist: Option<&Path>, ramp: &RampParams, flatten: &Fl
         }
     };
     let luts = build_luts(&histograms, flatten, &source)?;
-    write_lut(&out_dir.join("lut.fits"), &LutTables { frac_bits: dncal_core::FRAC_BITS, tables: luts.tables.clone() })?;
+    write_lut(&out_dir.join("lut.fits"), &luts.lut_tables())?;
     write_file_atomically(&out_dir.join("lut.bin"), &luts.image)?;
     let report = characterize(&source, &luts, flatten, truth, out_dir)?;
     Ok((report, luts))

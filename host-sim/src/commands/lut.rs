@@ -1,4 +1,5 @@
-//! `dncal lut build` and `dncal lut inspect`.
+//! `dncal lut build`, `lut inspect`, and `lut import` / `lut export` of the
+//! K-Coronagraph's table files ([`crate::kcor_tables`]).
 //!
 //! `build` flattens each ADC's histogram (the paper's procedure, [`crate::flatten`]),
 //! quantizes the weights to the core's 2^-24 grid, lets the core build the LUT set by its
@@ -55,6 +56,14 @@ pub struct BuiltLuts {
     pub tables: Vec<Vec<u32>>,
     /// The device image.
     pub image: Vec<u8>,
+}
+
+impl BuiltLuts {
+    /// The LUT FITS contents: the tables and the weights they were built from.
+    pub fn lut_tables(&self) -> LutTables {
+        let weights = Some(self.weights.iter().map(|w| w.iter().map(|x| x.to_bits()).collect()).collect());
+        LutTables { frac_bits: dncal_core::FRAC_BITS, tables: self.tables.clone(), weights, kcor_bits: None }
+    }
 }
 
 /// Flattens `hist` and builds the LUT set in the core; `source` names the input in errors.
@@ -125,7 +134,7 @@ pub fn build(input: &Path, output: &Path, params: &FlattenParams) -> Result<Buil
     let hist = read_histograms(input)?;
     let built = build_luts(&hist, params, input)?;
     let (lut_fits, device_image) = output_paths(output);
-    write_lut(&lut_fits, &LutTables { frac_bits: dncal_core::FRAC_BITS, tables: built.tables.clone() })?;
+    write_lut(&lut_fits, &built.lut_tables())?;
     write_file_atomically(&device_image, &built.image)?;
     let adcs = built.flattened.iter().zip(&built.tables).enumerate().map(|(a, (f, t))| summarize(a, f, t)).collect();
     Ok(BuildSummary { input: input.into(), lut_fits, device_image, adcs })
@@ -222,4 +231,122 @@ fn parse_image<const N: usize, const CODES: usize>(bytes: &[u8], path: &Path) ->
     let mut c = dncal_core::Corrector::new(&mut banks, g, &mut sums).map_err(err)?;
     c.request_activation().map_err(err)?;
     Ok(c.banks().active().tables().iter().map(|t| t.iter().map(|e| e.to_bits()).collect()).collect())
+}
+
+/// What `lut import --kcor` read and wrote.
+#[derive(Debug, Serialize)]
+pub struct ImportSummary {
+    /// The four tables read, ADC 0 to 3.
+    pub inputs: Vec<PathBuf>,
+    /// Their scaling: last entry `2^bits - 1`.
+    pub kcor_bits: u32,
+    /// The LUT FITS written.
+    pub lut_fits: PathBuf,
+    /// The device image written.
+    pub device_image: PathBuf,
+    /// Per ADC: our top entry (units of 2^-11 DN) and the largest difference between our
+    /// entry (a code's center) and the K-Cor value of the code (its top), in DN.
+    pub adcs: Vec<ImportedAdc>,
+}
+
+/// One imported ADC.
+#[derive(Debug, Serialize)]
+pub struct ImportedAdc {
+    /// ADC index.
+    pub adc: usize,
+    /// Our top entry, units of 2^-11 DN.
+    pub top_entry: u32,
+    /// Largest |K-Cor value - our entry - half the code's step|, DN: what rounding to
+    /// 2^-11 DN loses (below 2^-12 DN plus the weights' grid).
+    pub max_rounding_dn: f64,
+    /// Smallest and largest step of the K-Cor table, DN.
+    pub step_range: (f64, f64),
+}
+
+/// The four files `specs` names: one spec (a prefix or a path with `{adc}`), or four paths.
+pub fn kcor_files(specs: &[String]) -> Result<[PathBuf; 4], HostError> {
+    match specs {
+        [one] => crate::kcor_tables::expand(one),
+        [a, b, c, d] => Ok([a, b, c, d].map(PathBuf::from)),
+        _ => Err(HostError::Format { path: "--kcor".into(), message: format!("{} files given; give the four tables of ADC 0-3, or one prefix", specs.len()) }),
+    }
+}
+
+/// `lut import --kcor FILES -o OUT`: the K-Cor tables as our LUT FITS (with the widths,
+/// extension `WEIGHTS`, and the scaling, `KCORBITS`) and device image.
+pub fn import_kcor(specs: &[String], output: &Path) -> Result<ImportSummary, HostError> {
+    use crate::kcor_tables::KcorTable;
+    let inputs = kcor_files(specs)?;
+    let tables: Vec<KcorTable> = inputs.iter().map(|p| KcorTable::read(p)).collect::<Result<_, _>>()?;
+    let bits = tables[0].bits;
+    if let Some((i, t)) = tables.iter().enumerate().find(|(_, t)| t.bits != bits) {
+        return Err(HostError::Format { path: inputs[i].clone(), message: format!("ends at 2^{} - 1 where ADC 0's table ends at 2^{bits} - 1: one camera's tables share a scaling", t.bits) });
+    }
+    let weights: Vec<Vec<Weight>> = tables.iter().map(KcorTable::weights).collect();
+    let (ours, image) = tables_from_weights(&weights, &inputs[0])?;
+    let unit = 4095.0 / ((1u64 << bits) - 1) as f64;
+    let adcs = tables
+        .iter()
+        .zip(&ours)
+        .enumerate()
+        .map(|(adc, (t, o))| {
+            let steps: Vec<f64> = t.entries.windows(2).map(|p| (p[1] - p[0]) as f64 * unit).collect();
+            let max_rounding_dn = (0..t.entries.len())
+                .map(|k| {
+                    let step = if k == 0 { t.entries[0] as f64 * unit } else { steps[k - 1] };
+                    (t.entries[k] as f64 * unit - step / 2.0 - o[k] as f64 / 2048.0).abs()
+                })
+                .fold(0.0, f64::max);
+            let step_range = (steps.iter().cloned().fold(f64::INFINITY, f64::min), steps.iter().cloned().fold(f64::NEG_INFINITY, f64::max));
+            ImportedAdc { adc, top_entry: *o.last().unwrap_or(&0), max_rounding_dn, step_range }
+        })
+        .collect();
+    let (lut_fits, device_image) = output_paths(output);
+    let raw = Some(weights.iter().map(|w| w.iter().map(|x| x.to_bits()).collect()).collect());
+    write_lut(&lut_fits, &LutTables { frac_bits: dncal_core::FRAC_BITS, tables: ours, weights: raw, kcor_bits: Some(bits) })?;
+    write_file_atomically(&device_image, &image)?;
+    Ok(ImportSummary { inputs: inputs.to_vec(), kcor_bits: bits, lut_fits, device_image, adcs })
+}
+
+/// What `lut export --format kcor` wrote.
+#[derive(Debug, Serialize)]
+pub struct ExportSummary {
+    /// The LUT FITS read.
+    pub input: PathBuf,
+    /// The scaling written: last entry `2^bits - 1`.
+    pub kcor_bits: u32,
+    /// The four tables written, ADC 0 to 3.
+    pub outputs: Vec<PathBuf>,
+}
+
+/// `lut export --format kcor LUT -o PREFIX [--bits B]`: the four K-Cor tables from the
+/// LUT's widths (extension `WEIGHTS`), at the LUT's own K-Cor scaling if imported, else
+/// `bits` (23 if not given). The widths must rebuild the file's tables in the core (else
+/// the file was edited and the two disagree). All four are checked before any is written.
+pub fn export_kcor(input: &Path, prefix: &str, bits: Option<u32>) -> Result<ExportSummary, HostError> {
+    use crate::kcor_tables::{export_path, KcorTable, KCOR_CODES, KCOR_SCALINGS};
+    let err = |message: String| HostError::Format { path: input.into(), message };
+    let lut = read_lut(input)?;
+    if lut.n_adc() != 4 || lut.tables[0].len() != KCOR_CODES {
+        return Err(err(format!("{} ADCs of {} codes; K-Cor tables are four ADCs of 4096 codes", lut.n_adc(), lut.tables[0].len())));
+    }
+    let Some(raw) = &lut.weights else {
+        return Err(err("no WEIGHTS extension: the code widths a K-Cor table needs are not in this LUT (LUT files written by `lut build` or `lut import` carry them)".into()));
+    };
+    let bits = bits.or(lut.kcor_bits).unwrap_or(23);
+    if !KCOR_SCALINGS.contains(&bits) {
+        return Err(err(format!("--bits {bits}: K-Cor tables end at 2^22 - 1 or 2^23 - 1")));
+    }
+    let weights: Vec<Vec<Weight>> = raw.iter().map(|w| w.iter().map(|&b| Weight::from_bits(b)).collect()).collect();
+    let (rebuilt, _) = tables_from_weights(&weights, input)?;
+    if let Some(adc) = (0..4).find(|&a| rebuilt[a] != lut.tables[a]) {
+        return Err(err(format!("ADC {adc}: the WEIGHTS extension does not rebuild the tables (the file was edited?); refusing to export")));
+    }
+    let tables: Vec<KcorTable> =
+        weights.iter().enumerate().map(|(adc, w)| KcorTable::from_weights(w, bits).ok_or_else(|| err(format!("ADC {adc}: the weights sum to zero")))).collect::<Result<_, _>>()?;
+    let outputs: Vec<PathBuf> = (0..4).map(|a| export_path(prefix, a)).collect();
+    for (t, path) in tables.iter().zip(&outputs) {
+        write_file_atomically(path, t.to_bytes())?;
+    }
+    Ok(ExportSummary { input: input.into(), kcor_bits: bits, outputs })
 }

@@ -1,0 +1,130 @@
+//! The K-Coronagraph's deployed tables (../shared/data/kcor-luts, read in place, never
+//! copied): `lut import --kcor` and `lut export --format kcor` round-trip every shared
+//! file byte for byte, the imported LUT loads in the core (`lut inspect` of its FITS and
+//! device image), and damaged tables are refused with the file named and nothing written.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use serde_json::Value;
+
+/// The shared tables' folder; `DNCAL_KCOR_LUTS` overrides it. `None` (the test then says
+/// it skips) where it is absent.
+fn luts_dir() -> Option<PathBuf> {
+    let dir = std::env::var_os("DNCAL_KCOR_LUTS")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/kcor-luts"));
+    if dir.join("README.md").exists() {
+        Some(dir)
+    } else {
+        eprintln!("skipping: {} is absent", dir.display());
+        None
+    }
+}
+
+fn dncal(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_dncal")).args(args).output().unwrap()
+}
+
+fn json(out: Output, what: &str) -> Value {
+    assert!(out.status.success(), "{what}: {}", String::from_utf8_lossy(&out.stderr));
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+const CAMERAS: [&str; 3] = ["08888", "11461", "13889"];
+const DATES: [(&str, u64); 2] = [("20131106", 22), ("20131203", 23)];
+
+#[test]
+fn every_shared_table_round_trips_byte_for_byte() {
+    let Some(dir) = luts_dir() else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    for cam in CAMERAS {
+        for (date, bits) in DATES {
+            let spec = dir.join(format!("Photonfocus_MV-D1024E_{cam}_adc{{adc}}_{date}.bin"));
+            let out = tmp.path().join(format!("{cam}_{date}"));
+            let imported = json(dncal(&["lut", "import", "--kcor", spec.to_str().unwrap(), "-o", out.to_str().unwrap(), "--json"]), "lut import");
+            assert_eq!(imported["kcor_bits"], bits);
+            for a in imported["adcs"].as_array().unwrap() {
+                // Our entries are the K-Cor values less half a step, to within the rounding
+                // to 2^-11 DN (2^-12) and the weights' grid.
+                assert!(a["max_rounding_dn"].as_f64().unwrap() <= 2f64.powi(-12) + 1e-6, "{a}");
+            }
+            let prefix = tmp.path().join(format!("exported_{cam}_{date}"));
+            let fits = format!("{}.fits", out.display());
+            json(dncal(&["lut", "export", "--format", "kcor", &fits, "-o", prefix.to_str().unwrap(), "--json"]), "lut export");
+            for adc in 0..4 {
+                let deployed = std::fs::read(dir.join(format!("Photonfocus_MV-D1024E_{cam}_adc{adc}_{date}.bin"))).unwrap();
+                let exported = std::fs::read(format!("{}_adc{adc}.bin", prefix.display())).unwrap();
+                assert!(deployed == exported, "camera {cam}, {date}, ADC {adc}: the export differs from the deployed table");
+            }
+            // The imported LUT loads in the core, as a FITS and as a device image, with
+            // the K-Cor table's steps.
+            for file in [fits.clone(), format!("{}.bin", out.display())] {
+                let inspected = json(dncal(&["lut", "inspect", &file, "--json"]), "lut inspect");
+                assert_eq!(inspected["bit_depth"], 12);
+                assert_eq!(inspected["adcs"].as_array().unwrap().len(), 4);
+            }
+        }
+    }
+}
+
+/// The same tables at the other scaling: the 2^22 and 2^23 files are two roundings of one
+/// table, so exporting the 23-bit import at 22 bits gives the 22-bit file to within one
+/// unit per entry (measured: not byte for byte).
+#[test]
+fn the_two_scalings_are_one_table() {
+    let Some(dir) = luts_dir() else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let spec = dir.join("Photonfocus_MV-D1024E_08888_adc{adc}_20131203.bin");
+    let out = tmp.path().join("lut");
+    json(dncal(&["lut", "import", "--kcor", spec.to_str().unwrap(), "-o", out.to_str().unwrap(), "--json"]), "lut import");
+    let prefix = tmp.path().join("at22");
+    json(dncal(&["lut", "export", "--format", "kcor", &format!("{}.fits", out.display()), "-o", prefix.to_str().unwrap(), "--bits", "22", "--json"]), "export");
+    let words = |b: Vec<u8>| -> Vec<i64> { b.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]) as i64).collect() };
+    for adc in 0..4 {
+        let deployed = words(std::fs::read(dir.join(format!("Photonfocus_MV-D1024E_08888_adc{adc}_20131106.bin"))).unwrap());
+        let ours = words(std::fs::read(format!("{}_adc{adc}.bin", prefix.display())).unwrap());
+        let worst = deployed.iter().zip(&ours).map(|(a, b)| (a - b).abs()).max().unwrap();
+        assert!(worst <= 1, "ADC {adc}: {worst} units");
+    }
+}
+
+#[test]
+fn damaged_tables_are_refused_naming_the_file() {
+    let Some(dir) = luts_dir() else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let good: Vec<PathBuf> = (0..4).map(|a| dir.join(format!("Photonfocus_MV-D1024E_13889_adc{a}_20131203.bin"))).collect();
+    let bytes = std::fs::read(&good[2]).unwrap();
+    let mut cases: Vec<(&str, Vec<u8>, &str)> = vec![
+        ("short.bin", bytes[..16380].to_vec(), "16380 bytes"),
+        ("decreasing.bin", {
+            let mut b = bytes.clone();
+            b[4 * 1000..4 * 1000 + 4].copy_from_slice(&0u32.to_le_bytes());
+            b
+        }, "entry 1000 (0) is below entry 999"),
+        ("top.bin", {
+            let mut b = bytes.clone();
+            let n = b.len();
+            b[n - 4..].copy_from_slice(&12345u32.to_le_bytes());
+            b
+        }, "the last entry is 12345"),
+    ];
+    for (name, content, expected) in cases.drain(..) {
+        let bad = tmp.path().join(name);
+        std::fs::write(&bad, content).unwrap();
+        let out = tmp.path().join(format!("out_{name}"));
+        let files = [good[0].to_str().unwrap(), good[1].to_str().unwrap(), bad.to_str().unwrap(), good[3].to_str().unwrap()];
+        let r = dncal(&["lut", "import", "--kcor", files[0], files[1], files[2], files[3], "-o", out.to_str().unwrap()]);
+        let err = String::from_utf8_lossy(&r.stderr);
+        assert!(!r.status.success() && err.contains(name) && err.contains(expected), "{name}: {err}");
+        assert!(!err.contains("panicked"), "{err}");
+        assert!(!Path::new(&format!("{}.fits", out.display())).exists() && !Path::new(&format!("{}.bin", out.display())).exists());
+    }
+    // Mixed scalings, and a prefix that matches both dates.
+    let mixed = dir.join("Photonfocus_MV-D1024E_13889_adc3_20131106.bin");
+    let r = dncal(&["lut", "import", "--kcor", good[0].to_str().unwrap(), good[1].to_str().unwrap(), good[2].to_str().unwrap(), mixed.to_str().unwrap(), "-o", tmp.path().join("m").to_str().unwrap()]);
+    assert!(!r.status.success() && String::from_utf8_lossy(&r.stderr).contains("share a scaling"));
+    let prefix = dir.join("Photonfocus_MV-D1024E_13889");
+    let r = dncal(&["lut", "import", "--kcor", prefix.to_str().unwrap(), "-o", tmp.path().join("p").to_str().unwrap()]);
+    assert!(!r.status.success() && String::from_utf8_lossy(&r.stderr).contains("2 files for ADC 0"), "{}", String::from_utf8_lossy(&r.stderr));
+}
