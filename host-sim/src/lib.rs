@@ -20,6 +20,7 @@ pub mod kcor_tables;
 pub mod linearity;
 pub mod plots;
 pub mod quantization;
+pub mod real_adcs;
 pub mod reference;
 pub mod streaming;
 pub mod synth;

@@ -206,8 +206,12 @@ enum Cmd {
         camera: CameraArgs,
         /// Measured histogram set to characterize (default: simulate the ramps; then the
         /// results are also compared with the simulated ADCs' true code widths).
-        #[arg(long)]
+        #[arg(long, conflicts_with = "from_luts")]
         hist: Option<PathBuf>,
+        /// Characterize real ADCs from K-Coronagraph tables instead: one camera per use (a
+        /// prefix, or a path with {adc} in it); see docs/kcor-luts.md.
+        #[arg(long, value_name = "SPEC")]
+        from_luts: Vec<String>,
         /// Output folder for the figures and the LUT files.
         #[arg(short, long, default_value = "dncal-adc")]
         out: PathBuf,
@@ -707,7 +711,22 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
             })?;
             return Ok(if ok { ExitCode::SUCCESS } else { ExitCode::FAILURE });
         }
-        Cmd::Adc { camera, hist, out, ramp, flatten, json } => {
+        Cmd::Adc { from_luts, out, json, .. } if !from_luts.is_empty() => {
+            let r = adc::from_luts(&from_luts, &out)?;
+            print(json, &r, |r| {
+                let mut t = String::from("camera                               ADC  DN error  max |offset|  trend bow  period  stage fit (held out): 1x12 2x6 3x4 4x3 4+8\n");
+                for a in &r.adcs {
+                    let fits: Vec<String> = a.stage_fits.iter().map(|f| format!("{:.2}", f.held_out_explained)).collect();
+                    let period = a.period_codes.map_or("-".to_string(), |p| p.to_string());
+                    t += &format!("{:36} {:3}  {:6.2} %  {:8.3} DN  {:7.1} DN  {period:>6}  {}\n", a.camera, a.adc, a.dn_error_rms_pct, a.offset_max_dn, a.trend_bow_dn, fits.join(" "));
+                }
+                if let (Some(s), Some(o)) = (r.mean_correlation_same_camera, r.mean_correlation_other_cameras) {
+                    t += &format!("DN-error correlation: {s:.3} between ADCs of one camera, {o:.3} across cameras\n");
+                }
+                t + &format!("figures: {}\n", r.figures.iter().map(|f| f.display().to_string()).collect::<Vec<_>>().join(", "))
+            })?;
+        }
+        Cmd::Adc { camera, hist, out, ramp, flatten, json, .. } => {
             let cam = camera.camera()?;
             let (r, _) = adc::run(&cam, hist.as_deref(), &ramp.params()?, &flatten.params(), &out)?;
             print(json, &r, |r| {

@@ -275,3 +275,85 @@ mod tests {
         }
     }
 }
+
+/// What `adc --from-luts` measured of real ADCs.
+#[derive(Debug, Serialize)]
+pub struct RealAdcsReport {
+    /// Per ADC, camera by camera.
+    pub adcs: Vec<crate::real_adcs::RealAdc>,
+    /// Correlation of the DN-error patterns of two ADCs, `[i][j]` in the order of `adcs`.
+    pub correlation: Vec<Vec<f64>>,
+    /// Mean correlation between two ADCs of one camera, and between ADCs of different
+    /// cameras (None with one camera).
+    pub mean_correlation_same_camera: Option<f64>,
+    /// See `mean_correlation_same_camera`.
+    pub mean_correlation_other_cameras: Option<f64>,
+    /// Files written.
+    pub figures: Vec<PathBuf>,
+}
+
+/// The camera label of a table file: its name without the `adcN` tag and extension.
+fn camera_label(path: &Path, adc: usize) -> String {
+    let stem = path.file_stem().map_or_else(String::new, |s| s.to_string_lossy().into_owned());
+    stem.replace(&format!("_adc{adc}"), "").replace(&format!("adc{adc}"), "")
+}
+
+/// `adc --from-luts SPEC ...`: characterizes the real ADCs of K-Cor tables
+/// ([`crate::real_adcs`]), one SPEC per camera (a prefix or a path with `{adc}`), with
+/// figures in `out_dir`.
+pub fn from_luts(specs: &[String], out_dir: &Path) -> Result<RealAdcsReport, HostError> {
+    use crate::kcor_tables::KcorTable;
+    use crate::real_adcs::{characterize, correlation, FIRST_CALIBRATED};
+    std::fs::create_dir_all(out_dir).map_err(|e| HostError::io(out_dir, e))?;
+    let mut adcs = Vec::new();
+    let mut figures = Vec::new();
+    for spec in specs {
+        let files = crate::commands::lut::kcor_files(std::slice::from_ref(spec))?;
+        let label = camera_label(&files[0], 0);
+        let mine: Vec<crate::real_adcs::RealAdc> = files.iter().enumerate().map(|(a, f)| KcorTable::read(f).map(|t| characterize(&t, &label, a))).collect::<Result<_, _>>()?;
+        let dn_error: Vec<Series> = mine
+            .iter()
+            .map(|a| Series { label: format!("ADC {}: {:.2}% rms", a.adc, a.dn_error_rms_pct), points: a.dn_error.iter().enumerate().map(|(i, r)| ((i + FIRST_CALIBRATED + 1) as f64, 100.0 * r)).collect() })
+            .collect();
+        let path = out_dir.join(format!("{label}-dn-error.png"));
+        line_plot(&path, &format!("{label}: DN error per code (table step over its cubic trend, - 1)"), "code", "DN error (%)", &dn_error, 4)?;
+        figures.push(path);
+        let offsets: Vec<Series> = mine
+            .iter()
+            .map(|a| Series { label: format!("ADC {}", a.adc), points: a.offsets.iter().enumerate().map(|(i, o)| ((i + FIRST_CALIBRATED) as f64, *o)).collect() })
+            .collect();
+        let path = out_dir.join(format!("{label}-offsets.png"));
+        line_plot(&path, &format!("{label}: cumulative offsets (table minus its cubic trend)"), "code", "offset (DN)", &offsets, 1)?;
+        figures.push(path);
+        adcs.extend(mine);
+    }
+    // The trends of all ADCs: the global response correction built into the tables.
+    let trends: Vec<Series> = adcs
+        .iter()
+        .map(|a| {
+            let p = a.trend_dn;
+            let at = |x: f64| p[0] + p[1] * x + p[2] * x * x + p[3] * x * x * x;
+            let (y0, y1) = (at(0.0), at(1.0));
+            Series { label: format!("{} ADC {}", a.camera, a.adc), points: (0..=100).map(|i| i as f64 / 100.0).map(|x| (4095.0 * x, at(x) - (y0 + (y1 - y0) * x))).collect() }
+        })
+        .collect();
+    let path = out_dir.join("trends.png");
+    line_plot(&path, "The tables' slow trend: cubic fit minus its chord", "code", "DN", &trends, 1)?;
+    figures.push(path);
+    let n = adcs.len();
+    let correlation_matrix: Vec<Vec<f64>> = (0..n).map(|i| (0..n).map(|j| correlation(&adcs[i].dn_error, &adcs[j].dn_error)).collect()).collect();
+    let mean_of = |same: bool| -> Option<f64> {
+        let v: Vec<f64> = (0..n).flat_map(|i| (0..n).map(move |j| (i, j))).filter(|&(i, j)| i < j && (adcs[i].camera == adcs[j].camera) == same).map(|(i, j)| correlation_matrix[i][j]).collect();
+        (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+    };
+    let report = RealAdcsReport {
+        mean_correlation_same_camera: mean_of(true),
+        mean_correlation_other_cameras: mean_of(false),
+        correlation: correlation_matrix,
+        adcs,
+        figures,
+    };
+    let json = out_dir.join("real_adcs.json");
+    write_file_atomically(&json, serde_json::to_string_pretty(&report).map_err(|e| HostError::Format { path: json.clone(), message: e.to_string() })?)?;
+    Ok(report)
+}
