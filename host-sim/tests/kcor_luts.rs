@@ -175,3 +175,45 @@ print(json.dumps(out))
     }
     assert!(report["mean_correlation_same_camera"].as_f64().unwrap().abs() < 0.05, "{}", report["mean_correlation_same_camera"]);
 }
+
+/// `adc.widths_from = "kcor:SPEC"`: the camera model's ADCs take a real camera's code
+/// widths (the tables' DN error, trend divided out: the ADC's DN error is that of the
+/// table to 0.1% of a percent), relative to the TOML's folder; bad uses are errors naming
+/// the TOML file.
+#[test]
+fn the_camera_model_takes_real_adcs() {
+    let Some(dir) = luts_dir() else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let spec = dir.join("Photonfocus_MV-D1024E_13889_adc{adc}_20131203.bin");
+    let toml = tmp.path().join("real.toml");
+    std::fs::write(&toml, format!("[adc]\nwidths_from = \"kcor:{}\"\n", spec.display())).unwrap();
+    let config = dncal_host::camera::CameraConfig::from_toml_file(&toml).unwrap();
+    let camera = dncal_host::camera::Camera::new(config).unwrap();
+    for adc in 0..4 {
+        let table = dncal_host::kcor_tables::KcorTable::read(Path::new(&spec.to_string_lossy().replace("{adc}", &adc.to_string()))).unwrap();
+        let real = dncal_host::real_adcs::characterize(&table, "13889", adc);
+        // The model ADC's widths over the calibrated codes, relative to their mean.
+        let w = camera.adcs[adc].widths();
+        let inner = &w[dncal_host::real_adcs::FIRST_CALIBRATED + 1..=dncal_host::real_adcs::LAST_CALIBRATED];
+        let m = inner.iter().sum::<f64>() / inner.len() as f64;
+        let rms = 100.0 * (inner.iter().map(|v| (v / m - 1.0).powi(2)).sum::<f64>() / inner.len() as f64).sqrt();
+        assert!((rms - real.dn_error_rms_pct).abs() < 0.1, "ADC {adc}: model {rms}% vs table {}%", real.dn_error_rms_pct);
+    }
+    // Relative to the TOML's folder, and the errors.
+    std::fs::write(tmp.path().join("rel.toml"), "[adc]\nwidths_from = \"kcor:tables/cam_adc{adc}.bin\"\n").unwrap();
+    std::fs::create_dir(tmp.path().join("tables")).unwrap();
+    for adc in 0..4 {
+        std::fs::copy(spec.to_string_lossy().replace("{adc}", &adc.to_string()), tmp.path().join(format!("tables/cam_adc{adc}.bin"))).unwrap();
+    }
+    assert!(dncal_host::camera::CameraConfig::from_toml_file(&tmp.path().join("rel.toml")).is_ok());
+    for (body, expected) in [
+        (format!("bits = 10\n[adc]\nwidths_from = \"kcor:{}\"\n", spec.display()), "four 12-bit ADCs"),
+        ("[adc]\nwidths_from = \"csv:x\"\n".to_string(), "the only source is kcor:SPEC"),
+        (format!("[adc]\nwidths_from = \"kcor:{}\"\n", tmp.path().join("missing_adc{adc}.bin").display()), "missing_adc0.bin"),
+    ] {
+        let bad = tmp.path().join("bad.toml");
+        std::fs::write(&bad, body).unwrap();
+        let e = dncal_host::camera::CameraConfig::from_toml_file(&bad).unwrap_err().to_string();
+        assert!(e.contains(expected), "{e}");
+    }
+}

@@ -19,11 +19,18 @@ pub struct AdcConfig {
     /// the top code above; the transition into code k is at `-1/2 + sum_{0<j<k} w_j`.
     /// Empty (the default): the stage model.
     pub widths: Vec<Vec<f64>>,
+    /// Real ADCs instead: `"kcor:SPEC"` takes the widths from a K-Coronagraph camera's
+    /// four deployed tables (SPEC a path with `{adc}` in it, or a prefix; relative to the
+    /// TOML file's folder), their DN error without the response correction the tables
+    /// also carry, codes below 150 ideal ([`crate::real_adcs::model_widths`]). Needs 12
+    /// bits and 4 ADCs; not with `widths`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub widths_from: Option<String>,
 }
 
 impl Default for AdcConfig {
     fn default() -> Self {
-        AdcConfig { stage_bits: vec![3, 3, 3, 3], stage_error_lsb: vec![0.15, 0.06, 0.03, 0.015], seed: 13890, widths: Vec::new() }
+        AdcConfig { stage_bits: vec![3, 3, 3, 3], stage_error_lsb: vec![0.15, 0.06, 0.03, 0.015], seed: 13890, widths: Vec::new(), widths_from: None }
     }
 }
 
@@ -106,9 +113,34 @@ impl CameraConfig {
     /// Reads a TOML file whose fields override the defaults; unknown fields are errors.
     pub fn from_toml_file(path: &std::path::Path) -> Result<Self, crate::HostError> {
         let text = std::fs::read_to_string(path).map_err(|e| crate::HostError::io(path, e))?;
-        let config: CameraConfig = toml::from_str(&text).map_err(|e| crate::HostError::Format { path: path.into(), message: e.to_string() })?;
+        let mut config: CameraConfig = toml::from_str(&text).map_err(|e| crate::HostError::Format { path: path.into(), message: e.to_string() })?;
+        let base = path.parent().unwrap_or(std::path::Path::new("."));
+        config.resolve_widths_from(base).map_err(|e| match e {
+            crate::HostError::Format { path: p, message } => crate::HostError::Format { path: path.into(), message: format!("adc.widths_from: {}: {message}", p.display()) },
+            other => other,
+        })?;
         config.validate().map_err(|message| crate::HostError::Format { path: path.into(), message })?;
         Ok(config)
+    }
+
+    /// Fills `adc.widths` from `adc.widths_from` (see [`AdcConfig::widths_from`]), a
+    /// relative SPEC taken from `base`.
+    pub fn resolve_widths_from(&mut self, base: &std::path::Path) -> Result<(), crate::HostError> {
+        let Some(from) = self.adc.widths_from.clone() else { return Ok(()) };
+        let bad = |message: String| crate::HostError::Format { path: from.clone().into(), message };
+        let Some(spec) = from.strip_prefix("kcor:") else {
+            return Err(bad("the only source is kcor:SPEC (a K-Coronagraph camera's four tables)".into()));
+        };
+        if !self.adc.widths.is_empty() {
+            return Err(bad("give adc.widths or adc.widths_from, not both".into()));
+        }
+        if self.bits != 12 || self.n_adc != 4 {
+            return Err(bad(format!("K-Cor tables are four 12-bit ADCs; this camera has {} ADCs of {} bits", self.n_adc, self.bits)));
+        }
+        let spec = if std::path::Path::new(spec).is_absolute() { spec.to_string() } else { base.join(spec).to_string_lossy().into_owned() };
+        let files = crate::kcor_tables::expand(&spec)?;
+        self.adc.widths = files.iter().map(|f| crate::kcor_tables::KcorTable::read(f).map(|t| crate::real_adcs::model_widths(&t))).collect::<Result<_, _>>()?;
+        Ok(())
     }
 
     /// Codes of the ADC, 2^B.
