@@ -2,8 +2,8 @@
 //!
 //! A camera such as the PhotonFocus MV-D1024E of the K-Coronagraph digitizes with
 //! four pipelined 12-bit ADCs; sensor column `c` goes through ADC `c mod 4`. Each ADC
-//! has *DN error*: its code widths differ from one DN by a few percent (de Wijn 2018,
-//! section 4). The correction is a lookup table per ADC, the cumulative sum of the
+//! has *DN error*: its code widths differ from one DN (de Wijn 2018, section 4; the
+//! K-Coronagraph's deployed tables show 2.2-4.7% rms per code, `docs/kcor-luts.md`). The correction is a lookup table per ADC, the cumulative sum of the
 //! normalized code histogram, held as 23-bit integers (12 integer + 11 fractional bits)
 //! so that 2^9 = 512 corrected frames sum into one `u32` without overflow.
 //!

@@ -1,4 +1,4 @@
-//! The K-Coronagraph model (de Wijn 2018, section 4, Figs. 5 and 6): what the DN error of
+//! The K-Coronagraph model (de Wijn 2018, section 4, Figs. 4 and 5): what the DN error of
 //! one ADC does to the polarization the instrument measures, without and with the LUT.
 //!
 //! ## Light to photoelectrons
@@ -203,7 +203,7 @@ pub struct KcorResult {
     pub flat_readout_std_dn: f64,
 }
 
-/// The LUT of the paper's Fig. 6: the ADC's normalized code widths with `noise` relative
+/// The LUT of the paper's Fig. 5: the ADC's normalized code widths with `noise` relative
 /// Gaussian noise per code, renormalized to sum to the code count, in f64 weights.
 pub fn noisy_weights(adc: &PipelinedAdc, noise: f64, seed: u64) -> Vec<f64> {
     let mut rng = rand::rngs::StdRng::seed_from_u64(seed);

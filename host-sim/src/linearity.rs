@@ -1,11 +1,12 @@
-//! Pixel-to-pixel gain variation and nonlinearity (de Wijn 2018, section 5, Figs. 8-9).
+//! Pixel-to-pixel gain variation and nonlinearity (de Wijn 2018, section 5, Figs. 7-8).
 //!
 //! Input: a linearity set (mean and standard-deviation frames at levels from dark to
 //! saturation, and a linear reference detector's voltage per level; `docs/formats.md`).
 //!
 //! ## Definitions
 //! - Normalized reference `x_l = V_l / max V`; the *gain level* `g` is the level whose
-//!   `x` is nearest 1/2 (the paper's 22nd of 41), level 0 is dark. A level is *expected*
+//!   `x` is nearest 1/2 (in the default 41-level set, level index 20, about 51% of
+//!   saturation; the paper's example flat, Fig. 6, is near 57%), level 0 is dark. A level is *expected*
 //!   to read the normalized intensity `e_l = (x_l - x_0) / (x_g - x_0)`.
 //! - A pixel's level is *saturated* when its mean is within `4 max(std, 0.5)` DN of the
 //!   top code, or when its temporal noise falls below half the previous level's in the
@@ -19,7 +20,7 @@
 //!
 //! ## The three corrections, per pixel `p` and level `l`, with mean `m_l(p)` DN
 //! - **raw**: `c = m_l(p) / <m_l>` (the pixel against the mean of the good pixels); its
-//!   residual is `c - 1`: the fixed-pattern structure of the paper's Fig. 8, left.
+//!   residual is `c - 1`: the fixed-pattern structure of the paper's Fig. 7, left.
 //! - **standard**: a global cubic `f` fitted to `x_l` against the median pixel's mean,
 //!   applied to every pixel, then dark and gain: `c = (f(m_l) - f(m_0)) / (f(m_g) - f(m_0))`.
 //! - **pixel-wise**: per pixel the 4th-order polynomial `m = P_p(x) = sum_k a_k x^k` fitted

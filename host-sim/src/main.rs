@@ -223,7 +223,7 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
-    /// The K-Coronagraph model (paper section 4, Figs. 5-6): polarimetric error from DN error.
+    /// The K-Coronagraph model (paper section 4, Figs. 4-5): polarimetric error from DN error.
     KcorModel {
         #[command(flatten)]
         camera: CameraArgs,
@@ -255,7 +255,7 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
-    /// Pixel-wise nonlinearity (paper section 5, Fig. 9) of a linearity set.
+    /// Pixel-wise nonlinearity (paper section 5, Fig. 8) of a linearity set.
     Linearity {
         /// The linearity set (FITS, as `simulate linearity` writes or astropy).
         file: PathBuf,

@@ -104,7 +104,7 @@ pub fn line_plot(path: &Path, title: &str, x_label: &str, y_label: &str, series:
 }
 
 /// A color map of a grid of values with contour lines, for maps such as the paper's
-/// Fig. 1 and Fig. 5.
+/// Fig. 1 and Fig. 4.
 pub struct Map<'a> {
     /// Figure title.
     pub title: &'a str,

@@ -199,10 +199,10 @@ fn report_html(s: &DemoSummary, camera: &Camera, ramp: &RampParams, flat: &Flatt
          <h3>Quantization (section 2, Fig. 1): <code>dncal quantization</code></h3><p>At this camera's read noise, {:.3} DN, the worst-case bias of an averaged readout \
          is {:.2e} DN. A bias of 0.01 DN or less needs {:.3} DN of noise.</p>\
          <figure><img src=\"quantization.png\" width=\"900\"><figcaption>|bias| over lambda mod 1 and noise, contours at 1e-1 to 1e-4 DN.</figcaption></figure>\
-         <h3>K-Coronagraph model (section 4, Figs. 5-6): <code>dncal kcor-model</code></h3><p>ADC {}, {} ms frames ({:.3e} e-/s per B_sun per pixel): the largest systematic error \
+         <h3>K-Coronagraph model (section 4, Figs. 4-5): <code>dncal kcor-model</code></h3><p>ADC {}, {} ms frames ({:.3e} e-/s per B_sun per pixel): the largest systematic error \
          in Q is {:.2e} B_sun raw and {:.2e} B_sun with a LUT from the true widths with {}% noise per code: raw / LUT = {:.1} (the paper: about 10; <code>docs/paper.md</code> discusses the difference).</p>\
          <figure><img src=\"kcor_raw.png\" width=\"900\"><figcaption>Raw ADC.</figcaption></figure><figure><img src=\"kcor_lut.png\" width=\"900\"><figcaption>With the LUT.</figcaption></figure>\
-         <h3>Pixel-wise nonlinearity (section 5, Fig. 9): <code>dncal linearity</code></h3><p>{} pixels x {} levels, {} masked. Largest RMS residual over the levels: raw {:.2e}, \
+         <h3>Pixel-wise nonlinearity (section 5, Fig. 8): <code>dncal linearity</code></h3><p>{} pixels x {} levels, {} masked. Largest RMS residual over the levels: raw {:.2e}, \
          standard correction {:.2e}, pixel-wise 4th order {:.2e}, random noise {:.2e}. Coefficients and mask: <a href=\"linearity/coefficients.fits\">coefficients.fits</a>.</p>\
          <figure><img src=\"linearity/linearity_rms.png\" width=\"1000\"><figcaption>RMS residual per level.</figcaption></figure>",
         q.sigma,

@@ -1,4 +1,4 @@
-//! `dncal kcor-model`: the K-Coronagraph model of the paper's section 4 (Figs. 5 and 6),
+//! `dncal kcor-model`: the K-Coronagraph model of the paper's section 4 (Figs. 4 and 5),
 //! without and with a LUT built through the core from a 1%-noisy histogram.
 
 use std::path::{Path, PathBuf};

@@ -1,5 +1,5 @@
 //! `dncal linearity FILE`: the paper's section 5 on a linearity set: raw, standard and
-//! pixel-wise corrections compared as RMS residual per level (Fig. 9), with the
+//! pixel-wise corrections compared as RMS residual per level (Fig. 8), with the
 //! coefficients, mask and corrected images written as FITS.
 
 use std::path::{Path, PathBuf};
@@ -57,7 +57,7 @@ pub fn linearity(input: &Path, order: usize, out_dir: Option<&Path>) -> Result<L
         };
         line_plot(
             &fig,
-            "RMS residual against normalized intensity (log10; the paper's Fig. 9)",
+            "RMS residual against normalized intensity (log10; the paper's Fig. 8)",
             "normalized intensity (reference voltage / maximum)",
             "log10 RMS",
             &[
