@@ -24,6 +24,11 @@
 //!    offset at the top code is zero and the LUT does not drift from the ideal ADC over
 //!    the full range because of normalization alone. The drift before and after is
 //!    returned; a remaining drift above [`FlattenParams::max_top_offset_dn`] is an error.
+//!    **Not in the paper**, which does not say how the cumulative sum is scaled: on the
+//!    default camera's ramps the drift before this step is +32, -8, -31 and +4 DN at the
+//!    top code (a gain error of up to 0.8%, different per ADC, which a per-pixel flat
+//!    would take out; the K-Cor tables instead pin their last entry to full scale,
+//!    `docs/kcor-luts.md`).
 //!
 //! The weights feed [`dncal_core::LutSet::from_weights`] through [`to_core_weights`];
 //! [`cumulative_offsets`] is the LUT's deviation from an ideal ADC in the core's
