@@ -95,21 +95,23 @@ impl KcorTable {
     }
 
     /// The code widths in DN (module documentation): cumulative widths rounded to the
-    /// weights' grid, widths their differences.
-    pub fn weights(&self) -> Vec<Weight> {
+    /// weights' grid, widths their differences. A step of 256 DN or more (a [`Weight`]
+    /// holds less) is an error naming the code; `path` names the file.
+    pub fn weights(&self, path: &Path) -> Result<Vec<Weight>, HostError> {
         let den = (1u128 << self.bits) - 1;
         let mut below = 0u128;
         self.entries
             .iter()
-            .map(|&e| {
+            .enumerate()
+            .map(|(k, &e)| {
+                // Non-decreasing entries (checked on parsing) give non-decreasing sums.
                 let cumulative = rne((e as u128 * FULL_SCALE_DN) << WEIGHT_FRAC_BITS, den);
-                // Non-decreasing entries give non-decreasing cumulative widths; a width of
-                // at most 4095 DN fits a U8F24 only below 256 DN, which a step of a
-                // non-decreasing table spanning 4095 DN can exceed only in a table that is
-                // flat almost everywhere: saturate rather than wrap.
-                let w = (cumulative - below).min(u32::MAX as u128) as u32;
+                let w = cumulative - below;
                 below = cumulative;
-                Weight::from_bits(w)
+                u32::try_from(w).map(Weight::from_bits).map_err(|_| HostError::Format {
+                    path: path.into(),
+                    message: format!("code {k} is {:.1} DN wide; a dncal LUT holds code widths below 256 DN", w as f64 / (1u64 << WEIGHT_FRAC_BITS) as f64),
+                })
             })
             .collect()
     }
@@ -202,7 +204,7 @@ mod tests {
             assert_eq!(*t.entries.last().unwrap(), (1 << bits) - 1);
             let back = KcorTable::parse(&t.to_bytes(), Path::new("t.bin")).unwrap();
             assert_eq!(back, t);
-            let w2 = back.weights();
+            let w2 = back.weights(Path::new("t.bin")).unwrap();
             assert_eq!(KcorTable::from_weights(&w2, bits).unwrap(), t, "bits {bits}");
             // The naive float: cumulative widths scaled to 4095 DN at the top.
             let total: f64 = weights.iter().map(|w| w.to_num::<f64>()).sum();
@@ -231,6 +233,17 @@ mod tests {
         t[4095] = (1 << 23) - 1;
         t[10] = 5;
         assert!(msg(&bytes(&t)).contains("entry 10 (5) is below entry 9"));
+        // Valid, but one code 300 DN wide: the weights refuse it rather than wrap.
+        let mut wide: Vec<u32> = (0..KCOR_CODES as u32).map(|k| k * 1800).collect();
+        for e in &mut wide[100..] {
+            *e += 300 * 2048;
+        }
+        wide[4095] = (1 << 23) - 1;
+        let t = KcorTable::parse(&bytes(&wide), p).unwrap();
+        match t.weights(p) {
+            Err(HostError::Format { message, .. }) => assert!(message.contains("code 100 is") && message.contains("below 256 DN"), "{message}"),
+            other => panic!("{other:?}"),
+        }
     }
 
     #[test]

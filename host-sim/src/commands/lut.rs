@@ -282,7 +282,7 @@ pub fn import_kcor(specs: &[String], output: &Path) -> Result<ImportSummary, Hos
     if let Some((i, t)) = tables.iter().enumerate().find(|(_, t)| t.bits != bits) {
         return Err(HostError::Format { path: inputs[i].clone(), message: format!("ends at 2^{} - 1 where ADC 0's table ends at 2^{bits} - 1: one camera's tables share a scaling", t.bits) });
     }
-    let weights: Vec<Vec<Weight>> = tables.iter().map(KcorTable::weights).collect();
+    let weights: Vec<Vec<Weight>> = tables.iter().zip(&inputs).map(|(t, p)| t.weights(p)).collect::<Result<_, _>>()?;
     let (ours, image) = tables_from_weights(&weights, &inputs[0])?;
     let unit = 4095.0 / ((1u64 << bits) - 1) as f64;
     let adcs = tables
