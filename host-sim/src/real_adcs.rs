@@ -127,18 +127,45 @@ fn stage_row(stages: &[u32], code: usize, x: f64) -> Vec<f64> {
     row
 }
 
+/// `x = k / 4095` of code k.
+fn x(k: usize) -> f64 {
+    k as f64 / (KCOR_CODES - 1) as f64
+}
+
+/// A table's cubic trend and what it leaves (module documentation).
+struct Detrended {
+    /// The cubic's coefficients, DN.
+    c: [f64; 4],
+    /// `r_k`, k in 151..=4094.
+    dn_error: Vec<f64>,
+    /// `o_k`, k in 150..=4094.
+    offsets: Vec<f64>,
+}
+
+impl Detrended {
+    fn of(table: &KcorTable) -> Detrended {
+        let unit = (KCOR_CODES - 1) as f64 / ((1u64 << table.bits) - 1) as f64;
+        let t: Vec<f64> = table.entries.iter().map(|&e| e as f64 * unit).collect();
+        let cal = FIRST_CALIBRATED..=LAST_CALIBRATED;
+        let rows: Vec<Vec<f64>> = cal.clone().map(|k| (0..4).map(|p| x(k).powi(p)).collect()).collect();
+        let ys: Vec<f64> = cal.clone().map(|k| t[k]).collect();
+        let c = lstsq(&rows, &ys).map_or([0.0; 4], |c| [c[0], c[1], c[2], c[3]]);
+        let dn_error = (FIRST_CALIBRATED + 1..=LAST_CALIBRATED).map(|k| (t[k] - t[k - 1]) / (cubic(&c, k) - cubic(&c, k - 1)) - 1.0).collect();
+        let offsets = cal.map(|k| t[k] - cubic(&c, k)).collect();
+        Detrended { c, dn_error, offsets }
+    }
+}
+
+/// The cubic `c` at code k, DN.
+fn cubic(c: &[f64; 4], k: usize) -> f64 {
+    c[0] + c[1] * x(k) + c[2] * x(k).powi(2) + c[3] * x(k).powi(3)
+}
+
 /// Characterizes one table.
 pub fn characterize(table: &KcorTable, camera: &str, adc: usize) -> RealAdc {
-    let unit = (KCOR_CODES - 1) as f64 / ((1u64 << table.bits) - 1) as f64;
-    let t: Vec<f64> = table.entries.iter().map(|&e| e as f64 * unit).collect();
-    let x = |k: usize| k as f64 / (KCOR_CODES - 1) as f64;
     let cal: Vec<usize> = (FIRST_CALIBRATED..=LAST_CALIBRATED).collect();
-    let rows: Vec<Vec<f64>> = cal.iter().map(|&k| (0..4).map(|p| x(k).powi(p)).collect()).collect();
-    let ys: Vec<f64> = cal.iter().map(|&k| t[k]).collect();
-    let c = lstsq(&rows, &ys).unwrap_or_else(|| vec![0.0; 4]);
-    let trend = |k: usize| c[0] + c[1] * x(k) + c[2] * x(k).powi(2) + c[3] * x(k).powi(3);
-    let dn_error: Vec<f64> = (FIRST_CALIBRATED + 1..=LAST_CALIBRATED).map(|k| (t[k] - t[k - 1]) / (trend(k) - trend(k - 1)) - 1.0).collect();
-    let offsets: Vec<f64> = cal.iter().map(|&k| t[k] - trend(k)).collect();
+    let Detrended { c, dn_error, offsets } = Detrended::of(table);
+    let trend = |k: usize| cubic(&c, k);
     let mut worst: Vec<(usize, f64)> = dn_error.iter().enumerate().map(|(i, &r)| (i + FIRST_CALIBRATED + 1, 100.0 * r)).collect();
     worst.sort_by(|a, b| b.1.abs().total_cmp(&a.1.abs()));
     worst.truncate(5);
@@ -236,9 +263,8 @@ pub fn correlation(a: &[f64], b: &[f64]) -> f64 {
 /// The code widths of a real ADC for the camera model: 1 outside the calibrated codes,
 /// `1 + r_k` inside (the table's DN error without its trend), normalized to mean 1.
 pub fn model_widths(table: &KcorTable) -> Vec<f64> {
-    let a = characterize(table, "", 0);
     let mut w = vec![1.0; KCOR_CODES];
-    for (i, r) in a.dn_error.iter().enumerate() {
+    for (i, r) in Detrended::of(table).dn_error.iter().enumerate() {
         w[FIRST_CALIBRATED + 1 + i] = 1.0 + r;
     }
     let m = mean(&w);
