@@ -154,18 +154,6 @@ pub fn demodulation() -> [[f64; 4]; 3] {
     out
 }
 
-/// Mean readouts of one exposure: raw code and LUT value, DN; and the raw standard
-/// deviation, DN.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Readout {
-    /// `sum_k p_k k`.
-    pub raw: f64,
-    /// `sum_k p_k LUT_k`.
-    pub lut: f64,
-    /// Standard deviation of the raw code.
-    pub raw_std: f64,
-}
-
 /// The result of a run over the (I, Q) grid.
 #[derive(Debug, Clone, Serialize)]
 pub struct KcorResult {
@@ -199,6 +187,13 @@ pub struct KcorResult {
     pub max_abs_sys_err_bsun_lut: f64,
     /// Their ratio.
     pub reduction: f64,
+    /// RMS of dQ over the grid without the LUT, B_sun: the map's amplitude where a few
+    /// cells do not dominate it.
+    pub rms_sys_err_bsun_raw: f64,
+    /// The same with the LUT.
+    pub rms_sys_err_bsun_lut: f64,
+    /// Their ratio.
+    pub rms_reduction: f64,
     /// Raw readout noise of one frame at the flat, DN.
     pub flat_readout_std_dn: f64,
 }
@@ -218,6 +213,14 @@ pub fn noisy_weights(adc: &PipelinedAdc, noise: f64, seed: u64) -> Vec<f64> {
 /// Runs the model for `adc` of `camera` (its nonlinearity is ignored) with LUT values
 /// `lut` (DN per code, e.g. the core's entries / 2^11).
 pub fn run(camera: &Camera, adc: &PipelinedAdc, lut: &[f64], p: &KcorParams) -> KcorResult {
+    let mut all = run_luts(camera, adc, &[lut], p);
+    all.swap_remove(0)
+}
+
+/// [`run`] for several LUTs at once (e.g. noise realizations): the code PMFs, which cost
+/// nearly all of a run, are computed once per grid cell and shared. One result per LUT,
+/// in order; the raw fields are the same in all.
+pub fn run_luts(camera: &Camera, adc: &PipelinedAdc, luts: &[&[f64]], p: &KcorParams) -> Vec<KcorResult> {
     let cfg = &camera.config;
     let phi = p.electrons_per_s_per_bsun();
     let per_bsun_e = phi * p.exposure_s; // e- per B_sun of unpolarized light, before the analyzer
@@ -230,67 +233,78 @@ pub fn run(camera: &Camera, adc: &PipelinedAdc, lut: &[f64], p: &KcorParams) -> 
     let n = p.steps.max(2);
     let delta = i_max / n as f64;
     let delta_q = p.q_fraction * i_max / n as f64;
-    let readout = |state_bsun: f64| -> Readout {
+    let m = luts.len();
+    // Mean readout of a state: raw first, then one per LUT.
+    let readout = |state_bsun: f64| -> (Vec<f64>, f64) {
         let pmf = camera.code_pmf(adc, cfg.dark_e + per_bsun_e * state_bsun, &[]);
-        Readout { raw: pmf.mean(), lut: pmf.expect(|k| lut[k]), raw_std: pmf.variance().sqrt() }
+        let means = std::iter::once(pmf.mean()).chain(luts.iter().map(|lut| pmf.expect(|k| lut[k]))).collect();
+        (means, pmf.variance().sqrt())
     };
-    let dark = readout(0.0);
+    let (dark, _) = readout(0.0);
     // The flat: unpolarized, I_flat = flat_fraction I_max; every state sees I_flat / 2.
     let flat_state_bsun = p.flat_fraction * i_max / 2.0;
-    let flat = readout(flat_state_bsun);
+    let (flat, flat_std) = readout(flat_state_bsun);
     let demod = demodulation();
     let calibrate = |o: f64, d: f64, f: f64| (o - d) / (f - d) * flat_state_bsun;
-    let stokes = |s: &[f64; 4]| -> [f64; 3] {
-        let mut out = [0.0; 3];
-        for (r, o) in out.iter_mut().enumerate() {
-            *o = (0..4).map(|c| demod[r][c] * s[c]).sum();
-        }
-        out
-    };
     let i_grid: Vec<f64> = (0..=n).map(|i| i as f64 * delta).collect();
     let q_grid: Vec<f64> = (0..=2 * n).map(|j| (j as f64 - n as f64) * delta_q).collect();
-    // Per grid point: (dQ raw, dQ LUT, |dI| raw, |dI| LUT); NaN where |Q| > I.
-    let cells: Vec<Vec<[f64; 4]>> = q_grid
+    // Per grid point and per readout (raw, then the LUTs): (dQ, |dI|); NaN where |Q| > I.
+    let cells: Vec<Vec<Vec<(f64, f64)>>> = q_grid
         .par_iter()
         .map(|&qv| {
             i_grid
                 .iter()
                 .map(|&iv| {
                     if qv.abs() > iv * (1.0 + 1e-12) {
-                        return [f64::NAN; 4];
+                        return vec![(f64::NAN, f64::NAN); m + 1];
                     }
-                    let states: Vec<f64> = MODULATION.iter().map(|row| row[0] * iv + row[1] * qv).collect();
-                    let o: Vec<Readout> = states.iter().map(|&x| readout(x)).collect();
-                    let s_raw = [0, 1, 2, 3].map(|k| calibrate(o[k].raw, dark.raw, flat.raw));
-                    let s_lut = [0, 1, 2, 3].map(|k| calibrate(o[k].lut, dark.lut, flat.lut));
-                    let (sr, sl) = (stokes(&s_raw), stokes(&s_lut));
-                    [sr[1] - qv, sl[1] - qv, (sr[0] - iv).abs(), (sl[0] - iv).abs()]
+                    let o: Vec<Vec<f64>> = MODULATION.iter().map(|row| readout(row[0] * iv + row[1] * qv).0).collect();
+                    (0..=m)
+                        .map(|r| {
+                            let s = [0, 1, 2, 3].map(|k| calibrate(o[k][r], dark[r], flat[r]));
+                            let stokes = |row: usize| (0..4).map(|c| demod[row][c] * s[c]).sum::<f64>();
+                            (stokes(1) - qv, (stokes(0) - iv).abs())
+                        })
+                        .collect()
                 })
                 .collect()
         })
         .collect();
-    let grid = |c: usize| -> Vec<Vec<f64>> { cells.iter().map(|row| row.iter().map(|x| x[c]).collect()).collect() };
-    let (dq_raw, dq_lut) = (grid(0), grid(1));
-    let max_of = |c: usize| cells.iter().flatten().map(|x| x[c]).filter(|x| x.is_finite()).fold(0.0f64, f64::max);
-    let (max_di_raw, max_di_lut) = (max_of(2), max_of(3));
+    let grid = |r: usize| -> Vec<Vec<f64>> { cells.iter().map(|row| row.iter().map(|x| x[r].0).collect()).collect() };
+    let max_di = |r: usize| cells.iter().flatten().map(|x| x[r].1).filter(|x| x.is_finite()).fold(0.0f64, f64::max);
     let max_abs = |g: &[Vec<f64>]| g.iter().flatten().filter(|x| x.is_finite()).fold(0.0f64, |m, x| m.max(x.abs()));
-    let (raw, lutm) = (max_abs(&dq_raw), max_abs(&dq_lut));
-    KcorResult {
-        params: p.clone(),
-        electrons_per_s_per_bsun: phi,
-        bsun_per_dn: cfg.gain_e_per_dn / per_bsun_e,
-        i_max_bsun: i_grid.last().copied().unwrap_or(0.0),
-        i_bsun: i_grid,
-        q_bsun: q_grid,
-        dq_raw,
-        dq_lut,
-        max_abs_di_raw: max_di_raw,
-        max_abs_di_lut: max_di_lut,
-        max_abs_sys_err_bsun_raw: raw,
-        max_abs_sys_err_bsun_lut: lutm,
-        reduction: if lutm > 0.0 { raw / lutm } else { f64::INFINITY },
-        flat_readout_std_dn: flat.raw_std,
-    }
+    let rms = |g: &[Vec<f64>]| {
+        let (s, n) = g.iter().flatten().filter(|x| x.is_finite()).fold((0.0f64, 0usize), |(s, n), x| (s + x * x, n + 1));
+        if n == 0 { 0.0 } else { (s / n as f64).sqrt() }
+    };
+    let ratio = |a: f64, b: f64| if b > 0.0 { a / b } else { f64::INFINITY };
+    let dq_raw = grid(0);
+    let (raw, rms_raw, max_di_raw) = (max_abs(&dq_raw), rms(&dq_raw), max_di(0));
+    (1..=m)
+        .map(|r| {
+            let dq_lut = grid(r);
+            let (lutm, rms_lut) = (max_abs(&dq_lut), rms(&dq_lut));
+            KcorResult {
+                params: p.clone(),
+                electrons_per_s_per_bsun: phi,
+                bsun_per_dn: cfg.gain_e_per_dn / per_bsun_e,
+                i_max_bsun: i_grid.last().copied().unwrap_or(0.0),
+                i_bsun: i_grid.clone(),
+                q_bsun: q_grid.clone(),
+                dq_raw: dq_raw.clone(),
+                dq_lut,
+                max_abs_di_raw: max_di_raw,
+                max_abs_di_lut: max_di(r),
+                max_abs_sys_err_bsun_raw: raw,
+                max_abs_sys_err_bsun_lut: lutm,
+                reduction: ratio(raw, lutm),
+                rms_sys_err_bsun_raw: rms_raw,
+                rms_sys_err_bsun_lut: rms_lut,
+                rms_reduction: ratio(rms_raw, rms_lut),
+                flat_readout_std_dn: flat_std,
+            }
+        })
+        .collect()
 }
 
 #[cfg(test)]
@@ -341,6 +355,42 @@ mod tests {
         let r = run(&cam, &adc, &lut, &KcorParams { steps: 20, ..Default::default() });
         assert!(r.max_abs_sys_err_bsun_raw < 1e-9 * r.bsun_per_dn, "{}", r.max_abs_sys_err_bsun_raw);
         assert!(r.max_abs_di_raw < 1e-9 * r.bsun_per_dn);
+    }
+
+    #[test]
+    fn a_dark_level_below_the_corrected_codes_gives_an_error_proportional_to_q() {
+        // The paper's recipe leaves the codes below 150 uncorrected. Planted: an ideal ADC
+        // and a LUT that is the identity plus delta DN from code 150 on, so the dark
+        // (69 DN) reads uncorrected codes and the flat and the signal corrected ones. The
+        // calibration then gives s_i = (O_i + delta - D) / (F + delta - D) s_F, so
+        // dQ = -Q delta / (F - D + delta) exactly, wherever every state is well above 150.
+        let cam = camera();
+        let adc = PipelinedAdc::ideal(12);
+        let delta = 0.4;
+        let lut: Vec<f64> = (0..4096).map(|k| k as f64 + if k >= 150 { delta } else { 0.0 }).collect();
+        let p = KcorParams { steps: 20, ..Default::default() };
+        let r = run(&cam, &adc, &lut, &p);
+        let cfg = &cam.config;
+        let per_bsun_dn = p.electrons_per_s_per_bsun() * p.exposure_s / cfg.gain_e_per_dn;
+        let dark = cfg.dark_e / cfg.gain_e_per_dn + cfg.offset_dn;
+        assert!(dark + 9.0 * cfg.read_noise_e / cfg.gain_e_per_dn < 150.0, "the dark must read uncorrected codes");
+        let f_minus_d = per_bsun_dn * p.flat_fraction * r.i_max_bsun / 2.0;
+        let mut checked = 0;
+        for (jq, q) in r.q_bsun.iter().enumerate() {
+            for (i, ib) in r.i_bsun.iter().enumerate() {
+                let lowest = dark + per_bsun_dn * (ib - q.abs()) / 2.0;
+                if r.dq_lut[jq][i].is_nan() || lowest < 250.0 {
+                    continue;
+                }
+                let want = -q * delta / (f_minus_d + delta);
+                let got = r.dq_lut[jq][i];
+                assert!((got - want).abs() <= 1e-3 * want.abs() + 1e-6 * r.bsun_per_dn, "I {ib} Q {q}: {got} vs {want}");
+                checked += 1;
+            }
+        }
+        assert!(checked > 100, "{checked} cells");
+        // The raw readout of an ideal ADC has no such error.
+        assert!(r.max_abs_sys_err_bsun_raw < 1e-6 * r.bsun_per_dn);
     }
 
     #[test]

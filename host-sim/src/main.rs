@@ -248,6 +248,10 @@ enum Cmd {
         /// Seed of that noise.
         #[arg(long, default_value_t = 2018)]
         seed: u64,
+        /// Noise realizations of the LUT (seeds SEED, SEED+1, ...): the reduction's spread
+        /// over draws; the figures show the first.
+        #[arg(long, default_value_t = 1)]
+        realizations: usize,
         /// Folder for the figures kcor_raw.png and kcor_lut.png.
         #[arg(short, long)]
         out: Option<PathBuf>,
@@ -736,10 +740,10 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
                 t
             })?;
         }
-        Cmd::KcorModel { camera, adc, exposure_ms, steps, lut_noise, lut, q_fraction, seed, out, json } => {
+        Cmd::KcorModel { camera, adc, exposure_ms, steps, lut_noise, lut, q_fraction, seed, realizations, out, json } => {
             let cam = camera.camera()?;
             let p = dncal_host::kcor::KcorParams { adc, exposure_s: exposure_ms * 1e-3, steps, lut_noise, q_fraction, seed, ..Default::default() };
-            let s = kcor::kcor_model(&cam, &p, lut.as_deref(), out.as_deref())?;
+            let s = kcor::kcor_model(&cam, &p, lut.as_deref(), realizations, out.as_deref())?;
             print(json, &s, |s| {
                 let r = &s.result;
                 let mut t = format!(
@@ -750,6 +754,23 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
                     "max |systematic error in Q|: {:.3e} B_sun raw, {:.3e} B_sun with the LUT ({}): {:.1}x less\n",
                     r.max_abs_sys_err_bsun_raw, r.max_abs_sys_err_bsun_lut, s.lut_source, r.reduction
                 );
+                t += &format!(
+                    "rms  |systematic error in Q|: {:.3e} B_sun raw, {:.3e} B_sun with the LUT: {:.1}x less\n",
+                    r.rms_sys_err_bsun_raw, r.rms_sys_err_bsun_lut, r.rms_reduction
+                );
+                if !s.realizations.is_empty() {
+                    let spread = |f: fn(&kcor::Realization) -> f64| {
+                        let mut v: Vec<f64> = s.realizations.iter().map(f).collect();
+                        v.sort_by(f64::total_cmp);
+                        (v[0], v[v.len() / 2], v[v.len() - 1])
+                    };
+                    let (a, b, c) = spread(|x| x.reduction);
+                    let (d, e, f) = spread(|x| x.rms_reduction);
+                    t += &format!(
+                        "over {} noise realizations: reduction of max |dQ| {a:.2}x / {b:.2}x / {c:.2}x, of rms dQ {d:.2}x / {e:.2}x / {f:.2}x (min / median / max)\n",
+                        s.realizations.len()
+                    );
+                }
                 t + &wrote(&s.figures)
             })?;
         }

@@ -509,6 +509,21 @@ fn kcor_model_reports_raw_and_lut_errors() {
     }
     assert_clean_failure(&dncal(&["kcor-model", "--adc", "7"], d), "--adc", "ADC 7");
     assert_clean_failure(&dncal(&["kcor-model", "--lut", "missing.fits"], d), "missing.fits", "No such file");
+    // Realizations share the PMFs but not the LUTs: each row is what a single run with
+    // its seed gives.
+    let many = stdout_json(&dncal(&["kcor-model", "--steps", "20", "--realizations", "3", "--json"], d));
+    let rows = many["realizations"].as_array().unwrap();
+    assert_eq!(rows.len(), 3);
+    for (i, seed) in [(0, "2018"), (2, "2020")] {
+        let one = stdout_json(&dncal(&["kcor-model", "--steps", "20", "--seed", seed, "--json"], d));
+        assert_eq!(rows[i]["seed"].as_u64().unwrap().to_string(), seed);
+        for key in ["max_abs_sys_err_bsun_lut", "rms_sys_err_bsun_lut", "reduction"] {
+            assert_eq!(rows[i][key], one[key], "seed {seed}, {key}");
+        }
+    }
+    assert_ne!(rows[0]["max_abs_sys_err_bsun_lut"], rows[1]["max_abs_sys_err_bsun_lut"], "draws differ");
+    assert_clean_failure(&dncal(&["kcor-model", "--realizations", "0"], d), "--realizations", "at least 1");
+    assert_clean_failure(&dncal(&["kcor-model", "--realizations", "2", "--lut", "x.fits"], d), "--realizations", "not with --lut");
 }
 
 #[test]

@@ -86,7 +86,7 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
     let quantization = crate::commands::quantization::at_sigma(camera.config.read_noise_e / camera.config.gain_e_per_dn, 100_000, 1)?;
     pb.inc(1);
     let kp = KcorParams { adc: camera.adcs.len().min(4) - 1, steps: 50, ..Default::default() };
-    let kcor = crate::commands::kcor::kcor_model(camera, &kp, None, Some(out_dir))?;
+    let kcor = crate::commands::kcor::kcor_model(camera, &kp, None, 1, Some(out_dir))?;
     pb.inc(1);
     let lin_path = at("linearity.fits");
     crate::commands::simulate::simulate_linearity(camera, &LinearityParams::paper(camera), lin_path.clone())?;

@@ -8,7 +8,7 @@ use serde::Serialize;
 use crate::camera::Camera;
 use crate::commands::lut::{inspect, tables_from_weights};
 use crate::flatten::to_core_weights;
-use crate::kcor::{noisy_weights, run, KcorParams, KcorResult};
+use crate::kcor::{noisy_weights, run_luts, KcorParams, KcorResult};
 use crate::plots::{map_plot, Map};
 use crate::HostError;
 
@@ -20,19 +20,48 @@ pub struct KcorSummary {
     pub result: KcorResult,
     /// Where the LUT came from.
     pub lut_source: String,
+    /// With `realizations > 1` (the paper's noisy LUT only): one row per noise seed, the
+    /// first being the run above. A single realization's reduction is one draw of a
+    /// random variable; this is its spread.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub realizations: Vec<Realization>,
     /// Figures written.
     pub figures: Vec<PathBuf>,
+}
+
+/// One noise realization of the paper's LUT.
+#[derive(Debug, Clone, Serialize)]
+pub struct Realization {
+    /// Seed of the per-code noise.
+    pub seed: u64,
+    /// max |dQ| with this LUT, B_sun.
+    pub max_abs_sys_err_bsun_lut: f64,
+    /// rms dQ over the grid with this LUT, B_sun.
+    pub rms_sys_err_bsun_lut: f64,
+    /// Raw over LUT, max |dQ|.
+    pub reduction: f64,
+    /// Raw over LUT, rms dQ.
+    pub rms_reduction: f64,
 }
 
 /// Runs the model on ADC `p.adc` of `camera` and, with `out_dir`, writes
 /// `kcor_raw.png` and `kcor_lut.png`. The LUT is the table of that ADC in `lut_file` (a
 /// LUT FITS or device image, e.g. from `dncal adc` on measured histograms) or, without
-/// it, the paper's: the ADC's true widths with `p.lut_noise` relative noise per code.
-pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, out_dir: Option<&Path>) -> Result<KcorSummary, HostError> {
+/// it, the paper's: the ADC's true widths with `p.lut_noise` relative noise per code, in
+/// `realizations` draws (seeds `p.seed`, `p.seed + 1`, ...; the figures show the first).
+pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, realizations: usize, out_dir: Option<&Path>) -> Result<KcorSummary, HostError> {
     let adc = camera.adcs.get(p.adc).ok_or_else(|| HostError::Format { path: "--adc".into(), message: format!("ADC {} does not exist; the camera has {}", p.adc, camera.adcs.len()) })?;
     if !(p.exposure_s > 0.0 && p.exposure_s.is_finite() && p.fill > 0.0 && p.fill <= 1.0 && p.lut_noise >= 0.0 && p.flat_fraction > 0.0 && p.flat_fraction <= 1.0 && p.q_fraction > 0.0 && p.q_fraction <= 1.0) {
         return Err(HostError::Format { path: "arguments".into(), message: "need exposure > 0, 0 < fill <= 1, 0 < flat fraction <= 1, 0 < q fraction <= 1 and LUT noise >= 0".into() });
     }
+    if realizations == 0 || (realizations > 1 && lut_file.is_some()) {
+        return Err(HostError::Format { path: "--realizations".into(), message: "need at least 1, and more than 1 only for the noisy LUT (not with --lut)".into() });
+    }
+    let noisy_table = |seed: u64| -> Result<Vec<u32>, HostError> {
+        let source = Path::new("K-Cor LUT weights");
+        let w = to_core_weights(&noisy_weights(adc, p.lut_noise, seed)).map_err(|e| HostError::Format { path: source.into(), message: e.to_string() })?;
+        Ok(tables_from_weights(&[w], source)?.0.remove(0))
+    };
     let entries: Vec<u32> = match lut_file {
         Some(path) => {
             let l = inspect(path)?;
@@ -42,14 +71,30 @@ pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, out_
             }
             table.entries
         }
-        None => {
-            let source = Path::new("K-Cor LUT weights");
-            let w = to_core_weights(&noisy_weights(adc, p.lut_noise, p.seed)).map_err(|e| HostError::Format { path: source.into(), message: e.to_string() })?;
-            tables_from_weights(&[w], source)?.0.remove(0)
-        }
+        None => noisy_table(p.seed)?,
     };
-    let lut: Vec<f64> = entries.iter().map(|&e| e as f64 / 2048.0).collect();
-    let result = run(camera, adc, &lut, p);
+    let mut luts: Vec<Vec<f64>> = vec![entries.iter().map(|&e| e as f64 / 2048.0).collect()];
+    for r in 1..realizations as u64 {
+        luts.push(noisy_table(p.seed.wrapping_add(r))?.iter().map(|&e| e as f64 / 2048.0).collect());
+    }
+    let lut_refs: Vec<&[f64]> = luts.iter().map(|l| l.as_slice()).collect();
+    let mut results = run_luts(camera, adc, &lut_refs, p);
+    let realizations: Vec<Realization> = if realizations > 1 {
+        results
+            .iter()
+            .enumerate()
+            .map(|(r, x)| Realization {
+                seed: p.seed.wrapping_add(r as u64),
+                max_abs_sys_err_bsun_lut: x.max_abs_sys_err_bsun_lut,
+                rms_sys_err_bsun_lut: x.rms_sys_err_bsun_lut,
+                reduction: x.reduction,
+                rms_reduction: x.rms_reduction,
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let result = results.swap_remove(0);
     let mut figures = Vec::new();
     if let Some(dir) = out_dir {
         std::fs::create_dir_all(dir).map_err(|e| HostError::io(dir, e))?;
@@ -80,5 +125,5 @@ pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, out_
         Some(f) => f.display().to_string(),
         None => format!("true code widths with {}% Gaussian noise per code", 100.0 * p.lut_noise),
     };
-    Ok(KcorSummary { result, lut_source, figures })
+    Ok(KcorSummary { result, lut_source, realizations, figures })
 }
