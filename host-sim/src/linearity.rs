@@ -82,8 +82,20 @@ pub struct LinearityReport {
     pub rms_standard: Vec<f64>,
     /// RMS residual per level, pixel-wise correction (NaN at dark and gain).
     pub rms_pixelwise: Vec<f64>,
-    /// Propagated random noise per level (NaN at dark and gain).
+    /// Propagated random noise per level (NaN at dark and gain): the frames' standard
+    /// deviations over sqrt(N) of the level, the flat and the dark, through the linear dark
+    /// and gain correction.
     pub rms_random: Vec<f64>,
+    /// The paper's three dashed curves of Fig. 8. Raw: `s_l / <m_l>`.
+    pub rms_random_raw: Vec<f64>,
+    /// Standard: through the global cubic's slope, dark and gain.
+    pub rms_random_standard: Vec<f64>,
+    /// Pixel-wise: through the inverse polynomial's slope `1 / P_p'`, dark and gain.
+    pub rms_random_pixelwise: Vec<f64>,
+    /// The level's own noise alone, `s_l / (m_g - m_0)`, without the flat's and dark's:
+    /// the part that averages away over levels (the flat's and dark's noise is one fixed
+    /// error per pixel, repeated at every level, growing as `c` and `1 - c`).
+    pub rms_random_level_only: Vec<f64>,
     /// max over levels of `rms_raw`.
     pub rms_raw_max: f64,
     /// max over levels of `rms_standard`.
@@ -298,7 +310,7 @@ pub fn analyze(set: &LinearitySet, order: usize) -> (LinearityReport, PixelResul
         .collect();
     // Per level statistics.
     let nan_unless = |cond: bool, v: f64| if cond { v } else { f64::NAN };
-    let level_stats: Vec<[f64; 4]> = (0..nl)
+    let level_stats: Vec<[f64; 8]> = (0..nl)
         .into_par_iter()
         .map(|l| {
             let pix: Vec<usize> = good.iter().copied().filter(|&p| l < valid[p]).collect();
@@ -307,19 +319,42 @@ pub fn analyze(set: &LinearitySet, order: usize) -> (LinearityReport, PixelResul
             let std = rms_of(pix.iter().map(|&p| (f(m(l, p)) - f(m(0, p))) / (f(m(g, p)) - f(m(0, p))) - e[l]));
             let pw = rms_of(pix.iter().map(|&p| corrected_raw[l * np + p] - e[l]));
             let nf = f64::from(set.n_frames.max(1)).sqrt();
-            let random = rms_of(pix.iter().map(|&p| {
-                let d = m(g, p) - m(0, p);
-                let c = (m(l, p) - m(0, p)) / d;
-                let (sl, sg, s0) = (sd(l, p) / nf, sd(g, p) / nf, sd(0, p) / nf);
-                (sl * sl + (c * sg).powi(2) + ((1.0 - c) * s0).powi(2)).sqrt() / d
-            }));
+            // Propagation of `s_l, s_g, s_0` through `c = (y_l - y_0) / (y_g - y_0)`, where
+            // `y = h(m)` is what a correction makes of a mean and `h'` its slope.
+            let propagated = |h: &dyn Fn(usize, usize) -> (f64, f64), p: usize| {
+                let ((yl, dl), (yg, dg), (y0, d0)) = (h(l, p), h(g, p), h(0, p));
+                let c = (yl - y0) / (yg - y0);
+                let (sl, sg, s0) = (dl * sd(l, p) / nf, dg * sd(g, p) / nf, d0 * sd(0, p) / nf);
+                (sl * sl + (c * sg).powi(2) + ((1.0 - c) * s0).powi(2)).sqrt() / (yg - y0)
+            };
+            let identity = |l: usize, p: usize| (m(l, p), 1.0);
+            let standard = |l: usize, p: usize| (f(m(l, p)), poly_slope(&global, m(l, p) / top) / top);
+            let pixelwise = |l: usize, p: usize| {
+                let xh = xhat[l * np + p];
+                (xh, 1.0 / poly_slope(&fits[p].0, xh))
+            };
+            let random = rms_of(pix.iter().map(|&p| propagated(&identity, p)));
+            let random_standard = rms_of(pix.iter().map(|&p| propagated(&standard, p)));
+            let random_pixelwise = rms_of(pix.iter().map(|&p| propagated(&pixelwise, p)));
+            let random_raw = rms_of(pix.iter().map(|&p| sd(l, p) / nf / mean_l));
+            let random_level_only = rms_of(pix.iter().map(|&p| sd(l, p) / nf / (m(g, p) - m(0, p))));
             let calibrated = l != 0 && l != g;
-            [nan_unless(l != 0, raw), nan_unless(calibrated, std), nan_unless(calibrated, pw), nan_unless(calibrated, random)]
+            [
+                nan_unless(l != 0, raw),
+                nan_unless(calibrated, std),
+                nan_unless(calibrated, pw),
+                nan_unless(calibrated, random),
+                nan_unless(l != 0, random_raw),
+                nan_unless(calibrated, random_standard),
+                nan_unless(calibrated, random_pixelwise),
+                nan_unless(l != 0, random_level_only),
+            ]
         })
         .collect();
     let col = |i: usize| -> Vec<f64> { level_stats.iter().map(|s| s[i]).collect() };
     let maxf = |v: &[f64]| v.iter().filter(|x| x.is_finite()).fold(0.0f64, |a, &b| a.max(b));
     let (rms_raw, rms_standard, rms_pixelwise, rms_random) = (col(0), col(1), col(2), col(3));
+    let (rms_random_raw, rms_random_standard, rms_random_pixelwise, rms_random_level_only) = (col(4), col(5), col(6), col(7));
     // Outputs: coefficients, and the pixel-wise corrected cube with masked pixels filled.
     let mut coeffs = vec![f64::NAN; (order + 1) * np];
     for (p, (a, _)) in fits.iter().enumerate() {
@@ -343,6 +378,10 @@ pub fn analyze(set: &LinearitySet, order: usize) -> (LinearityReport, PixelResul
         rms_standard,
         rms_pixelwise,
         rms_random,
+        rms_random_raw,
+        rms_random_standard,
+        rms_random_pixelwise,
+        rms_random_level_only,
         masked_pixels: mask.iter().filter(|&&m| m != 0).count(),
         order,
         global_coefficients: global,
@@ -465,7 +504,15 @@ mod tests {
             let s: f64 = 2.0 / 16.0;
             let want = (s * s * (1.0 + c * c + (1.0 - c).powi(2))).sqrt() / d;
             assert!((r.rms_random[l] - want).abs() < 1e-12, "level {l}");
+            // Linear pixels: the pixel-wise inverse has slope 1/3000 per DN and the
+            // corrections' curves are the linear one; raw is s over the level's mean; the
+            // level alone is s / (m_g - m_0).
+            assert!((r.rms_random_pixelwise[l] - want).abs() < 1e-9 * want, "level {l}: {}", r.rms_random_pixelwise[l]);
+            let mean = 100.0 + 3000.0 * l as f64 / 40.0;
+            assert!((r.rms_random_raw[l] - s / mean).abs() < 1e-12, "level {l}");
+            assert!((r.rms_random_level_only[l] - s / d).abs() < 1e-12, "level {l}");
         }
         assert!(r.rms_random[0].is_nan() && r.rms_random[20].is_nan());
+        assert!(r.rms_random_standard[20].is_nan() && r.rms_random_raw[0].is_nan());
     }
 }

@@ -6,6 +6,7 @@ use std::path::Path;
 use std::sync::Once;
 
 use plotters::prelude::*;
+use plotters::element::DashedPathElement;
 use plotters::style::{register_font, FontStyle};
 
 use crate::fits::write_file_atomically;
@@ -47,6 +48,13 @@ fn plot_err(path: &Path, e: impl std::fmt::Display) -> HostError {
 /// A line plot of `series` (stacked in `panels` vertically when given more than one
 /// panel: series `i` goes to panel `i % panels`), written atomically as a PNG.
 pub fn line_plot(path: &Path, title: &str, x_label: &str, y_label: &str, series: &[Series], panels: usize) -> Result<(), HostError> {
+    line_plot_paired(path, title, x_label, y_label, series, panels, series.len())
+}
+
+/// [`line_plot`] where the series from index `dashed_from` on are drawn dashed, in the
+/// colors of the first ones (series `dashed_from + i` pairs with series `i`): a quantity
+/// and its reference, as the paper's Fig. 8 draws each RMS and its random noise.
+pub fn line_plot_paired(path: &Path, title: &str, x_label: &str, y_label: &str, series: &[Series], panels: usize, dashed_from: usize) -> Result<(), HostError> {
     ensure_font();
     let panels = panels.max(1);
     let (width, height) = (1000u32, 260 * panels as u32 + 60);
@@ -83,12 +91,22 @@ pub fn line_plot(path: &Path, title: &str, x_label: &str, y_label: &str, series:
                 .draw()
                 .map_err(|e| plot_err(path, e))?;
             for (i, s) in mine {
-                let color = COLORS[i % COLORS.len()];
-                chart
-                    .draw_series(LineSeries::new(s.points.iter().copied().filter(|(x, y)| x.is_finite() && y.is_finite()), color.stroke_width(1)))
-                    .map_err(|e| plot_err(path, e))?
-                    .label(s.label.clone())
-                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2)));
+                let points = s.points.iter().copied().filter(|(x, y)| x.is_finite() && y.is_finite());
+                if i >= dashed_from {
+                    let color = COLORS[(i - dashed_from) % COLORS.len()];
+                    chart
+                        .draw_series(DashedLineSeries::new(points, 6, 4, color.stroke_width(1)))
+                        .map_err(|e| plot_err(path, e))?
+                        .label(s.label.clone())
+                        .legend(move |(x, y)| DashedPathElement::new(vec![(x, y), (x + 18, y)], 4, 3, color.stroke_width(2)));
+                } else {
+                    let color = COLORS[i % COLORS.len()];
+                    chart
+                        .draw_series(LineSeries::new(points, color.stroke_width(1)))
+                        .map_err(|e| plot_err(path, e))?
+                        .label(s.label.clone())
+                        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2)));
+                }
             }
             chart
                 .configure_series_labels()

@@ -8,7 +8,7 @@ use serde::Serialize;
 
 use crate::fits::{read_linearity, write_cube, write_pixel_correction, PixelCorrection};
 use crate::linearity::{analyze, LinearityReport, MAX_ORDER};
-use crate::plots::{line_plot, Series};
+use crate::plots::{line_plot_paired, Series};
 use crate::HostError;
 
 /// What `linearity` prints.
@@ -55,18 +55,21 @@ pub fn linearity(input: &Path, order: usize, out_dir: Option<&Path>) -> Result<L
             label: label.into(),
             points: report.reference.iter().zip(v).filter(|(_, y)| y.is_finite() && **y > 0.0).map(|(&x, &y)| (x, y.log10())).collect(),
         };
-        line_plot(
+        line_plot_paired(
             &fig,
-            "RMS residual against normalized intensity (log10; the paper's Fig. 8)",
+            "RMS residual (solid) and random noise (dashed), log10: the paper's Fig. 8",
             "normalized intensity (reference voltage / maximum)",
             "log10 RMS",
             &[
                 series("raw", &report.rms_raw),
                 series("standard: global cubic, dark, gain", &report.rms_standard),
                 series(&format!("pixel-wise order {}, dark, gain", report.order), &report.rms_pixelwise),
-                series("random (propagated)", &report.rms_random),
+                series("raw: random", &report.rms_random_raw),
+                series("standard: random", &report.rms_random_standard),
+                series("pixel-wise: random", &report.rms_random_pixelwise),
             ],
             1,
+            3,
         )?;
         outputs.extend([c, k, fig]);
     }
