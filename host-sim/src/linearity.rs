@@ -96,6 +96,8 @@ pub struct LinearityReport {
     /// the part that averages away over levels (the flat's and dark's noise is one fixed
     /// error per pixel, repeated at every level, growing as `c` and `1 - c`).
     pub rms_random_level_only: Vec<f64>,
+    /// Mean of the good, unsaturated pixels per level, DN (the raw correction's divisor).
+    pub level_mean_dn: Vec<f64>,
     /// max over levels of `rms_raw`.
     pub rms_raw_max: f64,
     /// max over levels of `rms_standard`.
@@ -231,16 +233,66 @@ pub fn unsaturated_levels(set: &LinearitySet) -> Vec<usize> {
     (0..np).map(|p| (0..nl).find(|&l| saturated(l, p)).unwrap_or(nl)).collect()
 }
 
+/// The paper's Fig. 7 data: `n` consecutive pixels centered in the region's middle row,
+/// per level from 1 on (`values[level - 1][i]`), the normalized value of each correction:
+/// raw `m_l / <m_l>`, standard and pixel-wise `c / e_l`. NaN where the pixel is masked or
+/// saturated at that level (the paper's lines break there too).
+#[derive(Debug, Clone)]
+pub struct ExampleRow {
+    /// Row of the region.
+    pub row: usize,
+    /// First column of the region.
+    pub first_column: usize,
+    /// Raw, `[level - 1][pixel]`.
+    pub raw: Vec<Vec<f64>>,
+    /// Standard correction.
+    pub standard: Vec<Vec<f64>>,
+    /// Pixel-wise correction.
+    pub pixelwise: Vec<Vec<f64>>,
+}
+
+/// See [`ExampleRow`]; `report` and `px` are [`analyze`]'s of `set`.
+pub fn example_row(set: &LinearitySet, report: &LinearityReport, px: &PixelResults, n: usize) -> ExampleRow {
+    let (nl, w, h) = (set.levels, set.width, set.height);
+    let np = w * h;
+    let n = n.min(w);
+    let (row, first_column) = (h / 2, (w - n) / 2);
+    let top = ((1u64 << set.bit_depth) - 1) as f64;
+    let f = |v: f64| poly(&report.global_coefficients, v / top);
+    let m = |l: usize, p: usize| set.mean[l * np + p];
+    let valid = unsaturated_levels(set);
+    let g = report.gain_level;
+    let pixels: Vec<usize> = (first_column..first_column + n).map(|c| row * w + c).collect();
+    let per_level = |value: &dyn Fn(usize, usize) -> f64| -> Vec<Vec<f64>> {
+        (1..nl).map(|l| pixels.iter().map(|&p| if px.mask[p] == 0 && l < valid[p] { value(l, p) } else { f64::NAN }).collect()).collect()
+    };
+    let e = &report.intensity;
+    ExampleRow {
+        row,
+        first_column,
+        raw: per_level(&|l, p| m(l, p) / report.level_mean_dn[l]),
+        standard: per_level(&|l, p| (f(m(l, p)) - f(m(0, p))) / (f(m(g, p)) - f(m(0, p))) / e[l]),
+        pixelwise: per_level(&|l, p| px.corrected[l * np + p] / e[l]),
+    }
+}
+
 /// Analyzes `set` with the pixel-wise polynomial of `order` (clamped to 1..=[`MAX_ORDER`]):
 /// masks, the three corrections, their RMS per level, the random noise.
 pub fn analyze(set: &LinearitySet, order: usize) -> (LinearityReport, PixelResults) {
+    analyze_with_flat(set, order, None)
+}
+
+/// [`analyze`] with the flat (gain) level chosen: `Some(l)` with `1 <= l < levels` (the
+/// caller checks), `None` the level whose reference is nearest half the maximum (the
+/// paper's text: "approximately half saturation"; its Figs. 6-7 use a flat near 57%).
+pub fn analyze_with_flat(set: &LinearitySet, order: usize, flat: Option<usize>) -> (LinearityReport, PixelResults) {
     let order = order.clamp(1, MAX_ORDER);
     let (nl, w, h) = (set.levels, set.width, set.height);
     let np = w * h;
     let top = ((1u64 << set.bit_depth) - 1) as f64;
     let vmax = set.voltage.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
     let x: Vec<f64> = set.voltage.iter().map(|v| v / vmax).collect();
-    let g = (1..nl).min_by(|&a, &b| (x[a] - 0.5).abs().total_cmp(&(x[b] - 0.5).abs())).unwrap_or(0);
+    let g = flat.filter(|l| (1..nl).contains(l)).unwrap_or_else(|| (1..nl).min_by(|&a, &b| (x[a] - 0.5).abs().total_cmp(&(x[b] - 0.5).abs())).unwrap_or(0));
     let e: Vec<f64> = x.iter().map(|xl| (xl - x[0]) / (x[g] - x[0])).collect();
     let m = |l: usize, p: usize| set.mean[l * np + p];
     let sd = |l: usize, p: usize| set.std[l * np + p];
@@ -310,7 +362,7 @@ pub fn analyze(set: &LinearitySet, order: usize) -> (LinearityReport, PixelResul
         .collect();
     // Per level statistics.
     let nan_unless = |cond: bool, v: f64| if cond { v } else { f64::NAN };
-    let level_stats: Vec<[f64; 8]> = (0..nl)
+    let level_stats: Vec<[f64; 9]> = (0..nl)
         .into_par_iter()
         .map(|l| {
             let pix: Vec<usize> = good.iter().copied().filter(|&p| l < valid[p]).collect();
@@ -348,6 +400,7 @@ pub fn analyze(set: &LinearitySet, order: usize) -> (LinearityReport, PixelResul
                 nan_unless(calibrated, random_standard),
                 nan_unless(calibrated, random_pixelwise),
                 nan_unless(l != 0, random_level_only),
+                mean_l,
             ]
         })
         .collect();
@@ -355,6 +408,7 @@ pub fn analyze(set: &LinearitySet, order: usize) -> (LinearityReport, PixelResul
     let maxf = |v: &[f64]| v.iter().filter(|x| x.is_finite()).fold(0.0f64, |a, &b| a.max(b));
     let (rms_raw, rms_standard, rms_pixelwise, rms_random) = (col(0), col(1), col(2), col(3));
     let (rms_random_raw, rms_random_standard, rms_random_pixelwise, rms_random_level_only) = (col(4), col(5), col(6), col(7));
+    let level_mean_dn = col(8);
     // Outputs: coefficients, and the pixel-wise corrected cube with masked pixels filled.
     let mut coeffs = vec![f64::NAN; (order + 1) * np];
     for (p, (a, _)) in fits.iter().enumerate() {
@@ -382,6 +436,7 @@ pub fn analyze(set: &LinearitySet, order: usize) -> (LinearityReport, PixelResul
         rms_random_standard,
         rms_random_pixelwise,
         rms_random_level_only,
+        level_mean_dn,
         masked_pixels: mask.iter().filter(|&&m| m != 0).count(),
         order,
         global_coefficients: global,
@@ -409,6 +464,35 @@ mod tests {
     fn coefficients(p: usize) -> [f64; 5] {
         let t = p as f64;
         [100.0 + t, 3000.0 + 7.0 * t, -150.0 + t % 5.0, 40.0 - (t % 3.0) * 10.0, -12.0 + (t % 7.0)]
+    }
+
+    #[test]
+    fn the_example_row_shows_each_correction_as_the_closed_form() {
+        // Planted quartic pixels (a_0 = 100 + t, a_1 = 3000 + 7t, ...; t the pixel index):
+        // the pixel-wise correction returns exactly e_l (value 1); raw is the pixel's mean
+        // over the level's mean of all pixels; the standard correction's value is the
+        // closed form with the fitted global cubic.
+        let set = planted(12, 4, 41, coefficients);
+        let (r, px) = analyze(&set, PIXEL_ORDER);
+        let ex = example_row(&set, &r, &px, 6);
+        assert_eq!((ex.row, ex.first_column), (2, 3));
+        assert_eq!(ex.raw.len(), 40);
+        let np = 48;
+        let top = 4095.0;
+        let f = |v: f64| poly(&r.global_coefficients, v / top);
+        for l in 1..41 {
+            let mean_l = (0..np).map(|p| set.mean[l * np + p]).sum::<f64>() / np as f64;
+            for i in 0..6 {
+                let p = 2 * 12 + 3 + i;
+                let m = |l: usize| set.mean[l * np + p];
+                assert!((ex.pixelwise[l - 1][i] - 1.0).abs() < 1e-6, "level {l} pixel {p}: {}", ex.pixelwise[l - 1][i]);
+                assert!((ex.raw[l - 1][i] - m(l) / mean_l).abs() < 1e-12);
+                let standard = (f(m(l)) - f(m(0))) / (f(m(20)) - f(m(0))) / (l as f64 / 20.0);
+                assert!((ex.standard[l - 1][i] - standard).abs() < 1e-9, "level {l}");
+            }
+        }
+        // The standard correction is exact at the flat.
+        assert!(ex.standard[19].iter().all(|v| (v - 1.0).abs() < 1e-12));
     }
 
     #[test]

@@ -266,7 +266,11 @@ enum Cmd {
         /// Order of the pixel-wise polynomial (the paper: 4).
         #[arg(long, default_value_t = 4)]
         order: usize,
-        /// Folder for coefficients.fits, corrected.fits and linearity_rms.png.
+        /// Level used as the flat (gain), 1 to levels - 1 (default: nearest half the
+        /// maximum reference; the paper's Figs. 6-7 flat is near 57%, level 22 of 0-40).
+        #[arg(long)]
+        flat_level: Option<usize>,
+        /// Folder for coefficients.fits, corrected.fits and the figures (Figs. 6-8).
         #[arg(short, long)]
         out: Option<PathBuf>,
         /// Print a JSON summary on stdout.
@@ -774,8 +778,8 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
                 t + &wrote(&s.figures)
             })?;
         }
-        Cmd::Linearity { file, order, out, json } => {
-            let s = linearity::linearity(&file, order, out.as_deref())?;
+        Cmd::Linearity { file, order, flat_level, out, json } => {
+            let s = linearity::linearity(&file, order, flat_level, out.as_deref())?;
             print(json, &s, |s| {
                 let r = &s.report;
                 let mut t = format!("{}: {} levels x {} pixels, gain level {}, {} masked, analysis {:.2} s\n", s.input.display(), r.levels, r.pixels, r.gain_level, r.masked_pixels, s.analysis_s);

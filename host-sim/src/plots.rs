@@ -121,6 +121,53 @@ pub fn line_plot_paired(path: &Path, title: &str, x_label: &str, y_label: &str, 
     write_png(path, &rgb, width, height)
 }
 
+/// One panel of [`level_lines_plot`]: its caption and one line (points (x, y)) per level.
+pub type LevelPanel = (String, Vec<Vec<(f64, f64)>>);
+
+/// Panels side by side, each with one line per illumination level (`lines[level]`, points
+/// (x, y); NaN breaks a line), colored from dark (viridis purple) to bright (yellow): the
+/// paper's Fig. 7. The shared y range is `y_range`.
+pub fn level_lines_plot(path: &Path, title: &str, x_label: &str, y_label: &str, panels: &[LevelPanel], y_range: (f64, f64)) -> Result<(), HostError> {
+    use plotters::style::colors::colormaps::{ColorMap, ViridisRGB};
+    ensure_font();
+    if panels.is_empty() || y_range.1.partial_cmp(&y_range.0) != Some(std::cmp::Ordering::Greater) {
+        return Err(plot_err(path, "need at least one panel and a y range"));
+    }
+    let (width, height) = (520 * panels.len() as u32, 560u32);
+    let mut rgb = vec![0u8; (width * height * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut rgb, (width, height)).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| plot_err(path, e))?;
+        let root = root.titled(title, ("sans-serif", 20)).map_err(|e| plot_err(path, e))?;
+        for ((name, lines), area) in panels.iter().zip(root.split_evenly((1, panels.len())).iter()) {
+            let xs = lines.iter().flatten().map(|p| p.0).filter(|x| x.is_finite());
+            let (x0, x1) = xs.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| (a.min(x), b.max(x)));
+            if !x0.is_finite() {
+                continue;
+            }
+            let mut chart = ChartBuilder::on(area)
+                .caption(name, ("sans-serif", 16))
+                .margin(8)
+                .x_label_area_size(36)
+                .y_label_area_size(60)
+                .build_cartesian_2d(x0..x1.max(x0 + 1e-12), y_range.0..y_range.1)
+                .map_err(|e| plot_err(path, e))?;
+            chart.configure_mesh().x_desc(x_label).y_desc(y_label).label_style(("sans-serif", 13)).draw().map_err(|e| plot_err(path, e))?;
+            let n = lines.len().max(2);
+            for (l, line) in lines.iter().enumerate() {
+                let color = ViridisRGB.get_color(l as f32 / (n - 1) as f32);
+                // Split at NaN so saturated or masked pixels interrupt the line.
+                for run in line.split(|p| !(p.0.is_finite() && p.1.is_finite())).filter(|r| !r.is_empty()) {
+                    let clipped = run.iter().map(|&(x, y)| (x, y.clamp(y_range.0, y_range.1)));
+                    chart.draw_series(LineSeries::new(clipped, color.stroke_width(1))).map_err(|e| plot_err(path, e))?;
+                }
+            }
+        }
+        root.present().map_err(|e| plot_err(path, e))?;
+    }
+    write_png(path, &rgb, width, height)
+}
+
 /// A color map of a grid of values with contour lines, for maps such as the paper's
 /// Fig. 1 and Fig. 4.
 pub struct Map<'a> {
@@ -143,6 +190,9 @@ pub struct Map<'a> {
     pub log: bool,
     /// Contour levels, in the values' units (not log).
     pub contours: &'a [f64],
+    /// Fixed color scale (values' units; values outside take the end colors); `None`
+    /// spans the data.
+    pub range: Option<(f64, f64)>,
 }
 
 /// Segments where the bilinear grid `v` (rows along y) crosses `level`: marching
@@ -190,6 +240,10 @@ pub fn map_plot(path: &Path, map: &Map) -> Result<(), HostError> {
         // Keep six decades below the top: the rest is "negligible".
         lo = lo.max(hi - 6.0);
     }
+    let (lo, hi) = match map.range {
+        Some((a, b)) if t(a).is_finite() && t(b) > t(a) => (t(a), t(b)),
+        _ => (lo, hi),
+    };
     let hi = if hi > lo { hi } else { lo + 1.0 };
     let (width, height) = (1000u32, 760u32);
     let mut rgb = vec![0u8; (width * height * 3) as usize];
@@ -310,12 +364,24 @@ mod tests {
     fn map_plot_writes_a_png_and_rejects_a_degenerate_grid() {
         let dir = tempfile::tempdir().unwrap();
         let values = vec![vec![1.0, 0.1], vec![0.01, 0.001]];
-        let map = Map { title: "t", x_label: "x", y_label: "y", values: &values, x_range: (0.0, 1.0), y_range: (0.0, 1.0), scale_label: "s", log: true, contours: &[0.05] };
+        let map = Map { title: "t", x_label: "x", y_label: "y", values: &values, x_range: (0.0, 1.0), y_range: (0.0, 1.0), scale_label: "s", log: true, contours: &[0.05], range: None };
         let path = dir.path().join("m.png");
         map_plot(&path, &map).unwrap();
         assert_eq!(&std::fs::read(&path).unwrap()[..4], b"\x89PNG");
         let one = vec![vec![1.0]];
         assert!(map_plot(&dir.path().join("n.png"), &Map { values: &one, ..map }).is_err());
         assert!(!dir.path().join("n.png").exists());
+    }
+
+    #[test]
+    fn level_lines_plot_breaks_lines_at_nan_and_rejects_no_panels() {
+        let dir = tempfile::tempdir().unwrap();
+        let line = |l: usize| (0..10).map(|i| (i as f64, if i == 4 { f64::NAN } else { 1.0 + 0.001 * l as f64 })).collect::<Vec<_>>();
+        let panel = ("p".to_string(), (0..5).map(line).collect::<Vec<_>>());
+        let path = dir.path().join("l.png");
+        level_lines_plot(&path, "t", "x", "y", &[panel.clone(), panel], (0.99, 1.01)).unwrap();
+        assert_eq!(&std::fs::read(&path).unwrap()[..4], b"\x89PNG");
+        assert!(level_lines_plot(&dir.path().join("e.png"), "t", "x", "y", &[], (0.0, 1.0)).is_err());
+        assert!(!dir.path().join("e.png").exists());
     }
 }

@@ -73,7 +73,7 @@ fn demo_calibrates_streams_and_reports() {
     assert!(s["quantization"]["max_abs_bias_dn"].as_f64().unwrap() < 1e-100);
     assert!(s["kcor"]["max_abs_sys_err_bsun_raw"].as_f64().unwrap() > 0.0);
     assert!(s["linearity"]["rms_pixelwise_max"].as_f64().unwrap() < s["linearity"]["rms_standard_max"].as_f64().unwrap());
-    for png in ["histograms.png", "histograms_zoom.png", "offsets.png", "correction_error.png", "quantization.png", "kcor_raw.png", "kcor_lut.png", "linearity/linearity_rms.png"] {
+    for png in ["histograms.png", "histograms_zoom.png", "offsets.png", "correction_error.png", "quantization.png", "kcor_raw.png", "kcor_lut.png", "linearity/linearity_rms.png", "linearity/flat_image.png", "linearity/pixels_levels.png"] {
         assert!(html.contains(&format!("src=\"{png}\"")), "report lacks {png}");
         let bytes = std::fs::read(folder.join(png)).unwrap();
         assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n", "{png}");
@@ -557,6 +557,18 @@ with fits.open('out/corrected.fits') as h:
     );
     assert_clean_failure(&dncal(&["linearity", "missing.fits"], d), "missing.fits", "No such file");
     assert_clean_failure(&dncal(&["linearity", "lin.fits", "--order", "0"], d), "--order", "1 to 8");
+    // The flat can be chosen (the paper's Figs. 6-7 use level 22): the standard correction
+    // is then exact there and not at the default flat (20).
+    assert_eq!(s["gain_level"], 20);
+    let f = stdout_json(&dncal(&["linearity", "lin.fits", "--flat-level", "22", "--json"], d));
+    assert_eq!(f["gain_level"], 22);
+    assert!(f["rms_standard"][22].is_null() && f["rms_standard"][20].as_f64().unwrap() > 0.0, "{f}");
+    for png in ["flat_image.png", "pixels_levels.png"] {
+        assert_eq!(&std::fs::read(d.join("out").join(png)).unwrap()[..4], b"\x89PNG", "{png}");
+    }
+    for bad in ["0", "41"] {
+        assert_clean_failure(&dncal(&["linearity", "lin.fits", "--flat-level", bad], d), "--flat-level", "illuminated levels 1 to 40");
+    }
     std::fs::write(d.join("h.fits"), b"").unwrap();
     assert_clean_failure(&dncal(&["linearity", "h.fits"], d), "h.fits", "");
 }

@@ -90,7 +90,7 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
     pb.inc(1);
     let lin_path = at("linearity.fits");
     crate::commands::simulate::simulate_linearity(camera, &LinearityParams::paper(camera), lin_path.clone())?;
-    let linearity = crate::commands::linearity::linearity(&lin_path, crate::linearity::PIXEL_ORDER, Some(&at("linearity")))?;
+    let linearity = crate::commands::linearity::linearity(&lin_path, crate::linearity::PIXEL_ORDER, None, Some(&at("linearity")))?;
     pb.finish_and_clear();
     // 5. What a diagnosis of the calibration histograms finds (issue: diagnose).
     let diagnose = crate::commands::diagnose::diagnose(&at("histograms.fits"), flatten, 1, Some(&at("diagnose")))?;
@@ -200,11 +200,13 @@ fn report_html(s: &DemoSummary, camera: &Camera, ramp: &RampParams, flat: &Flatt
          is {:.2e} DN. A bias of 0.01 DN or less needs {:.3} DN of noise.</p>\
          <figure><img src=\"quantization.png\" width=\"900\"><figcaption>|bias| over lambda mod 1 and noise, contours at 1e-1 to 1e-4 DN.</figcaption></figure>\
          <h3>K-Coronagraph model (section 4, Figs. 4-5): <code>dncal kcor-model</code></h3><p>ADC {}, {} ms frames ({:.3e} e-/s per B_sun per pixel): the largest systematic error \
-         in Q is {:.2e} B_sun raw and {:.2e} B_sun with a LUT from the true widths with {}% noise per code: raw / LUT = {:.1} (the paper: about 10; <code>docs/paper.md</code> discusses the difference).</p>\
+         in Q is {:.2e} B_sun raw and {:.2e} B_sun with a LUT from the true widths with {}% noise per code: raw / LUT = {:.1} (the paper: about 10; <code>docs/paper.md</code> shows why 1% noise per code cannot give that outside small Q, with the real K-Cor ADCs too).</p>\
          <figure><img src=\"kcor_raw.png\" width=\"900\"><figcaption>Raw ADC.</figcaption></figure><figure><img src=\"kcor_lut.png\" width=\"900\"><figcaption>With the LUT.</figcaption></figure>\
-         <h3>Pixel-wise nonlinearity (section 5, Fig. 8): <code>dncal linearity</code></h3><p>{} pixels x {} levels, {} masked. Largest RMS residual over the levels: raw {:.2e}, \
+         <h3>Pixel-wise nonlinearity (section 5, Figs. 6-8): <code>dncal linearity</code></h3><p>{} pixels x {} levels, {} masked. Largest RMS residual over the levels: raw {:.2e}, \
          standard correction {:.2e}, pixel-wise 4th order {:.2e}, random noise {:.2e}. Coefficients and mask: <a href=\"linearity/coefficients.fits\">coefficients.fits</a>.</p>\
-         <figure><img src=\"linearity/linearity_rms.png\" width=\"1000\"><figcaption>RMS residual per level.</figcaption></figure>",
+         <figure><img src=\"linearity/flat_image.png\" width=\"800\"><figcaption>Fig. 6: the flat, raw, scaled +-10% of full scale around its median.</figcaption></figure>\
+         <figure><img src=\"linearity/pixels_levels.png\" width=\"1000\"><figcaption>Fig. 7: 100 pixels of the middle row at every level, raw, standard and pixel-wise.</figcaption></figure>\
+         <figure><img src=\"linearity/linearity_rms.png\" width=\"1000\"><figcaption>Fig. 8: RMS residual per level (solid) and the random noise propagated through each correction (dashed).</figcaption></figure>",
         q.sigma,
         q.max_abs_bias_dn,
         crate::quantization::sigma_for_bias(0.01).unwrap_or(f64::NAN),

@@ -116,6 +116,7 @@ pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, real
                     scale_label: "log10 |dQ| (B_sun)",
                     log: true,
                     contours: &[1e-8, 1e-9, 1e-10],
+                    range: None,
                 },
             )?;
             figures.push(path);

@@ -7,8 +7,8 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 
 use crate::fits::{read_linearity, write_cube, write_pixel_correction, PixelCorrection};
-use crate::linearity::{analyze, LinearityReport, MAX_ORDER};
-use crate::plots::{line_plot_paired, Series};
+use crate::linearity::{analyze_with_flat, example_row, LinearityReport, MAX_ORDER};
+use crate::plots::{level_lines_plot, line_plot_paired, map_plot, Map, Series};
 use crate::HostError;
 
 /// What `linearity` prints.
@@ -27,8 +27,9 @@ pub struct LinearitySummary {
 
 /// Analyzes `input`; with `out_dir`, writes `coefficients.fits` (cube and MASK),
 /// `corrected.fits` (pixel-wise corrected normalized intensities, masked pixels filled)
-/// and `linearity_rms.png`.
-pub fn linearity(input: &Path, order: usize, out_dir: Option<&Path>) -> Result<LinearitySummary, HostError> {
+/// `linearity_rms.png` (Fig. 8), `flat_image.png` (Fig. 6) and `pixels_levels.png` (Fig.
+/// 7). `flat` is the gain level (default: nearest half the maximum reference).
+pub fn linearity(input: &Path, order: usize, flat: Option<usize>, out_dir: Option<&Path>) -> Result<LinearitySummary, HostError> {
     if !(1..=MAX_ORDER).contains(&order) {
         return Err(HostError::Format { path: "--order".into(), message: format!("{order}: the pixel-wise polynomial order must be 1 to {MAX_ORDER}") });
     }
@@ -40,7 +41,12 @@ pub fn linearity(input: &Path, order: usize, out_dir: Option<&Path>) -> Result<L
         return Err(HostError::Format { path: input.into(), message: "REFERENCE VOLTAGE must be finite, >= 0 and not all zero".into() });
     }
     let start = std::time::Instant::now();
-    let (report, px) = analyze(&set, order);
+    if let Some(l) = flat {
+        if !(1..set.levels).contains(&l) {
+            return Err(HostError::Format { path: "--flat-level".into(), message: format!("{l}: the flat must be one of the illuminated levels 1 to {} of {}", set.levels - 1, input.display()) });
+        }
+    }
+    let (report, px) = analyze_with_flat(&set, order, flat);
     let analysis_s = start.elapsed().as_secs_f64();
     let mut outputs = Vec::new();
     if let Some(dir) = out_dir {
@@ -71,7 +77,49 @@ pub fn linearity(input: &Path, order: usize, out_dir: Option<&Path>) -> Result<L
             1,
             3,
         )?;
-        outputs.extend([c, k, fig]);
+        // Fig. 6: the flat, in percent of the top code, scaled +-10% around its median as
+        // the paper's (57%, scaled 47-67%).
+        let (w, h, np) = (set.width, set.height, set.width * set.height);
+        let top = ((1u64 << set.bit_depth) - 1) as f64;
+        let g = report.gain_level;
+        let flat: Vec<Vec<f64>> = (0..h).map(|r| (0..w).map(|c| 100.0 * set.mean[g * np + r * w + c] / top).collect()).collect();
+        let mut sorted: Vec<f64> = flat.iter().flatten().copied().filter(|v| v.is_finite()).collect();
+        sorted.sort_by(f64::total_cmp);
+        let med = sorted.get(sorted.len() / 2).copied().unwrap_or(50.0);
+        let flat_png = dir.join("flat_image.png");
+        let title = format!("The flat (level {g}), raw, % of full scale: median {med:.1}%, scaled {:.0}-{:.0}% (the paper's Fig. 6)", med - 10.0, med + 10.0);
+        map_plot(
+            &flat_png,
+            &Map {
+                title: &title,
+                x_label: "column",
+                y_label: "row",
+                values: &flat,
+                x_range: (0.0, (w.max(2) - 1) as f64),
+                y_range: (0.0, (h.max(2) - 1) as f64),
+                scale_label: "% of full scale",
+                log: false,
+                contours: &[],
+                range: Some((med - 10.0, med + 10.0)),
+            },
+        )?;
+        // Fig. 7: 100 pixels of the middle row at every level, three corrections.
+        let ex = example_row(&set, &report, &px, 100);
+        let lines = |v: &[Vec<f64>]| -> Vec<Vec<(f64, f64)>> { v.iter().map(|l| l.iter().enumerate().map(|(i, &y)| ((ex.first_column + i) as f64, y)).collect()).collect() };
+        let levels_png = dir.join("pixels_levels.png");
+        level_lines_plot(
+            &levels_png,
+            &format!("Row {}, {} pixels, levels 1-{} (purple dark to yellow bright): the paper's Fig. 7", ex.row, ex.raw.first().map_or(0, Vec::len), set.levels - 1),
+            "column",
+            "normalized intensity",
+            &[
+                ("raw: pixel / level mean".to_string(), lines(&ex.raw)),
+                ("standard: global cubic, dark, gain".to_string(), lines(&ex.standard)),
+                (format!("pixel-wise order {}, dark, gain", report.order), lines(&ex.pixelwise)),
+            ],
+            (0.95, 1.05),
+        )?;
+        outputs.extend([c, k, fig, flat_png, levels_png]);
     }
     Ok(LinearitySummary { input: input.into(), report, analysis_s, outputs })
 }

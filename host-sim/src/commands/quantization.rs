@@ -87,6 +87,7 @@ pub fn figure(path: &Path) -> Result<(), HostError> {
             scale_label: "log10 |delta| (DN)",
             log: true,
             contours: &[1e-1, 1e-2, 1e-3, 1e-4],
+            range: None,
         },
     )
 }
