@@ -156,9 +156,13 @@ impl<'a> SumImages<'a> {
         self.frames = Self::zero_counts(self.geometry);
     }
     fn row_mut(&mut self, state: u8, row: u16) -> &mut [u32] {
+        self.rows_mut(state, row, 1)
+    }
+    /// Lines `row..row + count` of `state`, contiguous (the caller keeps them in the frame).
+    fn rows_mut(&mut self, state: u8, row: u16, count: usize) -> &mut [u32] {
         let w = self.geometry.width as usize;
         let start = (state as usize * self.geometry.height as usize + row as usize) * w;
-        &mut self.buf[start..start + w]
+        &mut self.buf[start..start + count * w]
     }
 }
 
@@ -256,6 +260,55 @@ impl<'a, const N: usize, const CODES: usize> Corrector<'a, N, CODES> {
             f.next_row += 1;
         }
         Ok(report)
+    }
+
+    /// Adds a block of whole lines, `codes.len() / width` of them from line `first_row`
+    /// on, exactly as [`accumulate_line`](Self::accumulate_line) would one by one, in one
+    /// call: what a DMA transfer of several lines delivers, without the per-line call and
+    /// checks. The block is accepted or rejected whole (not a positive multiple of the
+    /// width, not starting at the next line, or running past the frame's last line: one
+    /// rejected line counted); the report sums its lines'.
+    pub fn accumulate_lines(&mut self, first_row: u16, codes: &[u16]) -> Result<LineReport, CoreError> {
+        let result = self.check_block(first_row, codes.len());
+        let (frame, lines) = match result {
+            Ok(x) => x,
+            Err(e) => {
+                self.status.rejected_lines = self.status.rejected_lines.saturating_add(1);
+                return Err(e);
+            }
+        };
+        let width = self.sums.geometry.width as usize;
+        let first_column = self.sums.geometry.first_column as u32;
+        let luts = self.banks.active();
+        let sums = self.sums.rows_mut(frame.state, first_row, lines);
+        let mut report = LineReport::default();
+        for (line, line_sums) in codes.chunks_exact(width).zip(sums.chunks_exact_mut(width)) {
+            let r = match frame.mode {
+                SumMode::Exact => add_line::<Exact, N, CODES>(luts, first_column, line, line_sums),
+                SumMode::Saturating => add_line::<Saturating, N, CODES>(luts, first_column, line, line_sums),
+            };
+            report.out_of_range_codes = report.out_of_range_codes.saturating_add(r.out_of_range_codes);
+            report.saturated_additions = report.saturated_additions.saturating_add(r.saturated_additions);
+        }
+        self.status.out_of_range_codes = self.status.out_of_range_codes.saturating_add(report.out_of_range_codes);
+        self.status.saturated_additions = self.status.saturated_additions.saturating_add(report.saturated_additions);
+        if let Some(f) = self.frame.as_mut() {
+            f.next_row += lines as u16;
+        }
+        Ok(report)
+    }
+
+    fn check_block(&self, first_row: u16, len: usize) -> Result<(OpenFrame, usize), CoreError> {
+        let frame = self.frame.ok_or(CoreError::NoFrame)?;
+        let width = self.sums.geometry.width as usize;
+        if len == 0 || len % width != 0 {
+            return Err(CoreError::Length { what: Quantity::BlockPixels, expected: width as u32, got: len as u32 });
+        }
+        let lines = len / width;
+        if first_row != frame.next_row || first_row as usize + lines > self.sums.geometry.height as usize {
+            return Err(CoreError::LineOrder { expected: frame.next_row, got: first_row });
+        }
+        Ok((frame, lines))
     }
 
     fn check_line(&self, row: u16, len: usize) -> Result<OpenFrame, CoreError> {
@@ -370,17 +423,24 @@ pub fn lookup<const CODES: usize>(table: &[LutEntry; CODES], raw: u16) -> (LutEn
     (table[code.index()], clipped)
 }
 
-#[inline(always)]
-fn add_pixel<A: Add, const CODES: usize>(table: &[LutEntry; CODES], raw: u16, sum: &mut u32, r: &mut LineReport) {
-    let (entry, clipped) = lookup(table, raw);
-    r.out_of_range_codes += clipped as u32;
-    A::add(sum, entry, &mut r.saturated_additions);
+/// How many of `codes` lie above the top code `CODES - 1`. The bitwise OR of the line
+/// first (a vectorized pass, one instruction per 8-32 codes): an OR at or below the top
+/// proves there are none (no code exceeds the OR of all), so only a line that may hold
+/// such codes is counted one by one, and the per-pixel loop carries no counter.
+#[inline]
+fn out_of_range<const CODES: usize>(codes: &[u16]) -> u32 {
+    let top = Code::<CODES>::MAX.index();
+    if (codes.iter().fold(0u16, |a, &c| a | c) as usize) <= top {
+        return 0;
+    }
+    codes.iter().filter(|&&c| c as usize > top).count() as u32
 }
 
 /// Adds `lut[adc(first_column + i)][codes[i]]` to `sums[i]`. `codes` and `sums` have the
 /// same length (checked by the caller). The line is split into a head up to the next
 /// multiple of N columns, whole groups of N in ADC order 0..N (no index arithmetic per
-/// pixel), and a tail.
+/// pixel), and a tail. Codes above the top are read as the top ([`lookup`]'s rule, by
+/// `min`, which also lets the compiler drop the bounds check) and counted apart.
 fn add_line<A: Add, const N: usize, const CODES: usize>(
     luts: &LutSet<N, CODES>,
     first_column: u32,
@@ -388,23 +448,28 @@ fn add_line<A: Add, const N: usize, const CODES: usize>(
     sums: &mut [u32],
 ) -> LineReport {
     let tables = luts.tables();
+    let top = Code::<CODES>::MAX.index();
     let mut report = LineReport::default();
+    let mut add = |table: &[LutEntry; CODES], raw: u16, sum: &mut u32| A::add(sum, table[(raw as usize).min(top)], &mut report.saturated_additions);
     let head = ((N - AdcMap::<N>::adc(first_column)) % N).min(codes.len());
     let (head_codes, body_codes) = codes.split_at(head);
     let (head_sums, body_sums) = sums.split_at_mut(head);
     for (i, (&raw, sum)) in head_codes.iter().zip(head_sums).enumerate() {
-        add_pixel::<A, CODES>(&tables[AdcMap::<N>::adc(first_column + i as u32)], raw, sum, &mut report);
+        add(&tables[AdcMap::<N>::adc(first_column + i as u32)], raw, sum);
     }
-    let mut code_groups = body_codes.chunks_exact(N);
-    let mut sum_groups = body_sums.chunks_exact_mut(N);
-    for (cs, ss) in (&mut code_groups).zip(&mut sum_groups) {
-        for ((table, &raw), sum) in tables.iter().zip(cs).zip(ss) {
-            add_pixel::<A, CODES>(table, raw, sum, &mut report);
+    let whole = body_codes.len() / N * N;
+    let (body_codes, tail_codes) = body_codes.split_at(whole);
+    let (body_sums, tail_sums) = body_sums.split_at_mut(whole);
+    for (cs, ss) in body_codes.chunks_exact(N).zip(body_sums.chunks_exact_mut(N)) {
+        for j in 0..N {
+            add(&tables[j], cs[j], &mut ss[j]);
         }
     }
-    for ((table, &raw), sum) in tables.iter().zip(code_groups.remainder()).zip(sum_groups.into_remainder()) {
-        add_pixel::<A, CODES>(table, raw, sum, &mut report);
+    for ((table, &raw), sum) in tables.iter().zip(tail_codes).zip(tail_sums) {
+        add(table, raw, sum);
     }
+    // After the loop, while the line's codes are still in the nearest cache.
+    report.out_of_range_codes = out_of_range::<CODES>(codes);
     report
 }
 
@@ -415,6 +480,30 @@ mod tests {
 
     fn top_luts() -> LutSet<4, 4096> {
         LutSet::from_bits(&[[LUT_ENTRY_LIMIT - 1; 4096]; 4]).unwrap()
+    }
+
+    #[test]
+    fn a_bad_block_is_rejected_whole_and_counted() {
+        let g = Geometry::new(4, 3, 1, 0).unwrap();
+        let mut buf = [0u32; 12];
+        let mut banks = LutBanks::new(top_luts());
+        let mut c = Corrector::new(&mut banks, g, &mut buf).unwrap();
+        assert_eq!(c.accumulate_lines(0, &[1; 4]), Err(CoreError::NoFrame));
+        c.begin_frame(0).unwrap();
+        // Not whole lines, empty, not the next line, past the last line.
+        assert!(matches!(c.accumulate_lines(0, &[1; 6]), Err(CoreError::Length { what: Quantity::BlockPixels, expected: 4, got: 6 })));
+        assert!(matches!(c.accumulate_lines(0, &[]), Err(CoreError::Length { .. })));
+        assert_eq!(c.accumulate_lines(1, &[1; 4]), Err(CoreError::LineOrder { expected: 0, got: 1 }));
+        assert_eq!(c.accumulate_lines(0, &[1; 16]), Err(CoreError::LineOrder { expected: 0, got: 0 }));
+        assert_eq!(c.status().rejected_lines, 5);
+        assert!(c.sums().state(0).unwrap().iter().all(|&s| s == 0), "a rejected block adds nothing");
+        // Two lines, then the last one: the frame is complete; codes above the top count.
+        assert_eq!(c.accumulate_lines(0, &[1, 2, 3, 4, 5, 6, 7, 8]).unwrap().out_of_range_codes, 0);
+        assert_eq!(c.accumulate_lines(2, &[4095, 4096, 9000, 0]).unwrap().out_of_range_codes, 2);
+        c.end_frame().unwrap();
+        assert_eq!(c.status().incomplete_frames, 0);
+        assert_eq!(c.status().out_of_range_codes, 2);
+        assert!(c.sums().state(0).unwrap().iter().all(|&s| s == LUT_ENTRY_LIMIT - 1));
     }
 
     #[test]

@@ -151,6 +151,8 @@ pub enum Quantity {
     SumBuffer,
     /// Pixels of a pair of lines for the noise estimate.
     NoisePair,
+    /// Pixels of a block of whole lines (a multiple of the line width).
+    BlockPixels,
 }
 
 impl fmt::Display for Quantity {
@@ -160,6 +162,7 @@ impl fmt::Display for Quantity {
             Quantity::LinePixels => "line pixels",
             Quantity::SumBuffer => "sum buffer elements",
             Quantity::NoisePair => "noise line pair pixels",
+            Quantity::BlockPixels => "block pixels (whole lines)",
         })
     }
 }

@@ -11,7 +11,7 @@ use clap::{Args, Parser, Subcommand};
 use dncal_core::{Geometry, Mvd1024eLuts};
 use dncal_host::camera::calibration::{LinearityParams, RampParams};
 use dncal_host::camera::{Camera, CameraConfig};
-use dncal_host::commands::{adc, demo, diagnose, kcor, linearity, lut, quantization, simulate, stream};
+use dncal_host::commands::{adc, bench, demo, diagnose, kcor, linearity, lut, quantization, simulate, stream};
 use dncal_host::firmware::{build_firmware, run_firmware, run_on_host, RunInputs};
 use dncal_host::flatten::FlattenParams;
 use dncal_host::streaming::StreamParams;
@@ -362,6 +362,21 @@ enum Cmd {
         /// Folder for the `$readmemh` files.
         #[arg(short, long, requires = "lut")]
         out: Option<PathBuf>,
+        /// Print a JSON summary on stdout.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Speed as ratios against references run in the same process (issue 17's targets).
+    Bench {
+        /// Runs; each times every variant once.
+        #[arg(long, default_value_t = 7)]
+        runs: usize,
+        /// Frames of 1024 x 1024 pixels per timing.
+        #[arg(long, default_value_t = 8)]
+        frames: usize,
+        /// Leave numpy out.
+        #[arg(long)]
+        no_numpy: bool,
         /// Print a JSON summary on stdout.
         #[arg(long)]
         json: bool,
@@ -916,6 +931,25 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
             })?;
         }
         Cmd::FirmwareCheck { frames_per_state, states, size, seed, json } => return firmware_check(frames_per_state, states, size, seed, json),
+        Cmd::Bench { runs, frames, no_numpy, json } => {
+            let pb = dncal_host::commands::progress::bar(runs as u64, "bench");
+            let r = bench::bench(&bench::BenchParams { runs, frames, numpy: !no_numpy }, |_| pb.inc(1))?;
+            pb.finish_and_clear();
+            print(json, &r, |r| {
+                let mut t = format!("{}; {} runs; ratios are per run (median, min-max)\n", r.machine, r.runs);
+                for x in &r.ratios {
+                    let target = x.target.map_or(String::new(), |g| format!("  target >= {g}: {}", if x.holds == Some(true) { "holds" } else { "NOT MET" }));
+                    t += &format!(
+                        "{:<22} {:>8.1} {}  vs {:<24} {:>8.1}: {:.2}x ({:.2}-{:.2}){target}\n",
+                        x.name, x.rate, x.unit, x.baseline, x.baseline_rate, x.ratio_median, x.ratio_min, x.ratio_max
+                    );
+                }
+                for n in &r.notes {
+                    t += &format!("note: {n}\n");
+                }
+                t
+            })?;
+        }
     }
     Ok(ExitCode::SUCCESS)
 }

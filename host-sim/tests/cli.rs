@@ -730,3 +730,32 @@ fn diagnose_names_the_simulated_adcs_dn_error_in_a_linearity_set() {
         assert!(std::fs::metadata(&png).map(|m| m.len() > 1000).unwrap_or(false), "{} missing", png.display());
     }
 }
+
+/// `dncal bench` reports each measurement as a ratio against its reference in the same
+/// run (speed itself is never asserted here: the machines are shared); the core's sums
+/// were checked against the plain loop's inside the bench, or it would have failed.
+#[test]
+fn bench_reports_ratios_against_in_process_references() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = stdout_json(&dncal(&["bench", "--runs", "2", "--frames", "1", "--json"], dir.path()));
+    assert_eq!(s["runs"], 2);
+    assert!(s["machine"].as_str().unwrap().contains("logical cores"));
+    let ratios = s["ratios"].as_array().unwrap();
+    let baselines: Vec<&str> = ratios.iter().map(|r| r["baseline"].as_str().unwrap()).collect();
+    for b in ["plain LUT loop", "byte bound (no LUT)"] {
+        assert!(baselines.contains(&b), "{s}");
+    }
+    let numpy_ran = baselines.iter().any(|b| b.starts_with("numpy"));
+    let notes = s["notes"].as_array().unwrap();
+    assert!(numpy_ran || notes.iter().any(|n| n.as_str().unwrap().starts_with("numpy skipped")), "numpy neither ran nor was reported skipped: {s}");
+    for r in ratios {
+        let (rate, base, ratio) = (r["rate"].as_f64().unwrap(), r["baseline_rate"].as_f64().unwrap(), r["ratio_median"].as_f64().unwrap());
+        assert!(rate > 0.0 && base > 0.0, "{r}");
+        assert!(r["ratio_min"].as_f64().unwrap() <= ratio && ratio <= r["ratio_max"].as_f64().unwrap(), "{r}");
+        if let Some(t) = r["target"].as_f64() {
+            assert_eq!(r["holds"].as_bool().unwrap(), ratio >= t, "{r}");
+        }
+    }
+    assert_clean_failure(&dncal(&["bench", "--runs", "0"], dir.path()), "--runs", "at least 1");
+    assert_clean_failure(&dncal(&["bench", "--runs", "9", "--frames", "300"], dir.path()), "--frames", "512 frames per state");
+}

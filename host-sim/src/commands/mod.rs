@@ -2,6 +2,7 @@
 //! serializable summary; `main.rs` only parses, prints and sets the exit code.
 
 pub mod adc;
+pub mod bench;
 pub mod demo;
 pub mod diagnose;
 pub mod fpga;

@@ -1,0 +1,264 @@
+//! `dncal bench`: speed as ratios against references run in the same process, run by run
+//! (issue 17). A shared 2-core machine is noisy; what one run of two loops shares (the
+//! load, the clock, the caches' neighbours) cancels in their ratio, so the ratio is what
+//! to read, and its spread over runs says how far to trust it.
+//!
+//! The references are written here, plainly, as the baseline a reader would write:
+//! - **plain LUT loop**: `sums[i] += lut[i mod 4][min(code, top)]` over groups of four
+//!   pixels, no bookkeeping (the core must also count out-of-range codes and check lines);
+//! - **byte bound**: `sums[i] += code` (the same memory traffic without the table);
+//! - **numpy**: `sums[s] += lut[column mod 4, codes]` in python3 with numpy, timed in its
+//!   own process around the same work (skipped, with a note, where numpy is missing).
+
+use std::hint::black_box;
+use std::process::Command;
+use std::time::Instant;
+
+use dncal_core::{Corrector, Geometry, LutBanks, Mvd1024eLuts};
+use rand::{rngs::StdRng, Rng, SeedableRng};
+use serde::Serialize;
+
+use crate::HostError;
+
+/// What the bench runs.
+#[derive(Debug, Clone)]
+pub struct BenchParams {
+    /// Runs; each times every variant once (the ratios' spread is over runs).
+    pub runs: usize,
+    /// Frames per timing (of 1024 x 1024 pixels, in 4 states).
+    pub frames: usize,
+    /// Time numpy too.
+    pub numpy: bool,
+}
+
+impl Default for BenchParams {
+    fn default() -> Self {
+        BenchParams { runs: 7, frames: 8, numpy: true }
+    }
+}
+
+/// One ratio: a measured thing against its baseline, run by run.
+#[derive(Debug, Clone, Serialize)]
+pub struct Ratio {
+    /// What is measured.
+    pub name: String,
+    /// Its rate (median over runs), in `unit`.
+    pub rate: f64,
+    /// The baseline.
+    pub baseline: String,
+    /// The baseline's rate (median over runs).
+    pub baseline_rate: f64,
+    /// Unit of the rates.
+    pub unit: &'static str,
+    /// Rate over baseline rate, per run: median, min, max.
+    pub ratio_median: f64,
+    /// Smallest per-run ratio.
+    pub ratio_min: f64,
+    /// Largest per-run ratio.
+    pub ratio_max: f64,
+    /// The target (issue 17), if any: the median ratio must reach it.
+    pub target: Option<f64>,
+    /// Whether the median reaches the target.
+    pub holds: Option<bool>,
+}
+
+/// The bench's output.
+#[derive(Debug, Clone, Serialize)]
+pub struct BenchReport {
+    /// CPU model and logical cores.
+    pub machine: String,
+    /// Runs.
+    pub runs: usize,
+    /// The ratios.
+    pub ratios: Vec<Ratio>,
+    /// What was skipped and why.
+    pub notes: Vec<String>,
+}
+
+const WIDTH: usize = 1024;
+const HEIGHT: usize = 1024;
+const STATES: usize = 4;
+const TOP: usize = 4095;
+
+/// The plain LUT loop (see the module documentation).
+fn plain_lut_frame(tables: &[[u32; 4096]; 4], codes: &[u16], sums: &mut [u32]) {
+    for (cs, ss) in codes.chunks_exact(4).zip(sums.chunks_exact_mut(4)) {
+        for j in 0..4 {
+            ss[j] = ss[j].wrapping_add(tables[j][(cs[j] as usize).min(TOP)]);
+        }
+    }
+}
+
+/// The byte bound (see the module documentation).
+fn bytes_frame(codes: &[u16], sums: &mut [u32]) {
+    for (s, &c) in sums.iter_mut().zip(codes) {
+        *s = s.wrapping_add(c as u32);
+    }
+}
+
+/// Mpx/s of `frames` frames of 1024 x 1024 pixels taking `seconds`.
+fn mpx_per_s(frames: usize, seconds: f64) -> f64 {
+    (frames * WIDTH * HEIGHT) as f64 / seconds.max(1e-12) / 1e6
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n == 0 {
+        f64::NAN
+    } else if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        (v[n / 2 - 1] + v[n / 2]) / 2.0
+    }
+}
+
+fn ratio(name: &str, rates: &[f64], baseline: &str, base: &[f64], unit: &'static str, target: Option<f64>) -> Ratio {
+    let per_run: Vec<f64> = rates.iter().zip(base).map(|(a, b)| a / b).collect();
+    let ratio_median = median(per_run.clone());
+    Ratio {
+        name: name.into(),
+        rate: median(rates.to_vec()),
+        baseline: baseline.into(),
+        baseline_rate: median(base.to_vec()),
+        unit,
+        ratio_median,
+        ratio_min: per_run.iter().copied().fold(f64::INFINITY, f64::min),
+        ratio_max: per_run.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+        target,
+        holds: target.map(|t| ratio_median >= t),
+    }
+}
+
+/// The CPU model and logical core count, from /proc/cpuinfo where there is one.
+pub fn machine() -> String {
+    let info = std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default();
+    let model = info.lines().find(|l| l.starts_with("model name")).and_then(|l| l.split(':').nth(1)).map(str::trim).unwrap_or("unknown CPU");
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    format!("{model}, {cores} logical cores")
+}
+
+/// The numpy reference: prints its Mpx/s for `frames` frames of the same work.
+const NUMPY: &str = r#"
+import sys, time
+import numpy as np
+frames = int(sys.argv[1])
+rng = np.random.default_rng(1)
+codes = rng.integers(0, 4096, size=(1024, 1024), dtype=np.uint16)
+lut = (np.arange(4 * 4096, dtype=np.uint32).reshape(4, 4096) * 2048) % (1 << 23)
+sums = np.zeros((4, 1024, 1024), dtype=np.uint32)
+adc = (np.arange(1024) % 4)[None, :]
+sums[0] += lut[adc, codes]
+t = time.perf_counter()
+for f in range(frames):
+    sums[f % 4] += lut[adc, codes]
+print((frames * 1024 * 1024) / (time.perf_counter() - t) / 1e6)
+"#;
+
+fn numpy_rate(frames: usize) -> Result<f64, String> {
+    let out = Command::new("python3").arg("-c").arg(NUMPY).arg(frames.to_string()).output().map_err(|e| format!("python3: {e}"))?;
+    if !out.status.success() {
+        return Err(String::from_utf8_lossy(&out.stderr).lines().last().unwrap_or("python3 failed").to_string());
+    }
+    String::from_utf8_lossy(&out.stdout).trim().parse::<f64>().map_err(|e| format!("numpy output: {e}"))
+}
+
+/// Runs the bench.
+pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, HostError> {
+    let (runs, frames) = (p.runs, p.frames);
+    if runs == 0 || frames == 0 {
+        return Err(HostError::Format { path: "--runs / --frames".into(), message: "need at least 1 run and 1 frame".into() });
+    }
+    // The core's exact mode holds 512 frames per state; the bench compares its sums with
+    // the plain loop's wrapping ones, so it stays inside (warm-up run included).
+    if frames * (runs + 1) > 512 * STATES {
+        return Err(HostError::Format { path: "--frames".into(), message: format!("{frames} frames x {} runs (one to warm up) exceed 512 frames per state in 4 states", runs + 1) });
+    }
+    let mut notes = Vec::new();
+    let mut rng = StdRng::seed_from_u64(17);
+    // Uniform codes: every table entry equally likely (the least cache-friendly case).
+    let codes: Vec<u16> = (0..WIDTH * HEIGHT).map(|_| rng.random_range(0..4096u16)).collect();
+    let bits: Box<[[u32; 4096]; 4]> = Box::new(core::array::from_fn(|a| core::array::from_fn(|k| ((a * 4096 + k) as u32 * 2048) % (1 << 23))));
+    let luts = Mvd1024eLuts::from_bits(&bits).map_err(|e| HostError::Format { path: "bench LUT".into(), message: format!("{e:?}") })?;
+    let mut banks_line = Box::new(LutBanks::new(luts.clone()));
+    let mut banks_block = Box::new(LutBanks::new(luts));
+    let geometry = Geometry::new(WIDTH as u16, HEIGHT as u16, STATES as u8, 0).map_err(|e| HostError::Format { path: "bench geometry".into(), message: format!("{e:?}") })?;
+    let core_err = |e: dncal_core::CoreError| HostError::Format { path: "bench".into(), message: format!("the core refused the bench's frame: {e:?}") };
+    let mut line_sums = vec![0u32; STATES * WIDTH * HEIGHT];
+    let mut block_sums = vec![0u32; STATES * WIDTH * HEIGHT];
+    let mut plain_sums = vec![0u32; STATES * WIDTH * HEIGHT];
+    let mut byte_sums = vec![0u32; STATES * WIDTH * HEIGHT];
+    let (mut by_line, mut by_block, mut plain, mut bytes, mut numpy) = (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let n = WIDTH * HEIGHT;
+    let mut c_line = Corrector::new(&mut banks_line, geometry, &mut line_sums).map_err(core_err)?;
+    let mut c_block = Corrector::new(&mut banks_block, geometry, &mut block_sums).map_err(core_err)?;
+    // Run 0 warms up (first touches of the sum buffers fault their pages in) and is not
+    // counted.
+    for run in 0..=runs {
+        if run > 0 {
+            progress(&format!("run {run}/{runs}"));
+        }
+        let timed = |into: &mut Vec<f64>, work: &mut dyn FnMut() -> Result<(), HostError>| -> Result<(), HostError> {
+            let t = Instant::now();
+            work()?;
+            if run > 0 {
+                into.push(mpx_per_s(frames, t.elapsed().as_secs_f64()));
+            }
+            Ok(())
+        };
+        timed(&mut by_line, &mut || {
+            for f in 0..frames {
+                c_line.begin_frame((f % STATES) as u8).map_err(core_err)?;
+                for (row, line) in codes.chunks_exact(WIDTH).enumerate() {
+                    black_box(c_line.accumulate_line(row as u16, black_box(line)).map_err(core_err)?);
+                }
+                c_line.end_frame().map_err(core_err)?;
+            }
+            Ok(())
+        })?;
+        timed(&mut by_block, &mut || {
+            for f in 0..frames {
+                c_block.begin_frame((f % STATES) as u8).map_err(core_err)?;
+                black_box(c_block.accumulate_lines(0, black_box(&codes)).map_err(core_err)?);
+                c_block.end_frame().map_err(core_err)?;
+            }
+            Ok(())
+        })?;
+        timed(&mut plain, &mut || {
+            for f in 0..frames {
+                let s = f % STATES;
+                plain_lut_frame(&bits, black_box(&codes), &mut plain_sums[s * n..(s + 1) * n]);
+            }
+            Ok(())
+        })?;
+        timed(&mut bytes, &mut || {
+            for f in 0..frames {
+                let s = f % STATES;
+                bytes_frame(black_box(&codes), &mut byte_sums[s * n..(s + 1) * n]);
+            }
+            Ok(())
+        })?;
+        if run > 0 && p.numpy && notes.is_empty() {
+            match numpy_rate(frames) {
+                Ok(r) => numpy.push(r),
+                Err(e) => notes.push(format!("numpy skipped: {e}")),
+            }
+        }
+        black_box((&plain_sums, &byte_sums));
+    }
+    // The core and the plain loop must agree bit for bit, or the comparison is void.
+    if c_line.sums().as_slice() != plain_sums.as_slice() || c_block.sums().as_slice() != plain_sums.as_slice() {
+        return Err(HostError::Format { path: "bench".into(), message: "the core's sums differ from the plain LUT loop's".into() });
+    }
+    let mut ratios = vec![
+        ratio("core, line by line", &by_line, "plain LUT loop", &plain, "Mpx/s", None),
+        ratio("core, frame as a block", &by_block, "plain LUT loop", &plain, "Mpx/s", Some(0.95)),
+        ratio("core, frame as a block", &by_block, "byte bound (no LUT)", &bytes, "Mpx/s", Some(0.4)),
+    ];
+    if numpy.len() == runs {
+        ratios.push(ratio("core, frame as a block", &by_block, "numpy lut[adc, codes]", &numpy, "Mpx/s", Some(8.0)));
+    } else if p.numpy && notes.is_empty() {
+        notes.push("numpy: not every run measured".into());
+    }
+    Ok(BenchReport { machine: machine(), runs, ratios, notes })
+}
