@@ -20,6 +20,7 @@ pub mod kcor_tables;
 pub mod linearity;
 pub mod plots;
 pub mod quantization;
+pub mod parallel;
 pub mod real_adcs;
 pub mod reference;
 pub mod streaming;

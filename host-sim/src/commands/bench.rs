@@ -18,6 +18,7 @@ use dncal_core::{Corrector, Geometry, LutBanks, Mvd1024eLuts};
 use rand::{rngs::StdRng, Rng, SeedableRng};
 use serde::Serialize;
 
+use crate::parallel::Bands;
 use crate::HostError;
 
 /// What the bench runs.
@@ -33,7 +34,7 @@ pub struct BenchParams {
 
 impl Default for BenchParams {
     fn default() -> Self {
-        BenchParams { runs: 7, frames: 8, numpy: true }
+        BenchParams { runs: 7, frames: 32, numpy: true }
     }
 }
 
@@ -180,6 +181,7 @@ pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, Ho
     let codes: Vec<u16> = (0..WIDTH * HEIGHT).map(|_| rng.random_range(0..4096u16)).collect();
     let bits: Box<[[u32; 4096]; 4]> = Box::new(core::array::from_fn(|a| core::array::from_fn(|k| ((a * 4096 + k) as u32 * 2048) % (1 << 23))));
     let luts = Mvd1024eLuts::from_bits(&bits).map_err(|e| HostError::Format { path: "bench LUT".into(), message: format!("{e:?}") })?;
+    let luts_for_bands = luts.clone();
     let mut banks_line = Box::new(LutBanks::new(luts.clone()));
     let mut banks_block = Box::new(LutBanks::new(luts));
     let geometry = Geometry::new(WIDTH as u16, HEIGHT as u16, STATES as u8, 0).map_err(|e| HostError::Format { path: "bench geometry".into(), message: format!("{e:?}") })?;
@@ -189,6 +191,12 @@ pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, Ho
     let mut plain_sums = vec![0u32; STATES * WIDTH * HEIGHT];
     let mut byte_sums = vec![0u32; STATES * WIDTH * HEIGHT];
     let (mut by_line, mut by_block, mut plain, mut bytes, mut numpy) = (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    // The parallel path against itself on one band: both clear their sums once per run.
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let mut one_band = Bands::new(&luts_for_bands, geometry, 1).map_err(core_err)?;
+    let mut many_bands = Bands::new(&luts_for_bands, geometry, threads).map_err(core_err)?;
+    let frame_list: Vec<(u8, &[u16])> = (0..frames).map(|f| ((f % STATES) as u8, codes.as_slice())).collect();
+    let (mut banded_1, mut banded_n) = (Vec::new(), Vec::new());
     let n = WIDTH * HEIGHT;
     let mut c_line = Corrector::new(&mut banks_line, geometry, &mut line_sums).map_err(core_err)?;
     let mut c_block = Corrector::new(&mut banks_block, geometry, &mut block_sums).map_err(core_err)?;
@@ -224,6 +232,8 @@ pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, Ho
             }
             Ok(())
         })?;
+        timed(&mut banded_1, &mut || one_band.run(&frame_list).map(|_| ()).map_err(core_err))?;
+        timed(&mut banded_n, &mut || many_bands.run(&frame_list).map(|_| ()).map_err(core_err))?;
         timed(&mut plain, &mut || {
             for f in 0..frames {
                 let s = f % STATES;
@@ -255,6 +265,14 @@ pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, Ho
         ratio("core, frame as a block", &by_block, "plain LUT loop", &plain, "Mpx/s", Some(0.95)),
         ratio("core, frame as a block", &by_block, "byte bound (no LUT)", &bytes, "Mpx/s", Some(0.4)),
     ];
+    if many_bands.sums() != one_band.sums() {
+        return Err(HostError::Format { path: "bench".into(), message: "the bands' sums differ from one band's".into() });
+    }
+    if threads > 1 {
+        ratios.push(ratio(&format!("core, {threads} bands, {threads} threads"), &banded_n, "core, 1 band, 1 thread", &banded_1, "Mpx/s", Some(1.8)));
+    } else {
+        notes.push("one core: the parallel path was not measured".into());
+    }
     if numpy.len() == runs {
         ratios.push(ratio("core, frame as a block", &by_block, "numpy lut[adc, codes]", &numpy, "Mpx/s", Some(8.0)));
     } else if p.numpy && notes.is_empty() {
