@@ -224,13 +224,12 @@ fn run_typed<const N: usize, const CODES: usize>(
     for frame in 0..p.frames {
         let state = (frame % p.states as u32) as u8;
         let frame_seed = p.seed.wrapping_mul(0x2545_F491_4F6C_DD1D).wrapping_add(frame as u64);
+        // The light is the same on every row of a frame: once per column, not per pixel.
+        let x0 = p.first_column as usize;
+        let light: Vec<f64> = (x0..x0 + w).map(|c| illumination(p, peak, c, state)).collect();
         let lines: Vec<Vec<u16>> = (0..h)
             .into_par_iter()
-            .map(|y| {
-                let row = p.first_row as usize + y;
-                let full = camera.sample_line(row, frame_seed, |c| if c >= p.first_column as usize && c < p.first_column as usize + w { illumination(p, peak, c, state) } else { 0.0 });
-                full[p.first_column as usize..p.first_column as usize + w].to_vec()
-            })
+            .map(|y| camera.sample_span(p.first_row as usize + y, x0..x0 + w, frame_seed, |c| light[c - x0]))
             .collect();
         let t = Instant::now();
         corrector.begin_frame(state).map_err(|e| HostError::core(ctx("begin frame"), e))?;

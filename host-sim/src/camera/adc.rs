@@ -104,8 +104,10 @@ impl PipelinedAdc {
         if v.is_nan() {
             return 0;
         }
-        // Start at the ideal code and walk: |E(k)| is a few LSB at most.
-        let mut k = (v + 0.5).floor().clamp(0.0, top as f64) as usize;
+        // Start at the ideal code and walk: |E(k)| is a few LSB at most. The start is
+        // floor(v + 1/2) clamped to the codes; truncation gives the same after the clamp
+        // (it differs from floor only below 0) without a libm call per pixel.
+        let mut k = ((v + 0.5) as i64).clamp(0, top as i64) as usize;
         while k > 0 && self.levels[k] > v {
             k -= 1;
         }

@@ -273,6 +273,23 @@ pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, Ho
     } else {
         notes.push("one core: the parallel path was not measured".into());
     }
+    // End to end: `dncal stream` (camera model sampling, the core, the float reference
+    // check) on 1024 x 1024 frames, against one K-Coronagraph camera's rate (1024 x 1024 x
+    // 150 Hz): a fixed rate, not a run in this process, so its ratio's spread is the
+    // stream's own.
+    let camera = crate::camera::Camera::new(crate::camera::CameraConfig::default()).map_err(|e| HostError::Format { path: "default camera".into(), message: e })?;
+    let weights = crate::commands::stream::oracle_weights(&camera)?;
+    let stream_frames = 8u32;
+    let mut stream_rates = Vec::new();
+    for _ in 0..runs.min(3) {
+        let r = crate::streaming::run_stream(&camera, &weights, &crate::streaming::StreamParams::full_frame(&camera, stream_frames), |_| {})?;
+        if r.mismatches != 0 {
+            return Err(HostError::Format { path: "bench".into(), message: format!("stream: {} mismatches against the float reference", r.mismatches) });
+        }
+        stream_rates.push(r.pixels as f64 / r.wall_s / 1e6);
+    }
+    let camera_rate = vec![1024.0 * 1024.0 * 150.0 / 1e6; stream_rates.len()];
+    ratios.push(ratio("stream, end to end", &stream_rates, "one K-Cor camera (fixed)", &camera_rate, "Mpx/s", Some(1.0)));
     if numpy.len() == runs {
         ratios.push(ratio("core, frame as a block", &by_block, "numpy lut[adc, codes]", &numpy, "Mpx/s", Some(8.0)));
     } else if p.numpy && notes.is_empty() {
