@@ -176,6 +176,11 @@ enum Cmd {
         /// Seed of the frames.
         #[arg(long, default_value_t = 735)]
         seed: u64,
+        /// Replay recorded frames (a FITS cube of raw codes: columns x rows x frames)
+        /// instead of sampling the camera model; every frame is streamed, the ROI is the
+        /// cube's size at COLUMN, ROW of --roi (default 0, 0).
+        #[arg(long, value_name = "FITS", conflicts_with = "frames")]
+        frames_from: Option<PathBuf>,
         #[command(flatten)]
         engine: EngineArgs,
         /// Print a JSON summary on stdout.
@@ -707,16 +712,26 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
                 t
             })?;
         }
-        Cmd::Stream { camera, hist, flatten, frames, states, roi, seed, engine, json } => {
+        Cmd::Stream { camera, hist, flatten, frames, states, roi, seed, frames_from, engine, json } => {
             let cam = camera.camera()?;
             let mut p = StreamParams::full_frame(&cam, frames);
             p.states = states;
             p.seed = seed;
             p.engine = engine.engine()?;
+            let fit = |what: &str, v: usize| u16::try_from(v).map_err(|_| HostError::Format { path: what.into(), message: format!("{v} does not fit 16 bits") });
             if let Some(r) = roi {
                 let (w, h, x, y) = parse_roi(&r)?;
-                let fit = |v: usize| u16::try_from(v).map_err(|_| HostError::Format { path: "--roi".into(), message: format!("{v} does not fit 16 bits") });
-                (p.width, p.height, p.first_column, p.first_row) = (fit(w)?, fit(h)?, fit(x)?, fit(y)?);
+                (p.width, p.height, p.first_column, p.first_row) = (fit("--roi", w)?, fit("--roi", h)?, fit("--roi", x)?, fit("--roi", y)?);
+            }
+            if let Some(path) = frames_from {
+                let cube = dncal_host::fits::read_frames(&path)?;
+                if p.first_column as usize + cube.width > cam.config.width || p.first_row as usize + cube.height > cam.config.height {
+                    return Err(HostError::Format { path, message: format!("{}x{} frames at ({}, {}) do not fit the {}x{} sensor", cube.width, cube.height, p.first_column, p.first_row, cam.config.width, cam.config.height) });
+                }
+                p.width = fit("--frames-from", cube.width)?;
+                p.height = fit("--frames-from", cube.height)?;
+                p.frames = u32::try_from(cube.frames).map_err(|_| HostError::Format { path: path.clone(), message: "too many frames".into() })?;
+                p.recorded = Some(std::sync::Arc::new(cube));
             }
             let r = stream::stream(&cam, hist.as_deref(), &flatten.params(), &p)?;
             let ok = r.mismatches == 0 && r.out_of_bound == 0 && r.fpga.as_ref().is_none_or(|f| f.mismatches_vs_core == 0 && f.mismatches_vs_reference == 0 && f.fifo_overflows == 0);

@@ -54,6 +54,11 @@ pub struct StreamParams {
     /// The datapath.
     #[serde(skip)]
     pub engine: Engine,
+    /// Recorded frames to replay instead of sampling the camera model (what a DAQ
+    /// streams): their size is the ROI's, at `first_column` and `first_row`; every frame
+    /// of the cube is streamed, frame f in state f mod `states`.
+    #[serde(skip)]
+    pub recorded: Option<std::sync::Arc<crate::fits::FrameCube>>,
 }
 
 impl StreamParams {
@@ -70,6 +75,7 @@ impl StreamParams {
             modulation_depth: 0.2,
             seed: 735,
             engine: Engine::Core,
+            recorded: None,
         }
     }
 }
@@ -189,6 +195,11 @@ fn run_typed<const N: usize, const CODES: usize>(
     if p.first_column as usize + p.width as usize > camera.config.width || p.first_row as usize + p.height as usize > camera.config.height {
         return Err(HostError::Format { path: "stream parameters".into(), message: format!("ROI {}x{} at ({}, {}) exceeds the {}x{} sensor", p.width, p.height, p.first_column, p.first_row, camera.config.width, camera.config.height) });
     }
+    if let Some(cube) = &p.recorded {
+        if (cube.width, cube.height) != (p.width as usize, p.height as usize) || cube.frames != p.frames as usize {
+            return Err(HostError::Format { path: "stream parameters".into(), message: format!("{} frames of {}x{} recorded, {} of {}x{} asked", cube.frames, cube.width, cube.height, p.frames, p.width, p.height) });
+        }
+    }
     let slices: Vec<&[Weight]> = weights.iter().map(|w| w.as_slice()).collect();
     let slices: &[&[Weight]; N] = slices.as_slice().try_into().map_err(|_| HostError::Format { path: "weights".into(), message: format!("{} weight vectors for {N} ADCs", weights.len()) })?;
     let luts = Box::new(LutSet::<N, CODES>::from_weights(slices).map_err(|e| HostError::core(ctx("LUT from weights"), e))?);
@@ -224,13 +235,15 @@ fn run_typed<const N: usize, const CODES: usize>(
     for frame in 0..p.frames {
         let state = (frame % p.states as u32) as u8;
         let frame_seed = p.seed.wrapping_mul(0x2545_F491_4F6C_DD1D).wrapping_add(frame as u64);
-        // The light is the same on every row of a frame: once per column, not per pixel.
         let x0 = p.first_column as usize;
-        let light: Vec<f64> = (x0..x0 + w).map(|c| illumination(p, peak, c, state)).collect();
-        let lines: Vec<Vec<u16>> = (0..h)
-            .into_par_iter()
-            .map(|y| camera.sample_span(p.first_row as usize + y, x0..x0 + w, frame_seed, |c| light[c - x0]))
-            .collect();
+        let lines: Vec<Vec<u16>> = match &p.recorded {
+            Some(cube) => cube.frame(frame as usize).chunks_exact(w).map(<[u16]>::to_vec).collect(),
+            None => {
+                // The light is the same on every row of a frame: once per column, not per pixel.
+                let light: Vec<f64> = (x0..x0 + w).map(|c| illumination(p, peak, c, state)).collect();
+                (0..h).into_par_iter().map(|y| camera.sample_span(p.first_row as usize + y, x0..x0 + w, frame_seed, |c| light[c - x0])).collect()
+            }
+        };
         let t = Instant::now();
         corrector.begin_frame(state).map_err(|e| HostError::core(ctx("begin frame"), e))?;
         for (y, line) in lines.iter().enumerate() {

@@ -759,3 +759,40 @@ fn bench_reports_ratios_against_in_process_references() {
     assert_clean_failure(&dncal(&["bench", "--runs", "0"], dir.path()), "--runs", "at least 1");
     assert_clean_failure(&dncal(&["bench", "--runs", "9", "--frames", "300"], dir.path()), "--frames", "512 frames per state");
 }
+
+/// `stream --frames-from` replays recorded frames (written here by astropy, an outside
+/// writer) through the core: every frame, the cube's size at the --roi offset, the float
+/// reference matched bit for bit, codes above the top counted as numpy counts them; bad
+/// cubes are refused naming the file.
+#[test]
+fn stream_replays_recorded_frames() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    python(
+        r#"
+import numpy as np
+from astropy.io import fits
+rng = np.random.default_rng(5)
+cube = rng.integers(0, 5000, size=(3, 16, 40)).astype(np.uint16)
+fits.PrimaryHDU(cube).writeto('cube.fits')
+open('over.txt', 'w').write(str(int((cube > 4095).sum())))
+fits.PrimaryHDU(cube.astype(np.float32)).writeto('float.fits')
+fits.PrimaryHDU(cube[None]).writeto('four.fits')
+fits.PrimaryHDU(cube.astype(np.int32) + 70000).writeto('wide.fits')
+"#,
+        d,
+    );
+    let over: u64 = std::fs::read_to_string(d.join("over.txt")).unwrap().parse().unwrap();
+    assert!(over > 0);
+    let s = stdout_json(&dncal(&["stream", "--frames-from", "cube.fits", "--roi", "40x16+3+2", "--states", "2", "--json"], d));
+    assert_eq!(s["frames"], 3);
+    assert_eq!(s["pixels"], 3 * 16 * 40);
+    assert_eq!(s["sum_pixels"], 2 * 16 * 40);
+    assert_eq!(s["mismatches"], 0, "{s}");
+    assert_eq!(s["status"]["out_of_range_codes"].as_u64().unwrap(), over, "{s}");
+    assert_clean_failure(&dncal(&["stream", "--frames-from", "float.fits"], d), "float.fits", "floating-point");
+    assert_clean_failure(&dncal(&["stream", "--frames-from", "four.fits"], d), "four.fits", "NAXIS = 4");
+    assert_clean_failure(&dncal(&["stream", "--frames-from", "wide.fits"], d), "wide.fits", "does not fit 16 bits");
+    assert_clean_failure(&dncal(&["stream", "--frames-from", "cube.fits", "--roi", "40x16+1000+0"], d), "cube.fits", "do not fit");
+    assert_clean_failure(&dncal(&["stream", "--frames-from", "missing.fits"], d), "missing.fits", "No such file");
+}

@@ -290,6 +290,18 @@ pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, Ho
     }
     let camera_rate = vec![1024.0 * 1024.0 * 150.0 / 1e6; stream_rates.len()];
     ratios.push(ratio("stream, end to end", &stream_rates, "one K-Cor camera (fixed)", &camera_rate, "Mpx/s", Some(1.0)));
+    // Replay (`stream --frames-from`): the same frames of uniform codes, recorded.
+    let cube = crate::fits::FrameCube { width: WIDTH, height: HEIGHT, frames: 16, codes: codes.repeat(16) };
+    let replay = crate::streaming::StreamParams { recorded: Some(std::sync::Arc::new(cube)), ..crate::streaming::StreamParams::full_frame(&camera, 16) };
+    let mut replay_rates = Vec::new();
+    for _ in 0..runs.min(3) {
+        let r = crate::streaming::run_stream(&camera, &weights, &replay, |_| {})?;
+        if r.mismatches != 0 {
+            return Err(HostError::Format { path: "bench".into(), message: format!("replay: {} mismatches against the float reference", r.mismatches) });
+        }
+        replay_rates.push(r.pixels as f64 / r.wall_s / 1e6);
+    }
+    ratios.push(ratio("stream --frames-from", &replay_rates, "one K-Cor camera (fixed)", &camera_rate[..1].repeat(replay_rates.len()), "Mpx/s", Some(1.0)));
     if numpy.len() == runs {
         ratios.push(ratio("core, frame as a block", &by_block, "numpy lut[adc, codes]", &numpy, "Mpx/s", Some(8.0)));
     } else if p.numpy && notes.is_empty() {
