@@ -42,6 +42,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::fits::LinearitySet;
+use crate::stats::median;
 
 /// Order of the pixel-wise polynomial (the paper: 4; higher did not help).
 pub const PIXEL_ORDER: usize = 4;
@@ -170,21 +171,6 @@ pub fn invert(a: &[f64], m: f64, guess: f64) -> f64 {
     0.5 * (lo + hi)
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.retain(|x| x.is_finite());
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) }
-}
-
-fn rms_of(v: impl Iterator<Item = f64>) -> f64 {
-    let (s, n) = v.filter(|x| x.is_finite()).fold((0.0, 0usize), |(s, n), x| (s + x * x, n + 1));
-    if n == 0 { f64::NAN } else { (s / n as f64).sqrt() }
-}
-
 /// Replaces masked pixels of one `width x height` image by the mean of their good
 /// 8-neighbours (left as they are when none is good).
 pub fn fill_masked(image: &mut [f64], mask: &[u8], width: usize, height: usize) {
@@ -307,7 +293,7 @@ pub fn analyze_with_flat(set: &LinearitySet, order: usize, flat: Option<usize>) 
                 Some(pi) if n > g => {
                     let y = DVector::from_iterator(n, (0..n).map(|l| m(l, p)));
                     let a: Vec<f64> = (pi * &y).iter().copied().collect();
-                    let resid = rms_of((0..n).map(|l| poly(&a, x[l]) - m(l, p)));
+                    let resid = crate::stats::rms_finite((0..n).map(|l| poly(&a, x[l]) - m(l, p)));
                     (a, resid)
                 }
                 _ => (vec![f64::NAN; order + 1], f64::NAN),
@@ -325,7 +311,7 @@ pub fn analyze_with_flat(set: &LinearitySet, order: usize, flat: Option<usize>) 
     }
     let signal: Vec<f64> = (0..np).map(|p| m(g, p) - m(0, p)).collect();
     let med_signal = median(signal.clone());
-    let med_resid = median(fits.iter().map(|f| f.1).collect());
+    let med_resid = median(fits.iter().map(|f| f.1));
     for p in 0..np {
         if signal[p].is_nan() || signal[p] < 0.5 * med_signal {
             mask[p] |= reason::LOW;
@@ -338,7 +324,7 @@ pub fn analyze_with_flat(set: &LinearitySet, order: usize, flat: Option<usize>) 
     }
     let good: Vec<usize> = (0..np).filter(|&p| mask[p] == 0).collect();
     // Standard correction: global cubic x = f(m / top) from the median good pixel.
-    let med_levels: Vec<f64> = (0..nl).map(|l| median(good.iter().filter(|&&p| l < valid[p]).map(|&p| m(l, p)).collect())).collect();
+    let med_levels: Vec<f64> = (0..nl).map(|l| median(good.iter().filter(|&&p| l < valid[p]).map(|&p| m(l, p)))).collect();
     let usable: Vec<usize> = (0..nl).filter(|&l| med_levels[l].is_finite() && good.iter().filter(|&&p| l < valid[p]).count() * 2 > good.len()).collect();
     let gpinv = pseudo_inverse(&usable.iter().map(|&l| med_levels[l] / top).collect::<Vec<_>>(), GLOBAL_ORDER);
     let global: Vec<f64> = (&gpinv * DVector::from_iterator(usable.len(), usable.iter().map(|&l| x[l]))).iter().copied().collect();
@@ -367,9 +353,9 @@ pub fn analyze_with_flat(set: &LinearitySet, order: usize, flat: Option<usize>) 
         .map(|l| {
             let pix: Vec<usize> = good.iter().copied().filter(|&p| l < valid[p]).collect();
             let mean_l = pix.iter().map(|&p| m(l, p)).sum::<f64>() / pix.len().max(1) as f64;
-            let raw = rms_of(pix.iter().map(|&p| m(l, p) / mean_l - 1.0));
-            let std = rms_of(pix.iter().map(|&p| (f(m(l, p)) - f(m(0, p))) / (f(m(g, p)) - f(m(0, p))) - e[l]));
-            let pw = rms_of(pix.iter().map(|&p| corrected_raw[l * np + p] - e[l]));
+            let raw = crate::stats::rms_finite(pix.iter().map(|&p| m(l, p) / mean_l - 1.0));
+            let std = crate::stats::rms_finite(pix.iter().map(|&p| (f(m(l, p)) - f(m(0, p))) / (f(m(g, p)) - f(m(0, p))) - e[l]));
+            let pw = crate::stats::rms_finite(pix.iter().map(|&p| corrected_raw[l * np + p] - e[l]));
             let nf = f64::from(set.n_frames.max(1)).sqrt();
             // Propagation of `s_l, s_g, s_0` through `c = (y_l - y_0) / (y_g - y_0)`, where
             // `y = h(m)` is what a correction makes of a mean and `h'` its slope.
@@ -385,11 +371,11 @@ pub fn analyze_with_flat(set: &LinearitySet, order: usize, flat: Option<usize>) 
                 let xh = xhat[l * np + p];
                 (xh, 1.0 / poly_slope(&fits[p].0, xh))
             };
-            let random = rms_of(pix.iter().map(|&p| propagated(&identity, p)));
-            let random_standard = rms_of(pix.iter().map(|&p| propagated(&standard, p)));
-            let random_pixelwise = rms_of(pix.iter().map(|&p| propagated(&pixelwise, p)));
-            let random_raw = rms_of(pix.iter().map(|&p| sd(l, p) / nf / mean_l));
-            let random_level_only = rms_of(pix.iter().map(|&p| sd(l, p) / nf / (m(g, p) - m(0, p))));
+            let random = crate::stats::rms_finite(pix.iter().map(|&p| propagated(&identity, p)));
+            let random_standard = crate::stats::rms_finite(pix.iter().map(|&p| propagated(&standard, p)));
+            let random_pixelwise = crate::stats::rms_finite(pix.iter().map(|&p| propagated(&pixelwise, p)));
+            let random_raw = crate::stats::rms_finite(pix.iter().map(|&p| sd(l, p) / nf / mean_l));
+            let random_level_only = crate::stats::rms_finite(pix.iter().map(|&p| sd(l, p) / nf / (m(g, p) - m(0, p))));
             let calibrated = l != 0 && l != g;
             [
                 nan_unless(l != 0, raw),
@@ -592,6 +578,9 @@ mod tests {
             // corrections' curves are the linear one; raw is s over the level's mean; the
             // level alone is s / (m_g - m_0).
             assert!((r.rms_random_pixelwise[l] - want).abs() < 1e-9 * want, "level {l}: {}", r.rms_random_pixelwise[l]);
+            // The global cubic fit to the median pixel's levels is exactly linear here, so
+            // the standard correction propagates the noise the same way.
+            assert!((r.rms_random_standard[l] - want).abs() < 1e-9 * want, "level {l}: {}", r.rms_random_standard[l]);
             let mean = 100.0 + 3000.0 * l as f64 / 40.0;
             assert!((r.rms_random_raw[l] - s / mean).abs() < 1e-12, "level {l}");
             assert!((r.rms_random_level_only[l] - s / d).abs() < 1e-12, "level {l}");

@@ -795,9 +795,9 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
                 );
                 if !s.realizations.is_empty() {
                     let spread = |f: fn(&kcor::Realization) -> f64| {
-                        let mut v: Vec<f64> = s.realizations.iter().map(f).collect();
-                        v.sort_by(f64::total_cmp);
-                        (v[0], v[v.len() / 2], v[v.len() - 1])
+                        let v: Vec<f64> = s.realizations.iter().map(f).collect();
+                        let (lo, hi) = v.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+                        (lo, dncal_host::stats::median(v), hi)
                     };
                     let (a, b, c) = spread(|x| x.reduction);
                     let (d, e, f) = spread(|x| x.rms_reduction);

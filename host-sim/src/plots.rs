@@ -156,10 +156,11 @@ pub fn level_lines_plot(path: &Path, title: &str, x_label: &str, y_label: &str, 
             let n = lines.len().max(2);
             for (l, line) in lines.iter().enumerate() {
                 let color = ViridisRGB.get_color(l as f32 / (n - 1) as f32);
-                // Split at NaN so saturated or masked pixels interrupt the line.
-                for run in line.split(|p| !(p.0.is_finite() && p.1.is_finite())).filter(|r| !r.is_empty()) {
-                    let clipped = run.iter().map(|&(x, y)| (x, y.clamp(y_range.0, y_range.1)));
-                    chart.draw_series(LineSeries::new(clipped, color.stroke_width(1))).map_err(|e| plot_err(path, e))?;
+                // Split at NaN so saturated or masked pixels interrupt the line, and where it
+                // leaves the y range (drawn along the border it would look like data there).
+                let shown = |p: &(f64, f64)| p.0.is_finite() && p.1.is_finite() && (y_range.0..=y_range.1).contains(&p.1);
+                for run in line.split(|p| !shown(p)).filter(|r| !r.is_empty()) {
+                    chart.draw_series(LineSeries::new(run.iter().copied(), color.stroke_width(1))).map_err(|e| plot_err(path, e))?;
                 }
             }
         }

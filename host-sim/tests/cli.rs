@@ -569,6 +569,8 @@ with fits.open('out/corrected.fits') as h:
     for bad in ["0", "41"] {
         assert_clean_failure(&dncal(&["linearity", "lin.fits", "--flat-level", bad], d), "--flat-level", "illuminated levels 1 to 40");
     }
+    // At level 40 nearly every pixel is saturated: refused, not a silently masked sensor.
+    assert_clean_failure(&dncal(&["linearity", "lin.fits", "--flat-level", "40"], d), "--flat-level", "saturated at that level");
     std::fs::write(d.join("h.fits"), b"").unwrap();
     assert_clean_failure(&dncal(&["linearity", "h.fits"], d), "h.fits", "");
 }

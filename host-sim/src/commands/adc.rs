@@ -30,15 +30,7 @@ pub fn detrend(x: &[f64], y: &[f64]) -> Vec<f64> {
     x.iter().zip(y).map(|(a, b)| b - c0 - c1 * a).collect()
 }
 
-/// Root mean square.
-pub fn rms(v: &[f64]) -> f64 {
-    (v.iter().map(|e| e * e).sum::<f64>() / v.len().max(1) as f64).sqrt()
-}
-
-/// Largest absolute value.
-pub fn max_abs(v: &[f64]) -> f64 {
-    v.iter().fold(0.0, |m: f64, e| m.max(e.abs()))
-}
+pub use crate::stats::{max_abs, rms};
 
 /// How well one ADC's LUT matches its known truth, over the calibrated codes (from
 /// `fixed_low_codes` to the code below the top) after removing the best straight line (an

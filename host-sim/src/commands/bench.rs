@@ -19,6 +19,7 @@ use rand::{rngs::StdRng, Rng, SeedableRng};
 use serde::Serialize;
 
 use crate::parallel::Bands;
+use crate::stats::median;
 use crate::HostError;
 
 /// What the bench runs.
@@ -102,17 +103,6 @@ fn mpx_per_s(frames: usize, seconds: f64) -> f64 {
     (frames * WIDTH * HEIGHT) as f64 / seconds.max(1e-12) / 1e6
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n == 0 {
-        f64::NAN
-    } else if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        (v[n / 2 - 1] + v[n / 2]) / 2.0
-    }
-}
 
 fn ratio(name: &str, rates: &[f64], baseline: &str, base: &[f64], unit: &'static str, target: Option<f64>) -> Ratio {
     let per_run: Vec<f64> = rates.iter().zip(base).map(|(a, b)| a / b).collect();

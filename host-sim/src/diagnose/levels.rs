@@ -34,7 +34,8 @@ use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 use statrs::distribution::ContinuousCDF;
 
-use super::linearity::{fit_and_score, median, robust, Point, Response};
+use super::linearity::{fit_and_score, Point, Response};
+use crate::stats::{robust, upper_median};
 use super::AdcResiduals;
 
 /// Held out by level, over the levels `on`: the odd rows' estimate in its noise, and its
@@ -257,11 +258,11 @@ pub(super) fn level_term(data: &[(Vec<Point>, Vec<Point>)], x: &[f64], estimatin
         })
         .collect();
     // The pixels' local slopes at each level.
-    let slope_median: Vec<f64> = x.par_iter().map(|&xl| median(fits.iter().filter_map(|f| Some(slope(f.2.as_ref()?, xl))).filter(|s| s.is_finite()).collect())).collect();
+    let slope_median: Vec<f64> = x.par_iter().map(|&xl| upper_median(fits.iter().filter_map(|f| Some(slope(f.2.as_ref()?, xl))).filter(|s| s.is_finite()))).collect();
     let adc_ratio: Vec<Vec<f64>> = (0..n_adc)
         .map(|a| {
             (0..levels)
-                .map(|l| median(fits.iter().zip(adc).filter(|(_, &b)| b == a).map(|(f, _)| slope_over(f.2.as_ref(), x[l], slope_median[l])).collect()))
+                .map(|l| upper_median(fits.iter().zip(adc).filter(|(_, &b)| b == a).map(|(f, _)| slope_over(f.2.as_ref(), x[l], slope_median[l]))))
                 .map(|r| if r.is_finite() { r } else { 1.0 })
                 .collect()
         })
@@ -282,7 +283,7 @@ pub(super) fn level_term(data: &[(Vec<Point>, Vec<Point>)], x: &[f64], estimatin
         }
     }
     let est: Vec<[(f64, f64); 2]> = per.par_iter().map(|h| [clipped_mean(&h[0]), clipped_mean(&h[1])]).collect();
-    let signal: Vec<f64> = signal.into_iter().map(median).collect();
+    let signal: Vec<f64> = signal.into_iter().map(upper_median).collect();
     // Agreement of the halves, over the levels where both have an estimate.
     let both: Vec<(usize, f64, f64)> = (0..levels)
         .filter(|&l| !skipped(l) && est[l].iter().all(|(c, v)| c.is_finite() && *v > 0.0))

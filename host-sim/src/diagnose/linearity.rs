@@ -75,6 +75,7 @@ use super::levels::{held_out_rms, level_term, wald, Block, LevelTerm, Shape};
 use super::*;
 use crate::fits::LinearitySet;
 use crate::linearity::unsaturated_levels;
+use crate::stats::{robust, upper_median};
 
 /// A level response model of one pixel.
 #[derive(Debug, Clone, Copy)]
@@ -222,20 +223,6 @@ pub(super) fn fit_and_score(model: Response, start: &[f64], fit: &[Point], test:
     })
 }
 
-pub(super) fn median(mut v: Vec<f64>) -> f64 {
-    v.retain(|x| x.is_finite());
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
-
-/// Median and robust scatter (1.4826 x the median absolute deviation).
-pub(super) fn robust(v: &[f64]) -> (f64, f64) {
-    let m = median(v.to_vec());
-    (m, 1.4826 * median(v.iter().map(|x| (x - m).abs()).collect()))
-}
 
 /// Sums over pixels of held-out `z^2`, `tr C`, `tr C^2`, and the count of residuals.
 #[derive(Debug, Clone, Copy, Default)]
@@ -296,7 +283,7 @@ fn paired_sum(d: &[f64]) -> f64 {
 /// pixel-to-pixel spread alone).
 fn population(values: impl Iterator<Item = (usize, f64)>, n_adc: usize) -> (Vec<f64>, f64, f64) {
     let v: Vec<(usize, f64)> = values.collect();
-    let per: Vec<f64> = (0..n_adc).map(|a| median(v.iter().filter(|(b, _)| *b == a).map(|(_, x)| *x).collect())).collect();
+    let per: Vec<f64> = (0..n_adc).map(|a| upper_median(v.iter().filter(|(b, _)| *b == a).map(|(_, x)| *x))).collect();
     let mut sorted: Vec<f64> = per.iter().copied().filter(|x| x.is_finite()).collect();
     sorted.sort_by(f64::total_cmp);
     let h = sorted.len();
@@ -377,7 +364,7 @@ fn quantization_floor(set: &LinearitySet, pixels: &[usize]) -> Vec<f64> {
         .map(|l| {
             let s: Vec<f64> = pixels.iter().map(|&p| set.std[l * np + p]).filter(|v| v.is_finite()).collect();
             // Noisy or hot pixels out: they are not the level's noise.
-            let cut = 5.0 * median(s.clone()).max(0.0) + 1.0;
+            let cut = 5.0 * upper_median(s.clone()).max(0.0) + 1.0;
             let kept: Vec<f64> = s.into_iter().filter(|&v| v <= cut).collect();
             let v = kept.iter().map(|v| v * v).sum::<f64>() / kept.len().max(1) as f64;
             crate::quantization::mean_square_bias(crate::quantization::sigma_from_quantized_variance(v))
@@ -446,18 +433,18 @@ fn measure_camera(set: &LinearitySet, pixels: &[usize], good: &[usize], valid: &
         (centre, scatter)
     };
     let (mut s, mut v) = (Vec::new(), Vec::new());
-    let dark = median(good.iter().map(|&i| set.mean[pixels[i]]).collect());
+    let dark = upper_median(good.iter().map(|&i| set.mean[pixels[i]]));
     for l in 1..set.levels {
         let on: Vec<usize> = good.iter().map(|&i| pixels[i]).filter(|&p| l < valid[p]).collect();
         if on.len() * 2 < good.len() {
             break;
         }
-        let signal = median(on.iter().map(|&p| set.mean[l * np + p] - set.mean[p]).collect());
+        let signal = upper_median(on.iter().map(|&p| set.mean[l * np + p] - set.mean[p]));
         if signal > 0.7 * (top - dark) {
             break;
         }
         s.push(signal);
-        v.push(median(on.iter().map(|&p| set.std[l * np + p].powi(2)).collect()) / median_chi2);
+        v.push(upper_median(on.iter().map(|&p| set.std[l * np + p].powi(2))) / median_chi2);
     }
     let (gain, read) = if s.len() >= 3 {
         let (a, b, _) = crate::emva::fit_line(&s, &v);
@@ -470,7 +457,7 @@ fn measure_camera(set: &LinearitySet, pixels: &[usize], good: &[usize], valid: &
     // pixel's own curvature: they read 2.1 DN of DSNU where the camera had 0.9).
     let n_frames = f64::from(set.n_frames.max(1));
     let (_, d_scatter) = about_own_adc(&good.iter().map(|&i| (adc_of(pixels[i]), set.mean[pixels[i]])).collect::<Vec<_>>());
-    let d_noise = median(good.iter().map(|&i| set.std[pixels[i]].powi(2) / n_frames).collect()) / median_chi2;
+    let d_noise = upper_median(good.iter().map(|&i| set.std[pixels[i]].powi(2) / n_frames)) / median_chi2;
     let half = s.iter().enumerate().min_by(|a, b| (a.1 - 0.5 * s.last().copied().unwrap_or(0.0) / 0.7).abs().total_cmp(&(b.1 - 0.5 * s.last().copied().unwrap_or(0.0) / 0.7).abs())).map_or(1, |(j, _)| j + 1);
     let sig_half: Vec<(usize, f64)> = good.iter().map(|&i| pixels[i]).filter(|&p| half < valid[p]).map(|p| (adc_of(p), set.mean[half * np + p] - set.mean[p])).collect();
     let (gm, gs) = about_own_adc(&sig_half);
@@ -489,7 +476,7 @@ fn measure_camera(set: &LinearitySet, pixels: &[usize], good: &[usize], valid: &
         gain_e_per_dn: gain,
         read_noise_dn: read,
         offset_dn: Some(dark),
-        full_scale_dn: Some(median(good.iter().map(|&i| pixels[i]).filter(|&p| valid[p] > 1).map(|p| set.mean[(valid[p] - 1) * np + p] - set.mean[p]).collect())),
+        full_scale_dn: Some(upper_median(good.iter().map(|&i| pixels[i]).filter(|&p| valid[p] > 1).map(|p| set.mean[(valid[p] - 1) * np + p] - set.mean[p]))),
         saturated: good.iter().filter(|&&i| valid[pixels[i]] < set.levels).count() * 2 > good.len(),
         prnu_rms: Some(gs / gm),
         dsnu_dn: Some((d_scatter.powi(2) - d_noise).max(0.0).sqrt()),
@@ -520,7 +507,7 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     }
     let x: Vec<f64> = set.voltage.iter().map(|v| v / vmax).collect();
     let valid = unsaturated_levels(set);
-    if median(set.std.clone()) <= 0.0 {
+    if upper_median(set.std.clone()) <= 0.0 {
         return Err("the standard deviations are zero at most pixels and levels: the noise of the means is unknown".into());
     }
     let known_bad = |p: usize| set.mask.as_ref().is_some_and(|m| m[p] != 0);
@@ -756,7 +743,7 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     // Where level errors were found, the shared curve stays in the model either way: it
     // takes their smooth part (named `global-nonlinearity` only when it stands out).
     let absorb = level_accepted && !global_accepted;
-    let g0 = median(good.iter().filter(|&&i| estimating(i) && !adc_own[adc_of(pixels[i])]).filter_map(|&i| Some(quartics[i].0.as_ref()?.params[1])).collect());
+    let g0 = upper_median(good.iter().filter(|&&i| estimating(i) && !adc_own[adc_of(pixels[i])]).filter_map(|&i| Some(quartics[i].0.as_ref()?.params[1])));
     let common = if absorb { shared_of(&|i| !adc_own[adc_of(pixels[i])], Some(g0)) } else { [0.0; 3] };
     let follower_model = if global_accepted {
         Response::Curve(global, top)
@@ -942,7 +929,7 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
         }
     }
     // Noise: the dark level's temporal noise against the quantization bias.
-    let dark_noise = median(good.iter().map(|&i| set.std[pixels[i]]).collect());
+    let dark_noise = upper_median(good.iter().map(|&i| set.std[pixels[i]]));
     let measured = measure_camera(set, &pixels, &good, &valid, &quartics, top, bad.iter().filter(|b| b.is_some()).count());
     findings.extend(insufficient_noise("median dark noise", dark_noise, accuracy_dn));
     // The noise model off by one factor everywhere (frames that are not independent) is

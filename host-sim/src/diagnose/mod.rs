@@ -21,6 +21,7 @@ pub use ptc::diagnose_ptc;
 use serde::Serialize;
 
 use crate::flatten::FlattenParams;
+pub(crate) use crate::stats::mean_sq;
 
 /// The acceptance threshold, in standard deviations of `mean z^2`.
 pub const SIGNIFICANCE: f64 = 5.0;
@@ -203,9 +204,6 @@ impl AdcResiduals {
     }
 }
 
-pub(crate) fn mean_sq(z: &[f64]) -> f64 {
-    z.iter().map(|x| x * x).sum::<f64>() / z.len().max(1) as f64
-}
 
 /// Structure of `z` (indexed by `codes`) by residue classes, strongest first.
 pub(crate) fn by_residue(codes: &[usize], z: &[f64]) -> Vec<ResidueStructure> {

@@ -1,15 +1,6 @@
 //! The three straight-line fits EMVA 1288 uses, in closed form.
 
-/// Least-squares line `y = a + b x`: (a, b, R^2). NaN where `x` has no spread.
-pub fn fit_line(x: &[f64], y: &[f64]) -> (f64, f64, f64) {
-    let n = x.len() as f64;
-    let (mx, my) = (x.iter().sum::<f64>() / n, y.iter().sum::<f64>() / n);
-    let sxy: f64 = x.iter().zip(y).map(|(a, b)| (a - mx) * (b - my)).sum();
-    let sxx: f64 = x.iter().map(|a| (a - mx) * (a - mx)).sum();
-    let syy: f64 = y.iter().map(|b| (b - my) * (b - my)).sum();
-    let slope = sxy / sxx;
-    (my - slope * mx, slope, sxy * sxy / (sxx * syy))
-}
+pub use crate::stats::fit_line;
 
 /// Least-squares line through the origin `y = b x` (the standard's fits of the system
 /// gain and the responsivity): `b = sum x y / sum x^2`. NaN where every `x` is 0.

@@ -31,6 +31,7 @@ use super::descriptor::at_line;
 use super::highpass::{high_pass, NoiseGains, SCALE};
 use super::Release;
 use super::{load_image, EmvaLevel, EmvaSet, LevelKind, Series};
+use crate::stats::robust;
 use crate::HostError;
 
 /// The integer statistics of one spatial series: per-pixel sums of the codes and of
@@ -346,23 +347,6 @@ pub struct DefectPixels {
     pub positions: Vec<(usize, usize)>,
 }
 
-/// The median of `v` (reordered), NaN when empty.
-fn median(v: &mut [f64]) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    let mid = v.len() / 2;
-    let (_, m, _) = v.select_nth_unstable_by(mid, f64::total_cmp);
-    *m
-}
-
-/// Median and robust standard deviation (1.4826 MAD) of `v`.
-fn robust(v: &[f64]) -> (f64, f64) {
-    let mut work = v.to_vec();
-    let centre = median(&mut work);
-    work.iter_mut().zip(v).for_each(|(w, x)| *w = (x - centre).abs());
-    (centre, 1.4826 * median(&mut work))
-}
 
 /// A pixel's defect kinds, bits of [`DefectMap::kind`].
 pub const HOT: u8 = 1;
