@@ -232,38 +232,48 @@ fn run_typed<const N: usize, const CODES: usize>(
     let peak = p.peak_fraction * full_scale_photons;
     let (w, h) = (p.width as usize, p.height as usize);
     let mut core_s = 0.0;
+    let x0 = p.first_column as usize;
+    // One pass over each line while it is in cache: drawn (or read), then added to the
+    // float and quantized references.
+    let add_reference = |line: &[u16], q: &mut [u64], f: &mut [f64]| {
+        for (x, &code) in line.iter().enumerate() {
+            let adc = (x0 + x) % N;
+            let k = (code as usize).min(CODES - 1);
+            q[x] += quantized[adc][k];
+            f[x] += reference.centers[adc][k];
+        }
+    };
+    let mut sampled = vec![0u16; if p.recorded.is_some() { 0 } else { w * h }];
     for frame in 0..p.frames {
         let state = (frame % p.states as u32) as u8;
         let frame_seed = p.seed.wrapping_mul(0x2545_F491_4F6C_DD1D).wrapping_add(frame as u64);
-        let x0 = p.first_column as usize;
-        let lines: Vec<Vec<u16>> = match &p.recorded {
-            Some(cube) => cube.frame(frame as usize).chunks_exact(w).map(<[u16]>::to_vec).collect(),
+        let base = state as usize * w * h;
+        let refs = ref_q[base..base + w * h].par_chunks_mut(w).zip(ref_f[base..base + w * h].par_chunks_mut(w));
+        let codes: &[u16] = match &p.recorded {
+            Some(cube) => {
+                let codes = cube.frame(frame as usize);
+                codes.par_chunks_exact(w).zip(refs).for_each(|(line, (q, f))| add_reference(line, q, f));
+                codes
+            }
             None => {
                 // The light is the same on every row of a frame: once per column, not per pixel.
                 let light: Vec<f64> = (x0..x0 + w).map(|c| illumination(p, peak, c, state)).collect();
-                (0..h).into_par_iter().map(|y| camera.sample_span(p.first_row as usize + y, x0..x0 + w, frame_seed, |c| light[c - x0])).collect()
+                sampled.par_chunks_mut(w).zip(refs).enumerate().for_each(|(y, (line, (q, f)))| {
+                    camera.sample_span_into(p.first_row as usize + y, x0..x0 + w, frame_seed, |c| light[c - x0], line);
+                    add_reference(line, q, f);
+                });
+                &sampled
             }
         };
         let t = Instant::now();
         corrector.begin_frame(state).map_err(|e| HostError::core(ctx("begin frame"), e))?;
-        for (y, line) in lines.iter().enumerate() {
-            corrector.accumulate_line(y as u16, line).map_err(|e| HostError::core(ctx("line"), e))?;
-        }
+        corrector.accumulate_lines(0, codes).map_err(|e| HostError::core(ctx("frame"), e))?;
         corrector.end_frame().map_err(|e| HostError::core(ctx("end frame"), e))?;
         core_s += t.elapsed().as_secs_f64();
         if let Some(dp) = fpga.as_mut() {
-            let refs: Vec<&[u16]> = lines.iter().map(|l| l.as_slice()).collect();
-            dp.device_mut().stream_frame(state, &refs).map_err(|e| HostError::Format { path: "--engine fpga".into(), message: e.to_string() })?;
+            let lines: Vec<&[u16]> = codes.chunks_exact(w).collect();
+            dp.device_mut().stream_frame(state, &lines).map_err(|e| HostError::Format { path: "--engine fpga".into(), message: e.to_string() })?;
         }
-        let base = state as usize * w * h;
-        ref_q[base..base + w * h].par_chunks_mut(w).zip(ref_f[base..base + w * h].par_chunks_mut(w)).zip(&lines).for_each(|((q, f), line)| {
-            for (x, &code) in line.iter().enumerate() {
-                let adc = (p.first_column as usize + x) % N;
-                let k = (code as usize).min(CODES - 1);
-                q[x] += quantized[adc][k];
-                f[x] += reference.centers[adc][k];
-            }
-        });
         progress(frame as u64 + 1);
     }
     let status = corrector.status();

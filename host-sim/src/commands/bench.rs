@@ -292,6 +292,25 @@ pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, Ho
         replay_rates.push(r.pixels as f64 / r.wall_s / 1e6);
     }
     ratios.push(ratio("stream --frames-from", &replay_rates, "one K-Cor camera (fixed)", &camera_rate[..1].repeat(replay_rates.len()), "Mpx/s", Some(1.0)));
+    // The camera sampler's Poisson draw, a mean per pixel as in a frame with PRNU: PTRS
+    // (`camera::sample::poisson`) against rand_distr's `Poisson` built per mean, on the same
+    // generator and means (electrons across the range, 200 to 180 000).
+    let means: Vec<f64> = (0..1 << 18).map(|i| 200.0 + (i as f64 * 0.618_034).fract() * 179_800.0).collect();
+    let (mut ptrs_rates, mut crate_rates) = (Vec::new(), Vec::new());
+    for run in 0..=runs {
+        let mut g = crate::camera::sample::line_rng(run as u64, 0);
+        let t = Instant::now();
+        black_box(means.iter().map(|&m| crate::camera::sample::poisson(&mut g, m)).sum::<f64>());
+        let a = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        black_box(means.iter().map(|&m| rand_distr::Poisson::new(m).map_or(0.0, |d| rand_distr::Distribution::sample(&d, &mut g))).sum::<f64>());
+        let b = t.elapsed().as_secs_f64();
+        if run > 0 {
+            ptrs_rates.push(means.len() as f64 / a / 1e6);
+            crate_rates.push(means.len() as f64 / b / 1e6);
+        }
+    }
+    ratios.push(ratio("Poisson draw, a mean per pixel (PTRS)", &ptrs_rates, "rand_distr Poisson::new + sample", &crate_rates, "Mdraws/s", None));
     if numpy.len() == runs {
         ratios.push(ratio("core, frame as a block", &by_block, "numpy lut[adc, codes]", &numpy, "Mpx/s", Some(8.0)));
     } else if p.numpy && notes.is_empty() {
