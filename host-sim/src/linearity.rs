@@ -339,13 +339,9 @@ pub fn analyze_with_flat(set: &LinearitySet, order: usize, flat: Option<usize>) 
             }
         }
     });
-    let corrected_raw: Vec<f64> = (0..nl * np)
-        .into_par_iter()
-        .map(|i| {
-            let p = i % np;
-            (xhat[i] - xhat[p]) / (xhat[g * np + p] - xhat[p])
-        })
-        .collect();
+    // The dark and gain correction of `x^`, `(x^_l - x^_0) / (x^_g - x^_0)`: computed where
+    // needed, then once in place for the output cube (one level x pixel buffer, not two).
+    let corrected_at = |l: usize, p: usize| (xhat[l * np + p] - xhat[p]) / (xhat[g * np + p] - xhat[p]);
     // Per level statistics.
     let nan_unless = |cond: bool, v: f64| if cond { v } else { f64::NAN };
     let level_stats: Vec<[f64; 9]> = (0..nl)
@@ -355,7 +351,7 @@ pub fn analyze_with_flat(set: &LinearitySet, order: usize, flat: Option<usize>) 
             let mean_l = pix.iter().map(|&p| m(l, p)).sum::<f64>() / pix.len().max(1) as f64;
             let raw = crate::stats::rms_finite(pix.iter().map(|&p| m(l, p) / mean_l - 1.0));
             let std = crate::stats::rms_finite(pix.iter().map(|&p| (f(m(l, p)) - f(m(0, p))) / (f(m(g, p)) - f(m(0, p))) - e[l]));
-            let pw = crate::stats::rms_finite(pix.iter().map(|&p| corrected_raw[l * np + p] - e[l]));
+            let pw = crate::stats::rms_finite(pix.iter().map(|&p| corrected_at(l, p) - e[l]));
             let nf = f64::from(set.n_frames.max(1)).sqrt();
             // Propagation of `s_l, s_g, s_0` through `c = (y_l - y_0) / (y_g - y_0)`, where
             // `y = h(m)` is what a correction makes of a mean and `h'` its slope.
@@ -402,8 +398,14 @@ pub fn analyze_with_flat(set: &LinearitySet, order: usize, flat: Option<usize>) 
             coeffs[k * np + p] = ak;
         }
     }
-    let mut corrected = corrected_raw;
-    corrected.par_chunks_mut(np).for_each(|image| fill_masked(image, &mask, w, h));
+    let (dark_row, gain_row) = (xhat[..np].to_vec(), xhat[g * np..(g + 1) * np].to_vec());
+    let mut corrected = xhat;
+    corrected.par_chunks_mut(np).for_each(|image| {
+        for ((v, &x0), &xg) in image.iter_mut().zip(&dark_row).zip(&gain_row) {
+            *v = (*v - x0) / (xg - x0);
+        }
+        fill_masked(image, &mask, w, h);
+    });
     let report = LinearityReport {
         levels: nl,
         pixels: np,
