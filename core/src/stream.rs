@@ -10,7 +10,7 @@
 //! | 6      | 2    | width, pixels per line                         |
 //! | 8      | 2    | height, lines per frame                        |
 //! | 10     | 1    | modulation states                              |
-//! | 11     | 1    | reserved, zero                                 |
+//! | 11     | 1    | flags: bit 0 = capture the per-ADC histograms; the rest zero |
 //! | 12     | 2    | sensor column of a line's first pixel          |
 //! | 14     | 4    | frames; frame `f` has modulation state `f mod states` |
 //! | 18     | ...  | frames x height x width codes, u16             |
@@ -35,6 +35,10 @@ pub struct StreamHeader {
     pub geometry: Geometry,
     /// Frames that follow.
     pub frames: u32,
+    /// Whether the device captures the per-ADC code histograms as well (a second pass
+    /// over each line, about twice the correction's cost per pixel: asked for when a
+    /// calibration is taken, not during science frames).
+    pub capture_histograms: bool,
 }
 
 impl StreamHeader {
@@ -47,6 +51,7 @@ impl StreamHeader {
         h[6..8].copy_from_slice(&g.width().to_le_bytes());
         h[8..10].copy_from_slice(&g.height().to_le_bytes());
         h[10] = g.states();
+        h[11] = self.capture_histograms as u8;
         h[12..14].copy_from_slice(&g.first_column().to_le_bytes());
         h[14..18].copy_from_slice(&self.frames.to_le_bytes());
         h
@@ -54,12 +59,12 @@ impl StreamHeader {
 
     /// Parses and validates a header.
     pub fn parse(h: &[u8; STREAM_HEADER_LEN]) -> Result<Self, CoreError> {
-        if h[..4] != STREAM_MAGIC || u16::from_le_bytes([h[4], h[5]]) != 1 || h[11] != 0 {
+        if h[..4] != STREAM_MAGIC || u16::from_le_bytes([h[4], h[5]]) != 1 || h[11] > 1 {
             return Err(CoreError::StreamHeader);
         }
         let u16_at = |i: usize| u16::from_le_bytes([h[i], h[i + 1]]);
         let geometry = Geometry::new(u16_at(6), u16_at(8), h[10], u16_at(12))?;
-        Ok(StreamHeader { geometry, frames: u32::from_le_bytes([h[14], h[15], h[16], h[17]]) })
+        Ok(StreamHeader { geometry, frames: u32::from_le_bytes([h[14], h[15], h[16], h[17]]), capture_histograms: h[11] == 1 })
     }
 }
 
@@ -84,8 +89,9 @@ impl Status {
 
 /// Where a streamed run's side products go.
 pub struct StreamSinks<'a, const N: usize, const CODES: usize> {
-    /// Per-ADC histograms over the whole region.
-    pub histograms: &'a mut HistogramSet<N, CODES>,
+    /// Per-ADC histograms over the whole region, when asked for: a separate pass over
+    /// each line after its correction, so the correction's loop carries no capture.
+    pub histograms: Option<&'a mut HistogramSet<N, CODES>>,
     /// Noise estimate from frame 0 and frame `states` (the first two frames of state 0).
     pub noise: &'a mut NoiseEstimator,
     /// Keeps frame 0 for the noise pair; needs `geometry.pixels()` codes, or the noise
@@ -109,19 +115,22 @@ pub fn run_stream<const N: usize, const CODES: usize, E: From<CoreError>>(
         return Err(CoreError::Length { what: crate::error::Quantity::LinePixels, expected: width as u32, got: line.len() as u32 }.into());
     };
     let roi = Roi::new((0, g.height()), (g.first_column(), g.first_column().saturating_add(g.width())), g)?;
-    let keep = sinks.first_frame.len() >= g.pixels();
+    let StreamSinks { mut histograms, noise, first_frame } = sinks;
+    let keep = first_frame.len() >= g.pixels();
     for frame in 0..frames {
         corrector.begin_frame((frame % g.states() as u32) as u8)?;
         for row in 0..g.height() {
             next_line(line)?;
             corrector.accumulate_line(row, line)?;
-            sinks.histograms.capture_line(&roi, row, g.first_column(), line);
+            if let Some(h) = histograms.as_deref_mut() {
+                h.capture_line(&roi, row, g.first_column(), line);
+            }
             let start = row as usize * width;
-            if let Some(saved) = sinks.first_frame.get_mut(start..start + width).filter(|_| keep) {
+            if let Some(saved) = first_frame.get_mut(start..start + width).filter(|_| keep) {
                 if frame == 0 {
                     saved.copy_from_slice(line);
                 } else if frame == g.states() as u32 {
-                    sinks.noise.add_pair(saved, line)?;
+                    noise.add_pair(saved, line)?;
                 }
             }
         }
@@ -136,10 +145,19 @@ mod tests {
 
     #[test]
     fn header_round_trips_and_rejects_garbage() {
-        let h = StreamHeader { geometry: Geometry::new(64, 32, 4, 3).unwrap(), frames: 40 };
+        let h = StreamHeader { geometry: Geometry::new(64, 32, 4, 3).unwrap(), frames: 40, capture_histograms: false };
         let bytes = h.encode();
         assert_eq!(&bytes[..6], b"DNLS\x01\x00");
         assert_eq!(StreamHeader::parse(&bytes), Ok(h));
+        // The capture flag is bit 0 of byte 11; any other bit there is refused.
+        let c = StreamHeader { capture_histograms: true, ..h };
+        assert_eq!(c.encode()[11], 1);
+        assert_eq!(StreamHeader::parse(&c.encode()), Ok(c));
+        for flags in [2u8, 3, 0x80] {
+            let mut f = bytes;
+            f[11] = flags;
+            assert_eq!(StreamHeader::parse(&f), Err(CoreError::StreamHeader), "flags {flags:#x}");
+        }
         let mut bad = bytes;
         bad[10] = 0;
         assert!(matches!(StreamHeader::parse(&bad), Err(CoreError::Geometry { states: 0, .. })));

@@ -98,7 +98,10 @@ fn run() -> Result<bool, FirmwareError> {
     let mut raw = [0u8; 2 * MAX_WIDTH];
     let mut line = [0u16; MAX_WIDTH];
     let mut noise = NoiseEstimator::new(4095);
-    let sinks = StreamSinks { histograms: hist, noise: &mut noise, first_frame };
+    // Histogram capture is a pass of its own over each line, run only when the stream
+    // asks for it (a calibration), so science frames pay for the correction alone.
+    defmt::info!("histogram capture {=bool}", header.capture_histograms);
+    let sinks = StreamSinks { histograms: header.capture_histograms.then_some(&mut *hist), noise: &mut noise, first_frame };
     run_stream(&mut corrector, sinks, header.frames, &mut line, |line: &mut [u16]| -> Result<(), FirmwareError> {
         let raw = &mut raw[..2 * line.len()];
         lines.read_exact(raw)?;

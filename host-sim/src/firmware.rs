@@ -23,6 +23,9 @@ pub struct RunInputs {
     pub geometry: Geometry,
     /// Frames of `width x height` codes.
     pub frames: Vec<Vec<u16>>,
+    /// Whether the run captures the per-ADC histograms (the stream header's flag); without
+    /// it the histograms stay zero.
+    pub capture_histograms: bool,
 }
 
 /// What a run produced.
@@ -73,7 +76,7 @@ pub fn run_on_host(inputs: &RunInputs) -> Result<HostRun, HostError> {
     let mut first_frame = vec![0u16; g.pixels()];
     let mut line = vec![0u16; g.width() as usize];
     let mut source = inputs.frames.iter().flat_map(|f| f.chunks_exact(g.width() as usize));
-    let sinks = StreamSinks { histograms: &mut histograms, noise: &mut noise, first_frame: &mut first_frame };
+    let sinks = StreamSinks { histograms: inputs.capture_histograms.then_some(&mut *histograms), noise: &mut noise, first_frame: &mut first_frame };
     run_stream(&mut corrector, sinks, inputs.frames.len() as u32, &mut line, |line: &mut [u16]| {
         let next = source.next().ok_or(CoreError::NoFrame)?;
         line.copy_from_slice(next);
@@ -149,7 +152,7 @@ pub fn run_firmware(elf: &Path, inputs: &RunInputs, expected: &[u32], timeout: D
     let mut image = vec![0u8; image_len::<4, 4096>()];
     encode_image(&inputs.luts, &mut image).map_err(|e| HostError::core("encode LUT image", e))?;
     write(at("lut.bin"), &image)?;
-    let mut stream = StreamHeader { geometry: g, frames: inputs.frames.len() as u32 }.encode().to_vec();
+    let mut stream = StreamHeader { geometry: g, frames: inputs.frames.len() as u32, capture_histograms: inputs.capture_histograms }.encode().to_vec();
     stream.extend(inputs.frames.iter().flatten().flat_map(|c| c.to_le_bytes()));
     write(at("lines.bin"), &stream)?;
     write(at("expected.bin"), &expected.iter().flat_map(|s| s.to_le_bytes()).collect::<Vec<u8>>())?;

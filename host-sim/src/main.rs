@@ -976,7 +976,7 @@ fn firmware_check(frames_per_state: u32, states: u8, size: u16, seed: u64, json:
     let weights: Vec<_> = (0..4).map(|_| dn_error_weights(&mut rng, 4096)).collect();
     let luts = Mvd1024eLuts::from_weights(&[&weights[0], &weights[1], &weights[2], &weights[3]]).map_err(|e| HostError::core("LUTs from weights", e))?;
     let frames = synthetic_frames(&mut rng, geometry, frames_per_state * states as u32, 1.5, 4096);
-    let inputs = RunInputs { luts, geometry, frames };
+    let inputs = RunInputs { luts, geometry, frames, capture_histograms: true };
     let host = run_on_host(&inputs)?;
     let elf = build_firmware()?;
     let fw = run_firmware(&elf, &inputs, &host.outputs.sums, Duration::from_secs(600))?;

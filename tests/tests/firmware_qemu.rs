@@ -27,7 +27,7 @@ fn firmware_sums_are_bit_exact_with_the_host() {
     assert_ne!(luts, LutSet::ideal(), "the test LUT must differ from the boot LUT");
     let g = Geometry::new(64, 64, 4, 130).unwrap();
     let frames = synthetic_frames(&mut rng, g, FRAMES, 1.5, 4096);
-    let inputs = RunInputs { luts: luts.clone(), geometry: g, frames: frames.clone() };
+    let inputs = RunInputs { luts: luts.clone(), geometry: g, frames: frames.clone(), capture_histograms: true };
 
     let host = run_on_host(&inputs).unwrap();
     let naive = naive_sums(&lut_bits(&luts), g, &frames);
@@ -53,4 +53,17 @@ fn firmware_sums_are_bit_exact_with_the_host() {
     let host_noise = host.noise.unwrap();
     assert_eq!(sigma, host_noise.sigma_dn, "device noise estimate (micromath on the M4) vs host: {noise_line}");
     assert!((host_noise.sigma_dn - 1.5).abs() < 0.15, "planted noise 1.5 DN, estimated {}", host_noise.sigma_dn);
+
+    // Without the capture flag the device runs the correction alone: the same sums and
+    // status, histograms untouched (all zero), and it says so in its log.
+    let science = RunInputs { capture_histograms: false, ..inputs };
+    let host_science = run_on_host(&science).unwrap();
+    assert_eq!(host_science.outputs.sums, host.outputs.sums);
+    assert!(host_science.outputs.histograms.iter().all(|&c| c == 0));
+    let fw_science = run_firmware(&elf, &science, &host.outputs.sums, Duration::from_secs(300)).unwrap();
+    assert_eq!(fw_science.outputs.sums, host.outputs.sums, "firmware sums without capture");
+    assert_eq!(fw_science.outputs.status, host.outputs.status);
+    assert!(fw_science.outputs.histograms.iter().all(|&c| c == 0), "no capture asked, none done");
+    assert!(fw_science.log.iter().any(|l| l == "histogram capture false"), "{:?}", fw_science.log);
+    assert!(fw.log.iter().any(|l| l == "histogram capture true"), "{:?}", fw.log);
 }

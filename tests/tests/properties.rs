@@ -240,7 +240,7 @@ fn five_hundred_twelve_top_code_frames_fit_in_32_bits_on_a_full_line() {
 
 #[test]
 fn stream_header_rejects_every_single_bit_flip_of_magic_and_version() {
-    let h = StreamHeader { geometry: Geometry::new(64, 64, 4, 0).unwrap(), frames: 8 }.encode();
+    let h = StreamHeader { geometry: Geometry::new(64, 64, 4, 0).unwrap(), frames: 8, capture_histograms: true }.encode();
     for bit in 0..6 * 8 {
         let mut f = h;
         f[bit / 8] ^= 1 << (bit % 8);

@@ -34,7 +34,7 @@ use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 use statrs::distribution::ContinuousCDF;
 
-use super::linearity::{fit_and_score, Point, Response};
+use super::pixel_fit::{fit_and_score, Point, Response};
 use crate::stats::{robust, upper_median};
 use super::AdcResiduals;
 
@@ -236,7 +236,7 @@ pub(super) fn level_term(data: &[(Vec<Point>, Vec<Point>)], x: &[f64], estimatin
     let line = Response::Poly(1);
     // Per pixel: its quartic's and its straight line's residuals on all its levels.
     type Residuals = (Vec<(usize, f64, f64, f64)>, Vec<(usize, f64, f64)>, Option<[f64; 5]>);
-    let fits: Vec<Residuals> = data
+    let mut fits: Vec<Residuals> = data
         .par_iter()
         .map(|(ev, od)| {
             let all: Vec<Point> = ev.iter().chain(od).copied().collect();
@@ -267,9 +267,23 @@ pub(super) fn level_term(data: &[(Vec<Point>, Vec<Point>)], x: &[f64], estimatin
                 .collect()
         })
         .collect();
-    let mut per: Vec<Halves> = vec![[Vec::new(), Vec::new()]; levels];
-    let mut by_adc: Vec<Vec<Halves>> = vec![vec![[Vec::new(), Vec::new()]; levels]; n_adc];
-    let mut signal: Vec<Vec<f64>> = vec![Vec::new(); levels];
+    // Exact capacities first (pushed vectors grow to twice what they hold, and these
+    // copies of every pixel's residuals are the peak of a whole `diagnose` run).
+    let mut count = vec![[0usize; 2]; levels];
+    let mut count_adc = vec![vec![[0usize; 2]; levels]; n_adc];
+    for (i, (quart, ..)) in fits.iter().enumerate() {
+        let half = usize::from(!estimating(i));
+        for &(l, ..) in quart.iter().filter(|q| q.0 < levels) {
+            count[l][half] += 1;
+            if let Some(a) = count_adc.get_mut(adc[i]) {
+                a[l][half] += 1;
+            }
+        }
+    }
+    let with = |c: &[usize; 2]| [Vec::with_capacity(c[0]), Vec::with_capacity(c[1])];
+    let mut per: Vec<Halves> = count.iter().map(with).collect();
+    let mut by_adc: Vec<Vec<Halves>> = count_adc.iter().map(|a| a.iter().map(with).collect()).collect();
+    let mut signal: Vec<Vec<f64>> = count.iter().map(|c| Vec::with_capacity(c[0] + c[1])).collect();
     for (i, (quart, ..)) in fits.iter().enumerate() {
         let half = usize::from(!estimating(i));
         for &(l, r, s, sig) in quart {
@@ -282,7 +296,12 @@ pub(super) fn level_term(data: &[(Vec<Point>, Vec<Point>)], x: &[f64], estimatin
             }
         }
     }
+    // The quartics' residuals are copied out: free them for the rest of the estimate.
+    for f in &mut fits {
+        f.0 = Vec::new();
+    }
     let est: Vec<[(f64, f64); 2]> = per.par_iter().map(|h| [clipped_mean(&h[0]), clipped_mean(&h[1])]).collect();
+    drop(per);
     let signal: Vec<f64> = signal.into_iter().map(upper_median).collect();
     // Agreement of the halves, over the levels where both have an estimate.
     let both: Vec<(usize, f64, f64)> = (0..levels)
@@ -370,6 +389,7 @@ pub(super) fn level_term(data: &[(Vec<Point>, Vec<Point>)], x: &[f64], estimatin
     // Each ADC's departure from the common term, even rows against odd rows (its variance
     // about `v_a - v`: the common term holds the ADC's own pixels).
     let adc_est: Vec<Vec<[(f64, f64); 2]>> = by_adc.par_iter().map(|a| a.iter().map(|h| [clipped_mean(&h[0]), clipped_mean(&h[1])]).collect()).collect();
+    drop(by_adc);
     let adc_significance: Vec<f64> = if n_adc >= 2 {
         adc_est
             .iter()

@@ -10,6 +10,7 @@ mod defects;
 mod histograms;
 mod levels;
 mod linearity;
+mod pixel_fit;
 mod ptc;
 
 pub use codes::{diagnose_code_density, CodeDensity};
