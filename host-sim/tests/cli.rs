@@ -541,6 +541,17 @@ fn linearity_ranks_the_corrections_and_writes_fits() {
     // propagated random floor (the model's per-pixel curve is a polynomial the fit holds).
     assert!(v("rms_pixelwise_max") < v("rms_standard_max") && v("rms_standard_max") < v("rms_raw_max"), "{s}");
     assert!(v("rms_pixelwise_max") < 3.0 * v("rms_random_max"), "{s}");
+    // The same steps written apart in numpy and astropy (scripts/linearity_numpy.py:
+    // numpy's lstsq, polyfit and a vectorized Newton) give the same numbers.
+    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scripts/linearity_numpy.py");
+    let out = Command::new("python3").arg(&script).arg("lin.fits").current_dir(d).output().expect("python3");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let np: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    for (ours, theirs) in [("rms_raw_max", "raw"), ("rms_standard_max", "standard"), ("rms_pixelwise_max", "pixelwise")] {
+        let (a, b) = (v(ours), np[theirs].as_f64().unwrap());
+        assert!((a - b).abs() <= 1e-9 * a, "{ours}: dncal {a}, numpy {b}");
+    }
+    assert_eq!(s["masked_pixels"], np["masked"], "{np}");
     // The FITS outputs open in astropy with the documented shapes.
     python(
         r#"

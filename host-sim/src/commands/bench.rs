@@ -146,6 +146,24 @@ for f in range(frames):
 print((frames * 1024 * 1024) / (time.perf_counter() - t) / 1e6)
 "#;
 
+/// The steps of `dncal linearity` in numpy and astropy (`scripts/linearity_numpy.py`),
+/// the baseline of the linearity row; its results are checked against ours there.
+const LINEARITY_NUMPY: &str = include_str!("../../../scripts/linearity_numpy.py");
+
+/// Seconds the numpy version of `linearity` takes on `set` (its own clock, from after its
+/// imports: reading the file and every step), and its largest pixel-wise RMS.
+fn numpy_linearity(set: &std::path::Path) -> Result<(f64, f64), String> {
+    let out = Command::new("python3").arg("-c").arg(LINEARITY_NUMPY).arg(set).output().map_err(|e| format!("python3: {e}"))?;
+    if !out.status.success() {
+        return Err(String::from_utf8_lossy(&out.stderr).lines().last().unwrap_or("python3 failed").to_string());
+    }
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).map_err(|e| format!("numpy linearity output: {e}"))?;
+    match (v["seconds"].as_f64(), v["pixelwise"].as_f64()) {
+        (Some(s), Some(p)) => Ok((s, p)),
+        _ => Err(format!("numpy linearity output without seconds or pixelwise: {v}")),
+    }
+}
+
 fn numpy_rate(frames: usize) -> Result<f64, String> {
     let out = Command::new("python3").arg("-c").arg(NUMPY).arg(frames.to_string()).output().map_err(|e| format!("python3: {e}"))?;
     if !out.status.success() {
@@ -311,6 +329,38 @@ pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, Ho
         }
     }
     ratios.push(ratio("Poisson draw, a mean per pixel (PTRS)", &ptrs_rates, "rand_distr Poisson::new + sample", &crate_rates, "Mdraws/s", None));
+    // `linearity` on a 256 x 256 x 41-level set against the same steps in numpy, both
+    // from reading the file to the RMS per level (the numpy script's own clock starts
+    // after its imports), on the same file; the results must agree.
+    if p.numpy && notes.is_empty() {
+        let dir = tempfile::tempdir().map_err(|e| HostError::io(std::env::temp_dir(), e))?;
+        let set = dir.path().join("linearity.fits");
+        let lp = crate::camera::calibration::LinearityParams { frames: 16, roi: (384, 384, 256, 256), ..crate::camera::calibration::LinearityParams::paper(&camera) };
+        crate::commands::simulate::simulate_linearity(&camera, &lp, set.clone())?;
+        let (mut ours, mut theirs) = (Vec::new(), Vec::new());
+        for _ in 0..runs.min(3) {
+            let t = Instant::now();
+            let r = crate::commands::linearity::linearity(&set, 4, None, None)?;
+            let seconds = t.elapsed().as_secs_f64();
+            match numpy_linearity(&set) {
+                Ok((s, pw)) => {
+                    let want = r.report.rms_pixelwise_max;
+                    if (pw - want).abs() > 1e-9 * want.abs() {
+                        return Err(HostError::Format { path: "bench".into(), message: format!("linearity: numpy's largest pixel-wise RMS {pw} differs from ours {want}") });
+                    }
+                    ours.push(1.0 / seconds);
+                    theirs.push(1.0 / s);
+                }
+                Err(e) => {
+                    notes.push(format!("numpy linearity skipped: {e}"));
+                    break;
+                }
+            }
+        }
+        if !ours.is_empty() && ours.len() == theirs.len() {
+            ratios.push(ratio("linearity, 256 x 256 x 41", &ours, "numpy/astropy, same steps", &theirs, "sets/s", Some(10.0)));
+        }
+    }
     if numpy.len() == runs {
         ratios.push(ratio("core, frame as a block", &by_block, "numpy lut[adc, codes]", &numpy, "Mpx/s", Some(8.0)));
     } else if p.numpy && notes.is_empty() {
