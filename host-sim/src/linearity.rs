@@ -174,7 +174,8 @@ pub fn invert(a: &[f64], m: f64, guess: f64) -> f64 {
 /// Replaces masked pixels of one `width x height` image by the mean of their good
 /// 8-neighbours (left as they are when none is good).
 pub fn fill_masked(image: &mut [f64], mask: &[u8], width: usize, height: usize) {
-    let source = image.to_vec();
+    // Only masked pixels are written and only good ones read, so the image is its own
+    // source (no copy of it per level).
     for r in 0..height {
         for c in 0..width {
             if mask[r * width + c] == 0 {
@@ -188,8 +189,8 @@ pub fn fill_masked(image: &mut [f64], mask: &[u8], width: usize, height: usize) 
                         continue;
                     }
                     let i = rr as usize * width + cc as usize;
-                    if mask[i] == 0 && source[i].is_finite() {
-                        sum += source[i];
+                    if mask[i] == 0 && image[i].is_finite() {
+                        sum += image[i];
                         n += 1;
                     }
                 }
@@ -264,14 +265,14 @@ pub fn example_row(set: &LinearitySet, report: &LinearityReport, px: &PixelResul
 
 /// Analyzes `set` with the pixel-wise polynomial of `order` (clamped to 1..=[`MAX_ORDER`]):
 /// masks, the three corrections, their RMS per level, the random noise.
-pub fn analyze(set: &LinearitySet, order: usize) -> (LinearityReport, PixelResults) {
+pub fn analyze(set: &LinearitySet, order: usize) -> Result<(LinearityReport, PixelResults), String> {
     analyze_with_flat(set, order, None)
 }
 
 /// [`analyze`] with the flat (gain) level chosen: `Some(l)` with `1 <= l < levels` (the
 /// caller checks), `None` the level whose reference is nearest half the maximum (the
 /// paper's text: "approximately half saturation"; its Figs. 6-7 use a flat near 57%).
-pub fn analyze_with_flat(set: &LinearitySet, order: usize, flat: Option<usize>) -> (LinearityReport, PixelResults) {
+pub fn analyze_with_flat(set: &LinearitySet, order: usize, flat: Option<usize>) -> Result<(LinearityReport, PixelResults), String> {
     let order = order.clamp(1, MAX_ORDER);
     let (nl, w, h) = (set.levels, set.width, set.height);
     let np = w * h;
@@ -323,9 +324,15 @@ pub fn analyze_with_flat(set: &LinearitySet, order: usize, flat: Option<usize>) 
         }
     }
     let good: Vec<usize> = (0..np).filter(|&p| mask[p] == 0).collect();
+    if good.is_empty() {
+        return Err(format!("no pixel left to correct: all {np} are masked (the input MASK, too little signal at the flat, no fit of order {order}, or a residual 10x the median)"));
+    }
     // Standard correction: global cubic x = f(m / top) from the median good pixel.
     let med_levels: Vec<f64> = (0..nl).map(|l| median(good.iter().filter(|&&p| l < valid[p]).map(|&p| m(l, p)))).collect();
     let usable: Vec<usize> = (0..nl).filter(|&l| med_levels[l].is_finite() && good.iter().filter(|&&p| l < valid[p]).count() * 2 > good.len()).collect();
+    if usable.len() <= GLOBAL_ORDER {
+        return Err(format!("{} levels where most good pixels are unsaturated; the standard correction's global polynomial of order {GLOBAL_ORDER} needs {}", usable.len(), GLOBAL_ORDER + 1));
+    }
     let gpinv = pseudo_inverse(&usable.iter().map(|&l| med_levels[l] / top).collect::<Vec<_>>(), GLOBAL_ORDER);
     let global: Vec<f64> = (&gpinv * DVector::from_iterator(usable.len(), usable.iter().map(|&l| x[l]))).iter().copied().collect();
     let f = |v: f64| poly(&global, v / top);
@@ -429,7 +436,7 @@ pub fn analyze_with_flat(set: &LinearitySet, order: usize, flat: Option<usize>) 
         order,
         global_coefficients: global,
     };
-    (report, PixelResults { coeffs, mask, corrected })
+    Ok((report, PixelResults { coeffs, mask, corrected }))
 }
 
 #[cfg(test)]
@@ -461,7 +468,7 @@ mod tests {
         // over the level's mean of all pixels; the standard correction's value is the
         // closed form with the fitted global cubic.
         let set = planted(12, 4, 41, coefficients);
-        let (r, px) = analyze(&set, PIXEL_ORDER);
+        let (r, px) = analyze(&set, PIXEL_ORDER).unwrap();
         let ex = example_row(&set, &r, &px, 6);
         assert_eq!((ex.row, ex.first_column), (2, 3));
         assert_eq!(ex.raw.len(), 40);
@@ -486,7 +493,7 @@ mod tests {
     #[test]
     fn the_pixel_fit_recovers_planted_coefficients() {
         let set = planted(6, 5, 41, coefficients);
-        let (r, px) = analyze(&set, PIXEL_ORDER);
+        let (r, px) = analyze(&set, PIXEL_ORDER).unwrap();
         let np = 30;
         for p in 0..np {
             for (k, want) in coefficients(p).iter().enumerate() {
@@ -509,7 +516,7 @@ mod tests {
         for l in 30..41 {
             set.mean[l * 4] = 4095.0;
         }
-        let (_, px) = analyze(&set, PIXEL_ORDER);
+        let (_, px) = analyze(&set, PIXEL_ORDER).unwrap();
         for (k, want) in coefficients(0).iter().enumerate() {
             assert!((px.coeffs[k * 4] - want).abs() < 1e-6 * want.abs().max(1.0), "a{k}");
         }
@@ -524,7 +531,7 @@ mod tests {
             set.mean[l * 4 + 1] = 4080.0;
             set.std[l * 4 + 1] = 0.0;
         }
-        let (_, px) = analyze(&set, PIXEL_ORDER);
+        let (_, px) = analyze(&set, PIXEL_ORDER).unwrap();
         for (k, want) in coefficients(1).iter().enumerate() {
             assert!((px.coeffs[k * 4 + 1] - want).abs() < 1e-6 * want.abs().max(1.0), "a{k}: {}", px.coeffs[k * 4 + 1]);
         }
@@ -541,7 +548,7 @@ mod tests {
                 set.mean[l * np + 12] += 300.0;
             }
         }
-        let (r, px) = analyze(&set, PIXEL_ORDER);
+        let (r, px) = analyze(&set, PIXEL_ORDER).unwrap();
         assert_eq!(px.mask[7] & reason::LOW, reason::LOW);
         assert_eq!(px.mask[12] & reason::TREND, reason::TREND);
         assert_eq!(r.masked_pixels, 2);
@@ -569,7 +576,7 @@ mod tests {
         // Linear pixels (no fit error) with std 2 DN, 256 frames: at level l the noise is
         // sqrt(s^2 (1 + c^2 + (1 - c)^2)) / (m_g - m_0) with s = 2/16.
         let set = planted(3, 3, 41, |_| [100.0, 3000.0, 0.0, 0.0, 0.0]);
-        let (r, _) = analyze(&set, PIXEL_ORDER);
+        let (r, _) = analyze(&set, PIXEL_ORDER).unwrap();
         let d = 3000.0 * 0.5;
         for l in [1usize, 10, 30, 40] {
             let c = (l as f64 / 40.0) / 0.5;

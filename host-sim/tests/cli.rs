@@ -552,6 +552,10 @@ fn linearity_ranks_the_corrections_and_writes_fits() {
         assert!((a - b).abs() <= 1e-9 * a, "{ours}: dncal {a}, numpy {b}");
     }
     assert_eq!(s["masked_pixels"], np["masked"], "{np}");
+    // Every pixel masked (issue 18: it panicked in the SVD of an empty matrix): refused.
+    python("from astropy.io import fits\nwith fits.open('lin.fits') as h:\n    h['MASK'].data[:] = 1\n    h.writeto('masked.fits')\n", d);
+    assert_clean_failure(&dncal(&["linearity", "masked.fits", "-o", "masked-out"], d), "masked.fits", "no pixel left to correct");
+    assert!(!d.join("masked-out").exists(), "nothing written");
     // The FITS outputs open in astropy with the documented shapes.
     python(
         r#"

@@ -197,8 +197,9 @@ impl CameraConfig {
         if self.pixel_nonlinearity_rms.len() > self.nonlinearity.len() {
             return Err("pixel_nonlinearity_rms has more terms than nonlinearity".into());
         }
-        let stage_sum: u32 = self.adc.stage_bits.iter().sum();
-        if stage_sum != self.bits || self.adc.stage_bits.contains(&0) {
+        // Summed wide: a u32 sum of [2^32 - 1, 13] wraps to 12 and passed (issue 18).
+        let stage_sum: u64 = self.adc.stage_bits.iter().map(|&b| u64::from(b)).sum();
+        if stage_sum != u64::from(self.bits) || self.adc.stage_bits.contains(&0) {
             return Err(format!("adc.stage_bits {:?} must be positive and sum to bits = {}", self.adc.stage_bits, self.bits));
         }
         if !self.adc.widths.is_empty()
@@ -210,5 +211,23 @@ impl CameraConfig {
             return Err("adc.stage_error_lsb needs one non-negative value per stage".into());
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stage_bits_that_wrap_a_u32_sum_are_refused() {
+        // [2^32 - 1, 13] sums to 12 in u32 arithmetic (issue 18: accepted, then a capacity
+        // overflow); [2^32 - 64, 76] to 12 as well.
+        for bits in [vec![u32::MAX, 13], vec![u32::MAX - 63, 76]] {
+            let c = CameraConfig { adc: AdcConfig { stage_bits: bits.clone(), stage_error_lsb: vec![0.0; 2], ..AdcConfig::default() }, ..CameraConfig::default() };
+            let e = c.validate().unwrap_err();
+            assert!(e.contains("must be positive and sum to bits = 12"), "{bits:?}: {e}");
+        }
+        let ok = CameraConfig { adc: AdcConfig { stage_bits: vec![6, 6], stage_error_lsb: vec![0.0; 2], ..AdcConfig::default() }, ..CameraConfig::default() };
+        assert_eq!(ok.validate(), Ok(()));
     }
 }

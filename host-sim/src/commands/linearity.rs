@@ -62,7 +62,7 @@ pub fn linearity(input: &Path, order: usize, flat: Option<usize>, out_dir: Optio
             });
         }
     }
-    let (report, px) = analyze_with_flat(&set, order, flat);
+    let (report, px) = analyze_with_flat(&set, order, flat).map_err(|message| HostError::Format { path: input.into(), message })?;
     let analysis_s = start.elapsed().as_secs_f64();
     let mut outputs = Vec::new();
     if let Some(dir) = out_dir {
