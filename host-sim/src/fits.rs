@@ -374,6 +374,28 @@ impl<'a> FitsWriter<'a> {
 // ---------------------------------------------------------------------------------------
 // Reading
 
+/// The largest total count of one ADC's histogram the analyses accept: 2^53, where f64 (in
+/// which every analysis of the counts runs) stops holding integers exactly. A camera at
+/// 40 Ms/s per ADC takes over seven years to fill it; a count of 2^64 - 1 in a file
+/// (issue 18: a panic in the binomial split of `diagnose`) is refused.
+pub const MAX_HISTOGRAM_TOTAL: u64 = 1 << 53;
+
+/// [`read_histograms`] for an analysis (`lut build`, `adc`, `diagnose`, `stream --hist`):
+/// also refuses an ADC whose counts add up to more than [`MAX_HISTOGRAM_TOTAL`]. The
+/// format itself holds any `u64` count, and [`read_histograms`] reads them all.
+pub fn read_histograms_for_analysis(path: &Path) -> Result<AdcHistograms, HostError> {
+    let h = read_histograms(path)?;
+    for (adc, counts) in h.counts.iter().enumerate() {
+        if counts.iter().try_fold(0u64, |t, &c| t.checked_add(c).filter(|&t| t <= MAX_HISTOGRAM_TOTAL)).is_none() {
+            return Err(HostError::Format {
+                path: path.into(),
+                message: format!("the counts of ADC {adc} add up to more than 2^53 ({MAX_HISTOGRAM_TOTAL}), the largest total the analyses' floating point holds exactly"),
+            });
+        }
+    }
+    Ok(h)
+}
+
 /// Reads a histogram set. Accepts any integer image (BITPIX 8, 16, 32 or 64, with BZERO for
 /// unsigned data); rejects float images, negative counts, a shape other than `NADC` x
 /// `2^BITDEPTH`, missing or invalid keys, and LUT files (which carry `FRACBITS`).

@@ -288,6 +288,8 @@ hist('nan.fits', flt, BITDEPTH=12, NADC=4, ADCMAP='COLMOD')
 empty = np.zeros((4, 4096), dtype=np.int32)
 hist('empty.fits', empty, BITDEPTH=12, NADC=4, ADCMAP='COLMOD')
 hist('ok.fits', good, BITDEPTH=12, NADC=4, ADCMAP='COLMOD')
+huge = good.astype(np.uint64); huge[1, 300] = 2**64 - 1
+hist('huge.fits', huge, BITDEPTH=12, NADC=4, ADCMAP='COLMOD')
 open('text.fits', 'w').write('SIMPLE  = T but not really\n')
 raw = open('ok.fits', 'rb').read()
 open('truncated.fits', 'wb').write(raw[: len(raw) // 2])
@@ -309,6 +311,7 @@ open('truncated.fits', 'wb').write(raw[: len(raw) // 2])
         ("text.fits", "FITS"),
         ("truncated.fits", "truncated"),
         ("missing.fits", "No such file"),
+        ("huge.fits", "more than 2^53"),
     ] {
         let out = dncal(&["lut", "build", file, "-o", "out"], d);
         assert_clean_failure(&out, file, words);
@@ -318,6 +321,9 @@ open('truncated.fits', 'wb').write(raw[: len(raw) // 2])
     }
     // The good file builds: the failures above were the files, not the setup.
     assert!(dncal(&["lut", "build", "ok.fits", "-o", "out"], d).status.success());
+    // A count of 2^64 - 1 (issue 18: an assertion in the binomial split of `diagnose`).
+    assert_clean_failure(&dncal(&["diagnose", "huge.fits", "-o", "dx"], d), "huge.fits", "more than 2^53");
+    assert!(!d.join("dx").exists());
 }
 
 #[test]

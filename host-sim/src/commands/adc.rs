@@ -12,7 +12,7 @@ use crate::camera::calibration::RampParams;
 use crate::camera::{Camera, PipelinedAdc};
 use crate::commands::lut::{build_luts, summarize, AdcLutSummary, BuiltLuts};
 use crate::commands::progress::bar;
-use crate::fits::{read_histograms, write_file_atomically, write_histograms, write_lut, AdcHistograms};
+use crate::fits::{read_histograms_for_analysis, write_file_atomically, write_histograms, write_lut, AdcHistograms};
 use crate::flatten::{cumulative_offsets, FlattenParams};
 use crate::plots::{line_plot, Series};
 use crate::HostError;
@@ -197,7 +197,7 @@ pub fn characterize(source: &Path, luts: &BuiltLuts, flatten: &FlattenParams, tr
 pub fn run(camera: &Camera, hist: Option<&Path>, ramp: &RampParams, flatten: &FlattenParams, out_dir: &Path) -> Result<(AdcReport, BuiltLuts), HostError> {
     std::fs::create_dir_all(out_dir).map_err(|e| HostError::io(out_dir, e))?;
     let (histograms, source, truth) = match hist {
-        Some(path) => (read_histograms(path)?, path.to_path_buf(), None),
+        Some(path) => (read_histograms_for_analysis(path)?, path.to_path_buf(), None),
         None => {
             let levels: usize = ramp.ramp_levels.iter().sum();
             let pb = bar(levels as u64, "ADC ramp histograms");

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 
 use crate::diagnose::{diagnose_code_density, diagnose_histograms, diagnose_linearity, diagnose_ptc, Diagnosis, Finding};
-use crate::fits::{read_histograms, read_linearity, write_file_atomically};
+use crate::fits::{read_histograms_for_analysis, read_linearity, write_file_atomically};
 use crate::flatten::FlattenParams;
 use crate::plots::{line_plot, Series};
 use crate::HostError;
@@ -238,7 +238,7 @@ pub fn diagnose(input: &Path, flatten: &FlattenParams, seed: u64, out_dir: Optio
         model = Some(ptc_model(&set, &sheet, dark, &mut d));
         d
     } else {
-        let hist = match read_histograms(input) {
+        let hist = match read_histograms_for_analysis(input) {
             Ok(h) => h,
             Err(e) => {
                 // Not a histogram set: a linearity set, or the histogram reader's error.

@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use dncal_core::{encode_image, image_len, LutSet, Weight};
 use serde::Serialize;
 
-use crate::fits::{read_histograms, read_lut, write_file_atomically, write_lut, AdcHistograms, LutTables};
+use crate::fits::{read_histograms_for_analysis, read_lut, write_file_atomically, write_lut, AdcHistograms, LutTables};
 use crate::flatten::{flatten_histogram, to_core_weights, FlattenParams, Flattened};
 use crate::reference::ReferenceLut;
 use crate::HostError;
@@ -131,7 +131,7 @@ pub(crate) fn summarize(adc: usize, f: &Flattened, table: &[u32]) -> AdcLutSumma
 
 /// `lut build HIST -o OUT`.
 pub fn build(input: &Path, output: &Path, params: &FlattenParams) -> Result<BuildSummary, HostError> {
-    let hist = read_histograms(input)?;
+    let hist = read_histograms_for_analysis(input)?;
     let built = build_luts(&hist, params, input)?;
     let (lut_fits, device_image) = output_paths(output);
     write_lut(&lut_fits, &built.lut_tables())?;

@@ -8,7 +8,7 @@ use dncal_core::Weight;
 use crate::camera::Camera;
 use crate::commands::lut::build_luts;
 use crate::commands::progress::bar;
-use crate::fits::read_histograms;
+use crate::fits::read_histograms_for_analysis;
 use crate::flatten::{to_core_weights, FlattenParams};
 use crate::streaming::{run_stream, StreamParams, StreamReport};
 use crate::HostError;
@@ -27,7 +27,7 @@ pub fn oracle_weights(camera: &Camera) -> Result<Vec<Vec<Weight>>, HostError> {
 pub fn stream(camera: &Camera, hist: Option<&Path>, flatten: &FlattenParams, params: &StreamParams) -> Result<StreamReport, HostError> {
     let weights = match hist {
         Some(path) => {
-            let h = read_histograms(path)?;
+            let h = read_histograms_for_analysis(path)?;
             if h.counts.len() != camera.config.n_adc || h.bit_depth != camera.config.bits {
                 return Err(HostError::Format {
                     path: path.into(),
