@@ -34,6 +34,13 @@ impl Default for AdcConfig {
     }
 }
 
+/// The largest sensor a camera model may have: 2^26 pixels (8192 x 8192), whose pixel
+/// maps take about 2 GB.
+pub const MAX_PIXELS: usize = 1 << 26;
+/// The largest electron count a model parameter may have (full well, dark, noise): 1e7,
+/// ten times the largest full wells of scientific sensors.
+pub const MAX_ELECTRONS: f64 = 1e7;
+
 /// Everything the camera model needs. Defaults: the PhotonFocus MV-D1024E of the
 /// K-Coronagraph (de Wijn 2018): 1024 x 1024, 12 bits, 4 ADCs, ~180 ke- full well,
 /// 44 e-/DN, 182 e- read noise, 150 frames/s; QE 30% at 735 nm (the paper's model).
@@ -191,6 +198,16 @@ impl CameraConfig {
         if self.n_adc > 255 || self.width > 65_535 || self.height > 65_535 {
             return Err("at most 255 ADCs and 65535 x 65535 pixels".into());
         }
+        // Physical ranges, so that a typo cannot ask for memory no machine has (issue 18:
+        // dark_e = 1e19 made kcor-model ask for 607 GB; a 65535 x 65535 sensor aborted).
+        if self.width * self.height > MAX_PIXELS {
+            return Err(format!("width x height = {} x {} exceeds {MAX_PIXELS} pixels (8192 x 8192), the largest sensor the model holds in memory", self.width, self.height));
+        }
+        for (name, v) in [("full_well_e", self.full_well_e), ("dark_e", self.dark_e), ("read_noise_e", self.read_noise_e), ("dsnu_rms_e", self.dsnu_rms_e)] {
+            if v > MAX_ELECTRONS {
+                return Err(format!("{name} = {v:e} electrons exceeds {MAX_ELECTRONS:e}, above any sensor's full well"));
+            }
+        }
         if self.nonlinearity.iter().chain(&self.pixel_nonlinearity_rms).any(|a| !a.is_finite()) {
             return Err("nonlinearity coefficients must be finite".into());
         }
@@ -229,5 +246,17 @@ mod tests {
         }
         let ok = CameraConfig { adc: AdcConfig { stage_bits: vec![6, 6], stage_error_lsb: vec![0.0; 2], ..AdcConfig::default() }, ..CameraConfig::default() };
         assert_eq!(ok.validate(), Ok(()));
+    }
+
+    #[test]
+    fn sizes_and_electrons_beyond_physical_ranges_are_refused() {
+        let e = CameraConfig { dark_e: 1e19, ..CameraConfig::default() }.validate().unwrap_err();
+        assert!(e.contains("dark_e = 1e19") && e.contains("1e7"), "{e}");
+        let e = CameraConfig { full_well_e: 2e7, ..CameraConfig::default() }.validate().unwrap_err();
+        assert!(e.contains("full_well_e"), "{e}");
+        let e = CameraConfig { width: 65_535, height: 65_535, ..CameraConfig::default() }.validate().unwrap_err();
+        assert!(e.contains("65535 x 65535 exceeds 67108864 pixels"), "{e}");
+        // The edges are accepted.
+        assert_eq!(CameraConfig { width: 8192, height: 8192, dark_e: 1e7, ..CameraConfig::default() }.validate(), Ok(()));
     }
 }
