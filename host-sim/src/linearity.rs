@@ -42,7 +42,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::fits::LinearitySet;
-use crate::stats::median;
+use crate::stats::{median, rms_finite};
 
 /// Order of the pixel-wise polynomial (the paper: 4; higher did not help).
 pub const PIXEL_ORDER: usize = 4;
@@ -171,6 +171,12 @@ pub fn invert(a: &[f64], m: f64, guess: f64) -> f64 {
     0.5 * (lo + hi)
 }
 
+/// The dark and gain correction of a value `x` given the same pixel's values at the dark
+/// (`x0`) and at the flat (`xg`): `(x - x0) / (xg - x0)`.
+fn dark_and_gain(x: f64, x0: f64, xg: f64) -> f64 {
+    (x - x0) / (xg - x0)
+}
+
 /// Replaces masked pixels of one `width x height` image by the mean of their good
 /// 8-neighbours (left as they are when none is good).
 pub fn fill_masked(image: &mut [f64], mask: &[u8], width: usize, height: usize) {
@@ -294,7 +300,7 @@ pub fn analyze_with_flat(set: &LinearitySet, order: usize, flat: Option<usize>) 
                 Some(pi) if n > g => {
                     let y = DVector::from_iterator(n, (0..n).map(|l| m(l, p)));
                     let a: Vec<f64> = (pi * &y).iter().copied().collect();
-                    let resid = crate::stats::rms_finite((0..n).map(|l| poly(&a, x[l]) - m(l, p)));
+                    let resid = rms_finite((0..n).map(|l| poly(&a, x[l]) - m(l, p)));
                     (a, resid)
                 }
                 _ => (vec![f64::NAN; order + 1], f64::NAN),
@@ -346,9 +352,9 @@ pub fn analyze_with_flat(set: &LinearitySet, order: usize, flat: Option<usize>) 
             }
         }
     });
-    // The dark and gain correction of `x^`, `(x^_l - x^_0) / (x^_g - x^_0)`: computed where
-    // needed, then once in place for the output cube (one level x pixel buffer, not two).
-    let corrected_at = |l: usize, p: usize| (xhat[l * np + p] - xhat[p]) / (xhat[g * np + p] - xhat[p]);
+    // The dark and gain correction of `x^`: computed where needed, then once in place for
+    // the output cube (one level x pixel buffer, not two).
+    let corrected_at = |l: usize, p: usize| dark_and_gain(xhat[l * np + p], xhat[p], xhat[g * np + p]);
     // Per level statistics.
     let nan_unless = |cond: bool, v: f64| if cond { v } else { f64::NAN };
     let level_stats: Vec<[f64; 9]> = (0..nl)
@@ -356,9 +362,9 @@ pub fn analyze_with_flat(set: &LinearitySet, order: usize, flat: Option<usize>) 
         .map(|l| {
             let pix: Vec<usize> = good.iter().copied().filter(|&p| l < valid[p]).collect();
             let mean_l = pix.iter().map(|&p| m(l, p)).sum::<f64>() / pix.len().max(1) as f64;
-            let raw = crate::stats::rms_finite(pix.iter().map(|&p| m(l, p) / mean_l - 1.0));
-            let std = crate::stats::rms_finite(pix.iter().map(|&p| (f(m(l, p)) - f(m(0, p))) / (f(m(g, p)) - f(m(0, p))) - e[l]));
-            let pw = crate::stats::rms_finite(pix.iter().map(|&p| corrected_at(l, p) - e[l]));
+            let raw = rms_finite(pix.iter().map(|&p| m(l, p) / mean_l - 1.0));
+            let std = rms_finite(pix.iter().map(|&p| (f(m(l, p)) - f(m(0, p))) / (f(m(g, p)) - f(m(0, p))) - e[l]));
+            let pw = rms_finite(pix.iter().map(|&p| corrected_at(l, p) - e[l]));
             let nf = f64::from(set.n_frames.max(1)).sqrt();
             // Propagation of `s_l, s_g, s_0` through `c = (y_l - y_0) / (y_g - y_0)`, where
             // `y = h(m)` is what a correction makes of a mean and `h'` its slope.
@@ -374,11 +380,11 @@ pub fn analyze_with_flat(set: &LinearitySet, order: usize, flat: Option<usize>) 
                 let xh = xhat[l * np + p];
                 (xh, 1.0 / poly_slope(&fits[p].0, xh))
             };
-            let random = crate::stats::rms_finite(pix.iter().map(|&p| propagated(&identity, p)));
-            let random_standard = crate::stats::rms_finite(pix.iter().map(|&p| propagated(&standard, p)));
-            let random_pixelwise = crate::stats::rms_finite(pix.iter().map(|&p| propagated(&pixelwise, p)));
-            let random_raw = crate::stats::rms_finite(pix.iter().map(|&p| sd(l, p) / nf / mean_l));
-            let random_level_only = crate::stats::rms_finite(pix.iter().map(|&p| sd(l, p) / nf / (m(g, p) - m(0, p))));
+            let random = rms_finite(pix.iter().map(|&p| propagated(&identity, p)));
+            let random_standard = rms_finite(pix.iter().map(|&p| propagated(&standard, p)));
+            let random_pixelwise = rms_finite(pix.iter().map(|&p| propagated(&pixelwise, p)));
+            let random_raw = rms_finite(pix.iter().map(|&p| sd(l, p) / nf / mean_l));
+            let random_level_only = rms_finite(pix.iter().map(|&p| sd(l, p) / nf / (m(g, p) - m(0, p))));
             let calibrated = l != 0 && l != g;
             [
                 nan_unless(l != 0, raw),
@@ -409,7 +415,7 @@ pub fn analyze_with_flat(set: &LinearitySet, order: usize, flat: Option<usize>) 
     let mut corrected = xhat;
     corrected.par_chunks_mut(np).for_each(|image| {
         for ((v, &x0), &xg) in image.iter_mut().zip(&dark_row).zip(&gain_row) {
-            *v = (*v - x0) / (xg - x0);
+            *v = dark_and_gain(*v, x0, xg);
         }
         fill_masked(image, &mask, w, h);
     });

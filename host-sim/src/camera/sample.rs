@@ -76,8 +76,8 @@ fn ln_factorial(k: f64) -> f64 {
 /// rejection steps after a first pair `(u, v)` missed the immediate acceptance.
 #[cold]
 #[inline(never)]
-fn ptrs_slow(rng: &mut impl RngCore, lambda: f64, a: f64, b: f64, mut u: f64, mut v: f64) -> f64 {
-    let (log_lambda, inv_alpha, vr) = (lambda.ln(), 1.1239 + 1.1328 / (b - 3.4), 0.9277 - 3.6224 / (b - 2.0));
+fn ptrs_slow(rng: &mut impl RngCore, lambda: f64, a: f64, b: f64, vr: f64, mut u: f64, mut v: f64) -> f64 {
+    let (log_lambda, inv_alpha) = (lambda.ln(), 1.1239 + 1.1328 / (b - 3.4));
     loop {
         let us = 0.5 - u.abs();
         let k = floor((2.0 * a / us + b) * u + lambda + 0.43);
@@ -107,7 +107,7 @@ fn ptrs(rng: &mut impl RngCore, lambda: f64) -> f64 {
         // The immediate acceptance (35% of draws at a mean of 10, 80% at large means).
         return floor((2.0 * a / us + b) * u + lambda + 0.43);
     }
-    ptrs_slow(rng, lambda, a, b, u, v)
+    ptrs_slow(rng, lambda, a, b, vr, u, v)
 }
 
 impl Camera {

@@ -103,7 +103,6 @@ fn mpx_per_s(frames: usize, seconds: f64) -> f64 {
     (frames * WIDTH * HEIGHT) as f64 / seconds.max(1e-12) / 1e6
 }
 
-
 fn ratio(name: &str, rates: &[f64], baseline: &str, base: &[f64], unit: &'static str, target: Option<f64>) -> Ratio {
     let per_run: Vec<f64> = rates.iter().zip(base).map(|(a, b)| a / b).collect();
     let ratio_median = median(per_run.clone());
@@ -153,11 +152,8 @@ const LINEARITY_NUMPY: &str = include_str!("../../../scripts/linearity_numpy.py"
 /// Seconds the numpy version of `linearity` takes on `set` (its own clock, from after its
 /// imports: reading the file and every step), and its largest pixel-wise RMS.
 fn numpy_linearity(set: &std::path::Path) -> Result<(f64, f64), String> {
-    let out = Command::new("python3").arg("-c").arg(LINEARITY_NUMPY).arg(set).output().map_err(|e| format!("python3: {e}"))?;
-    if !out.status.success() {
-        return Err(String::from_utf8_lossy(&out.stderr).lines().last().unwrap_or("python3 failed").to_string());
-    }
-    let v: serde_json::Value = serde_json::from_slice(&out.stdout).map_err(|e| format!("numpy linearity output: {e}"))?;
+    let out = python(LINEARITY_NUMPY, set.as_os_str())?;
+    let v: serde_json::Value = serde_json::from_slice(&out).map_err(|e| format!("numpy linearity output: {e}"))?;
     match (v["seconds"].as_f64(), v["pixelwise"].as_f64()) {
         (Some(s), Some(p)) => Ok((s, p)),
         _ => Err(format!("numpy linearity output without seconds or pixelwise: {v}")),
@@ -165,11 +161,17 @@ fn numpy_linearity(set: &std::path::Path) -> Result<(f64, f64), String> {
 }
 
 fn numpy_rate(frames: usize) -> Result<f64, String> {
-    let out = Command::new("python3").arg("-c").arg(NUMPY).arg(frames.to_string()).output().map_err(|e| format!("python3: {e}"))?;
+    let out = python(NUMPY, frames.to_string().as_ref())?;
+    String::from_utf8_lossy(&out).trim().parse::<f64>().map_err(|e| format!("numpy output: {e}"))
+}
+
+/// Standard output of `python3 -c script arg`, or the last line of its error output.
+fn python(script: &str, arg: &std::ffi::OsStr) -> Result<Vec<u8>, String> {
+    let out = Command::new("python3").arg("-c").arg(script).arg(arg).output().map_err(|e| format!("python3: {e}"))?;
     if !out.status.success() {
         return Err(String::from_utf8_lossy(&out.stderr).lines().last().unwrap_or("python3 failed").to_string());
     }
-    String::from_utf8_lossy(&out.stdout).trim().parse::<f64>().map_err(|e| format!("numpy output: {e}"))
+    Ok(out.stdout)
 }
 
 /// Runs the bench.
