@@ -69,10 +69,31 @@ impl AdcHistograms {
     }
 }
 
+/// The value type a linearity set's cubes are held in: `f64` (the default, every
+/// command that writes from them) or `f32` (`diagnose`, which holds the cubes through the
+/// whole run: half the memory, each value to 2^-24 of itself).
+pub trait Sample: Copy + Into<f64> + Send + Sync + std::fmt::Display + 'static {
+    /// The variance the type's rounding adds to a value `v`: `(v 2^-24)^2 / 3` for `f32`
+    /// (a relative error uniform within half its last place), 0 for `f64`.
+    fn rounding_var(v: f64) -> f64;
+}
+
+impl Sample for f64 {
+    fn rounding_var(_: f64) -> f64 {
+        0.0
+    }
+}
+
+impl Sample for f32 {
+    fn rounding_var(v: f64) -> f64 {
+        (v * 2.0f64.powi(-24)).powi(2) / 3.0
+    }
+}
+
 /// A linearity measurement: frames averaged at illumination levels of known reference
 /// voltage.
 #[derive(Debug, Clone, PartialEq)]
-pub struct LinearitySet {
+pub struct LinearitySet<T: Sample = f64> {
     /// Bits per code of the camera.
     pub bit_depth: u32,
     /// ADCs of the camera; column `c` is read by ADC `c mod n_adc`.
@@ -87,9 +108,9 @@ pub struct LinearitySet {
     pub levels: usize,
     /// Mean frames in DN, level-major, then row, then column:
     /// `mean[(level * height + row) * width + column]`.
-    pub mean: Vec<f64>,
+    pub mean: Vec<T>,
     /// Per-pixel standard deviation of the frames in DN, laid out as `mean`.
-    pub std: Vec<f64>,
+    pub std: Vec<T>,
     /// Reference photodiode voltage of each level in V.
     pub voltage: Vec<f64>,
     /// Known bad pixels, `mask[row * width + column]`, 1 = bad, 0 = good.
@@ -465,6 +486,15 @@ pub fn read_frames(path: &Path) -> Result<FrameCube, HostError> {
 /// the primary cube, `STD`, `MASK` and the rows of `REFERENCE`, NaN or infinite values,
 /// negative standard deviations and mask values other than 0 and 1.
 pub fn read_linearity(path: &Path) -> Result<LinearitySet, HostError> {
+    read_linearity_as(path)
+}
+
+/// [`read_linearity`] into cubes of `T` (converted by cfitsio as they are read: an
+/// `f32` set never holds the `f64` one).
+pub fn read_linearity_as<T: Sample>(path: &Path) -> Result<LinearitySet<T>, HostError>
+where
+    Vec<T>: ReadImage,
+{
     let mut r = FitsReader::open(path)?;
     let (bit_depth, n_adc, _) = r.adc_keys()?;
     let n_frames = r.required_int(0, PRIMARY, "NFRAMES")?;
@@ -477,7 +507,7 @@ pub fn read_linearity(path: &Path) -> Result<LinearitySet, HostError> {
     if width == 0 || height == 0 || levels == 0 {
         return Err(r.error(format!("the primary cube is {width} x {height} x {levels}: empty")));
     }
-    let mean = r.float_pixels(&image)?;
+    let mean: Vec<T> = r.pixels(&image)?;
 
     let std_hdu = r.require_extension("STD", "per-pixel standard deviations")?;
     let std_image = r.image(std_hdu, "extension STD", 3)?;
@@ -488,7 +518,7 @@ pub fn read_linearity(path: &Path) -> Result<LinearitySet, HostError> {
             shape_text(&image.naxes)
         )));
     }
-    let std = r.float_pixels(&std_image)?;
+    let std: Vec<T> = r.pixels(&std_image)?;
 
     let ref_hdu = r.require_extension("REFERENCE", "reference voltages")?;
     let voltage = r.column_f64(ref_hdu, "extension REFERENCE", "VOLTAGE")?;
@@ -798,11 +828,6 @@ impl<'a> FitsReader<'a> {
         }
     }
 
-    /// All pixels of an image as float64 (integer data converted, BSCALE and BZERO applied).
-    fn float_pixels(&mut self, image: &ImageHeader) -> Result<Vec<f64>, HostError> {
-        self.pixels(image)
-    }
-
     /// Scalar numeric column `column` (case-insensitive) of binary table `hdu`.
     fn column_f64(&mut self, hdu: usize, label: &str, column: &str) -> Result<Vec<f64>, HostError> {
         let xtension: String = self.required(hdu, label, "XTENSION")?;
@@ -906,7 +931,7 @@ fn check_lut(lut: &LutTables) -> Result<u32, String> {
 }
 
 /// Everything a [`LinearitySet`] must satisfy, whether about to be written or just read.
-fn check_linearity(s: &LinearitySet) -> Result<(), String> {
+fn check_linearity<T: Sample>(s: &LinearitySet<T>) -> Result<(), String> {
     codes_for(s.bit_depth)?;
     if s.n_adc == 0 {
         return Err("no ADCs: NADC must be at least 1".into());
@@ -932,11 +957,11 @@ fn check_linearity(s: &LinearitySet) -> Result<(), String> {
                 s.levels
             ));
         }
-        if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+        if let Some(i) = values.iter().position(|&v| !v.into().is_finite()) {
             return Err(format!("{name} is {} at {}", values[i], at(i)));
         }
     }
-    if let Some(i) = s.std.iter().position(|&v| v < 0.0) {
+    if let Some(i) = s.std.iter().position(|&v| v.into() < 0.0) {
         return Err(format!("std is negative ({}) at {}", s.std[i], at(i)));
     }
     if s.voltage.len() != s.levels {

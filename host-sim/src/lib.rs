@@ -23,6 +23,7 @@ pub mod quantization;
 pub mod parallel;
 pub mod real_adcs;
 pub mod reference;
+pub mod select;
 pub mod stats;
 pub mod streaming;
 pub mod synth;

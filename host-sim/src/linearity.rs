@@ -41,7 +41,7 @@ use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::fits::LinearitySet;
+use crate::fits::{LinearitySet, Sample};
 use crate::stats::{median, rms_finite};
 
 /// Order of the pixel-wise polynomial (the paper: 4; higher did not help).
@@ -213,11 +213,11 @@ pub fn fill_masked(image: &mut [f64], mask: &[u8], width: usize, height: usize) 
 /// noise collapses to less than half the previous level's while the signal is in the
 /// upper half of the range (a sensor or amplifier that clips below the top code, as the
 /// real EMVA CCD does at 4080 DN with zero variance), or where the data are not finite.
-pub fn unsaturated_levels(set: &LinearitySet) -> Vec<usize> {
+pub fn unsaturated_levels<T: Sample>(set: &LinearitySet<T>) -> Vec<usize> {
     let (nl, np) = (set.levels, set.width * set.height);
     let top = ((1u64 << set.bit_depth) - 1) as f64;
-    let m = |l: usize, p: usize| set.mean[l * np + p];
-    let sd = |l: usize, p: usize| set.std[l * np + p];
+    let m = |l: usize, p: usize| -> f64 { set.mean[l * np + p].into() };
+    let sd = |l: usize, p: usize| -> f64 { set.std[l * np + p].into() };
     let saturated = |l: usize, p: usize| {
         !(m(l, p).is_finite() && sd(l, p).is_finite())
             || m(l, p) >= top - 4.0 * sd(l, p).max(0.5)

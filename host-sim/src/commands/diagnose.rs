@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 
 use crate::diagnose::{diagnose_code_density, diagnose_histograms, diagnose_linearity, diagnose_ptc, Diagnosis, Finding};
-use crate::fits::{read_histograms_for_analysis, read_linearity, write_file_atomically};
+use crate::fits::{read_histograms_for_analysis, read_linearity_as, write_file_atomically};
 use crate::flatten::FlattenParams;
 use crate::plots::{line_plot, Series};
 use crate::HostError;
@@ -90,7 +90,7 @@ pub fn apply_measured(mut c: crate::camera::CameraConfig, d: &Diagnosis) -> crat
 /// bit depth and ADC count with what the set measured ([`apply_measured`]) and an ideal ADC
 /// (a linearity set cannot see code widths). Not yet in the camera model: per-ADC offset,
 /// gain and curvature (an `adc-mismatch` is named in the file's header, not simulated).
-pub fn linearity_model(set: &crate::fits::LinearitySet, d: &Diagnosis) -> crate::camera::CameraConfig {
+pub fn linearity_model<T: crate::fits::Sample>(set: &crate::fits::LinearitySet<T>, d: &Diagnosis) -> crate::camera::CameraConfig {
     let mut c = crate::camera::CameraConfig { bits: set.bit_depth, n_adc: set.n_adc, width: set.width, height: set.height, ..Default::default() };
     c.name = "linearity set, model extended by dncal diagnose".into();
     c.adc.stage_bits = vec![set.bit_depth];
@@ -242,7 +242,8 @@ pub fn diagnose(input: &Path, flatten: &FlattenParams, seed: u64, out_dir: Optio
             Ok(h) => h,
             Err(e) => {
                 // Not a histogram set: a linearity set, or the histogram reader's error.
-                let Ok(set) = read_linearity(input) else { return Err(e) };
+                // Held as f32 (half the memory of the run; see `fits::Sample`).
+                let Ok(set) = read_linearity_as::<f32>(input) else { return Err(e) };
                 let d = diagnose_linearity(&set, 0.01).map_err(|m| HostError::Format { path: input.into(), message: m })?;
                 let model = linearity_model(&set, &d);
                 return report(input, d, Some(model), out_dir, ("level", "baseline (linear pixels): RMS over pixels"));

@@ -35,7 +35,9 @@ use rayon::prelude::*;
 use statrs::distribution::ContinuousCDF;
 
 use super::pixel_fit::{fit_and_score, Point, Response};
-use crate::stats::{robust, upper_median};
+use super::points::{Common, Pixels};
+use crate::fits::Sample;
+use crate::stats::upper_median;
 use super::AdcResiduals;
 
 /// Held out by level, over the levels `on`: the odd rows' estimate in its noise, and its
@@ -61,9 +63,6 @@ fn agreement(pairs: &[(f64, f64)]) -> f64 {
     let n = pairs.len() as f64;
     if pairs.len() > 8 { pairs.iter().map(|(a, b)| a * b).sum::<f64>() / (n / (n - 5.0).sqrt()) } else { 0.0 }
 }
-
-/// One level's residuals `(r, sigma)` from the pixels of even rows and of odd rows.
-type Halves = [Vec<(f64, f64)>; 2];
 
 /// Pixels a level's estimate needs.
 const MIN_PIXELS: usize = 10;
@@ -111,10 +110,9 @@ pub(super) struct LevelTerm {
     pub shape: Shape,
     /// Mean signal per level, DN above dark.
     pub signal: Vec<f64>,
-    /// Per pixel (index into the caller's pixels), its straight line's residuals on all
-    /// levels: (level, residual DN, sigma DN), and its ADC.
-    pub line_residuals: Vec<Vec<(usize, f64, f64)>>,
-    adc: Vec<usize>,
+    /// Per pixel (index into the caller's pixels), its straight line through its levels
+    /// (dark DN, DN per reference unit): [`wald`] tests what the lines leave.
+    line: Vec<Option<[f64; 2]>>,
 }
 
 /// The shape of the common term over the levels, ordered by signal: level errors are
@@ -179,12 +177,14 @@ impl LevelTerm {
         let c = &self.tau_cov;
         (v[0] * (c[0][0] * v[0] + c[0][1] * v[1]) + v[1] * (c[1][0] * v[0] + c[1][1] * v[1])).max(0.0)
     }
+}
 
+impl Common for LevelTerm {
     /// `(c, var)` at `level` for pixel `i` on `adc`, from the estimating pixels, when
     /// there is one: the ADC's own where the ADCs differ; the light's share scaled by the
     /// pixel's slope there against the pixels the term came from (a fixed DN amount left
     /// an ADC with 3% more gain a residual that read as `adc-dnl`).
-    pub fn at(&self, level: usize, adc: usize, i: usize) -> Option<(f64, f64)> {
+    fn at(&self, level: usize, adc: usize, i: usize) -> Option<(f64, f64)> {
         let ratio = self.slope_ratio(i, level);
         let adc_ratio = self.adc_ratio.get(adc).and_then(|r| r.get(level)).copied().unwrap_or(1.0);
         // The black level's part goes through the ADC's gain (an analog offset ahead of
@@ -202,107 +202,136 @@ impl LevelTerm {
     }
 }
 
-/// The weighted mean of `(r, sigma)` after a 5-robust-sigma clip in `r / sigma` (bad
-/// pixels not yet flagged must not make a level error), and its variance from the
-/// scatter.
-fn clipped_mean(v: &[(f64, f64)]) -> (f64, f64) {
-    if v.len() < MIN_PIXELS {
-        return (f64::NAN, f64::NAN);
-    }
-    let z: Vec<f64> = v.iter().map(|(r, s)| r / s).collect();
-    let (m, sd) = robust(&z);
-    let keep: Vec<&(f64, f64)> = v.iter().zip(&z).filter(|(_, z)| (*z - m).abs() <= 5.0 * sd.max(1e-12)).map(|(p, _)| p).collect();
-    let n = keep.len() as f64;
-    if keep.len() < MIN_PIXELS {
-        return (f64::NAN, f64::NAN);
-    }
-    let w: f64 = keep.iter().map(|(_, s)| s.powi(-2)).sum();
-    let c = keep.iter().map(|(r, s)| r / (s * s)).sum::<f64>() / w;
-    let var = keep.iter().map(|(r, s)| ((r - c) / (s * s)).powi(2)).sum::<f64>() / (w * w) * n / (n - 1.0);
-    (c, var)
+/// A clipped mean of one cell: the weighted mean `c` of its `(r, sigma)`, DN, after a
+/// 5-robust-sigma clip in `r / sigma` (bad pixels not yet flagged must not make a level
+/// error), its variance from the scatter, DN^2 (both NaN with fewer than [`MIN_PIXELS`]
+/// values, before or after the clip), and the values the cell had.
+#[derive(Debug, Clone, Copy)]
+struct Clipped {
+    c: f64,
+    var: f64,
+    count: usize,
 }
 
-/// Estimates the common per-level term from every pixel's levels (`data[i]` = even and
-/// odd levels of pixel `i`), the pixels with `estimating(i)` against the others.
-/// `x` is the reference per level, `adc[i]` pixel `i`'s ADC, of `n_adc`. Levels with
-/// `skip[l]` take no part in the
-/// pixels' fits or in the tests: their term is what the fits of the others leave there (a
-/// departure at the lowest signals, which a quartic over all levels spreads over the range
-/// where it passes for level errors).
-pub(super) fn level_term(data: &[(Vec<Point>, Vec<Point>)], x: &[f64], estimating: &(dyn Fn(usize) -> bool + Sync), adc: &[usize], n_adc: usize, skip: &[bool]) -> LevelTerm {
+/// A pixel's quartic `sum_k q_k x^k` through its levels, where it has one.
+type QuarticFit = Option<[f64; 5]>;
+/// A pixel's straight line (dark DN, DN per reference unit), where it has one.
+type LineFit = Option<[f64; 2]>;
+
+/// Visits the residuals of pixel `i`: calls `f(cell, r, sigma)` for each.
+type Visit<'a> = dyn Fn(usize, &mut dyn FnMut(usize, f64, f64)) + Sync + 'a;
+
+/// The clipped means of `cells` cells over the residuals of `n` pixels, in passes over
+/// the pixels (their residuals are recomputed, not held): the robust centre and spread
+/// of every cell's `z = r / sigma` ([`crate::select::robust`], exact, a histogram per
+/// cell), then the weighted sums of what the clip keeps, then their scatter about the
+/// mean.
+fn clipped_means(n: usize, cells: usize, visit: &Visit) -> Vec<Clipped> {
+    let clip = crate::select::robust(n, cells, &|i, f| visit(i, &mut |k, r, s| f(k, r / s)));
+    let clip: Vec<(f64, f64)> = clip.into_iter().map(|(m, sd)| (m, 5.0 * sd.max(1e-12))).collect();
+    let kept = |k: usize, r: f64, s: f64| clip[k].0.is_finite() && (r / s - clip[k].0).abs() <= clip[k].1;
+    // Per cell: values, kept values, `sum 1 / s^2`, `sum r / s^2`; then the scatter.
+    let sums = |first: bool, c: &[f64]| -> Vec<[f64; 4]> {
+        let t = (4 * rayon::current_num_threads()).clamp(1, n.max(1));
+        (0..t)
+            .into_par_iter()
+            .map(|task| {
+                let mut acc = vec![[0.0; 4]; cells];
+                for i in (task * n / t)..((task + 1) * n / t) {
+                    visit(i, &mut |k, r, s| {
+                        let a = &mut acc[k];
+                        if first {
+                            a[0] += 1.0;
+                        }
+                        if kept(k, r, s) {
+                            if first {
+                                a[1] += 1.0;
+                                a[2] += s.powi(-2);
+                                a[3] += r / (s * s);
+                            } else {
+                                a[1] += ((r - c[k]) / (s * s)).powi(2);
+                            }
+                        }
+                    });
+                }
+                acc
+            })
+            .reduce(|| vec![[0.0; 4]; cells], |mut a, b| {
+                a.iter_mut().zip(&b).for_each(|(x, y)| (0..4).for_each(|j| x[j] += y[j]));
+                a
+            })
+    };
+    let first = sums(true, &[]);
+    let enough = |a: &[f64; 4]| a[0] as usize >= MIN_PIXELS && a[1] as usize >= MIN_PIXELS;
+    let c: Vec<f64> = first.iter().map(|a| if enough(a) { a[3] / a[2] } else { f64::NAN }).collect();
+    let scatter = sums(false, &c);
+    (0..cells)
+        .map(|k| {
+            let [count, m, w, _] = first[k];
+            let var = if c[k].is_finite() { scatter[k][1] / (w * w) * m / (m - 1.0) } else { f64::NAN };
+            Clipped { c: c[k], var, count: count as usize }
+        })
+        .collect()
+}
+
+/// Estimates the common per-level term from every pixel's levels, the pixels of even rows
+/// against those of odd rows ([`Pixels::estimating`]). Levels with `skip[l]` take no part
+/// in the pixels' fits or in the tests: their term is what the fits of the others leave
+/// there (a departure at the lowest signals, which a quartic over all levels spreads over
+/// the range where it passes for level errors).
+pub(super) fn level_term<T: Sample>(px: &Pixels<T>, skip: &[bool]) -> LevelTerm {
     let levels = skip.len();
+    let (n, n_adc, x) = (px.len(), px.n_adc(), &px.x);
     let skipped = |l: usize| skip.get(l).copied().unwrap_or(false);
     let quartic = Response::Poly(4);
     let line = Response::Poly(1);
-    // Per pixel: its quartic's and its straight line's residuals on all its levels.
-    type Residuals = (Vec<(usize, f64, f64, f64)>, Vec<(usize, f64, f64)>, Option<[f64; 5]>);
-    let mut fits: Vec<Residuals> = data
-        .par_iter()
-        .map(|(ev, od)| {
-            let all: Vec<Point> = ev.iter().chain(od).copied().collect();
-            let used: Vec<Point> = all.iter().filter(|p| !skipped(p.level)).copied().collect();
-            let (Some(q), Some(l)) = (fit_and_score(quartic, &[0.0; 5], &used, &[]), fit_and_score(line, &[0.0; 2], &used, &[])) else {
-                return (Vec::new(), Vec::new(), None);
-            };
-            let mut grad = [0.0; 5];
-            let at0 = quartic.eval(&q.params, 0.0, &mut grad);
-            let quart = all
-                .iter()
-                .map(|p| {
-                    let v = quartic.eval(&q.params, p.x, &mut grad);
-                    (p.level, p.y - v, p.sigma, v - at0)
-                })
-                .collect();
-            let lin = all.iter().map(|p| (p.level, p.y - line.eval(&l.params, p.x, &mut grad), p.sigma)).collect();
-            (quart, lin, q.params.get(..5).and_then(|p| p.try_into().ok()))
+    // Per pixel: its quartic and its straight line through its levels not skipped.
+    let fits: Vec<(QuarticFit, LineFit)> = (0..n)
+        .into_par_iter()
+        .map(|i| {
+            let used: Vec<Point> = px.all(i, None).into_iter().filter(|p| !skipped(p.level)).collect();
+            match (fit_and_score(quartic, &[0.0; 5], &used, &[]), fit_and_score(line, &[0.0; 2], &used, &[])) {
+                (Some(q), Some(l)) => (q.params.get(..5).and_then(|p| p.try_into().ok()), Some([l.params[0], l.params[1]])),
+                _ => (None, None),
+            }
         })
         .collect();
+    let (quartics, lines): (Vec<QuarticFit>, Vec<LineFit>) = fits.into_iter().unzip();
     // The pixels' local slopes at each level.
-    let slope_median: Vec<f64> = x.par_iter().map(|&xl| upper_median(fits.iter().filter_map(|f| Some(slope(f.2.as_ref()?, xl))).filter(|s| s.is_finite()))).collect();
+    let slope_median: Vec<f64> = x.iter().map(|&xl| upper_median(quartics.par_iter().filter_map(|q| Some(slope(q.as_ref()?, xl))).filter(|s| s.is_finite()).collect::<Vec<f64>>())).collect();
     let adc_ratio: Vec<Vec<f64>> = (0..n_adc)
         .map(|a| {
             (0..levels)
-                .map(|l| upper_median(fits.iter().zip(adc).filter(|(_, &b)| b == a).map(|(f, _)| slope_over(f.2.as_ref(), x[l], slope_median[l]))))
+                .map(|l| upper_median((0..n).into_par_iter().filter(|&i| px.adc(i) == a).map(|i| slope_over(quartics[i].as_ref(), x[l], slope_median[l])).collect::<Vec<f64>>()))
                 .map(|r| if r.is_finite() { r } else { 1.0 })
                 .collect()
         })
         .collect();
-    // Exact capacities first (pushed vectors grow to twice what they hold, and these
-    // copies of every pixel's residuals are the peak of a whole `diagnose` run).
-    let mut count = vec![[0usize; 2]; levels];
-    let mut count_adc = vec![vec![[0usize; 2]; levels]; n_adc];
-    for (i, (quart, ..)) in fits.iter().enumerate() {
-        let half = usize::from(!estimating(i));
-        for &(l, ..) in quart.iter().filter(|q| q.0 < levels) {
-            count[l][half] += 1;
-            if let Some(a) = count_adc.get_mut(adc[i]) {
-                a[l][half] += 1;
-            }
+    // Each pixel's quartic residuals on all its levels, recomputed per pass: (level,
+    // residual DN, sigma DN, the quartic's signal there above its dark).
+    let quartic_residuals = |i: usize, f: &mut dyn FnMut(usize, f64, f64, f64)| {
+        let Some(q) = &quartics[i] else { return };
+        let mut grad = [0.0; 5];
+        let at0 = quartic.eval(q, 0.0, &mut grad);
+        for p in px.all(i, None).iter().filter(|p| p.level < levels) {
+            let v = quartic.eval(q, p.x, &mut grad);
+            f(p.level, p.y - v, p.sigma, v - at0);
         }
-    }
-    let with = |c: &[usize; 2]| [Vec::with_capacity(c[0]), Vec::with_capacity(c[1])];
-    let mut per: Vec<Halves> = count.iter().map(with).collect();
-    let mut by_adc: Vec<Vec<Halves>> = count_adc.iter().map(|a| a.iter().map(with).collect()).collect();
-    let mut signal: Vec<Vec<f64>> = count.iter().map(|c| Vec::with_capacity(c[0] + c[1])).collect();
-    for (i, (quart, ..)) in fits.iter().enumerate() {
-        let half = usize::from(!estimating(i));
-        for &(l, r, s, sig) in quart {
-            if l < levels {
-                per[l][half].push((r, s));
-                if let Some(a) = by_adc.get_mut(adc[i]) {
-                    a[l][half].push((r, s));
-                }
-                signal[l].push(sig);
-            }
-        }
-    }
-    // The quartics' residuals are copied out: free them for the rest of the estimate.
-    for f in &mut fits {
-        f.0 = Vec::new();
-    }
-    let est: Vec<[(f64, f64); 2]> = per.par_iter().map(|h| [clipped_mean(&h[0]), clipped_mean(&h[1])]).collect();
-    drop(per);
-    let signal: Vec<f64> = signal.into_iter().map(upper_median).collect();
+    };
+    let half = |i: usize| usize::from(!px.estimating(i));
+    // Cells: per level and half, then per ADC, level and half.
+    let adc_cell = |a: usize, l: usize, h: usize| 2 * levels + 2 * (a * levels + l) + h;
+    let means = clipped_means(n, 2 * levels * (1 + n_adc), &|i, f| {
+        let (a, h) = (px.adc(i), half(i));
+        quartic_residuals(i, &mut |l, r, s, _| {
+            f(2 * l + h, r, s);
+            f(adc_cell(a, l, h), r, s);
+        })
+    });
+    let est: Vec<[(f64, f64); 2]> = (0..levels).map(|l| [0, 1].map(|h| (means[2 * l + h].c, means[2 * l + h].var))).collect();
+    let adc_est: Vec<Vec<[(f64, f64); 2]>> = (0..n_adc).map(|a| (0..levels).map(|l| [0, 1].map(|h| (means[adc_cell(a, l, h)].c, means[adc_cell(a, l, h)].var))).collect()).collect();
+    // The signal per level: the median over pixels of their quartics' signal there.
+    let signal = crate::select::upper_medians(n, levels, &|i, f| quartic_residuals(i, &mut |l, _, _, sig| f(l, sig)));
     // Agreement of the halves, over the levels where both have an estimate.
     let both: Vec<(usize, f64, f64)> = (0..levels)
         .filter(|&l| !skipped(l) && est[l].iter().all(|(c, v)| c.is_finite() && *v > 0.0))
@@ -388,8 +417,6 @@ pub(super) fn level_term(data: &[(Vec<Point>, Vec<Point>)], x: &[f64], estimatin
     };
     // Each ADC's departure from the common term, even rows against odd rows (its variance
     // about `v_a - v`: the common term holds the ADC's own pixels).
-    let adc_est: Vec<Vec<[(f64, f64); 2]>> = by_adc.par_iter().map(|a| a.iter().map(|h| [clipped_mean(&h[0]), clipped_mean(&h[1])]).collect()).collect();
-    drop(by_adc);
     let adc_significance: Vec<f64> = if n_adc >= 2 {
         adc_est
             .iter()
@@ -421,7 +448,6 @@ pub(super) fn level_term(data: &[(Vec<Point>, Vec<Point>)], x: &[f64], estimatin
     let by_level = held_out_by_level(&est, |l| !skipped(l));
     let skipped_by_level = held_out_by_level(&est, skipped);
     let adc_by_level: Vec<AdcResiduals> = adc_est.iter().map(|a| held_out_by_level(a, |l| !skipped(l))).collect();
-    let (line_residuals, quartic) = fits.into_iter().map(|f| (f.1, f.2)).unzip();
     LevelTerm {
         by_level,
         adc_by_level,
@@ -435,14 +461,13 @@ pub(super) fn level_term(data: &[(Vec<Point>, Vec<Point>)], x: &[f64], estimatin
         light_rel: light2.sqrt(),
         black_dn: black2.sqrt(),
         tau_cov,
-        quartic,
+        quartic: quartics,
         x: x.to_vec(),
         slope_median,
         adc_ratio,
         shape,
         signal,
-        line_residuals,
-        adc: adc.to_vec(),
+        line: lines,
     }
 }
 
@@ -461,7 +486,7 @@ pub(super) enum Block<'a> {
 /// and the `block`'s terms with each level's variance the noise of the mean plus the
 /// level errors' `tau^2`, and the Wald statistic of the block against `F(k, L - p)` (`k`
 /// tested of `p` terms) as a one-sided normal deviate.
-pub(super) fn wald(term: &LevelTerm, sel: &(dyn Fn(usize) -> bool + Sync), block: Block) -> f64 {
+pub(super) fn wald<T: Sample>(term: &LevelTerm, px: &Pixels<T>, sel: &(dyn Fn(usize) -> bool + Sync), block: Block) -> f64 {
     let x = &term.x;
     let levels = x.len();
     // Each ADC's clipped mean, then their plain mean: one clip over all pixels cut an
@@ -470,23 +495,24 @@ pub(super) fn wald(term: &LevelTerm, sel: &(dyn Fn(usize) -> bool + Sync), block
     // that change from level to level would mix the ADCs' curves into no polynomial.
     // With too few pixels per ADC for their own clipped means (a 6 x 6 sensor), one
     // clip over all (it turned the bend's test off: no row, significance 0).
-    let n_adc = term.adc.iter().copied().max().map_or(1, |a| a + 1);
+    let n_adc = px.n_adc();
     let mut counts = vec![0usize; n_adc];
-    (0..term.adc.len()).filter(|&i| sel(i)).for_each(|i| counts[term.adc[i]] += 1);
+    (0..px.len()).filter(|&i| sel(i)).for_each(|i| counts[px.adc(i)] += 1);
     let pooled = counts.iter().any(|&c| c > 0 && c < 2 * MIN_PIXELS);
-    let group = |i: usize| if pooled { 0 } else { term.adc[i] };
-    let mut per: Vec<Vec<Vec<(f64, f64)>>> = vec![vec![Vec::new(); levels]; n_adc];
-    for (i, res) in term.line_residuals.iter().enumerate().filter(|(i, _)| sel(*i)) {
-        for &(l, r, s) in res {
-            if l < levels {
-                per[group(i)][l].push((r, s));
-            }
+    let group = |i: usize| if pooled { 0 } else { px.adc(i) };
+    let line = Response::Poly(1);
+    let per = clipped_means(px.len(), n_adc * levels, &|i, f| {
+        let Some(p) = term.line.get(i).copied().flatten().filter(|_| sel(i)) else { return };
+        let mut grad = [0.0; 2];
+        for q in px.all(i, None).iter().filter(|q| q.level < levels) {
+            f(group(i) * levels + q.level, q.y - line.eval(&p, q.x, &mut grad), q.sigma);
         }
-    }
-    per.retain(|a| a.iter().any(|v| !v.is_empty()));
+    });
+    // The groups with residuals at any level.
+    let groups: Vec<usize> = (0..n_adc).filter(|&g| (0..levels).any(|l| per[g * levels + l].count > 0)).collect();
     let rows: Vec<(usize, f64, f64, f64)> = (0..levels)
         .filter_map(|l| {
-            let each: Vec<(f64, f64)> = per.iter().map(|a| clipped_mean(&a[l])).collect();
+            let each: Vec<(f64, f64)> = groups.iter().map(|&g| (per[g * levels + l].c, per[g * levels + l].var)).collect();
             let k = each.len() as f64;
             let (c, v) = (each.iter().map(|e| e.0).sum::<f64>() / k, each.iter().map(|e| e.1).sum::<f64>() / (k * k));
             // A block of levels is tested against an upper bound of the level errors'

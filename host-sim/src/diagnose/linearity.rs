@@ -72,9 +72,11 @@ use rayon::prelude::*;
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 
 use super::levels::{held_out_rms, level_term, wald, Block, LevelTerm, Shape};
-use super::pixel_fit::{fit_and_score, Point, Response, Scored, Totals};
+use super::pixel_fit::{fit_and_score, Point, Response};
+use super::points::{Common, Pixels};
+use super::scores::{Cell, Scores};
 use super::*;
-use crate::fits::LinearitySet;
+use crate::fits::{LinearitySet, Sample};
 use crate::linearity::unsaturated_levels;
 use crate::stats::{robust, upper_median};
 
@@ -90,8 +92,8 @@ use crate::stats::{robust, upper_median};
 /// off the reference, the black level off); that term enters every `D_p` alike and this
 /// test cannot see it (a 2e-4 level error gave false `adc-mismatch` findings), so it is
 /// measured and taken out first ([`super::levels`]).
-fn paired(a: &[Option<Scored>], b: &[Option<Scored>], sel: impl Fn(usize) -> bool) -> f64 {
-    let d: Vec<f64> = a.iter().zip(b).enumerate().filter(|(j, _)| sel(*j)).filter_map(|(_, (a, b))| Some(a.as_ref()?.sum_sq() - b.as_ref()?.sum_sq())).collect();
+fn paired(a: &Scores, b: &Scores, sel: impl Fn(usize) -> bool) -> f64 {
+    let d: Vec<f64> = a.per.iter().zip(&b.per).enumerate().filter(|(j, _)| sel(*j)).filter_map(|(_, (a, b))| Some(a.as_ref()?.sum_sq - b.as_ref()?.sum_sq)).collect();
     paired_sum(&d)
 }
 
@@ -116,19 +118,6 @@ fn population(values: impl Iterator<Item = (usize, f64)>, n_adc: usize) -> (Vec<
     let centre = crate::stats::median(per.iter().copied());
     let dev: Vec<f64> = v.iter().map(|(a, x)| x - per[*a]).collect();
     (per.clone(), centre, robust(&dev).1)
-}
-
-/// Per level, the RMS over the selected pixels (`sel` on the index into `scores`) of the
-/// held-out normalized residuals: the figures.
-fn by_level(scores: &[Option<Scored>], levels: usize, sel: impl Fn(usize) -> bool) -> Vec<(usize, f64)> {
-    let mut acc = vec![(0.0, 0usize); levels];
-    for (_, s) in scores.iter().enumerate().filter(|(j, _)| sel(*j)) {
-        for (l, z) in s.iter().flat_map(|s| s.z.iter()).map(|v| (v.level(), v.z())) {
-            acc[l].0 += z * z;
-            acc[l].1 += 1;
-        }
-    }
-    acc.iter().enumerate().filter(|(_, a)| a.1 > 0).map(|(l, a)| (l, (a.0 / a.1 as f64).sqrt())).collect()
 }
 
 fn with_residuals(r: AdcResiduals, mut f: Finding) -> Finding {
@@ -160,29 +149,6 @@ fn level_finding(term: &LevelTerm) -> Finding {
     with_residuals(term.by_level.clone(), finding(effect, None, term.significance, before, after, detail))
 }
 
-/// The levels of one pixel, split: (even levels, odd levels); less the common per-level
-/// term where one was accepted (its variance added to the noise). `bias2[l]` is the
-/// mean square quantization error of a mean at level `l` ([`quantization_floor`]).
-/// `common` is the term and the pixel's index into it ([`LevelTerm::at`]).
-fn halves(set: &LinearitySet, x: &[f64], kappa: f64, bias2: &[f64], valid: usize, p: usize, common: Option<(&LevelTerm, usize)>) -> (Vec<Point>, Vec<Point>) {
-    let np = set.width * set.height;
-    let n = f64::from(set.n_frames.max(1));
-    let floor = 1.0 / (12.0 * n);
-    let pts = (0..valid)
-        .map(|l| {
-            let (c, v) = common.and_then(|(t, i)| t.at(l, (p % set.width) % set.n_adc.max(1), i)).unwrap_or((0.0, 0.0));
-            Point { level: l, x: x[l], y: set.mean[l * np + p] - c, sigma: ((kappa * set.std[l * np + p].powi(2) / n).max(floor) + bias2[l] + v).sqrt() }
-        })
-        .filter(|q| q.x.is_finite() && q.y.is_finite() && q.sigma.is_finite());
-    // Exact capacities: a pushed Vec grows to the next power of two (32 places for 21
-    // levels), and these are most of what `diagnose` holds per pixel.
-    let mut halves = (Vec::with_capacity(valid.div_ceil(2)), Vec::with_capacity(valid / 2));
-    for q in pts {
-        if q.level % 2 == 0 { halves.0.push(q) } else { halves.1.push(q) }
-    }
-    halves
-}
-
 /// Per level, the mean square error a mean of quantized frames carries beyond what their
 /// spread shows ([`crate::quantization::mean_square_bias`] at the analog noise behind the
 /// pixels' mean frame variance, [`crate::quantization::sigma_from_quantized_variance`]):
@@ -190,11 +156,11 @@ fn halves(set: &LinearitySet, x: &[f64], kappa: f64, bias2: &[f64], valid: usize
 /// it a set with 0.1 DN of noise gave `bad-pixels` at 950 sigma and `unexplained` at 800
 /// (its means were taken to be good to 1/sqrt(12 N) of a code); with the median frame
 /// deviation taken for the analog noise (0.3 DN read for 0.17), `unexplained` at 98.
-fn quantization_floor(set: &LinearitySet, pixels: &[usize]) -> Vec<f64> {
+fn quantization_floor<T: Sample>(set: &LinearitySet<T>, pixels: &[usize]) -> Vec<f64> {
     let np = set.width * set.height;
     (0..set.levels)
         .map(|l| {
-            let s: Vec<f64> = pixels.iter().map(|&p| set.std[l * np + p]).filter(|v| v.is_finite()).collect();
+            let s: Vec<f64> = pixels.iter().map(|&p| set.std[l * np + p].into()).filter(|v: &f64| v.is_finite()).collect();
             // Noisy or hot pixels out: they are not the level's noise.
             let cut = 5.0 * upper_median(s.clone()).max(0.0) + 1.0;
             let kept: Vec<f64> = s.into_iter().filter(|&v| v <= cut).collect();
@@ -215,12 +181,16 @@ fn quantization_floor(set: &LinearitySet, pixels: &[usize]) -> Vec<f64> {
 /// standard deviations (errors in variables). And not the medians of the quartics'
 /// coefficients either: those are nearly collinear and too noisy (0.5-1 DN of shared error
 /// per level on a 64 x 64 set, an 'unexplained' excess of 13 standard deviations).
-fn shared_curve(pixels: &[(&Vec<Point>, f64)], top: f64) -> [f64; 3] {
+fn shared_curve<T: Sample>(px: &Pixels<T>, common: Option<&dyn Common>, pixels: &[(usize, f64)], top: f64) -> [f64; 3] {
     let (n, r) = pixels
         .par_iter()
-        .filter(|(pts, g)| pts.len() > 3 && g.is_finite())
-        .map(|&(pts, g)| {
+        .filter(|(_, g)| g.is_finite())
+        .map(|&(i, g)| {
+            let pts = px.halves(i, common).0;
             let k = pts.len();
+            if k <= 3 {
+                return (DMatrix::zeros(3, 3), DVector::zeros(3));
+            }
             let x = DMatrix::from_fn(k, 2, |i, j| if j == 0 { 1.0 / pts[i].sigma } else { pts[i].x / pts[i].sigma });
             let u = DMatrix::from_fn(k, 3, |i, j| (g * pts[i].x / top).powi(j as i32 + 2) * top / pts[i].sigma);
             let y = DVector::from_iterator(k, pts.iter().map(|q| q.y / q.sigma));
@@ -249,15 +219,14 @@ fn shared_curve(pixels: &[(&Vec<Point>, f64)], top: f64) -> [f64; 3] {
 /// pixel-to-pixel rms of the quadratic response term from the *covariance* of the
 /// pixels' even-level and odd-level quartics (their noises are independent, so the
 /// covariance over pixels is the spread of the true terms alone).
-fn measure_camera(set: &LinearitySet, pixels: &[usize], good: &[usize], valid: &[usize], quartics: &[(Option<Scored>, Option<Scored>)], top: f64, bad: usize) -> Measured {
-    let np = set.width * set.height;
+fn measure_camera<T: Sample>(px: &Pixels<T>, good: &[usize], fits: &[PixelFits], n_frames: u32, top: f64, bad: usize) -> Measured {
+    let levels = px.x.len();
     // The median of `s^2` is `sigma^2` times the median of `chi^2_(N-1) / (N-1)`,
     // `(1 - 2 / (9 (N-1)))^3` (Wilson-Hilferty): 0.26% low at 256 frames, and the gain
     // with it.
-    let dof = f64::from(set.n_frames.max(2)) - 1.0;
+    let dof = f64::from(n_frames.max(2)) - 1.0;
     let median_chi2 = (1.0 - 2.0 / (9.0 * dof)).powi(3);
-    let n_adc = set.n_adc.max(1);
-    let adc_of = |p: usize| (p % set.width) % n_adc;
+    let n_adc = px.n_adc();
     // Pixel-to-pixel spreads about each pixel's own ADC's median: an ADC offset or gain is
     // an `adc-mismatch`, not DSNU or PRNU.
     let about_own_adc = |v: &[(usize, f64)]| -> (f64, f64) {
@@ -265,18 +234,18 @@ fn measure_camera(set: &LinearitySet, pixels: &[usize], good: &[usize], valid: &
         (centre, scatter)
     };
     let (mut s, mut v) = (Vec::new(), Vec::new());
-    let dark = upper_median(good.iter().map(|&i| set.mean[pixels[i]]));
-    for l in 1..set.levels {
-        let on: Vec<usize> = good.iter().map(|&i| pixels[i]).filter(|&p| l < valid[p]).collect();
+    let dark = upper_median(good.iter().map(|&i| px.mean(0, i)));
+    for l in 1..levels {
+        let on: Vec<usize> = good.iter().copied().filter(|&i| l < px.valid(i)).collect();
         if on.len() * 2 < good.len() {
             break;
         }
-        let signal = upper_median(on.iter().map(|&p| set.mean[l * np + p] - set.mean[p]));
+        let signal = upper_median(on.iter().map(|&i| px.mean(l, i) - px.mean(0, i)));
         if signal > 0.7 * (top - dark) {
             break;
         }
         s.push(signal);
-        v.push(upper_median(on.iter().map(|&p| set.std[l * np + p].powi(2))) / median_chi2);
+        v.push(upper_median(on.iter().map(|&i| px.std(l, i).powi(2))) / median_chi2);
     }
     let (gain, read) = if s.len() >= 3 {
         let (a, b, _) = crate::emva::fit_line(&s, &v);
@@ -287,17 +256,18 @@ fn measure_camera(set: &LinearitySet, pixels: &[usize], good: &[usize], valid: &
     // DSNU from the dark frames themselves, less their own noise; PRNU from the signal at
     // the level nearest half scale (fitted intercepts and slopes would absorb part of each
     // pixel's own curvature: they read 2.1 DN of DSNU where the camera had 0.9).
-    let n_frames = f64::from(set.n_frames.max(1));
-    let (_, d_scatter) = about_own_adc(&good.iter().map(|&i| (adc_of(pixels[i]), set.mean[pixels[i]])).collect::<Vec<_>>());
-    let d_noise = upper_median(good.iter().map(|&i| set.std[pixels[i]].powi(2) / n_frames)) / median_chi2;
+    let n_frames = f64::from(n_frames.max(1));
+    let (_, d_scatter) = about_own_adc(&good.iter().map(|&i| (px.adc(i), px.mean(0, i))).collect::<Vec<_>>());
+    let d_noise = upper_median(good.iter().map(|&i| px.std(0, i).powi(2) / n_frames)) / median_chi2;
     let half = s.iter().enumerate().min_by(|a, b| (a.1 - 0.5 * s.last().copied().unwrap_or(0.0) / 0.7).abs().total_cmp(&(b.1 - 0.5 * s.last().copied().unwrap_or(0.0) / 0.7).abs())).map_or(1, |(j, _)| j + 1);
-    let sig_half: Vec<(usize, f64)> = good.iter().map(|&i| pixels[i]).filter(|&p| half < valid[p]).map(|p| (adc_of(p), set.mean[half * np + p] - set.mean[p])).collect();
+    let sig_half: Vec<(usize, f64)> = good.iter().copied().filter(|&i| half < px.valid(i)).map(|i| (px.adc(i), px.mean(half, i) - px.mean(0, i))).collect();
     let (gm, gs) = about_own_adc(&sig_half);
     let b2: Vec<(f64, f64)> = good
         .iter()
         .filter_map(|&i| {
-            let (a, b) = (quartics[i].0.as_ref()?, quartics[i].1.as_ref()?);
-            Some((a.params[2] / a.params[1].powi(2), b.params[2] / b.params[1].powi(2)))
+            let [a, b] = &fits[i].quartic;
+            let (a, b) = (a.as_ref()?, b.as_ref()?);
+            Some((a.b2 / a.gain.powi(2), b.b2 / b.gain.powi(2)))
         })
         .filter(|(a, b)| a.is_finite() && b.is_finite())
         .collect();
@@ -308,18 +278,52 @@ fn measure_camera(set: &LinearitySet, pixels: &[usize], good: &[usize], valid: &
         gain_e_per_dn: gain,
         read_noise_dn: read,
         offset_dn: Some(dark),
-        full_scale_dn: Some(upper_median(good.iter().map(|&i| pixels[i]).filter(|&p| valid[p] > 1).map(|p| set.mean[(valid[p] - 1) * np + p] - set.mean[p]))),
-        saturated: good.iter().filter(|&&i| valid[pixels[i]] < set.levels).count() * 2 > good.len(),
+        full_scale_dn: Some(upper_median(good.iter().copied().filter(|&i| px.valid(i) > 1).map(|i| px.mean(px.valid(i) - 1, i) - px.mean(0, i)))),
+        saturated: good.iter().filter(|&&i| px.valid(i) < levels).count() * 2 > good.len(),
         prnu_rms: Some(gs / gm),
         dsnu_dn: Some((d_scatter.powi(2) - d_noise).max(0.0).sqrt()),
         pixel_b2_rms_per_dn: (n > 10.0).then(|| cov.max(0.0).sqrt()),
-        bad_fraction: Some(bad as f64 / pixels.len().max(1) as f64),
+        bad_fraction: Some(bad as f64 / px.len().max(1) as f64),
     }
+}
+
+/// A pixel's quartic on one half of its levels, what the catalogue reads of it: its
+/// linear and quadratic coefficients, the `chi^2` of its fit, and the sum of its
+/// held-out `z^2` on the other half with their count.
+#[derive(Debug, Clone, Copy)]
+struct Quartic {
+    gain: f64,
+    b2: f64,
+    chi2_fit: f64,
+    held_sq: f64,
+    held_n: u16,
+}
+
+/// A pixel's fits on each half of its levels (even, odd): its quartic and its straight
+/// line (dark DN, gain DN per reference unit), and the points each half had.
+#[derive(Debug, Clone, Copy)]
+struct PixelFits {
+    quartic: [Option<Quartic>; 2],
+    line: [Option<[f64; 2]>; 2],
+    points: [u16; 2],
+}
+
+/// Why a pixel is flagged bad.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum BadPixel {
+    /// Fewer than 3 unsaturated levels, or no fit: stuck, or hot at saturation.
+    Stuck,
+    /// Its own quartic fails its levels (kinks, jumps).
+    Shape,
+    /// A gain outside 0.5-1.5 of its ADC's median (dead).
+    Gain,
+    /// A dark level more than 10 robust sigma off (hot).
+    Dark,
 }
 
 /// Diagnoses a linearity set; `accuracy_dn` is the averaging accuracy the
 /// `insufficient-noise` check asks for.
-pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagnosis, String> {
+pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) -> Result<Diagnosis, String> {
     let (nl, np) = (set.levels, set.width * set.height);
     if nl < 11 {
         return Err(format!("{nl} levels: the held-out split needs at least 11 (a quartic on the even levels and one on the odd ones)"));
@@ -339,24 +343,27 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     }
     let x: Vec<f64> = set.voltage.iter().map(|v| v / vmax).collect();
     let valid = unsaturated_levels(set);
-    if upper_median(set.std.clone()) <= 0.0 {
+    // The upper median of the finite deviations is at most 0 when more than half of them
+    // are (counted: a sorted copy of the cube was 4 bytes per value more at its peak).
+    let (zero, finite) = set.std.iter().map(|&v| v.into()).filter(|v: &f64| v.is_finite()).fold((0usize, 0usize), |(z, n), v| (z + usize::from(v <= 0.0), n + 1));
+    if finite > 0 && zero > finite / 2 {
         return Err("the standard deviations are zero at most pixels and levels: the noise of the means is unknown".into());
     }
     let known_bad = |p: usize| set.mask.as_ref().is_some_and(|m| m[p] != 0);
     let n_adc = set.n_adc.max(1);
-    let adc_of = |p: usize| (p % set.width) % n_adc;
     let pixels: Vec<usize> = (0..np).filter(|&p| !known_bad(p)).collect();
+    let bias2 = quantization_floor(set, &pixels);
+    let px = Pixels::new(set, x, kappa, bias2, valid, pixels);
+    let n = px.len();
+    let adc_of = |i: usize| px.adc(i);
     // Shared parameters (curves, population medians) are estimated on the pixels of even
     // rows and scored on those of odd rows: a pixel's own curvature or gain is common to
     // its even and odd levels, so scoring a shared fit on its own pixels would reward it
     // for following their sample.
-    let estimating = |i: usize| (pixels[i] / set.width) % 2 == 0;
-    let bias2 = quantization_floor(set, &pixels);
-    let mut data: Vec<(Vec<Point>, Vec<Point>)> = pixels.par_iter().map(|&p| halves(set, &x, kappa, &bias2, valid[p], p, None)).collect();
+    let estimating = |i: usize| px.estimating(i);
     // Errors every pixel shares at a level (the light off the reference, the black level
     // off) first: found, they are taken out of every pixel's means before any model.
-    let adcs: Vec<usize> = pixels.iter().map(|&p| adc_of(p)).collect();
-    let mut levels_term = level_term(&data, &x, &estimating, &adcs, n_adc, &vec![false; nl]);
+    let mut levels_term = level_term(&px, &vec![false; nl]);
     let mut findings = Vec::new();
     let accepted = |t: &LevelTerm| {
         let (before, after) = held_out_rms(&t.by_level);
@@ -378,13 +385,13 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     let room = count(&low) >= 2 && nl - count(&low) >= 11;
     let smooth_or_low = matches!(levels_term.shape, Shape::Random | Shape::LowSignal { .. });
     if accepted(&levels_term) && levels_term.per_adc.is_none() && smooth_or_low && room {
-        let skipped = level_term(&data, &x, &estimating, &adcs, n_adc, &low);
+        let skipped = level_term(&px, &low);
         // (A term taken per ADC without its `adc-dnl` finding would hide the ADCs.)
         if skipped.per_adc.is_none() {
             let low_finding = if let Shape::LowSignal { .. } = levels_term.shape {
                 Some(level_finding(&levels_term))
             } else {
-                let sig = wald(&skipped, &|_| true, Block::Levels(&low));
+                let sig = wald(&skipped, &px, &|_| true, Block::Levels(&low));
                 let (before, after) = held_out_rms(&skipped.skipped_by_level);
                 (sig > SIGNIFICANCE && after < before).then(|| {
                     let lows = count(&low);
@@ -407,7 +414,7 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
                     // a 5 sigma `global-nonlinearity`). With too few levels above 20%, or
                     // a term there taken per ADC, the one above 10% (at 13 levels a
                     // re-review found the whole test skipped).
-                    let above = (count(&guard) > count(&low) && nl - count(&guard) >= 11).then(|| level_term(&data, &x, &estimating, &adcs, n_adc, &guard));
+                    let above = (count(&guard) > count(&low) && nl - count(&guard) >= 11).then(|| level_term(&px, &guard));
                     let level_errors = above.filter(|t| t.per_adc.is_none()).unwrap_or(skipped);
                     let named_errors = (accepted(&level_errors) && level_errors.shape == Shape::Random).then(|| level_finding(&level_errors));
                     let found = named_errors.is_some();
@@ -447,90 +454,96 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     if !handled && level_accepted && levels_term.per_adc.is_none() {
         findings.push(level_finding(&levels_term));
     }
-    if level_accepted || levels_term.per_adc.is_some() {
-        // The old halves go first: the two sets side by side were the run's peak.
-        drop(std::mem::take(&mut data));
-        data = pixels.par_iter().enumerate().map(|(i, &p)| halves(set, &x, kappa, &bias2, valid[p], p, Some((&levels_term, i)))).collect();
-    }
+    // From here every pixel's points are its means less the term, where one was found.
+    let common: Option<&dyn Common> = (level_accepted || levels_term.per_adc.is_some()).then_some(&levels_term as &dyn Common);
+    let halves = |i: usize| px.halves(i, common);
 
-    // Each pixel's quartic on either half: the shapes for the shared curves, and the
-    // bad-pixel test of the pixel's own response.
+    // Each pixel's quartic on either half (the shapes for the shared curves, and the
+    // bad-pixel test of the pixel's own response) and its straight line (dark and gain
+    // for the maps: their parameters only).
     let quartic = Response::Poly(crate::linearity::PIXEL_ORDER);
     let zero5 = [0.0; 5];
-    let quartics: Vec<(Option<Scored>, Option<Scored>)> = data.par_iter().map(|(ev, od)| (fit_and_score(quartic, &zero5, ev, od), fit_and_score(quartic, &zero5, od, ev))).collect();
-    // Dark and gain per pixel from each half (the linear response), for the maps.
     let linear = Response::Poly(1);
-    // (Their parameters only: no held-out score is read from them.)
-    let lines: Vec<(Option<Scored>, Option<Scored>)> = data.par_iter().map(|(ev, od)| (fit_and_score(linear, &[0.0; 2], ev, &[]), fit_and_score(linear, &[0.0; 2], od, &[]))).collect();
+    let fits: Vec<PixelFits> = (0..n)
+        .into_par_iter()
+        .map(|i| {
+            let (ev, od) = halves(i);
+            let q = |a: &[Point], b: &[Point]| {
+                fit_and_score(quartic, &zero5, a, b).map(|s| Quartic { gain: s.params[1], b2: s.params[2], chi2_fit: s.chi2_fit, held_sq: s.sum_sq(), held_n: s.z.len() as u16 })
+            };
+            let l = |a: &[Point]| fit_and_score(linear, &[0.0; 2], a, &[]).map(|s| [s.params[0], s.params[1]]);
+            PixelFits { quartic: [q(&ev, &od), q(&od, &ev)], line: [l(&ev), l(&od)], points: [ev.len() as u16, od.len() as u16] }
+        })
+        .collect();
     // The population of dark (k = 0) and gain (k = 1) from the even-level fits, for the
     // bad-pixel flags.
-    let pop_of = |k: usize| population(lines.iter().enumerate().filter(|(i, _)| estimating(*i)).filter_map(|(i, l)| Some((adc_of(pixels[i]), l.0.as_ref()?.params[k]))), n_adc);
+    let pop_of = |k: usize| population((0..n).filter(|&i| estimating(i)).filter_map(|i| Some((adc_of(i), fits[i].line[0]?[k]))), n_adc);
     let (dark_pop, gain_pop) = ((pop_of(0).1, pop_of(0).2), (pop_of(1).1, pop_of(1).2));
     // Each pixel is flagged against its own ADC's medians (an ADC offset is an
     // `adc-mismatch`, not a quarter of the sensor gone bad; a review found 1018 such
     // "bad pixels" with a 3 DN ADC offset and 0.2 DN of DSNU).
     let (dark_adc, gain_adc) = (pop_of(0).0, pop_of(1).0);
-    let own_adc = |v: &[f64], i: usize, fallback: f64| v.get(adc_of(pixels[i])).copied().filter(|x| x.is_finite()).unwrap_or(fallback);
+    let own_adc = |v: &[f64], i: usize, fallback: f64| v.get(adc_of(i)).copied().filter(|x| x.is_finite()).unwrap_or(fallback);
     // Bad pixels, flagged in each half independently.
     let tail = |chi2: f64, dof: usize| dof > 0 && ChiSquared::new(dof as f64).map(|c| c.sf(chi2) < 1e-6).unwrap_or(false);
-    let bad_in = |i: usize, half: usize| -> Option<&'static str> {
-        let (pts, q, l) = if half == 0 { (&data[i].0, &quartics[i].0, &lines[i].0) } else { (&data[i].1, &quartics[i].1, &lines[i].1) };
-        let (Some(q), Some(l)) = (q, l) else { return Some("stuck") };
-        if pts.len() < 3 {
-            return Some("stuck");
+    let bad_in = |i: usize, half: usize| -> Option<BadPixel> {
+        let f = &fits[i];
+        let (Some(q), Some(l)) = (f.quartic[half], f.line[half]) else { return Some(BadPixel::Stuck) };
+        let points = usize::from(f.points[half]);
+        if points < 3 {
+            return Some(BadPixel::Stuck);
         }
-        if tail(q.chi2_fit, pts.len().saturating_sub(quartic.params())) {
-            return Some("shape");
+        if tail(q.chi2_fit, points.saturating_sub(quartic.params())) {
+            return Some(BadPixel::Shape);
         }
         let g_own = own_adc(&gain_adc, i, gain_pop.0);
-        if !(l.params[1] > 0.5 * g_own && l.params[1] < 1.5 * g_own) {
-            return Some("gain");
+        if !(l[1] > 0.5 * g_own && l[1] < 1.5 * g_own) {
+            return Some(BadPixel::Gain);
         }
-        if (l.params[0] - own_adc(&dark_adc, i, dark_pop.0)).abs() > 10.0 * dark_pop.1.max(1e-9) {
-            return Some("dark");
+        if (l[0] - own_adc(&dark_adc, i, dark_pop.0)).abs() > 10.0 * dark_pop.1.max(1e-9) {
+            return Some(BadPixel::Dark);
         }
         None
     };
     // The flags on the even levels (for the held-out bad-pixel score) and on both.
-    let flagged_even: Vec<Option<&'static str>> = (0..pixels.len()).map(|i| bad_in(i, 0)).collect();
-    let bad: Vec<Option<&'static str>> = (0..pixels.len())
+    let flagged_even: Vec<Option<BadPixel>> = (0..n).map(|i| bad_in(i, 0)).collect();
+    let bad: Vec<Option<BadPixel>> = (0..n)
         .map(|i| match (flagged_even[i], bad_in(i, 1)) {
             (Some(a), Some(_)) => Some(a),
             _ => None,
         })
         .collect();
-    let is_good = |i: usize| bad[i].is_none() && quartics[i].0.is_some() && lines[i].0.is_some();
+    let is_good = |i: usize| bad[i].is_none() && fits[i].quartic[0].is_some() && fits[i].line[0].is_some();
 
     // Shared curves from the good pixels' even-level quartics.
     // `at_gain`: every pixel at that gain (an additive common term), else its own.
     let shared_of = |sel: &dyn Fn(usize) -> bool, at_gain: Option<f64>| -> [f64; 3] {
-        let chosen: Vec<usize> = (0..pixels.len()).filter(|&i| is_good(i) && estimating(i) && sel(i)).collect();
-        shared_curve(&chosen.iter().filter_map(|&i| Some((&data[i].0, at_gain.unwrap_or(quartics[i].0.as_ref()?.params[1])))).collect::<Vec<_>>(), top)
+        let chosen: Vec<(usize, f64)> = (0..n).filter(|&i| is_good(i) && estimating(i) && sel(i)).filter_map(|i| Some((i, at_gain.unwrap_or(fits[i].quartic[0]?.gain)))).collect();
+        shared_curve(&px, common, &chosen, top)
     };
     let curve_of = |sel: &dyn Fn(usize) -> bool| shared_of(sel, None);
-    let adc_curves: Vec<[f64; 3]> = (0..n_adc).map(|a| curve_of(&|i| adc_of(pixels[i]) == a)).collect();
+    let adc_curves: Vec<[f64; 3]> = (0..n_adc).map(|a| curve_of(&|i| adc_of(i) == a)).collect();
     let mut global = curve_of(&|_| true);
     if global.iter().any(|c| !c.is_finite()) {
         return Err("no pixel has enough unsaturated levels to fit".into());
     }
-    let good: Vec<usize> = (0..pixels.len()).filter(|&i| is_good(i)).collect();
-    let score_all = |model: &(dyn Fn(usize) -> Response + Sync)| -> Vec<Option<Scored>> {
-        good.par_iter()
-            .map(|&i| {
-                let (ev, od) = &data[i];
-                let m = model(i);
-                let start = match m {
-                    Response::Curve(..) => lines[i].0.as_ref().map(|l| l.params.clone()).unwrap_or(vec![0.0; 2]),
-                    _ => vec![0.0; m.params()],
-                };
-                fit_and_score(m, &start, ev, od)
-            })
-            .collect()
+    let good: Vec<usize> = (0..n).filter(|&i| is_good(i)).collect();
+    let cell = |j: usize| Cell { adc: adc_of(good[j]), odd: !estimating(good[j]) };
+    let score_all = |model: &(dyn Fn(usize) -> Response + Sync)| -> Scores {
+        Scores::collect(good.len(), n_adc, nl, &cell, &|j| {
+            let i = good[j];
+            let (ev, od) = halves(i);
+            let m = model(i);
+            let start = match m {
+                Response::Curve(..) => fits[i].line[0].map_or(vec![0.0; 2], |l| l.to_vec()),
+                _ => vec![0.0; m.params()],
+            };
+            fit_and_score(m, &start, &ev, &od)
+        })
     };
-    let totals = |scores: &[Option<Scored>], sel: &dyn Fn(usize) -> bool| Totals::of(scores.iter().enumerate().filter(|(j, _)| sel(good[*j])).filter_map(|(_, s)| s.as_ref()));
-    let all = |_: usize| true;
+    let all = |_: Cell| true;
     let base = score_all(&|_| linear);
-    let t0 = totals(&base, &all);
+    let t0 = base.totals(&all);
     let bend = |c: [f64; 3], s: f64| s * (c[0] * s + c[1] * s * s + c[2] * s * s * s);
     // ADC curvature first: each ADC's own curve against the consensus of the others, on
     // its held-out pixels (so that one bending ADC is not mistaken for a shared bend).
@@ -540,19 +553,18 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     // say which one differs.
     let mut adc_own = vec![false; n_adc];
     let mut adc_findings: Vec<Option<Finding>> = vec![None; n_adc];
-    let own_curve = if n_adc >= 3 { score_all(&|i| Response::Curve(adc_curves[adc_of(pixels[i])], top)) } else { Vec::new() };
+    let own_curve = (n_adc >= 3).then(|| score_all(&|i| Response::Curve(adc_curves[adc_of(i)], top)));
     let mut glob = score_all(&|_| Response::Curve(global, top));
-    while n_adc >= 3 && adc_own.iter().filter(|&&o| !o).count() * 2 > n_adc + 1 {
-        let tested: Vec<(usize, f64)> = (0..n_adc).filter(|&a| !adc_own[a]).map(|a| (a, paired(&glob, &own_curve, |j| adc_of(pixels[good[j]]) == a && !estimating(good[j])))).collect();
+    while let Some(own_curve) = own_curve.as_ref().filter(|_| adc_own.iter().filter(|&&o| !o).count() * 2 > n_adc + 1) {
+        let tested: Vec<(usize, f64)> = (0..n_adc).filter(|&a| !adc_own[a]).map(|a| (a, paired(&glob, own_curve, |j| cell(j) == Cell { adc: a, odd: true }))).collect();
         let Some(&(a, sig)) = tested.iter().max_by(|x, y| x.1.total_cmp(&y.1)) else { break };
         if sig <= SIGNIFICANCE {
             break;
         }
-        let on = |i: usize| adc_of(pixels[i]) == a && !estimating(i);
-        let (ta, tb) = (totals(&glob, &on), totals(&own_curve, &on));
+        let on = |c: Cell| c == Cell { adc: a, odd: true };
+        let (ta, tb) = (glob.totals(&on), own_curve.totals(&on));
         adc_own[a] = true;
-        let on_j = |j: usize| on(good[j]);
-        let steps = AdcResiduals { baseline: by_level(&glob, nl, on_j), extended: by_level(&own_curve, nl, on_j) };
+        let steps = AdcResiduals { baseline: glob.by_level(&on), extended: own_curve.by_level(&on) };
         adc_findings[a] = Some(with_residuals(steps, finding(
             "adc-mismatch",
             Some(a),
@@ -561,35 +573,34 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
             tb.rms(),
             format!("curvature: ADC {a}'s response bends by {:.3}% of full scale where the others' bends by {:.3}% (held-out levels of its pixels)", 100.0 * bend(adc_curves[a], 1.0), 100.0 * bend(global, 1.0)),
         )));
-        global = curve_of(&|i| !adc_own[adc_of(pixels[i])]);
+        global = curve_of(&|i| !adc_own[adc_of(i)]);
         glob = score_all(&|_| Response::Curve(global, top));
     }
     // The shared bend, fitted on and scored over the pixels of the ADCs that follow the
     // consensus.
-    let follows = |i: usize| !adc_own[adc_of(pixels[i])] && !estimating(i);
-    let (tb0, tb1) = (totals(&base, &follows), totals(&glob, &follows));
-    let paired_sig = paired(&base, &glob, |j| follows(good[j]));
+    let follows = |c: Cell| !adc_own[c.adc] && c.odd;
+    let (tb0, tb1) = (base.totals(&follows), glob.totals(&follows));
+    let paired_sig = paired(&base, &glob, |j| follows(cell(j)));
     // With levels as the units too: a chance smooth part of level errors is common to
     // every pixel and passes the test over pixels.
-    let level_sig = wald(&levels_term, &|i| is_good(i) && !adc_own[adc_of(pixels[i])], Block::Bend);
+    let level_sig = wald(&levels_term, &px, &|i| is_good(i) && !adc_own[adc_of(i)], Block::Bend);
     let sig = paired_sig.min(level_sig);
     let global_accepted = sig > SIGNIFICANCE && tb1.s < tb0.s;
     // Where level errors were found, the shared curve stays in the model either way: it
     // takes their smooth part (named `global-nonlinearity` only when it stands out).
     let absorb = level_accepted && !global_accepted;
-    let g0 = upper_median(good.iter().filter(|&&i| estimating(i) && !adc_own[adc_of(pixels[i])]).filter_map(|&i| Some(quartics[i].0.as_ref()?.params[1])));
-    let common = if absorb { shared_of(&|i| !adc_own[adc_of(pixels[i])], Some(g0)) } else { [0.0; 3] };
+    let g0 = upper_median(good.iter().filter(|&&i| estimating(i) && !adc_own[adc_of(i)]).filter_map(|&i| Some(fits[i].quartic[0]?.gain)));
+    let smooth = if absorb { shared_of(&|i| !adc_own[adc_of(i)], Some(g0)) } else { [0.0; 3] };
     let follower_model = if global_accepted {
         Response::Curve(global, top)
-    } else if absorb && common.iter().all(|c| c.is_finite()) {
-        Response::Common(common, top, g0)
+    } else if absorb && smooth.iter().all(|c| c.is_finite()) {
+        Response::Common(smooth, top, g0)
     } else {
         linear
     };
-    let followed = if matches!(follower_model, Response::Common(..)) { score_all(&|_| follower_model) } else { Vec::new() };
+    let followed = matches!(follower_model, Response::Common(..)).then(|| score_all(&|_| follower_model));
     if global_accepted {
-        let fol = |j: usize| follows(good[j]);
-        let steps = AdcResiduals { baseline: by_level(&base, nl, fol), extended: by_level(&glob, nl, fol) };
+        let steps = AdcResiduals { baseline: base.by_level(&follows), extended: glob.by_level(&follows) };
         findings.push(with_residuals(steps, finding(
             "global-nonlinearity",
             None,
@@ -602,41 +613,35 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
             ),
         )));
     }
-    let mut current: Vec<Option<Scored>> = (0..good.len())
-        .map(|j| {
-            let i = good[j];
-            if adc_own[adc_of(pixels[i])] {
-                own_curve[j].clone()
-            } else {
-                match follower_model {
-                    Response::Curve(..) => glob[j].clone(),
-                    Response::Common(..) => followed[j].clone(),
-                    _ => base[j].clone(),
-                }
-            }
-        })
-        .collect();
-    let mut tcur = totals(&current, &all);
+    let follower = match (follower_model, &followed) {
+        (Response::Curve(..), _) => &glob,
+        (Response::Common(..), Some(f)) => f,
+        _ => &base,
+    };
+    let mut current = Scores::per_adc(&|a| if adc_own[a] { own_curve.as_ref().unwrap_or(follower) } else { follower }, &|j| adc_of(good[j]), good.len(), n_adc);
+    // (What `current` took of them is copied.)
+    drop((glob, own_curve, followed));
+    let mut tcur = current.totals(&all);
     // Pixel-to-pixel nonlinearity: each pixel's own quartic.
     let own = score_all(&|_| quartic);
-    let t3 = totals(&own, &all);
+    let t3 = own.totals(&all);
     let sig = tcur.significance_to(&t3);
     if sig > SIGNIFICANCE && t3.s < tcur.s {
         // How far each pixel's quartic departs from the shared model at its highest
         // held-out level, relative to its signal there.
-        let spread: Vec<f64> = own
-            .iter()
-            .zip(&current)
-            .zip(&good)
-            .filter_map(|((a, b), &i)| {
-                let (a, b) = (a.as_ref()?, b.as_ref()?);
-                let q = data[i].1.last()?;
-                let d = lines[i].0.as_ref()?.params[0];
-                Some(((b.z.last()?.z() - a.z.last()?.z()) * q.sigma / (q.y - d)).abs())
+        let last = |s: &Option<super::scores::Score>| s.filter(|s| s.n > 0).map(|s| f64::from(s.last_z));
+        let spread: Vec<f64> = (0..good.len())
+            .into_par_iter()
+            .filter_map(|j| {
+                let (a, b) = (last(&own.per[j])?, last(&current.per[j])?);
+                let i = good[j];
+                let q = *halves(i).1.last()?;
+                let d = fits[i].line[0]?[0];
+                Some(((b - a) * q.sigma / (q.y - d)).abs())
             })
             .collect();
         let rms_spread = (spread.iter().map(|v| v * v).sum::<f64>() / spread.len().max(1) as f64).sqrt();
-        let steps = AdcResiduals { baseline: by_level(&current, nl, |_| true), extended: by_level(&own, nl, |_| true) };
+        let steps = AdcResiduals { baseline: current.by_level(&all), extended: own.by_level(&all) };
         findings.push(with_residuals(steps, finding(
             "pixel-nonlinearity",
             None,
@@ -651,19 +656,19 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     // Maps: each good pixel's dark and gain under the shared curve (all its levels), the
     // population estimated on even rows and scored on odd rows.
     let curve_for = |i: usize| {
-        let a = adc_of(pixels[i]);
+        let a = adc_of(i);
         if adc_own[a] { Response::Curve(adc_curves[a], top) } else { follower_model }
     };
     let dg: Vec<Option<[f64; 2]>> = good
         .par_iter()
         .map(|&i| {
-            let all: Vec<Point> = data[i].0.iter().chain(&data[i].1).copied().collect();
-            let start = lines[i].0.as_ref().map_or(vec![0.0; 2], |l| l.params.clone());
+            let all = px.all(i, common);
+            let start = fits[i].line[0].map_or(vec![0.0; 2], |l| l.to_vec());
             fit_and_score(curve_for(i), &start, &all, &[]).map(|s| [s.params[0], s.params[1]])
         })
         .collect();
     for (k, what) in [(0usize, "offset"), (1, "gain")] {
-        let (per_adc, _, ps) = population(good.iter().zip(&dg).filter(|(&i, _)| estimating(i)).filter_map(|(&i, v)| Some((adc_of(pixels[i]), v.as_ref()?[k]))), n_adc);
+        let (per_adc, _, ps) = population(good.iter().zip(&dg).filter(|(&i, _)| estimating(i)).filter_map(|(&i, v)| Some((adc_of(i), v.as_ref()?[k]))), n_adc);
         if n_adc < 3 || ps.is_nan() || ps <= 0.0 {
             continue;
         }
@@ -681,7 +686,7 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
                     let z: Vec<(f64, f64)> = good
                         .iter()
                         .zip(&dg)
-                        .filter(|(&i, _)| adc_of(pixels[i]) == a && !estimating(i))
+                        .filter(|(&i, _)| adc_of(i) == a && !estimating(i))
                         .filter_map(|(_, v)| v.as_ref())
                         .map(|v| ((v[k] - pm) / ps, (v[k] - per_adc[a]) / ps))
                         .collect();
@@ -713,17 +718,17 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     findings.extend(adc_findings.into_iter().flatten());
     // Bad pixels: scored on the odd levels' dark and gain against the population, plus
     // the held-out level residuals of the pixel's own quartic.
-    let flagged: Vec<usize> = (0..pixels.len()).filter(|&i| bad[i].is_some()).collect();
+    let flagged: Vec<usize> = (0..n).filter(|&i| bad[i].is_some()).collect();
     if !flagged.is_empty() {
-        let map_z = |i: usize| -> Vec<f64> {
-            match (&lines[i].1, &quartics[i].0) {
+        // A pixel's sum of squares and count of scores.
+        let map_z = |i: usize| -> (f64, usize) {
+            match (&fits[i].line[1], &fits[i].quartic[0]) {
                 (Some(l), Some(q)) => {
-                    let mut z = vec![(l.params[0] - own_adc(&dark_adc, i, dark_pop.0)) / dark_pop.1.max(1e-9), (l.params[1] - own_adc(&gain_adc, i, gain_pop.0)) / gain_pop.1.max(1e-9)];
-                    z.extend(q.z.iter().map(|v| v.z()));
-                    z
+                    let z = [(l[0] - own_adc(&dark_adc, i, dark_pop.0)) / dark_pop.1.max(1e-9), (l[1] - own_adc(&gain_adc, i, gain_pop.0)) / gain_pop.1.max(1e-9)];
+                    (z[0] * z[0] + z[1] * z[1] + q.held_sq, 2 + usize::from(q.held_n))
                 }
                 // Stuck: its raw dark level against the population.
-                _ => vec![(set.mean[pixels[i]] - own_adc(&dark_adc, i, dark_pop.0)) / dark_pop.1.max(1e-9)],
+                _ => (((px.mean(0, i) - own_adc(&dark_adc, i, dark_pop.0)) / dark_pop.1.max(1e-9)).powi(2), 1),
             }
         };
         // Scored held out: the pixels set apart are those flagged on the even levels alone,
@@ -731,17 +736,16 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
         // even-level quartic's residuals there); the count needs both halves.
         let (mut s_all, mut n_all, mut s_ok, mut n_ok) = (0.0, 0usize, 0.0, 0usize);
         for (i, even) in flagged_even.iter().enumerate() {
-            let z = map_z(i);
-            let s: f64 = z.iter().map(|v| v * v).sum();
+            let (s, len) = map_z(i);
             s_all += s;
-            n_all += z.len();
+            n_all += len;
             if even.is_none() {
                 s_ok += s;
-                n_ok += z.len();
+                n_ok += len;
             }
         }
         let (before, after) = ((s_all / n_all.max(1) as f64).sqrt(), (s_ok / n_ok.max(1) as f64).sqrt());
-        let kinds = |k: &str| flagged.iter().filter(|&&i| bad[i] == Some(k)).count();
+        let kinds = |k: BadPixel| flagged.iter().filter(|&&i| bad[i] == Some(k)).count();
         // The significance is that of the set-apart pixels' odd-level excess over what
         // noise leaves in them (one per residual).
         let removed = (n_all - n_ok) as f64;
@@ -755,7 +759,7 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
                 after,
                 format!(
                     "{} pixels the model cannot follow, flagged independently on even and odd levels: {} stuck or hot at saturation, {} whose own quartic fails its levels, {} with a gain outside 0.5-1.5 of the median, {} with a dark level beyond 10 robust sigma",
-                    flagged.len(), kinds("stuck"), kinds("shape"), kinds("gain"), kinds("dark")
+                    flagged.len(), kinds(BadPixel::Stuck), kinds(BadPixel::Shape), kinds(BadPixel::Gain), kinds(BadPixel::Dark)
                 ),
             );
             f.count = Some(flagged.len());
@@ -763,13 +767,13 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
         }
     }
     // Noise: the dark level's temporal noise against the quantization bias.
-    let dark_noise = upper_median(good.iter().map(|&i| set.std[pixels[i]]));
-    let measured = measure_camera(set, &pixels, &good, &valid, &quartics, top, bad.iter().filter(|b| b.is_some()).count());
+    let dark_noise = upper_median(good.iter().map(|&i| px.std(0, i)));
+    let measured = measure_camera(&px, &good, &fits, set.n_frames, top, bad.iter().filter(|b| b.is_some()).count());
     findings.extend(insufficient_noise("median dark noise", dark_noise, accuracy_dn));
     // The noise model off by one factor everywhere (frames that are not independent) is
     // not structure: the factor is measured on the pixels of even rows and the odd rows
     // scored with it; only what that leaves is `unexplained`.
-    let (te, to) = (totals(&current, &|i| estimating(i)), totals(&current, &|i| !estimating(i)));
+    let (te, to) = (current.totals(&|c| !c.odd), current.totals(&|c| c.odd));
     let k2 = te.s / te.e.max(1e-300);
     // The factor's own noise (the even rows are as many as the odd ones) is in the
     // denominator: without it the null spread was 1.4, not 1.
@@ -779,17 +783,18 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
     // some pixels (subtle bad pixels) overdisperses it. `(X - G) / sqrt(c G)` over the
     // `G` pixels, `c = 2 + 12 / n` the variance of one term for `n` held-out levels.
     let (mut x_sum, mut g, mut n_sum) = (0.0, 0.0, 0.0);
-    for (s, _) in current.iter().zip(&good).filter(|(_, &i)| !estimating(i)) {
+    for (s, _) in current.per.iter().zip(&good).filter(|(_, &i)| !estimating(i)) {
         if let Some(s) = s {
-            x_sum += (s.sum_sq() - k2 * s.tr).powi(2) / (k2 * k2 * 2.0 * s.tr2).max(1e-300);
+            let (tr, tr2) = (f64::from(s.tr), f64::from(s.tr2));
+            x_sum += (s.sum_sq - k2 * tr).powi(2) / (k2 * k2 * 2.0 * tr2).max(1e-300);
             g += 1.0;
-            n_sum += s.z.len() as f64;
+            n_sum += f64::from(s.n);
         }
     }
     let dispersion = if g > 0.0 { (x_sum - g) / ((2.0 + 12.0 * g / n_sum.max(1.0)) * g).sqrt() } else { 0.0 };
     let noise_only = tcur.excess() > SIGNIFICANCE && k2 > 1.0 && rescaled <= SIGNIFICANCE && dispersion <= SIGNIFICANCE;
     if noise_only {
-        let rms = by_level(&current, nl, |_| true);
+        let rms = current.by_level(&all);
         let scaled = rms.iter().map(|&(l, r)| (l, r / k2.sqrt())).collect();
         findings.push(with_residuals(AdcResiduals { baseline: rms, extended: scaled }, finding(
             "excess-noise",
@@ -812,19 +817,22 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
             tcur.rms(),
             tcur.rms(),
             {
-                // Where: the levels with the largest mean z^2 over pixels, and per ADC.
-                let mut lv = vec![(0.0, 0usize, 0.0); nl];
-                for (s, &i) in current.iter().zip(&good) {
-                    for (l, z) in s.iter().flat_map(|s| s.z.iter()).map(|v| (v.level(), v.z())) {
-                        lv[l].0 += z * z;
-                        lv[l].1 += 1;
-                        lv[l].2 += set.mean[l * np + pixels[i]];
+                // Where: the levels with the largest mean z^2 over pixels (and their mean
+                // DN over the pixels scored there: every held-out point has its z), and
+                // per ADC.
+                let mut dn = vec![(0.0, 0usize); nl];
+                for (s, &i) in current.per.iter().zip(&good) {
+                    if s.is_some() {
+                        for q in halves(i).1 {
+                            dn[q.level].0 += px.mean(q.level, i);
+                            dn[q.level].1 += 1;
+                        }
                     }
                 }
-                let mut levels: Vec<(usize, f64, f64)> = lv.iter().enumerate().filter(|(_, v)| v.1 > 0).map(|(l, v)| (l, v.0 / v.1 as f64, v.2 / v.1 as f64)).collect();
+                let mut levels: Vec<(usize, f64, f64)> = current.by_level(&all).into_iter().map(|(l, rms)| (l, rms * rms, dn[l].0 / dn[l].1.max(1) as f64)).collect();
                 levels.sort_by(|a, b| b.1.total_cmp(&a.1));
                 let worst: Vec<String> = levels.iter().take(3).map(|(l, m, dn)| format!("level {l} ({dn:.0} DN): mean z^2 {m:.2}")).collect();
-                let per_adc: Vec<String> = (0..n_adc).map(|a| format!("{:.3}", totals(&current, &|i| adc_of(pixels[i]) == a).rms())).collect();
+                let per_adc: Vec<String> = (0..n_adc).map(|a| format!("{:.3}", current.totals(&|c| c.adc == a).rms())).collect();
                 format!(
                     "held-out levels still scatter {:.3} times their noise (null {:.3}) under the extended model; not a noise scaled alike everywhere (odd rows {rescaled:.1} standard deviations beyond the even rows' factor {:.3}, pixel-to-pixel dispersion {dispersion:.1}); worst {}; RMS by ADC {}",
                     tcur.rms(),
@@ -847,7 +855,7 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
             model: "linear response with per-pixel dark and gain from one population, shot and read noise".into(),
             adcs: (0..n_adc)
                 .map(|a| {
-                    let t = totals(&base, &|i| adc_of(pixels[i]) == a);
+                    let t = base.totals(&|c| c.adc == a);
                     AdcBaseline { adc: a, codes_scored: t.n, rms: t.rms(), by_residue: Vec::new() }
                 })
                 .collect(),
@@ -855,7 +863,7 @@ pub fn diagnose_linearity(set: &LinearitySet, accuracy_dn: f64) -> Result<Diagno
         },
         findings,
         unexplained_rms: tcur.rms(),
-        residuals: vec![AdcResiduals { baseline: by_level(&base, nl, |_| true), extended: by_level(&current, nl, |_| true) }],
+        residuals: vec![AdcResiduals { baseline: base.by_level(&all), extended: current.by_level(&all) }],
     })
 }
 
@@ -885,6 +893,38 @@ mod tests {
             assert!((d.baseline.rms - (1.0f64 + 2.0 / 21.0).sqrt()).abs() < 0.02, "seed {seed}: baseline rms {}", d.baseline.rms);
         }
         assert!(alarms * 20 <= seeds, "{alarms} false alarms in {seeds} clean seeds");
+    }
+
+    /// `diagnose` holds a set's cubes as f32 (half the memory): on a 256 x 256 set with
+    /// two planted effects it names what the f64 set names, with every number within
+    /// 1e-3 of it (the f32 rounding moves a mean by 2^-24 of itself; a clip boundary that
+    /// a value crosses moves a level's estimate by about one pixel's share).
+    #[test]
+    fn an_f32_set_gives_the_findings_of_the_f64_set() {
+        let mut gen = rand::rngs::StdRng::seed_from_u64(5);
+        let hidden = pick(&mut gen, 4, 2);
+        let set = linearity_set(&Plant { width: 256, height: 256, ..Plant::default() }, &hidden, 17);
+        let narrow = LinearitySet::<f32> {
+            bit_depth: set.bit_depth,
+            n_adc: set.n_adc,
+            n_frames: set.n_frames,
+            width: set.width,
+            height: set.height,
+            levels: set.levels,
+            mean: set.mean.iter().map(|&v| v as f32).collect(),
+            std: set.std.iter().map(|&v| v as f32).collect(),
+            voltage: set.voltage.clone(),
+            mask: set.mask.clone(),
+        };
+        let (wide, narrow) = (diagnose_linearity(&set, 0.01).unwrap(), diagnose_linearity(&narrow, 0.01).unwrap());
+        assert!(!wide.findings.is_empty(), "{hidden:?}: nothing found");
+        assert_eq!(named(&wide), named(&narrow), "{hidden:?}");
+        for (a, b) in wide.findings.iter().zip(&narrow.findings) {
+            for (x, y) in [(a.significance, b.significance), (a.rms_before, b.rms_before), (a.rms_after, b.rms_after)] {
+                assert!((x - y).abs() <= 1e-3 * x.abs().max(1.0), "{}: {x} (f64) against {y} (f32)", a.effect);
+            }
+        }
+        assert!((wide.unexplained_rms - narrow.unexplained_rms).abs() < 1e-6 * wide.unexplained_rms);
     }
 
     #[test]

@@ -11,7 +11,9 @@ mod histograms;
 mod levels;
 mod linearity;
 mod pixel_fit;
+mod points;
 mod ptc;
+mod scores;
 
 pub use codes::{diagnose_code_density, CodeDensity};
 pub use defects::{diagnose_defects, DefectOutcome};

@@ -1,0 +1,135 @@
+//! One model's held-out scores over the pixels of a linearity set, compact: per pixel what
+//! the catalogue's tests read back one pixel at a time (the paired tests, the dispersion
+//! over pixels, the departure at the highest held-out level), and per ADC and half of the
+//! rows the sums the rest reads ([`Totals`], the RMS by level of the figures). Every
+//! selection the catalogue scores is a union of those cells. Each model held every
+//! pixel's residuals before (about 300 bytes per pixel and model, six models at once).
+
+use rayon::prelude::*;
+
+use super::pixel_fit::{Scored, Totals};
+
+/// A pixel's held-out score under one model.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Score {
+    /// Sum of the held-out `z^2`.
+    pub sum_sq: f64,
+    /// `tr C`, `tr C^2` of the held-out residuals' null covariance ([`Scored`]).
+    pub tr: f32,
+    pub tr2: f32,
+    /// `z` at the pixel's highest held-out level.
+    pub last_z: f32,
+    /// Held-out residuals.
+    pub n: u16,
+}
+
+impl Score {
+    fn of(s: &Scored) -> Score {
+        Score { sum_sq: s.sum_sq(), tr: s.tr as f32, tr2: s.tr2 as f32, last_z: s.z.last().map_or(f32::NAN, |z| z.z() as f32), n: s.z.len() as u16 }
+    }
+
+    pub fn totals(&self) -> Totals {
+        Totals { s: self.sum_sq, e: f64::from(self.tr), v: 2.0 * f64::from(self.tr2), n: usize::from(self.n) }
+    }
+}
+
+/// Where a pixel's score is summed: its ADC, and whether it lies on an odd row (those
+/// score what the even rows estimate).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) struct Cell {
+    pub adc: usize,
+    pub odd: bool,
+}
+
+/// The sums of one cell.
+#[derive(Debug, Clone, Default)]
+struct Sums {
+    totals: Totals,
+    /// Per level, the sum of `z^2` and the count.
+    by_level: Vec<(f64, usize)>,
+}
+
+impl Sums {
+    fn new(levels: usize) -> Self {
+        Sums { totals: Totals::default(), by_level: vec![(0.0, 0); levels] }
+    }
+
+    fn add(&mut self, o: &Sums) {
+        self.totals = self.totals.plus(&o.totals);
+        self.by_level.iter_mut().zip(&o.by_level).for_each(|(a, b)| (a.0, a.1) = (a.0 + b.0, a.1 + b.1));
+    }
+}
+
+/// One model's scores: per pixel (by the caller's index) and per [`Cell`].
+#[derive(Debug, Clone)]
+pub(super) struct Scores {
+    pub per: Vec<Option<Score>>,
+    cells: Vec<Sums>,
+}
+
+/// Pixels per task of the parallel scoring.
+const CHUNK: usize = 256;
+
+impl Scores {
+    /// Scores of `n` pixels: `score(j)` fits pixel `j` and scores it, `cell(j)` says where
+    /// it is summed; levels below `levels`, ADCs below `n_adc`.
+    pub fn collect(n: usize, n_adc: usize, levels: usize, cell: &(dyn Fn(usize) -> Cell + Sync), score: &(dyn Fn(usize) -> Option<Scored> + Sync)) -> Scores {
+        let n_adc = n_adc.max(1);
+        let mut per = vec![None; n];
+        let empty = || vec![Sums::new(levels); 2 * n_adc];
+        let cells = per
+            .par_chunks_mut(CHUNK)
+            .enumerate()
+            .map(|(c, out)| {
+                let mut sums = empty();
+                for (k, slot) in out.iter_mut().enumerate() {
+                    let j = c * CHUNK + k;
+                    let Some(s) = score(j) else { continue };
+                    let cl = cell(j);
+                    let into = &mut sums[Self::key(cl, n_adc)];
+                    into.totals = into.totals.plus(&Score::of(&s).totals());
+                    for z in &s.z {
+                        if let Some(b) = into.by_level.get_mut(z.level()) {
+                            b.0 += z.z() * z.z();
+                            b.1 += 1;
+                        }
+                    }
+                    *slot = Some(Score::of(&s));
+                }
+                sums
+            })
+            .reduce(empty, |mut a, b| {
+                a.iter_mut().zip(&b).for_each(|(x, y)| x.add(y));
+                a
+            });
+        Scores { per, cells }
+    }
+
+    fn key(c: Cell, n_adc: usize) -> usize {
+        c.adc.min(n_adc - 1) * 2 + usize::from(c.odd)
+    }
+
+    fn cells<'a>(&'a self, sel: &'a dyn Fn(Cell) -> bool) -> impl Iterator<Item = &'a Sums> + 'a {
+        self.cells.iter().enumerate().filter(move |(k, _)| sel(Cell { adc: k / 2, odd: k % 2 == 1 })).map(|(_, s)| s)
+    }
+
+    /// The sums over the cells `sel`.
+    pub fn totals(&self, sel: &dyn Fn(Cell) -> bool) -> Totals {
+        self.cells(sel).fold(Totals::default(), |t, s| t.plus(&s.totals))
+    }
+
+    /// Per level, the RMS of the held-out `z` over the cells `sel`: the figures.
+    pub fn by_level(&self, sel: &dyn Fn(Cell) -> bool) -> Vec<(usize, f64)> {
+        let mut acc = Sums::new(self.cells.first().map_or(0, |c| c.by_level.len()));
+        self.cells(sel).for_each(|s| acc.add(s));
+        acc.by_level.iter().enumerate().filter(|(_, a)| a.1 > 0).map(|(l, a)| (l, (a.0 / a.1 as f64).sqrt())).collect()
+    }
+
+    /// Per ADC the scores of `choose(adc)`: pixel `j` read by ADC `adc_of(j)`.
+    pub fn per_adc<'a>(choose: &dyn Fn(usize) -> &'a Scores, adc_of: &dyn Fn(usize) -> usize, n: usize, n_adc: usize) -> Scores {
+        let n_adc = n_adc.max(1);
+        let per = (0..n).map(|j| choose(adc_of(j)).per.get(j).copied().flatten()).collect();
+        let cells = (0..2 * n_adc).map(|k| choose(k / 2).cells.get(k).cloned().unwrap_or_default()).collect();
+        Scores { per, cells }
+    }
+}
