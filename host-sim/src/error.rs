@@ -32,6 +32,27 @@ pub enum HostError {
         /// What happened.
         message: String,
     },
+    /// An input that is not a regular file (a device, FIFO, socket or directory): reading
+    /// it could block for ever or never end ([`crate::input`]).
+    #[error("{path}: is a {kind}, not a regular file")]
+    NotRegular {
+        /// The path given.
+        path: PathBuf,
+        /// What it is instead ("character device", "FIFO", "directory", ...).
+        kind: &'static str,
+    },
+    /// An input larger than any file of its kind can be ([`crate::input::SizeLimit`]).
+    #[error("{path}: {len} bytes; {what} files are at most {limit} bytes")]
+    TooLarge {
+        /// The file.
+        path: PathBuf,
+        /// Its size, bytes (at least `limit + 1` if it grew while read).
+        len: u64,
+        /// The kind of file, as in "camera config".
+        what: &'static str,
+        /// The kind's largest size, bytes.
+        limit: u64,
+    },
     /// A file's contents are not what they must be.
     #[error("{path}: {message}")]
     Format {

@@ -41,6 +41,9 @@ use crate::HostError;
 pub const KCOR_CODES: usize = 4096;
 /// The full-scale values the deployed tables use: `2^22 - 1` and `2^23 - 1`.
 pub const KCOR_SCALINGS: [u32; 2] = [22, 23];
+/// The largest file read as a K-Cor table: 1 MiB, so that a table of the wrong length is
+/// still read and named by [`KcorTable::parse`], and a stream without end is not read.
+const TABLE_FILE_LIMIT: crate::input::SizeLimit = crate::input::SizeLimit { what: "K-Cor table", bytes: 1 << 20 };
 /// The weights' fractional bits (a [`Weight`] is U8F24).
 const WEIGHT_FRAC_BITS: u32 = 24;
 /// The analog range a table spans, bottom of code 0 to top of code 4095, DN.
@@ -85,7 +88,7 @@ impl KcorTable {
 
     /// Reads one deployed file.
     pub fn read(path: &Path) -> Result<KcorTable, HostError> {
-        let bytes = std::fs::read(path).map_err(|e| HostError::io(path, e))?;
+        let bytes = crate::input::read_regular(path, TABLE_FILE_LIMIT)?;
         KcorTable::parse(&bytes, path)
     }
 

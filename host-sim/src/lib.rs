@@ -14,6 +14,7 @@ pub mod error;
 pub mod firmware;
 pub mod fits;
 pub mod hidden;
+pub mod input;
 pub mod flatten;
 pub mod kcor;
 pub mod kcor_tables;

@@ -34,6 +34,11 @@ impl Default for AdcConfig {
     }
 }
 
+/// The largest camera config or model file: 16 MiB holds the measured code widths
+/// (`adc.widths`, about 19 bytes a width as `dncal diagnose` writes them; 0.3 MB for four
+/// 12-bit ADCs) of twelve 16-bit ADCs; a bigger file is not a config.
+pub const CONFIG_LIMIT: crate::input::SizeLimit = crate::input::SizeLimit { what: "camera config", bytes: 16 << 20 };
+
 /// The largest sensor a camera model may have: 2^26 pixels (8192 x 8192), whose pixel
 /// maps take about 2 GB.
 pub const MAX_PIXELS: usize = 1 << 26;
@@ -119,8 +124,7 @@ impl Default for CameraConfig {
 impl CameraConfig {
     /// Reads a TOML file whose fields override the defaults; unknown fields are errors.
     pub fn from_toml_file(path: &std::path::Path) -> Result<Self, crate::HostError> {
-        let text = std::fs::read_to_string(path).map_err(|e| crate::HostError::io(path, e))?;
-        let mut config: CameraConfig = toml::from_str(&text).map_err(|e| crate::HostError::Format { path: path.into(), message: e.to_string() })?;
+        let mut config: CameraConfig = crate::input::read_toml(path, CONFIG_LIMIT)?;
         let base = path.parent().unwrap_or(std::path::Path::new("."));
         config.resolve_widths_from(base).map_err(|e| match e {
             crate::HostError::Format { path: p, message } => crate::HostError::Format { path: path.into(), message: format!("adc.widths_from: {}: {message}", p.display()) },

@@ -175,14 +175,26 @@ pub struct DiagnoseSummary {
     pub outputs: Vec<PathBuf>,
 }
 
+/// Whether `input` is an EMVA descriptor (text with an `n` record) rather than FITS (which
+/// starts with SIMPLE). Only a regular file is looked at, and only one small enough to be
+/// a descriptor is read whole; anything larger is left to the FITS readers.
+fn looks_like_descriptor(input: &Path) -> Result<bool, HostError> {
+    use crate::emva::DESCRIPTOR_LIMIT;
+    if crate::input::starts_with(input, b"SIMPLE")? {
+        return Ok(false);
+    }
+    Ok(match crate::input::read_text(input, DESCRIPTOR_LIMIT) {
+        Ok(text) => text.lines().any(|l| l.trim_start().starts_with("n ")),
+        Err(HostError::TooLarge { .. } | HostError::Format { .. }) => false,
+        Err(e) => return Err(e),
+    })
+}
+
 /// Diagnoses `input` (a histogram set, a linearity set or an EMVA 1288 descriptor); with
 /// `out_dir`, writes `residuals.png`, `report.html`, `model.toml` (the extended camera model
 /// `dncal simulate --model` reads) and, for EMVA sets, `codes.png` there.
 pub fn diagnose(input: &Path, flatten: &FlattenParams, seed: u64, out_dir: Option<&Path>) -> Result<DiagnoseSummary, HostError> {
-    // A FITS file starts with SIMPLE; an EMVA descriptor is text with an `n` record.
-    let is_descriptor = std::fs::read(input)
-        .map(|b| !b.starts_with(b"SIMPLE") && std::str::from_utf8(&b).is_ok_and(|t| t.lines().any(|l| l.trim_start().starts_with("n "))))
-        .unwrap_or(false);
+    let is_descriptor = looks_like_descriptor(input)?;
     let model: Option<crate::camera::CameraConfig>;
     let diagnosis = if is_descriptor {
         let set = crate::emva::read_descriptor(input)?;

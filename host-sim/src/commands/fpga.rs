@@ -29,17 +29,14 @@ pub struct FpgaSizeReport {
 /// Sizes for `system` at 1, 2, 4 and 8 taps; with `lut` and `out`, writes one
 /// `lut_adc{a}.hex` per ADC of the LUT FITS file into `out` (validated by the core first).
 pub fn fpga_size(system: &System, states: u8, config: &Config, lut: Option<&Path>, out: Option<&Path>) -> Result<FpgaSizeReport, HostError> {
+    // The LUT first: a bad file is reported at once, not after the sizing's seconds.
+    let luts = match (lut, out) {
+        (Some(lut), Some(out)) => Some((load_luts(lut)?, out)),
+        _ => None,
+    };
     let sizing = size(system, states, config, &[1, 2, 4, 8]).map_err(|e| HostError::Format { path: "fpga-size".into(), message: e.to_string() })?;
     let mut files = Vec::new();
-    if let (Some(lut), Some(out)) = (lut, out) {
-        let t = read_lut(lut)?;
-        let bits: Vec<[u32; 4096]> = t
-            .tables
-            .iter()
-            .map(|v| <[u32; 4096]>::try_from(v.as_slice()).map_err(|_| HostError::Format { path: lut.into(), message: format!("a table of {} entries; the FPGA model is built for 4096", v.len()) }))
-            .collect::<Result<_, _>>()?;
-        let bits: [[u32; 4096]; 4] = bits.try_into().map_err(|v: Vec<_>| HostError::Format { path: lut.into(), message: format!("{} tables; the FPGA model is built for 4 ADCs", v.len()) })?;
-        let luts = Mvd1024eLuts::from_bits(&bits).map_err(|e| HostError::core(format!("{}", lut.display()), e))?;
+    if let Some((luts, out)) = luts {
         std::fs::create_dir_all(out).map_err(|e| HostError::io(out, e))?;
         for (a, table) in luts.tables().iter().enumerate() {
             let path = out.join(format!("lut_adc{a}.hex"));
@@ -48,4 +45,16 @@ pub fn fpga_size(system: &System, states: u8, config: &Config, lut: Option<&Path
         }
     }
     Ok(FpgaSizeReport { fifo_depth: config.fifo_depth, mem_latency: config.mem_latency, sizing, readmemh: files })
+}
+
+/// The LUT FITS `lut` as the FPGA model's four 12-bit tables, validated by the core.
+fn load_luts(lut: &Path) -> Result<Mvd1024eLuts, HostError> {
+    let t = read_lut(lut)?;
+    let bits: Vec<[u32; 4096]> = t
+        .tables
+        .iter()
+        .map(|v| <[u32; 4096]>::try_from(v.as_slice()).map_err(|_| HostError::Format { path: lut.into(), message: format!("a table of {} entries; the FPGA model is built for 4096", v.len()) }))
+        .collect::<Result<_, _>>()?;
+    let bits: [[u32; 4096]; 4] = bits.try_into().map_err(|v: Vec<_>| HostError::Format { path: lut.into(), message: format!("{} tables; the FPGA model is built for 4 ADCs", v.len()) })?;
+    Mvd1024eLuts::from_bits(&bits).map_err(|e| HostError::core(format!("{}", lut.display()), e))
 }

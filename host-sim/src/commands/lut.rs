@@ -104,15 +104,41 @@ fn core_tables<const N: usize, const CODES: usize>(weights: &[Vec<Weight>], sour
     Ok((tables, image))
 }
 
-/// Where `-o OUT` puts the two files: OUT itself if it ends in `.fits` (the image beside
-/// it with `.bin`), otherwise `OUT.fits` and `OUT.bin`.
-pub fn output_paths(out: &Path) -> (PathBuf, PathBuf) {
-    if out.extension().is_some_and(|e| e.eq_ignore_ascii_case("fits")) {
-        (out.to_path_buf(), out.with_extension("bin"))
-    } else {
-        let s = out.as_os_str().to_string_lossy();
-        (PathBuf::from(format!("{s}.fits")), PathBuf::from(format!("{s}.bin")))
+/// Where `-o OUT` puts the LUT FITS and the device image: OUT itself if it ends in
+/// `.fits` (the image beside it with `.bin`), otherwise `OUT.fits` and `OUT.bin`. OUT
+/// is a file prefix ([`check_file_prefix`]), so neither file is hidden in a directory.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LutOutputs {
+    /// The LUT FITS.
+    pub fits: PathBuf,
+    /// The device image.
+    pub image: PathBuf,
+}
+
+impl LutOutputs {
+    /// The two paths for `-o OUT`, or an error naming OUT if it names a directory.
+    pub fn for_prefix(out: &Path) -> Result<Self, HostError> {
+        check_file_prefix(out, "OUT.fits and OUT.bin")?;
+        Ok(if out.extension().is_some_and(|e| e.eq_ignore_ascii_case("fits")) {
+            LutOutputs { fits: out.to_path_buf(), image: out.with_extension("bin") }
+        } else {
+            let s = out.as_os_str().to_string_lossy();
+            LutOutputs { fits: PathBuf::from(format!("{s}.fits")), image: PathBuf::from(format!("{s}.bin")) }
+        })
     }
+}
+
+/// Refuses an `-o` that names a directory (an existing one, or any path ending in `/`)
+/// where a file prefix is expected: `DIR/` would become the hidden files `DIR/.fits` and
+/// `DIR/.bin`. `writes` says what the prefix becomes, for the message.
+fn check_file_prefix(out: &Path, writes: &str) -> Result<(), HostError> {
+    let text = out.as_os_str().to_string_lossy();
+    let trailing_separator = text.ends_with(std::path::is_separator);
+    if trailing_separator || out.file_name().is_none() || out.is_dir() {
+        let example = if trailing_separator { format!("{text}cal") } else { format!("{text}/cal") };
+        return Err(HostError::Format { path: out.into(), message: format!("names a directory; -o takes a file prefix OUT and writes {writes} (e.g. -o {example})") });
+    }
+    Ok(())
 }
 
 pub(crate) fn summarize(adc: usize, f: &Flattened, table: &[u32]) -> AdcLutSummary {
@@ -131,13 +157,13 @@ pub(crate) fn summarize(adc: usize, f: &Flattened, table: &[u32]) -> AdcLutSumma
 
 /// `lut build HIST -o OUT`.
 pub fn build(input: &Path, output: &Path, params: &FlattenParams) -> Result<BuildSummary, HostError> {
+    let out = LutOutputs::for_prefix(output)?;
     let hist = read_histograms_for_analysis(input)?;
     let built = build_luts(&hist, params, input)?;
-    let (lut_fits, device_image) = output_paths(output);
-    write_lut(&lut_fits, &built.lut_tables())?;
-    write_file_atomically(&device_image, &built.image)?;
+    write_lut(&out.fits, &built.lut_tables())?;
+    write_file_atomically(&out.image, &built.image)?;
     let adcs = built.flattened.iter().zip(&built.tables).enumerate().map(|(a, (f, t))| summarize(a, f, t)).collect();
-    Ok(BuildSummary { input: input.into(), lut_fits, device_image, adcs })
+    Ok(BuildSummary { input: input.into(), lut_fits: out.fits, device_image: out.image, adcs })
 }
 
 /// One ADC's table as `lut inspect` shows it.
@@ -171,10 +197,14 @@ pub struct InspectSummary {
     pub adcs: Vec<InspectAdc>,
 }
 
+/// The largest device image the core loads (4 ADCs of 14 bits); a longer file is not
+/// read whole.
+const DEVICE_IMAGE_LIMIT: crate::input::SizeLimit = crate::input::SizeLimit { what: "device image", bytes: image_len::<4, 16384>() as u64 };
+
 /// `lut inspect FILE`: a LUT FITS or a device image (validated by the core).
 pub fn inspect(path: &Path) -> Result<InspectSummary, HostError> {
-    let bytes = std::fs::read(path).map_err(|e| HostError::io(path, e))?;
-    let (kind, tables) = if bytes.starts_with(b"DNLT") {
+    let (kind, tables) = if crate::input::starts_with(path, b"DNLT")? {
+        let bytes = crate::input::read_regular(path, DEVICE_IMAGE_LIMIT)?;
         if bytes.len() < 16 {
             return Err(HostError::Format { path: path.into(), message: "device image shorter than its 16-byte header".into() });
         }
@@ -276,6 +306,7 @@ pub fn kcor_files(specs: &[String]) -> Result<[PathBuf; 4], HostError> {
 /// extension `WEIGHTS`, and the scaling, `KCORBITS`) and device image.
 pub fn import_kcor(specs: &[String], output: &Path) -> Result<ImportSummary, HostError> {
     use crate::kcor_tables::KcorTable;
+    let out = LutOutputs::for_prefix(output)?;
     let inputs = kcor_files(specs)?;
     let tables: Vec<KcorTable> = inputs.iter().map(|p| KcorTable::read(p)).collect::<Result<_, _>>()?;
     let bits = tables[0].bits;
@@ -301,11 +332,10 @@ pub fn import_kcor(specs: &[String], output: &Path) -> Result<ImportSummary, Hos
             ImportedAdc { adc, top_entry: *o.last().unwrap_or(&0), max_rounding_dn, step_range }
         })
         .collect();
-    let (lut_fits, device_image) = output_paths(output);
     let raw = Some(weights.iter().map(|w| w.iter().map(|x| x.to_bits()).collect()).collect());
-    write_lut(&lut_fits, &LutTables { frac_bits: dncal_core::FRAC_BITS, tables: ours, weights: raw, kcor_bits: Some(bits) })?;
-    write_file_atomically(&device_image, &image)?;
-    Ok(ImportSummary { inputs: inputs.to_vec(), kcor_bits: bits, lut_fits, device_image, adcs })
+    write_lut(&out.fits, &LutTables { frac_bits: dncal_core::FRAC_BITS, tables: ours, weights: raw, kcor_bits: Some(bits) })?;
+    write_file_atomically(&out.image, &image)?;
+    Ok(ImportSummary { inputs: inputs.to_vec(), kcor_bits: bits, lut_fits: out.fits, device_image: out.image, adcs })
 }
 
 /// What `lut export --format kcor` wrote.
@@ -326,6 +356,9 @@ pub struct ExportSummary {
 pub fn export_kcor(input: &Path, prefix: &str, bits: Option<u32>) -> Result<ExportSummary, HostError> {
     use crate::kcor_tables::{export_path, KcorTable, KCOR_CODES, KCOR_SCALINGS};
     let err = |message: String| HostError::Format { path: input.into(), message };
+    if !prefix.contains("{adc}") {
+        check_file_prefix(Path::new(prefix), "OUT_adc0.bin .. OUT_adc3.bin")?;
+    }
     let lut = read_lut(input)?;
     if lut.n_adc() != 4 || lut.tables[0].len() != KCOR_CODES {
         return Err(err(format!("{} ADCs of {} codes; K-Cor tables are four ADCs of 4096 codes", lut.n_adc(), lut.tables[0].len())));

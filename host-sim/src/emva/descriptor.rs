@@ -34,6 +34,10 @@ use crate::HostError;
 /// make a caller allocate without bound.
 const MAX_PIXELS: usize = 1 << 28;
 
+/// The largest descriptor: 4 MiB is some 80 000 image records of 50 bytes, frames enough
+/// for any measured set; a bigger file is not a descriptor.
+pub const DESCRIPTOR_LIMIT: crate::input::SizeLimit = crate::input::SizeLimit { what: "EMVA 1288 descriptor", bytes: 4 << 20 };
+
 /// What kind of level a descriptor record is.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum LevelKind {
@@ -193,7 +197,8 @@ fn resolve_image(folder: &Path, written: &str) -> Result<PathBuf, String> {
 /// Opens a PNG and checks its header: grayscale, 8 or 16 bits (16 when `bits > 8`),
 /// `width x height`. Returns the reader, positioned before the pixels.
 fn open_png(image: &Path, bits: u32, width: usize, height: usize) -> Result<png::Reader<BufReader<File>>, String> {
-    let file = File::open(image).map_err(|e| format!("image {}: {e}", image.display()))?;
+    // The error names the image itself.
+    let file = crate::input::open_regular(image).map_err(|e| format!("image {e}"))?;
     let mut decoder = png::Decoder::new(BufReader::new(file));
     decoder.set_transformations(png::Transformations::IDENTITY);
     let reader = decoder.read_info().map_err(|e| format!("image {}: not a PNG: {e}", image.display()))?;
@@ -227,7 +232,7 @@ fn open_png(image: &Path, bits: u32, width: usize, height: usize) -> Result<png:
 /// exist inside the descriptor's folder with a matching PNG header; codes are checked by
 /// [`load_image`].
 pub fn read_descriptor(path: &Path) -> Result<EmvaSet, HostError> {
-    let text = std::fs::read_to_string(path).map_err(|e| HostError::io(path, e))?;
+    let text = crate::input::read_text(path, DESCRIPTOR_LIMIT)?;
     // Descriptors are written on Windows, possibly with a byte-order mark.
     let text = text.strip_prefix('\u{feff}').unwrap_or(&text);
     let folder = canonical_folder(path)?;
