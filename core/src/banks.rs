@@ -84,6 +84,14 @@ impl<const N: usize, const CODES: usize> LutBanks<N, CODES> {
         result
     }
 
+    /// Abandons the open upload (a link lost one of its frames): the staging bank is
+    /// failed until the next [`Self::begin_upload`]. Does nothing if no upload is open.
+    pub fn abort_upload(&mut self) {
+        if self.staging == StagingState::Loading {
+            self.staging = StagingState::Failed(CoreError::UploadAborted);
+        }
+    }
+
     /// Ends the upload; the staging bank is valid only if this returns `Ok`.
     pub fn finish_upload(&mut self) -> Result<(), CoreError> {
         if self.staging != StagingState::Loading {
@@ -177,5 +185,23 @@ mod tests {
         assert_eq!(banks.request_activation(), Err(CoreError::StagingNotValid));
         assert_eq!(banks.active(), &LutSet::ideal());
         assert!(!banks.swap_if_pending());
+    }
+
+    #[test]
+    fn an_aborted_upload_stays_failed_until_begun_again() {
+        let mut image = [0u8; image_len::<1, 4>()];
+        encode_image(&LutSet::<1, 4>::from_bits(&[[10, 20, 30, 40]]).unwrap(), &mut image).unwrap();
+        let mut banks = LutBanks::new(LutSet::<1, 4>::ideal());
+        banks.abort_upload();
+        assert_eq!(banks.staging_state(), StagingState::Empty, "nothing open, nothing to abort");
+        banks.begin_upload();
+        banks.upload(&image[..8]).unwrap();
+        banks.abort_upload();
+        assert_eq!(banks.upload(&image[8..]), Err(CoreError::LoaderState));
+        assert_eq!(banks.finish_upload(), Err(CoreError::UploadAborted));
+        assert_eq!(banks.request_activation(), Err(CoreError::StagingNotValid));
+        banks.begin_upload();
+        banks.upload(&image).unwrap();
+        banks.finish_upload().unwrap();
     }
 }

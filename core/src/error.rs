@@ -3,6 +3,8 @@
 
 use core::fmt;
 
+use crate::regs::Reg;
+
 /// Everything the core can reject. `Display` for people, `defmt::Format` for the device.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -125,8 +127,33 @@ pub enum CoreError {
         /// Bytes available.
         got: u32,
     },
-    /// The SPI bus reported an error.
+    /// The SPI peripheral itself reported an error (the driver does not retry: the host's
+    /// own bus is broken, not a frame on it).
     Bus,
+    /// The driver's checks of an exchange with the datapath failed on every attempt (see
+    /// [`crate::driver`]); the active LUTs are the old ones or, for an upload whose
+    /// activation could not be confirmed, possibly the new ones, never anything else.
+    Link {
+        /// What the driver was doing.
+        step: LinkStep,
+        /// Attempts made.
+        attempts: u8,
+        /// What the last attempt's check found.
+        last: LinkFault,
+    },
+    /// A register write arrived (the frame count says so) but the register reads back
+    /// another value: the datapath refused it (a geometry it cannot hold, a read-only
+    /// register).
+    WriteRefused {
+        /// The register.
+        reg: Reg,
+        /// The value written.
+        value: u32,
+        /// The value read back.
+        read: u32,
+    },
+    /// The datapath abandoned an upload because one of its frames was lost or malformed.
+    UploadAborted,
     /// The datapath answered with an unexpected identification word.
     DeviceId {
         /// The word read from the ID register.
@@ -153,6 +180,64 @@ pub enum Quantity {
     NoisePair,
     /// Pixels of a block of whole lines (a multiple of the line width).
     BlockPixels,
+}
+
+/// What the driver was doing when it gave up ([`CoreError::Link`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum LinkStep {
+    /// Reading a register.
+    Read(Reg),
+    /// Writing a register.
+    Write(Reg),
+    /// Uploading and activating a LUT image.
+    LutUpload,
+}
+
+/// What one of the driver's checks found wrong with an exchange.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum LinkFault {
+    /// A response failed its CRC-8: corrupted on the way back, cut short, or never driven
+    /// because its request was lost or refused.
+    ResponseCrc,
+    /// The datapath had accepted another number of frames than the driver sent: one was
+    /// lost, refused (corrupted, truncated, split) or delivered twice.
+    FrameCount {
+        /// The count the driver expected.
+        expected: u16,
+        /// The count the datapath reported.
+        got: u16,
+    },
+    /// The datapath received every frame of an upload but its validation failed: image
+    /// bytes were corrupted on the way (or the image itself is invalid).
+    ImageRejected,
+    /// `STATUS` after an upload step is not what that step leaves.
+    Status {
+        /// The `STATUS` bits read.
+        bits: u32,
+    },
+}
+
+impl fmt::Display for LinkStep {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            LinkStep::Read(reg) => write!(f, "reading {reg:?}"),
+            LinkStep::Write(reg) => write!(f, "writing {reg:?}"),
+            LinkStep::LutUpload => f.write_str("uploading a LUT image"),
+        }
+    }
+}
+
+impl fmt::Display for LinkFault {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            LinkFault::ResponseCrc => f.write_str("a response failed its CRC-8"),
+            LinkFault::FrameCount { expected, got } => write!(f, "the datapath counted frame {got}, the driver sent up to {expected}"),
+            LinkFault::ImageRejected => f.write_str("the datapath rejected the image it received"),
+            LinkFault::Status { bits } => write!(f, "unexpected STATUS {bits:#06x}"),
+        }
+    }
 }
 
 impl fmt::Display for Quantity {
@@ -206,6 +291,9 @@ impl fmt::Display for CoreError {
             StagingNotValid => f.write_str("staging bank holds no validated LUT set"),
             BufferTooSmall { needed, got } => write!(f, "buffer of {got} bytes, {needed} needed"),
             Bus => f.write_str("SPI bus error"),
+            Link { step, attempts, last } => write!(f, "SPI link: gave up {step} after {attempts} attempts; last: {last}"),
+            WriteRefused { reg, value, read } => write!(f, "datapath refused {value:#x} for {reg:?}, which reads {read:#x}"),
+            UploadAborted => f.write_str("the datapath abandoned the upload: a frame of it was lost or malformed"),
             DeviceId { id } => write!(f, "unexpected datapath ID {id:#010x}"),
             NoiseSamples { samples } => write!(f, "{samples} samples are too few for a noise estimate"),
         }

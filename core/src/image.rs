@@ -219,6 +219,45 @@ mod tests {
         assert!(matches!(encode_image(&luts, &mut small), Err(CoreError::BufferTooSmall { .. })));
     }
 
+    /// Every 2-bit error in an image shorter than 2^32 - 1 bits changes its CRC-32 (with
+    /// every burst of up to 32 bits, what the SPI link relies on for LUT payloads): the
+    /// error x^i (1 + x^d) is a multiple of the generator G only if x^d = 1 modulo G, and
+    /// the order of x modulo G is 2^32 - 1, checked here against its prime factors.
+    #[test]
+    fn the_image_crc_catches_every_two_bit_error() {
+        const G: u64 = 1 << 32 | 0x04C1_1DB7;
+        let mul = |mut a: u64, mut b: u64| {
+            let mut r = 0u64;
+            while b != 0 {
+                if b & 1 == 1 {
+                    r ^= a;
+                }
+                b >>= 1;
+                a <<= 1;
+                if a >> 32 & 1 == 1 {
+                    a ^= G;
+                }
+            }
+            r
+        };
+        let x_to = |mut e: u64| {
+            let (mut r, mut base) = (1u64, 2u64);
+            while e != 0 {
+                if e & 1 == 1 {
+                    r = mul(r, base);
+                }
+                base = mul(base, base);
+                e >>= 1;
+            }
+            r
+        };
+        let order = (1u64 << 32) - 1;
+        assert_eq!(x_to(order), 1);
+        for p in [3, 5, 17, 257, 65537] {
+            assert_ne!(x_to(order / p), 1, "x^((2^32-1)/{p})");
+        }
+    }
+
     #[test]
     fn round_trip_in_odd_chunks() {
         let luts = LutSet::<2, 8>::from_bits(&[[0, 1, 2, 3, 4, 5, 6, 7], [9, 9, 9, 10, 11, 200, 300, 8_000_000]]).unwrap();

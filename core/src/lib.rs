@@ -47,7 +47,7 @@ pub mod stream;
 pub use accumulate::{Corrector, FrameCount, Geometry, LineReport, Status, SumImages, EXACT_FRAMES, MAX_STATES};
 pub use adc::{AdcMap, Code};
 pub use banks::{LutBanks, StagingState};
-pub use error::CoreError;
+pub use error::{CoreError, LinkFault, LinkStep};
 pub use histogram::{HistogramSet, Roi};
 pub use image::{encode_image, image_len, ImageLoader};
 pub use lut::{LutEntry, LutSet, Weight, FRAC_BITS, LUT_ENTRY_LIMIT};

@@ -92,6 +92,8 @@ pub struct Fpga {
     tokens: u64,
     pub(crate) stats: Stats,
     pub(crate) frame_open: Option<(u8, u16)>,
+    /// The device's side of the SPI link (frame count, hold, open upload).
+    pub(crate) link: crate::spi::LinkState,
 }
 
 impl Fpga {
@@ -114,6 +116,7 @@ impl Fpga {
             tokens: 0,
             stats: Stats::default(),
             frame_open: None,
+            link: Default::default(),
         })
     }
 

@@ -12,7 +12,8 @@
 //! - the read-modify-write of the sum image in external memory with a configurable
 //!   latency and bandwidth (a pixel costs two words: the read of its sum and the write);
 //! - the register map and the LUT upload of [`dncal_core::regs`], answered as an
-//!   [`embedded_hal::spi::SpiDevice`] so that the core's own driver configures it.
+//!   [`embedded_hal::spi::SpiDevice`] so that the core's own driver configures it;
+//! - and, as test equipment, a bus that injects faults between the two ([`faults`]).
 //!
 //! The arithmetic is the core's, not a copy: every lookup is
 //! [`dncal_core::accumulate::lookup`], every addition
@@ -25,6 +26,7 @@
 pub mod config;
 pub mod datapath;
 pub mod error;
+pub mod faults;
 pub mod sizing;
 pub mod spi;
 

@@ -4,42 +4,13 @@
 //! counters are identical, as long as the FIFO never overflows; an overflow is counted
 //! and reported through the register map.
 
+mod common;
+
+use common::{image, luts, weights};
 use dncal_core::driver::Datapath;
-use dncal_core::{encode_image, image_len, Corrector, Geometry, LutBanks, Mvd1024eLuts, Weight};
+use dncal_core::{Corrector, Geometry, LutBanks, Mvd1024eLuts};
 use dncal_fpga_model::{Config, Fpga};
 use proptest::prelude::*;
-
-fn luts(weights: &[Vec<f64>]) -> Mvd1024eLuts {
-    let w: Vec<Vec<Weight>> = weights.iter().map(|t| t.iter().map(|&x| Weight::from_num(x)).collect()).collect();
-    let refs: [&[Weight]; 4] = [&w[0], &w[1], &w[2], &w[3]];
-    Mvd1024eLuts::from_weights(&refs).unwrap()
-}
-
-fn image(l: &Mvd1024eLuts) -> Vec<u8> {
-    let mut buf = vec![0u8; image_len::<4, 4096>()];
-    encode_image(l, &mut buf).unwrap();
-    buf
-}
-
-/// Random widths in [0.9, 1.1) per code, scaled to sum to 4095 DN (an entry must stay
-/// below 2^23), from a seed (a cheap LCG: the test needs variety, not quality).
-fn weights(seed: u64) -> Vec<Vec<f64>> {
-    let mut s = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-    (0..4)
-        .map(|_| {
-            (0..4096)
-                .map(|_| {
-                    s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-                    0.9 + 0.2 * ((s >> 11) as f64 / (1u64 << 53) as f64)
-                })
-                .collect::<Vec<f64>>()
-        })
-        .map(|t| {
-            let sum: f64 = t.iter().sum();
-            t.iter().map(|w| w * 4095.0 / sum).collect()
-        })
-        .collect()
-}
 
 #[derive(Debug, Clone)]
 struct Case {
@@ -153,7 +124,7 @@ fn a_frame_shorter_than_the_memory_latency_shows_hazards() {
 
 #[test]
 fn a_bad_or_partial_upload_never_reaches_the_active_tables() {
-    use dncal_core::regs::{control, Reg, CMD_LUT_DATA, CMD_WRITE_REG};
+    use dncal_core::regs::{control, frame_crc, lut_header, write_frame, Reg, CMD_WRITE_REG};
     use dncal_core::CoreError;
     use embedded_hal::spi::{Operation, SpiDevice};
     let geometry = Geometry::new(16, 2, 1, 0).unwrap();
@@ -166,9 +137,9 @@ fn a_bad_or_partial_upload_never_reaches_the_active_tables() {
     assert_eq!(dp.upload_lut_image(&bad).unwrap_err(), CoreError::StagingNotValid);
     let partial = image(&luts(&weights(9)));
     dp.write_reg(Reg::Control, control::LUT_BEGIN).unwrap();
-    for chunk in partial[..partial.len() / 2].chunks(256) {
-        let len = (chunk.len() as u16).to_le_bytes();
-        dp.device_mut().transaction(&mut [Operation::Write(&[CMD_LUT_DATA, len[0], len[1]]), Operation::Write(chunk)]).unwrap();
+    for (k, chunk) in partial[..partial.len() / 2].chunks(256).enumerate() {
+        let header = lut_header(256 * k as u32, chunk.len() as u16);
+        dp.device_mut().transaction(&mut [Operation::Write(&header), Operation::Write(chunk)]).unwrap();
     }
     dp.write_reg(Reg::Control, control::LUT_COMMIT).unwrap();
     assert!(!dp.status().unwrap().activation_pending, "a partial image is not activated");
@@ -176,9 +147,13 @@ fn a_bad_or_partial_upload_never_reaches_the_active_tables() {
     let fpga = dp.device_mut();
     assert!(fpga.transaction(&mut []).is_err());
     assert!(fpga.transaction(&mut [Operation::Write(&[0x7F])]).is_err());
-    assert!(fpga.transaction(&mut [Operation::Write(&[CMD_WRITE_REG, 0x99, 0, 0, 0, 0])]).is_err());
-    assert!(fpga.transaction(&mut [Operation::Write(&[CMD_LUT_DATA, 0xFF, 0xFF]), Operation::Write(&[0; 4])]).is_err());
-    assert!(fpga.transaction(&mut [Operation::Write(&[CMD_WRITE_REG, Reg::Width as u8, 0, 0, 0, 0])]).is_err(), "a zero width is refused");
+    let mut unknown_register = [CMD_WRITE_REG, 0x99, 0, 0, 0, 0, 0];
+    unknown_register[6] = frame_crc(&unknown_register[..6]);
+    assert!(fpga.transaction(&mut [Operation::Write(&unknown_register)]).is_err());
+    assert!(fpga.transaction(&mut [Operation::Write(&lut_header(0, 0xFFFF)), Operation::Write(&[0; 4])]).is_err());
+    // (A refused frame holds writes until the next read; a read ends the hold.)
+    assert!(fpga.transaction(&mut [Operation::Write(&dncal_core::regs::read_request(Reg::Id)), Operation::Read(&mut [0; 7])]).is_ok());
+    assert!(fpga.transaction(&mut [Operation::Write(&write_frame(Reg::Width, 0))]).is_err(), "a zero width is refused");
     // Frames are corrected with the good tables only.
     let line: Vec<u16> = (0..16).map(|c| 100 * c as u16).collect();
     fpga.stream_frame(0, &[&line, &line]).unwrap();
@@ -240,14 +215,10 @@ fn the_memory_bandwidth_holds_after_a_blanking() {
 /// asking for 137 GB).
 #[test]
 fn a_geometry_beyond_the_sum_memory_is_refused() {
-    use dncal_core::regs::{Reg, CMD_WRITE_REG};
+    use dncal_core::regs::{write_frame, Reg};
     use embedded_hal::spi::{Operation, SpiDevice};
     let mut fpga = Fpga::new(Config::default(), Geometry::new(16, 2, 1, 0).unwrap()).unwrap();
-    let write = |fpga: &mut Fpga, reg: Reg, v: u32| {
-        let mut head = vec![CMD_WRITE_REG, reg as u8];
-        head.extend_from_slice(&v.to_le_bytes());
-        fpga.transaction(&mut [Operation::Write(&head)])
-    };
+    let write = |fpga: &mut Fpga, reg: Reg, v: u32| fpga.transaction(&mut [Operation::Write(&write_frame(reg, v))]);
     assert!(write(&mut fpga, Reg::States, 8).is_ok());
     assert!(write(&mut fpga, Reg::Width, 65535).is_ok(), "8 x 65535 x 2 words fit");
     assert!(write(&mut fpga, Reg::Height, 65535).is_err());
