@@ -98,6 +98,24 @@ fn bytes_frame(codes: &[u16], sums: &mut [u32]) {
     }
 }
 
+/// The bench's floor for `diagnose`: every pixel's weighted least-squares quartic through
+/// its levels (noise of the mean from the frames' deviation), by SVD; the sum of the
+/// coefficients, so nothing is optimized away.
+fn quartic_per_pixel(set: &crate::fits::LinearitySet) -> f64 {
+    use rayon::prelude::*;
+    let np = set.width * set.height;
+    let vmax = set.voltage.iter().copied().fold(f64::MIN, f64::max);
+    let n = f64::from(set.n_frames);
+    (0..np)
+        .into_par_iter()
+        .map(|p| {
+            let a = nalgebra::DMatrix::from_fn(set.levels, 5, |l, k| (set.voltage[l] / vmax).powi(k as i32) / (set.std[l * np + p] / n.sqrt()).max(1e-3));
+            let b = nalgebra::DVector::from_fn(set.levels, |l, _| set.mean[l * np + p] / (set.std[l * np + p] / n.sqrt()).max(1e-3));
+            a.svd(true, true).solve(&b, 1e-12).map_or(0.0, |c| c.sum())
+        })
+        .sum()
+}
+
 /// Mpx/s of `frames` frames of 1024 x 1024 pixels taking `seconds`.
 fn mpx_per_s(frames: usize, seconds: f64) -> f64 {
     (frames * WIDTH * HEIGHT) as f64 / seconds.max(1e-12) / 1e6
@@ -362,6 +380,29 @@ pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, Ho
         if !ours.is_empty() && ours.len() == theirs.len() {
             ratios.push(ratio("linearity, 256 x 256 x 41", &ours, "numpy/astropy, same steps", &theirs, "sets/s", Some(10.0)));
         }
+    }
+    // `diagnose` on a 128 x 128 x 41-level linearity set (read from its file, as the
+    // command does) against the plainest per-pixel work it contains: one weighted
+    // least-squares quartic per pixel through all its levels by nalgebra's SVD, on the
+    // same means. The ratio says how many such fits a diagnosis costs per pixel.
+    {
+        let dir = tempfile::tempdir().map_err(|e| HostError::io(std::env::temp_dir(), e))?;
+        let path = dir.path().join("linearity.fits");
+        let lp = crate::camera::calibration::LinearityParams { frames: 16, roi: (448, 448, 128, 128), ..crate::camera::calibration::LinearityParams::paper(&camera) };
+        crate::commands::simulate::simulate_linearity(&camera, &lp, path.clone())?;
+        let (mut ours, mut fits) = (Vec::new(), Vec::new());
+        for _ in 0..runs.min(3) {
+            let t = Instant::now();
+            let set = crate::fits::read_linearity_as::<f32>(&path)?;
+            black_box(crate::diagnose::diagnose_linearity(&set, 0.01).map_err(|m| HostError::Format { path: path.clone(), message: m })?);
+            let seconds = t.elapsed().as_secs_f64();
+            let set = crate::fits::read_linearity(&path)?;
+            let t = Instant::now();
+            black_box(quartic_per_pixel(&set));
+            fits.push((set.width * set.height) as f64 / t.elapsed().as_secs_f64() / 1e3);
+            ours.push((set.width * set.height) as f64 / seconds / 1e3);
+        }
+        ratios.push(ratio("diagnose, 128 x 128 x 41 linearity set", &ours, "one quartic SVD fit per pixel", &fits, "kpx/s", None));
     }
     if numpy.len() == runs {
         ratios.push(ratio("core, frame as a block", &by_block, "numpy lut[adc, codes]", &numpy, "Mpx/s", Some(8.0)));
