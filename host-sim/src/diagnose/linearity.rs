@@ -113,7 +113,9 @@ fn paired_sum(d: &[f64]) -> f64 {
 /// pixel-to-pixel spread alone).
 fn population(values: impl Iterator<Item = (usize, f64)>, n_adc: usize) -> (Vec<f64>, f64, f64) {
     let v: Vec<(usize, f64)> = values.collect();
-    let per: Vec<f64> = (0..n_adc).map(|a| upper_median(v.iter().filter(|(b, _)| *b == a).map(|(_, x)| *x))).collect();
+    let mut by_adc = vec![Vec::new(); n_adc];
+    v.iter().filter(|(a, _)| *a < n_adc).for_each(|&(a, x)| by_adc[a].push(x));
+    let per: Vec<f64> = by_adc.into_iter().map(upper_median).collect();
     // The textbook median here (four ADCs: the mean of the middle two), not the upper one.
     let centre = crate::stats::median(per.iter().copied());
     let dev: Vec<f64> = v.iter().map(|(a, x)| x - per[*a]).collect();
@@ -357,8 +359,18 @@ fn adcs_apart(values: &[(usize, bool, f64)], n_adc: usize) -> Vec<Apart> {
     if n_adc < 3 || ps.is_nan() || ps <= 0.0 {
         return out;
     }
-    let even = |a: usize| values.iter().filter(|v| v.0 == a && !v.1 && v.2.is_finite()).count();
-    let even_count: Vec<usize> = (0..n_adc).map(even).collect();
+    // Per ADC: its even-row values counted, and its odd-row values' count, sum and sum of
+    // squares about its own median (every score below is a function of these: one pass
+    // over the pixels, whatever the number of ADCs and rounds).
+    let (mut even_count, mut odd) = (vec![0usize; n_adc], vec![(0usize, 0.0, 0.0); n_adc]);
+    for &(a, is_odd, v) in values.iter().filter(|v| v.0 < n_adc && v.2.is_finite()) {
+        if is_odd {
+            let d = v - per_adc[a];
+            odd[a] = (odd[a].0 + 1, odd[a].1 + d, odd[a].2 + d * d);
+        } else {
+            even_count[a] += 1;
+        }
+    }
     let mut apart = vec![false; n_adc];
     while apart.iter().filter(|&&o| !o).count() * 2 > n_adc + 1 {
         let mut rest: Vec<f64> = (0..n_adc).filter(|&a| !apart[a]).map(|a| per_adc[a]).collect();
@@ -366,16 +378,19 @@ fn adcs_apart(values: &[(usize, bool, f64)], n_adc: usize) -> Vec<Apart> {
         let h = rest.len();
         let pm = if h % 2 == 1 { rest[h / 2] } else { 0.5 * (rest[h / 2 - 1] + rest[h / 2]) };
         let scored: Vec<(usize, f64, f64, f64, usize)> = (0..n_adc)
-            .filter(|&a| !apart[a])
-            .filter_map(|a| {
-                let z: Vec<(f64, f64)> = values.iter().filter(|v| v.0 == a && v.1).map(|v| ((v.2 - pm) / ps, (v.2 - per_adc[a]) / ps)).collect();
-                (z.len() >= 8).then(|| {
-                    let (s0, s1) = (z.iter().map(|v| v.0 * v.0).sum::<f64>(), z.iter().map(|v| v.1 * v.1).sum::<f64>());
-                    let pairs = paired_sum(&z.iter().map(|v| v.0 * v.0 - v.1 * v.1).collect::<Vec<_>>());
-                    let n_rest: usize = (0..n_adc).filter(|&b| b != a && !apart[b]).map(|b| even_count[b]).sum();
-                    let se = 1.2533 * ps * (1.0 / even_count[a].max(1) as f64 + 1.0 / n_rest.max(1) as f64).sqrt();
-                    (a, pairs.min((per_adc[a] - pm).abs() / se), s0, s1, z.len())
-                })
+            .filter(|&a| !apart[a] && odd[a].0 >= 8)
+            .map(|a| {
+                // With `u = v - m_a` and `o = m_a - c`: `z1 = u / s`, `z0 = (u + o) / s`,
+                // and `d = z0^2 - z1^2 = o (2 u + o) / s^2`, linear in `u`.
+                let (n, su, suu) = (odd[a].0 as f64, odd[a].1, odd[a].2);
+                let o = per_adc[a] - pm;
+                let (s1, s0) = (suu / (ps * ps), (suu + 2.0 * o * su + n * o * o) / (ps * ps));
+                let var_u = ((suu - su * su / n) / (n - 1.0)).max(0.0);
+                let (mean_d, sd_d) = (o * (2.0 * su / n + o) / (ps * ps), 2.0 * o.abs() * var_u.sqrt() / (ps * ps));
+                let pairs = if n < 3.0 { 0.0 } else { mean_d * n.sqrt() / sd_d.max(1e-300) };
+                let n_rest: usize = (0..n_adc).filter(|&b| b != a && !apart[b]).map(|b| even_count[b]).sum();
+                let se = 1.2533 * ps * (1.0 / even_count[a].max(1) as f64 + 1.0 / n_rest.max(1) as f64).sqrt();
+                (a, pairs.min(o.abs() / se), s0, s1, odd[a].0)
             })
             .collect();
         let Some(&(a, sig, s0, s1, n)) = scored.iter().max_by(|x, y| x.1.total_cmp(&y.1)) else { break };
@@ -417,7 +432,8 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
         return Err("the standard deviations are zero at most pixels and levels: the noise of the means is unknown".into());
     }
     let known_bad = |p: usize| set.mask.as_ref().is_some_and(|m| m[p] != 0);
-    let n_adc = set.n_adc.max(1);
+    // (More ADCs than columns read as one per column: column `c` is ADC `c` either way.)
+    let n_adc = set.n_adc.clamp(1, set.width.max(1));
     let pixels: Vec<usize> = (0..np).filter(|&p| !known_bad(p)).collect();
     let bias2 = quantization_floor(set, &pixels);
     let px = Pixels::new(set, x, kappa, bias2, valid, pixels);
@@ -1032,6 +1048,8 @@ mod bad_input_tests {
             ("one ADC", LinearitySet { n_adc: 1, ..base.clone() }),
             ("two ADCs", LinearitySet { n_adc: 2, ..base.clone() }),
             ("more ADCs than columns", LinearitySet { n_adc: 8, ..base.clone() }),
+            // (Was a 48 GB allocation: every per-ADC table sized by NADC.)
+            ("two billion ADCs", LinearitySet { n_adc: 2_000_000_000, ..base.clone() }),
         ];
         let few = Plant { width: 4, height: 4, levels: 8, ..Plant::default() };
         cases.push(("eight levels", linearity_set(&few, &[], 1)));

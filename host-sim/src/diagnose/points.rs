@@ -40,12 +40,12 @@ impl<'a, T: Sample> Pixels<'a, T> {
 
     /// ADCs of the camera.
     pub fn n_adc(&self) -> usize {
-        self.set.n_adc.max(1)
+        self.set.n_adc.clamp(1, self.set.width.max(1))
     }
 
     /// The ADC of pixel `i`: column `c` is read by ADC `c mod n_adc`.
     pub fn adc(&self, i: usize) -> usize {
-        (self.index[i] % self.set.width) % self.set.n_adc.max(1)
+        (self.index[i] % self.set.width) % self.n_adc()
     }
 
     /// Whether pixel `i` lies on an even row: those estimate shared parameters, the odd
