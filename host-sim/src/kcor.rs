@@ -217,6 +217,15 @@ pub fn run(camera: &Camera, adc: &PipelinedAdc, lut: &[f64], p: &KcorParams) -> 
     all.swap_remove(0)
 }
 
+/// The electrons a state can add above the dark level before the ADC's top code or the
+/// full well, whichever comes first; 0 or less when the dark level fills the range.
+pub fn signal_room_e(camera: &Camera, adc: &PipelinedAdc) -> f64 {
+    let cfg = &camera.config;
+    let top_dn = (adc.codes() - 1) as f64;
+    let dark_dn = cfg.dark_e / cfg.gain_e_per_dn + cfg.offset_dn;
+    ((top_dn - dark_dn) * cfg.gain_e_per_dn).min(cfg.full_well_e - cfg.dark_e)
+}
+
 /// [`run`] for several LUTs at once (e.g. noise realizations): the code PMFs, which cost
 /// nearly all of a run, are computed once per grid cell and shared. One result per LUT,
 /// in order; the raw fields are the same in all.
@@ -226,9 +235,7 @@ pub fn run_luts(camera: &Camera, adc: &PipelinedAdc, luts: &[&[f64]], p: &KcorPa
     let per_bsun_e = phi * p.exposure_s; // e- per B_sun of unpolarized light, before the analyzer
     // The brightest I: the brightest state, (I + |Q|)/2 <= I, reaches `fill` of the range
     // above dark at |Q| = I.
-    let top_dn = (adc.codes() - 1) as f64;
-    let dark_dn = cfg.dark_e / cfg.gain_e_per_dn + cfg.offset_dn;
-    let room_e = ((top_dn - dark_dn) * cfg.gain_e_per_dn).min(cfg.full_well_e - cfg.dark_e);
+    let room_e = signal_room_e(camera, adc);
     let i_max = p.fill * room_e / per_bsun_e;
     let n = p.steps.max(2);
     let delta = i_max / n as f64;

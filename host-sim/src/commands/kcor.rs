@@ -54,6 +54,23 @@ pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, real
     if !(p.exposure_s > 0.0 && p.exposure_s.is_finite() && p.fill > 0.0 && p.fill <= 1.0 && p.lut_noise >= 0.0 && p.flat_fraction > 0.0 && p.flat_fraction <= 1.0 && p.q_fraction > 0.0 && p.q_fraction <= 1.0) {
         return Err(HostError::Format { path: "arguments".into(), message: "need exposure > 0, 0 < fill <= 1, 0 < flat fraction <= 1, 0 < q fraction <= 1 and LUT noise >= 0".into() });
     }
+    // A dark level at the top code (or the full well) leaves no state a signal: every
+    // error would be 0 and every reduction 0/0 (it printed "infx less").
+    let room_e = crate::kcor::signal_room_e(camera, adc);
+    if room_e <= 0.0 {
+        let c = &camera.config;
+        return Err(HostError::Format {
+            path: "camera config".into(),
+            message: format!(
+                "the dark level ({:.4e} e- = {:.1} DN with the offset) fills ADC {}'s range (top code {}) or the full well ({:.4e} e-): no room for a signal",
+                c.dark_e,
+                c.dark_e / c.gain_e_per_dn + c.offset_dn,
+                p.adc,
+                adc.codes() - 1,
+                c.full_well_e
+            ),
+        });
+    }
     if realizations == 0 || (realizations > 1 && lut_file.is_some()) {
         return Err(HostError::Format { path: "--realizations".into(), message: "need at least 1, and more than 1 only for the noisy LUT (not with --lut)".into() });
     }
@@ -127,4 +144,25 @@ pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, real
         None => format!("true code widths with {}% Gaussian noise per code", 100.0 * p.lut_noise),
     };
     Ok(KcorSummary { result, lut_source, realizations, figures })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::CameraConfig;
+
+    /// A dark level above the top code: a clear refusal, not a run whose every error is 0
+    /// and whose reduction is 0/0; a dark level just inside the range still runs.
+    #[test]
+    fn a_dark_level_that_fills_the_range_is_refused() {
+        let full = Camera::new(CameraConfig { dark_e: 1e7, ..CameraConfig::default() }).unwrap();
+        let e = kcor_model(&full, &KcorParams::default(), None, 1, None).unwrap_err().to_string();
+        assert!(e.contains("fills ADC 3's range") && e.contains("no room for a signal"), "{e}");
+        let config = CameraConfig::default();
+        let adc = &Camera::new(config.clone()).unwrap().adcs[3];
+        // The dark level 1 DN below the top code (offset included).
+        let dark_e = ((adc.codes() - 2) as f64 - config.offset_dn) * config.gain_e_per_dn;
+        let almost = Camera::new(CameraConfig { dark_e, ..config }).unwrap();
+        assert!(crate::kcor::signal_room_e(&almost, &almost.adcs[3]) > 0.0);
+    }
 }
