@@ -260,9 +260,9 @@ fn publish_one(s: &Staged) -> Result<Option<Backup>, HostError> {
     check_target(&s.target)?;
     let backup = match std::fs::symlink_metadata(&s.target) {
         Ok(_) => {
-            let mut name = s.tmp.clone().into_os_string();
-            name.push(OLD_SUFFIX);
-            let path = PathBuf::from(name);
+            // The temporary's name is plain ASCII (see `temp_prefix`).
+            let tmp_name = s.tmp.file_name().and_then(|n| n.to_str()).unwrap_or_default();
+            let path = s.tmp.with_file_name(format!("{}{OLD_SUFFIX}", tmp_name.strip_suffix(TMP_SUFFIX).unwrap_or(tmp_name)));
             let linked = match std::fs::hard_link(&s.target, &path) {
                 Ok(()) => true,
                 Err(_) => {
@@ -321,10 +321,10 @@ fn remove_stale(dir: &Path, prefix: &str) {
 }
 
 /// The process id in `name` if it is one of our temporaries or backups for `prefix`:
-/// `{prefix}{pid}.{6 characters}.dncal-tmp` (`.dncal-old` appended for a backup).
+/// `{prefix}{pid}.{6 characters}.dncal-tmp` (`.dncal-old` for a backup).
 fn stale_pid(name: &str, prefix: &str) -> Option<u32> {
     let rest = name.strip_prefix(prefix)?;
-    let rest = rest.strip_suffix(OLD_SUFFIX).unwrap_or(rest).strip_suffix(TMP_SUFFIX)?;
+    let rest = rest.strip_suffix(TMP_SUFFIX).or_else(|| rest.strip_suffix(OLD_SUFFIX))?;
     let (pid, random) = rest.split_once('.')?;
     (random.len() == 6 && random.chars().all(|c| c.is_ascii_alphanumeric())).then_some(())?;
     pid.parse().ok()
@@ -449,7 +449,7 @@ mod tests {
         child.wait().unwrap();
         let me = std::process::id();
         let keep = [format!(".a.fits.{me}.abc123.dncal-tmp"), format!(".b.fits.{dead}.abc123.dncal-tmp"), format!(".a.fits.{dead}.abc123.tmp"), ".a.fits.x.abc123.dncal-tmp".into()];
-        let stale = [format!(".a.fits.{dead}.abc123.dncal-tmp"), format!(".a.fits.{dead}.Xyz789.dncal-tmp.dncal-old")];
+        let stale = [format!(".a.fits.{dead}.abc123.dncal-tmp"), format!(".a.fits.{dead}.Xyz789.dncal-old")];
         for n in keep.iter().chain(&stale) {
             std::fs::write(d.join(n), "").unwrap();
         }

@@ -1,7 +1,8 @@
 //! The datasheet as a folder a user opens in a browser: `datasheet.html` with the
 //! standard's plots (photon transfer, SNR, linearity deviation, spectrograms, defect
-//! histograms) as PNGs, and `datasheet.json`. Every file is written to a temporary name
-//! and renamed, so a failure leaves no half-written file.
+//! histograms) as PNGs, and `datasheet.json`. The files are published together or not at
+//! all ([`crate::outputs`]), so a failure leaves neither a half-written file nor a
+//! datasheet whose pages are of two runs.
 
 use std::path::{Path, PathBuf};
 
