@@ -55,7 +55,7 @@ fn snapshot(dir: &Path) -> BTreeMap<PathBuf, Option<Vec<u8>>> {
 fn assert_failed_and_untouched(out: &Output, start: &str, dir: &Path, before: &BTreeMap<PathBuf, Option<Vec<u8>>>) {
     let stderr = String::from_utf8_lossy(&out.stderr);
     let after = snapshot(dir);
-    let changed: Vec<_> = after.keys().chain(before.keys()).filter(|k| after.get(*k) != before.get(*k)).collect();
+    let changed: std::collections::BTreeSet<_> = after.keys().chain(before.keys()).filter(|k| after.get(*k) != before.get(*k)).collect();
     assert!(changed.is_empty(), "changed, added or removed: {changed:?}; stderr: {stderr}");
     assert!(stderr.starts_with(&format!("dncal: error: {start}")) && stderr.lines().count() == 1, "stderr: {stderr}");
     assert_eq!(out.status.code(), Some(1), "stderr: {stderr}");
@@ -108,6 +108,20 @@ fn lut_export_writes_no_table_when_one_cannot_be_written() {
     let before = snapshot(d);
     let out = dncal(&["lut", "export", "cal.fits", "--format", "kcor", "-o", "kc"], d);
     assert_failed_and_untouched(&out, &format!("kc_adc3.bin: {DIRECTORY}\n"), d, &before);
+}
+
+#[test]
+fn lut_import_replaces_neither_file_when_the_image_cannot_be_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    flat_histograms(&d.join("h.fits"));
+    succeed(&["lut", "build", "h.fits", "-o", "cal"], d);
+    succeed(&["lut", "export", "cal.fits", "--format", "kcor", "-o", "kc"], d);
+    earlier(d, &["imp.fits"]);
+    std::fs::create_dir(d.join("imp.bin")).unwrap();
+    let before = snapshot(d);
+    let out = dncal(&["lut", "import", "--kcor", "kc", "-o", "imp"], d);
+    assert_failed_and_untouched(&out, &format!("imp.bin: {DIRECTORY}\n"), d, &before);
 }
 
 #[test]
