@@ -53,6 +53,15 @@ pub enum HostError {
         /// The kind's largest size, bytes.
         limit: u64,
     },
+    /// An output path that names a directory, device or FIFO: an output file renamed over
+    /// it would fail or replace it ([`crate::outputs`]).
+    #[error("{path}: is a {kind}; an output file cannot replace it")]
+    OutputNotFile {
+        /// The target.
+        path: PathBuf,
+        /// What it is ("directory", "FIFO", ...).
+        kind: &'static str,
+    },
     /// A file's contents are not what they must be.
     #[error("{path}: {message}")]
     Format {

@@ -16,8 +16,10 @@
 //! PhotonFocus MV-D1024E.
 //!
 //! ## Robustness
-//! Files are written through [`write_atomically`], so a failed or rejected write never
-//! leaves a half-written file at the destination. Readers check every shape, key and value
+//! Files are written through [`crate::outputs`]: the `stage_*` writers add a file to a
+//! command's [`Outputs`], published with its other files or not at all; the `write_*`
+//! ones write one file atomically. Either way a failed or rejected write never leaves a
+//! half-written file at the destination. Readers check every shape, key and value
 //! before returning and answer a truncated, foreign or malformed file with a
 //! [`HostError::Format`] naming it. They deliberately avoid the `fitsio` calls that panic on
 //! legal FITS they do not expect (unsigned 64-bit images, variable-length or complex table
@@ -45,6 +47,7 @@ use fitsio::images::{ImageDescription, ImageType, ReadImage, WriteImage};
 use fitsio::tables::{ColumnDataType, ColumnDescription};
 use fitsio::FitsFile;
 
+use crate::outputs::{write_one, Outputs};
 use crate::HostError;
 
 /// The only ADC map dncal knows: column `c` is read by ADC `c mod NADC`.
@@ -143,51 +146,14 @@ impl LutTables {
 // ---------------------------------------------------------------------------------------
 // Writing
 
-/// Runs `write` on a fresh temporary path in `path`'s directory and renames the result to
-/// `path` only when `write` succeeds, so readers see the old file or the complete new one,
-/// never a half-written one. On failure the temporary file is removed and `path` is left
-/// as it was. The temporary path exists (empty) when `write` is called; a replaced file
-/// keeps its permissions.
-pub fn write_atomically(path: &Path, write: impl FnOnce(&Path) -> Result<(), HostError>) -> Result<(), HostError> {
-    let file_name = path
-        .file_name()
-        .ok_or_else(|| HostError::Format { path: path.into(), message: "not a file name to write to".into() })?;
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
-    let mut builder = tempfile::Builder::new();
-    // Only plain characters: the name may go to cfitsio, which parses brackets and more.
-    let plain: String = file_name
-        .to_string_lossy()
-        .chars()
-        .map(|c| if c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-') { c } else { '_' })
-        .collect();
-    let prefix = format!(".{plain}.");
-    builder.prefix(&prefix).suffix(".tmp");
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::PermissionsExt;
-        // The process umask applies, as for any newly created file.
-        builder.permissions(std::fs::Permissions::from_mode(0o666));
-    }
-    let tmp = builder.tempfile_in(dir).map_err(|e| HostError::io(path, e))?.into_temp_path();
-    write(&tmp)?;
-    if let Ok(old) = std::fs::metadata(path) {
-        std::fs::set_permissions(&tmp, old.permissions()).map_err(|e| HostError::io(path, e))?;
-    }
-    std::fs::File::open(&tmp).and_then(|f| f.sync_all()).map_err(|e| HostError::io(path, e))?;
-    tmp.persist(path).map_err(|e| HostError::io(path, e.error))
-}
-
-/// Writes `bytes` to `path` atomically (see [`write_atomically`]).
-pub fn write_file_atomically(path: &Path, bytes: impl AsRef<[u8]>) -> Result<(), HostError> {
-    write_atomically(path, |tmp| std::fs::write(tmp, bytes.as_ref()).map_err(|e| HostError::io(tmp, e)))
-}
-
-/// Writes a histogram set: primary image of `NADC` rows x `2^BITDEPTH` codes, 64-bit
-/// signed (BITPIX 64).
+/// Writes a histogram set atomically: see [`stage_histograms`].
 pub fn write_histograms(path: &Path, hist: &AdcHistograms) -> Result<(), HostError> {
+    write_one(|out| stage_histograms(out, path, hist))
+}
+
+/// Stages a histogram set in `out`: primary image of `NADC` rows x `2^BITDEPTH` codes,
+/// 64-bit signed (BITPIX 64).
+pub fn stage_histograms(out: &mut Outputs, path: &Path, hist: &AdcHistograms) -> Result<(), HostError> {
     let codes = check_tables(hist.bit_depth, &hist.counts, "codes").map_err(|m| format_error(path, m))?;
     let mut flat = Vec::with_capacity(hist.n_adc() * codes);
     for (adc, row) in hist.counts.iter().enumerate() {
@@ -198,40 +164,45 @@ pub fn write_histograms(path: &Path, hist: &AdcHistograms) -> Result<(), HostErr
             flat.push(n);
         }
     }
-    write_atomically(path, |tmp| {
-        let mut out = FitsWriter::create(tmp, path, ImageType::LongLong, &[hist.n_adc(), codes])?;
-        out.adc_keys(hist.bit_depth, hist.n_adc())?;
-        out.image(&flat)?;
-        out.finish()
+    out.write(path, |tmp| {
+        let mut fits = FitsWriter::create(tmp, path, ImageType::LongLong, &[hist.n_adc(), codes])?;
+        fits.adc_keys(hist.bit_depth, hist.n_adc())?;
+        fits.image(&flat)?;
+        fits.finish()
     })
 }
 
-/// Writes a linearity set: primary float64 cube of mean frames, extensions `STD` (same
-/// cube), `MASK` (uint8, when present) and `REFERENCE` (table, column `VOLTAGE`).
+/// Writes a linearity set atomically: see [`stage_linearity`].
 pub fn write_linearity(path: &Path, set: &LinearitySet) -> Result<(), HostError> {
+    write_one(|out| stage_linearity(out, path, set))
+}
+
+/// Stages a linearity set in `out`: primary float64 cube of mean frames, extensions `STD`
+/// (same cube), `MASK` (uint8, when present) and `REFERENCE` (table, column `VOLTAGE`).
+pub fn stage_linearity(out: &mut Outputs, path: &Path, set: &LinearitySet) -> Result<(), HostError> {
     check_linearity(set).map_err(|m| format_error(path, m))?;
-    write_atomically(path, |tmp| {
+    out.write(path, |tmp| {
         let cube = [set.levels, set.height, set.width];
-        let mut out = FitsWriter::create(tmp, path, ImageType::Double, &cube)?;
-        out.adc_keys(set.bit_depth, set.n_adc)?;
-        out.key("NFRAMES", (i64::from(set.n_frames), "frames averaged per illumination level"))?;
-        out.key("BUNIT", ("DN", "mean of the frames at each level"))?;
-        out.image(&set.mean)?;
-        out.add_image("STD", ImageType::Double, &cube)?;
-        out.key("BUNIT", ("DN", "standard deviation of the frames"))?;
-        out.image(&set.std)?;
+        let mut fits = FitsWriter::create(tmp, path, ImageType::Double, &cube)?;
+        fits.adc_keys(set.bit_depth, set.n_adc)?;
+        fits.key("NFRAMES", (i64::from(set.n_frames), "frames averaged per illumination level"))?;
+        fits.key("BUNIT", ("DN", "mean of the frames at each level"))?;
+        fits.image(&set.mean)?;
+        fits.add_image("STD", ImageType::Double, &cube)?;
+        fits.key("BUNIT", ("DN", "standard deviation of the frames"))?;
+        fits.image(&set.std)?;
         if let Some(mask) = &set.mask {
-            out.add_image("MASK", ImageType::UnsignedByte, &[set.height, set.width])?;
-            out.image(mask)?;
+            fits.add_image("MASK", ImageType::UnsignedByte, &[set.height, set.width])?;
+            fits.image(mask)?;
         }
         // Last, so that a file cut at an HDU boundary lacks a required HDU rather than
         // reading as a valid set without its (optional) mask.
-        out.add_table("REFERENCE", "VOLTAGE", "V", &set.voltage)?;
-        out.finish()
+        fits.add_table("REFERENCE", "VOLTAGE", "V", &set.voltage)?;
+        fits.finish()
     })
 }
 
-/// The pixel-wise correction as written: see [`write_pixel_correction`].
+/// The pixel-wise correction as written: see [`stage_pixel_correction`].
 #[derive(Debug, Clone, Copy)]
 pub struct PixelCorrection<'a> {
     /// Coefficient cube, plane-major (`a_k` planes of `height x width`).
@@ -250,61 +221,66 @@ pub struct PixelCorrection<'a> {
     pub n_adc: usize,
 }
 
-/// Writes the pixel-wise nonlinearity correction (`dncal linearity`): a float64 cube of
+/// Stages the pixel-wise nonlinearity correction (`dncal linearity`): a float64 cube of
 /// the polynomial coefficients (`NAXIS1` columns, `NAXIS2` rows, `NAXIS3 = ORDER + 1`,
 /// plane k holds a_k of `m = sum a_k x^k`, x the normalized reference) and the uint8
 /// extension `MASK` (non-zero = masked; bit 1 input mask, 2 low signal, 4 anomalous trend,
 /// 8 unfitted).
-pub fn write_pixel_correction(path: &Path, c: &PixelCorrection) -> Result<(), HostError> {
+pub fn stage_pixel_correction(out: &mut Outputs, path: &Path, c: &PixelCorrection) -> Result<(), HostError> {
     let PixelCorrection { coeffs, mask, width, height, order, bit_depth, n_adc } = *c;
     if coeffs.len() != (order + 1) * width * height || mask.len() != width * height {
         return Err(format_error(path, "coefficient cube or mask does not match the frame size"));
     }
-    write_atomically(path, |tmp| {
-        let mut out = FitsWriter::create(tmp, path, ImageType::Double, &[order + 1, height, width])?;
-        out.adc_keys(bit_depth, n_adc)?;
-        out.key("ORDER", (order as i64, "m = sum_k a_k x^k, k = 0..ORDER; x = V / max V"))?;
-        out.key("BUNIT", ("DN", "coefficients give DN"))?;
-        out.image(coeffs)?;
-        out.add_image("MASK", ImageType::UnsignedByte, &[height, width])?;
-        out.image(mask)?;
-        out.finish()
+    out.write(path, |tmp| {
+        let mut fits = FitsWriter::create(tmp, path, ImageType::Double, &[order + 1, height, width])?;
+        fits.adc_keys(bit_depth, n_adc)?;
+        fits.key("ORDER", (order as i64, "m = sum_k a_k x^k, k = 0..ORDER; x = V / max V"))?;
+        fits.key("BUNIT", ("DN", "coefficients give DN"))?;
+        fits.image(coeffs)?;
+        fits.add_image("MASK", ImageType::UnsignedByte, &[height, width])?;
+        fits.image(mask)?;
+        fits.finish()
     })
 }
 
-/// Writes a float64 cube of `levels` images (`NAXIS3 = levels`) with `BUNIT`.
-pub fn write_cube(path: &Path, data: &[f64], levels: usize, width: usize, height: usize, bunit: &str) -> Result<(), HostError> {
+/// Stages a float64 cube of `levels` images (`NAXIS3 = levels`) with `BUNIT`.
+pub fn stage_cube(out: &mut Outputs, path: &Path, data: &[f64], levels: usize, width: usize, height: usize, bunit: &str) -> Result<(), HostError> {
     if data.len() != levels * width * height {
         return Err(format_error(path, "cube does not match its shape"));
     }
-    write_atomically(path, |tmp| {
-        let mut out = FitsWriter::create(tmp, path, ImageType::Double, &[levels, height, width])?;
-        out.key("BUNIT", (bunit.to_string(), "per level"))?;
-        out.image(data)?;
-        out.finish()
+    out.write(path, |tmp| {
+        let mut fits = FitsWriter::create(tmp, path, ImageType::Double, &[levels, height, width])?;
+        fits.key("BUNIT", (bunit.to_string(), "per level"))?;
+        fits.image(data)?;
+        fits.finish()
     })
 }
 
-/// Writes LUTs: primary image of `NADC` rows x `2^BITDEPTH` codes, unsigned 32-bit (BITPIX
-/// 32 with BZERO 2^31, which astropy reads as uint32), with `FRACBITS`.
+/// Writes LUTs atomically: see [`stage_lut`].
 pub fn write_lut(path: &Path, lut: &LutTables) -> Result<(), HostError> {
+    write_one(|out| stage_lut(out, path, lut))
+}
+
+/// Stages LUTs in `out`: primary image of `NADC` rows x `2^BITDEPTH` codes, unsigned
+/// 32-bit (BITPIX 32 with BZERO 2^31, which astropy reads as uint32), with `FRACBITS`.
+pub fn stage_lut(out: &mut Outputs, path: &Path, lut: &LutTables) -> Result<(), HostError> {
     let bit_depth = check_lut(lut).map_err(|m| format_error(path, m))?;
     let flat: Vec<u32> = lut.tables.concat();
-    write_atomically(path, |tmp| {
+    out.write(path, |tmp| {
         let codes = 1usize << bit_depth;
-        let mut out = FitsWriter::create(tmp, path, ImageType::UnsignedLong, &[lut.n_adc(), codes])?;
-        out.adc_keys(bit_depth, lut.n_adc())?;
-        out.key("FRACBITS", (i64::from(lut.frac_bits), "entries in units of 2^-FRACBITS DN"))?;
+        let mut fits = FitsWriter::create(tmp, path, ImageType::UnsignedLong, &[lut.n_adc(), codes])?;
+        fits.adc_keys(bit_depth, lut.n_adc())?;
+        fits.key("FRACBITS", (i64::from(lut.frac_bits), "entries in units of 2^-FRACBITS DN"))?;
         if let Some(b) = lut.kcor_bits {
-            out.key("KCORBITS", (i64::from(b), "imported from K-Cor tables ending at 2^KCORBITS - 1"))?;
+            fits.key("KCORBITS", (i64::from(b), "imported from K-Cor tables ending at 2^KCORBITS - 1"))?;
         }
-        out.image(&flat)?;
+        fits.image(&flat)?;
         if let Some(w) = &lut.weights {
-            out.add_image("WEIGHTS", ImageType::UnsignedLong, &[lut.n_adc(), codes])?;
-            out.key("FRACBITS", (24, "code widths in units of 2^-FRACBITS DN"))?;
-            out.image(&w.concat())?;
+            fits.add_image("WEIGHTS", ImageType::UnsignedLong, &[lut.n_adc(), codes])?;
+            fits.key("FRACBITS", (24, "code widths in units of 2^-FRACBITS DN"))?;
+            fits.image(&w.concat())?;
         }
-        out.finish()
+        fits.finish()
     })
 }
 
@@ -1053,7 +1029,7 @@ impl CfitsioName {
         }
     }
 
-    /// For `tmp`, a file [`write_atomically`] made (its own name is plain), reporting
+    /// For `tmp`, a temporary [`Outputs::write`] made (its own name is plain), reporting
     /// errors as about `shown`. A directory with cfitsio syntax in its path is linked, so
     /// the file is still created in that directory and can be renamed into place.
     fn for_writing(tmp: &Path, shown: &Path) -> Result<Self, HostError> {
@@ -1570,42 +1546,6 @@ mod tests {
             // Nothing else was made: no temporaries, no files cfitsio made up.
             assert_eq!(std::fs::read_dir(&d).unwrap().count(), names.len() + 1, "{}", d.display());
         }
-    }
-
-    #[test]
-    fn write_atomically_replaces_on_success_only_and_leaves_no_temporary_file() {
-        let dir = tempfile::tempdir().unwrap();
-        let p = dir.path().join("h.fits");
-        write_histograms(&p, &histograms()).unwrap();
-        // Rewriting an existing path works (cfitsio alone would refuse).
-        let other = AdcHistograms { bit_depth: 1, counts: vec![vec![7, 8]] };
-        write_histograms(&p, &other).unwrap();
-        assert_eq!(read_histograms(&p).unwrap(), other);
-        // A failing writer leaves the old file and no temporary.
-        let mut seen = None;
-        let result = write_atomically(&p, |tmp| {
-            seen = Some(tmp.to_path_buf());
-            std::fs::write(tmp, b"half").unwrap();
-            Err(format_error(tmp, "stopped halfway"))
-        });
-        assert_rejects(result, seen.as_deref().unwrap(), "stopped halfway");
-        assert_eq!(seen.unwrap().parent(), Some(dir.path()));
-        assert_eq!(read_histograms(&p).unwrap(), other);
-        assert_eq!(files_in(dir.path()), vec![p.clone()]);
-        // A path without a file name is refused before anything is written.
-        assert_rejects(write_atomically(Path::new(""), |_| Ok(())), Path::new(""), "not a file name");
-    }
-
-    #[cfg(unix)]
-    #[test]
-    fn write_atomically_keeps_the_permissions_of_a_replaced_file() {
-        use std::os::unix::fs::PermissionsExt;
-        let dir = tempfile::tempdir().unwrap();
-        let p = dir.path().join("lut.fits");
-        write_lut(&p, &lut()).unwrap();
-        std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o640)).unwrap();
-        write_lut(&p, &lut()).unwrap();
-        assert_eq!(std::fs::metadata(&p).unwrap().permissions().mode() & 0o777, 0o640);
     }
 
     #[test]

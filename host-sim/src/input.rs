@@ -61,7 +61,7 @@ pub fn starts_with(path: &Path, magic: &[u8]) -> Result<bool, HostError> {
 }
 
 /// How messages name a file type other than a regular file.
-fn kind_of(file_type: &std::fs::FileType) -> &'static str {
+pub(crate) fn kind_of(file_type: &std::fs::FileType) -> &'static str {
     #[cfg(unix)]
     {
         use std::os::unix::fs::FileTypeExt;

@@ -19,6 +19,7 @@ pub mod flatten;
 pub mod kcor;
 pub mod kcor_tables;
 pub mod linearity;
+pub mod outputs;
 pub mod plots;
 pub mod quantization;
 pub mod parallel;

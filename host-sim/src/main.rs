@@ -3,7 +3,7 @@
 //! message on stderr and a nonzero exit.
 
 use std::io::Write;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Duration;
 
@@ -14,6 +14,7 @@ use dncal_host::camera::{Camera, CameraConfig};
 use dncal_host::commands::{adc, bench, demo, diagnose, kcor, linearity, lut, quantization, simulate, stream};
 use dncal_host::firmware::{build_firmware, run_firmware, run_on_host, RunInputs};
 use dncal_host::flatten::FlattenParams;
+use dncal_host::outputs::{OutDir, Outputs};
 use dncal_host::streaming::StreamParams;
 use dncal_host::synth::{dn_error_weights, synthetic_frames, Rng};
 use dncal_host::HostError;
@@ -637,6 +638,23 @@ fn adc_text(r: &adc::AdcReport) -> String {
     t
 }
 
+/// Runs `command` with its output directory `dir`, if any, in a fresh set of outputs, and
+/// publishes them: all files of the command or, if it fails, none.
+fn staged<T>(dir: Option<&Path>, command: impl FnOnce(Option<OutDir<'_>>) -> Result<T, HostError>) -> Result<T, HostError> {
+    let mut files = Outputs::new();
+    let result = command(dir.map(|d| OutDir::new(&mut files, d)))?;
+    files.publish()?;
+    Ok(result)
+}
+
+/// [`staged`] for a command that always has an output directory.
+fn staged_in<T>(dir: &Path, command: impl FnOnce(OutDir<'_>) -> Result<T, HostError>) -> Result<T, HostError> {
+    let mut files = Outputs::new();
+    let result = command(OutDir::new(&mut files, dir))?;
+    files.publish()?;
+    Ok(result)
+}
+
 fn main() -> ExitCode {
     match run(Cli::parse()) {
         Ok(code) => code,
@@ -751,7 +769,7 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
             return Ok(if ok { ExitCode::SUCCESS } else { ExitCode::FAILURE });
         }
         Cmd::Adc { from_luts, out, json, .. } if !from_luts.is_empty() => {
-            let r = adc::from_luts(&from_luts, &out)?;
+            let r = staged_in(&out, |o| adc::from_luts(&from_luts, o))?;
             print(json, &r, |r| {
                 let mut t = String::from("camera                               ADC  DN error  max |offset|  trend bow  period  stage fit (held out): 1x12 2x6 3x4 4x3 4+8\n");
                 for a in &r.adcs {
@@ -767,7 +785,8 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
         }
         Cmd::Adc { camera, hist, out, ramp, flatten, json, .. } => {
             let cam = camera.camera()?;
-            let (r, _) = adc::run(&cam, hist.as_deref(), &ramp.params()?, &flatten.params(), &out)?;
+            let ramp = ramp.params()?;
+            let (r, _) = staged_in(&out, |o| adc::run(&cam, hist.as_deref(), &ramp, &flatten.params(), o))?;
             print(json, &r, |r| {
                 let mut t = format!("{}: {} ADCs\n", r.histograms.display(), r.adcs.len());
                 t += &adc_text(r);
@@ -778,7 +797,7 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
         Cmd::KcorModel { camera, adc, exposure_ms, steps, lut_noise, lut, q_fraction, seed, realizations, out, json } => {
             let cam = camera.camera()?;
             let p = dncal_host::kcor::KcorParams { adc, exposure_s: exposure_ms * 1e-3, steps, lut_noise, q_fraction, seed, ..Default::default() };
-            let s = kcor::kcor_model(&cam, &p, lut.as_deref(), realizations, out.as_deref())?;
+            let s = staged(out.as_deref(), |o| kcor::kcor_model(&cam, &p, lut.as_deref(), realizations, o))?;
             print(json, &s, |s| {
                 let r = &s.result;
                 let mut t = format!(
@@ -810,7 +829,7 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
             })?;
         }
         Cmd::Linearity { file, order, flat_level, out, json } => {
-            let s = linearity::linearity(&file, order, flat_level, out.as_deref())?;
+            let s = staged(out.as_deref(), |o| linearity::linearity(&file, order, flat_level, o))?;
             print(json, &s, |s| {
                 let r = &s.report;
                 let mut t = format!("{}: {} levels x {} pixels, gain level {}, {} masked, analysis {:.2} s\n", s.input.display(), r.levels, r.pixels, r.gain_level, r.masked_pixels, s.analysis_s);
@@ -823,11 +842,17 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
         }
         Cmd::Diagnose { files, flatten, seed, out, json } => {
             let several = files.len() > 1;
-            let mut all = Vec::new();
-            for (i, f) in files.iter().enumerate() {
-                let dir = out.as_ref().map(|o| if several { o.join(format!("{i}")) } else { o.clone() });
-                all.push(diagnose::diagnose(f, &flatten.params(), seed, dir.as_deref())?);
+            let dirs: Vec<Option<PathBuf>> = (0..files.len()).map(|i| out.as_ref().map(|o| if several { o.join(format!("{i}")) } else { o.clone() })).collect();
+            // One set for all inputs: a failure on the last leaves no report of the first.
+            let mut staged = Outputs::new();
+            for d in dirs.iter().flatten() {
+                diagnose::expect_report(&mut staged, d)?;
             }
+            let mut all = Vec::new();
+            for (f, dir) in files.iter().zip(&dirs) {
+                all.push(diagnose::diagnose(f, &flatten.params(), seed, dir.as_deref().map(|d| OutDir::new(&mut staged, d)))?);
+            }
+            staged.publish()?;
             let text = |s: &diagnose::DiagnoseSummary| {
                 let d = &s.diagnosis;
                 let mut t = format!("{}: baseline ({}) held-out RMS {:.3}\n", s.input.display(), d.baseline.model, d.baseline.rms);
@@ -860,7 +885,7 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
                 return Err(HostError::Format { path: "arguments".into(), message: "give --sigma (or --read-noise-e with --gain-e-per-dn), --bias or --figure".into() });
             }
             if let Some(path) = &figure {
-                quantization::figure(path)?;
+                dncal_host::outputs::write_one(|o| quantization::figure(o, path))?;
                 if !json {
                     println!("wrote {}", path.display());
                 }

@@ -9,7 +9,7 @@ use plotters::prelude::*;
 use plotters::element::DashedPathElement;
 use plotters::style::{register_font, FontStyle};
 
-use crate::fits::write_file_atomically;
+use crate::outputs::Outputs;
 use crate::HostError;
 
 static FONT: Once = Once::new();
@@ -46,15 +46,16 @@ fn plot_err(path: &Path, e: impl std::fmt::Display) -> HostError {
 }
 
 /// A line plot of `series` (stacked in `panels` vertically when given more than one
-/// panel: series `i` goes to panel `i % panels`), written atomically as a PNG.
-pub fn line_plot(path: &Path, title: &str, x_label: &str, y_label: &str, series: &[Series], panels: usize) -> Result<(), HostError> {
-    line_plot_paired(path, title, x_label, y_label, series, panels, series.len())
+/// panel: series `i` goes to panel `i % panels`), staged in `out` as a PNG at `path`.
+pub fn line_plot(out: &mut Outputs, path: &Path, title: &str, x_label: &str, y_label: &str, series: &[Series], panels: usize) -> Result<(), HostError> {
+    line_plot_paired(out, path, title, x_label, y_label, series, panels, series.len())
 }
 
 /// [`line_plot`] where the series from index `dashed_from` on are drawn dashed, in the
 /// colors of the first ones (series `dashed_from + i` pairs with series `i`): a quantity
 /// and its reference, as the paper's Fig. 8 draws each RMS and its random noise.
-pub fn line_plot_paired(path: &Path, title: &str, x_label: &str, y_label: &str, series: &[Series], panels: usize, dashed_from: usize) -> Result<(), HostError> {
+#[allow(clippy::too_many_arguments)] // a figure's texts, its data and where it goes
+pub fn line_plot_paired(out: &mut Outputs, path: &Path, title: &str, x_label: &str, y_label: &str, series: &[Series], panels: usize, dashed_from: usize) -> Result<(), HostError> {
     ensure_font();
     let panels = panels.max(1);
     let (width, height) = (1000u32, 260 * panels as u32 + 60);
@@ -118,7 +119,7 @@ pub fn line_plot_paired(path: &Path, title: &str, x_label: &str, y_label: &str, 
         }
         root.present().map_err(|e| plot_err(path, e))?;
     }
-    write_png(path, &rgb, width, height)
+    write_png(out, path, &rgb, width, height)
 }
 
 /// One panel of [`level_lines_plot`]: its caption and one line (points (x, y)) per level.
@@ -127,7 +128,7 @@ pub type LevelPanel = (String, Vec<Vec<(f64, f64)>>);
 /// Panels side by side, each with one line per illumination level (`lines[level]`, points
 /// (x, y); NaN breaks a line), colored from dark (viridis purple) to bright (yellow): the
 /// paper's Fig. 7. The shared y range is `y_range`.
-pub fn level_lines_plot(path: &Path, title: &str, x_label: &str, y_label: &str, panels: &[LevelPanel], y_range: (f64, f64)) -> Result<(), HostError> {
+pub fn level_lines_plot(out: &mut Outputs, path: &Path, title: &str, x_label: &str, y_label: &str, panels: &[LevelPanel], y_range: (f64, f64)) -> Result<(), HostError> {
     use plotters::style::colors::colormaps::{ColorMap, ViridisRGB};
     ensure_font();
     if panels.is_empty() || y_range.1.partial_cmp(&y_range.0) != Some(std::cmp::Ordering::Greater) {
@@ -166,7 +167,7 @@ pub fn level_lines_plot(path: &Path, title: &str, x_label: &str, y_label: &str, 
         }
         root.present().map_err(|e| plot_err(path, e))?;
     }
-    write_png(path, &rgb, width, height)
+    write_png(out, path, &rgb, width, height)
 }
 
 /// A color map of a grid of values with contour lines, for maps such as the paper's
@@ -224,9 +225,9 @@ pub fn contour_segments(v: &[Vec<f64>], level: f64) -> Vec<[(f64, f64); 2]> {
     out
 }
 
-/// Draws `map` as a PNG at `path`, atomically: cells colored by value (viridis), contour
+/// Draws `map` as a PNG at `path`, staged in `out`: cells colored by value (viridis), contour
 /// lines in white, a color bar.
-pub fn map_plot(path: &Path, map: &Map) -> Result<(), HostError> {
+pub fn map_plot(out: &mut Outputs, path: &Path, map: &Map) -> Result<(), HostError> {
     use plotters::style::colors::colormaps::{ColorMap, ViridisRGB};
     ensure_font();
     let rows = map.values.len();
@@ -322,11 +323,11 @@ pub fn map_plot(path: &Path, map: &Map) -> Result<(), HostError> {
         .map_err(|e| plot_err(path, e))?;
         root.present().map_err(|e| plot_err(path, e))?;
     }
-    write_png(path, &rgb, width, height)
+    write_png(out, path, &rgb, width, height)
 }
 
-/// Encodes 8-bit RGB pixels as a PNG at `path`, atomically.
-pub fn write_png(path: &Path, rgb: &[u8], width: u32, height: u32) -> Result<(), HostError> {
+/// Encodes 8-bit RGB pixels as a PNG at `path`, staged in `out`.
+pub fn write_png(out: &mut Outputs, path: &Path, rgb: &[u8], width: u32, height: u32) -> Result<(), HostError> {
     let mut bytes = Vec::new();
     {
         let mut encoder = png::Encoder::new(&mut bytes, width, height);
@@ -335,7 +336,7 @@ pub fn write_png(path: &Path, rgb: &[u8], width: u32, height: u32) -> Result<(),
         let mut writer = encoder.write_header().map_err(|e| plot_err(path, e))?;
         writer.write_image_data(rgb).map_err(|e| plot_err(path, e))?;
     }
-    write_file_atomically(path, &bytes)
+    out.write_bytes(path, &bytes)
 }
 
 #[cfg(test)]
@@ -367,10 +368,10 @@ mod tests {
         let values = vec![vec![1.0, 0.1], vec![0.01, 0.001]];
         let map = Map { title: "t", x_label: "x", y_label: "y", values: &values, x_range: (0.0, 1.0), y_range: (0.0, 1.0), scale_label: "s", log: true, contours: &[0.05], range: None };
         let path = dir.path().join("m.png");
-        map_plot(&path, &map).unwrap();
+        crate::outputs::write_one(|out| map_plot(out, &path, &map)).unwrap();
         assert_eq!(&std::fs::read(&path).unwrap()[..4], b"\x89PNG");
         let one = vec![vec![1.0]];
-        assert!(map_plot(&dir.path().join("n.png"), &Map { values: &one, ..map }).is_err());
+        assert!(crate::outputs::write_one(|out| map_plot(out, &dir.path().join("n.png"), &Map { values: &one, ..map })).is_err());
         assert!(!dir.path().join("n.png").exists());
     }
 
@@ -380,9 +381,9 @@ mod tests {
         let line = |l: usize| (0..10).map(|i| (i as f64, if i == 4 { f64::NAN } else { 1.0 + 0.001 * l as f64 })).collect::<Vec<_>>();
         let panel = ("p".to_string(), (0..5).map(line).collect::<Vec<_>>());
         let path = dir.path().join("l.png");
-        level_lines_plot(&path, "t", "x", "y", &[panel.clone(), panel], (0.99, 1.01)).unwrap();
+        crate::outputs::write_one(|out| level_lines_plot(out, &path, "t", "x", "y", &[panel.clone(), panel], (0.99, 1.01))).unwrap();
         assert_eq!(&std::fs::read(&path).unwrap()[..4], b"\x89PNG");
-        assert!(level_lines_plot(&dir.path().join("e.png"), "t", "x", "y", &[], (0.0, 1.0)).is_err());
+        assert!(crate::outputs::write_one(|out| level_lines_plot(out, &dir.path().join("e.png"), "t", "x", "y", &[], (0.0, 1.0))).is_err());
         assert!(!dir.path().join("e.png").exists());
     }
 }

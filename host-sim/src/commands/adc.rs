@@ -12,9 +12,10 @@ use crate::camera::calibration::RampParams;
 use crate::camera::{Camera, PipelinedAdc};
 use crate::commands::lut::{build_luts, summarize, AdcLutSummary, BuiltLuts};
 use crate::commands::progress::bar;
-use crate::fits::{read_histograms_for_analysis, write_file_atomically, write_histograms, write_lut, AdcHistograms};
+use crate::fits::{read_histograms_for_analysis, stage_histograms, stage_lut, AdcHistograms};
 use crate::flatten::{cumulative_offsets, FlattenParams};
 use crate::plots::{line_plot, Series};
+use crate::outputs::OutDir;
 use crate::HostError;
 
 /// The least-squares line `y = c0 + c1 x`, as `(c0, c1)`: [`crate::emva::fit_line`], with
@@ -102,10 +103,11 @@ pub fn correction_errors(truth: &[PipelinedAdc], tables: &[Vec<u32>], codes: std
 }
 
 /// Statistics and figures for `luts` built from histograms at `source`; with `truth`
-/// (the simulated ADCs) also the comparison. Figures go to `out_dir`:
+/// (the simulated ADCs) also the comparison. Figures are staged in `out`'s directory:
 /// `histograms.png`, `histograms_zoom.png`, `offsets.png` and, with the truth,
 /// `correction_error.png`.
-pub fn characterize(source: &Path, luts: &BuiltLuts, flatten: &FlattenParams, truth: Option<&[PipelinedAdc]>, out_dir: &Path) -> Result<AdcReport, HostError> {
+pub fn characterize(source: &Path, luts: &BuiltLuts, flatten: &FlattenParams, truth: Option<&[PipelinedAdc]>, out: OutDir<'_>) -> Result<AdcReport, HostError> {
+    let OutDir { files, dir: out_dir } = out;
     let n_adc = luts.tables.len();
     let codes = luts.tables.first().map_or(0, Vec::len);
     if codes < 4 {
@@ -152,13 +154,13 @@ pub fn characterize(source: &Path, luts: &BuiltLuts, flatten: &FlattenParams, tr
             hist_series.push(Series { label: format!("ADC {a}: true code width"), points: inner.clone().map(|k| (k as f64, w[k])).collect() });
         }
     }
-    line_plot(&at("histograms.png"), "Normalized histograms per ADC", "code (DN)", "relative code width", &hist_series, n_adc)?;
+    line_plot(files, &at("histograms.png"), "Normalized histograms per ADC", "code (DN)", "relative code width", &hist_series, n_adc)?;
     figures.push(at("histograms.png"));
     // ... zoomed on the major transition at half scale, where single codes show ...
     let mid = codes as f64 / 4.0;
     let zoom = (mid - 32.0)..(mid + 32.0);
     let zoomed: Vec<Series> = hist_series.iter().map(|s| Series { label: s.label.clone(), points: s.points.iter().filter(|(k, _)| zoom.contains(k)).copied().collect() }).collect();
-    line_plot(&at("histograms_zoom.png"), &format!("Normalized histograms around code {mid}"), "code (DN)", "relative code width", &zoomed, n_adc)?;
+    line_plot(files, &at("histograms_zoom.png"), &format!("Normalized histograms around code {mid}"), "code (DN)", "relative code width", &zoomed, n_adc)?;
     figures.push(at("histograms_zoom.png"));
     // ... and the cumulative offsets, the truth aligned to them: the LUT fixes no
     // absolute offset or gain, so the truth gets the best-fit line of the difference.
@@ -176,7 +178,7 @@ pub fn characterize(source: &Path, luts: &BuiltLuts, flatten: &FlattenParams, tr
         }
     }
     offset_series.extend(truth_series);
-    line_plot(&at("offsets.png"), "Cumulative offset from a perfect ADC", "code (DN)", "offset (DN)", &offset_series, n_adc)?;
+    line_plot(files, &at("offsets.png"), "Cumulative offset from a perfect ADC", "code (DN)", "offset (DN)", &offset_series, n_adc)?;
     figures.push(at("offsets.png"));
     if let Some(errors) = &errors {
         let mut err_series = Vec::new();
@@ -186,16 +188,26 @@ pub fn characterize(source: &Path, luts: &BuiltLuts, flatten: &FlattenParams, tr
         for (a, (_, lut)) in errors.iter().enumerate() {
             err_series.push(Series { label: format!("ADC {a}: with LUT"), points: range.clone().zip(lut).map(|(k, &e)| (k as f64, e)).collect() });
         }
-        line_plot(&at("correction_error.png"), "Error against the true code centers (offset and gain removed)", "code (DN)", "error (DN)", &err_series, n_adc)?;
+        line_plot(files, &at("correction_error.png"), "Error against the true code centers (offset and gain removed)", "code (DN)", "error (DN)", &err_series, n_adc)?;
         figures.push(at("correction_error.png"));
     }
     Ok(AdcReport { histograms: source.into(), adcs, figures })
 }
 
-/// Simulated ramps (or `hist` when given), LUTs written to `out_dir` (`lut.fits`,
-/// `lut.bin`, and `histograms.fits` when simulated), the characterization and figures.
-pub fn run(camera: &Camera, hist: Option<&Path>, ramp: &RampParams, flatten: &FlattenParams, out_dir: &Path) -> Result<(AdcReport, BuiltLuts), HostError> {
-    std::fs::create_dir_all(out_dir).map_err(|e| HostError::io(out_dir, e))?;
+/// The files [`run`] writes, simulating the histograms or not.
+fn run_files(simulated: bool) -> impl Iterator<Item = &'static str> {
+    let figures = ["histograms.png", "histograms_zoom.png", "offsets.png"];
+    let truth = if simulated { &["histograms.fits", "correction_error.png"][..] } else { &[] };
+    ["lut.fits", "lut.bin"].into_iter().chain(figures).chain(truth.iter().copied())
+}
+
+/// Simulated ramps (or `hist` when given), LUTs staged in `out`'s directory (`lut.fits`,
+/// `lut.bin`, and `histograms.fits` when simulated), the characterization and figures;
+/// the caller publishes them.
+pub fn run(camera: &Camera, hist: Option<&Path>, ramp: &RampParams, flatten: &FlattenParams, out: OutDir<'_>) -> Result<(AdcReport, BuiltLuts), HostError> {
+    let OutDir { files, dir: out_dir } = out;
+    files.create_dir(out_dir)?;
+    files.expect(run_files(hist.is_none()).map(|n| out_dir.join(n)))?;
     let (histograms, source, truth) = match hist {
         Some(path) => (read_histograms_for_analysis(path)?, path.to_path_buf(), None),
         None => {
@@ -205,14 +217,14 @@ pub fn run(camera: &Camera, hist: Option<&Path>, ramp: &RampParams, flatten: &Fl
             pb.finish_and_clear();
             let h = AdcHistograms { bit_depth: camera.config.bits, counts };
             let path = out_dir.join("histograms.fits");
-            write_histograms(&path, &h)?;
+            stage_histograms(files, &path, &h)?;
             (h, path, Some(camera.adcs.as_slice()))
         }
     };
     let luts = build_luts(&histograms, flatten, &source)?;
-    write_lut(&out_dir.join("lut.fits"), &luts.lut_tables())?;
-    write_file_atomically(&out_dir.join("lut.bin"), &luts.image)?;
-    let report = characterize(&source, &luts, flatten, truth, out_dir)?;
+    stage_lut(files, &out_dir.join("lut.fits"), &luts.lut_tables())?;
+    files.write_bytes(&out_dir.join("lut.bin"), &luts.image)?;
+    let report = characterize(&source, &luts, flatten, truth, OutDir::new(files, out_dir))?;
     Ok((report, luts))
 }
 
@@ -292,30 +304,39 @@ fn camera_label(path: &Path, adc: usize) -> String {
 
 /// `adc --from-luts SPEC ...`: characterizes the real ADCs of K-Cor tables
 /// ([`crate::real_adcs`]), one SPEC per camera (a prefix or a path with `{adc}`), with
-/// figures in `out_dir`.
-pub fn from_luts(specs: &[String], out_dir: &Path) -> Result<RealAdcsReport, HostError> {
+/// figures and `real_adcs.json` staged in `out`'s directory (published by the caller).
+pub fn from_luts(specs: &[String], out: OutDir<'_>) -> Result<RealAdcsReport, HostError> {
     use crate::kcor_tables::KcorTable;
     use crate::real_adcs::{characterize, correlation, FIRST_CALIBRATED};
-    std::fs::create_dir_all(out_dir).map_err(|e| HostError::io(out_dir, e))?;
+    let OutDir { files: staged, dir: out_dir } = out;
+    let cameras: Vec<([PathBuf; 4], String)> = specs
+        .iter()
+        .map(|spec| crate::commands::lut::kcor_files(std::slice::from_ref(spec)).map(|f| {
+            let label = camera_label(&f[0], 0);
+            (f, label)
+        }))
+        .collect::<Result<_, _>>()?;
+    staged.create_dir(out_dir)?;
+    let per_camera = cameras.iter().flat_map(|(_, l)| [format!("{l}-dn-error.png"), format!("{l}-offsets.png")]);
+    staged.expect(per_camera.chain(["trends.png".into(), "real_adcs.json".into()]).map(|n| out_dir.join(n)))?;
     let mut adcs = Vec::new();
     let mut figures = Vec::new();
-    for spec in specs {
-        let files = crate::commands::lut::kcor_files(std::slice::from_ref(spec))?;
-        let label = camera_label(&files[0], 0);
+    for (files, label) in &cameras {
+        let label = label.clone();
         let mine: Vec<crate::real_adcs::RealAdc> = files.iter().enumerate().map(|(a, f)| KcorTable::read(f).map(|t| characterize(&t, &label, a))).collect::<Result<_, _>>()?;
         let dn_error: Vec<Series> = mine
             .iter()
             .map(|a| Series { label: format!("ADC {}: {:.2}% rms", a.adc, a.dn_error_rms_pct), points: a.dn_error.iter().enumerate().map(|(i, r)| ((i + FIRST_CALIBRATED + 1) as f64, 100.0 * r)).collect() })
             .collect();
         let path = out_dir.join(format!("{label}-dn-error.png"));
-        line_plot(&path, &format!("{label}: DN error per code (table step over its cubic trend, - 1)"), "code", "DN error (%)", &dn_error, 4)?;
+        line_plot(staged, &path, &format!("{label}: DN error per code (table step over its cubic trend, - 1)"), "code", "DN error (%)", &dn_error, 4)?;
         figures.push(path);
         let offsets: Vec<Series> = mine
             .iter()
             .map(|a| Series { label: format!("ADC {}", a.adc), points: a.offsets.iter().enumerate().map(|(i, o)| ((i + FIRST_CALIBRATED) as f64, *o)).collect() })
             .collect();
         let path = out_dir.join(format!("{label}-offsets.png"));
-        line_plot(&path, &format!("{label}: cumulative offsets (table minus its cubic trend)"), "code", "offset (DN)", &offsets, 1)?;
+        line_plot(staged, &path, &format!("{label}: cumulative offsets (table minus its cubic trend)"), "code", "offset (DN)", &offsets, 1)?;
         figures.push(path);
         adcs.extend(mine);
     }
@@ -330,7 +351,7 @@ pub fn from_luts(specs: &[String], out_dir: &Path) -> Result<RealAdcsReport, Hos
         })
         .collect();
     let path = out_dir.join("trends.png");
-    line_plot(&path, "The tables' slow trend: cubic fit minus its chord", "code", "DN", &trends, 1)?;
+    line_plot(staged, &path, "The tables' slow trend: cubic fit minus its chord", "code", "DN", &trends, 1)?;
     figures.push(path);
     let n = adcs.len();
     let correlation_matrix: Vec<Vec<f64>> = (0..n).map(|i| (0..n).map(|j| correlation(&adcs[i].dn_error, &adcs[j].dn_error)).collect()).collect();
@@ -346,6 +367,6 @@ pub fn from_luts(specs: &[String], out_dir: &Path) -> Result<RealAdcsReport, Hos
         figures,
     };
     let json = out_dir.join("real_adcs.json");
-    write_file_atomically(&json, serde_json::to_string_pretty(&report).map_err(|e| HostError::Format { path: json.clone(), message: e.to_string() })?)?;
+    staged.write_bytes(&json, serde_json::to_string_pretty(&report).map_err(|e| HostError::Format { path: json.clone(), message: e.to_string() })?)?;
     Ok(report)
 }

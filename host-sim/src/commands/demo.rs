@@ -23,9 +23,9 @@ use crate::kcor::KcorParams;
 use crate::camera::Camera;
 use crate::commands::adc::AdcReport;
 use crate::commands::progress::bar;
-use crate::fits::write_file_atomically;
 use crate::flatten::FlattenParams;
 use crate::streaming::{run_stream, StreamParams, StreamReport};
+use crate::outputs::{OutDir, Outputs};
 use crate::HostError;
 
 /// What the demo did and measured.
@@ -60,14 +60,20 @@ pub struct DemoSummary {
     pub seconds: f64,
 }
 
-/// Runs the demo into `out_dir` with `frames` streamed frames.
+/// Runs the demo into `out_dir` with `frames` streamed frames. Every file is published at
+/// the end, together, or none is ([`crate::outputs`]); the steps that read an earlier
+/// step's file (the linearity analysis, the diagnoses) read it staged.
 pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &FlattenParams, frames: u32) -> Result<DemoSummary, HostError> {
     let start = Instant::now();
-    std::fs::create_dir_all(out_dir).map_err(|e| HostError::io(out_dir, e))?;
+    let mut files = Outputs::new();
+    files.create_dir(out_dir)?;
     let at = |name: &str| out_dir.join(name);
+    files.expect(["quantization.png", "linearity.fits", "summary.json", "report.html"].map(at))?;
+    // The staged contents of `target`, which an earlier step wrote.
+    let staged = |files: &Outputs, target: &Path| files.staged(target).map(Path::to_path_buf).ok_or_else(|| HostError::Format { path: target.into(), message: "not written by the step before".into() });
 
     // 1-2. Calibration histograms, LUTs, characterization and its figures.
-    let (adc, luts) = crate::commands::adc::run(camera, None, ramp, flatten, out_dir)?;
+    let (adc, luts) = crate::commands::adc::run(camera, None, ramp, flatten, OutDir::new(&mut files, out_dir))?;
     let levels: usize = ramp.ramp_levels.iter().sum();
 
     // 3. Streaming check.
@@ -82,19 +88,24 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
 
     // 4. The paper's other analyses (docs/paper.md): quantization, K-Cor, linearity.
     let pb = bar(3, "paper analyses");
-    crate::commands::quantization::figure(&at("quantization.png"))?;
+    crate::commands::quantization::figure(&mut files, &at("quantization.png"))?;
     let quantization = crate::commands::quantization::at_sigma(camera.config.read_noise_e / camera.config.gain_e_per_dn, 100_000, 1)?;
     pb.inc(1);
     let kp = KcorParams { adc: camera.adcs.len().min(4) - 1, steps: 50, ..Default::default() };
-    let kcor = crate::commands::kcor::kcor_model(camera, &kp, None, 1, Some(out_dir))?;
+    let kcor = crate::commands::kcor::kcor_model(camera, &kp, None, 1, Some(OutDir::new(&mut files, out_dir)))?;
     pb.inc(1);
     let lin_path = at("linearity.fits");
-    crate::commands::simulate::simulate_linearity(camera, &LinearityParams::paper(camera), lin_path.clone())?;
-    let linearity = crate::commands::linearity::linearity(&lin_path, crate::linearity::PIXEL_ORDER, None, Some(&at("linearity")))?;
+    crate::commands::simulate::simulate_linearity_staged(&mut files, camera, &LinearityParams::paper(camera), lin_path.clone())?;
+    let lin_staged = staged(&files, &lin_path)?;
+    let lin_dir = at("linearity");
+    let linearity = crate::commands::linearity::linearity_as(&lin_staged, &lin_path, crate::linearity::PIXEL_ORDER, None, Some(OutDir::new(&mut files, &lin_dir)))?;
     pb.finish_and_clear();
     // 5. What a diagnosis of the calibration histograms finds (issue: diagnose).
-    let diagnose = crate::commands::diagnose::diagnose(&at("histograms.fits"), flatten, 1, Some(&at("diagnose")))?;
-    let diagnose_linearity = crate::commands::diagnose::diagnose(&lin_path, flatten, 1, Some(&at("diagnose-linearity")))?;
+    let hist_path = at("histograms.fits");
+    let hist_staged = staged(&files, &hist_path)?;
+    let (diagnose_dir, diagnose_lin_dir) = (at("diagnose"), at("diagnose-linearity"));
+    let diagnose = crate::commands::diagnose::diagnose_as(&hist_staged, &hist_path, flatten, 1, Some(OutDir::new(&mut files, &diagnose_dir)))?;
+    let diagnose_linearity = crate::commands::diagnose::diagnose_as(&lin_staged, &lin_path, flatten, 1, Some(OutDir::new(&mut files, &diagnose_lin_dir)))?;
 
     let summary = DemoSummary {
         out_dir: out_dir.into(),
@@ -112,9 +123,10 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
         seconds: start.elapsed().as_secs_f64(),
     };
     let json = serde_json::to_string_pretty(&summary).map_err(|e| HostError::Format { path: at("summary.json"), message: e.to_string() })?;
-    write_file_atomically(&at("summary.json"), &json)?;
+    files.write_bytes(&at("summary.json"), &json)?;
     let html = report_html(&summary, camera, ramp, flatten);
-    write_file_atomically(&summary.report, &html)?;
+    files.write_bytes(&summary.report, &html)?;
+    files.publish()?;
     Ok(summary)
 }
 

@@ -7,7 +7,8 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 
 use crate::diagnose::{diagnose_code_density, diagnose_histograms, diagnose_linearity, diagnose_ptc, Diagnosis, Finding};
-use crate::fits::{read_histograms_for_analysis, read_linearity_as, write_file_atomically};
+use crate::fits::{read_histograms_for_analysis, read_linearity_as};
+use crate::outputs::{OutDir, Outputs};
 use crate::flatten::FlattenParams;
 use crate::plots::{line_plot, Series};
 use crate::HostError;
@@ -191,13 +192,30 @@ fn looks_like_descriptor(input: &Path) -> Result<bool, HostError> {
 }
 
 /// Diagnoses `input` (a histogram set, a linearity set or an EMVA 1288 descriptor); with
-/// `out_dir`, writes `residuals.png`, `report.html`, `model.toml` (the extended camera model
-/// `dncal simulate --model` reads) and, for EMVA sets, `codes.png` there.
-pub fn diagnose(input: &Path, flatten: &FlattenParams, seed: u64, out_dir: Option<&Path>) -> Result<DiagnoseSummary, HostError> {
-    let is_descriptor = looks_like_descriptor(input)?;
+/// `out`, stages `residuals.png`, `report.html`, `model.toml` (the extended camera model
+/// `dncal simulate --model` reads), one figure per finding and, for EMVA sets, `codes.png`
+/// in its directory (published by the caller with the rest of its outputs).
+pub fn diagnose(input: &Path, flatten: &FlattenParams, seed: u64, out: Option<OutDir<'_>>) -> Result<DiagnoseSummary, HostError> {
+    diagnose_as(input, input, flatten, seed, out)
+}
+
+/// The files every report of [`diagnose`] may write, checked and created (the directory)
+/// before anything is computed; the figures of the findings are named only once found.
+pub fn expect_report(files: &mut Outputs, dir: &Path) -> Result<(), HostError> {
+    files.create_dir(dir)?;
+    files.expect(["residuals.png", "report.html", "model.toml", "codes.png"].map(|n| dir.join(n)))
+}
+
+/// [`diagnose`] of the file at `read_from`, named `input` in the report: for a command
+/// that diagnoses a file it has staged but not published yet (`demo`).
+pub fn diagnose_as(read_from: &Path, input: &Path, flatten: &FlattenParams, seed: u64, mut out: Option<OutDir<'_>>) -> Result<DiagnoseSummary, HostError> {
+    if let Some(o) = out.as_mut() {
+        expect_report(o.files, o.dir)?;
+    }
+    let is_descriptor = looks_like_descriptor(read_from)?;
     let model: Option<crate::camera::CameraConfig>;
     let diagnosis = if is_descriptor {
-        let set = crate::emva::read_descriptor(input)?;
+        let set = crate::emva::read_descriptor(read_from)?;
         let points = crate::emva::photon_transfer(&set)?;
         // The frames' code density: all columns as one ADC, then the columns of each of
         // four interleaved ADCs (column c read by ADC c mod 4, as the MV-D1024E's): where
@@ -250,15 +268,15 @@ pub fn diagnose(input: &Path, flatten: &FlattenParams, seed: u64, out_dir: Optio
         model = Some(ptc_model(&set, &sheet, dark, &mut d));
         d
     } else {
-        let hist = match read_histograms_for_analysis(input) {
+        let hist = match read_histograms_for_analysis(read_from) {
             Ok(h) => h,
             Err(e) => {
                 // Not a histogram set: a linearity set, or the histogram reader's error.
                 // Held as f32 (half the memory of the run; see `fits::Sample`).
-                let Ok(set) = read_linearity_as::<f32>(input) else { return Err(e) };
+                let Ok(set) = read_linearity_as::<f32>(read_from) else { return Err(e) };
                 let d = diagnose_linearity(&set, 0.01).map_err(|m| HostError::Format { path: input.into(), message: m })?;
                 let model = linearity_model(&set, &d);
-                return report(input, d, Some(model), out_dir, ("level", "baseline (linear pixels): RMS over pixels"));
+                return report(input, d, Some(model), out, ("level", "baseline (linear pixels): RMS over pixels"));
             }
         };
         let d = diagnose_histograms(&hist, flatten, seed).map_err(|m| HostError::Format { path: input.into(), message: m })?;
@@ -266,19 +284,18 @@ pub fn diagnose(input: &Path, flatten: &FlattenParams, seed: u64, out_dir: Optio
         d
     };
     let labels = if is_descriptor { ("level (by photons)", "baseline (linear camera)") } else { ("code (DN)", "baseline (ideal ADC)") };
-    report(input, diagnosis, model, out_dir, labels)
+    report(input, diagnosis, model, out, labels)
 }
 
-/// Writes the report of `diagnosis` (and the extended `model`, if any) into `out_dir`.
-fn report(input: &Path, diagnosis: Diagnosis, model: Option<crate::camera::CameraConfig>, out_dir: Option<&Path>, (x_label, base_label): (&str, &str)) -> Result<DiagnoseSummary, HostError> {
+/// Stages the report of `diagnosis` (and the extended `model`, if any) in `out`.
+fn report(input: &Path, diagnosis: Diagnosis, model: Option<crate::camera::CameraConfig>, out: Option<OutDir<'_>>, (x_label, base_label): (&str, &str)) -> Result<DiagnoseSummary, HostError> {
     let mut outputs = Vec::new();
-    if let Some(dir) = out_dir {
-        std::fs::create_dir_all(dir).map_err(|e| HostError::io(dir, e))?;
+    if let Some(OutDir { files, dir }) = out {
         let n = diagnosis.residuals.len();
         let mut series: Vec<Series> = diagnosis.residuals.iter().enumerate().map(|(a, r)| Series { label: format!("ADC {a}: {base_label}"), points: r.baseline.iter().map(|&(k, z)| (k as f64, z)).collect() }).collect();
         series.extend(diagnosis.residuals.iter().enumerate().map(|(a, r)| Series { label: format!("ADC {a}: with the findings"), points: r.extended.iter().map(|&(k, z)| (k as f64, z)).collect() }));
         let fig = dir.join("residuals.png");
-        line_plot(&fig, "Held-out residuals / expected noise, before and after", x_label, "normalized residual", &series, n)?;
+        line_plot(files, &fig, "Held-out residuals / expected noise, before and after", x_label, "normalized residual", &series, n)?;
         let html_path = dir.join("report.html");
         let mut h = format!(
             "<!doctype html><html><head><meta charset=\"utf-8\"><title>dncal diagnose</title><style>body{{font-family:sans-serif;max-width:1050px;margin:2em auto}}td,th{{padding:2px 10px}}</style></head><body><h1>dncal diagnose: {}</h1>\
@@ -302,7 +319,7 @@ fn report(input: &Path, diagnosis: Diagnosis, model: Option<crate::camera::Camer
             ];
             // An ADC's code widths are seen by code, except in a linearity set (by level).
             let axis = if f.effect == "adc-dnl" && diagnosis.baseline.kind != "linearity-set" { "code (DN)" } else { x_label };
-            line_plot(&dir.join(&name), &format!("{what}: held-out residuals / noise, before and after (gain {:.2})", f.gain), axis, "normalized residual", &series, 1)?;
+            line_plot(files, &dir.join(&name), &format!("{what}: held-out residuals / noise, before and after (gain {:.2})", f.gain), axis, "normalized residual", &series, 1)?;
             let _ = write!(h, "<h2>{what}</h2><p>{}</p><figure><img src=\"{name}\" width=\"1000\"></figure>", f.detail);
             outputs.push(dir.join(name));
         }
@@ -313,11 +330,11 @@ fn report(input: &Path, diagnosis: Diagnosis, model: Option<crate::camera::Camer
                 Series { label: "ideal ADC".into(), points: r.baseline.iter().map(|&(k, z)| (k as f64, z)).collect() },
                 Series { label: "with the findings".into(), points: r.extended.iter().map(|&(k, z)| (k as f64, z)).collect() },
             ];
-            line_plot(&codes_fig, "Code density of the frames: held-out residuals / expected noise", "code (DN)", "normalized residual", &series, 1)?;
+            line_plot(files, &codes_fig, "Code density of the frames: held-out residuals / expected noise", "code (DN)", "normalized residual", &series, 1)?;
             h = h.replace("</body></html>", "<h2>Code density of the frames</h2><figure><img src=\"codes.png\" width=\"1000\"></figure></body></html>");
             outputs.push(codes_fig);
         }
-        write_file_atomically(&html_path, &h)?;
+        files.write_bytes(&html_path, &h)?;
         outputs.extend([fig, html_path]);
         if let Some(m) = model.as_ref().filter(|m| match m.validate() {
             Ok(()) => true,
@@ -340,7 +357,7 @@ fn report(input: &Path, diagnosis: Diagnosis, model: Option<crate::camera::Camer
                 not_simulated.push(format!("# the data do not reach saturation: the full well is at least {f:.0} DN above dark; 1.1 times that is assumed\n"));
             }
             let text = format!("# The model `dncal diagnose` extended from {}: `dncal simulate --model` reads it.\n{}{text}", input.display(), not_simulated.concat());
-            write_file_atomically(&path, &text)?;
+            files.write_bytes(&path, &text)?;
             outputs.push(path);
         }
     }

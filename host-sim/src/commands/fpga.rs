@@ -9,7 +9,8 @@ use dncal_fpga_model::sizing::{readmemh, size, Sizing, System};
 use dncal_fpga_model::Config;
 use serde::Serialize;
 
-use crate::fits::{read_lut, write_file_atomically};
+use crate::fits::read_lut;
+use crate::outputs::Outputs;
 use crate::HostError;
 
 /// The report: the sizing and the files written.
@@ -27,23 +28,30 @@ pub struct FpgaSizeReport {
 }
 
 /// Sizes for `system` at 1, 2, 4 and 8 taps; with `lut` and `out`, writes one
-/// `lut_adc{a}.hex` per ADC of the LUT FITS file into `out` (validated by the core first).
+/// `lut_adc{a}.hex` per ADC of the LUT FITS file into `out` (validated by the core first),
+/// all of them or none.
 pub fn fpga_size(system: &System, states: u8, config: &Config, lut: Option<&Path>, out: Option<&Path>) -> Result<FpgaSizeReport, HostError> {
     // The LUT first: a bad file is reported at once, not after the sizing's seconds.
+    let mut staged = Outputs::new();
     let luts = match (lut, out) {
-        (Some(lut), Some(out)) => Some((load_luts(lut)?, out)),
+        (Some(lut), Some(out)) => {
+            let luts = load_luts(lut)?;
+            staged.create_dir(out)?;
+            staged.expect((0..luts.tables().len()).map(|a| out.join(format!("lut_adc{a}.hex"))))?;
+            Some((luts, out))
+        }
         _ => None,
     };
     let sizing = size(system, states, config, &[1, 2, 4, 8]).map_err(|e| HostError::Format { path: "fpga-size".into(), message: e.to_string() })?;
     let mut files = Vec::new();
     if let Some((luts, out)) = luts {
-        std::fs::create_dir_all(out).map_err(|e| HostError::io(out, e))?;
         for (a, table) in luts.tables().iter().enumerate() {
             let path = out.join(format!("lut_adc{a}.hex"));
-            write_file_atomically(&path, readmemh(a, &table[..]))?;
+            staged.write_bytes(&path, readmemh(a, &table[..]))?;
             files.push(path);
         }
     }
+    staged.publish()?;
     Ok(FpgaSizeReport { fifo_depth: config.fifo_depth, mem_latency: config.mem_latency, sizing, readmemh: files })
 }
 

@@ -10,6 +10,7 @@ use crate::commands::lut::{inspect, tables_from_weights};
 use crate::flatten::to_core_weights;
 use crate::kcor::{noisy_weights, run_luts, KcorParams, KcorResult};
 use crate::plots::{map_plot, Map};
+use crate::outputs::OutDir;
 use crate::HostError;
 
 /// What `kcor-model` prints: the result without its grids, and the figures.
@@ -44,12 +45,12 @@ pub struct Realization {
     pub rms_reduction: f64,
 }
 
-/// Runs the model on ADC `p.adc` of `camera` and, with `out_dir`, writes
-/// `kcor_raw.png` and `kcor_lut.png`. The LUT is the table of that ADC in `lut_file` (a
+/// Runs the model on ADC `p.adc` of `camera` and, with `out`, stages `kcor_raw.png` and
+/// `kcor_lut.png` in its directory (published by the caller). The LUT is the table of that ADC in `lut_file` (a
 /// LUT FITS or device image, e.g. from `dncal adc` on measured histograms) or, without
 /// it, the paper's: the ADC's true widths with `p.lut_noise` relative noise per code, in
 /// `realizations` draws (seeds `p.seed`, `p.seed + 1`, ...; the figures show the first).
-pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, realizations: usize, out_dir: Option<&Path>) -> Result<KcorSummary, HostError> {
+pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, realizations: usize, mut out: Option<OutDir<'_>>) -> Result<KcorSummary, HostError> {
     let adc = camera.adcs.get(p.adc).ok_or_else(|| HostError::Format { path: "--adc".into(), message: format!("ADC {} does not exist; the camera has {}", p.adc, camera.adcs.len()) })?;
     if !(p.exposure_s > 0.0 && p.exposure_s.is_finite() && p.fill > 0.0 && p.fill <= 1.0 && p.lut_noise >= 0.0 && p.flat_fraction > 0.0 && p.flat_fraction <= 1.0 && p.q_fraction > 0.0 && p.q_fraction <= 1.0) {
         return Err(HostError::Format { path: "arguments".into(), message: "need exposure > 0, 0 < fill <= 1, 0 < flat fraction <= 1, 0 < q fraction <= 1 and LUT noise >= 0".into() });
@@ -73,6 +74,10 @@ pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, real
     }
     if realizations == 0 || (realizations > 1 && lut_file.is_some()) {
         return Err(HostError::Format { path: "--realizations".into(), message: "need at least 1, and more than 1 only for the noisy LUT (not with --lut)".into() });
+    }
+    if let Some(o) = out.as_mut() {
+        o.files.create_dir(o.dir)?;
+        o.files.expect([o.at("kcor_raw.png"), o.at("kcor_lut.png")])?;
     }
     let noisy_table = |seed: u64| -> Result<Vec<u32>, HostError> {
         let source = Path::new("K-Cor LUT weights");
@@ -113,8 +118,7 @@ pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, real
     };
     let result = results.swap_remove(0);
     let mut figures = Vec::new();
-    if let Some(dir) = out_dir {
-        std::fs::create_dir_all(dir).map_err(|e| HostError::io(dir, e))?;
+    if let Some(OutDir { files, dir }) = out {
         let i_max = result.i_bsun.last().copied().unwrap_or(1.0);
         for (name, grid, title) in [
             ("kcor_raw.png", &result.dq_raw, "K-Cor model: |systematic error in Q| (B_sun), raw ADC"),
@@ -122,6 +126,7 @@ pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, real
         ] {
             let path = dir.join(name);
             map_plot(
+                files,
                 &path,
                 &Map {
                     title,

@@ -6,9 +6,10 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::fits::{read_linearity, write_cube, write_pixel_correction, PixelCorrection};
+use crate::fits::{read_linearity, stage_cube, stage_pixel_correction, PixelCorrection};
 use crate::linearity::{analyze_with_flat, example_row, unsaturated_levels, LinearityReport, MAX_ORDER};
 use crate::plots::{level_lines_plot, line_plot_paired, map_plot, Map, Series};
+use crate::outputs::OutDir;
 use crate::HostError;
 
 /// What `linearity` prints.
@@ -25,15 +26,29 @@ pub struct LinearitySummary {
     pub outputs: Vec<PathBuf>,
 }
 
-/// Analyzes `input`; with `out_dir`, writes `coefficients.fits` (cube and MASK),
-/// `corrected.fits` (pixel-wise corrected normalized intensities, masked pixels filled)
-/// `linearity_rms.png` (Fig. 8), `flat_image.png` (Fig. 6) and `pixels_levels.png` (Fig.
-/// 7). `flat` is the gain level (default: nearest half the maximum reference).
-pub fn linearity(input: &Path, order: usize, flat: Option<usize>, out_dir: Option<&Path>) -> Result<LinearitySummary, HostError> {
+/// The files of [`linearity`]'s report, in its directory.
+const REPORT_FILES: [&str; 5] = ["coefficients.fits", "corrected.fits", "linearity_rms.png", "flat_image.png", "pixels_levels.png"];
+
+/// Analyzes `input`; with `out`, stages in its directory `coefficients.fits` (cube and
+/// MASK), `corrected.fits` (pixel-wise corrected normalized intensities, masked pixels
+/// filled) `linearity_rms.png` (Fig. 8), `flat_image.png` (Fig. 6) and
+/// `pixels_levels.png` (Fig. 7), published by the caller. `flat` is the gain level
+/// (default: nearest half the maximum reference).
+pub fn linearity(input: &Path, order: usize, flat: Option<usize>, out: Option<OutDir<'_>>) -> Result<LinearitySummary, HostError> {
+    linearity_as(input, input, order, flat, out)
+}
+
+/// [`linearity`] of the set at `read_from`, named `input`: for a command that analyzes a
+/// set it has staged but not published yet (`demo`).
+pub fn linearity_as(read_from: &Path, input: &Path, order: usize, flat: Option<usize>, mut out: Option<OutDir<'_>>) -> Result<LinearitySummary, HostError> {
     if !(1..=MAX_ORDER).contains(&order) {
         return Err(HostError::Format { path: "--order".into(), message: format!("{order}: the pixel-wise polynomial order must be 1 to {MAX_ORDER}") });
     }
-    let set = read_linearity(input)?;
+    if let Some(o) = out.as_mut() {
+        o.files.create_dir(o.dir)?;
+        o.files.expect(REPORT_FILES.map(|n| o.dir.join(n)))?;
+    }
+    let set = read_linearity(read_from)?;
     if set.levels < order + 3 {
         return Err(HostError::Format { path: input.into(), message: format!("{} levels; an order-{order} fit needs at least {}", set.levels, order + 3) });
     }
@@ -65,19 +80,19 @@ pub fn linearity(input: &Path, order: usize, flat: Option<usize>, out_dir: Optio
     let (report, px) = analyze_with_flat(&set, order, flat).map_err(|message| HostError::Format { path: input.into(), message })?;
     let analysis_s = start.elapsed().as_secs_f64();
     let mut outputs = Vec::new();
-    if let Some(dir) = out_dir {
-        std::fs::create_dir_all(dir).map_err(|e| HostError::io(dir, e))?;
+    if let Some(OutDir { files, dir }) = out {
         let c = dir.join("coefficients.fits");
         let pc = PixelCorrection { coeffs: &px.coeffs, mask: &px.mask, width: set.width, height: set.height, order, bit_depth: set.bit_depth, n_adc: set.n_adc };
-        write_pixel_correction(&c, &pc)?;
+        stage_pixel_correction(files, &c, &pc)?;
         let k = dir.join("corrected.fits");
-        write_cube(&k, &px.corrected, set.levels, set.width, set.height, "normalized intensity")?;
+        stage_cube(files, &k, &px.corrected, set.levels, set.width, set.height, "normalized intensity")?;
         let fig = dir.join("linearity_rms.png");
         let series = |label: &str, v: &[f64]| Series {
             label: label.into(),
             points: report.reference.iter().zip(v).filter(|(_, y)| y.is_finite() && **y > 0.0).map(|(&x, &y)| (x, y.log10())).collect(),
         };
         line_plot_paired(
+            files,
             &fig,
             "RMS residual (solid) and random noise (dashed), log10: the paper's Fig. 8",
             "normalized intensity (reference voltage / maximum)",
@@ -105,6 +120,7 @@ pub fn linearity(input: &Path, order: usize, flat: Option<usize>, out_dir: Optio
         let flat_png = dir.join("flat_image.png");
         let title = format!("The flat (level {g}), raw, % of full scale: median {med:.1}%, scaled {:.0}-{:.0}% (the paper's Fig. 6)", med - 10.0, med + 10.0);
         map_plot(
+            files,
             &flat_png,
             &Map {
                 title: &title,
@@ -124,6 +140,7 @@ pub fn linearity(input: &Path, order: usize, flat: Option<usize>, out_dir: Optio
         let lines = |v: &[Vec<f64>]| -> Vec<Vec<(f64, f64)>> { v.iter().map(|l| l.iter().enumerate().map(|(i, &y)| ((ex.first_column + i) as f64, y)).collect()).collect() };
         let levels_png = dir.join("pixels_levels.png");
         level_lines_plot(
+            files,
             &levels_png,
             &format!("Row {}, {} pixels, levels 1-{} (purple dark to yellow bright): the paper's Fig. 7", ex.row, ex.raw.first().map_or(0, Vec::len), set.levels - 1),
             "column",

@@ -11,9 +11,10 @@ use std::path::{Path, PathBuf};
 use dncal_core::{encode_image, image_len, LutSet, Weight};
 use serde::Serialize;
 
-use crate::fits::{read_histograms_for_analysis, read_lut, write_file_atomically, write_lut, AdcHistograms, LutTables};
+use crate::fits::{read_histograms_for_analysis, read_lut, stage_lut, AdcHistograms, LutTables};
 use crate::flatten::{flatten_histogram, to_core_weights, FlattenParams, Flattened};
 use crate::reference::ReferenceLut;
+use crate::outputs::Outputs;
 use crate::HostError;
 
 /// The LUT of one ADC, summarized.
@@ -116,6 +117,13 @@ pub struct LutOutputs {
 }
 
 impl LutOutputs {
+    /// The two files, checked ([`Outputs::expect`]), in a new set of outputs.
+    fn expect(&self) -> Result<Outputs, HostError> {
+        let mut files = Outputs::new();
+        files.expect([&self.fits, &self.image])?;
+        Ok(files)
+    }
+
     /// The two paths for `-o OUT`, or an error naming OUT if it names a directory.
     pub fn for_prefix(out: &Path) -> Result<Self, HostError> {
         check_file_prefix(out, "OUT.fits and OUT.bin")?;
@@ -158,10 +166,12 @@ pub(crate) fn summarize(adc: usize, f: &Flattened, table: &[u32]) -> AdcLutSumma
 /// `lut build HIST -o OUT`.
 pub fn build(input: &Path, output: &Path, params: &FlattenParams) -> Result<BuildSummary, HostError> {
     let out = LutOutputs::for_prefix(output)?;
+    let mut files = out.expect()?;
     let hist = read_histograms_for_analysis(input)?;
     let built = build_luts(&hist, params, input)?;
-    write_lut(&out.fits, &built.lut_tables())?;
-    write_file_atomically(&out.image, &built.image)?;
+    stage_lut(&mut files, &out.fits, &built.lut_tables())?;
+    files.write_bytes(&out.image, &built.image)?;
+    files.publish()?;
     let adcs = built.flattened.iter().zip(&built.tables).enumerate().map(|(a, (f, t))| summarize(a, f, t)).collect();
     Ok(BuildSummary { input: input.into(), lut_fits: out.fits, device_image: out.image, adcs })
 }
@@ -307,6 +317,7 @@ pub fn kcor_files(specs: &[String]) -> Result<[PathBuf; 4], HostError> {
 pub fn import_kcor(specs: &[String], output: &Path) -> Result<ImportSummary, HostError> {
     use crate::kcor_tables::KcorTable;
     let out = LutOutputs::for_prefix(output)?;
+    let mut files = out.expect()?;
     let inputs = kcor_files(specs)?;
     let tables: Vec<KcorTable> = inputs.iter().map(|p| KcorTable::read(p)).collect::<Result<_, _>>()?;
     let bits = tables[0].bits;
@@ -333,8 +344,9 @@ pub fn import_kcor(specs: &[String], output: &Path) -> Result<ImportSummary, Hos
         })
         .collect();
     let raw = Some(weights.iter().map(|w| w.iter().map(|x| x.to_bits()).collect()).collect());
-    write_lut(&out.fits, &LutTables { frac_bits: dncal_core::FRAC_BITS, tables: ours, weights: raw, kcor_bits: Some(bits) })?;
-    write_file_atomically(&out.image, &image)?;
+    stage_lut(&mut files, &out.fits, &LutTables { frac_bits: dncal_core::FRAC_BITS, tables: ours, weights: raw, kcor_bits: Some(bits) })?;
+    files.write_bytes(&out.image, &image)?;
+    files.publish()?;
     Ok(ImportSummary { inputs: inputs.to_vec(), kcor_bits: bits, lut_fits: out.fits, device_image: out.image, adcs })
 }
 
@@ -352,13 +364,16 @@ pub struct ExportSummary {
 /// `lut export --format kcor LUT -o PREFIX [--bits B]`: the four K-Cor tables from the
 /// LUT's widths (extension `WEIGHTS`), at the LUT's own K-Cor scaling if imported, else
 /// `bits` (23 if not given). The widths must rebuild the file's tables in the core (else
-/// the file was edited and the two disagree). All four are checked before any is written.
+/// the file was edited and the two disagree). All four are written or none.
 pub fn export_kcor(input: &Path, prefix: &str, bits: Option<u32>) -> Result<ExportSummary, HostError> {
     use crate::kcor_tables::{export_path, KcorTable, KCOR_CODES, KCOR_SCALINGS};
     let err = |message: String| HostError::Format { path: input.into(), message };
     if !prefix.contains("{adc}") {
         check_file_prefix(Path::new(prefix), "OUT_adc0.bin .. OUT_adc3.bin")?;
     }
+    let outputs: Vec<PathBuf> = (0..4).map(|a| export_path(prefix, a)).collect();
+    let mut files = Outputs::new();
+    files.expect(&outputs)?;
     let lut = read_lut(input)?;
     if lut.n_adc() != 4 || lut.tables[0].len() != KCOR_CODES {
         return Err(err(format!("{} ADCs of {} codes; K-Cor tables are four ADCs of 4096 codes", lut.n_adc(), lut.tables[0].len())));
@@ -377,9 +392,9 @@ pub fn export_kcor(input: &Path, prefix: &str, bits: Option<u32>) -> Result<Expo
     }
     let tables: Vec<KcorTable> =
         weights.iter().enumerate().map(|(adc, w)| KcorTable::from_weights(w, bits).ok_or_else(|| err(format!("ADC {adc}: the weights sum to zero")))).collect::<Result<_, _>>()?;
-    let outputs: Vec<PathBuf> = (0..4).map(|a| export_path(prefix, a)).collect();
     for (t, path) in tables.iter().zip(&outputs) {
-        write_file_atomically(path, t.to_bytes())?;
+        files.write_bytes(path, t.to_bytes())?;
     }
+    files.publish()?;
     Ok(ExportSummary { input: input.into(), kcor_bits: bits, outputs })
 }

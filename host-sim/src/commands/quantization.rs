@@ -6,6 +6,7 @@ use std::path::Path;
 use rand::SeedableRng;
 use serde::Serialize;
 
+use crate::outputs::Outputs;
 use crate::plots::{map_plot, Map};
 use crate::quantization::{bias_erf, bias_exact_gaussian, bias_fourier, bias_map, bias_monte_carlo, sigma_for_bias, worst_bias, WorstBias};
 use crate::HostError;
@@ -72,10 +73,11 @@ pub fn for_bias(bias: f64) -> Result<BiasReport, HostError> {
 }
 
 /// The paper's Fig. 1: |delta| over lambda' in [0, 1] and sigma in [0, 1] DN, contours at
-/// 1e-1 to 1e-4 DN.
-pub fn figure(path: &Path) -> Result<(), HostError> {
+/// 1e-1 to 1e-4 DN, staged in `files` as `path`.
+pub fn figure(files: &mut Outputs, path: &Path) -> Result<(), HostError> {
     let values = bias_map(201, 201, 1.0);
     map_plot(
+        files,
         path,
         &Map {
             title: "Quantization bias of the averaged readout |delta| (DN)",

@@ -8,7 +8,8 @@ use serde::Serialize;
 use crate::camera::calibration::{LinearityParams, RampParams};
 use crate::camera::{Camera, CameraConfig};
 use crate::commands::progress::bar;
-use crate::fits::{write_histograms, write_linearity, AdcHistograms, LinearitySet};
+use crate::fits::{stage_linearity, write_histograms, AdcHistograms, LinearitySet};
+use crate::outputs::Outputs;
 use crate::HostError;
 
 /// Builds the camera of `config`, naming `source` (a file or "defaults") in errors.
@@ -73,6 +74,14 @@ pub struct LinearitySummary {
 
 /// Simulates a linearity set and writes it.
 pub fn simulate_linearity(camera: &Camera, p: &LinearityParams, output: PathBuf) -> Result<LinearitySummary, HostError> {
+    let mut files = Outputs::new();
+    let summary = simulate_linearity_staged(&mut files, camera, p, output)?;
+    files.publish()?;
+    Ok(summary)
+}
+
+/// Simulates a linearity set and stages it in `files` (the caller publishes it).
+pub fn simulate_linearity_staged(files: &mut Outputs, camera: &Camera, p: &LinearityParams, output: PathBuf) -> Result<LinearitySummary, HostError> {
     let start = Instant::now();
     let (x0, y0, w, h) = p.roi;
     if w == 0 || h == 0 || x0 + w > camera.config.width || y0 + h > camera.config.height || p.levels < 2 || p.frames < 2 {
@@ -81,6 +90,7 @@ pub fn simulate_linearity(camera: &Camera, p: &LinearityParams, output: PathBuf)
             message: format!("ROI {w}x{h} at ({x0}, {y0}) must be non-empty and inside the {}x{} sensor, with >= 2 levels and >= 2 frames", camera.config.width, camera.config.height),
         });
     }
+    files.expect([&output])?;
     let pb = bar(p.levels as u64, "linearity levels");
     let data = camera.linearity_set(p, |n| pb.set_position(n));
     pb.finish_and_clear();
@@ -97,6 +107,6 @@ pub fn simulate_linearity(camera: &Camera, p: &LinearityParams, output: PathBuf)
         voltage: data.voltage,
         mask: Some(data.mask),
     };
-    write_linearity(&output, &set)?;
+    stage_linearity(files, &output, &set)?;
     Ok(LinearitySummary { output, width: w, height: h, levels: p.levels, frames: p.frames, masked_pixels, seconds: start.elapsed().as_secs_f64() })
 }

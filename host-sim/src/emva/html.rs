@@ -1,12 +1,13 @@
 //! The datasheet as a folder a user opens in a browser: `datasheet.html` with the
 //! standard's plots (photon transfer, SNR, linearity deviation, spectrograms, defect
-//! histograms) as PNGs, and `datasheet.json`. Every file is written to a temporary name
-//! and renamed, so a failure leaves no half-written file.
+//! histograms) as PNGs, and `datasheet.json`. The files are published together or not at
+//! all ([`crate::outputs`]), so a failure leaves neither a half-written file nor a
+//! datasheet whose pages are of two runs.
 
 use std::path::{Path, PathBuf};
 
 use super::{Datasheet, Release};
-use crate::fits::write_file_atomically;
+use crate::outputs::Outputs;
 use crate::plots::{line_plot, Series};
 use crate::HostError;
 
@@ -30,9 +31,13 @@ fn log_counts(bins: &[f64], counts: &[u64]) -> Vec<(f64, f64)> {
     bins.iter().zip(counts).map(|(&b, &c)| (b, ((c + 1) as f64).log10())).collect()
 }
 
-/// Writes the datasheet of `descriptor` into `dir`; returns the files written.
+/// Writes the datasheet of `descriptor` into `dir`, all files or none
+/// ([`crate::outputs`]); returns the files written.
 pub fn write_datasheet(dir: &Path, descriptor: &Path, sheet: &Datasheet) -> Result<Vec<PathBuf>, HostError> {
-    std::fs::create_dir_all(dir).map_err(|e| HostError::io(dir, e))?;
+    let mut staged = Outputs::new();
+    staged.create_dir(dir)?;
+    let names = ["photon_transfer.png", "snr.png", "linearity.png", "spectrograms.png", "defect_histograms.png", "datasheet.html", "datasheet.json"];
+    staged.expect(names.map(|n| dir.join(n)))?;
     let t = &sheet.temporal;
     let s = &sheet.spatial;
     let mut files = Vec::new();
@@ -46,6 +51,7 @@ pub fn write_datasheet(dir: &Path, descriptor: &Path, sheet: &Datasheet) -> Resu
     };
     let fit: Vec<(f64, f64)> = [0.0, fit_end].iter().map(|&x| (x, offset + t.gain_dn_per_e * x)).collect();
     line_plot(
+        &mut staged,
         &ptc,
         "Photon transfer: temporal variance above dark against mean above dark",
         "mean above dark (DN)",
@@ -61,6 +67,7 @@ pub fn write_datasheet(dir: &Path, descriptor: &Path, sheet: &Datasheet) -> Resu
     let snr = dir.join("snr.png");
     let log = |v: f64| if v > 0.0 { v.log10() } else { f64::NAN };
     line_plot(
+        &mut staged,
         &snr,
         "Signal-to-noise ratio",
         "log10 photons per pixel",
@@ -75,6 +82,7 @@ pub fn write_datasheet(dir: &Path, descriptor: &Path, sheet: &Datasheet) -> Resu
 
     let lin = dir.join("linearity.png");
     line_plot(
+        &mut staged,
         &lin,
         "Linearity: deviation from the fit over 5-95% of saturation",
         "photons per pixel",
@@ -91,6 +99,7 @@ pub fn write_datasheet(dir: &Path, descriptor: &Path, sheet: &Datasheet) -> Resu
         let r4 = t.release == Release::R4;
         let spec = dir.join("spectrograms.png");
         line_plot(
+            &mut staged,
             &spec,
             if r4 { "Spectrograms of the high-pass filtered images (frequency 0 left out)" } else { "Spectrograms (frequency 0 left out)" },
             "cycles per pixel",
@@ -106,6 +115,7 @@ pub fn write_datasheet(dir: &Path, descriptor: &Path, sheet: &Datasheet) -> Resu
         files.push(spec);
         let hist = dir.join("defect_histograms.png");
         line_plot(
+            &mut staged,
             &hist,
             "Logarithmic histograms of the averaged images (defect pixels)",
             "deviation (DN)",
@@ -188,11 +198,12 @@ pub fn write_datasheet(dir: &Path, descriptor: &Path, sheet: &Datasheet) -> Resu
     }
     html += "</body></html>\n";
     let page = dir.join("datasheet.html");
-    write_file_atomically(&page, html)?;
+    staged.write_bytes(&page, html)?;
     files.push(page);
     let json = dir.join("datasheet.json");
     let text = serde_json::to_string_pretty(sheet).map_err(|e| HostError::Format { path: json.clone(), message: e.to_string() })?;
-    write_file_atomically(&json, text + "\n")?;
+    staged.write_bytes(&json, text + "\n")?;
     files.push(json);
+    staged.publish()?;
     Ok(files)
 }

@@ -1,0 +1,252 @@
+//! Commands that write several files write all of them or none (issue 18: never lose a
+//! file). Each case makes one target impossible to write (a directory where a file goes)
+//! or the run fail after some outputs are known, beside outputs of an earlier run with
+//! known bytes: the command must fail with exit code 1 and one line naming the path, and
+//! leave every earlier output byte-identical, no new file and no temporary.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+use dncal_host::fits::{write_histograms, AdcHistograms};
+
+/// Runs `dncal args` in `dir`, killed after 120 s.
+fn dncal(args: &[&str], dir: &Path) -> Output {
+    let mut child = spawn(args, dir);
+    let deadline = Instant::now() + Duration::from_secs(120);
+    while child.try_wait().expect("dncal can be waited for").is_none() {
+        if Instant::now() > deadline {
+            child.kill().ok();
+            child.wait().ok();
+            panic!("dncal {args:?} still running after 120 s");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    child.wait_with_output().expect("dncal's output")
+}
+
+fn spawn(args: &[&str], dir: &Path) -> Child {
+    Command::new(env!("CARGO_BIN_EXE_dncal")).args(args).current_dir(dir).stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().expect("dncal runs")
+}
+
+fn succeed(args: &[&str], dir: &Path) {
+    let out = dncal(args, dir);
+    assert!(out.status.success(), "dncal {args:?}: {}", String::from_utf8_lossy(&out.stderr));
+}
+
+/// Every file and directory under `dir` (hidden ones included), with the bytes of files.
+fn snapshot(dir: &Path) -> BTreeMap<PathBuf, Option<Vec<u8>>> {
+    let mut all = BTreeMap::new();
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.is_dir() {
+            all.insert(path.clone(), None);
+            all.extend(snapshot(&path));
+        } else {
+            all.insert(path.clone(), Some(std::fs::read(&path).unwrap()));
+        }
+    }
+    all
+}
+
+/// The command failed with one line starting `dncal: error: {start}`, exit code 1, and
+/// left `dir` exactly as `before`.
+fn assert_failed_and_untouched(out: &Output, start: &str, dir: &Path, before: &BTreeMap<PathBuf, Option<Vec<u8>>>) {
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    let after = snapshot(dir);
+    let changed: std::collections::BTreeSet<_> = after.keys().chain(before.keys()).filter(|k| after.get(*k) != before.get(*k)).collect();
+    assert!(changed.is_empty(), "changed, added or removed: {changed:?}; stderr: {stderr}");
+    assert!(stderr.starts_with(&format!("dncal: error: {start}")) && stderr.lines().count() == 1, "stderr: {stderr}");
+    assert_eq!(out.status.code(), Some(1), "stderr: {stderr}");
+}
+
+/// Files with known bytes, as an earlier run left them.
+fn earlier(dir: &Path, names: &[&str]) {
+    for n in names {
+        let p = dir.join(n);
+        std::fs::create_dir_all(p.parent().unwrap()).unwrap();
+        std::fs::write(&p, format!("earlier {n}")).unwrap();
+    }
+}
+
+/// A histogram set `lut build` accepts: 4 ADCs of 12 bits, 1000 samples in every code.
+fn flat_histograms(path: &Path) {
+    write_histograms(path, &AdcHistograms { bit_depth: 12, counts: vec![vec![1000; 4096]; 4] }).unwrap();
+}
+
+/// A small linearity set that `linearity` and `diagnose` accept.
+fn small_linearity(dir: &Path, name: &str) {
+    succeed(&["simulate", "linearity", "--levels", "12", "--frames", "4", "--roi", "16x8+0+0", "-o", name], dir);
+}
+
+const DIRECTORY: &str = "is a directory; an output file cannot replace it";
+
+/// Ramps small enough to simulate in a second or two, enough counts to flatten.
+const SMALL_RAMPS: [&str; 8] = ["--first-ramp", "20", "--last-ramp", "21", "--pixels-per-adc", "20000", "--frames-per-level", "1"];
+
+#[test]
+fn lut_build_replaces_neither_file_when_the_image_cannot_be_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    flat_histograms(&d.join("h.fits"));
+    earlier(d, &["cal.fits"]);
+    std::fs::create_dir(d.join("cal.bin")).unwrap();
+    let before = snapshot(d);
+    let out = dncal(&["lut", "build", "h.fits", "-o", "cal"], d);
+    assert_failed_and_untouched(&out, &format!("cal.bin: {DIRECTORY}\n"), d, &before);
+}
+
+#[test]
+fn lut_export_writes_no_table_when_one_cannot_be_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    flat_histograms(&d.join("h.fits"));
+    succeed(&["lut", "build", "h.fits", "-o", "cal"], d);
+    earlier(d, &["kc_adc0.bin", "kc_adc1.bin"]);
+    std::fs::create_dir(d.join("kc_adc3.bin")).unwrap();
+    let before = snapshot(d);
+    let out = dncal(&["lut", "export", "cal.fits", "--format", "kcor", "-o", "kc"], d);
+    assert_failed_and_untouched(&out, &format!("kc_adc3.bin: {DIRECTORY}\n"), d, &before);
+}
+
+#[test]
+fn lut_import_replaces_neither_file_when_the_image_cannot_be_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    flat_histograms(&d.join("h.fits"));
+    succeed(&["lut", "build", "h.fits", "-o", "cal"], d);
+    succeed(&["lut", "export", "cal.fits", "--format", "kcor", "-o", "kc"], d);
+    earlier(d, &["imp.fits"]);
+    std::fs::create_dir(d.join("imp.bin")).unwrap();
+    let before = snapshot(d);
+    let out = dncal(&["lut", "import", "--kcor", "kc", "-o", "imp"], d);
+    assert_failed_and_untouched(&out, &format!("imp.bin: {DIRECTORY}\n"), d, &before);
+}
+
+#[test]
+fn diagnose_replaces_no_report_file_when_the_model_cannot_be_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    small_linearity(d, "lin.fits");
+    earlier(d, &["d/report.html", "d/residuals.png"]);
+    std::fs::create_dir(d.join("d/model.toml")).unwrap();
+    let before = snapshot(d);
+    let out = dncal(&["diagnose", "lin.fits", "-o", "d"], d);
+    assert_failed_and_untouched(&out, &format!("d/model.toml: {DIRECTORY}\n"), d, &before);
+}
+
+#[test]
+fn diagnose_of_several_inputs_leaves_no_report_when_a_later_input_fails() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    small_linearity(d, "good.fits");
+    std::fs::write(d.join("bad.fits"), "not a FITS file\n").unwrap();
+    let before = snapshot(d);
+    let out = dncal(&["diagnose", "good.fits", "bad.fits", "-o", "two"], d);
+    assert_failed_and_untouched(&out, "bad.fits: not a readable FITS file", d, &before);
+    // And beside the reports of an earlier run, those are kept as they were.
+    earlier(d, &["two/0/report.html", "two/0/residuals.png", "two/0/model.toml"]);
+    let before = snapshot(d);
+    let out = dncal(&["diagnose", "good.fits", "bad.fits", "-o", "two"], d);
+    assert_failed_and_untouched(&out, "bad.fits: not a readable FITS file", d, &before);
+}
+
+#[test]
+fn linearity_replaces_no_file_when_the_corrected_cube_cannot_be_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    small_linearity(d, "lin.fits");
+    earlier(d, &["L/coefficients.fits", "L/linearity_rms.png"]);
+    std::fs::create_dir(d.join("L/corrected.fits")).unwrap();
+    let before = snapshot(d);
+    let out = dncal(&["linearity", "lin.fits", "-o", "L"], d);
+    assert_failed_and_untouched(&out, &format!("L/corrected.fits: {DIRECTORY}\n"), d, &before);
+}
+
+#[test]
+fn adc_keeps_the_earlier_histograms_when_the_luts_cannot_be_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    earlier(d, &["a/histograms.fits", "a/lut.fits"]);
+    std::fs::create_dir(d.join("a/lut.bin")).unwrap();
+    let before = snapshot(d);
+    let mut args = vec!["adc", "-o", "a"];
+    args.extend(SMALL_RAMPS);
+    let out = dncal(&args, d);
+    assert_failed_and_untouched(&out, &format!("a/lut.bin: {DIRECTORY}\n"), d, &before);
+}
+
+#[test]
+fn adc_leaves_no_simulated_histograms_when_their_flattening_fails() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let before = snapshot(d);
+    // Too few counts per code to flatten: found after the histograms are simulated.
+    let out = dncal(&["adc", "--first-ramp", "2", "--last-ramp", "3", "--pixels-per-adc", "1000", "--frames-per-level", "1", "-o", "a"], d);
+    assert_failed_and_untouched(&out, "a/histograms.fits: ADC 0: ", d, &before);
+}
+
+#[test]
+fn demo_replaces_no_file_when_one_cannot_be_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    earlier(d, &["dm/histograms.fits", "dm/lut.fits"]);
+    std::fs::create_dir(d.join("dm/lut.bin")).unwrap();
+    let before = snapshot(d);
+    let mut args = vec!["demo", "--frames", "1", "-o", "dm"];
+    args.extend(SMALL_RAMPS);
+    let out = dncal(&args, d);
+    assert_failed_and_untouched(&out, &format!("dm/lut.bin: {DIRECTORY}\n"), d, &before);
+}
+
+#[test]
+fn kcor_model_replaces_neither_figure_when_one_cannot_be_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    earlier(d, &["k/kcor_raw.png"]);
+    std::fs::create_dir(d.join("k/kcor_lut.png")).unwrap();
+    let before = snapshot(d);
+    let out = dncal(&["kcor-model", "--steps", "5", "-o", "k"], d);
+    assert_failed_and_untouched(&out, &format!("k/kcor_lut.png: {DIRECTORY}\n"), d, &before);
+}
+
+#[test]
+fn fpga_size_writes_no_readmemh_file_when_one_cannot_be_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    flat_histograms(&d.join("h.fits"));
+    succeed(&["lut", "build", "h.fits", "-o", "cal"], d);
+    earlier(d, &["hdl/lut_adc0.hex"]);
+    std::fs::create_dir(d.join("hdl/lut_adc3.hex")).unwrap();
+    let before = snapshot(d);
+    let out = dncal(&["fpga-size", "--size", "64", "--lut", "cal.fits", "-o", "hdl"], d);
+    assert_failed_and_untouched(&out, &format!("hdl/lut_adc3.hex: {DIRECTORY}\n"), d, &before);
+}
+
+/// Hidden files in `dir`: temporaries and backups.
+fn hidden(dir: &Path) -> Vec<String> {
+    std::fs::read_dir(dir).map_or_else(|_| Vec::new(), |r| r.map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).filter(|n| n.starts_with('.')).collect())
+}
+
+#[cfg(unix)]
+#[test]
+fn temporaries_of_a_killed_run_are_removed_by_the_next_run_for_the_same_targets() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mut args = vec!["adc", "-o", "a"];
+    args.extend(SMALL_RAMPS);
+    let mut child = spawn(&args, d);
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let mut left = Vec::new();
+    while left.is_empty() && Instant::now() < deadline && child.try_wait().unwrap().is_none() {
+        left = hidden(&d.join("a"));
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    child.kill().ok();
+    child.wait().unwrap();
+    let left = hidden(&d.join("a"));
+    assert!(!left.is_empty(), "the run was killed while writing and left its temporaries");
+    succeed(&args, d);
+    assert_eq!(hidden(&d.join("a")), Vec::<String>::new(), "left by the killed run: {left:?}");
+}
