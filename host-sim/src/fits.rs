@@ -76,8 +76,10 @@ impl AdcHistograms {
 /// command that writes from them) or `f32` (`diagnose`, which holds the cubes through the
 /// whole run: half the memory, each value to 2^-24 of itself).
 pub trait Sample: Copy + Into<f64> + Send + Sync + std::fmt::Display + 'static {
-    /// The variance the type's rounding adds to a value `v`: `(v 2^-24)^2 / 3` for `f32`
-    /// (a relative error uniform within half its last place), 0 for `f64`.
+    /// A bound on the variance the type's rounding adds to a value `v`: `(v 2^-24)^2 / 3`
+    /// for `f32` (an error uniform within half a last place taken at its widest relative
+    /// size; up to 4 times the true variance, negligible beside a mean's noise either
+    /// way), 0 for `f64`.
     fn rounding_var(v: f64) -> f64;
 }
 

@@ -57,8 +57,9 @@ pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, real
     }
     // A dark level at the top code (or the full well) leaves no state a signal: every
     // error would be 0 and every reduction 0/0 (it printed "infx less").
+    // (Less than one DN of room is none: every state would read the same codes.)
     let room_e = crate::kcor::signal_room_e(camera, adc);
-    if room_e <= 0.0 {
+    if room_e.is_nan() || room_e < camera.config.gain_e_per_dn {
         let c = &camera.config;
         return Err(HostError::Format {
             path: "camera config".into(),
@@ -165,9 +166,15 @@ mod tests {
         assert!(e.contains("fills ADC 3's range") && e.contains("no room for a signal"), "{e}");
         let config = CameraConfig::default();
         let adc = &Camera::new(config.clone()).unwrap().adcs[3];
-        // The dark level 1 DN below the top code (offset included).
-        let dark_e = ((adc.codes() - 2) as f64 - config.offset_dn) * config.gain_e_per_dn;
-        let almost = Camera::new(CameraConfig { dark_e, ..config }).unwrap();
-        assert!(crate::kcor::signal_room_e(&almost, &almost.adcs[3]) > 0.0);
+        // The dark level half a DN below the top code (offset included): refused too.
+        let dark_e = ((adc.codes() - 1) as f64 - 0.5 - config.offset_dn) * config.gain_e_per_dn;
+        let almost = Camera::new(CameraConfig { dark_e, ..config.clone() }).unwrap();
+        assert!(kcor_model(&almost, &KcorParams::default(), None, 1, None).is_err());
+        // 200 DN of room: runs, and every number it prints is finite.
+        let dark_e = ((adc.codes() - 1) as f64 - 200.0 - config.offset_dn) * config.gain_e_per_dn;
+        let room = Camera::new(CameraConfig { dark_e, ..config }).unwrap();
+        let r = kcor_model(&room, &KcorParams { steps: 8, ..KcorParams::default() }, None, 1, None).unwrap();
+        let j = serde_json::to_value(&r).unwrap().to_string();
+        assert!(!j.contains("null") && !j.contains("inf") && !j.contains("NaN"), "{j}");
     }
 }

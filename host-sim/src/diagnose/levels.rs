@@ -299,14 +299,15 @@ pub(super) fn level_term<T: Sample>(px: &Pixels<T>, skip: &[bool]) -> LevelTerm 
     let (quartics, lines): (Vec<QuarticFit>, Vec<LineFit>) = fits.into_iter().unzip();
     // The pixels' local slopes at each level.
     let slope_median: Vec<f64> = x.iter().map(|&xl| upper_median(quartics.par_iter().filter_map(|q| Some(slope(q.as_ref()?, xl))).filter(|s| s.is_finite()).collect::<Vec<f64>>())).collect();
-    let adc_ratio: Vec<Vec<f64>> = (0..n_adc)
-        .map(|a| {
-            (0..levels)
-                .map(|l| upper_median((0..n).into_par_iter().filter(|&i| px.adc(i) == a).map(|i| slope_over(quartics[i].as_ref(), x[l], slope_median[l])).collect::<Vec<f64>>()))
-                .map(|r| if r.is_finite() { r } else { 1.0 })
-                .collect()
+    // Per level, each ADC's median slope ratio (its pixels grouped in one pass).
+    let by_level: Vec<Vec<f64>> = (0..levels)
+        .map(|l| {
+            let mut by = vec![Vec::new(); n_adc];
+            (0..n).for_each(|i| by[px.adc(i)].push(slope_over(quartics[i].as_ref(), x[l], slope_median[l])));
+            by.into_iter().map(upper_median).map(|r| if r.is_finite() { r } else { 1.0 }).collect()
         })
         .collect();
+    let adc_ratio: Vec<Vec<f64>> = (0..n_adc).map(|a| by_level.iter().map(|r| r[a]).collect()).collect();
     // Each pixel's quartic residuals on all its levels, recomputed per pass: (level,
     // residual DN, sigma DN, the quartic's signal there above its dark).
     let quartic_residuals = |i: usize, f: &mut dyn FnMut(usize, f64, f64, f64)| {

@@ -323,6 +323,10 @@ enum BadPixel {
     Dark,
 }
 
+/// The most ADCs a linearity set's diagnosis takes apart (several passes over the pixels
+/// per ADC: a column-parallel sensor's thousands would multiply the run by thousands).
+const MAX_ADCS: usize = 256;
+
 /// An ADC whose pixels sit apart from the others' ([`adcs_apart`]).
 #[derive(Debug, Clone, Copy)]
 struct Apart {
@@ -343,12 +347,15 @@ struct Apart {
 /// sit apart from the others', set apart one at a time as for the curvature: the most
 /// significant one, then the centre (the median of the other ADCs' medians) recomputed,
 /// while a majority remains; at least three ADCs. Medians and scatter from the even rows,
-/// scores on the odd rows.
+/// scores on the odd rows. (The centre is the median of the medians of the ADCs not yet
+/// set apart, the tested one included.)
 ///
 /// The significance is the smaller of two: the paired test over the odd-row pixels
 /// ([`paired_sum`] of their drop of `z^2` from the centre to their ADC's median), and the
-/// offset against its own standard error (`1.2533 s sqrt(1/n_a + 1/n_rest)`, the medians'
-/// noise over the even-row pixels). The paired statistic alone does not shrink with the
+/// offset against its own standard error (`1.2533 s sqrt(1/n_a + 1/n_rest)`: the
+/// Gaussian median's noise over the even-row pixels, the centre's taken as one median
+/// over the other ADCs' pixels, which understates it by 15-18%; a skewed spread's median
+/// is noisier still). The paired statistic alone does not shrink with the
 /// offset: with `d_p = (m_a - c)(2 v_p - c - m_a) / s^2` it is
 /// `sqrt(n) ((m_a - c) + 2 (mean(v) - m_a)) / (2 sd(v))`, so a skewed spread (the odd rows'
 /// mean off the even rows' median) passed it for any offset once `n` was large: on a
@@ -434,6 +441,9 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
     let known_bad = |p: usize| set.mask.as_ref().is_some_and(|m| m[p] != 0);
     // (More ADCs than columns read as one per column: column `c` is ADC `c` either way.)
     let n_adc = set.n_adc.clamp(1, set.width.max(1));
+    if n_adc > MAX_ADCS {
+        return Err(format!("NADC = {}: the per-ADC tests are for at most {MAX_ADCS} pipelined ADCs (their work grows with the ADCs times the pixels); a set with NADC = 1 is diagnosed pixel by pixel", set.n_adc));
+    }
     let pixels: Vec<usize> = (0..np).filter(|&p| !known_bad(p)).collect();
     let bias2 = quantization_floor(set, &pixels);
     let px = Pixels::new(set, x, kappa, bias2, valid, pixels);
@@ -949,8 +959,8 @@ mod tests {
     /// Four ADCs of a million pixels each with one skewed spread (an exponential tail,
     /// the odd rows' mean 0.6 above the even rows' median): none is set apart, though the
     /// paired test alone passed 5 sigma at these counts for the chance offsets of the
-    /// medians; an offset of 0.05 (about 12 of its standard errors) planted in ADC 2 is
-    /// set apart alone, with its size.
+    /// medians; an offset of 0.05 (about 17 of the gate's standard errors) planted in ADC
+    /// 2 is set apart alone, with its size.
     #[test]
     fn a_skewed_spread_is_no_adc_offset_however_many_pixels() {
         use rand_distr::{Distribution, Exp};

@@ -138,7 +138,14 @@ pub(super) fn fit_and_score(model: Response, start: &[f64], fit: &[Point], test:
         // these full-rank systems at a fraction of its cost; a singular `R` (a pixel
         // whose levels cannot fix its parameters) is no fit, as the inverse below would be.
         let qr = j.qr();
-        let step = qr.r().solve_upper_triangular(&(qr.q().transpose() * &r))?;
+        let rr = qr.r();
+        // Near-singular (repeated or nearly equal references): no fit, as the SVD's
+        // cut-off at 1e-12 of the largest singular value made it before.
+        let diag = rr.diagonal().map(f64::abs);
+        if diag.min().is_nan() || diag.min() <= 1e-12 * diag.max() {
+            return None;
+        }
+        let step = rr.solve_upper_triangular(&(qr.q().transpose() * &r))?;
         p.iter_mut().zip(step.iter()).for_each(|(a, d)| *a += d);
         if step.iter().zip(&p).all(|(d, a)| d.abs() <= 1e-12 * a.abs().max(1.0)) {
             break;

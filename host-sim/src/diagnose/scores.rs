@@ -67,8 +67,6 @@ pub(super) struct Scores {
     cells: Vec<Sums>,
 }
 
-/// Pixels per task of the parallel scoring.
-const CHUNK: usize = 256;
 
 impl Scores {
     /// Scores of `n` pixels: `score(j)` fits pixel `j` and scores it, `cell(j)` says where
@@ -77,13 +75,16 @@ impl Scores {
         let n_adc = n_adc.max(1);
         let mut per = vec![None; n];
         let empty = || vec![Sums::new(levels); 2 * n_adc];
+        // Four tasks per thread, each with its own sums (one set of sums per task, not per
+        // few pixels: they are 2 x ADCs x levels).
+        let chunk = n.div_ceil(4 * rayon::current_num_threads()).max(1);
         let cells = per
-            .par_chunks_mut(CHUNK)
+            .par_chunks_mut(chunk)
             .enumerate()
             .map(|(c, out)| {
                 let mut sums = empty();
                 for (k, slot) in out.iter_mut().enumerate() {
-                    let j = c * CHUNK + k;
+                    let j = c * chunk + k;
                     let Some(s) = score(j) else { continue };
                     let cl = cell(j);
                     let into = &mut sums[Self::key(cl, n_adc)];
