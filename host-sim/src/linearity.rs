@@ -284,9 +284,37 @@ pub fn analyze(set: &LinearitySet, order: usize) -> Result<(LinearityReport, Pix
 }
 
 /// [`analyze`] with the flat (gain) level chosen: `Some(l)` with `1 <= l < levels` (the
-/// caller checks), `None` the level whose reference is nearest half the maximum (the
-/// paper's text: "approximately half saturation"; its Figs. 6-7 use a flat near 57%).
+/// caller checks, [`check_flat_level`]), `None` the level whose reference is nearest half
+/// the maximum (the paper's text: "approximately half saturation"; its Figs. 6-7 use a
+/// flat near 57%).
 pub fn analyze_with_flat(set: &LinearitySet, order: usize, flat: Option<usize>) -> Result<(LinearityReport, PixelResults), String> {
+    analyze_unsaturated(set, order, flat, unsaturated_levels(set))
+}
+
+/// Whether level `l` can be the flat of a set whose pixels keep `valid[p]` levels below
+/// saturation ([`unsaturated_levels`]): one of the illuminated levels, and one where at
+/// least half the pixels are unsaturated (a pixel can only be fit and flat-fielded if it
+/// is unsaturated there: a flat where most saturate would mask most of the sensor). The
+/// message names the highest usable level.
+pub fn check_flat_level(valid: &[usize], levels: usize, l: usize) -> Result<(), String> {
+    if !(1..levels).contains(&l) {
+        return Err(format!("{l}: the flat must be one of the illuminated levels 1 to {}", levels - 1));
+    }
+    let np = valid.len();
+    let unsaturated_at = |level: usize| valid.iter().filter(|&&n| n > level).count();
+    if 2 * unsaturated_at(l) < np {
+        let hint = match (1..levels).rev().find(|&k| 2 * unsaturated_at(k) >= np) {
+            Some(k) => format!("levels 1 to {k} keep at least half of them unsaturated"),
+            None => "no level keeps half of them unsaturated".into(),
+        };
+        return Err(format!("{l}: {} of {np} pixels are saturated at that level; {hint}", np - unsaturated_at(l)));
+    }
+    Ok(())
+}
+
+/// [`analyze_with_flat`] given the set's [`unsaturated_levels`] (a caller that checked the
+/// flat with them computes them once).
+pub fn analyze_unsaturated(set: &LinearitySet, order: usize, flat: Option<usize>, valid: Vec<usize>) -> Result<(LinearityReport, PixelResults), String> {
     let order = order.clamp(1, MAX_ORDER);
     let (nl, w, h) = (set.levels, set.width, set.height);
     let np = w * h;
@@ -297,7 +325,6 @@ pub fn analyze_with_flat(set: &LinearitySet, order: usize, flat: Option<usize>) 
     let e: Vec<f64> = x.iter().map(|xl| (xl - x[0]) / (x[g] - x[0])).collect();
     let m = |l: usize, p: usize| set.mean[l * np + p];
     let sd = |l: usize, p: usize| set.std[l * np + p];
-    let valid = unsaturated_levels(set);
     // One pseudo-inverse per prefix length.
     let pinv: Vec<Option<DMatrix<f64>>> = (0..=nl).map(|n| (n > order + 1).then(|| pseudo_inverse(&x[..n], order))).collect();
     let fits: Vec<(Vec<f64>, f64)> = (0..np)

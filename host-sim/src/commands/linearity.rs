@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 
 use crate::fits::{read_linearity, stage_cube, stage_pixel_correction, PixelCorrection};
-use crate::linearity::{analyze_with_flat, example_row, unsaturated_levels, LinearityReport, MAX_ORDER};
+use crate::linearity::{analyze_unsaturated, check_flat_level, example_row, unsaturated_levels, LinearityReport, MAX_ORDER};
 use crate::plots::{level_lines_plot, line_plot_paired, map_plot, Map, Series};
 use crate::outputs::OutDir;
 use crate::HostError;
@@ -56,28 +56,11 @@ pub fn linearity_as(read_from: &Path, input: &Path, order: usize, flat: Option<u
         return Err(HostError::Format { path: input.into(), message: "REFERENCE VOLTAGE must be finite, >= 0 and not all zero".into() });
     }
     let start = std::time::Instant::now();
+    let valid = unsaturated_levels(&set);
     if let Some(l) = flat {
-        if !(1..set.levels).contains(&l) {
-            return Err(HostError::Format { path: "--flat-level".into(), message: format!("{l}: the flat must be one of the illuminated levels 1 to {} of {}", set.levels - 1, input.display()) });
-        }
-        // A pixel can only be fit (and flat-fielded) if it is still unsaturated at the
-        // flat's level: a flat where most pixels saturate would mask most of the sensor.
-        let valid = unsaturated_levels(&set);
-        let np = valid.len();
-        let unsaturated_at = |level: usize| valid.iter().filter(|&&n| n > level).count();
-        if 2 * unsaturated_at(l) < np {
-            let highest = (1..set.levels).rev().find(|&k| 2 * unsaturated_at(k) >= np);
-            let hint = match highest {
-                Some(k) => format!("levels 1 to {k} keep at least half of them unsaturated"),
-                None => "no level keeps half of them unsaturated".into(),
-            };
-            return Err(HostError::Format {
-                path: "--flat-level".into(),
-                message: format!("{l}: {} of {np} pixels of {} are saturated at that level; {hint}", np - unsaturated_at(l), input.display()),
-            });
-        }
+        check_flat_level(&valid, set.levels, l).map_err(|m| HostError::Format { path: "--flat-level".into(), message: format!("{m} ({})", input.display()) })?;
     }
-    let (report, px) = analyze_with_flat(&set, order, flat).map_err(|message| HostError::Format { path: input.into(), message })?;
+    let (report, px) = analyze_unsaturated(&set, order, flat, valid).map_err(|message| HostError::Format { path: input.into(), message })?;
     let analysis_s = start.elapsed().as_secs_f64();
     let mut outputs = Vec::new();
     if let Some(OutDir { files, dir }) = out {
