@@ -380,10 +380,11 @@ fn adcs_apart(values: &[(usize, bool, f64)], n_adc: usize) -> Vec<Apart> {
     }
     let mut apart = vec![false; n_adc];
     while apart.iter().filter(|&&o| !o).count() * 2 > n_adc + 1 {
-        let mut rest: Vec<f64> = (0..n_adc).filter(|&a| !apart[a]).map(|a| per_adc[a]).collect();
-        rest.sort_by(f64::total_cmp);
-        let h = rest.len();
-        let pm = if h % 2 == 1 { rest[h / 2] } else { 0.5 * (rest[h / 2 - 1] + rest[h / 2]) };
+        // The textbook median of the finite medians (four ADCs: the mean of the middle two).
+        let pm = crate::stats::median((0..n_adc).filter(|&a| !apart[a]).map(|a| per_adc[a]));
+        if pm.is_nan() {
+            break;
+        }
         let scored: Vec<(usize, f64, f64, f64, usize)> = (0..n_adc)
             .filter(|&a| !apart[a] && odd[a].0 >= 8)
             .map(|a| {
@@ -400,7 +401,9 @@ fn adcs_apart(values: &[(usize, bool, f64)], n_adc: usize) -> Vec<Apart> {
                 (a, pairs.min(o.abs() / se), s0, s1, odd[a].0)
             })
             .collect();
-        let Some(&(a, sig, s0, s1, n)) = scored.iter().max_by(|x, y| x.1.total_cmp(&y.1)) else { break };
+        // (An ADC without a finite score, e.g. no finite median on its even rows, is not
+        // tested: NaN sorts above every number and would end the search for the others.)
+        let Some(&(a, sig, s0, s1, n)) = scored.iter().filter(|x| x.1.is_finite()).max_by(|x, y| x.1.total_cmp(&y.1)) else { break };
         if !(sig > SIGNIFICANCE && s1 < s0) {
             break;
         }
@@ -650,7 +653,7 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
     let mut glob = score_all(&|_| Response::Curve(global, top));
     while let Some(own_curve) = own_curve.as_ref().filter(|_| adc_own.iter().filter(|&&o| !o).count() * 2 > n_adc + 1) {
         let tested: Vec<(usize, f64)> = (0..n_adc).filter(|&a| !adc_own[a]).map(|a| (a, paired(&glob, own_curve, |j| cell(j) == Cell { adc: a, odd: true }))).collect();
-        let Some(&(a, sig)) = tested.iter().max_by(|x, y| x.1.total_cmp(&y.1)) else { break };
+        let Some(&(a, sig)) = tested.iter().filter(|x| x.1.is_finite()).max_by(|x, y| x.1.total_cmp(&y.1)) else { break };
         if sig <= SIGNIFICANCE {
             break;
         }
@@ -974,6 +977,11 @@ mod tests {
         let one = adcs_apart(&draw(&mut rng, 0.05), 4);
         assert_eq!(one.iter().map(|a| a.adc).collect::<Vec<_>>(), vec![2], "{one:?}");
         assert!((one[0].median - one[0].centre - 0.05).abs() < 0.015, "{one:?}");
+        // A fifth ADC with no finite value: not tested, and not in the way of ADC 2.
+        let mut five = draw(&mut rng, 0.05);
+        five.extend((0..1000).map(|p| (4, p % 2 == 1, if p % 2 == 1 { 101.0 } else { f64::NAN })));
+        let found = adcs_apart(&five, 5);
+        assert_eq!(found.iter().map(|a| a.adc).collect::<Vec<_>>(), vec![2], "{found:?}");
     }
 
     /// `diagnose` holds a set's cubes as f32 (half the memory): on a 256 x 256 set with
