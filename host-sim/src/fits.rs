@@ -649,11 +649,18 @@ impl<'a> FitsReader<'a> {
         // A device or FIFO never reaches cfitsio, which would read or wait for ever.
         let mut plain_file = crate::input::open_regular(path)?;
         let size = plain_file.metadata().map_err(|e| HostError::io(path, e))?.len();
-        let name = CfitsioName::for_reading(path)?;
-        let file = FitsFile::open(&name.name).map_err(|e| fits_error(path, "not a readable FITS file", &e))?;
         let mut start = [0u8; 9];
         let plain = std::io::Read::read_exact(&mut plain_file, &mut start).is_ok_and(|()| &start == b"SIMPLE  =");
         let len = if plain { size } else { size.saturating_mul(1100) };
+        if let Some(declared) = declared_uncompressed_size(&mut plain_file, size).map_err(|e| HostError::io(path, e))? {
+            if declared > len {
+                return Err(format_error(path, format!(
+                    "a compressed file of {size} bytes whose header declares {declared} bytes uncompressed, more than it can hold; cfitsio would allocate them at once"
+                )));
+            }
+        }
+        let name = CfitsioName::for_reading(path)?;
+        let file = FitsFile::open(&name.name).map_err(|e| fits_error(path, "not a readable FITS file", &e))?;
         let mut reader = FitsReader { file, _name: name, path, len };
         reader.check_declared_sizes(plain)?;
         Ok(reader)
@@ -1097,6 +1104,45 @@ fn plain_for_cfitsio(path: &Path) -> Option<String> {
     let plain =
         path.is_absolute() && !name.contains(['[', ']', '(', ')']) && !name.contains("://") && !ends_with_hdu_number;
     plain.then(|| name.to_owned())
+}
+
+/// The size cfitsio allocates at once to uncompress `file` (of `size` bytes) into memory,
+/// as it reads it from the header (`mem_compress_open` in cfitsio's `drvrmem.c`): gzip's
+/// `ISIZE`, the last 4 bytes, plus 2^32 until above the file's size if the file has more
+/// than 10 000 bytes; zip's uncompressed size at byte 22 (a file too short to hold it
+/// leaves cfitsio with stale bytes: counted as 2^32, refused). `None` for a file that is
+/// not gzip or zip: cfitsio estimates other methods at 3 x the file's size (issue 18: an
+/// 11-byte file starting `PK` made every FITS reader allocate 4 GB).
+fn declared_uncompressed_size(file: &mut std::fs::File, size: u64) -> std::io::Result<Option<u64>> {
+    use std::io::{Read, Seek, SeekFrom};
+    let le = |b: [u8; 4]| u64::from(u32::from_le_bytes(b));
+    let mut magic = [0u8; 2];
+    file.seek(SeekFrom::Start(0))?;
+    if size < 2 {
+        return Ok(None);
+    }
+    file.read_exact(&mut magic)?;
+    let mut field = [0u8; 4];
+    match &magic {
+        b"\x1f\x8b" if size >= 4 => {
+            file.seek(SeekFrom::End(-4))?;
+            file.read_exact(&mut field)?;
+            let mut declared = le(field);
+            if size > 10_000 {
+                while declared < size {
+                    declared += 1 << 32;
+                }
+            }
+            Ok(Some(declared))
+        }
+        b"PK" if size >= 26 => {
+            file.seek(SeekFrom::Start(22))?;
+            file.read_exact(&mut field)?;
+            Ok(Some(le(field)))
+        }
+        b"\x1f\x8b" | b"PK" => Ok(Some(1 << 32)),
+        _ => Ok(None),
+    }
 }
 
 /// `[4, 16]` as "4 x 16".
