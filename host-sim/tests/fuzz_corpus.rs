@@ -196,3 +196,24 @@ fn compressed_files_declaring_more_than_they_can_hold_are_refused_before_cfitsio
         }
     }
 }
+
+/// Found by `fits_linearity`: a table HDU whose mandatory keywords cfitsio mis-checks
+/// (`ffgttb` compares the status instead of setting it) made cfitsio allocate column
+/// descriptors for an unread `TFIELDS`, 2^54 bytes, while counting HDUs.
+#[test]
+fn table_headers_cfitsio_would_mistake_for_valid_are_refused_before_it() {
+    let crash = fuzz_dir().join("regressions/fits_linearity/table-with-huge-tfields");
+    let e = dncal_host::fits::read_linearity(&crash).unwrap_err().to_string();
+    assert!(e.contains("the table header of HDU 2 has \"NAXIS2  =          SIMPLE"), "{e}");
+    // The same file with TFIELDS = 1000000 and a valid NAXIS2.
+    let dir = tempfile::tempdir().unwrap();
+    let seed = std::fs::read(fuzz_dir().join("corpus/fits_linearity/seed-no-mask.fits")).unwrap();
+    let table = seed.windows(19).position(|w| w == b"XTENSION= 'BINTABLE").unwrap();
+    let mut huge = seed.clone();
+    huge[table + 7 * 80..table + 8 * 80].copy_from_slice(format!("{:<80}", "TFIELDS =              1000000").as_bytes());
+    let path = dir.path().join("huge.fits");
+    std::fs::write(&path, &huge).unwrap();
+    let e = dncal_host::fits::read_linearity(&path).unwrap_err().to_string();
+    assert!(e.contains("has \"TFIELDS =              1000000\""), "{e}");
+    assert!(dncal_host::fits::read_linearity(&fuzz_dir().join("corpus/fits_linearity/seed-no-mask.fits")).is_ok());
+}
