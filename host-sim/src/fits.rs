@@ -660,9 +660,9 @@ impl<'a> FitsReader<'a> {
             }
         }
         if plain {
-            if let Some((hdu, card)) = malformed_table(&mut plain_file, size).map_err(|e| HostError::io(path, e))? {
+            if let Some((at, card)) = malformed_table(&mut plain_file, size).map_err(|e| HostError::io(path, e))? {
                 return Err(format_error(path, format!(
-                    "the table header of HDU {hdu} has \"{card}\"; NAXIS1 and NAXIS2 must be integers >= 0 and TFIELDS 0 to 999 (cfitsio would take it for valid)"
+                    "the table header at byte {at} has \"{card}\"; NAXIS1 and NAXIS2 must be integers >= 0 and TFIELDS 0 to 999 (cfitsio would take it for valid)"
                 )));
             }
         }
@@ -1152,49 +1152,49 @@ fn declared_uncompressed_size(file: &mut std::fs::File, size: u64) -> std::io::R
     }
 }
 
-/// The first table HDU of the plain FITS file `file` whose mandatory keywords cfitsio
-/// mis-checks, and what is wrong with it. `ffgttb` compares the status where it means to
-/// set it (`return(*status == BAD_TFIELDS)`), so a table with `TFIELDS` above 999 or a
+/// The first table header of the plain FITS file `file` whose mandatory keywords cfitsio
+/// mis-checks: its byte offset and the card. `ffgttb` compares the status where it means
+/// to set it (`return(*status == BAD_TFIELDS)`), so a table with `TFIELDS` above 999 or a
 /// negative `NAXIS1` or `NAXIS2` passes as valid, with `TFIELDS` as written or never read;
 /// cfitsio then allocates a column descriptor for every field as soon as it walks past the
 /// HDU, which counting HDUs does (issue 18, found by `fits_linearity`: an allocation of
 /// 2^54 bytes). So the table keywords the standard fixes in place (card 4 `NAXIS1`, card 5
 /// `NAXIS2`, card 8 `TFIELDS`) must be plain non-negative integers, `TFIELDS` at most 999.
 /// The walk reads the headers only, skipping each data unit by the size its header
-/// declares; a header it cannot follow ends the walk, and cfitsio reports it.
+/// declares; past a header it cannot follow (cfitsio reads some values this parse does
+/// not) it checks every following 2880-byte block that starts like a table header.
 fn malformed_table(file: &mut std::fs::File, size: u64) -> std::io::Result<Option<(u64, String)>> {
     use std::io::{Read, Seek, SeekFrom};
     const BLOCK: u64 = 2880;
-    let text = |card: &[u8]| String::from_utf8_lossy(card).trim_end().to_string();
     let integer = |card: &[u8]| -> Option<i64> {
         std::str::from_utf8(&card[10..]).ok()?.split('/').next()?.trim().parse::<i64>().ok()
     };
-    let (mut start, mut hdu) = (0u64, 0u64);
+    let (mut start, mut lost) = (0u64, false);
     let mut block = [0u8; BLOCK as usize];
     while start + BLOCK <= size {
         file.seek(SeekFrom::Start(start))?;
-        let (mut bitpix, mut naxis, mut pcount, mut gcount) = (None, None, 0i64, 1i64);
-        let mut axes: Vec<i64> = Vec::new();
-        let mut at = start;
-        let ended = 'header: loop {
-            if at + BLOCK > size {
-                break false;
-            }
-            file.read_exact(&mut block)?;
-            let first = at == start;
-            at += BLOCK;
-            let card = |n: usize| &block[80 * (n - 1)..80 * n];
-            if first && hdu > 0 && &card(1)[..10] == b"XTENSION= " {
-                let xtension = std::str::from_utf8(&card(1)[10..]).unwrap_or("").split('/').next().unwrap_or("").trim().trim_matches('\'').trim().to_string();
-                if ["TABLE", "BINTABLE", "A3DTABLE", "3DTABLE"].contains(&xtension.as_str()) {
-                    for (n, key, max) in [(4, "NAXIS1", i64::MAX), (5, "NAXIS2", i64::MAX), (8, "TFIELDS", 999)] {
-                        let c = card(n);
-                        if &c[..8] == format!("{key:<8}").as_bytes() && !integer(c).is_some_and(|v| (0..=max).contains(&v)) {
-                            return Ok(Some((hdu, text(c))));
-                        }
+        file.read_exact(&mut block)?;
+        let card = |n: usize| &block[80 * (n - 1)..80 * n];
+        if &card(1)[..10] == b"XTENSION= " {
+            let xtension = String::from_utf8_lossy(&card(1)[10..]);
+            let xtension = xtension.split('/').next().unwrap_or("").trim().trim_matches('\'').trim();
+            if ["TABLE", "BINTABLE", "A3DTABLE", "3DTABLE"].contains(&xtension) {
+                for (n, key, max) in [(4, "NAXIS1", i64::MAX), (5, "NAXIS2", i64::MAX), (8, "TFIELDS", 999)] {
+                    let c = card(n);
+                    if &c[..8] == format!("{key:<8}").as_bytes() && !integer(c).is_some_and(|v| (0..=max).contains(&v)) {
+                        return Ok(Some((start, String::from_utf8_lossy(c).trim_end().to_string())));
                     }
                 }
             }
+        }
+        if lost {
+            start += BLOCK;
+            continue;
+        }
+        let (mut bitpix, mut naxis, mut pcount, mut gcount) = (None, None, 0i64, 1i64);
+        let mut axes: Vec<i64> = Vec::new();
+        let mut at = start + BLOCK;
+        let ended = 'header: loop {
             for card in block.chunks_exact(80) {
                 let key = std::str::from_utf8(&card[..8]).unwrap_or("").trim_end();
                 if key == "END" {
@@ -1218,20 +1218,39 @@ fn malformed_table(file: &mut std::fs::File, size: u64) -> std::io::Result<Optio
                     _ => {}
                 }
             }
+            if at + BLOCK > size {
+                break false;
+            }
+            file.read_exact(&mut block)?;
+            at += BLOCK;
         };
-        let (Some(bitpix), Some(naxis), true) = (bitpix, naxis, ended) else { return Ok(None) };
-        let axes = axes.get(..usize::try_from(naxis).unwrap_or(usize::MAX)).unwrap_or(&[]);
-        // Random groups (primary NAXIS1 = 0) leave out the first axis, as cfitsio does.
-        let counted = if hdu == 0 && axes.first() == Some(&0) && axes.len() > 1 { &axes[1..] } else { axes };
-        let pixels = if naxis == 0 { Some(0) } else { counted.iter().try_fold(1i64, |p, &n| p.checked_mul(n)) };
-        let bytes = pixels
-            .and_then(|p| p.checked_add(pcount))
-            .and_then(|p| p.checked_mul(gcount))
-            .and_then(|p| p.checked_mul(bitpix.abs() / 8))
-            .and_then(|b| u64::try_from(b).ok());
-        let Some(bytes) = bytes else { return Ok(None) };
-        start = at.saturating_add(bytes.div_ceil(BLOCK).saturating_mul(BLOCK));
-        hdu += 1;
+        if !ended {
+            // No END: cfitsio refuses the header itself.
+            return Ok(None);
+        }
+        let axes = naxis.and_then(|n| axes.get(..usize::try_from(n).ok()?));
+        let bytes = match (bitpix, naxis, axes) {
+            (Some(_), Some(0), _) => Some(0),
+            (Some(bitpix), Some(_), Some(axes)) => {
+                // Random groups (primary NAXIS1 = 0) leave out the first axis, as cfitsio does.
+                let counted = if start == 0 && axes.first() == Some(&0) && axes.len() > 1 { &axes[1..] } else { axes };
+                counted
+                    .iter()
+                    .try_fold(1i64, |p, &n| p.checked_mul(n))
+                    .and_then(|p| p.checked_add(pcount))
+                    .and_then(|p| p.checked_mul(gcount))
+                    .and_then(|p| p.checked_mul(bitpix.abs() / 8))
+                    .and_then(|b| u64::try_from(b).ok())
+            }
+            _ => None,
+        };
+        match bytes {
+            Some(bytes) => start = at.saturating_add(bytes.div_ceil(BLOCK).saturating_mul(BLOCK)),
+            None => {
+                lost = true;
+                start += BLOCK;
+            }
+        }
     }
     Ok(None)
 }
