@@ -662,7 +662,7 @@ impl<'a> FitsReader<'a> {
         if plain {
             if let Some((at, card)) = malformed_table(&mut plain_file, size).map_err(|e| HostError::io(path, e))? {
                 return Err(format_error(path, format!(
-                    "the table header at byte {at} has \"{card}\"; NAXIS1 and NAXIS2 must be integers >= 0 and TFIELDS 0 to 999 (cfitsio would take it for valid)"
+                    "the table header at byte {at} has \"{card}\"; a table header opens with BITPIX, NAXIS, NAXIS1, NAXIS2, PCOUNT, GCOUNT and TFIELDS (0 to 999), integers in range (cfitsio would take it for valid)"
                 )));
             }
         }
@@ -1158,8 +1158,10 @@ fn declared_uncompressed_size(file: &mut std::fs::File, size: u64) -> std::io::R
 /// negative `NAXIS1` or `NAXIS2` passes as valid, with `TFIELDS` as written or never read;
 /// cfitsio then allocates a column descriptor for every field as soon as it walks past the
 /// HDU, which counting HDUs does (issue 18, found by `fits_linearity`: an allocation of
-/// 2^54 bytes). So the table keywords the standard fixes in place (card 4 `NAXIS1`, card 5
-/// `NAXIS2`, card 8 `TFIELDS`) must be plain non-negative integers, `TFIELDS` at most 999.
+/// 2^54 bytes; a third input reached the same allocation with a garbled `GCOUNT` card). So
+/// a table header must open with the cards the standard fixes in place, `BITPIX`, `NAXIS`,
+/// `NAXIS1`, `NAXIS2`, `PCOUNT`, `GCOUNT`, `TFIELDS`, each a plain integer in range
+/// (`TFIELDS` at most 999).
 /// The walk reads the headers only, skipping each data unit by the size its header
 /// declares; past a header it cannot follow (cfitsio reads some values this parse does
 /// not) it checks every following 2880-byte block that starts like a table header.
@@ -1179,9 +1181,18 @@ fn malformed_table(file: &mut std::fs::File, size: u64) -> std::io::Result<Optio
             let xtension = String::from_utf8_lossy(&card(1)[10..]);
             let xtension = xtension.split('/').next().unwrap_or("").trim().trim_matches('\'').trim();
             if ["TABLE", "BINTABLE", "A3DTABLE", "3DTABLE"].contains(&xtension) {
-                for (n, key, max) in [(4, "NAXIS1", i64::MAX), (5, "NAXIS2", i64::MAX), (8, "TFIELDS", 999)] {
+                let mandatory = [
+                    (2, "BITPIX", i64::MIN, i64::MAX),
+                    (3, "NAXIS", 0, 999),
+                    (4, "NAXIS1", 0, i64::MAX),
+                    (5, "NAXIS2", 0, i64::MAX),
+                    (6, "PCOUNT", 0, i64::MAX),
+                    (7, "GCOUNT", 0, i64::MAX),
+                    (8, "TFIELDS", 0, 999),
+                ];
+                for (n, key, min, max) in mandatory {
                     let c = card(n);
-                    if &c[..8] == format!("{key:<8}").as_bytes() && !integer(c).is_some_and(|v| (0..=max).contains(&v)) {
+                    if &c[..10] != format!("{key:<8}= ").as_bytes() || !integer(c).is_some_and(|v| (min..=max).contains(&v)) {
                         return Ok(Some((start, String::from_utf8_lossy(c).trim_end().to_string())));
                     }
                 }
