@@ -1178,8 +1178,9 @@ fn malformed_table(file: &mut std::fs::File, size: u64) -> std::io::Result<Optio
         file.read_exact(&mut block)?;
         let card = |n: usize| &block[80 * (n - 1)..80 * n];
         if &card(1)[..10] == b"XTENSION= " {
+            // The quoted string, as cfitsio reads it, whatever follows it before the comment.
             let xtension = String::from_utf8_lossy(&card(1)[10..]);
-            let xtension = xtension.split('/').next().unwrap_or("").trim().trim_matches('\'').trim();
+            let xtension = xtension.trim_start().strip_prefix('\'').and_then(|v| v.split('\'').next()).unwrap_or("").trim();
             if ["TABLE", "BINTABLE", "A3DTABLE", "3DTABLE"].contains(&xtension) {
                 let mandatory = [
                     (2, "BITPIX", i64::MIN, i64::MAX),

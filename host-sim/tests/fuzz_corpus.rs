@@ -210,6 +210,10 @@ fn table_headers_cfitsio_would_mistake_for_valid_are_refused_before_it() {
         let e = dncal_host::fits::read_linearity(&crash).unwrap_err().to_string();
         assert!(e.contains("the table header at byte 11520 has \"NAXIS2  =          SIMPLE"), "{e}");
     }
+    // XTENSION = 'BINTABLE' followed by text before its comment.
+    let crash = fuzz_dir().join("regressions/fits_linearity/table-xtension-with-trailing-text");
+    let e = dncal_host::fits::read_linearity(&crash).unwrap_err().to_string();
+    assert!(e.contains("the table header at byte 11520 has \"NAXIS1  ="), "{e}");
     let crash = fuzz_dir().join("regressions/fits_linearity/table-with-garbled-gcount");
     let e = dncal_host::fits::read_linearity(&crash).unwrap_err().to_string();
     // Bytes outside ASCII in the PCOUNT card's comment.
