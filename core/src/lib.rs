@@ -37,6 +37,8 @@ pub mod adc;
 pub mod banks;
 pub mod driver;
 pub mod error;
+#[doc(hidden)]
+pub mod fuzzing;
 pub mod histogram;
 pub mod image;
 pub mod lut;

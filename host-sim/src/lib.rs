@@ -13,6 +13,8 @@ pub mod emva;
 pub mod error;
 pub mod firmware;
 pub mod fits;
+#[doc(hidden)]
+pub mod fuzzing;
 pub mod hidden;
 pub mod input;
 pub mod flatten;

@@ -1,0 +1,6 @@
+//! Any bytes through the reader; see `dncal_host::fuzzing::fits_lut`.
+#![no_main]
+
+libfuzzer_sys::fuzz_target!(|data: &[u8]| {
+    dncal_host::fuzzing::fits_lut(data);
+});

@@ -1,0 +1,232 @@
+//! The fuzz corpus, replayed without libFuzzer or nightly (issue 18): every file of
+//! `fuzz/corpus/<target>/` and `fuzz/regressions/<target>/` goes through the function the
+//! fuzz target calls (`dncal_host::fuzzing`), which panics if a reader panics or an
+//! invariant breaks. The regressions are the inputs that once crashed a target.
+//!
+//! `write_seed_corpus` (ignored) writes the seeds with the project's own writers:
+//! `cargo test -p dncal-host --test fuzz_corpus -- --ignored`.
+
+use std::path::{Path, PathBuf};
+
+use dncal_host::camera::CameraConfig;
+use dncal_host::fits::{write_histograms, write_linearity, write_lut, AdcHistograms, LinearitySet, LutTables};
+use dncal_host::fuzzing::{self, EMVA_FILE_SEPARATOR};
+
+fn fuzz_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../fuzz")
+}
+
+/// Runs `entry` on every input of `target`; returns how many there were.
+fn replay(target: &str, entry: Entry) -> usize {
+    let mut inputs = Vec::new();
+    for kind in ["corpus", "regressions"] {
+        let Ok(dir) = std::fs::read_dir(fuzz_dir().join(kind).join(target)) else { continue };
+        inputs.extend(dir.map(|e| e.unwrap().path()).filter(|p| p.is_file()));
+    }
+    inputs.sort();
+    for input in &inputs {
+        let bytes = std::fs::read(input).unwrap();
+        if let Err(panic) = std::panic::catch_unwind(|| entry(&bytes)) {
+            let message = panic.downcast_ref::<String>().cloned().or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()));
+            panic!("{}: {}", input.display(), message.unwrap_or_default());
+        }
+    }
+    inputs.len()
+}
+
+#[test]
+fn fits_histograms_corpus_never_panics() {
+    assert!(replay("fits_histograms", fuzzing::fits_histograms) >= 4);
+}
+
+#[test]
+fn fits_linearity_corpus_never_panics() {
+    assert!(replay("fits_linearity", fuzzing::fits_linearity) >= 2);
+}
+
+#[test]
+fn fits_lut_corpus_never_panics() {
+    assert!(replay("fits_lut", fuzzing::fits_lut) >= 3);
+}
+
+#[test]
+fn emva_descriptor_corpus_never_panics() {
+    assert!(replay("emva_descriptor", fuzzing::emva_descriptor) >= 2);
+}
+
+#[test]
+fn camera_toml_corpus_never_panics() {
+    assert!(replay("camera_toml", fuzzing::camera_toml) >= 3);
+}
+
+/// A grayscale PNG of `codes`, row-major, of `depth` bits.
+fn png(width: u32, height: u32, codes: &[u16], depth: png::BitDepth) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut encoder = png::Encoder::new(std::io::Cursor::new(&mut out), width, height);
+    encoder.set_color(png::ColorType::Grayscale);
+    encoder.set_depth(depth);
+    let bytes: Vec<u8> = match depth {
+        png::BitDepth::Sixteen => codes.iter().flat_map(|c| c.to_be_bytes()).collect(),
+        _ => codes.iter().map(|&c| c as u8).collect(),
+    };
+    let mut writer = encoder.write_header().unwrap();
+    writer.write_image_data(&bytes).unwrap();
+    writer.finish().unwrap();
+    out
+}
+
+/// The seed corpus, from the project's writers (and the astropy-written FITS fixtures).
+#[test]
+#[ignore = "writes fuzz/corpus; run by hand to regenerate the seeds"]
+fn write_seed_corpus() {
+    let corpus = fuzz_dir().join("corpus");
+    let dir = |t: &str| {
+        let d = corpus.join(t);
+        std::fs::create_dir_all(&d).unwrap();
+        d
+    };
+    let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures");
+
+    let h = dir("fits_histograms");
+    write_histograms(&h.join("seed-2adc-4bit.fits"), &AdcHistograms { bit_depth: 4, counts: vec![(0..16).collect(), vec![7; 16]] }).unwrap();
+    write_histograms(&h.join("seed-4adc-1bit.fits"), &AdcHistograms { bit_depth: 1, counts: vec![vec![1 << 60, 3]; 4] }).unwrap();
+    for f in ["histograms_int32.fits", "histograms_uint16.fits", "histograms_uint64.fits"] {
+        std::fs::copy(fixtures.join(f), h.join(format!("astropy-{f}"))).unwrap();
+    }
+
+    let l = dir("fits_linearity");
+    let (width, height, levels) = (4, 2, 3);
+    let n = width * height * levels;
+    let set = LinearitySet {
+        bit_depth: 12,
+        n_adc: 4,
+        n_frames: 16,
+        width,
+        height,
+        levels,
+        mean: (0..n).map(|i| 100.0 + 10.5 * i as f64).collect(),
+        std: (0..n).map(|i| 1.0 + 0.25 * i as f64).collect(),
+        voltage: vec![0.0, 0.5, 1.0],
+        mask: Some(vec![0, 1, 0, 0, 0, 0, 1, 0]),
+    };
+    write_linearity(&l.join("seed-with-mask.fits"), &set).unwrap();
+    write_linearity(&l.join("seed-no-mask.fits"), &LinearitySet { mask: None, ..set }).unwrap();
+    std::fs::copy(fixtures.join("linearity.fits"), l.join("astropy-linearity.fits")).unwrap();
+
+    let t = dir("fits_lut");
+    let ideal = |codes: u32| (0..codes).map(|k| (k << 11) | 1 << 10).collect::<Vec<u32>>();
+    // 8 bits: the smallest depth the core (and so `lut inspect`) is built for.
+    let lut = LutTables { frac_bits: 11, tables: vec![ideal(256), ideal(256)], weights: None, kcor_bits: None };
+    write_lut(&t.join("seed-2adc-8bit.fits"), &lut).unwrap();
+    let with = LutTables { weights: Some(vec![vec![1 << 24; 256]; 2]), kcor_bits: Some(23), ..lut };
+    write_lut(&t.join("seed-weights-kcorbits.fits"), &with).unwrap();
+    std::fs::copy(fixtures.join("lut_uint32.fits"), t.join("astropy-lut_uint32.fits")).unwrap();
+    // `lut inspect` also reads device images.
+    let set = dncal_core::LutSet::<1, 256>::from_bits(&[core::array::from_fn(|k| 2000 * k as u32 + 1024)]).unwrap();
+    let mut image = vec![0u8; dncal_core::image_len::<1, 256>()];
+    dncal_core::encode_image(&set, &mut image).unwrap();
+    std::fs::write(t.join("seed-device-image-1x256.bin"), &image).unwrap();
+
+    let e = dir("emva_descriptor");
+    let codes: Vec<u16> = (0..12).map(|i| i * 300).collect();
+    let mut input = b"v 3.0\nn 12 4 3\nb 40000.0 120.0\ni f1.png\ni f2.png\nd 40000.0\ni f3.png\ni f3.png\n".to_vec();
+    for image in [png(4, 3, &codes, png::BitDepth::Sixteen), png(4, 3, &codes[..].iter().rev().copied().collect::<Vec<_>>(), png::BitDepth::Sixteen), png(4, 3, &[0; 12], png::BitDepth::Sixteen)] {
+        input.extend_from_slice(EMVA_FILE_SEPARATOR);
+        input.extend_from_slice(&image);
+    }
+    std::fs::write(e.join("seed-12bit-temporal.txt"), &input).unwrap();
+    let mut input = b"# spatial series, 8-bit\r\nn 8 3 2\r\nb 10 5\r\ni f1.png\r\ni f2.png\r\ni f1.png\r\n".to_vec();
+    for image in [png(3, 2, &[0, 1, 2, 3, 4, 255], png::BitDepth::Eight), png(3, 2, &[9; 6], png::BitDepth::Eight)] {
+        input.extend_from_slice(EMVA_FILE_SEPARATOR);
+        input.extend_from_slice(&image);
+    }
+    std::fs::write(e.join("seed-8bit-spatial.txt"), &input).unwrap();
+
+    let c = dir("camera_toml");
+    std::fs::write(c.join("seed-default.toml"), toml::to_string(&CameraConfig::default()).unwrap()).unwrap();
+    std::fs::write(c.join("seed-small.toml"), "name = \"small\"\nwidth = 16\nheight = 8\nbits = 4\nn_adc = 2\n\n[adc]\nstage_bits = [2, 2]\nstage_error_lsb = [0.1, 0.05]\n").unwrap();
+    let widths = CameraConfig {
+        width: 8,
+        height: 4,
+        bits: 2,
+        n_adc: 2,
+        nonlinearity: vec![],
+        pixel_nonlinearity_rms: vec![],
+        adc: dncal_host::camera::AdcConfig { stage_bits: vec![1, 1], stage_error_lsb: vec![0.0, 0.0], seed: 1, widths: vec![vec![1.0, 0.9, 1.1, 1.0]; 2], widths_from: None },
+        ..CameraConfig::default()
+    };
+    std::fs::write(c.join("seed-model-widths.toml"), toml::to_string(&widths).unwrap()).unwrap();
+
+    // Seeds the readers refuse would leave the fuzzer at the door.
+    for (target, entry) in TARGETS {
+        for seed in std::fs::read_dir(corpus.join(target)).unwrap() {
+            let seed = seed.unwrap().path();
+            assert!(entry(&std::fs::read(&seed).unwrap()), "{} is refused", seed.display());
+        }
+    }
+}
+
+/// A target's entry: whether the reader accepted the input.
+type Entry = fn(&[u8]) -> bool;
+
+const TARGETS: [(&str, Entry); 5] = [
+    ("fits_histograms", fuzzing::fits_histograms),
+    ("fits_linearity", fuzzing::fits_linearity),
+    ("fits_lut", fuzzing::fits_lut),
+    ("emva_descriptor", fuzzing::emva_descriptor),
+    ("camera_toml", fuzzing::camera_toml),
+];
+
+/// Found by `fits_lut` (and so by every FITS reader): an 11-byte file starting `PK` made
+/// cfitsio allocate 4 GB for the zip it declares, before reading a byte of it. Gzip's
+/// declared size (the last 4 bytes) is bounded the same way.
+#[test]
+fn compressed_files_declaring_more_than_they_can_hold_are_refused_before_cfitsio() {
+    let dir = tempfile::tempdir().unwrap();
+    let zip = fuzz_dir().join("regressions/fits_lut/oom-zip-header-11-bytes");
+    let mut gzip = vec![0x1f, 0x8b, 8, 0, 0, 0, 0, 0, 0, 3];
+    gzip.extend_from_slice(&u32::MAX.to_le_bytes());
+    let gzip_path = dir.path().join("big.fits.gz");
+    std::fs::write(&gzip_path, &gzip).unwrap();
+    for (path, size, declared) in [(zip, 11, 1u64 << 32), (gzip_path, 14, u32::MAX as u64)] {
+        let want = format!("a compressed file of {size} bytes whose header declares {declared} bytes uncompressed");
+        for e in [
+            dncal_host::fits::read_lut(&path).unwrap_err(),
+            dncal_host::fits::read_histograms(&path).unwrap_err(),
+            dncal_host::fits::read_linearity(&path).unwrap_err(),
+        ] {
+            assert!(e.to_string().contains(&want), "{e}");
+        }
+    }
+}
+
+/// Found by `fits_linearity`: a table HDU whose mandatory keywords cfitsio mis-checks
+/// (`ffgttb` compares the status instead of setting it) made cfitsio allocate column
+/// descriptors for an unread `TFIELDS`, 2^54 bytes, while counting HDUs.
+#[test]
+fn table_headers_cfitsio_would_mistake_for_valid_are_refused_before_it() {
+    for crash in ["table-with-huge-tfields", "table-after-unreadable-naxis"] {
+        let crash = fuzz_dir().join("regressions/fits_linearity").join(crash);
+        let e = dncal_host::fits::read_linearity(&crash).unwrap_err().to_string();
+        assert!(e.contains("the table header at byte 11520 has \"NAXIS2  =          SIMPLE"), "{e}");
+    }
+    // XTENSION = 'BINTABLE' followed by text before its comment.
+    let crash = fuzz_dir().join("regressions/fits_linearity/table-xtension-with-trailing-text");
+    let e = dncal_host::fits::read_linearity(&crash).unwrap_err().to_string();
+    assert!(e.contains("the table header at byte 11520 has \"NAXIS1  ="), "{e}");
+    let crash = fuzz_dir().join("regressions/fits_linearity/table-with-garbled-gcount");
+    let e = dncal_host::fits::read_linearity(&crash).unwrap_err().to_string();
+    // Bytes outside ASCII in the PCOUNT card's comment.
+    assert!(e.contains("the table header at byte 11520 has \"PCOUNT  =                    0 / size of special data area"), "{e}");
+    // The same file with TFIELDS = 1000000 and a valid NAXIS2.
+    let dir = tempfile::tempdir().unwrap();
+    let seed = std::fs::read(fuzz_dir().join("corpus/fits_linearity/seed-no-mask.fits")).unwrap();
+    let table = seed.windows(19).position(|w| w == b"XTENSION= 'BINTABLE").unwrap();
+    let mut huge = seed.clone();
+    huge[table + 7 * 80..table + 8 * 80].copy_from_slice(format!("{:<80}", "TFIELDS =              1000000").as_bytes());
+    let path = dir.path().join("huge.fits");
+    std::fs::write(&path, &huge).unwrap();
+    let e = dncal_host::fits::read_linearity(&path).unwrap_err().to_string();
+    assert!(e.contains("has \"TFIELDS =              1000000\""), "{e}");
+    assert!(dncal_host::fits::read_linearity(&fuzz_dir().join("corpus/fits_linearity/seed-no-mask.fits")).is_ok());
+}
