@@ -3,8 +3,8 @@
 //! goes through `dncal_core::fuzzing::lut_image_chunks`, which panics if an upload panics
 //! or activates anything but a valid image.
 //!
-//! `write_seed_corpus` (ignored) writes the seeds with the core's own encoder:
-//! `cargo test -p dncal-core --test fuzz_corpus -- --ignored`.
+//! The seeds are the core's own encoder's (checked by a test here;
+//! `DNCAL_WRITE_SEEDS=1 cargo test -p dncal-core --test fuzz_corpus` rewrites them).
 
 use std::path::{Path, PathBuf};
 
@@ -35,10 +35,32 @@ fn lut_image_corpus_activates_only_valid_images() {
     }
 }
 
+/// The seeds are written by the core's encoder into a temporary folder; each must be
+/// a committed seed, byte for byte (the generator is seeded), and replay cleanly. With
+/// `DNCAL_WRITE_SEEDS=1` they are written into `fuzz/corpus/` instead.
 #[test]
-#[ignore = "writes fuzz/corpus; run by hand to regenerate the seeds"]
-fn write_seed_corpus() {
-    let dir = &target_dirs()[0];
+fn the_seed_writer_makes_the_committed_seeds() {
+    let temp = std::env::temp_dir().join(format!("dncal-core-seeds-{}", std::process::id()));
+    let regenerate = std::env::var_os("DNCAL_WRITE_SEEDS").is_some_and(|v| v == "1");
+    let dir = if regenerate { target_dirs()[0].clone() } else { temp.clone() };
+    write_seeds(&dir);
+    let mut seeds = 0;
+    for seed in std::fs::read_dir(&dir).unwrap() {
+        let seed = seed.unwrap().path();
+        let bytes = std::fs::read(&seed).unwrap();
+        let committed = target_dirs()[0].join(seed.file_name().unwrap());
+        assert_eq!(std::fs::read(&committed).ok().as_deref(), Some(&bytes[..]), "{} differs from the committed seed (DNCAL_WRITE_SEEDS=1 rewrites it)", committed.display());
+        let run = std::thread::Builder::new().stack_size(16 << 20).spawn(move || lut_image_chunks(&bytes)).unwrap();
+        assert!(run.join().is_ok(), "{}", seed.display());
+        seeds += 1;
+    }
+    if !regenerate {
+        std::fs::remove_dir_all(&temp).unwrap();
+    }
+    assert_eq!(seeds, 5);
+}
+
+fn write_seeds(dir: &Path) {
     std::fs::create_dir_all(dir).unwrap();
     let small = LutSet::<2, 16>::from_bits(&[core::array::from_fn(|k| 2048 * k as u32 + 1024), core::array::from_fn(|k| 2000 * k as u32)]).unwrap();
     let mut image = vec![0u8; image_len::<2, 16>()];

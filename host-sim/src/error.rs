@@ -62,6 +62,18 @@ pub enum HostError {
         /// What it is ("directory", "FIFO", ...).
         kind: &'static str,
     },
+    /// A step would need more memory than the budget ([`crate::budget`], `--max-memory`).
+    #[error("{path}: {what} needs about {}, more than the memory budget of {} (--max-memory)", crate::budget::human(*bytes), crate::budget::human(*limit))]
+    OverBudget {
+        /// The file (or config) whose sizes ask for it.
+        path: PathBuf,
+        /// What needs the memory.
+        what: String,
+        /// The estimate, bytes.
+        bytes: u64,
+        /// The budget, bytes.
+        limit: u64,
+    },
     /// A file's contents are not what they must be.
     #[error("{path}: {message}")]
     Format {

@@ -636,6 +636,10 @@ impl<'a> FitsReader<'a> {
                     "a compressed file of {size} bytes whose header declares {declared} bytes uncompressed, more than it can hold; cfitsio would allocate them at once"
                 )));
             }
+            crate::budget::check(path, "decompressing it (the size its header declares)", declared)?;
+            if start[..2] == [0x1f, 0x8b] {
+                check_gzip_inflates_within(&mut plain_file, path, len.min(crate::budget::limit()))?;
+            }
         }
         if plain {
             if let Some((at, card)) = malformed_table(&mut plain_file, size).map_err(|e| HostError::io(path, e))? {
@@ -820,8 +824,13 @@ impl<'a> FitsReader<'a> {
         Ok(())
     }
 
-    /// All pixels of an image as `V` (a `Vec` of the wanted type; cfitsio converts).
-    fn pixels<V: ReadImage>(&mut self, image: &ImageHeader) -> Result<V, HostError> {
+    /// All pixels of an image as `T` (cfitsio converts), if they fit the memory budget.
+    fn pixels<T>(&mut self, image: &ImageHeader) -> Result<Vec<T>, HostError>
+    where
+        Vec<T>: ReadImage,
+    {
+        let what = format!("the {} ({} pixels as {}-byte values)", image.label, shape_text(&image.naxes), std::mem::size_of::<T>());
+        crate::budget::check(self.path, &what, crate::budget::bytes_of(image.elements as u64, std::mem::size_of::<T>() as u64))?;
         let shape = image.naxes.iter().rev().copied().collect();
         let handle = FitsHdu { info: HduInfo::ImageInfo { shape, image_type: ImageType::Double }, number: image.hdu };
         handle
@@ -1128,6 +1137,27 @@ fn declared_uncompressed_size(file: &mut std::fs::File, size: u64) -> std::io::R
         b"\x1f\x8b" | b"PK" => Ok(Some(1 << 32)),
         _ => Ok(None),
     }
+}
+
+/// Refuses a gzip file that inflates to more than `limit` bytes. cfitsio decompresses a
+/// gzip file whole into memory, growing its buffer past the size the trailer declares
+/// (which is the size modulo 2^32: a 5 GiB file declares 1 GiB), so the only bound is the
+/// inflated size itself: counted here by inflating into nothing, stopping one byte past
+/// the limit (issue 18: a 5 MB file reached 3 GB in cfitsio before it gave up).
+fn check_gzip_inflates_within(file: &mut std::fs::File, path: &Path, limit: u64) -> Result<(), HostError> {
+    use std::io::{Read, Seek, SeekFrom};
+    file.seek(SeekFrom::Start(0)).map_err(|e| HostError::io(path, e))?;
+    let mut inflated = flate2::read::MultiGzDecoder::new(std::io::BufReader::new(&mut *file)).take(limit.saturating_add(1));
+    // A corrupt stream is cfitsio's to report (with its own message); only the size is ours.
+    let n = std::io::copy(&mut inflated, &mut std::io::sink()).unwrap_or(0);
+    if n > limit {
+        return Err(format_error(path, format!(
+            "inflates to more than {} (gzip), more than {}",
+            crate::budget::human(limit),
+            if limit == crate::budget::limit() { "the memory budget (--max-memory)" } else { "1100 times its size, above deflate's largest ratio" }
+        )));
+    }
+    Ok(())
 }
 
 /// The first table header of the plain FITS file `file` whose mandatory keywords cfitsio

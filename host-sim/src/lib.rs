@@ -5,6 +5,7 @@
 //! figures, the firmware-versus-host run, and the `dncal` command's subcommands. All
 //! correction arithmetic comes from `dncal-core`.
 
+pub mod budget;
 pub mod camera;
 pub mod commands;
 pub mod diagnose;
@@ -28,6 +29,7 @@ pub mod parallel;
 pub mod real_adcs;
 pub mod reference;
 pub mod select;
+pub mod soak;
 pub mod stats;
 pub mod streaming;
 pub mod synth;

@@ -25,6 +25,11 @@ use serde::Serialize;
 struct Cli {
     #[command(subcommand)]
     command: Cmd,
+    /// Memory budget: a file or config whose sizes would make a step need more is refused
+    /// before anything is allocated (bytes, or K, M, G, T: powers of 1024). Default: 3/4 of
+    /// the machine's physical memory.
+    #[arg(long, global = true, value_name = "SIZE", value_parser = dncal_host::budget::parse_size)]
+    max_memory: Option<u64>,
 }
 
 /// Which datapath `stream` drives.
@@ -666,6 +671,9 @@ fn main() -> ExitCode {
 }
 
 fn run(cli: Cli) -> Result<ExitCode, HostError> {
+    if let Some(bytes) = cli.max_memory {
+        dncal_host::budget::set_limit(bytes);
+    }
     match cli.command {
         Cmd::Simulate { what: SimulateCmd::Histograms { camera, ramp, out, json } } => {
             let cam = camera.camera()?;

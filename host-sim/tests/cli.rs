@@ -5,42 +5,18 @@
 //! Bad FITS files are written by astropy (`python3`), the reference writer, so that the
 //! files are exactly what a user's tools produce.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+mod support;
+
+use std::path::Path;
+use std::process::Command;
 
 use dncal_host::fits::{read_histograms, read_lut};
 use serde_json::Value;
-
-fn dncal(args: &[&str], dir: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_dncal")).args(args).current_dir(dir).output().expect("dncal runs")
-}
-
-fn stdout_json(out: &Output) -> Value {
-    assert!(out.status.success(), "exit {:?}\nstderr: {}", out.status, String::from_utf8_lossy(&out.stderr));
-    serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("stdout is not JSON ({e}): {}", String::from_utf8_lossy(&out.stdout)))
-}
-
-/// The command failed cleanly: exit 1, one error line naming `file` and containing
-/// `words`, no panic.
-fn assert_clean_failure(out: &Output, file: &str, words: &str) {
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "stderr: {stderr}");
-    assert!(!stderr.contains("panicked"), "panic: {stderr}");
-    assert!(stderr.starts_with("dncal: error: "), "{stderr}");
-    assert!(stderr.contains(file), "{stderr:?} should name {file}");
-    assert!(stderr.to_lowercase().contains(&words.to_lowercase()), "{stderr:?} should say {words:?}");
-}
+use support::{assert_clean_failure, dncal, listing, stdout_json};
 
 fn python(script: &str, dir: &Path) {
     let out = Command::new("python3").arg("-c").arg(script).current_dir(dir).output().expect("python3 must be installed");
     assert!(out.status.success(), "python failed (astropy installed?):\n{}", String::from_utf8_lossy(&out.stderr));
-}
-
-/// Files in `dir`, sorted: to see that a failed command left nothing behind.
-fn listing(dir: &Path) -> Vec<PathBuf> {
-    let mut v: Vec<PathBuf> = std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().path()).collect();
-    v.sort();
-    v
 }
 
 #[test]

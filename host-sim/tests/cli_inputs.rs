@@ -4,54 +4,11 @@
 //! naming a directory where a file prefix is expected. Each must be one line
 //! `dncal: error: FILE: problem`, exit code 1, promptly, with nothing written.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
-use std::time::{Duration, Instant};
+mod support;
 
-use dncal_host::fits::{write_histograms, AdcHistograms};
+use std::process::Command;
 
-/// Runs `dncal args` in `dir`, killed after 60 s: a command that hangs fails its test
-/// instead of hanging the suite.
-fn dncal(args: &[&str], dir: &Path) -> Output {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_dncal"))
-        .args(args)
-        .current_dir(dir)
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("dncal runs");
-    let deadline = Instant::now() + Duration::from_secs(60);
-    while child.try_wait().expect("dncal can be waited for").is_none() {
-        if Instant::now() > deadline {
-            child.kill().ok();
-            child.wait().ok();
-            panic!("dncal {args:?} still running after 60 s");
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    child.wait_with_output().expect("dncal's output")
-}
-
-/// The command failed with exactly `dncal: error: {line}` and exit code 1.
-fn assert_error(out: &Output, line: &str) {
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(stderr, format!("dncal: error: {line}\n"));
-    assert_eq!(out.status.code(), Some(1), "stderr: {stderr}");
-    assert!(out.stdout.is_empty(), "stdout: {}", String::from_utf8_lossy(&out.stdout));
-}
-
-/// Files in `dir`, sorted, hidden ones included: to see that nothing was written.
-fn listing(dir: &Path) -> Vec<PathBuf> {
-    let mut v: Vec<PathBuf> = std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().path()).collect();
-    v.sort();
-    v
-}
-
-/// A histogram set `lut build` accepts: 4 ADCs of 12 bits, 1000 samples in every code.
-fn flat_histograms(path: &Path) {
-    write_histograms(path, &AdcHistograms { bit_depth: 12, counts: vec![vec![1000; 4096]; 4] }).unwrap();
-}
+use support::{assert_error, dncal_prompt as dncal, flat_histograms, listing};
 
 #[cfg(unix)]
 #[test]
@@ -187,4 +144,91 @@ fn an_output_prefix_naming_a_directory_is_refused_before_writing() {
     // A prefix inside the directory is what was meant, and works.
     assert!(dncal(&["lut", "build", "h.fits", "-o", "out/cal"], d).status.success());
     assert_eq!(listing(&d.join("out")), [d.join("out/cal.bin"), d.join("out/cal.fits")]);
+}
+
+/// A gzip file of two members: a FITS header declaring 4000 x 4000 16-bit pixels and
+/// `zeros` bytes of data, then a member of 300,000 zero bytes, whose trailer is all a
+/// reader of the last 4 bytes sees (cfitsio's estimate of the inflated size).
+fn two_member_gzip(path: &std::path::Path, zeros: usize) {
+    use std::io::Write;
+    let cards = ["SIMPLE  =                    T", "BITPIX  =                   16", "NAXIS   =                    2", "NAXIS1  =                 4000", "NAXIS2  =                 4000", "END"];
+    let mut header: Vec<u8> = cards.iter().flat_map(|c| format!("{c:<80}").into_bytes()).collect();
+    header.resize(2880, b' ');
+    let mut bytes = Vec::new();
+    for member in [[header, vec![0u8; zeros]].concat(), vec![0u8; 300_000]] {
+        let mut z = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+        z.write_all(&member).unwrap();
+        bytes.extend(z.finish().unwrap());
+    }
+    std::fs::write(path, bytes).unwrap();
+}
+
+#[test]
+fn sizes_over_the_memory_budget_are_refused_before_allocating() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // A gzip file inflating to 16 MB whose trailer declares 300,000 bytes: within the
+    // compression bound, so only counting the inflated bytes finds it over 4 MiB.
+    two_member_gzip(&d.join("bomb.fits.gz"), 16 << 20);
+    let before = listing(d);
+    for args in [&["diagnose", "bomb.fits.gz"][..], &["lut", "inspect", "bomb.fits.gz"], &["linearity", "bomb.fits.gz"]] {
+        let out = dncal(&[args, &["--max-memory", "4M"]].concat(), d);
+        assert_error(&out, "bomb.fits.gz: inflates to more than 4.0 MiB (gzip), more than the memory budget (--max-memory)");
+    }
+    // Its 16 MB (within the default budget) inflate and reach the reader, which finds
+    // the data cut short: the budget, not the count, refused it above.
+    let out = dncal(&["lut", "inspect", "bomb.fits.gz"], d);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(!String::from_utf8_lossy(&out.stderr).contains("inflates"), "{}", String::from_utf8_lossy(&out.stderr));
+
+    // An image's pixels: 4000 x 4000 as 8-byte values (the histogram reader's u64) is
+    // 122 MiB, refused by a budget of 64 MiB before cfitsio reads them. A plain file.
+    let cards = ["SIMPLE  =                    T", "BITPIX  =                    8", "NAXIS   =                    2", "NAXIS1  =                 4096", "NAXIS2  =                 4000", "BITDEPTH=                   12", "NADC    =                 4000", "ADCMAP  = 'COLMOD'", "END"];
+    let mut plain: Vec<u8> = cards.iter().flat_map(|c| format!("{c:<80}").into_bytes()).collect();
+    plain.resize(2880, b' ');
+    plain.resize(2880 + 4096 * 4000, 0);
+    plain.resize(plain.len().div_ceil(2880) * 2880, 0);
+    std::fs::write(d.join("wide.fits"), &plain).unwrap();
+    let out = dncal(&["--max-memory", "64M", "lut", "build", "wide.fits", "-o", "cal"], d);
+    assert_error(&out, "wide.fits: the primary HDU (4096 x 4000 pixels as 8-byte values) needs about 125.0 MiB, more than the memory budget of 64.0 MiB (--max-memory)");
+
+    // A linearity set's analysis: 16 x 8 pixels x 12 levels need 24 x 12 + 256 = 544
+    // bytes per pixel, 68 KiB.
+    support::small_linearity(d, "lin.fits");
+    let out = dncal(&["linearity", "lin.fits", "--max-memory", "64K"], d);
+    assert_error(&out, "lin.fits: the pixel-wise analysis (the corrected cube and the fits) needs about 68.0 KiB, more than the memory budget of 64.0 KiB (--max-memory)");
+    // diagnose: 400 bytes per pixel beyond the set, 50 KiB.
+    let out = dncal(&["diagnose", "lin.fits", "--max-memory", "48K"], d);
+    assert_error(&out, "lin.fits: diagnosing each pixel (about 400 bytes per pixel beyond the set) needs about 50.0 KiB, more than the memory budget of 48.0 KiB (--max-memory)");
+
+    // A camera config: 4096 x 4096 pixels of 17 bytes or more (gain, dark, state and the
+    // nonlinearity terms) is more than 256 MiB.
+    std::fs::write(d.join("cam.toml"), "width = 4096\nheight = 4096\n").unwrap();
+    let out = dncal(&["simulate", "linearity", "--config", "cam.toml", "--max-memory", "256M", "-o", "x.fits"], d);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.starts_with("dncal: error: cam.toml: the camera model of 4096 x 4096 pixels needs about ") && stderr.ends_with("more than the memory budget of 256.0 MiB (--max-memory)\n"), "{stderr}");
+    assert_eq!(out.status.code(), Some(1));
+
+    // An EMVA image: 512 x 512 pixels at 4 bytes each (the decoder's buffer and the
+    // codes) is 1 MiB.
+    std::fs::create_dir(d.join("emva")).unwrap();
+    let file = std::fs::File::create(d.join("emva/img0.png")).unwrap();
+    let mut encoder = png::Encoder::new(std::io::BufWriter::new(file), 512, 512);
+    encoder.set_color(png::ColorType::Grayscale);
+    encoder.set_depth(png::BitDepth::Sixteen);
+    encoder.write_header().unwrap().write_image_data(&vec![0u8; 512 * 512 * 2]).unwrap();
+    std::fs::write(d.join("emva/set.txt"), "v 3.1\nn 12 512 512\nd 1000.0\ni img0.png\ni img0.png\n").unwrap();
+    let out = dncal(&["emva", "emva/set.txt", "--max-memory", "512K"], d);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.starts_with("dncal: error: emva/set.txt: line 4: ") && stderr.ends_with("img0.png: the image's pixels needs about 1.0 MiB, more than the memory budget of 512.0 KiB (--max-memory)\n"), "{stderr}");
+    assert_eq!(out.status.code(), Some(1));
+
+    // A budget that is not a size is a usage error (exit 2), naming the flag.
+    let out = dncal(&["--max-memory", "lots", "lut", "inspect", "x.fits"], d);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("invalid value 'lots' for '--max-memory <SIZE>'"));
+    // Nothing was written by any refusal (lin.fits, cam.toml and emva/ are the test's).
+    let mut after = listing(d);
+    after.retain(|p| !["lin.fits", "cam.toml", "emva", "wide.fits"].iter().any(|n| p.ends_with(n)));
+    assert_eq!(after, before);
 }

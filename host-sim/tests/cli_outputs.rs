@@ -4,62 +4,12 @@
 //! known bytes: the command must fail with exit code 1 and one line naming the path, and
 //! leave every earlier output byte-identical, no new file and no temporary.
 
-use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
+mod support;
+
+use std::path::Path;
 use std::time::{Duration, Instant};
 
-use dncal_host::fits::{write_histograms, AdcHistograms};
-
-/// Runs `dncal args` in `dir`, killed after 120 s.
-fn dncal(args: &[&str], dir: &Path) -> Output {
-    let mut child = spawn(args, dir);
-    let deadline = Instant::now() + Duration::from_secs(120);
-    while child.try_wait().expect("dncal can be waited for").is_none() {
-        if Instant::now() > deadline {
-            child.kill().ok();
-            child.wait().ok();
-            panic!("dncal {args:?} still running after 120 s");
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    child.wait_with_output().expect("dncal's output")
-}
-
-fn spawn(args: &[&str], dir: &Path) -> Child {
-    Command::new(env!("CARGO_BIN_EXE_dncal")).args(args).current_dir(dir).stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().expect("dncal runs")
-}
-
-fn succeed(args: &[&str], dir: &Path) {
-    let out = dncal(args, dir);
-    assert!(out.status.success(), "dncal {args:?}: {}", String::from_utf8_lossy(&out.stderr));
-}
-
-/// Every file and directory under `dir` (hidden ones included), with the bytes of files.
-fn snapshot(dir: &Path) -> BTreeMap<PathBuf, Option<Vec<u8>>> {
-    let mut all = BTreeMap::new();
-    for entry in std::fs::read_dir(dir).unwrap() {
-        let path = entry.unwrap().path();
-        if path.is_dir() {
-            all.insert(path.clone(), None);
-            all.extend(snapshot(&path));
-        } else {
-            all.insert(path.clone(), Some(std::fs::read(&path).unwrap()));
-        }
-    }
-    all
-}
-
-/// The command failed with one line starting `dncal: error: {start}`, exit code 1, and
-/// left `dir` exactly as `before`.
-fn assert_failed_and_untouched(out: &Output, start: &str, dir: &Path, before: &BTreeMap<PathBuf, Option<Vec<u8>>>) {
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    let after = snapshot(dir);
-    let changed: std::collections::BTreeSet<_> = after.keys().chain(before.keys()).filter(|k| after.get(*k) != before.get(*k)).collect();
-    assert!(changed.is_empty(), "changed, added or removed: {changed:?}; stderr: {stderr}");
-    assert!(stderr.starts_with(&format!("dncal: error: {start}")) && stderr.lines().count() == 1, "stderr: {stderr}");
-    assert_eq!(out.status.code(), Some(1), "stderr: {stderr}");
-}
+use support::{assert_failed_and_untouched, dncal, flat_histograms, small_linearity, snapshot, spawn, succeed};
 
 /// Files with known bytes, as an earlier run left them.
 fn earlier(dir: &Path, names: &[&str]) {
@@ -68,16 +18,6 @@ fn earlier(dir: &Path, names: &[&str]) {
         std::fs::create_dir_all(p.parent().unwrap()).unwrap();
         std::fs::write(&p, format!("earlier {n}")).unwrap();
     }
-}
-
-/// A histogram set `lut build` accepts: 4 ADCs of 12 bits, 1000 samples in every code.
-fn flat_histograms(path: &Path) {
-    write_histograms(path, &AdcHistograms { bit_depth: 12, counts: vec![vec![1000; 4096]; 4] }).unwrap();
-}
-
-/// A small linearity set that `linearity` and `diagnose` accept.
-fn small_linearity(dir: &Path, name: &str) {
-    succeed(&["simulate", "linearity", "--levels", "12", "--frames", "4", "--roi", "16x8+0+0", "-o", name], dir);
 }
 
 const DIRECTORY: &str = "is a directory; an output file cannot replace it";
@@ -222,6 +162,25 @@ fn fpga_size_writes_no_readmemh_file_when_one_cannot_be_written() {
     let before = snapshot(d);
     let out = dncal(&["fpga-size", "--size", "64", "--lut", "cal.fits", "-o", "hdl"], d);
     assert_failed_and_untouched(&out, &format!("hdl/lut_adc3.hex: {DIRECTORY}\n"), d, &before);
+}
+
+#[test]
+fn emva_replaces_no_datasheet_file_when_one_cannot_be_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let descriptor = support::write_set(&d.join("set"), &support::photons(20, 20000.0), support::linear);
+    // The set is characterizable: the same run without the obstacle writes the page, the
+    // JSON and three figures (no spatial or dark-current series: no spectrograms, no
+    // defect histograms).
+    succeed(&["emva", descriptor.to_str().unwrap(), "-o", "ok"], d);
+    let mut written: Vec<_> = std::fs::read_dir(d.join("ok")).unwrap().map(|e| e.unwrap().file_name().into_string().unwrap()).collect();
+    written.sort();
+    assert_eq!(written, ["datasheet.html", "datasheet.json", "linearity.png", "photon_transfer.png", "snr.png"]);
+    earlier(d, &["ds/datasheet.json", "ds/photon_transfer.png"]);
+    std::fs::create_dir(d.join("ds/snr.png")).unwrap();
+    let before = snapshot(d);
+    let out = dncal(&["emva", descriptor.to_str().unwrap(), "-o", "ds"], d);
+    assert_failed_and_untouched(&out, &format!("ds/snr.png: {DIRECTORY}\n"), d, &before);
 }
 
 /// Hidden files in `dir`: temporaries and backups.

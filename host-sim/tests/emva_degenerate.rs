@@ -3,56 +3,13 @@
 //! each quantity it cannot measure as `null` with its reason; never NaN, inf or a
 //! negative gain printed as a result.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+mod support;
 
-use rand::SeedableRng;
-use rand_distr::{Distribution, Normal, Poisson};
+use std::path::Path;
+use std::process::Output;
 
-fn dncal(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_dncal")).args(args).output().expect("dncal runs")
-}
-
-/// A 16-bit grayscale PNG of `codes`.
-fn write_png(path: &Path, side: u32, codes: &[u16]) {
-    let file = std::fs::File::create(path).unwrap();
-    let mut encoder = png::Encoder::new(std::io::BufWriter::new(file), side, side);
-    encoder.set_color(png::ColorType::Grayscale);
-    encoder.set_depth(png::BitDepth::Sixteen);
-    let bytes: Vec<u8> = codes.iter().flat_map(|c| c.to_be_bytes()).collect();
-    encoder.write_header().unwrap().write_image_data(&bytes).unwrap();
-}
-
-/// A 12-bit set of `levels` photon levels at one exposure, two frames each and a dark
-/// pair, 32 x 32 pixels; `frame(level, photons, rng)` draws each frame's codes.
-fn write_set(dir: &Path, photons: &[f64], mut frame: impl FnMut(usize, f64, &mut rand::rngs::StdRng) -> Vec<u16>) -> PathBuf {
-    std::fs::create_dir_all(dir.join("images")).unwrap();
-    let mut rng = rand::rngs::StdRng::seed_from_u64(1288);
-    let mut text = String::from("v 3.1\nn 12 32 32\n");
-    let mut image = 0;
-    for (level, &p) in std::iter::once(&0.0).chain(photons).enumerate() {
-        text += &if p > 0.0 { format!("b 1000.0 {p}\n") } else { "d 1000.0\n".to_string() };
-        for _ in 0..2 {
-            let name = format!("img{image}.png");
-            image += 1;
-            write_png(&dir.join("images").join(&name), 32, &frame(level, p, &mut rng));
-            text += &format!("i images\\{name}\n");
-        }
-    }
-    let descriptor = dir.join("EMVA1288_Data.txt");
-    std::fs::write(&descriptor, text).unwrap();
-    descriptor
-}
-
-/// A linear camera: QE 0.5, K 0.25 DN/e-, offset 50 DN, 2 DN read noise; the top code
-/// clips at 4095.
-fn linear(_level: usize, photons: f64, rng: &mut rand::rngs::StdRng) -> Vec<u16> {
-    let read = Normal::new(0.0, 2.0).unwrap();
-    let light = Poisson::new(0.5 * photons).ok();
-    (0..32 * 32)
-        .map(|_| (50.0 + 0.25 * light.map_or(0.0, |l| l.sample(rng)) + read.sample(rng)).round().clamp(0.0, 4095.0) as u16)
-        .collect()
-}
+use rand_distr::{Distribution, Normal};
+use support::{dncal_here as dncal, linear, photons, write_set};
 
 fn assert_refused(out: &Output, descriptor: &Path, words: &str) {
     let stderr = String::from_utf8_lossy(&out.stderr);
@@ -78,10 +35,6 @@ fn assert_finite_output(descriptor: &Path) -> serde_json::Value {
     let v: serde_json::Value = serde_json::from_str(&raw).expect("valid JSON (NaN would not parse)");
     assert!(v["gain_dn_per_e"].as_f64().unwrap() > 0.0);
     v
-}
-
-fn photons(n: usize, top: f64) -> Vec<f64> {
-    (1..=n).map(|i| top * i as f64 / n as f64).collect()
 }
 
 #[test]

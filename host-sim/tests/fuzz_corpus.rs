@@ -3,8 +3,8 @@
 //! fuzz target calls (`dncal_host::fuzzing`), which panics if a reader panics or an
 //! invariant breaks. The regressions are the inputs that once crashed a target.
 //!
-//! `write_seed_corpus` (ignored) writes the seeds with the project's own writers:
-//! `cargo test -p dncal-host --test fuzz_corpus -- --ignored`.
+//! The seeds are written by the project's own writers (checked by a test here;
+//! `DNCAL_WRITE_SEEDS=1 cargo test -p dncal-host --test fuzz_corpus` rewrites them).
 
 use std::path::{Path, PathBuf};
 
@@ -75,11 +75,33 @@ fn png(width: u32, height: u32, codes: &[u16], depth: png::BitDepth) -> Vec<u8> 
     out
 }
 
-/// The seed corpus, from the project's writers (and the astropy-written FITS fixtures).
+/// The seeds are written by the project's writers into a temporary folder; each must be
+/// accepted by its target's reader and be in the committed corpus under its name. With
+/// `DNCAL_WRITE_SEEDS=1` they are written into `fuzz/corpus/` instead (to regenerate them
+/// after a format change).
 #[test]
-#[ignore = "writes fuzz/corpus; run by hand to regenerate the seeds"]
-fn write_seed_corpus() {
-    let corpus = fuzz_dir().join("corpus");
+fn the_seed_writers_make_accepted_seeds_that_are_committed() {
+    let temp = tempfile::tempdir().unwrap();
+    let regenerate = std::env::var_os("DNCAL_WRITE_SEEDS").is_some_and(|v| v == "1");
+    let corpus = if regenerate { fuzz_dir().join("corpus") } else { temp.path().to_path_buf() };
+    write_seeds(&corpus);
+    // Seeds the readers refuse would leave the fuzzer at the door.
+    let mut seeds = 0;
+    for (target, entry) in TARGETS {
+        for seed in std::fs::read_dir(corpus.join(target)).unwrap() {
+            let seed = seed.unwrap().path();
+            assert!(entry(&std::fs::read(&seed).unwrap()), "{} is refused", seed.display());
+            let committed = fuzz_dir().join("corpus").join(target).join(seed.file_name().unwrap());
+            assert!(committed.is_file(), "{} is not committed (DNCAL_WRITE_SEEDS=1 writes it)", committed.display());
+            seeds += 1;
+        }
+    }
+    assert!(seeds >= 15, "{seeds} seeds");
+}
+
+/// The seed corpus under `corpus/<target>/`, from the project's writers (and the
+/// astropy-written FITS fixtures).
+fn write_seeds(corpus: &Path) {
     let dir = |t: &str| {
         let d = corpus.join(t);
         std::fs::create_dir_all(&d).unwrap();
@@ -156,14 +178,6 @@ fn write_seed_corpus() {
         ..CameraConfig::default()
     };
     std::fs::write(c.join("seed-model-widths.toml"), toml::to_string(&widths).unwrap()).unwrap();
-
-    // Seeds the readers refuse would leave the fuzzer at the door.
-    for (target, entry) in TARGETS {
-        for seed in std::fs::read_dir(corpus.join(target)).unwrap() {
-            let seed = seed.unwrap().path();
-            assert!(entry(&std::fs::read(&seed).unwrap()), "{} is refused", seed.display());
-        }
-    }
 }
 
 /// A target's entry: whether the reader accepted the input.

@@ -3,10 +3,13 @@
 //! file byte for byte, the imported LUT loads in the core (`lut inspect` of its FITS and
 //! device image), and damaged tables are refused with the file named and nothing written.
 
+mod support;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 use serde_json::Value;
+use support::dncal_here as dncal;
 
 /// The shared tables' folder; `DNCAL_KCOR_LUTS` overrides it. `None` (the test then says
 /// it skips) where it is absent.
@@ -20,10 +23,6 @@ fn luts_dir() -> Option<PathBuf> {
         eprintln!("skipping: {} is absent", dir.display());
         None
     }
-}
-
-fn dncal(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_dncal")).args(args).output().unwrap()
 }
 
 fn json(out: Output, what: &str) -> Value {

@@ -273,7 +273,14 @@ pub fn diagnose_as(read_from: &Path, input: &Path, flatten: &FlattenParams, seed
             Err(e) => {
                 // Not a histogram set: a linearity set, or the histogram reader's error.
                 // Held as f32 (half the memory of the run; see `fits::Sample`).
-                let Ok(set) = read_linearity_as::<f32>(read_from) else { return Err(e) };
+                let set = match read_linearity_as::<f32>(read_from) {
+                    Ok(set) => set,
+                    Err(over @ HostError::OverBudget { .. }) => return Err(over),
+                    Err(_) => return Err(e),
+                };
+                // The per-pixel state beyond the input: 388 bytes measured on 2048 x 2048
+                // (docs/diagnose.md).
+                crate::budget::check(read_from, "diagnosing each pixel (about 400 bytes per pixel beyond the set)", crate::budget::bytes_of((set.width * set.height) as u64, 400))?;
                 let d = diagnose_linearity(&set, 0.01).map_err(|m| HostError::Format { path: input.into(), message: m })?;
                 let model = linearity_model(&set, &d);
                 return report(input, d, Some(model), out, ("level", "baseline (linear pixels): RMS over pixels"));

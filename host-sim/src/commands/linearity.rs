@@ -49,6 +49,9 @@ pub fn linearity_as(read_from: &Path, input: &Path, order: usize, flat: Option<u
         o.files.expect(REPORT_FILES.map(|n| o.dir.join(n)))?;
     }
     let set = read_linearity(read_from)?;
+    // The corrected cube (f64 per pixel and level), the fits and their work space.
+    let per_pixel = 24 * set.levels as u64 + 256;
+    crate::budget::check(read_from, "the pixel-wise analysis (the corrected cube and the fits)", crate::budget::bytes_of((set.width * set.height) as u64, per_pixel))?;
     if set.levels < order + 3 {
         return Err(HostError::Format { path: input.into(), message: format!("{} levels; an order-{order} fit needs at least {}", set.levels, order + 3) });
     }

@@ -217,6 +217,8 @@ fn open_png(image: &Path, bits: u32, width: usize, height: usize) -> Result<png:
             if bits <= 8 { "8 or 16" } else { "16" }
         ));
     }
+    // The decoder's buffer and the codes: 4 bytes per pixel at most.
+    crate::budget::check(image, "the image's pixels", crate::budget::bytes_of(u64::from(info.width) * u64::from(info.height), 4)).map_err(|e| e.to_string())?;
     if (info.width as usize, info.height as usize) != (width, height) {
         return Err(format!(
             "image {} is {} x {} pixels; the descriptor says {width} x {height}",

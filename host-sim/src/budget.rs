@@ -1,0 +1,139 @@
+//! The memory budget (issue 18): before a command allocates for a size it read from a file
+//! or a config, it asks here whether that fits. A refusal is a clean error naming the
+//! file, what needed the memory and the limit, instead of an abort on allocation failure
+//! (or the machine swapping) minutes later.
+//!
+//! The budget is per process, set once by `dncal --max-memory SIZE`; by default it is 3/4
+//! of the machine's physical memory (`MemTotal` of `/proc/meminfo`; 8 GiB where that
+//! cannot be read). The checks are estimates of the largest allocations of a step (the
+//! input's pixels as the command holds them, the per-pixel state of an analysis), not an
+//! accounting of every byte: a command may use somewhat more than what it checked, never
+//! an order of magnitude more.
+
+use std::path::Path;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use crate::HostError;
+
+/// 0: not set, use [`default_limit`].
+static LIMIT: AtomicU64 = AtomicU64::new(0);
+
+/// Used where the physical memory cannot be read.
+const FALLBACK: u64 = 8 << 30;
+
+/// 3/4 of the physical memory, or 8 GiB where it cannot be read.
+pub fn default_limit() -> u64 {
+    physical_memory().map_or(FALLBACK, |total| total / 4 * 3)
+}
+
+fn physical_memory() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemTotal:"))?;
+    let kib: u64 = line.trim_start_matches("MemTotal:").trim().trim_end_matches("kB").trim().parse().ok()?;
+    kib.checked_mul(1024)
+}
+
+/// Sets the budget, bytes (at least 1).
+pub fn set_limit(bytes: u64) {
+    LIMIT.store(bytes.max(1), Ordering::Relaxed);
+}
+
+/// The budget in force, bytes.
+pub fn limit() -> u64 {
+    match LIMIT.load(Ordering::Relaxed) {
+        0 => default_limit(),
+        n => n,
+    }
+}
+
+/// `Ok` if `bytes` fit the budget, else [`HostError::OverBudget`] naming `path` and `what`.
+pub fn check(path: &Path, what: &str, bytes: u64) -> Result<(), HostError> {
+    let limit = limit();
+    if bytes > limit {
+        return Err(HostError::OverBudget { path: path.into(), what: what.into(), bytes, limit });
+    }
+    Ok(())
+}
+
+/// `count` items of `size` bytes each, saturating (a size read from a file may be absurd).
+pub fn bytes_of(count: u64, size: u64) -> u64 {
+    count.saturating_mul(size)
+}
+
+/// A size as `--max-memory` takes it: bytes, or with a binary suffix `K`, `M`, `G`, `T`
+/// (`KiB`, `MiB`, ... and `KB`, `MB`, ... read the same: powers of 1024), fractions allowed
+/// (`1.5G`).
+pub fn parse_size(text: &str) -> Result<u64, String> {
+    let t = text.trim();
+    let split = t.find(|c: char| !(c.is_ascii_digit() || c == '.')).unwrap_or(t.len());
+    let (number, unit) = t.split_at(split);
+    let shift = match unit.trim().to_ascii_uppercase().as_str() {
+        "" | "B" => 0,
+        "K" | "KB" | "KIB" => 10,
+        "M" | "MB" | "MIB" => 20,
+        "G" | "GB" | "GIB" => 30,
+        "T" | "TB" | "TIB" => 40,
+        other => return Err(format!("unknown unit {other:?} in {text:?} (use K, M, G or T)")),
+    };
+    let value: f64 = number.parse().map_err(|_| format!("{text:?} is not a size (e.g. 4G, 512M, 1.5G)"))?;
+    let bytes = value * (1u64 << shift) as f64;
+    if !(bytes >= 1.0 && bytes < 2f64.powi(63)) {
+        return Err(format!("{text:?} is not a size between 1 byte and 8 EiB"));
+    }
+    Ok(bytes as u64)
+}
+
+/// Bytes in a short human form (binary units), for messages.
+pub fn human(bytes: u64) -> String {
+    const UNITS: [&str; 7] = ["bytes", "KiB", "MiB", "GiB", "TiB", "PiB", "EiB"];
+    let mut value = bytes as f64;
+    let mut unit = 0;
+    while value >= 1024.0 && unit < UNITS.len() - 1 {
+        value /= 1024.0;
+        unit += 1;
+    }
+    if unit == 0 {
+        format!("{bytes} bytes")
+    } else {
+        format!("{value:.1} {}", UNITS[unit])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sizes_parse_in_binary_units() {
+        assert_eq!(parse_size("4096"), Ok(4096));
+        assert_eq!(parse_size("4K"), Ok(4096));
+        assert_eq!(parse_size("512M"), Ok(512 << 20));
+        assert_eq!(parse_size("1.5G"), Ok(3 << 29));
+        assert_eq!(parse_size("2 GiB"), Ok(2 << 30));
+        assert_eq!(parse_size("1t"), Ok(1 << 40));
+        for bad in ["", "G", "-1G", "0", "1.5X", "1e3", "NaN", "99999999999T"] {
+            assert!(parse_size(bad).is_err(), "{bad:?} accepted");
+        }
+    }
+
+    #[test]
+    fn human_sizes_read_back() {
+        assert_eq!(human(1000), "1000 bytes");
+        assert_eq!(human(3 << 29), "1.5 GiB");
+        // 2^64 - 1 bytes is a hair under 16 EiB.
+        assert_eq!(human(u64::MAX), "16.0 EiB");
+        assert_eq!(human(5 << 40), "5.0 TiB");
+    }
+
+    #[test]
+    fn the_default_is_three_quarters_of_the_machine() {
+        // Read independently of the parser above: the kB figure in /proc/meminfo.
+        match std::fs::read_to_string("/proc/meminfo") {
+            Ok(text) => {
+                let kib: u64 = text.lines().find(|l| l.starts_with("MemTotal:")).unwrap().split_whitespace().nth(1).unwrap().parse().unwrap();
+                assert_eq!(default_limit(), kib * 1024 / 4 * 3);
+            }
+            Err(_) => assert_eq!(default_limit(), FALLBACK),
+        }
+    }
+}
