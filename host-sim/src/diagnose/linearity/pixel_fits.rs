@@ -1,0 +1,240 @@
+//! Each pixel's own fits on either half of its levels (a quartic and a straight line),
+//! the bad-pixel flags they give, and the `bad-pixels` finding.
+
+use rayon::prelude::*;
+use statrs::distribution::{ChiSquared, ContinuousCDF};
+
+use super::super::pixel_fit::{fit_and_score, Point, Response};
+use super::super::pixel_fit::Totals;
+use super::super::points::{Common, Pixels};
+use super::super::scores::{Cell, Scores};
+use super::super::{AdcResiduals, Finding, SIGNIFICANCE};
+use super::adc_apart::population;
+use super::{finding, with_residuals};
+use crate::fits::Sample;
+
+/// A pixel's quartic on one half of its levels, what the catalogue reads of it: its
+/// linear and quadratic coefficients, the `chi^2` of its fit, and the sum of its
+/// held-out `z^2` on the other half with their count.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Quartic {
+    pub(super) gain: f64,
+    pub(super) b2: f64,
+    pub(super) chi2_fit: f64,
+    pub(super) held_sq: f64,
+    pub(super) held_n: u16,
+}
+
+/// A pixel's fits on each half of its levels (even, odd): its quartic and its straight
+/// line (dark DN, gain DN per reference unit), and the points each half had.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct PixelFits {
+    pub(super) quartic: [Option<Quartic>; 2],
+    pub(super) line: [Option<[f64; 2]>; 2],
+    pub(super) points: [u16; 2],
+}
+
+/// Why a pixel is flagged bad.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum BadPixel {
+    /// Fewer than 3 unsaturated levels, or no fit: stuck, or hot at saturation.
+    Stuck,
+    /// Its own quartic fails its levels (kinks, jumps).
+    Shape,
+    /// A gain outside 0.5-1.5 of its ADC's median (dead).
+    Gain,
+    /// A dark level more than 10 robust sigma off (hot).
+    Dark,
+}
+
+/// The response every pixel's own quartic is (the paper's correction).
+pub(super) const QUARTIC: Response = Response::Poly(crate::linearity::PIXEL_ORDER);
+/// A straight line: dark and gain.
+pub(super) const LINEAR: Response = Response::Poly(1);
+
+/// Every pixel's fits on either half of its levels, the population of dark and gain
+/// they give (per ADC and about each pixel's own ADC) and the bad-pixel flags.
+pub(super) struct PixelStage {
+    /// Per pixel (index into [`Pixels`]).
+    pub(super) fits: Vec<PixelFits>,
+    /// Dark (DN): the median of the ADCs' medians and the robust scatter about each
+    /// pixel's own ADC median, from the even-level lines of even-row pixels.
+    dark_pop: (f64, f64),
+    /// Gain (DN per reference unit), as `dark_pop`.
+    gain_pop: (f64, f64),
+    /// Per ADC, the median dark and gain.
+    dark_adc: Vec<f64>,
+    gain_adc: Vec<f64>,
+    /// Flagged on the even levels alone (for the held-out bad-pixel score).
+    flagged_even: Vec<Option<BadPixel>>,
+    /// Flagged on both halves: the bad pixels.
+    pub(super) bad: Vec<Option<BadPixel>>,
+}
+
+impl PixelStage {
+    /// Fits every pixel of `px` (its means less `common`, where given) and flags the bad.
+    pub(super) fn new<T: Sample>(px: &Pixels<T>, common: Option<&dyn Common>, n_adc: usize) -> Self {
+        let n = px.len();
+        // Each pixel's quartic on either half (the shapes for the shared curves, and the
+        // bad-pixel test of the pixel's own response) and its straight line (dark and gain
+        // for the maps: their parameters only).
+        let zero5 = [0.0; 5];
+        let fits: Vec<PixelFits> = (0..n)
+            .into_par_iter()
+            .map(|i| {
+                let (ev, od) = px.halves(i, common);
+                let q = |a: &[Point], b: &[Point]| {
+                    fit_and_score(QUARTIC, &zero5, a, b).map(|s| Quartic { gain: s.params[1], b2: s.params[2], chi2_fit: s.chi2_fit, held_sq: s.sum_sq(), held_n: s.z.len() as u16 })
+                };
+                let l = |a: &[Point]| fit_and_score(LINEAR, &[0.0; 2], a, &[]).map(|s| [s.params[0], s.params[1]]);
+                PixelFits { quartic: [q(&ev, &od), q(&od, &ev)], line: [l(&ev), l(&od)], points: [ev.len() as u16, od.len() as u16] }
+            })
+            .collect();
+        // The population of dark (k = 0) and gain (k = 1) from the even-level fits, for the
+        // bad-pixel flags.
+        let pop_of = |k: usize| population((0..n).filter(|&i| px.estimating(i)).filter_map(|i| Some((px.adc(i), fits[i].line[0]?[k]))), n_adc);
+        let (dark_pop, gain_pop) = ((pop_of(0).1, pop_of(0).2), (pop_of(1).1, pop_of(1).2));
+        // Each pixel is flagged against its own ADC's medians (an ADC offset is an
+        // `adc-mismatch`, not a quarter of the sensor gone bad; a review found 1018 such
+        // "bad pixels" with a 3 DN ADC offset and 0.2 DN of DSNU).
+        let (dark_adc, gain_adc) = (pop_of(0).0, pop_of(1).0);
+        let mut stage = PixelStage { fits, dark_pop, gain_pop, dark_adc, gain_adc, flagged_even: Vec::new(), bad: Vec::new() };
+        // The flags on the even levels (for the held-out bad-pixel score) and on both.
+        stage.flagged_even = (0..n).map(|i| stage.bad_in(px.adc(i), i, 0)).collect();
+        stage.bad = (0..n)
+            .map(|i| match (stage.flagged_even[i], stage.bad_in(px.adc(i), i, 1)) {
+                (Some(a), Some(_)) => Some(a),
+                _ => None,
+            })
+            .collect();
+        stage
+    }
+
+    /// Not flagged, and fitted on the even levels.
+    pub(super) fn is_good(&self, i: usize) -> bool {
+        self.bad[i].is_none() && self.fits[i].quartic[0].is_some() && self.fits[i].line[0].is_some()
+    }
+
+    /// Pixels flagged bad.
+    pub(super) fn bad_count(&self) -> usize {
+        self.bad.iter().filter(|b| b.is_some()).count()
+    }
+
+    /// ADC `adc`'s median dark and gain, the population's where it has none.
+    fn own(&self, adc: usize) -> (f64, f64) {
+        let own = |v: &[f64], fallback: f64| v.get(adc).copied().filter(|x| x.is_finite()).unwrap_or(fallback);
+        (own(&self.dark_adc, self.dark_pop.0), own(&self.gain_adc, self.gain_pop.0))
+    }
+
+    /// Why pixel `i` (of ADC `adc`) is bad on one half of its levels (0 even, 1 odd).
+    fn bad_in(&self, adc: usize, i: usize, half: usize) -> Option<BadPixel> {
+        let tail = |chi2: f64, dof: usize| dof > 0 && ChiSquared::new(dof as f64).map(|c| c.sf(chi2) < 1e-6).unwrap_or(false);
+        let f = &self.fits[i];
+        let (Some(q), Some(l)) = (f.quartic[half], f.line[half]) else { return Some(BadPixel::Stuck) };
+        let points = usize::from(f.points[half]);
+        if points < 3 {
+            return Some(BadPixel::Stuck);
+        }
+        if tail(q.chi2_fit, points.saturating_sub(QUARTIC.params())) {
+            return Some(BadPixel::Shape);
+        }
+        let (dark_own, g_own) = self.own(adc);
+        if !(l[1] > 0.5 * g_own && l[1] < 1.5 * g_own) {
+            return Some(BadPixel::Gain);
+        }
+        if (l[0] - dark_own).abs() > 10.0 * self.dark_pop.1.max(1e-9) {
+            return Some(BadPixel::Dark);
+        }
+        None
+    }
+
+    /// `bad-pixels`: the flagged pixels scored on the odd levels' dark and gain against the
+    /// population, plus the held-out level residuals of the pixel's own quartic.
+    pub(super) fn finding<T: Sample>(&self, px: &Pixels<T>) -> Option<Finding> {
+        let (fits, bad, (dark_pop, gain_pop)) = (&self.fits, &self.bad, (self.dark_pop, self.gain_pop));
+        let flagged: Vec<usize> = (0..px.len()).filter(|&i| bad[i].is_some()).collect();
+        if flagged.is_empty() {
+            return None;
+        }
+        // A pixel's sum of squares and count of scores.
+        let map_z = |i: usize| -> (f64, usize) {
+            let (dark_own, gain_own) = self.own(px.adc(i));
+            match (&fits[i].line[1], &fits[i].quartic[0]) {
+                (Some(l), Some(q)) => {
+                    let z = [(l[0] - dark_own) / dark_pop.1.max(1e-9), (l[1] - gain_own) / gain_pop.1.max(1e-9)];
+                    (z[0] * z[0] + z[1] * z[1] + q.held_sq, 2 + usize::from(q.held_n))
+                }
+                // Stuck: its raw dark level against the population.
+                _ => (((px.mean(0, i) - dark_own) / dark_pop.1.max(1e-9)).powi(2), 1),
+            }
+        };
+        // Scored held out: the pixels set apart are those flagged on the even levels alone,
+        // and every score is of the odd levels (the odd-level fit's dark and gain, the
+        // even-level quartic's residuals there); the count needs both halves.
+        let (mut s_all, mut n_all, mut s_ok, mut n_ok) = (0.0, 0usize, 0.0, 0usize);
+        for (i, even) in self.flagged_even.iter().enumerate() {
+            let (s, len) = map_z(i);
+            s_all += s;
+            n_all += len;
+            if even.is_none() {
+                s_ok += s;
+                n_ok += len;
+            }
+        }
+        let (before, after) = ((s_all / n_all.max(1) as f64).sqrt(), (s_ok / n_ok.max(1) as f64).sqrt());
+        let kinds = |k: BadPixel| flagged.iter().filter(|&&i| bad[i] == Some(k)).count();
+        // The significance is that of the set-apart pixels' odd-level excess over what
+        // noise leaves in them (one per residual).
+        let removed = (n_all - n_ok) as f64;
+        let significance = (s_all - s_ok - removed) / (2.0 * n_all as f64).sqrt();
+        (significance > SIGNIFICANCE).then(|| {
+            let mut f = finding(
+                "bad-pixels",
+                None,
+                significance,
+                before,
+                after,
+                format!(
+                    "{} pixels the model cannot follow, flagged independently on even and odd levels: {} stuck or hot at saturation, {} whose own quartic fails its levels, {} with a gain outside 0.5-1.5 of the median, {} with a dark level beyond 10 robust sigma",
+                    flagged.len(), kinds(BadPixel::Stuck), kinds(BadPixel::Shape), kinds(BadPixel::Gain), kinds(BadPixel::Dark)
+                ),
+            );
+            f.count = Some(flagged.len());
+            f
+        })
+    }
+}
+
+/// `pixel-nonlinearity`: each pixel's own quartic (scores `own`, totals `t3`) against the
+/// shared model (`current`, `tcur`) on the `good` pixels' held-out levels, with how far the
+/// pixels' curves depart from the shared one at their highest held-out level.
+pub(super) fn pixel_nonlinearity<T: Sample>(px: &Pixels<T>, common: Option<&dyn Common>, fits: &[PixelFits], good: &[usize], (current, tcur): (&Scores, Totals), (own, t3): (&Scores, Totals)) -> Option<Finding> {
+    let all = |_: Cell| true;
+    let sig = tcur.significance_to(&t3);
+    if sig > SIGNIFICANCE && t3.s < tcur.s {
+        // How far each pixel's quartic departs from the shared model at its highest
+        // held-out level, relative to its signal there.
+        let last = |s: &Option<super::super::scores::Score>| s.filter(|s| s.n > 0).map(|s| f64::from(s.last_z));
+        let spread: Vec<f64> = (0..good.len())
+            .into_par_iter()
+            .filter_map(|j| {
+                let (a, b) = (last(&own.per[j])?, last(&current.per[j])?);
+                let i = good[j];
+                let q = *px.halves(i, common).1.last()?;
+                let d = fits[i].line[0]?[0];
+                Some(((b - a) * q.sigma / (q.y - d)).abs())
+            })
+            .collect();
+        let rms_spread = (spread.iter().map(|v| v * v).sum::<f64>() / spread.len().max(1) as f64).sqrt();
+        let steps = AdcResiduals { baseline: current.by_level(&all), extended: own.by_level(&all) };
+        return Some(with_residuals(steps, finding(
+            "pixel-nonlinearity",
+            None,
+            sig,
+            tcur.rms(),
+            t3.rms(),
+            format!("each pixel's own quartic (the paper's correction) beats the shared curve on held-out levels; the pixels' curves depart from it by {:.3}% rms of their signal at their highest held-out level", 100.0 * rms_spread),
+        )));
+    }
+    None
+}
