@@ -42,7 +42,7 @@ use std::path::Path;
 use dncal_core::FRAC_BITS;
 use fitsio::errors::Error as FitsioError;
 use fitsio::hdu::{FitsHdu, HduInfo};
-use fitsio::headers::{ReadsKey, WritesKey};
+use fitsio::headers::WritesKey;
 use fitsio::images::{ImageDescription, ImageType, ReadImage, WriteImage};
 use fitsio::tables::{ColumnDataType, ColumnDescription};
 use fitsio::FitsFile;
@@ -610,6 +610,86 @@ impl IntegerPixels {
     }
 }
 
+/// Why a key could not be read.
+enum KeyError {
+    Fits(FitsioError),
+    /// A string key whose value is not a quoted string: the card, trimmed.
+    NotString(String),
+}
+
+/// A key value the readers read: numbers and logicals through fitsio, strings from the
+/// card itself ([`string_from_card`]).
+trait KeyValue: Sized {
+    /// Key `name` of HDU `hdu` (0-based), `None` when absent.
+    fn read(file: &mut FitsFile, hdu: usize, name: &str) -> Result<Option<Self>, KeyError>;
+}
+
+macro_rules! key_through_fitsio {
+    ($($t:ty),*) => {$(
+        impl KeyValue for $t {
+            fn read(file: &mut FitsFile, hdu: usize, name: &str) -> Result<Option<Self>, KeyError> {
+                // A hand-made handle: `FitsFile::hdu` would describe the HDU first, which
+                // panics inside fitsio on some legal HDUs (see the module documentation).
+                let handle = FitsHdu { info: HduInfo::AnyInfo, number: hdu };
+                match handle.read_key::<$t>(file, name) {
+                    Ok(v) => Ok(Some(v)),
+                    Err(FitsioError::Fits(e)) if e.status == KEY_NO_EXIST => Ok(None),
+                    Err(e) => Err(KeyError::Fits(e)),
+                }
+            }
+        }
+    )*};
+}
+key_through_fitsio!(f64, bool);
+
+impl KeyValue for String {
+    /// The card is read whole (`ffgcrd`, into cfitsio's 81-byte card size) and its quoted
+    /// value parsed here. fitsio reads a string key into a 71-byte buffer, and cfitsio
+    /// copies an unquoted value of up to 71 characters (a card with no space after `=`)
+    /// into it with its terminating NUL: a heap overflow by one byte, found by the
+    /// `fits_lut` fuzz target under AddressSanitizer (`EXTNAME =YYYY...` over the whole card).
+    fn read(file: &mut FitsFile, hdu: usize, name: &str) -> Result<Option<Self>, KeyError> {
+        let fits_error = |status| KeyError::Fits(fitsio::errors::check_status(status).err().unwrap_or(FitsioError::Message("unknown cfitsio error".into())));
+        let Ok(key) = std::ffi::CString::new(name) else { return Ok(None) };
+        let mut card = [0 as std::ffi::c_char; 81];
+        let mut status = 0;
+        // SAFETY: `file` is open and `hdu` one of its HDUs (or cfitsio sets a status);
+        // `key` is NUL-terminated; `card` holds FLEN_CARD (81) bytes, the most ffgcrd writes.
+        unsafe {
+            let raw = file.as_raw();
+            fitsio::sys::ffmahd(raw, hdu as i32 + 1, std::ptr::null_mut(), &mut status);
+            fitsio::sys::ffgcrd(raw, key.as_ptr(), card.as_mut_ptr(), &mut status);
+        }
+        match status {
+            0 => {}
+            KEY_NO_EXIST => return Ok(None),
+            _ => return Err(fits_error(status)),
+        }
+        let bytes: Vec<u8> = card.iter().take_while(|&&c| c != 0).map(|&c| c as u8).collect();
+        string_from_card(&bytes).map(Some).ok_or_else(|| KeyError::NotString(String::from_utf8_lossy(&bytes).trim_end().to_string()))
+    }
+}
+
+/// The value of a string card (`KEY     = 'value'  / comment`): the characters between
+/// the quotes with `''` read as one quote, trailing spaces dropped (they are not
+/// significant in FITS), `None` if the value is not a quoted string.
+fn string_from_card(card: &[u8]) -> Option<String> {
+    let value = card.get(8..)?.strip_prefix(b"=")?;
+    let value = std::str::from_utf8(value).ok()?.trim_start().strip_prefix('\'')?;
+    let mut out = String::new();
+    let mut chars = value.chars().peekable();
+    loop {
+        match chars.next()? {
+            '\'' if chars.peek() == Some(&'\'') => {
+                chars.next();
+                out.push('\'');
+            }
+            '\'' => return Some(out.trim_end().to_string()),
+            c => out.push(c),
+        }
+    }
+}
+
 /// A FITS file open for reading, with every access turned into a [`HostError`] naming it.
 struct FitsReader<'a> {
     file: FitsFile,
@@ -691,18 +771,15 @@ impl<'a> FitsReader<'a> {
     }
 
     /// Key `name` of HDU `hdu`, `None` when absent.
-    fn key<T: ReadsKey>(&mut self, hdu: usize, label: &str, name: &str) -> Result<Option<T>, HostError> {
-        // A hand-made handle: `FitsFile::hdu` would describe the HDU first, which panics
-        // inside fitsio on some legal HDUs (see the module documentation).
-        let handle = FitsHdu { info: HduInfo::AnyInfo, number: hdu };
-        match handle.read_key::<T>(&mut self.file, name) {
-            Ok(v) => Ok(Some(v)),
-            Err(FitsioError::Fits(e)) if e.status == KEY_NO_EXIST => Ok(None),
-            Err(e) => Err(fits_error(self.path, &format!("key {name} of the {label}"), &e)),
+    fn key<T: KeyValue>(&mut self, hdu: usize, label: &str, name: &str) -> Result<Option<T>, HostError> {
+        match T::read(&mut self.file, hdu, name) {
+            Ok(v) => Ok(v),
+            Err(KeyError::Fits(e)) => Err(fits_error(self.path, &format!("key {name} of the {label}"), &e)),
+            Err(KeyError::NotString(card)) => Err(self.error(format!("key {name} of the {label} is not a quoted string: \"{card}\""))),
         }
     }
 
-    fn required<T: ReadsKey>(&mut self, hdu: usize, label: &str, name: &str) -> Result<T, HostError> {
+    fn required<T: KeyValue>(&mut self, hdu: usize, label: &str, name: &str) -> Result<T, HostError> {
         self.key(hdu, label, name)?.ok_or_else(|| self.error(format!("missing key {name} in the {label}")))
     }
 
@@ -1181,9 +1258,14 @@ fn malformed_table(file: &mut std::fs::File, size: u64) -> std::io::Result<Optio
     };
     let (mut start, mut lost) = (0u64, false);
     let mut block = [0u8; BLOCK as usize];
-    while start + BLOCK <= size {
+    // A last block cut short is read too (the rest as zeros): cfitsio parses what a
+    // truncated file holds of a header (found by `fits_linearity`: a table header cut
+    // after its `PCOUNT` card made cfitsio allocate 2^54 bytes).
+    while start < size {
         file.seek(SeekFrom::Start(start))?;
-        file.read_exact(&mut block)?;
+        block.fill(0);
+        let n = (size - start).min(BLOCK) as usize;
+        file.read_exact(&mut block[..n])?;
         let card = |n: usize| &block[80 * (n - 1)..80 * n];
         if &card(1)[..10] == b"XTENSION= " {
             // The quoted string, as cfitsio reads it, whatever follows it before the comment.
@@ -1449,7 +1531,7 @@ mod tests {
         }
         let cases = [
             ("ADCMAP", Str("ROWMOD"), "ADCMAP = 'ROWMOD'"),
-            ("ADCMAP", Int(4), "ADCMAP = '4'"),
+            ("ADCMAP", Int(4), "key ADCMAP of the primary HDU is not a quoted string: \"ADCMAP  =                    4\""),
             ("BITDEPTH", Int(0), "BITDEPTH = 0, must be 1 to 16"),
             ("BITDEPTH", Int(17), "BITDEPTH = 17, must be 1 to 16"),
             ("BITDEPTH", Int(-3), "BITDEPTH = -3"),
@@ -1756,5 +1838,20 @@ mod tests {
         assert_eq!(split_tform("1PD(5)"), (Some(1), Some('P')));
         assert_eq!(split_tform(""), (Some(1), None));
         assert_eq!(split_tform("99999999999999999999999E"), (None, Some('E')));
+    }
+
+    /// String values as the FITS standard (4.2.1) writes them, each card padded to 80.
+    #[test]
+    fn string_cards_read_as_the_standard_defines_them() {
+        let card = |text: &str| format!("{text:<80}").into_bytes();
+        assert_eq!(string_from_card(&card("XTENSION= 'IMAGE   '           / IMAGE extension")).as_deref(), Some("IMAGE"));
+        assert_eq!(string_from_card(&card("EXTNAME = 'O''HARA'")).as_deref(), Some("O'HARA"));
+        assert_eq!(string_from_card(&card("EXTNAME = '  lead'")).as_deref(), Some("  lead"));
+        assert_eq!(string_from_card(&card("EXTNAME = ''")).as_deref(), Some(""));
+        assert_eq!(string_from_card(&card("EXTNAME =    'late start' / still a value")).as_deref(), Some("late start"));
+        assert_eq!(string_from_card(&card("EXTNAME = 'a/b' / the slash is inside the quotes")).as_deref(), Some("a/b"));
+        for bad in ["EXTNAME = unquoted", "EXTNAME =YYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYY", "EXTNAME = 'never closed", "EXTNAME   'no equals'", "SHORT"] {
+            assert_eq!(string_from_card(&card(bad)), None, "{bad}");
+        }
     }
 }

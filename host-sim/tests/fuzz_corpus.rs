@@ -244,3 +244,25 @@ fn table_headers_cfitsio_would_mistake_for_valid_are_refused_before_it() {
     assert!(e.contains("has \"TFIELDS =              1000000\""), "{e}");
     assert!(dncal_host::fits::read_linearity(&fuzz_dir().join("corpus/fits_linearity/seed-no-mask.fits")).is_ok());
 }
+
+/// Found by `fits_linearity` in its 10-minute run: the file ends 1271 bytes into the
+/// table header, after a `PCOUNT` card with bytes outside ASCII; cfitsio parsed what there
+/// was and allocated 2^54 bytes. The header walk now reads a last block cut short.
+#[test]
+fn a_table_header_cut_by_the_end_of_the_file_is_refused_before_cfitsio() {
+    let crash = fuzz_dir().join("regressions/fits_linearity/table-header-cut-by-the-end-of-file");
+    assert_eq!(std::fs::metadata(&crash).unwrap().len(), 12791);
+    let e = dncal_host::fits::read_linearity(&crash).unwrap_err().to_string();
+    assert!(e.contains("the table header at byte 11520 has \"PCOUNT  =                    0 / size of special data area"), "{e}");
+}
+
+/// Found by `fits_lut` under AddressSanitizer: `EXTNAME =YYYY...`, a value starting in
+/// column 10 and filling the card, overran fitsio's 71-byte string buffer by one byte
+/// (cfitsio copies the unquoted value with its NUL). String keys are now parsed from the
+/// card: this one is not a quoted string, and the message says so.
+#[test]
+fn an_unquoted_string_filling_the_card_is_refused_without_a_read_past_the_buffer() {
+    let crash = fuzz_dir().join("regressions/fits_lut/unquoted-string-value-from-column-10");
+    let e = dncal_host::fits::read_lut(&crash).unwrap_err().to_string();
+    assert!(e.contains("key EXTNAME of the HDU 1 is not a quoted string: \"EXTNAME =YYYY"), "{e}");
+}
