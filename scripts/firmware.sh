@@ -22,7 +22,7 @@ install() {
   local sudo=""
   [ "$(id -u)" -eq 0 ] || sudo=sudo
   $sudo apt-get update -q >&2
-  DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -q rustc-web cargo-web rust-web-src lld-22 qemu-system-arm >&2
+  DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -q --no-install-recommends rustc-web cargo-web rust-web-src lld-22 qemu-system-arm >&2
   have_toolchain || { echo "firmware.sh: cross toolchain still missing after install" >&2; exit 1; }
 }
 

@@ -30,6 +30,9 @@ struct Cli {
     /// the machine's physical memory.
     #[arg(long, global = true, value_name = "SIZE", value_parser = dncal_host::budget::parse_size)]
     max_memory: Option<u64>,
+    /// No stage lines or progress bars on stderr (they show only on a terminal anyway).
+    #[arg(long, short, global = true)]
+    quiet: bool,
 }
 
 /// Which datapath `stream` drives.
@@ -674,6 +677,7 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
     if let Some(bytes) = cli.max_memory {
         dncal_host::budget::set_limit(bytes);
     }
+    dncal_host::commands::progress::set_quiet(cli.quiet);
     match cli.command {
         Cmd::Simulate { what: SimulateCmd::Histograms { camera, ramp, out, json } } => {
             let cam = camera.camera()?;
@@ -805,7 +809,10 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
         Cmd::KcorModel { camera, adc, exposure_ms, steps, lut_noise, lut, q_fraction, seed, realizations, out, json } => {
             let cam = camera.camera()?;
             let p = dncal_host::kcor::KcorParams { adc, exposure_s: exposure_ms * 1e-3, steps, lut_noise, q_fraction, seed, ..Default::default() };
-            let s = staged(out.as_deref(), |o| kcor::kcor_model(&cam, &p, lut.as_deref(), realizations, o))?;
+            let spin = dncal_host::commands::progress::spinner(&format!("K-Coronagraph model: ADC {adc}, {steps} steps of the Stokes map, {realizations} realization(s)"));
+            let s = staged(out.as_deref(), |o| kcor::kcor_model(&cam, &p, lut.as_deref(), realizations, o));
+            spin.finish_and_clear();
+            let s = s?;
             print(json, &s, |s| {
                 let r = &s.result;
                 let mut t = format!(
@@ -923,7 +930,10 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
         }
         Cmd::Emva { descriptor, release, out, json } => {
             let set = dncal_host::emva::read_descriptor(&descriptor)?;
-            let sheet = dncal_host::emva::datasheet(&set, release)?;
+            let spin = dncal_host::commands::progress::spinner(&format!("EMVA 1288 datasheet of {} ({} levels)", descriptor.display(), set.levels.len()));
+            let sheet = dncal_host::emva::datasheet(&set, release);
+            spin.finish_and_clear();
+            let sheet = sheet?;
             let written = match &out {
                 Some(dir) => dncal_host::emva::html::write_datasheet(dir, &descriptor, &sheet)?,
                 None => Vec::new(),

@@ -266,3 +266,19 @@ fn an_unquoted_string_filling_the_card_is_refused_without_a_read_past_the_buffer
     let e = dncal_host::fits::read_lut(&crash).unwrap_err().to_string();
     assert!(e.contains("key EXTNAME of the HDU 1 is not a quoted string: \"EXTNAME =YYYY"), "{e}");
 }
+
+/// Found by `fits_linearity` (second 10-minute run): a std of -8e-322 (a negative
+/// subnormal) was refused by the f64 reader and read as -0.0, accepted, by the f32 one
+/// that `diagnose` uses. Both now judge the sign at single precision: accepted by both,
+/// as a zero.
+#[test]
+fn a_negative_subnormal_std_is_read_alike_at_both_precisions() {
+    let crash = fuzz_dir().join("regressions/fits_linearity/std-negative-subnormal");
+    let wide = dncal_host::fits::read_linearity(&crash);
+    let narrow = dncal_host::fits::read_linearity_as::<f32>(&crash);
+    assert_eq!(wide.is_ok(), narrow.is_ok(), "{:?} / {:?}", wide.as_ref().err(), narrow.as_ref().err());
+    let wide = wide.unwrap();
+    let tiny = wide.std.iter().copied().filter(|&v| v < 0.0).collect::<Vec<_>>();
+    assert!(!tiny.is_empty() && tiny.iter().all(|&v| v > -f64::from(f32::from_bits(1))), "{tiny:?}");
+    assert!(fuzzing::fits_linearity(&std::fs::read(&crash).unwrap()));
+}

@@ -11,7 +11,7 @@ use serde::Serialize;
 use crate::camera::calibration::RampParams;
 use crate::camera::{Camera, PipelinedAdc};
 use crate::commands::lut::{build_luts, summarize, AdcLutSummary, BuiltLuts};
-use crate::commands::progress::bar;
+use crate::commands::progress::{bar, stage};
 use crate::fits::{read_histograms_for_analysis, stage_histograms, stage_lut, AdcHistograms};
 use crate::flatten::{cumulative_offsets, FlattenParams};
 use crate::plots::{line_plot, Series};
@@ -212,6 +212,7 @@ pub fn run(camera: &Camera, hist: Option<&Path>, ramp: &RampParams, flatten: &Fl
         Some(path) => (read_histograms_for_analysis(path)?, path.to_path_buf(), None),
         None => {
             let levels: usize = ramp.ramp_levels.iter().sum();
+            stage(&format!("simulating the calibration ramps ({levels} levels)"));
             let pb = bar(levels as u64, "ADC ramp histograms");
             let counts = camera.ramp_histograms(ramp, |n| pb.set_position(n));
             pb.finish_and_clear();
@@ -221,6 +222,7 @@ pub fn run(camera: &Camera, hist: Option<&Path>, ramp: &RampParams, flatten: &Fl
             (h, path, Some(camera.adcs.as_slice()))
         }
     };
+    stage("building the LUTs and characterizing the ADCs");
     let luts = build_luts(&histograms, flatten, &source)?;
     stage_lut(files, &out_dir.join("lut.fits"), &luts.lut_tables())?;
     files.write_bytes(&out_dir.join("lut.bin"), &luts.image)?;

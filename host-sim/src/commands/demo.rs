@@ -22,7 +22,7 @@ use crate::commands::quantization::SigmaReport;
 use crate::kcor::KcorParams;
 use crate::camera::Camera;
 use crate::commands::adc::AdcReport;
-use crate::commands::progress::bar;
+use crate::commands::progress::{bar, stage};
 use crate::flatten::FlattenParams;
 use crate::streaming::{run_stream, StreamParams, StreamReport};
 use crate::outputs::{OutDir, Outputs};
@@ -73,10 +73,12 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
     let staged = |files: &Outputs, target: &Path| files.staged(target).map(Path::to_path_buf).ok_or_else(|| HostError::Format { path: target.into(), message: "not written by the step before".into() });
 
     // 1-2. Calibration histograms, LUTs, characterization and its figures.
+    stage("1/8 calibration ramps, LUTs and the ADC characterization");
     let (adc, luts) = crate::commands::adc::run(camera, None, ramp, flatten, OutDir::new(&mut files, out_dir))?;
     let levels: usize = ramp.ramp_levels.iter().sum();
 
     // 3. Streaming check.
+    stage(&format!("2/8 streaming {frames} frames through the core, against the float reference"));
     let pb = bar(frames as u64, "streaming frames");
     let params = StreamParams::full_frame(camera, frames);
     let stream = run_stream(camera, &luts.weights, &params, |n| pb.set_position(n))?;
@@ -84,23 +86,29 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
     // The same LUTs through the FPGA model (4 taps) on a 256 x 256 region: compared with
     // the core and the reference sum by sum.
     let fpga_params = StreamParams { width: 256.min(params.width), height: 256.min(params.height), engine: crate::streaming::Engine::Fpga(dncal_fpga_model::Config::default()), ..params.clone() };
-    let stream_fpga = run_stream(camera, &luts.weights, &fpga_params, |_| {})?;
+    stage("3/8 the same LUTs through the FPGA model (256 x 256)");
+    let pb = bar(frames as u64, "FPGA model frames");
+    let stream_fpga = run_stream(camera, &luts.weights, &fpga_params, |n| pb.set_position(n))?;
+    pb.finish_and_clear();
 
     // 4. The paper's other analyses (docs/paper.md): quantization, K-Cor, linearity.
-    let pb = bar(3, "paper analyses");
+    stage("4/8 quantization bias (paper section 2)");
     crate::commands::quantization::figure(&mut files, &at("quantization.png"))?;
     let quantization = crate::commands::quantization::at_sigma(camera.config.read_noise_e / camera.config.gain_e_per_dn, 100_000, 1)?;
-    pb.inc(1);
+    stage("5/8 the K-Coronagraph polarimetric model (section 4)");
     let kp = KcorParams { adc: camera.adcs.len().min(4) - 1, steps: 50, ..Default::default() };
-    let kcor = crate::commands::kcor::kcor_model(camera, &kp, None, 1, Some(OutDir::new(&mut files, out_dir)))?;
-    pb.inc(1);
+    let spin = crate::commands::progress::spinner("K-Coronagraph model");
+    let kcor = crate::commands::kcor::kcor_model(camera, &kp, None, 1, Some(OutDir::new(&mut files, out_dir)));
+    spin.finish_and_clear();
+    let kcor = kcor?;
+    stage("6/8 pixel-wise nonlinearity on a simulated linearity set (section 5)");
     let lin_path = at("linearity.fits");
     crate::commands::simulate::simulate_linearity_staged(&mut files, camera, &LinearityParams::paper(camera), lin_path.clone())?;
     let lin_staged = staged(&files, &lin_path)?;
     let lin_dir = at("linearity");
     let linearity = crate::commands::linearity::linearity_as(&lin_staged, &lin_path, crate::linearity::PIXEL_ORDER, None, Some(OutDir::new(&mut files, &lin_dir)))?;
-    pb.finish_and_clear();
     // 5. What a diagnosis of the calibration histograms finds (issue: diagnose).
+    stage("7/8 diagnosing the calibration histograms and the linearity set");
     let hist_path = at("histograms.fits");
     let hist_staged = staged(&files, &hist_path)?;
     let (diagnose_dir, diagnose_lin_dir) = (at("diagnose"), at("diagnose-linearity"));
@@ -122,6 +130,7 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
         diagnose_linearity,
         seconds: start.elapsed().as_secs_f64(),
     };
+    stage("8/8 writing the report");
     let json = serde_json::to_string_pretty(&summary).map_err(|e| HostError::Format { path: at("summary.json"), message: e.to_string() })?;
     files.write_bytes(&at("summary.json"), &json)?;
     let html = report_html(&summary, camera, ramp, flatten);

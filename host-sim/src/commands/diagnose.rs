@@ -216,6 +216,7 @@ pub fn diagnose_as(read_from: &Path, input: &Path, flatten: &FlattenParams, seed
     let model: Option<crate::camera::CameraConfig>;
     let diagnosis = if is_descriptor {
         let set = crate::emva::read_descriptor(read_from)?;
+        let spin = crate::commands::progress::spinner(&format!("diagnosing {} (EMVA 1288 set: photon transfer, code density)", input.display()));
         let points = crate::emva::photon_transfer(&set)?;
         // The frames' code density: all columns as one ADC, then the columns of each of
         // four interleaved ADCs (column c read by ADC c mod 4, as the MV-D1024E's): where
@@ -266,6 +267,7 @@ pub fn diagnose_as(read_from: &Path, input: &Path, flatten: &FlattenParams, seed
         let sheet = crate::emva::datasheet_of(&set, &points, None)?;
         let dark = points.first().map_or(0.0, |p| p.dark_mean_dn);
         model = Some(ptc_model(&set, &sheet, dark, &mut d));
+        spin.finish_and_clear();
         d
     } else {
         let hist = match read_histograms_for_analysis(read_from) {
@@ -281,12 +283,18 @@ pub fn diagnose_as(read_from: &Path, input: &Path, flatten: &FlattenParams, seed
                 // The per-pixel state beyond the input: 388 bytes measured on 2048 x 2048
                 // (docs/diagnose.md).
                 crate::budget::check(read_from, "diagnosing each pixel (about 400 bytes per pixel beyond the set)", crate::budget::bytes_of((set.width * set.height) as u64, 400))?;
-                let d = diagnose_linearity(&set, 0.01).map_err(|m| HostError::Format { path: input.into(), message: m })?;
+                let spin = crate::commands::progress::spinner(&format!("diagnosing {} (linearity set, {} x {} pixels, {} levels)", input.display(), set.width, set.height, set.levels));
+                let d = diagnose_linearity(&set, 0.01);
+                spin.finish_and_clear();
+                let d = d.map_err(|m| HostError::Format { path: input.into(), message: m })?;
                 let model = linearity_model(&set, &d);
                 return report(input, d, Some(model), out, ("level", "baseline (linear pixels): RMS over pixels"));
             }
         };
-        let d = diagnose_histograms(&hist, flatten, seed).map_err(|m| HostError::Format { path: input.into(), message: m })?;
+        let spin = crate::commands::progress::spinner(&format!("diagnosing {} (histogram set, {} ADCs)", input.display(), hist.counts.len()));
+        let d = diagnose_histograms(&hist, flatten, seed);
+        spin.finish_and_clear();
+        let d = d.map_err(|m| HostError::Format { path: input.into(), message: m })?;
         model = Some(extended_model(&hist, &d, flatten).map_err(|m| HostError::Format { path: input.into(), message: m })?);
         d
     };

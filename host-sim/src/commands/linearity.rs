@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
+use crate::commands::progress::{spinner, stage};
 use crate::fits::{read_linearity, stage_cube, stage_pixel_correction, PixelCorrection};
 use crate::linearity::{analyze_unsaturated, check_flat_level, example_row, unsaturated_levels, LinearityReport, MAX_ORDER};
 use crate::plots::{level_lines_plot, line_plot_paired, map_plot, Map, Series};
@@ -48,6 +49,7 @@ pub fn linearity_as(read_from: &Path, input: &Path, order: usize, flat: Option<u
         o.files.create_dir(o.dir)?;
         o.files.expect(REPORT_FILES.map(|n| o.dir.join(n)))?;
     }
+    stage(&format!("reading {}", input.display()));
     let set = read_linearity(read_from)?;
     // The corrected cube (f64 per pixel and level), the fits and their work space.
     let per_pixel = 24 * set.levels as u64 + 256;
@@ -63,7 +65,10 @@ pub fn linearity_as(read_from: &Path, input: &Path, order: usize, flat: Option<u
     if let Some(l) = flat {
         check_flat_level(&valid, set.levels, l).map_err(|m| HostError::Format { path: "--flat-level".into(), message: format!("{m} ({})", input.display()) })?;
     }
-    let (report, px) = analyze_unsaturated(&set, order, flat, valid).map_err(|message| HostError::Format { path: input.into(), message })?;
+    let spin = spinner(&format!("fitting {} pixels ({} levels): standard and pixel-wise corrections", set.width * set.height, set.levels));
+    let analysis = analyze_unsaturated(&set, order, flat, valid);
+    spin.finish_and_clear();
+    let (report, px) = analysis.map_err(|message| HostError::Format { path: input.into(), message })?;
     let analysis_s = start.elapsed().as_secs_f64();
     let mut outputs = Vec::new();
     if let Some(OutDir { files, dir }) = out {

@@ -7,7 +7,7 @@ use serde::Serialize;
 
 use crate::camera::calibration::{LinearityParams, RampParams};
 use crate::camera::{Camera, CameraConfig};
-use crate::commands::progress::bar;
+use crate::commands::progress::{bar, stage};
 use crate::fits::{stage_linearity, write_histograms, AdcHistograms, LinearitySet};
 use crate::outputs::Outputs;
 use crate::HostError;
@@ -44,6 +44,7 @@ pub struct HistogramSummary {
 pub fn simulate_histograms(camera: &Camera, ramp: &RampParams, output: PathBuf) -> Result<HistogramSummary, HostError> {
     let start = Instant::now();
     let levels: usize = ramp.ramp_levels.iter().sum();
+    stage(&format!("simulating the calibration ramps ({levels} levels)"));
     let pb = bar(levels as u64, "ADC ramp histograms");
     let counts = camera.ramp_histograms(ramp, |n| pb.set_position(n));
     pb.finish_and_clear();
@@ -97,6 +98,7 @@ pub fn simulate_linearity_staged(files: &mut Outputs, camera: &Camera, p: &Linea
         });
     }
     files.expect([&output])?;
+    stage(&format!("simulating a linearity set: {w} x {h} pixels, {} levels of {} frames", p.levels, p.frames));
     let pb = bar(p.levels as u64, "linearity levels");
     let data = camera.linearity_set(p, |n| pb.set_position(n));
     pb.finish_and_clear();

@@ -7,7 +7,7 @@ use dncal_core::Weight;
 
 use crate::camera::Camera;
 use crate::commands::lut::build_luts;
-use crate::commands::progress::bar;
+use crate::commands::progress::{bar, stage};
 use crate::fits::read_histograms_for_analysis;
 use crate::flatten::{to_core_weights, FlattenParams};
 use crate::streaming::{run_stream, StreamParams, StreamReport};
@@ -38,6 +38,7 @@ pub fn stream(camera: &Camera, hist: Option<&Path>, flatten: &FlattenParams, par
         }
         None => oracle_weights(camera)?,
     };
+    stage(&format!("streaming {} frames of {} x {} through the {}", params.frames, params.width, params.height, match params.engine { crate::streaming::Engine::Core => "core", crate::streaming::Engine::Fpga(_) => "FPGA model and the core" }));
     let pb = bar(params.frames as u64, "streaming frames");
     let report = run_stream(camera, &weights, params, |n| pb.set_position(n));
     pb.finish_and_clear();
