@@ -1256,8 +1256,12 @@ fn check_gzip_inflates_within(file: &mut std::fs::File, path: &Path, limit: u64)
 fn malformed_table(file: &mut std::fs::File, size: u64) -> std::io::Result<Option<(u64, String)>> {
     use std::io::{Read, Seek, SeekFrom};
     const BLOCK: u64 = 2880;
+    // The value before the comment, as cfitsio reads it: bytes outside ASCII in the comment
+    // do not hide the value (found by `fits_linearity`: an image's `NAXIS2` with a byte
+    // 0xDF in its comment sent the walk to the wrong block, past the table after it).
     let integer = |card: &[u8]| -> Option<i64> {
-        std::str::from_utf8(&card[10..]).ok()?.split('/').next()?.trim().parse::<i64>().ok()
+        let value = card[10..].split(|&b| b == b'/').next()?;
+        std::str::from_utf8(value).ok()?.trim().parse::<i64>().ok()
     };
     let (mut start, mut lost) = (0u64, false);
     let mut block = [0u8; BLOCK as usize];
@@ -1291,6 +1295,11 @@ fn malformed_table(file: &mut std::fs::File, size: u64) -> std::io::Result<Optio
                     }
                 }
             }
+        }
+        // An extension must start where the one before ended; a walk that lands elsewhere
+        // has misread a size, and from there checks every block instead.
+        if start > 0 && &block[..9] != b"XTENSION=" {
+            lost = true;
         }
         if lost {
             start += BLOCK;

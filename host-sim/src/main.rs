@@ -414,6 +414,19 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
+    /// Shell completions on stdout: `dncal completions bash > /etc/bash_completion.d/dncal`
+    /// (or `~/.local/share/bash-completion/completions/dncal`; zsh: a file `_dncal` in `$fpath`).
+    Completions {
+        /// bash, elvish, fish, powershell or zsh.
+        shell: clap_complete::Shell,
+    },
+    /// The manual page (roff) on stdout, `man -l <(dncal man)`; with `-o DIR`, one page per
+    /// command and subcommand (dncal.1, dncal-lut-build.1, ...) written into DIR.
+    Man {
+        /// Folder for every page (created; the pages are published together).
+        #[arg(short, long)]
+        out: Option<PathBuf>,
+    },
 }
 
 #[derive(Subcommand)]
@@ -664,13 +677,94 @@ fn staged_in<T>(dir: &Path, command: impl FnOnce(OutDir<'_>) -> Result<T, HostEr
 }
 
 fn main() -> ExitCode {
-    match run(Cli::parse()) {
+    let cli = match parse() {
+        Ok(cli) => cli,
+        Err(e) => return usage_error(e),
+    };
+    match run(cli) {
         Ok(code) => code,
         Err(e) => {
             eprintln!("dncal: error: {e}");
             ExitCode::FAILURE
         }
     }
+}
+
+/// The command line as clap reads it, negative numbers taken as values everywhere
+/// (`--sigma -1`, not an unknown flag `-1`).
+fn command() -> clap::Command {
+    fn negatives(c: clap::Command) -> clap::Command {
+        c.allow_negative_numbers(true).mut_subcommands(negatives)
+    }
+    negatives(<Cli as clap::CommandFactory>::command())
+}
+
+fn parse() -> Result<Cli, clap::Error> {
+    let matches = command().try_get_matches()?;
+    <Cli as clap::FromArgMatches>::from_arg_matches(&matches)
+}
+
+/// `dncal man`: the top page on stdout, or every page into `out`.
+fn man_pages(out: Option<&Path>) -> Result<(), HostError> {
+    fn render(cmd: &clap::Command) -> Result<Vec<u8>, HostError> {
+        let mut page = Vec::new();
+        clap_mangen::Man::new(cmd.clone()).render(&mut page).map_err(|e| HostError::io("man page", e))?;
+        Ok(page)
+    }
+    let mut cmd = command();
+    cmd.build();
+    let Some(dir) = out else {
+        use std::io::Write;
+        return std::io::stdout().write_all(&render(&cmd)?).map_err(|e| HostError::io("stdout", e));
+    };
+    let mut files = dncal_host::outputs::Outputs::new();
+    files.create_dir(dir)?;
+    // Each subcommand's page is named by its path (`dncal-lut-build.1`), as git's are.
+    fn walk(cmd: &clap::Command, name: String, dir: &Path, files: &mut dncal_host::outputs::Outputs) -> Result<(), HostError> {
+        let named = cmd.clone().name(name.clone());
+        files.write_bytes(&dir.join(format!("{name}.1")), render(&named)?)?;
+        for sub in cmd.get_subcommands().filter(|s| s.get_name() != "help") {
+            walk(sub, format!("{name}-{}", sub.get_name()), dir, files)?;
+        }
+        Ok(())
+    }
+    walk(&cmd, "dncal".into(), dir, &mut files)?;
+    let written = files.publish()?;
+    println!("wrote {} manual pages into {}", written.len(), dir.display());
+    Ok(())
+}
+
+/// clap's help and version as clap prints them; its usage errors in the one-line format
+/// of every other error, exit code 2 (bad data is exit 1), naming the subcommand whose
+/// `--help` explains: `dncal: error: invalid value 'abc' for '--sigma <SIGMA>': invalid
+/// float literal (see dncal quantization --help)`.
+fn usage_error(e: clap::Error) -> ExitCode {
+    use clap::error::ErrorKind;
+    if matches!(e.kind(), ErrorKind::DisplayHelp | ErrorKind::DisplayVersion) {
+        let _ = e.print();
+        return ExitCode::SUCCESS;
+    }
+    // A command given without its subcommand: its help, on stderr, exit 2 (as clap does).
+    if e.kind() == ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand {
+        let _ = e.print();
+        return ExitCode::from(2);
+    }
+    let text = e.render().to_string();
+    // The error is what precedes the first blank line (a missing-arguments error lists
+    // them on the lines below its first); the rest is usage and tips.
+    let message: Vec<&str> = text.lines().take_while(|l| !l.trim().is_empty()).map(str::trim).collect();
+    let message = message.join(" ");
+    let message = message.trim_start_matches("error: ");
+    // The subcommand path: the words of the command line that name subcommands.
+    let mut cmd = command();
+    let mut path = vec!["dncal".to_string()];
+    for word in std::env::args().skip(1) {
+        let Some(sub) = cmd.find_subcommand(&word).cloned() else { continue };
+        path.push(sub.get_name().to_string());
+        cmd = sub;
+    }
+    eprintln!("dncal: error: {message} (see {} --help)", path.join(" "));
+    ExitCode::from(2)
 }
 
 fn run(cli: Cli) -> Result<ExitCode, HostError> {
@@ -940,6 +1034,10 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
             };
             print(json, &sheet, |s| emva_text(&descriptor, &set, s) + &wrote(&written))?;
         }
+        Cmd::Completions { shell } => {
+            clap_complete::generate(shell, &mut command(), "dncal", &mut std::io::stdout());
+        }
+        Cmd::Man { out } => man_pages(out.as_deref())?,
         Cmd::Demo { camera, out, frames, ramp, flatten, json } => {
             let cam = camera.camera()?;
             let s = demo::demo(&cam, &out, &ramp.params()?, &flatten.params(), frames)?;

@@ -230,8 +230,9 @@ fn table_headers_cfitsio_would_mistake_for_valid_are_refused_before_it() {
     assert!(e.contains("the table header at byte 11520 has \"NAXIS1  ="), "{e}");
     let crash = fuzz_dir().join("regressions/fits_linearity/table-with-garbled-gcount");
     let e = dncal_host::fits::read_linearity(&crash).unwrap_err().to_string();
-    // Bytes outside ASCII in the PCOUNT card's comment.
-    assert!(e.contains("the table header at byte 11520 has \"PCOUNT  =                    0 / size of special data area"), "{e}");
+    // Bytes outside ASCII in the PCOUNT card's comment (its value, 0, is fine: cfitsio
+    // reads the value before the comment), then no GCOUNT card where it must be.
+    assert!(e.contains("the table header at byte 11520 has \"") && e.ends_with("GCOUNT  =\"; a table header opens with BITPIX, NAXIS, NAXIS1, NAXIS2, PCOUNT, GCOUNT and TFIELDS (0 to 999), integers in range (cfitsio would take it for valid)"), "{e}");
     // The same file with TFIELDS = 1000000 and a valid NAXIS2.
     let dir = tempfile::tempdir().unwrap();
     let seed = std::fs::read(fuzz_dir().join("corpus/fits_linearity/seed-no-mask.fits")).unwrap();
@@ -246,14 +247,16 @@ fn table_headers_cfitsio_would_mistake_for_valid_are_refused_before_it() {
 }
 
 /// Found by `fits_linearity` in its 10-minute run: the file ends 1271 bytes into the
-/// table header, after a `PCOUNT` card with bytes outside ASCII; cfitsio parsed what there
+/// table header, after a `PCOUNT` card with bytes outside ASCII in its comment; cfitsio parsed what there
 /// was and allocated 2^54 bytes. The header walk now reads a last block cut short.
 #[test]
 fn a_table_header_cut_by_the_end_of_the_file_is_refused_before_cfitsio() {
     let crash = fuzz_dir().join("regressions/fits_linearity/table-header-cut-by-the-end-of-file");
     assert_eq!(std::fs::metadata(&crash).unwrap().len(), 12791);
     let e = dncal_host::fits::read_linearity(&crash).unwrap_err().to_string();
-    assert!(e.contains("the table header at byte 11520 has \"PCOUNT  =                    0 / size of special data area"), "{e}");
+    // The PCOUNT card's value is read before its garbled comment; the card after it is
+    // not GCOUNT.
+    assert!(e.contains("the table header at byte 11520 has \"") && e.contains("GCOUNT  =\"; a table header opens"), "{e}");
 }
 
 /// Found by `fits_lut` under AddressSanitizer: `EXTNAME =YYYY...`, a value starting in
@@ -281,4 +284,16 @@ fn a_negative_subnormal_std_is_read_alike_at_both_precisions() {
     let tiny = wide.std.iter().copied().filter(|&v| v < 0.0).collect::<Vec<_>>();
     assert!(!tiny.is_empty() && tiny.iter().all(|&v| v > -f64::from(f32::from_bits(1))), "{tiny:?}");
     assert!(fuzzing::fits_linearity(&std::fs::read(&crash).unwrap()));
+}
+
+/// Found by `fits_linearity` (third 10-minute run): the image before the table has a byte
+/// 0xDF in its `NAXIS2` card's comment; the header walk read no value there, so its data
+/// size as 0, landed in the middle of the data and walked past the table, whose `NAXIS2`
+/// is garbage (cfitsio then allocated 2^54 bytes). Values are now read before the comment,
+/// and a walk that lands on anything but an extension checks every block after.
+#[test]
+fn a_comment_outside_ascii_does_not_hide_the_table_after_it() {
+    let crash = fuzz_dir().join("regressions/fits_linearity/table-after-a-comment-outside-ascii");
+    let e = dncal_host::fits::read_linearity(&crash).unwrap_err().to_string();
+    assert!(e.contains("the table header at byte 11520 has \"NAXIS2  ="), "{e}");
 }
