@@ -212,8 +212,7 @@ fn stream_through_the_fpga_model_matches_the_core() {
 
 #[test]
 fn emva_reads_the_real_measurement() {
-    let descriptor = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/emva1288-ccd-12bit/EMVA1288_Data.txt");
-    let descriptor = std::env::var_os("DNCAL_EMVA_DIR").map(|d| Path::new(&d).join("EMVA1288_Data.txt")).unwrap_or(descriptor);
+    let Some(descriptor) = support::real_ccd_descriptor() else { return };
     let dir = tempfile::tempdir().unwrap();
     let s = stdout_json(&dncal(&["emva", descriptor.to_str().unwrap(), "--json"], dir.path()));
     let k = s["gain_dn_per_e"].as_f64().unwrap();
@@ -615,9 +614,7 @@ fn diagnose_names_dnl_in_simulated_histograms_and_nothing_in_ideal_ones() {
 
 #[test]
 fn diagnose_finds_the_real_ccds_nonlinearity() {
-    let descriptor = std::env::var_os("DNCAL_EMVA_DIR")
-        .map(|d| Path::new(&d).join("EMVA1288_Data.txt"))
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/emva1288-ccd-12bit/EMVA1288_Data.txt"));
+    let Some(descriptor) = support::real_ccd_descriptor() else { return };
     let dir = tempfile::tempdir().unwrap();
     let s = stdout_json(&dncal(&["diagnose", descriptor.to_str().unwrap(), "--json", "-o", "rep"], dir.path()));
     assert_eq!(s["baseline"]["kind"], "photon-transfer");

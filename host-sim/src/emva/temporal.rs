@@ -205,7 +205,8 @@ mod tests {
 
     #[test]
     fn real_photon_transfer_is_linear_with_a_plausible_gain() {
-        let set = read_descriptor(&real_descriptor()).unwrap();
+        let Some(real) = real_descriptor() else { return };
+        let set = read_descriptor(&real).unwrap();
         let mut ptc = photon_transfer(&set).unwrap();
         assert_eq!(ptc.len(), 50, "51 illuminated levels, one of them the 50-frame spatial series");
         assert!(ptc.iter().all(|p| p.exposure == set.levels.iter().find(|l| l.line == p.dark_line).unwrap().exposure));

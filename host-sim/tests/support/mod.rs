@@ -140,6 +140,22 @@ pub fn assert_failed_and_untouched(out: &Output, start: &str, dir: &Path, before
     assert_eq!(out.status.code(), Some(1), "stderr: {stderr}");
 }
 
+/// The real CCD's EMVA 1288 descriptor in `../shared/data/emva1288-ccd-12bit/` (read in
+/// place, never copied; `DNCAL_EMVA_DIR` names another folder), or `None` after one line
+/// saying the test skips, where it is absent.
+pub fn real_ccd_descriptor() -> Option<PathBuf> {
+    let dir = std::env::var_os("DNCAL_EMVA_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/emva1288-ccd-12bit"));
+    let descriptor = dir.join("EMVA1288_Data.txt");
+    if descriptor.is_file() {
+        Some(descriptor)
+    } else {
+        eprintln!("skipping: {} is absent", descriptor.display());
+        None
+    }
+}
+
 /// A histogram set `lut build` accepts: 4 ADCs of 12 bits, 1000 samples in every code.
 pub fn flat_histograms(path: &Path) {
     write_histograms(path, &AdcHistograms { bit_depth: 12, counts: vec![vec![1000; 4096]; 4] }).unwrap();
