@@ -400,10 +400,8 @@ pub fn read_histograms_for_analysis(path: &Path) -> Result<AdcHistograms, HostEr
 /// `2^BITDEPTH`, missing or invalid keys, and LUT files (which carry `FRACBITS`).
 pub fn read_histograms(path: &Path) -> Result<AdcHistograms, HostError> {
     let mut r = FitsReader::open(path)?;
+    r.expect_kind(FileKind::Histograms)?;
     let (bit_depth, n_adc, codes) = r.adc_keys()?;
-    if r.key::<f64>(0, PRIMARY, "FRACBITS")?.is_some() {
-        return Err(r.error("the primary HDU has FRACBITS: this is a LUT file, not a histogram set"));
-    }
     let image = r.image(0, PRIMARY, 2)?;
     r.check_adc_image_shape(&image, codes, n_adc, bit_depth)?;
     let flat: Vec<u64> = r
@@ -474,6 +472,7 @@ where
     Vec<T>: ReadImage,
 {
     let mut r = FitsReader::open(path)?;
+    r.expect_kind(FileKind::Linearity)?;
     let (bit_depth, n_adc, _) = r.adc_keys()?;
     let n_frames = r.required_int(0, PRIMARY, "NFRAMES")?;
     let n_frames = u32::try_from(n_frames)
@@ -530,6 +529,7 @@ where
 /// than [`dncal_core::FRAC_BITS`].
 pub fn read_lut(path: &Path) -> Result<LutTables, HostError> {
     let mut r = FitsReader::open(path)?;
+    r.expect_kind(FileKind::Lut)?;
     let (bit_depth, n_adc, codes) = r.adc_keys()?;
     let frac_bits = r.required_int(0, PRIMARY, "FRACBITS")?;
     if frac_bits != i64::from(FRAC_BITS) {
@@ -606,6 +606,33 @@ impl IntegerPixels {
         match self {
             IntegerPixels::Signed(v) => all(v.into_iter().map(i128::from)),
             IntegerPixels::Unsigned(v) => all(v.into_iter().map(i128::from)),
+        }
+    }
+}
+
+/// The three FITS files dncal writes and reads (`docs/formats.md`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum FileKind {
+    Histograms,
+    Linearity,
+    Lut,
+}
+
+impl FileKind {
+    fn name(self) -> &'static str {
+        match self {
+            FileKind::Histograms => "a histogram set",
+            FileKind::Linearity => "a linearity set",
+            FileKind::Lut => "a LUT FITS",
+        }
+    }
+
+    /// What it is and what reads it.
+    fn describe(self) -> &'static str {
+        match self {
+            FileKind::Histograms => "a histogram set (per-ADC code counts, FITS keys BITDEPTH and NADC; `lut build`, `adc --hist` and `diagnose` read it)",
+            FileKind::Linearity => "a linearity set (mean and std frames per level, FITS key NFRAMES; `linearity` and `diagnose` read it)",
+            FileKind::Lut => "a LUT FITS (per-ADC tables, FITS key FRACBITS; `lut inspect`, `lut export`, `kcor-model --lut` and `fpga-size --lut` read it)",
         }
     }
 }
@@ -794,6 +821,29 @@ impl<'a> FitsReader<'a> {
 
     fn required_int(&mut self, hdu: usize, label: &str, name: &str) -> Result<i64, HostError> {
         self.int_key(hdu, label, name)?.ok_or_else(|| self.error(format!("missing key {name} in the {label}")))
+    }
+
+    /// The kind of dncal file the primary HDU announces by the keys its writer puts there
+    /// (`FRACBITS`: a LUT; `NFRAMES`: a linearity set; `BITDEPTH` on a 2-D image without
+    /// either: a histogram set), `None` for anything else.
+    fn kind(&mut self) -> Result<Option<FileKind>, HostError> {
+        if self.key::<f64>(0, PRIMARY, "FRACBITS")?.is_some() {
+            return Ok(Some(FileKind::Lut));
+        }
+        if self.key::<f64>(0, PRIMARY, "NFRAMES")?.is_some() {
+            return Ok(Some(FileKind::Linearity));
+        }
+        let two_d = self.key::<f64>(0, PRIMARY, "NAXIS")? == Some(2.0);
+        Ok((two_d && self.key::<f64>(0, PRIMARY, "BITDEPTH")?.is_some()).then_some(FileKind::Histograms))
+    }
+
+    /// Refuses a dncal file of another kind than `want`, naming what it is and which
+    /// command reads it (rather than the first key it lacks).
+    fn expect_kind(&mut self, want: FileKind) -> Result<(), HostError> {
+        match self.kind()? {
+            Some(found) if found != want => Err(self.error(format!("this is {}, not {}", found.describe(), want.name()))),
+            _ => Ok(()),
+        }
     }
 
     /// `BITDEPTH`, `NADC` and `ADCMAP` of the primary HDU: (bits, ADCs, codes).
@@ -1558,14 +1608,26 @@ mod tests {
     }
 
     #[test]
-    fn histogram_and_lut_files_are_not_mistaken_for_each_other() {
+    fn each_kind_of_file_is_named_to_a_reader_of_another() {
         let dir = tempfile::tempdir().unwrap();
-        let (h, l) = (dir.path().join("h.fits"), dir.path().join("l.fits"));
+        let (h, l, s) = (dir.path().join("h.fits"), dir.path().join("l.fits"), dir.path().join("s.fits"));
         write_histograms(&h, &histograms()).unwrap();
         write_lut(&l, &lut()).unwrap();
-        assert_rejects(read_histograms(&l), &l, "this is a LUT file");
-        assert_rejects(read_lut(&h), &h, "missing key FRACBITS");
-        assert_rejects(read_linearity(&h), &h, "missing key NFRAMES");
+        write_linearity(&s, &linearity(true)).unwrap();
+        // Every wrong pairing of the three kinds, each message naming what the file is.
+        let (hist, lin, lutk) = ("a histogram set (", "a linearity set (", "a LUT FITS (");
+        for (message, starts, not) in [
+            (format_message(read_histograms(&l), &l), lutk, "a histogram set"),
+            (format_message(read_histograms(&s), &s), lin, "a histogram set"),
+            (format_message(read_lut(&h), &h), hist, "a LUT FITS"),
+            (format_message(read_lut(&s), &s), lin, "a LUT FITS"),
+            (format_message(read_linearity(&h), &h), hist, "a linearity set"),
+            (format_message(read_linearity(&l), &l), lutk, "a linearity set"),
+        ] {
+            assert!(message.starts_with(&format!("this is {starts}")) && message.ends_with(&format!("), not {not}")), "{message}");
+        }
+        // And each reads its own.
+        assert!(read_histograms(&h).is_ok() && read_lut(&l).is_ok() && read_linearity(&s).is_ok());
     }
 
     #[test]

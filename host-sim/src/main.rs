@@ -796,9 +796,10 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
             let s = lut::build(&hist, &out, &flatten.params())?;
             print(json, &s, |s| {
                 let mut t = format!("read {}\nwrote {} and {}\n", s.input.display(), s.lut_fits.display(), s.device_image.display());
+                t += "(code widths: each code's normalized width, the LUT's weights; `lut inspect` shows entry steps, the mean width of two neighbouring codes, a narrower range)\n";
                 for a in &s.adcs {
                     t += &format!(
-                        "ADC {}: weights {:.4}..{:.4}, max |cumulative offset| {:.3} DN, top offset {:+.4} DN before normalization, {:+.2e} DN after, top entry {}\n",
+                        "ADC {}: code widths {:.4}..{:.4} DN, max |cumulative offset| {:.3} DN, top offset {:+.4} DN before normalization, {:+.2e} DN after, top entry {}\n",
                         a.adc, a.weight_range.0, a.weight_range.1, a.max_abs_offset_dn, a.top_offset_before_dn, a.top_offset_dn, a.top_entry
                     );
                 }
@@ -823,8 +824,9 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
             let s = lut::inspect(&file)?;
             print(json, &s, |s| {
                 let mut t = format!("{} ({}, {} bits, {} ADCs)\n", s.path.display(), s.kind, s.bit_depth, s.adcs.len());
+                t += "(entry steps: entry k+1 - entry k, the mean width of codes k and k+1; `lut build` reports the single-code widths, a wider range)\n";
                 for a in &s.adcs {
-                    t += &format!("ADC {}: steps {:.4}..{:.4} DN, max |cumulative offset| {:.3} DN, top entry {}\n", a.adc, a.step_range.0, a.step_range.1, a.max_abs_offset_dn, a.entries.last().copied().unwrap_or(0));
+                    t += &format!("ADC {}: entry steps {:.4}..{:.4} DN, max |cumulative offset| {:.3} DN, top entry {}\n", a.adc, a.step_range.0, a.step_range.1, a.max_abs_offset_dn, a.entries.last().copied().unwrap_or(0));
                     if table {
                         t += "  code      entry          DN     step   offset\n";
                         for k in 0..a.entries.len() {
@@ -1004,10 +1006,14 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
             let needed = bias.map(quantization::for_bias).transpose()?;
             match (at, needed) {
                 (Some(a), None) => print(json, &a, |a| {
-                    format!(
+                    let mut t = format!(
                         "noise {:.4} DN: worst-case bias {:.4e} DN at lambda mod 1 = {:.4}\n  Fourier series {:+.6e}, eq. 4 {:+.6e}, exact sum {:+.6e}, Monte Carlo {:+.6e} +- {:.1e} DN ({} readouts)\n",
                         a.sigma, a.max_abs_bias_dn, a.at_lambda_frac, a.fourier_bias_dn, a.erf_bias_dn, a.exact_bias_dn, a.monte_carlo_bias_dn, a.monte_carlo_se_dn, a.monte_carlo_samples
-                    )
+                    );
+                    if a.sigma == 0.0 {
+                        t += "  (without noise the bias is a sawtooth whose jump is at lambda mod 1 = 0.5: the worst case is the value beside the jump, which the other three give; a Fourier series converges to the middle of a jump, 0)\n";
+                    }
+                    t
                 })?,
                 (None, Some(b)) => print(json, &b, |b| format!("worst-case bias <= {} DN needs noise >= {:.4} DN\n", b.bias, b.sigma))?,
                 (Some(a), Some(b)) => {

@@ -76,3 +76,29 @@ fn manual_pages_are_roff_one_per_command() {
         assert!(text.contains(&format!(".TH {stem} 1 ")), "{name}: {}", &text[..text.len().min(200)]);
     }
 }
+
+/// One quantity, one name: `lut build` prints single-code widths and `lut inspect` entry
+/// steps (the mean of two neighbouring widths), each said as such. A flat histogram set
+/// has every width exactly 1 DN, so both ranges are 1..1.
+#[test]
+fn code_widths_and_entry_steps_are_named_apart() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    support::flat_histograms(&d.join("h.fits"));
+    let build = String::from_utf8(succeed(&["lut", "build", "h.fits", "-o", "cal"], d).stdout).unwrap();
+    assert!(build.contains("(code widths: each code's normalized width"), "{build}");
+    assert!(build.contains("ADC 3: code widths 1.0000..1.0000 DN,"), "{build}");
+    let inspect = String::from_utf8(succeed(&["lut", "inspect", "cal.fits"], d).stdout).unwrap();
+    assert!(inspect.contains("(entry steps: entry k+1 - entry k, the mean width of codes k and k+1"), "{inspect}");
+    assert!(inspect.contains("ADC 3: entry steps 1.0000..1.0000 DN,"), "{inspect}");
+}
+
+/// Without noise the Fourier series reads 0 at the sawtooth's jump while the others read
+/// 0.5 DN; the output says why, and only there.
+#[test]
+fn the_zero_noise_fourier_value_is_explained() {
+    let zero = String::from_utf8(succeed(&["quantization", "--sigma=0"], Path::new(".")).stdout).unwrap();
+    assert!(zero.contains("a Fourier series converges to the middle of a jump, 0"), "{zero}");
+    let small = String::from_utf8(succeed(&["quantization", "--sigma", "0.01"], Path::new(".")).stdout).unwrap();
+    assert!(!small.contains("sawtooth"), "{small}");
+}
