@@ -314,7 +314,30 @@ impl<'a> FitsWriter<'a> {
         // the key name is a NUL-terminated literal.
         unsafe { fitsio::sys::ffdkey(file.as_raw(), c"EXTNAME".as_ptr(), &mut status) };
         fitsio::errors::check_status(status).map_err(|e| fits_error(path, "removing fitsio's EXTNAME", &e))?;
-        Ok(FitsWriter { file, _name: name, path, hdu })
+        let mut writer = FitsWriter { file, _name: name, path, hdu };
+        writer.provenance()?;
+        Ok(writer)
+    }
+
+    /// Where the file comes from, in the primary HDU: `DATE` (UTC, when written),
+    /// `CREATOR` (dncal and its version), `ORIGIN`, and the command line that made it as
+    /// `HISTORY` cards (cfitsio continues a long line on further cards).
+    fn provenance(&mut self) -> Result<(), HostError> {
+        let path = self.path;
+        let mut status = 0;
+        // SAFETY: `self.file` is open with the primary HDU current; ffpdat writes one key.
+        unsafe { fitsio::sys::ffpdat(self.file.as_raw(), &mut status) };
+        fitsio::errors::check_status(status).map_err(|e| fits_error(path, "writing key DATE", &e))?;
+        self.key("CREATOR", (format!("dncal {}", env!("CARGO_PKG_VERSION")), "software that wrote this file"))?;
+        self.key("ORIGIN", ("dncal", "camera detector correction and characterization"))?;
+        let args: Vec<String> = std::env::args().collect();
+        let command = format!("command: {}", args.join(" "));
+        // Printable ASCII only (a FITS header holds nothing else); at most 4 KB of it.
+        let command: String = command.chars().map(|c| if (' '..='~').contains(&c) { c } else { '?' }).take(4096).collect();
+        let Ok(text) = std::ffi::CString::new(command) else { return Ok(()) };
+        // SAFETY: as above; `text` is NUL-terminated.
+        unsafe { fitsio::sys::ffphis(self.file.as_raw(), text.as_ptr(), &mut status) };
+        fitsio::errors::check_status(status).map_err(|e| fits_error(path, "writing HISTORY", &e))
     }
 
     /// Writes `value` (a value or a (value, comment) pair) as key `name` of the current HDU.
@@ -362,11 +385,22 @@ impl<'a> FitsWriter<'a> {
 
     /// Flushes everything to disk, so that a full disk is an error here and not a silently
     /// short file when `Drop` closes it (fitsio ignores errors on close).
+    /// Every HDU also gets the standard `DATASUM` and `CHECKSUM` keys (the FITS checksum
+    /// convention, which astropy verifies), computed last, over the final header and data.
     fn finish(mut self) -> Result<(), HostError> {
-        let mut status = 0;
-        // SAFETY: `self.file` is open; ffflus only writes its buffers.
-        unsafe { fitsio::sys::ffflus(self.file.as_raw(), &mut status) };
-        fitsio::errors::check_status(status).map_err(|e| fits_error(self.path, "flushing to disk", &e))
+        let (mut status, mut count) = (0, 0);
+        // SAFETY: `self.file` is open; ffthdu counts its HDUs, ffmahd moves among them,
+        // ffpcks writes the two keys of the current HDU, ffflus only writes its buffers.
+        unsafe {
+            let raw = self.file.as_raw();
+            fitsio::sys::ffthdu(raw, &mut count, &mut status);
+            for hdu in 1..=count {
+                fitsio::sys::ffmahd(raw, hdu, std::ptr::null_mut(), &mut status);
+                fitsio::sys::ffpcks(raw, &mut status);
+            }
+            fitsio::sys::ffflus(raw, &mut status);
+        }
+        fitsio::errors::check_status(status).map_err(|e| fits_error(self.path, "writing checksums and flushing to disk", &e))
     }
 }
 
@@ -759,7 +793,35 @@ impl<'a> FitsReader<'a> {
         let file = FitsFile::open(&name.name).map_err(|e| fits_error(path, "not a readable FITS file", &e))?;
         let mut reader = FitsReader { file, _name: name, path, len };
         reader.check_declared_sizes(plain)?;
+        reader.verify_checksums()?;
         Ok(reader)
+    }
+
+    /// Refuses an HDU whose `CHECKSUM` or `DATASUM` (where present: files of other tools
+    /// often have none) does not match its bytes: the file changed after it was written.
+    fn verify_checksums(&mut self) -> Result<(), HostError> {
+        let (mut status, mut count) = (0, 0);
+        // SAFETY: `self.file` is open; ffthdu counts its HDUs.
+        unsafe { fitsio::sys::ffthdu(self.file.as_raw(), &mut count, &mut status) };
+        for hdu in 1..=count {
+            let (mut data_ok, mut hdu_ok) = (0, 0);
+            // SAFETY: as above; ffvcks reads the current HDU and writes the two flags
+            // (1 verified, 0 no key, -1 wrong).
+            unsafe {
+                let raw = self.file.as_raw();
+                fitsio::sys::ffmahd(raw, hdu, std::ptr::null_mut(), &mut status);
+                fitsio::sys::ffvcks(raw, &mut data_ok, &mut hdu_ok, &mut status);
+            }
+            fitsio::errors::check_status(status).map_err(|e| fits_error(self.path, &format!("verifying the checksums of HDU {}", hdu - 1), &e))?;
+            if data_ok < 0 || hdu_ok < 0 {
+                let label = if hdu == 1 { PRIMARY.to_string() } else { format!("HDU {}", hdu - 1) };
+                let which = if data_ok < 0 { "its data do not match DATASUM" } else { "its header and data do not match CHECKSUM" };
+                return Err(self.error(format!(
+                    "the {label} fails its checksum: {which} (the file was changed or damaged after it was written; a tool that edited it kept the old keys: have it write new ones, astropy's writeto(..., checksum=True), or delete CHECKSUM and DATASUM)"
+                )));
+            }
+        }
+        Ok(())
     }
 
     /// Refuses a file whose HDUs declare more bytes than it has: each HDU's header, data

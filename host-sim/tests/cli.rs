@@ -534,7 +534,11 @@ fn linearity_ranks_the_corrections_and_writes_fits() {
     }
     assert_eq!(s["masked_pixels"], np["masked"], "{np}");
     // Every pixel masked (issue 18: it panicked in the SVD of an empty matrix): refused.
-    python("from astropy.io import fits\nwith fits.open('lin.fits') as h:\n    h['MASK'].data[:] = 1\n    h.writeto('masked.fits')\n", d);
+    // Edited with astropy as a user would: the old CHECKSUM and DATASUM go with it, stale,
+    // and the reader says so; written again with new ones, the edit itself is refused.
+    python("from astropy.io import fits\nwith fits.open('lin.fits') as h:\n    h['MASK'].data[:] = 1\n    h.writeto('stale.fits')\n    h.writeto('masked.fits', checksum=True)\n", d);
+    assert_clean_failure(&dncal(&["linearity", "stale.fits", "-o", "masked-out"], d), "stale.fits", "the HDU 2 fails its checksum: its data do not match DATASUM");
+    assert_clean_failure(&dncal(&["linearity", "stale.fits", "-o", "masked-out"], d), "stale.fits", "writeto(..., checksum=True)");
     assert_clean_failure(&dncal(&["linearity", "masked.fits", "-o", "masked-out"], d), "masked.fits", "no pixel left to correct");
     assert!(!d.join("masked-out").exists(), "nothing written");
     // The FITS outputs open in astropy with the documented shapes.

@@ -294,3 +294,61 @@ fn astropy_opens_our_linearity_set_levels_by_rows_by_columns() {
     assert_eq!(voltage["dtype"], "float64");
     assert_close(&json_f64(&voltage["values"]), &set.voltage, "voltage");
 }
+
+/// Every HDU of each of the three kinds carries DATASUM and CHECKSUM that astropy (the
+/// reference implementation of the FITS checksum convention) verifies, and the primary
+/// HDU its provenance (DATE, CREATOR, ORIGIN, the command line as HISTORY). A byte changed
+/// in the data afterwards fails astropy's check and our reader refuses the file.
+#[test]
+fn astropy_verifies_our_checksums_and_reads_our_provenance() {
+    const VERIFY: &str = r#"
+import json, sys, warnings
+from astropy.io import fits
+warnings.simplefilter("ignore")
+out = []
+with fits.open(sys.argv[1]) as hdul:
+    for hdu in hdul:
+        h = hdu.header
+        out.append({"name": hdu.name, "checksum": hdu.verify_checksum(), "datasum": hdu.verify_datasum(),
+                    "date": h.get("DATE"), "creator": h.get("CREATOR"), "origin": h.get("ORIGIN"),
+                    "history": " ".join(str(c) for c in h.get("HISTORY", []))})
+print(json.dumps(out))
+"#;
+    let verify = |path: &Path| -> Vec<Value> {
+        let out = Command::new("python3").arg("-c").arg(VERIFY).arg(path).output().expect("python3 with astropy");
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        serde_json::from_slice::<Value>(&out.stdout).unwrap().as_array().unwrap().clone()
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let (h, l, s) = (dir.path().join("h.fits"), dir.path().join("l.fits"), dir.path().join("s.fits"));
+    write_histograms(&h, &AdcHistograms { bit_depth: 3, counts: vec![vec![5; 8]; 3] }).unwrap();
+    write_lut(&l, &LutTables { frac_bits: 11, tables: vec![(0..16u32).map(|k| 2048 * k + 1024).collect(); 2], weights: Some(vec![vec![1 << 24; 16]; 2]), kcor_bits: None }).unwrap();
+    let n = 5 * 3 * 4;
+    let set = LinearitySet { bit_depth: 12, n_adc: 4, n_frames: 32, width: 5, height: 3, levels: 4, mean: (0..n).map(|i| i as f64).collect(), std: vec![1.0; n], voltage: vec![0.0, 1.0, 2.0, 3.0], mask: Some(vec![0; 15]) };
+    write_linearity(&s, &set).unwrap();
+    for (path, hdus) in [(&h, 1), (&l, 2), (&s, 4)] {
+        let v = verify(path);
+        assert_eq!(v.len(), hdus, "{v:?}");
+        for hdu in &v {
+            assert_eq!((hdu["checksum"].as_i64(), hdu["datasum"].as_i64()), (Some(1), Some(1)), "{}: {hdu}", path.display());
+        }
+        let p = &v[0];
+        assert_eq!(p["creator"], format!("dncal {}", env!("CARGO_PKG_VERSION")));
+        assert_eq!(p["origin"], "dncal");
+        assert!(p["date"].as_str().is_some_and(|d| d.len() == 19 && d.starts_with("20") && d.as_bytes()[10] == b'T'), "{p}");
+        // The test binary's own command line.
+        assert!(p["history"].as_str().is_some_and(|h| h.starts_with("command: ")), "{p}");
+    }
+    // One data byte of the linearity set's STD extension changed: astropy's DATASUM check
+    // fails, and our reader refuses the file naming the HDU.
+    let mut bytes = std::fs::read(&s).unwrap();
+    let std_header = bytes.windows(19).position(|w| w == b"EXTNAME = 'STD     ").unwrap();
+    let std_data = (std_header / 2880 + 1) * 2880;
+    bytes[std_data + 7] ^= 0x01;
+    std::fs::write(&s, &bytes).unwrap();
+    let v = verify(&s);
+    assert_eq!(v[1]["name"], "STD");
+    assert_eq!(v[1]["datasum"].as_i64(), Some(0), "astropy must see the damage: {:?}", v[1]);
+    let e = read_linearity(&s).unwrap_err().to_string();
+    assert!(e.contains("the HDU 1 fails its checksum: its data do not match DATASUM (the file was changed or damaged after it was written;"), "{e}");
+}
