@@ -67,6 +67,10 @@ pub fn parse_size(text: &str) -> Result<u64, String> {
     let t = text.trim();
     let split = t.find(|c: char| !(c.is_ascii_digit() || c == '.')).unwrap_or(t.len());
     let (number, unit) = t.split_at(split);
+    let not_a_size = || format!("{text:?} is not a size (e.g. 4G, 512M, 1.5G)");
+    if number.parse::<f64>().is_err() {
+        return Err(not_a_size());
+    }
     let shift = match unit.trim().to_ascii_uppercase().as_str() {
         "" | "B" => 0,
         "K" | "KB" | "KIB" => 10,
@@ -75,7 +79,7 @@ pub fn parse_size(text: &str) -> Result<u64, String> {
         "T" | "TB" | "TIB" => 40,
         other => return Err(format!("unknown unit {other:?} in {text:?} (use K, M, G or T)")),
     };
-    let value: f64 = number.parse().map_err(|_| format!("{text:?} is not a size (e.g. 4G, 512M, 1.5G)"))?;
+    let value: f64 = number.parse().map_err(|_| not_a_size())?;
     let bytes = value * (1u64 << shift) as f64;
     if !(bytes >= 1.0 && bytes < 2f64.powi(63)) {
         return Err(format!("{text:?} is not a size between 1 byte and 8 EiB"));
@@ -114,6 +118,9 @@ mod tests {
         for bad in ["", "G", "-1G", "0", "1.5X", "1e3", "NaN", "99999999999T"] {
             assert!(parse_size(bad).is_err(), "{bad:?} accepted");
         }
+        // A number that is not one is named as such, not as a unit.
+        assert_eq!(parse_size("-1G"), Err("\"-1G\" is not a size (e.g. 4G, 512M, 1.5G)".into()));
+        assert_eq!(parse_size("1.5X"), Err("unknown unit \"X\" in \"1.5X\" (use K, M, G or T)".into()));
     }
 
     #[test]

@@ -330,7 +330,8 @@ impl<'a> FitsWriter<'a> {
         fitsio::errors::check_status(status).map_err(|e| fits_error(path, "writing key DATE", &e))?;
         self.key("CREATOR", (format!("dncal {}", env!("CARGO_PKG_VERSION")), "software that wrote this file"))?;
         self.key("ORIGIN", ("dncal", "camera detector correction and characterization"))?;
-        let args: Vec<String> = std::env::args().collect();
+        // (`args_os`: `args` panics on an argument that is not Unicode, such as a path.)
+        let args: Vec<String> = std::env::args_os().map(|a| a.to_string_lossy().into_owned()).collect();
         let command = format!("command: {}", args.join(" "));
         // Printable ASCII only (a FITS header holds nothing else); at most 4 KB of it.
         let command: String = command.chars().map(|c| if (' '..='~').contains(&c) { c } else { '?' }).take(4096).collect();
@@ -727,7 +728,7 @@ impl KeyValue for String {
             _ => return Err(fits_error(status)),
         }
         let bytes: Vec<u8> = card.iter().take_while(|&&c| c != 0).map(|&c| c as u8).collect();
-        string_from_card(&bytes).map(Some).ok_or_else(|| KeyError::NotString(String::from_utf8_lossy(&bytes).trim_end().to_string()))
+        string_from_card(&bytes).map(Some).ok_or_else(|| KeyError::NotString(printable(&bytes)))
     }
 }
 
@@ -736,19 +737,26 @@ impl KeyValue for String {
 /// significant in FITS), `None` if the value is not a quoted string.
 fn string_from_card(card: &[u8]) -> Option<String> {
     let value = card.get(8..)?.strip_prefix(b"=")?;
-    let value = std::str::from_utf8(value).ok()?.trim_start().strip_prefix('\'')?;
-    let mut out = String::new();
-    let mut chars = value.chars().peekable();
+    let start = value.iter().position(|&b| b != b' ')?;
+    let mut bytes = value[start..].strip_prefix(b"'")?.iter().peekable();
+    // Bytes up to the closing quote only: the comment after it may hold anything.
+    let mut out = Vec::new();
     loop {
-        match chars.next()? {
-            '\'' if chars.peek() == Some(&'\'') => {
-                chars.next();
-                out.push('\'');
+        match *bytes.next()? {
+            b'\'' if bytes.peek() == Some(&&b'\'') => {
+                bytes.next();
+                out.push(b'\'');
             }
-            '\'' => return Some(out.trim_end().to_string()),
-            c => out.push(c),
+            b'\'' => return Some(String::from_utf8_lossy(&out).trim_end().to_string()),
+            b => out.push(b),
         }
     }
+}
+
+/// A card as a message shows it: bytes outside printable ASCII (a newline would break the
+/// one-line error, NULs fill a block cut short) as `?`, trailing spaces dropped.
+fn printable(card: &[u8]) -> String {
+    card.iter().map(|&b| if (0x20..0x7f).contains(&b) { b as char } else { '?' }).collect::<String>().trim_end().to_string()
 }
 
 /// A FITS file open for reading, with every access turned into a [`HostError`] naming it.
@@ -804,6 +812,13 @@ impl<'a> FitsReader<'a> {
         // SAFETY: `self.file` is open; ffthdu counts its HDUs.
         unsafe { fitsio::sys::ffthdu(self.file.as_raw(), &mut count, &mut status) };
         for hdu in 1..=count {
+            // cfitsio's ffvcks reads both keys into 71-byte buffers that an unquoted value
+            // filling the card overruns (see `String::read`): each must be absent or a
+            // quoted string, read safely first.
+            let label = if hdu == 1 { PRIMARY.to_string() } else { format!("HDU {}", hdu - 1) };
+            for key in ["CHECKSUM", "DATASUM"] {
+                let _: Option<String> = self.key(hdu as usize - 1, &label, key)?;
+            }
             let (mut data_ok, mut hdu_ok) = (0, 0);
             // SAFETY: as above; ffvcks reads the current HDU and writes the two flags
             // (1 verified, 0 no key, -1 wrong).
@@ -814,7 +829,6 @@ impl<'a> FitsReader<'a> {
             }
             fitsio::errors::check_status(status).map_err(|e| fits_error(self.path, &format!("verifying the checksums of HDU {}", hdu - 1), &e))?;
             if data_ok < 0 || hdu_ok < 0 {
-                let label = if hdu == 1 { PRIMARY.to_string() } else { format!("HDU {}", hdu - 1) };
                 let which = if data_ok < 0 { "its data do not match DATASUM" } else { "its header and data do not match CHECKSUM" };
                 return Err(self.error(format!(
                     "the {label} fails its checksum: {which} (the file was changed or damaged after it was written; a tool that edited it kept the old keys: have it write new ones, astropy's writeto(..., checksum=True), or delete CHECKSUM and DATASUM)"
@@ -1340,8 +1354,15 @@ fn check_gzip_inflates_within(file: &mut std::fs::File, path: &Path, limit: u64)
     use std::io::{Read, Seek, SeekFrom};
     file.seek(SeekFrom::Start(0)).map_err(|e| HostError::io(path, e))?;
     let mut inflated = flate2::read::MultiGzDecoder::new(std::io::BufReader::new(&mut *file)).take(limit.saturating_add(1));
-    // A corrupt stream is cfitsio's to report (with its own message); only the size is ours.
-    let n = std::io::copy(&mut inflated, &mut std::io::sink()).unwrap_or(0);
+    // A corrupt stream is cfitsio's to report (with its own message); only the size is
+    // ours, counted up to where the stream breaks.
+    let (mut n, mut buf) = (0u64, vec![0u8; 1 << 16]);
+    while let Ok(k) = inflated.read(&mut buf) {
+        if k == 0 {
+            break;
+        }
+        n += k as u64;
+    }
     if n > limit {
         return Err(format_error(path, format!(
             "inflates to more than {} (gzip), more than {}",
@@ -1403,7 +1424,7 @@ fn malformed_table(file: &mut std::fs::File, size: u64) -> std::io::Result<Optio
                 for (n, key, min, max) in mandatory {
                     let c = card(n);
                     if &c[..10] != format!("{key:<8}= ").as_bytes() || !integer(c).is_some_and(|v| (min..=max).contains(&v)) {
-                        return Ok(Some((start, String::from_utf8_lossy(c).trim_end().to_string())));
+                        return Ok(Some((start, printable(c))));
                     }
                 }
             }
@@ -1986,6 +2007,11 @@ mod tests {
         assert_eq!(string_from_card(&card("EXTNAME = ''")).as_deref(), Some(""));
         assert_eq!(string_from_card(&card("EXTNAME =    'late start' / still a value")).as_deref(), Some("late start"));
         assert_eq!(string_from_card(&card("EXTNAME = 'a/b' / the slash is inside the quotes")).as_deref(), Some("a/b"));
+        // Bytes outside ASCII in the comment do not touch the value.
+        let mut odd = card("EXTNAME = 'STD     '           / comment");
+        odd[60] = 0xDF;
+        assert_eq!(string_from_card(&odd).as_deref(), Some("STD"));
+        assert_eq!(printable(b"A\nB\x00C   "), "A?B?C");
         for bad in ["EXTNAME = unquoted", "EXTNAME =YYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYYY", "EXTNAME = 'never closed", "EXTNAME   'no equals'", "SHORT"] {
             assert_eq!(string_from_card(&card(bad)), None, "{bad}");
         }

@@ -549,8 +549,13 @@ fn print<T: Serialize>(json: bool, value: &T, text: impl FnOnce(&T) -> String) -
     } else {
         text(value)
     };
-    // A closed pipe (`dncal ... | head`) is the reader's choice, not an error.
-    match std::io::stdout().lock().write_all(out.as_bytes()) {
+    to_stdout(out.as_bytes())
+}
+
+/// Writes `bytes` to stdout; a closed pipe (`dncal ... | head`) is the reader's choice,
+/// not an error.
+fn to_stdout(bytes: &[u8]) -> Result<(), HostError> {
+    match std::io::stdout().lock().write_all(bytes) {
         Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(HostError::io("stdout", e)),
         _ => Ok(()),
     }
@@ -714,8 +719,7 @@ fn man_pages(out: Option<&Path>) -> Result<(), HostError> {
     let mut cmd = command();
     cmd.build();
     let Some(dir) = out else {
-        use std::io::Write;
-        return std::io::stdout().write_all(&render(&cmd)?).map_err(|e| HostError::io("stdout", e));
+        return to_stdout(&render(&cmd)?);
     };
     let mut files = dncal_host::outputs::Outputs::new();
     files.create_dir(dir)?;
@@ -730,8 +734,7 @@ fn man_pages(out: Option<&Path>) -> Result<(), HostError> {
     }
     walk(&cmd, "dncal".into(), dir, &mut files)?;
     let written = files.publish()?;
-    println!("wrote {} manual pages into {}", written.len(), dir.display());
-    Ok(())
+    to_stdout(format!("wrote {} manual pages into {}\n", written.len(), dir.display()).as_bytes())
 }
 
 /// clap's help and version as clap prints them; its usage errors in the one-line format
@@ -758,8 +761,9 @@ fn usage_error(e: clap::Error) -> ExitCode {
     // The subcommand path: the words of the command line that name subcommands.
     let mut cmd = command();
     let mut path = vec!["dncal".to_string()];
-    for word in std::env::args().skip(1) {
-        let Some(sub) = cmd.find_subcommand(&word).cloned() else { continue };
+    // (`args_os`: an argument that is not Unicode must not panic here.)
+    for word in std::env::args_os().skip(1) {
+        let Some(sub) = word.to_str().and_then(|w| cmd.find_subcommand(w)).cloned() else { continue };
         path.push(sub.get_name().to_string());
         cmd = sub;
     }
@@ -1041,7 +1045,10 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
             print(json, &sheet, |s| emva_text(&descriptor, &set, s) + &wrote(&written))?;
         }
         Cmd::Completions { shell } => {
-            clap_complete::generate(shell, &mut command(), "dncal", &mut std::io::stdout());
+            // Into memory first: clap_complete panics on a failed write (a closed pipe).
+            let mut script = Vec::new();
+            clap_complete::generate(shell, &mut command(), "dncal", &mut script);
+            to_stdout(&script)?;
         }
         Cmd::Man { out } => man_pages(out.as_deref())?,
         Cmd::Demo { camera, out, frames, ramp, flatten, json } => {

@@ -461,9 +461,15 @@ fn run_segment(
         if rng.below(2) == 0 {
             corrector.accumulate_lines(0, &codes).map_err(|e| HostError::core("soak frame", e))?;
         } else {
-            let change_at = if rng.below(3) == 0 { rng.below(h as u64) as usize } else { usize::MAX };
+            // Up to two actions in the frame: a second one after a requested activation
+            // (a new upload or stage cancels it; a corrupt upload then leaves the old LUT).
+            let mut at = || if rng.below(3) == 0 { rng.below(h as u64) as usize } else { usize::MAX };
+            let (first_at, second_at) = (at(), at());
             for (y, line) in codes.chunks_exact(w).enumerate() {
-                if y == change_at {
+                if y == first_at {
+                    lut_action(&mut corrector, pool, model, rng, report);
+                }
+                if y == second_at {
                     lut_action(&mut corrector, pool, model, rng, report);
                 }
                 corrector.accumulate_line(y as u16, line).map_err(|e| HostError::core("soak line", e))?;

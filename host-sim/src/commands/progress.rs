@@ -34,7 +34,8 @@ pub fn bar(len: u64, message: &str) -> ProgressBar {
     if !shown() {
         return ProgressBar::hidden();
     }
-    let pb = ProgressBar::new(len);
+    // Cleared when dropped too (a step that fails with `?` leaves no bar above the error).
+    let pb = ProgressBar::new(len).with_finish(indicatif::ProgressFinish::AndClear);
     pb.set_style(
         ProgressStyle::with_template("{spinner} {msg:<28} [{bar:40}] {pos}/{len} ({elapsed}, eta {eta})")
             .unwrap_or_else(|_| ProgressStyle::default_bar())
@@ -51,7 +52,7 @@ pub fn spinner(message: &str) -> ProgressBar {
     if !shown() {
         return ProgressBar::hidden();
     }
-    let pb = ProgressBar::new_spinner();
+    let pb = ProgressBar::new_spinner().with_finish(indicatif::ProgressFinish::AndClear);
     pb.set_style(ProgressStyle::with_template("{spinner} {msg} ({elapsed})").unwrap_or_else(|_| ProgressStyle::default_spinner()));
     pb.set_message(message.to_string());
     pb.enable_steady_tick(Duration::from_millis(120));
