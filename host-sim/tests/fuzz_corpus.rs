@@ -297,3 +297,14 @@ fn a_comment_outside_ascii_does_not_hide_the_table_after_it() {
     let e = dncal_host::fits::read_linearity(&crash).unwrap_err().to_string();
     assert!(e.contains("the table header at byte 11520 has \"NAXIS2  ="), "{e}");
 }
+
+/// Found by `fits_linearity` (after the checksum change): `SIMPLE   =` (the `=` one
+/// column late, which cfitsio reads) made the reader take the file for compressed and
+/// skip the table-header walk; the table's `NAXIS2` holds a byte outside ASCII. Files are
+/// now compressed only by their magic numbers.
+#[test]
+fn a_nonstandard_simple_card_does_not_skip_the_table_check() {
+    let crash = fuzz_dir().join("regressions/fits_linearity/table-behind-a-nonstandard-simple-card");
+    let e = dncal_host::fits::read_linearity(&crash).unwrap_err().to_string();
+    assert!(e.contains("the table header at byte 11520 has \"NAXIS2  =               ?    4 / length of dimension 2\""), "{e}");
+}
