@@ -28,9 +28,8 @@ struct Args {
 fn main() {
     let args = Args::parse();
     let params = SoakParams { pixels: args.pixels, seed: args.seed, fpga: !args.no_fpga, sensor: args.sensor };
-    let bar = indicatif::ProgressBar::new(args.pixels).with_style(
-        indicatif::ProgressStyle::with_template("soak {bar:40} {human_pos}/{human_len} px, {per_sec}, eta {eta}").unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
+    // The command's own bar: shown only on a terminal, cleared when done.
+    let bar = dncal_host::commands::progress::bar(args.pixels, "soak pixels");
     let result = run(&params, |done| bar.set_position(done.min(args.pixels)));
     bar.finish_and_clear();
     let report = match result {
