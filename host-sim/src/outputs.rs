@@ -356,6 +356,17 @@ fn sync_dir(target: &Path) {
     let _ = target;
 }
 
+/// `s` escaped for HTML text and quoted attributes.
+pub fn html_escape(s: &str) -> String {
+    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;")
+}
+
+/// How a report page names an input file: its absolute path, escaped. (A relative path
+/// would be read relative to the page, not to where the command ran.)
+pub fn html_path(path: &Path) -> String {
+    html_escape(&std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf()).display().to_string())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -460,3 +471,4 @@ mod tests {
         assert_eq!(names(d), want);
     }
 }
+

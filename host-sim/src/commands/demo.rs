@@ -211,7 +211,7 @@ fn report_html(s: &DemoSummary, camera: &Camera, ramp: &RampParams, flat: &Flatt
         ("offsets.png", "Cumulative offset of the LUT from a perfect ADC, and the true offsets aligned to it (best-fit offset and gain of the difference removed)."),
         ("correction_error.png", "Error of the raw code and of the LUT value against the true code centers."),
     ] {
-        let _ = write!(h, "<figure><img src=\"{img}\" width=\"1000\"><figcaption>{caption}</figcaption></figure>");
+        let _ = write!(h, "<figure><img src=\"{img}\" width=\"1000\" alt=\"{caption}\"><figcaption>{caption}</figcaption></figure>");
     }
     let (q, k, l) = (&s.quantization, &s.kcor.result, &s.linearity.report);
     let _ = write!(
@@ -219,15 +219,15 @@ fn report_html(s: &DemoSummary, camera: &Camera, ramp: &RampParams, flat: &Flatt
         "<h2>The paper's other analyses</h2><p>Each is a command of its own; <code>docs/paper.md</code> compares every number with the paper.</p>\
          <h3>Quantization (section 2, Fig. 1): <code>dncal quantization</code></h3><p>At this camera's read noise, {:.3} DN, the worst-case bias of an averaged readout \
          is {:.2e} DN. A bias of 0.01 DN or less needs {:.3} DN of noise.</p>\
-         <figure><img src=\"quantization.png\" width=\"900\"><figcaption>|bias| over lambda mod 1 and noise, contours at 1e-1 to 1e-4 DN.</figcaption></figure>\
+         <figure><img src=\"quantization.png\" width=\"900\" alt=\"|bias| over lambda mod 1 and noise, contours at 1e-1 to 1e-4 DN.\"><figcaption>|bias| over lambda mod 1 and noise, contours at 1e-1 to 1e-4 DN.</figcaption></figure>\
          <h3>K-Coronagraph model (section 4, Figs. 4-5): <code>dncal kcor-model</code></h3><p>ADC {}, {} ms frames ({:.3e} e-/s per B_sun per pixel): the largest systematic error \
          in Q is {:.2e} B_sun raw and {:.2e} B_sun with a LUT from the true widths with {}% noise per code: raw / LUT = {:.1} (the paper: about 10; <code>docs/paper.md</code> shows why 1% noise per code cannot give that outside small Q, with the real K-Cor ADCs too).</p>\
-         <figure><img src=\"kcor_raw.png\" width=\"900\"><figcaption>Raw ADC.</figcaption></figure><figure><img src=\"kcor_lut.png\" width=\"900\"><figcaption>With the LUT.</figcaption></figure>\
+         <figure><img src=\"kcor_raw.png\" width=\"900\" alt=\"Raw ADC.\"><figcaption>Raw ADC.</figcaption></figure><figure><img src=\"kcor_lut.png\" width=\"900\" alt=\"With the LUT.\"><figcaption>With the LUT.</figcaption></figure>\
          <h3>Pixel-wise nonlinearity (section 5, Figs. 6-8): <code>dncal linearity</code></h3><p>{} pixels x {} levels, {} masked. Largest RMS residual over the levels: raw {:.2e}, \
          standard correction {:.2e}, pixel-wise 4th order {:.2e}, random noise {:.2e}. Coefficients and mask: <a href=\"linearity/coefficients.fits\">coefficients.fits</a>.</p>\
-         <figure><img src=\"linearity/flat_image.png\" width=\"800\"><figcaption>Fig. 6: the flat, raw, scaled +-10% of full scale around its median.</figcaption></figure>\
-         <figure><img src=\"linearity/pixels_levels.png\" width=\"1000\"><figcaption>Fig. 7: 100 pixels of the middle row at every level, raw, standard and pixel-wise.</figcaption></figure>\
-         <figure><img src=\"linearity/linearity_rms.png\" width=\"1000\"><figcaption>Fig. 8: RMS residual per level (solid) and the random noise propagated through each correction (dashed).</figcaption></figure>",
+         <figure><img src=\"linearity/flat_image.png\" width=\"800\" alt=\"Fig. 6: the flat, raw, scaled +-10% of full scale around its median.\"><figcaption>Fig. 6: the flat, raw, scaled +-10% of full scale around its median.</figcaption></figure>\
+         <figure><img src=\"linearity/pixels_levels.png\" width=\"1000\" alt=\"Fig. 7: 100 pixels of the middle row at every level, raw, standard and pixel-wise.\"><figcaption>Fig. 7: 100 pixels of the middle row at every level, raw, standard and pixel-wise.</figcaption></figure>\
+         <figure><img src=\"linearity/linearity_rms.png\" width=\"1000\" alt=\"Fig. 8: RMS residual per level (solid) and the random noise propagated through each correction (dashed).\"><figcaption>Fig. 8: RMS residual per level (solid) and the random noise propagated through each correction (dashed).</figcaption></figure>",
         q.sigma,
         q.max_abs_bias_dn,
         crate::quantization::sigma_for_bias(0.01).unwrap_or(f64::NAN),

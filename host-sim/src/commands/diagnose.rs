@@ -315,14 +315,14 @@ fn report(input: &Path, diagnosis: Diagnosis, model: Option<crate::camera::Camer
         let mut h = format!(
             "<!doctype html><html><head><meta charset=\"utf-8\"><title>dncal diagnose</title><style>body{{font-family:sans-serif;max-width:1050px;margin:2em auto}}td,th{{padding:2px 10px}}</style></head><body><h1>dncal diagnose: {}</h1>\
              <p>Baseline: {}. Held-out RMS of the normalized residual {:.3} (1 is noise).</p><table><tr><th>effect</th><th>ADC</th><th>significance</th><th>RMS before</th><th>after</th><th>gain</th><th>evidence</th></tr>",
-            input.display(),
+            crate::outputs::html_path(input),
             diagnosis.baseline.model,
             diagnosis.baseline.rms
         );
         for f in &diagnosis.findings {
-            let _ = write!(h, "<tr><td>{}</td><td>{}</td><td>{:.1}</td><td>{:.3}</td><td>{:.3}</td><td>{:.2}</td><td>{}</td></tr>", f.effect, f.adc.map_or("-".into(), |a| a.to_string()), f.significance, f.rms_before, f.rms_after, f.gain, f.detail);
+            let _ = write!(h, "<tr><td>{}</td><td>{}</td><td>{:.1}</td><td>{:.3}</td><td>{:.3}</td><td>{:.2}</td><td>{}</td></tr>", f.effect, f.adc.map_or("-".into(), |a| a.to_string()), f.significance, f.rms_before, f.rms_after, f.gain, crate::outputs::html_escape(&f.detail));
         }
-        let _ = write!(h, "</table><p>Unexplained: held-out RMS {:.3}.</p><figure><img src=\"residuals.png\" width=\"1000\"></figure>", diagnosis.unexplained_rms);
+        let _ = write!(h, "</table><p>Unexplained: held-out RMS {:.3}.</p><figure><img src=\"residuals.png\" width=\"1000\" alt=\"Held-out residuals over noise of the extended model\"></figure>", diagnosis.unexplained_rms);
         // One figure per finding: the held-out residuals just before and just after it.
         for (i, f) in diagnosis.findings.iter().enumerate() {
             let Some(r) = &f.residuals else { continue };
@@ -335,7 +335,7 @@ fn report(input: &Path, diagnosis: Diagnosis, model: Option<crate::camera::Camer
             // An ADC's code widths are seen by code, except in a linearity set (by level).
             let axis = if f.effect == "adc-dnl" && diagnosis.baseline.kind != "linearity-set" { "code (DN)" } else { x_label };
             line_plot(files, &dir.join(&name), &format!("{what}: held-out residuals / noise, before and after (gain {:.2})", f.gain), axis, "normalized residual", &series, 1)?;
-            let _ = write!(h, "<h2>{what}</h2><p>{}</p><figure><img src=\"{name}\" width=\"1000\"></figure>", f.detail);
+            let _ = write!(h, "<h2>{what}</h2><p>{}</p><figure><img src=\"{name}\" width=\"1000\" alt=\"{what}: held-out residuals before and after\"></figure>", crate::outputs::html_escape(&f.detail));
             outputs.push(dir.join(name));
         }
         h += "</body></html>";
@@ -346,7 +346,7 @@ fn report(input: &Path, diagnosis: Diagnosis, model: Option<crate::camera::Camer
                 Series { label: "with the findings".into(), points: r.extended.iter().map(|&(k, z)| (k as f64, z)).collect() },
             ];
             line_plot(files, &codes_fig, "Code density of the frames: held-out residuals / expected noise", "code (DN)", "normalized residual", &series, 1)?;
-            h = h.replace("</body></html>", "<h2>Code density of the frames</h2><figure><img src=\"codes.png\" width=\"1000\"></figure></body></html>");
+            h = h.replace("</body></html>", "<h2>Code density of the frames</h2><figure><img src=\"codes.png\" width=\"1000\" alt=\"Code density of the frames\"></figure></body></html>");
             outputs.push(codes_fig);
         }
         files.write_bytes(&html_path, &h)?;

@@ -7,14 +7,10 @@
 use std::path::{Path, PathBuf};
 
 use super::{Datasheet, Release};
-use crate::outputs::Outputs;
+use crate::outputs::{html_escape as esc, html_path, Outputs};
 use crate::plots::{line_plot, Series};
 use crate::HostError;
 
-/// HTML-escapes `s`.
-fn esc(s: &str) -> String {
-    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;")
-}
 
 /// One datasheet row: value with unit, or the reason it has none.
 fn row(sheet: &Datasheet, name: &str, key: &str, value: Option<f64>, unit: &str, digits: usize) -> String {
@@ -137,7 +133,7 @@ pub fn write_datasheet(dir: &Path, descriptor: &Path, sheet: &Datasheet) -> Resu
         "<!doctype html><html><head><meta charset=\"utf-8\"><title>EMVA 1288 datasheet</title>\
          <style>body{{font-family:sans-serif;max-width:1050px;margin:2em auto}}td,th{{padding:2px 10px;text-align:left}}</style></head><body>\
          <h1>EMVA 1288 datasheet</h1><p>{}<br>{} photon-transfer levels; definitions of Release {release}; descriptor version {}.</p>",
-        esc(&descriptor.display().to_string()),
+        html_path(descriptor),
         t.levels,
         esc(sheet.version.as_deref().unwrap_or("none"))
     );
@@ -193,7 +189,7 @@ pub fn write_datasheet(dir: &Path, descriptor: &Path, sheet: &Datasheet) -> Resu
         ("defect_histograms.png", "Defect-pixel histograms"),
     ] {
         if files.iter().any(|f| f.ends_with(file)) {
-            html += &format!("<h2>{caption}</h2><figure><img src=\"{file}\" width=\"1000\"></figure>");
+            html += &format!("<h2>{caption}</h2><figure><img src=\"{file}\" width=\"1000\" alt=\"{caption}\"></figure>");
         }
     }
     html += "</body></html>\n";

@@ -44,6 +44,10 @@ use serde::Serialize;
 use crate::fits::{LinearitySet, Sample};
 use crate::stats::{median, rms_finite};
 
+mod inverse;
+pub use inverse::invert;
+use inverse::{invert_all, poly, poly_slope};
+
 /// Order of the pixel-wise polynomial (the paper: 4; higher did not help).
 pub const PIXEL_ORDER: usize = 4;
 /// The highest order `analyze` accepts (the powers of x in [0, 1] grow collinear).
@@ -135,50 +139,6 @@ fn pseudo_inverse(x: &[f64], order: usize) -> DMatrix<f64> {
     a.pseudo_inverse(1e-13).unwrap_or_else(|_| DMatrix::zeros(order + 1, x.len()))
 }
 
-fn poly(a: &[f64], x: f64) -> f64 {
-    a.iter().rev().fold(0.0, |acc, &c| acc * x + c)
-}
-
-fn poly_slope(a: &[f64], x: f64) -> f64 {
-    a.iter().enumerate().skip(1).rev().fold(0.0, |acc, (k, &c)| acc * x + k as f64 * c)
-}
-
-/// `x` with `P(x) = m`: Newton from `guess`, then bisection on [-0.5, 2] if Newton fails.
-pub fn invert(a: &[f64], m: f64, guess: f64) -> f64 {
-    let mut x = guess;
-    for _ in 0..30 {
-        // Value and slope in one Horner pass (the slope by synthetic division).
-        let (mut f, mut d) = (0.0, 0.0);
-        for &c in a.iter().rev() {
-            d = d * x + f;
-            f = f * x + c;
-        }
-        f -= m;
-        if d == 0.0 || !d.is_finite() {
-            break;
-        }
-        let step = f / d;
-        x -= step;
-        // Newton converges quadratically: after a step of 1e-9 the error is about
-        // (P''/2P') 1e-18, below f64's resolution of x (a further step moved nothing).
-        if step.abs() < 1e-9 * (1.0 + x.abs()) {
-            return x;
-        }
-    }
-    if (poly(a, x) - m).abs() <= 1e-9 * m.abs().max(1.0) {
-        return x;
-    }
-    let (mut lo, mut hi) = (-0.5, 2.0);
-    if (poly(a, lo) - m).signum() == (poly(a, hi) - m).signum() {
-        return f64::NAN;
-    }
-    for _ in 0..200 {
-        let mid = 0.5 * (lo + hi);
-        if (poly(a, mid) - m).signum() == (poly(a, lo) - m).signum() { lo = mid } else { hi = mid }
-    }
-    0.5 * (lo + hi)
-}
-
 /// The dark and gain correction of a value `x` given the same pixel's values at the dark
 /// (`x0`) and at the flat (`xg`): `(x - x0) / (xg - x0)`.
 fn dark_and_gain(x: f64, x0: f64, xg: f64) -> f64 {
@@ -188,29 +148,52 @@ fn dark_and_gain(x: f64, x0: f64, xg: f64) -> f64 {
 /// Replaces masked pixels of one `width x height` image by the mean of their good
 /// 8-neighbours (left as they are when none is good).
 pub fn fill_masked(image: &mut [f64], mask: &[u8], width: usize, height: usize) {
-    // Only masked pixels are written and only good ones read, so the image is its own
-    // source (no copy of it per level).
-    for r in 0..height {
-        for c in 0..width {
-            if mask[r * width + c] == 0 {
-                continue;
-            }
-            let (mut sum, mut n) = (0.0, 0);
-            for dr in -1i64..=1 {
-                for dc in -1i64..=1 {
-                    let (rr, cc) = (r as i64 + dr, c as i64 + dc);
-                    if (dr, dc) == (0, 0) || rr < 0 || cc < 0 || rr >= height as i64 || cc >= width as i64 {
-                        continue;
-                    }
-                    let i = rr as usize * width + cc as usize;
-                    if mask[i] == 0 && image[i].is_finite() {
-                        sum += image[i];
-                        n += 1;
+    GoodNeighbours::of(mask, width, height).fill(image);
+}
+
+/// Each masked pixel's good 8-neighbours, in row-major order: listed once for a mask and
+/// used for every image (level) it applies to.
+struct GoodNeighbours {
+    /// The masked pixels.
+    pixel: Vec<usize>,
+    /// `of[start[i]..start[i + 1]]` are `pixel[i]`'s good neighbours.
+    start: Vec<usize>,
+    of: Vec<usize>,
+}
+
+impl GoodNeighbours {
+    fn of(mask: &[u8], width: usize, height: usize) -> Self {
+        let mut n = GoodNeighbours { pixel: Vec::new(), start: vec![0], of: Vec::new() };
+        for p in (0..width * height).filter(|&p| mask[p] != 0) {
+            let (r, c) = (p / width, p % width);
+            for rr in r.saturating_sub(1)..(r + 2).min(height) {
+                for cc in c.saturating_sub(1)..(c + 2).min(width) {
+                    let i = rr * width + cc;
+                    if mask[i] == 0 {
+                        n.of.push(i);
                     }
                 }
             }
+            n.pixel.push(p);
+            n.start.push(n.of.len());
+        }
+        n
+    }
+
+    /// Each masked pixel of `image` set to the mean of its good neighbours' finite values.
+    /// Only masked pixels are written and only good ones read, so the image is its own
+    /// source (no copy of it per level).
+    fn fill(&self, image: &mut [f64]) {
+        for (k, &p) in self.pixel.iter().enumerate() {
+            let (mut sum, mut n) = (0.0, 0);
+            for &i in &self.of[self.start[k]..self.start[k + 1]] {
+                if image[i].is_finite() {
+                    sum += image[i];
+                    n += 1;
+                }
+            }
             if n > 0 {
-                image[r * width + c] = sum / n as f64;
+                image[p] = sum / n as f64;
             }
         }
     }
@@ -231,7 +214,21 @@ pub fn unsaturated_levels<T: Sample>(set: &LinearitySet<T>) -> Vec<usize> {
             || m(l, p) >= top - 4.0 * sd(l, p).max(0.5)
             || (l > 0 && m(l, p) > 0.5 * top && sd(l, p) < 0.5 * sd(l - 1, p))
     };
-    (0..np).map(|p| (0..nl).find(|&l| saturated(l, p)).unwrap_or(nl)).collect()
+    // Level by level over blocks of pixels: the cube is level-major, so a pixel's levels
+    // are a frame apart and walking them pixel by pixel misses the cache at every level.
+    const BLOCK: usize = 4096;
+    let mut valid = vec![nl; np];
+    valid.par_chunks_mut(BLOCK).enumerate().for_each(|(b, block)| {
+        let first = b * BLOCK;
+        for l in 0..nl {
+            for (i, v) in block.iter_mut().enumerate() {
+                if *v == nl && saturated(l, first + i) {
+                    *v = l;
+                }
+            }
+        }
+    });
+    valid
 }
 
 /// The paper's Fig. 7 data: `n` consecutive pixels centered in the region's middle row,
@@ -274,6 +271,97 @@ pub fn example_row(set: &LinearitySet, report: &LinearityReport, px: &PixelResul
         raw: per_level(&|l, p| m(l, p) / report.level_mean_dn[l]),
         standard: per_level(&|l, p| (f(m(l, p)) - f(m(0, p))) / (f(m(g, p)) - f(m(0, p))) / e[l]),
         pixelwise: per_level(&|l, p| px.corrected[l * np + p] / e[l]),
+    }
+}
+
+/// Sum of squares of the finite values pushed: [`rms_finite`] one value at a time (the
+/// same sum in the same order).
+#[derive(Debug, Clone, Copy, Default)]
+struct RmsSum {
+    sum: f64,
+    n: usize,
+}
+
+impl RmsSum {
+    fn add(&mut self, v: f64) {
+        if v.is_finite() {
+            self.sum += v * v;
+            self.n += 1;
+        }
+    }
+
+    fn rms(self) -> f64 {
+        if self.n == 0 { f64::NAN } else { (self.sum / self.n as f64).sqrt() }
+    }
+}
+
+/// One correction's terms at a pixel's dark and flat, for the dark and gain correction
+/// `c = (y_l - y_0) / (y_g - y_0)` of what it makes of the pixel's means (`y`) and the
+/// propagation of the frames' noise through it. Held once per pixel for all levels,
+/// the division as its reciprocal.
+#[derive(Debug, Clone, Copy)]
+struct Ends {
+    y0: f64,
+    /// `1 / (y_g - y_0)`.
+    inv_span: f64,
+    /// The flat's and the dark's noise through the correction's slope, `y' s`.
+    sg: f64,
+    s0: f64,
+}
+
+impl Ends {
+    /// From `(y, y')` at the dark and at the flat and those levels' noise `s = std / sqrt(N)`.
+    fn new((y0, d0): (f64, f64), (yg, dg): (f64, f64), s0: f64, sg: f64) -> Self {
+        Ends { y0, inv_span: 1.0 / (yg - y0), sg: dg * sg, s0: d0 * s0 }
+    }
+
+    /// `c` of a level where the correction makes `y`.
+    fn corrected(&self, y: f64) -> f64 {
+        (y - self.y0) * self.inv_span
+    }
+
+    /// The noise of `c` for a level read `y` with noise `sl` through the slope:
+    /// `sqrt(sl^2 + (c sg)^2 + ((1 - c) s0)^2) / (y_g - y_0)`.
+    fn noise(&self, y: f64, sl: f64) -> f64 {
+        let c = self.corrected(y);
+        (sl * sl + (c * self.sg).powi(2) + ((1.0 - c) * self.s0).powi(2)).sqrt() * self.inv_span
+    }
+}
+
+/// The pixel-wise inversion of a set's levels: pixel `p`'s polynomial is
+/// `coef[p * k1..][..k1]`; masked pixels are not inverted (NaN).
+struct Inversion<'a> {
+    coef: &'a [f64],
+    k1: usize,
+    mask: &'a [u8],
+    mean: &'a [f64],
+    np: usize,
+}
+
+impl Inversion<'_> {
+    /// `x^ = P^-1(m)` of every pixel at level `l`, Newton from the level's reference `x_l`.
+    fn level(&self, l: usize, x_l: f64) -> Vec<f64> {
+        const BLOCK: usize = 4096;
+        let mut out = vec![0.0; self.np];
+        out.par_chunks_mut(BLOCK).enumerate().for_each(|(b, chunk)| self.run(l, x_l, b * BLOCK, chunk));
+        out
+    }
+
+    /// Level `l` into `row`, each pixel's `x^` then turned into `row[p] = put(p, x^)`, in
+    /// pixel order.
+    fn level_into(&self, l: usize, x_l: f64, row: &mut [f64], mut put: impl FnMut(usize, f64) -> f64) {
+        self.run(l, x_l, 0, row);
+        for (p, v) in row.iter_mut().enumerate() {
+            *v = put(p, *v);
+        }
+    }
+
+    /// `x^` of pixels `first..first + out.len()` of level `l` into `out`.
+    fn run(&self, l: usize, x_l: f64, first: usize, out: &mut [f64]) {
+        let mean = &self.mean[l * self.np + first..];
+        let coef = &self.coef[first * self.k1..];
+        let mask = &self.mask[first..];
+        invert_all(out, self.k1, x_l, |j, k| coef[j * self.k1 + k], |j| mean[j], |j| mask[j] != 0);
     }
 }
 
@@ -327,21 +415,25 @@ pub fn analyze_unsaturated(set: &LinearitySet, order: usize, flat: Option<usize>
     let sd = |l: usize, p: usize| set.std[l * np + p];
     // One pseudo-inverse per prefix length.
     let pinv: Vec<Option<DMatrix<f64>>> = (0..=nl).map(|n| (n > order + 1).then(|| pseudo_inverse(&x[..n], order))).collect();
-    let fits: Vec<(Vec<f64>, f64)> = (0..np)
-        .into_par_iter()
-        .map(|p| {
+    // Coefficients pixel by pixel (`k1` per pixel, NaN where unfitted) and the fit's rms.
+    let k1 = order + 1;
+    let mut coef = vec![f64::NAN; k1 * np];
+    let resid: Vec<f64> = coef
+        .par_chunks_mut(k1)
+        .enumerate()
+        .map(|(p, a)| {
             let n = valid[p];
             match &pinv[n] {
                 Some(pi) if n > g => {
                     let y = DVector::from_iterator(n, (0..n).map(|l| m(l, p)));
-                    let a: Vec<f64> = (pi * &y).iter().copied().collect();
-                    let resid = rms_finite((0..n).map(|l| poly(&a, x[l]) - m(l, p)));
-                    (a, resid)
+                    a.copy_from_slice((pi * &y).as_slice());
+                    rms_finite((0..n).map(|l| poly(a, x[l]) - m(l, p)))
                 }
-                _ => (vec![f64::NAN; order + 1], f64::NAN),
+                _ => f64::NAN,
             }
         })
         .collect();
+    let fit = |p: usize| &coef[p * k1..(p + 1) * k1];
     // Masks.
     let mut mask = vec![0u8; np];
     if let Some(input) = &set.mask {
@@ -353,14 +445,14 @@ pub fn analyze_unsaturated(set: &LinearitySet, order: usize, flat: Option<usize>
     }
     let signal: Vec<f64> = (0..np).map(|p| m(g, p) - m(0, p)).collect();
     let med_signal = median(signal.clone());
-    let med_resid = median(fits.iter().map(|f| f.1));
+    let med_resid = median(resid.iter().copied());
     for p in 0..np {
         if signal[p].is_nan() || signal[p] < 0.5 * med_signal {
             mask[p] |= reason::LOW;
         }
-        if fits[p].1.is_nan() {
+        if resid[p].is_nan() {
             mask[p] |= reason::UNFIT;
-        } else if fits[p].1 > 10.0 * med_resid.max(1e-12) {
+        } else if resid[p] > 10.0 * med_resid.max(1e-12) {
             mask[p] |= reason::TREND;
         }
     }
@@ -376,51 +468,62 @@ pub fn analyze_unsaturated(set: &LinearitySet, order: usize, flat: Option<usize>
     }
     let gpinv = pseudo_inverse(&usable.iter().map(|&l| med_levels[l] / top).collect::<Vec<_>>(), GLOBAL_ORDER);
     let global: Vec<f64> = (&gpinv * DVector::from_iterator(usable.len(), usable.iter().map(|&l| x[l]))).iter().copied().collect();
-    let f = |v: f64| poly(&global, v / top);
-    // The pixel-wise correction of every good pixel and level, once: x^ = P^-1(m), then
-    // dark and gain. (Unsaturated or not: the corrected images show every level.)
-    let mut xhat = vec![f64::NAN; nl * np];
-    xhat.par_chunks_mut(np).enumerate().for_each(|(l, row)| {
-        for (p, v) in row.iter_mut().enumerate() {
-            if mask[p] == 0 {
-                *v = invert(&fits[p].0, m(l, p), x[l]);
-            }
-        }
-    });
-    // The dark and gain correction of `x^`: computed where needed, then once in place for
-    // the output cube (one level x pixel buffer, not two).
-    let corrected_at = |l: usize, p: usize| dark_and_gain(xhat[l * np + p], xhat[p], xhat[g * np + p]);
-    // Per level statistics.
-    let nan_unless = |cond: bool, v: f64| if cond { v } else { f64::NAN };
-    let level_stats: Vec<[f64; 9]> = (0..nl)
+    let inversion = Inversion { coef: &coef, k1, mask: &mask, mean: &set.mean[..], np };
+    // Each correction as `(y, y')`, what it makes of a mean and its slope, at the dark and
+    // at the flat: the terms of every level's dark and gain correction, once per pixel.
+    let (xh0, xhg) = (inversion.level(0, x[0]), inversion.level(g, x[g]));
+    let nf = f64::from(set.n_frames.max(1)).sqrt();
+    let (inv_nf, inv_top) = (1.0 / nf, 1.0 / top);
+    let f = |v: f64| poly(&global, v * inv_top);
+    // Each correction as `(y, y')`, what it makes of a mean and its slope.
+    let identity = |l: usize, p: usize, _: f64| (m(l, p), 1.0);
+    let standard = |l: usize, p: usize, _: f64| (f(m(l, p)), poly_slope(&global, m(l, p) * inv_top) * inv_top);
+    let pixelwise = |_: usize, p: usize, xh: f64| (xh, 1.0 / poly_slope(fit(p), xh));
+    let ends: Vec<[Ends; 3]> = (0..np)
         .into_par_iter()
-        .map(|l| {
-            let pix: Vec<usize> = good.iter().copied().filter(|&p| l < valid[p]).collect();
-            let mean_l = pix.iter().map(|&p| m(l, p)).sum::<f64>() / pix.len().max(1) as f64;
-            let raw = rms_finite(pix.iter().map(|&p| m(l, p) / mean_l - 1.0));
-            let std = rms_finite(pix.iter().map(|&p| (f(m(l, p)) - f(m(0, p))) / (f(m(g, p)) - f(m(0, p))) - e[l]));
-            let pw = rms_finite(pix.iter().map(|&p| corrected_at(l, p) - e[l]));
-            let nf = f64::from(set.n_frames.max(1)).sqrt();
-            // Propagation of `s_l, s_g, s_0` through `c = (y_l - y_0) / (y_g - y_0)`, where
-            // `y = h(m)` is what a correction makes of a mean and `h'` its slope.
-            let propagated = |h: &dyn Fn(usize, usize) -> (f64, f64), p: usize| {
-                let ((yl, dl), (yg, dg), (y0, d0)) = (h(l, p), h(g, p), h(0, p));
-                let c = (yl - y0) / (yg - y0);
-                let (sl, sg, s0) = (dl * sd(l, p) / nf, dg * sd(g, p) / nf, d0 * sd(0, p) / nf);
-                (sl * sl + (c * sg).powi(2) + ((1.0 - c) * s0).powi(2)).sqrt() / (yg - y0)
-            };
-            let identity = |l: usize, p: usize| (m(l, p), 1.0);
-            let standard = |l: usize, p: usize| (f(m(l, p)), poly_slope(&global, m(l, p) / top) / top);
-            let pixelwise = |l: usize, p: usize| {
-                let xh = xhat[l * np + p];
-                (xh, 1.0 / poly_slope(&fits[p].0, xh))
-            };
-            let random = rms_finite(pix.iter().map(|&p| propagated(&identity, p)));
-            let random_standard = rms_finite(pix.iter().map(|&p| propagated(&standard, p)));
-            let random_pixelwise = rms_finite(pix.iter().map(|&p| propagated(&pixelwise, p)));
-            let random_raw = rms_finite(pix.iter().map(|&p| sd(l, p) / nf / mean_l));
-            let random_level_only = rms_finite(pix.iter().map(|&p| sd(l, p) / nf / (m(g, p) - m(0, p))));
+        .map(|p| {
+            let (s0, sg) = (sd(0, p) * inv_nf, sd(g, p) * inv_nf);
+            let at = |h: &dyn Fn(usize, usize, f64) -> (f64, f64)| Ends::new(h(0, p, xh0[p]), h(g, p, xhg[p]), s0, sg);
+            [at(&identity), at(&standard), at(&pixelwise)]
+        })
+        .collect();
+    let fill = GoodNeighbours::of(&mask, w, h);
+    // Level by level, in one pass over its pixels: the pixel-wise correction `x^ =
+    // P^-1(m)` then dark and gain into the output cube (every level, saturated or not:
+    // the corrected images show them all), the level's statistics over the good,
+    // unsaturated pixels in pixel order, and the masked pixels filled. The cube is
+    // allocated zeroed (untouched pages) and first written here, by the worker threads.
+    let nan_unless = |cond: bool, v: f64| if cond { v } else { f64::NAN };
+    let mut corrected = vec![0.0; nl * np];
+    let level_stats: Vec<[f64; 9]> = corrected
+        .par_chunks_mut(np)
+        .enumerate()
+        .map(|(l, row)| {
+            let counted = |p: usize| mask[p] == 0 && l < valid[p];
+            let (sum, n) = (0..np).filter(|&p| counted(p)).fold((0.0, 0usize), |(s, n), p| (s + m(l, p), n + 1));
+            let mean_l = sum / n.max(1) as f64;
+            let inv_mean = 1.0 / mean_l;
+            let mut acc = [RmsSum::default(); 8];
+            inversion.level_into(l, x[l], row, |p, xh| {
+                let c = dark_and_gain(xh, xh0[p], xhg[p]);
+                if counted(p) {
+                    let (ml, sl) = (m(l, p), sd(l, p) * inv_nf);
+                    let [id, st, pw] = &ends[p];
+                    let (yst, dst) = standard(l, p, xh);
+                    acc[0].add(ml * inv_mean - 1.0);
+                    acc[1].add(st.corrected(yst) - e[l]);
+                    acc[2].add(c - e[l]);
+                    acc[3].add(id.noise(ml, sl));
+                    acc[4].add(st.noise(yst, dst * sl));
+                    acc[5].add(pw.noise(xh, sl / poly_slope(fit(p), xh)));
+                    acc[6].add(sl * inv_mean);
+                    acc[7].add(sl * id.inv_span);
+                }
+                c
+            });
+            fill.fill(row);
             let calibrated = l != 0 && l != g;
+            let [raw, std, pw, random, random_standard, random_pixelwise, random_raw, random_level_only] = acc.map(RmsSum::rms);
             [
                 nan_unless(l != 0, raw),
                 nan_unless(calibrated, std),
@@ -439,21 +542,13 @@ pub fn analyze_unsaturated(set: &LinearitySet, order: usize, flat: Option<usize>
     let (rms_raw, rms_standard, rms_pixelwise, rms_random) = (col(0), col(1), col(2), col(3));
     let (rms_random_raw, rms_random_standard, rms_random_pixelwise, rms_random_level_only) = (col(4), col(5), col(6), col(7));
     let level_mean_dn = col(8);
-    // Outputs: coefficients, and the pixel-wise corrected cube with masked pixels filled.
-    let mut coeffs = vec![f64::NAN; (order + 1) * np];
-    for (p, (a, _)) in fits.iter().enumerate() {
+    // The coefficients k-major for the FITS cube.
+    let mut coeffs = vec![f64::NAN; k1 * np];
+    for (p, a) in coef.chunks_exact(k1).enumerate() {
         for (k, &ak) in a.iter().enumerate() {
             coeffs[k * np + p] = ak;
         }
     }
-    let (dark_row, gain_row) = (xhat[..np].to_vec(), xhat[g * np..(g + 1) * np].to_vec());
-    let mut corrected = xhat;
-    corrected.par_chunks_mut(np).for_each(|image| {
-        for ((v, &x0), &xg) in image.iter_mut().zip(&dark_row).zip(&gain_row) {
-            *v = dark_and_gain(*v, x0, xg);
-        }
-        fill_masked(image, &mask, w, h);
-    });
     let report = LinearityReport {
         levels: nl,
         pixels: np,
