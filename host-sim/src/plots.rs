@@ -29,6 +29,9 @@ pub struct Series {
     pub points: Vec<(f64, f64)>,
 }
 
+/// Map cells below the color scale (and zero on a log scale): a grey that viridis has not.
+const BELOW_SCALE: RGBColor = RGBColor(200, 200, 200);
+
 /// Colors for up to eight series, then repeating.
 const COLORS: [RGBColor; 8] = [
     RGBColor(31, 119, 180),
@@ -45,6 +48,85 @@ fn plot_err(path: &Path, e: impl std::fmt::Display) -> HostError {
     HostError::Format { path: path.to_path_buf(), message: format!("drawing the figure failed: {e}") }
 }
 
+/// Tick labels for an axis spanning `lo..hi`: the decimals its tick step needs and no
+/// more (`500`, not `500.0`; `0.25`), scientific notation where plain digits would be
+/// long (values below 1e-3 or from 1e5 on: `2e-5`, `1.5e6`), and `0` for zero.
+pub fn tick_format(lo: f64, hi: f64) -> impl Fn(&f64) -> String {
+    let span = (hi - lo).abs();
+    let magnitude = lo.abs().max(hi.abs());
+    // plotters puts about ten ticks on an axis at round steps; a decimal more than the
+    // tenth of the span shows any of them, and trailing zeros are dropped. A single value
+    // (`lo == hi`: a label) is shown to a tenth of itself.
+    let step = if span > 0.0 && span.is_finite() {
+        span / 10.0
+    } else if magnitude > 0.0 && magnitude.is_finite() {
+        magnitude / 10.0
+    } else {
+        1.0
+    };
+    let scientific = magnitude > 0.0 && !(1e-3..1e5).contains(&magnitude);
+    let decimals = (1.0 - step.log10().floor()).clamp(0.0, 12.0) as usize;
+    let mantissa_digits = ((magnitude / step).log10().ceil() + 1.0).clamp(1.0, 8.0) as usize;
+    move |v: &f64| {
+        if *v == 0.0 || (v.abs() < step * 1e-9) {
+            return "0".into();
+        }
+        if scientific {
+            let text = format!("{:.*e}", mantissa_digits, v);
+            let (mantissa, exponent) = text.split_once('e').unwrap_or((&text, "0"));
+            format!("{}e{exponent}", trim_zeros(mantissa))
+        } else {
+            trim_zeros(&format!("{:.*}", decimals, v)).to_string()
+        }
+    }
+}
+
+/// `1.500` -> `1.5`, `500.000` -> `500`, `-0.0` -> `0`.
+fn trim_zeros(text: &str) -> &str {
+    let t = if text.contains('.') { text.trim_end_matches('0').trim_end_matches('.') } else { text };
+    if t == "-0" { "0" } else { t }
+}
+
+/// Width of the legend column right of a line plot's panels, pixels: legends go beside
+/// the data, never over it.
+const LEGEND_WIDTH: u32 = 250;
+
+/// Draws a legend entry per `(label, color, dashed)` in `area`, top down; labels wider than
+/// the column are wrapped at spaces.
+fn draw_legend<DB: DrawingBackend>(area: &DrawingArea<DB, plotters::coord::Shift>, entries: &[(String, RGBColor, bool)], path: &Path) -> Result<(), HostError> {
+    let font = ("sans-serif", 13).into_font();
+    let mut y = 18i32;
+    for (label, color, dashed) in entries {
+        let style = color.stroke_width(2);
+        if *dashed {
+            area.draw(&DashedPathElement::new(vec![(6, y), (30, y)], 5, 3, style)).map_err(|e| plot_err(path, e))?;
+        } else {
+            area.draw(&PathElement::new(vec![(6, y), (30, y)], style)).map_err(|e| plot_err(path, e))?;
+        }
+        for line in wrap(label, 30) {
+            area.draw(&Text::new(line, (36, y - 7), font.clone())).map_err(|e| plot_err(path, e))?;
+            y += 16;
+        }
+        y += 6;
+    }
+    Ok(())
+}
+
+/// `text` in lines of at most about `width` characters, broken at spaces.
+fn wrap(text: &str, width: usize) -> Vec<String> {
+    let mut lines: Vec<String> = Vec::new();
+    for word in text.split(' ') {
+        match lines.last_mut() {
+            Some(line) if line.len() + 1 + word.len() <= width => {
+                line.push(' ');
+                line.push_str(word);
+            }
+            _ => lines.push(word.to_string()),
+        }
+    }
+    lines
+}
+
 /// A line plot of `series` (stacked in `panels` vertically when given more than one
 /// panel: series `i` goes to panel `i % panels`), staged in `out` as a PNG at `path`.
 pub fn line_plot(out: &mut Outputs, path: &Path, title: &str, x_label: &str, y_label: &str, series: &[Series], panels: usize) -> Result<(), HostError> {
@@ -58,13 +140,14 @@ pub fn line_plot(out: &mut Outputs, path: &Path, title: &str, x_label: &str, y_l
 pub fn line_plot_paired(out: &mut Outputs, path: &Path, title: &str, x_label: &str, y_label: &str, series: &[Series], panels: usize, dashed_from: usize) -> Result<(), HostError> {
     ensure_font();
     let panels = panels.max(1);
-    let (width, height) = (1000u32, 260 * panels as u32 + 60);
+    let (width, height) = (1000u32 + LEGEND_WIDTH, 260 * panels as u32 + 60);
     let mut rgb = vec![0u8; (width * height * 3) as usize];
     {
         let root = BitMapBackend::with_buffer(&mut rgb, (width, height)).into_drawing_area();
         root.fill(&WHITE).map_err(|e| plot_err(path, e))?;
         let root = root.titled(title, ("sans-serif", 22)).map_err(|e| plot_err(path, e))?;
-        for (p, area) in root.split_evenly((panels, 1)).iter().enumerate() {
+        for (p, panel) in root.split_evenly((panels, 1)).iter().enumerate() {
+            let (area, legend) = panel.split_horizontally(1000);
             let mine: Vec<(usize, &Series)> = series.iter().enumerate().filter(|(i, _)| i % panels == p).collect();
             let pts = || mine.iter().flat_map(|(_, s)| s.points.iter()).filter(|(x, y)| x.is_finite() && y.is_finite());
             let (mut x0, mut x1, mut y0, mut y1) = (f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY);
@@ -78,44 +161,35 @@ pub fn line_plot_paired(out: &mut Outputs, path: &Path, title: &str, x_label: &s
                 continue;
             }
             let pad = ((y1 - y0) * 0.05).max(1e-12);
-            let mut chart = ChartBuilder::on(area)
+            let (xr, yr) = (x0..x1.max(x0 + 1e-12), (y0 - pad)..(y1 + pad));
+            let (x_ticks, y_ticks) = (tick_format(xr.start, xr.end), tick_format(yr.start, yr.end));
+            let mut chart = ChartBuilder::on(&area)
                 .margin(8)
                 .x_label_area_size(36)
                 .y_label_area_size(70)
-                .build_cartesian_2d(x0..x1.max(x0 + 1e-12), (y0 - pad)..(y1 + pad))
+                .build_cartesian_2d(xr, yr)
                 .map_err(|e| plot_err(path, e))?;
             chart
                 .configure_mesh()
                 .x_desc(x_label)
                 .y_desc(y_label)
+                .x_label_formatter(&x_ticks)
+                .y_label_formatter(&y_ticks)
                 .label_style(("sans-serif", 14))
                 .draw()
                 .map_err(|e| plot_err(path, e))?;
-            for (i, s) in mine {
+            // References (dashed) first, so that the measured curves are drawn over them.
+            let color_of = |i: usize| if i >= dashed_from { COLORS[(i - dashed_from) % COLORS.len()] } else { COLORS[i % COLORS.len()] };
+            for &(i, s) in mine.iter().filter(|(i, _)| *i >= dashed_from).chain(mine.iter().filter(|(i, _)| *i < dashed_from)) {
                 let points = s.points.iter().copied().filter(|(x, y)| x.is_finite() && y.is_finite());
                 if i >= dashed_from {
-                    let color = COLORS[(i - dashed_from) % COLORS.len()];
-                    chart
-                        .draw_series(DashedLineSeries::new(points, 6, 4, color.stroke_width(1)))
-                        .map_err(|e| plot_err(path, e))?
-                        .label(s.label.clone())
-                        .legend(move |(x, y)| DashedPathElement::new(vec![(x, y), (x + 18, y)], 4, 3, color.stroke_width(2)));
+                    chart.draw_series(DashedLineSeries::new(points, 6, 4, color_of(i).stroke_width(1))).map_err(|e| plot_err(path, e))?;
                 } else {
-                    let color = COLORS[i % COLORS.len()];
-                    chart
-                        .draw_series(LineSeries::new(points, color.stroke_width(1)))
-                        .map_err(|e| plot_err(path, e))?
-                        .label(s.label.clone())
-                        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2)));
+                    chart.draw_series(LineSeries::new(points, color_of(i).stroke_width(1))).map_err(|e| plot_err(path, e))?;
                 }
             }
-            chart
-                .configure_series_labels()
-                .background_style(WHITE.mix(0.85))
-                .border_style(BLACK)
-                .label_font(("sans-serif", 14))
-                .draw()
-                .map_err(|e| plot_err(path, e))?;
+            let entries: Vec<(String, RGBColor, bool)> = mine.iter().map(|&(i, s)| (s.label.clone(), color_of(i), i >= dashed_from)).collect();
+            draw_legend(&legend, &entries, path)?;
         }
         root.present().map_err(|e| plot_err(path, e))?;
     }
@@ -146,6 +220,7 @@ pub fn level_lines_plot(out: &mut Outputs, path: &Path, title: &str, x_label: &s
             if !x0.is_finite() {
                 continue;
             }
+            let (x_ticks, y_ticks) = (tick_format(x0, x1), tick_format(y_range.0, y_range.1));
             let mut chart = ChartBuilder::on(area)
                 .caption(name, ("sans-serif", 16))
                 .margin(8)
@@ -153,7 +228,15 @@ pub fn level_lines_plot(out: &mut Outputs, path: &Path, title: &str, x_label: &s
                 .y_label_area_size(60)
                 .build_cartesian_2d(x0..x1.max(x0 + 1e-12), y_range.0..y_range.1)
                 .map_err(|e| plot_err(path, e))?;
-            chart.configure_mesh().x_desc(x_label).y_desc(y_label).label_style(("sans-serif", 13)).draw().map_err(|e| plot_err(path, e))?;
+            chart
+                .configure_mesh()
+                .x_desc(x_label)
+                .y_desc(y_label)
+                .x_label_formatter(&x_ticks)
+                .y_label_formatter(&y_ticks)
+                .label_style(("sans-serif", 13))
+                .draw()
+                .map_err(|e| plot_err(path, e))?;
             let n = lines.len().max(2);
             for (l, line) in lines.iter().enumerate() {
                 let color = ViridisRGB.get_color(l as f32 / (n - 1) as f32);
@@ -250,32 +333,44 @@ pub fn map_plot(out: &mut Outputs, path: &Path, map: &Map) -> Result<(), HostErr
     let (width, height) = (1000u32, 760u32);
     let mut rgb = vec![0u8; (width * height * 3) as usize];
     {
-        let root = BitMapBackend::with_buffer(&mut rgb, (width, height)).into_drawing_area();
-        root.fill(&WHITE).map_err(|e| plot_err(path, e))?;
-        let root = root.titled(map.title, ("sans-serif", 22)).map_err(|e| plot_err(path, e))?;
-        let (main, bar) = root.split_horizontally(860);
+        // `full` is drawn on in the bitmap's own pixels (the contour labels).
+        let full = BitMapBackend::with_buffer(&mut rgb, (width, height)).into_drawing_area();
+        full.fill(&WHITE).map_err(|e| plot_err(path, e))?;
+        let root = full.titled(map.title, ("sans-serif", 22)).map_err(|e| plot_err(path, e))?;
+        let (main, bar) = root.split_horizontally(840);
         let (x0, x1) = map.x_range;
         let (y0, y1) = map.y_range;
         let dx = (x1 - x0) / (cols - 1) as f64;
         let dy = (y1 - y0) / (rows - 1) as f64;
+        let (xr, yr) = ((x0 - dx / 2.0)..(x1 + dx / 2.0), (y0 - dy / 2.0)..(y1 + dy / 2.0));
+        let (x_ticks, y_ticks) = (tick_format(xr.start, xr.end), tick_format(yr.start, yr.end));
         let mut chart = ChartBuilder::on(&main)
             .margin(10)
             .x_label_area_size(44)
             .y_label_area_size(70)
-            .build_cartesian_2d((x0 - dx / 2.0)..(x1 + dx / 2.0), (y0 - dy / 2.0)..(y1 + dy / 2.0))
+            .build_cartesian_2d(xr, yr)
             .map_err(|e| plot_err(path, e))?;
         chart
             .configure_mesh()
             .disable_mesh()
             .x_desc(map.x_label)
             .y_desc(map.y_label)
+            .x_label_formatter(&x_ticks)
+            .y_label_formatter(&y_ticks)
             .label_style(("sans-serif", 15))
             .draw()
             .map_err(|e| plot_err(path, e))?;
+        // Below the scale (zero, on a log scale) in grey, no value (NaN) in white: neither
+        // may pass for the bottom of the scale.
         let color = |x: f64| -> RGBColor {
             let v = t(x);
-            let h = if v.is_finite() { ((v - lo) / (hi - lo)).clamp(0.0, 1.0) } else { 0.0 };
-            ViridisRGB.get_color(h as f32)
+            if x.is_nan() {
+                WHITE
+            } else if !v.is_finite() || v < lo {
+                BELOW_SCALE
+            } else {
+                ViridisRGB.get_color(((v - lo) / (hi - lo)).clamp(0.0, 1.0) as f32)
+            }
         };
         chart
             .draw_series(map.values.iter().enumerate().flat_map(|(i, row)| {
@@ -285,32 +380,49 @@ pub fn map_plot(out: &mut Outputs, path: &Path, map: &Map) -> Result<(), HostErr
                 })
             }))
             .map_err(|e| plot_err(path, e))?;
-        for &level in map.contours {
+        // Contours in white; each labelled once, in a box, the labels spread across the
+        // map (contour k of n near x = (k + 1) / (n + 1) of its width) and moved along
+        // their line where one would cover another.
+        let mut placed: Vec<(i32, i32, i32, i32)> = Vec::new();
+        let n_levels = map.contours.len();
+        for (k, &level) in map.contours.iter().enumerate() {
             let segs = contour_segments(map.values, level);
-            // Label each contour at its highest point.
-            let top = segs.iter().flatten().copied().max_by(|a, b| a.1.total_cmp(&b.1));
             chart
-                .draw_series(segs.into_iter().map(|[a, b]| PathElement::new(vec![(x0 + a.0 * dx, y0 + a.1 * dy), (x0 + b.0 * dx, y0 + b.1 * dy)], WHITE.stroke_width(2))))
+                .draw_series(segs.iter().map(|[a, b]| PathElement::new(vec![(x0 + a.0 * dx, y0 + a.1 * dy), (x0 + b.0 * dx, y0 + b.1 * dy)], WHITE.stroke_width(2))))
                 .map_err(|e| plot_err(path, e))?;
-            if let Some((cx, cy)) = top {
-                let label = format!("{level:e}");
-                chart
-                    .draw_series(std::iter::once(Text::new(label, (x0 + cx * dx, y0 + cy * dy + 2.0 * dy), ("sans-serif", 15).into_font().color(&WHITE))))
-                    .map_err(|e| plot_err(path, e))?;
+            let label = tick_format(level, level)(&level);
+            let target = (k + 1) as f64 / (n_levels + 1) as f64 * (cols - 1) as f64;
+            let mut candidates: Vec<(f64, f64)> = segs.iter().map(|[a, _]| *a).collect();
+            candidates.sort_by(|a, b| (a.0 - target).abs().total_cmp(&(b.0 - target).abs()));
+            let (w, h) = (8 * label.len() as i32 + 8, 20);
+            let spot = candidates.iter().map(|&(cx, cy)| chart.backend_coord(&(x0 + cx * dx, y0 + cy * dy))).find(|&(px, py)| {
+                let b = (px - w / 2, py - h / 2, px + w / 2, py + h / 2);
+                !placed.iter().any(|p| b.0 < p.2 && p.0 < b.2 && b.1 < p.3 && p.1 < b.3)
+            });
+            if let Some((px, py)) = spot {
+                let b = (px - w / 2, py - h / 2, px + w / 2, py + h / 2);
+                placed.push(b);
+                full.draw(&Rectangle::new([(b.0, b.1), (b.2, b.3)], WHITE.mix(0.85).filled())).map_err(|e| plot_err(path, e))?;
+                full.draw(&Text::new(label, (b.0 + 4, b.1 + 3), ("sans-serif", 14).into_font())).map_err(|e| plot_err(path, e))?;
             }
         }
-        // Color bar.
+        // Color bar, labelled in the values' units (on a log scale, the values, not their
+        // log10), with a swatch for what lies below it.
+        let (bar, below) = bar.split_vertically(height as i32 - 110);
+        let bar_ticks = tick_format(if map.log { 10f64.powf(lo) } else { lo }, if map.log { 10f64.powf(hi) } else { hi });
+        let bar_label = |v: &f64| if map.log { tick_format(10f64.powf(*v), 10f64.powf(*v))(&10f64.powf(*v)) } else { bar_ticks(v) };
         let mut cb = ChartBuilder::on(&bar)
             .margin_top(10)
-            .margin_bottom(54)
+            .margin_bottom(10)
             .margin_right(10)
-            .y_label_area_size(60)
+            .y_label_area_size(80)
             .build_cartesian_2d(0.0..1.0, lo..hi)
             .map_err(|e| plot_err(path, e))?;
         cb.configure_mesh()
             .disable_mesh()
             .disable_x_axis()
             .y_desc(map.scale_label)
+            .y_label_formatter(&bar_label)
             .label_style(("sans-serif", 13))
             .draw()
             .map_err(|e| plot_err(path, e))?;
@@ -321,7 +433,10 @@ pub fn map_plot(out: &mut Outputs, path: &Path, map: &Map) -> Result<(), HostErr
             Rectangle::new([(0.0, a), (1.0, b)], ViridisRGB.get_color(k as f32 / n as f32).filled())
         }))
         .map_err(|e| plot_err(path, e))?;
-        root.present().map_err(|e| plot_err(path, e))?;
+        let bottom = if map.log { "below / zero" } else { "below" };
+        below.draw(&Rectangle::new([(90, 8), (150, 30)], BELOW_SCALE.filled())).map_err(|e| plot_err(path, e))?;
+        below.draw(&Text::new(bottom, (90, 36), ("sans-serif", 13).into_font())).map_err(|e| plot_err(path, e))?;
+        full.present().map_err(|e| plot_err(path, e))?;
     }
     write_png(out, path, &rgb, width, height)
 }
@@ -342,6 +457,31 @@ pub fn write_png(out: &mut Outputs, path: &Path, rgb: &[u8], width: u32, height:
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn ticks_show_the_digits_their_step_needs() {
+        let f = tick_format(0.0, 4095.0);
+        assert_eq!([f(&500.0), f(&0.0), f(&4000.0)], ["500", "0", "4000"]);
+        let f = tick_format(0.6, 1.4);
+        assert_eq!([f(&0.7), f(&1.0), f(&1.25)], ["0.7", "1", "1.25"]);
+        // Small and large values in scientific notation, the mantissa trimmed.
+        let f = tick_format(-6.5e-5, 6.5e-5);
+        assert_eq!([f(&2e-5), f(&-4e-5), f(&1.5e-5), f(&0.0)], ["2e-5", "-4e-5", "1.5e-5", "0"]);
+        let f = tick_format(0.0, 3e6);
+        assert_eq!([f(&5e5), f(&2.5e6)], ["5e5", "2.5e6"]);
+        // One value (a contour's label): itself, not rounded to zero.
+        assert_eq!(tick_format(1e-10, 1e-10)(&1e-10), "1e-10");
+        assert_eq!(tick_format(3.2e-9, 3.2e-9)(&3.2e-9), "3.2e-9");
+        assert_eq!(tick_format(0.05, 0.05)(&0.05), "0.05");
+        // Float noise of a tick (0.1 + 0.2) does not show.
+        assert_eq!(tick_format(0.0, 1.0)(&(0.1 + 0.2)), "0.3");
+    }
+
+    #[test]
+    fn legend_labels_wrap_at_spaces() {
+        assert_eq!(wrap("ADC 0: baseline (linear pixels): RMS over pixels", 30), ["ADC 0: baseline (linear", "pixels): RMS over pixels"]);
+        assert_eq!(wrap("short", 30), ["short"]);
+    }
 
     #[test]
     fn contours_of_a_plane_lie_on_the_level_line() {

@@ -724,9 +724,9 @@ fn diagnose_names_the_simulated_adcs_dn_error_in_a_linearity_set() {
     let names: Vec<String> = s["findings"].as_array().unwrap().iter().map(|f| format!("{} {}", f["effect"].as_str().unwrap(), f["adc"])).collect();
     let want = ["adc-dnl 0", "adc-dnl 1", "adc-dnl 2", "adc-dnl 3", "global-nonlinearity null", "pixel-nonlinearity null"];
     assert_eq!(names, want, "{s}");
-    // Each finding has its figure in the report.
+    // Each finding has its figure in the report, numbered from 1 in the table's order.
     for (i, f) in s["findings"].as_array().unwrap().iter().enumerate() {
-        let png = d.join(format!("rep/finding-{i}-{}.png", f["effect"].as_str().unwrap()));
+        let png = d.join(format!("rep/finding-{}-{}.png", i + 1, f["effect"].as_str().unwrap()));
         assert!(std::fs::metadata(&png).map(|m| m.len() > 1000).unwrap_or(false), "{} missing", png.display());
     }
 }

@@ -14,7 +14,7 @@ use crate::commands::lut::{build_luts, summarize, AdcLutSummary, BuiltLuts};
 use crate::commands::progress::{bar, stage};
 use crate::fits::{read_histograms_for_analysis, stage_histograms, stage_lut, AdcHistograms};
 use crate::flatten::{cumulative_offsets, FlattenParams};
-use crate::plots::{line_plot, Series};
+use crate::plots::{line_plot, line_plot_paired, Series};
 use crate::outputs::OutDir;
 use crate::HostError;
 
@@ -154,13 +154,15 @@ pub fn characterize(source: &Path, luts: &BuiltLuts, flatten: &FlattenParams, tr
             hist_series.push(Series { label: format!("ADC {a}: true code width"), points: inner.clone().map(|k| (k as f64, w[k])).collect() });
         }
     }
-    line_plot(files, &at("histograms.png"), "Normalized histograms per ADC", "code (DN)", "relative code width", &hist_series, n_adc)?;
+    // The truth (when known) dashed and beneath the measured histogram, which stays visible.
+    let dashed = if truth.is_some() { n_adc } else { hist_series.len() };
+    line_plot_paired(files, &at("histograms.png"), "Normalized histograms per ADC", "code (DN)", "relative code width", &hist_series, n_adc, dashed)?;
     figures.push(at("histograms.png"));
     // ... zoomed on the major transition at half scale, where single codes show ...
     let mid = codes as f64 / 4.0;
     let zoom = (mid - 32.0)..(mid + 32.0);
     let zoomed: Vec<Series> = hist_series.iter().map(|s| Series { label: s.label.clone(), points: s.points.iter().filter(|(k, _)| zoom.contains(k)).copied().collect() }).collect();
-    line_plot(files, &at("histograms_zoom.png"), &format!("Normalized histograms around code {mid}"), "code (DN)", "relative code width", &zoomed, n_adc)?;
+    line_plot_paired(files, &at("histograms_zoom.png"), &format!("Normalized histograms around code {mid}"), "code (DN)", "relative code width", &zoomed, n_adc, dashed)?;
     figures.push(at("histograms_zoom.png"));
     // ... and the cumulative offsets, the truth aligned to them: the LUT fixes no
     // absolute offset or gain, so the truth gets the best-fit line of the difference.

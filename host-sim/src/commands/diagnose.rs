@@ -307,26 +307,34 @@ fn report(input: &Path, diagnosis: Diagnosis, model: Option<crate::camera::Camer
     let mut outputs = Vec::new();
     if let Some(OutDir { files, dir }) = out {
         let n = diagnosis.residuals.len();
-        let mut series: Vec<Series> = diagnosis.residuals.iter().enumerate().map(|(a, r)| Series { label: format!("ADC {a}: {base_label}"), points: r.baseline.iter().map(|&(k, z)| (k as f64, z)).collect() }).collect();
-        series.extend(diagnosis.residuals.iter().enumerate().map(|(a, r)| Series { label: format!("ADC {a}: with the findings"), points: r.extended.iter().map(|&(k, z)| (k as f64, z)).collect() }));
+        // Per ADC where the residuals are (histograms); one curve over all pixels otherwise
+        // (a linearity set or an EMVA series is not split by ADC).
+        let whose = |a: usize| if n > 1 { format!("ADC {a}: ") } else { String::new() };
+        let mut series: Vec<Series> = diagnosis.residuals.iter().enumerate().map(|(a, r)| Series { label: format!("{}{base_label}", whose(a)), points: r.baseline.iter().map(|&(k, z)| (k as f64, z)).collect() }).collect();
+        series.extend(diagnosis.residuals.iter().enumerate().map(|(a, r)| Series { label: format!("{}with the findings", whose(a)), points: r.extended.iter().map(|&(k, z)| (k as f64, z)).collect() }));
         let fig = dir.join("residuals.png");
         line_plot(files, &fig, "Held-out residuals / expected noise, before and after", x_label, "normalized residual", &series, n)?;
         let html_path = dir.join("report.html");
         let mut h = format!(
             "<!doctype html><html><head><meta charset=\"utf-8\"><title>dncal diagnose</title><style>body{{font-family:sans-serif;max-width:1050px;margin:2em auto}}td,th{{padding:2px 10px}}</style></head><body><h1>dncal diagnose: {}</h1>\
-             <p>Baseline: {}. Held-out RMS of the normalized residual {:.3} (1 is noise).</p><table><tr><th>effect</th><th>ADC</th><th>significance</th><th>RMS before</th><th>after</th><th>gain</th><th>evidence</th></tr>",
+             <p>Baseline: {}. Held-out RMS of the normalized residual {:.3} (1 is noise).</p><table><tr><th>effect</th><th>ADC</th><th>significance</th><th>RMS before</th><th>after</th><th>gain</th><th>figure</th><th>evidence</th></tr>",
             crate::outputs::html_path(input),
             diagnosis.baseline.model,
             diagnosis.baseline.rms
         );
+        // Finding figures are numbered 1, 2, ... in the order of the table, which links them.
+        let mut figure_of = Vec::with_capacity(diagnosis.findings.len());
         for f in &diagnosis.findings {
-            let _ = write!(h, "<tr><td>{}</td><td>{}</td><td>{:.1}</td><td>{:.3}</td><td>{:.3}</td><td>{:.2}</td><td>{}</td></tr>", f.effect, f.adc.map_or("-".into(), |a| a.to_string()), f.significance, f.rms_before, f.rms_after, f.gain, crate::outputs::html_escape(&f.detail));
+            let number = f.residuals.is_some().then(|| figure_of.iter().flatten().count() + 1);
+            figure_of.push(number);
+            let link = number.map_or("-".to_string(), |k| format!("<a href=\"#figure-{k}\">{k}</a>"));
+            let _ = write!(h, "<tr><td>{}</td><td>{}</td><td>{:.1}</td><td>{:.3}</td><td>{:.3}</td><td>{:.2}</td><td>{link}</td><td>{}</td></tr>", f.effect, f.adc.map_or("-".into(), |a| a.to_string()), f.significance, f.rms_before, f.rms_after, f.gain, crate::outputs::html_escape(&f.detail));
         }
         let _ = write!(h, "</table><p>Unexplained: held-out RMS {:.3}.</p><figure><img src=\"residuals.png\" width=\"1000\" alt=\"Held-out residuals over noise of the extended model\"></figure>", diagnosis.unexplained_rms);
         // One figure per finding: the held-out residuals just before and just after it.
-        for (i, f) in diagnosis.findings.iter().enumerate() {
-            let Some(r) = &f.residuals else { continue };
-            let name = format!("finding-{i}-{}.png", f.effect);
+        for (f, number) in diagnosis.findings.iter().zip(&figure_of) {
+            let (Some(r), Some(k)) = (&f.residuals, number) else { continue };
+            let name = format!("finding-{k}-{}.png", f.effect);
             let what = format!("{}{}", f.effect, f.adc.map_or(String::new(), |a| format!(" (ADC {a})")));
             let series = [
                 Series { label: "before".into(), points: r.baseline.iter().map(|&(k, z)| (k as f64, z)).collect() },
@@ -335,7 +343,7 @@ fn report(input: &Path, diagnosis: Diagnosis, model: Option<crate::camera::Camer
             // An ADC's code widths are seen by code, except in a linearity set (by level).
             let axis = if f.effect == "adc-dnl" && diagnosis.baseline.kind != "linearity-set" { "code (DN)" } else { x_label };
             line_plot(files, &dir.join(&name), &format!("{what}: held-out residuals / noise, before and after (gain {:.2})", f.gain), axis, "normalized residual", &series, 1)?;
-            let _ = write!(h, "<h2>{what}</h2><p>{}</p><figure><img src=\"{name}\" width=\"1000\" alt=\"{what}: held-out residuals before and after\"></figure>", crate::outputs::html_escape(&f.detail));
+            let _ = write!(h, "<h2 id=\"figure-{k}\">Figure {k}: {what}</h2><p>{}</p><figure><img src=\"{name}\" width=\"1000\" alt=\"{what}: held-out residuals before and after\"></figure>", crate::outputs::html_escape(&f.detail));
             outputs.push(dir.join(name));
         }
         h += "</body></html>";

@@ -121,6 +121,10 @@ pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, real
     let mut figures = Vec::new();
     if let Some(OutDir { files, dir }) = out {
         let i_max = result.i_bsun.last().copied().unwrap_or(1.0);
+        // One color scale for both maps (they are compared): the largest error of either,
+        // six decades down.
+        let top = result.dq_raw.iter().chain(&result.dq_lut).flatten().copied().filter(|v| v.is_finite()).fold(0.0f64, f64::max);
+        let range = (top > 0.0).then_some((top * 1e-6, top));
         for (name, grid, title) in [
             ("kcor_raw.png", &result.dq_raw, "K-Cor model: |systematic error in Q| (B_sun), raw ADC"),
             ("kcor_lut.png", &result.dq_lut, "K-Cor model: |systematic error in Q| (B_sun), with the LUT"),
@@ -136,10 +140,10 @@ pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, real
                     values: grid,
                     x_range: (0.0, i_max),
                     y_range: (result.q_bsun.first().copied().unwrap_or(-i_max), result.q_bsun.last().copied().unwrap_or(i_max)),
-                    scale_label: "log10 |dQ| (B_sun)",
+                    scale_label: "|dQ| (B_sun), log scale",
                     log: true,
                     contours: &[1e-8, 1e-9, 1e-10],
-                    range: None,
+                    range,
                 },
             )?;
             figures.push(path);

@@ -86,7 +86,7 @@ pub fn figure(files: &mut Outputs, path: &Path) -> Result<(), HostError> {
             values: &values,
             x_range: (0.0, 1.0),
             y_range: (0.0, 1.0),
-            scale_label: "log10 |delta| (DN)",
+            scale_label: "|delta| (DN), log scale",
             log: true,
             contours: &[1e-1, 1e-2, 1e-3, 1e-4],
             range: None,
