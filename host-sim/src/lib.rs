@@ -23,6 +23,7 @@ pub mod kcor;
 pub mod kcor_tables;
 pub mod linearity;
 pub mod outputs;
+pub mod paper_claims;
 pub mod plots;
 pub mod quantization;
 pub mod parallel;

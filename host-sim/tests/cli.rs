@@ -33,6 +33,22 @@ fn demo_calibrates_streams_and_reports() {
     let f = &s["stream_fpga"]["fpga"];
     assert_eq!((f["mismatches_vs_core"].as_u64(), f["mismatches_vs_reference"].as_u64(), f["fifo_overflows"].as_u64()), (Some(0), Some(0), Some(0)), "{f}");
     assert_eq!(s["stream_fpga"]["pixels"], 2 * 256 * 256);
+    // The paper's claims: every row has a verdict; the Fig. 5 row carries this run's own
+    // ratio, and where it does not reproduce the paper, a cause with the same model's
+    // ratios at less LUT noise (measured in the run).
+    let claims = s["paper"].as_array().unwrap();
+    assert_eq!(claims.len(), 9, "{claims:?}");
+    let verdicts = ["agrees", "same-order", "does-not-reproduce"];
+    assert!(claims.iter().all(|c| verdicts.contains(&c["verdict"].as_str().unwrap())), "{claims:?}");
+    let fig5 = claims.iter().find(|c| c["section"] == "4, Fig. 5").unwrap();
+    let reduction = s["kcor"]["reduction"].as_f64().unwrap();
+    assert_eq!(fig5["ours"], format!("{reduction:.1}x with 1% noise per code"));
+    assert_eq!(fig5["verdict"] == "does-not-reproduce", reduction < 5.0, "{fig5}");
+    if reduction < 5.0 {
+        assert!(fig5["cause"].as_str().unwrap().contains("with 0.1% noise per code"), "{fig5}");
+    }
+    let page = std::fs::read_to_string(folder.join("report.html")).unwrap();
+    assert!(page.find("The paper's claims, measured").unwrap() < page.find("Streaming through the core").unwrap(), "the claims table leads the report");
     // Both diagnoses ran: the linearity set shows the camera's global curve.
     assert!(s["diagnose_linearity"]["findings"].as_array().unwrap().iter().any(|f| f["effect"] == "global-nonlinearity"), "{}", s["diagnose_linearity"]);
     // Against the simulated ADCs' true code centers (the planted truth), the LUT must

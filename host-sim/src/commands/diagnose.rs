@@ -317,10 +317,10 @@ fn report(input: &Path, diagnosis: Diagnosis, model: Option<crate::camera::Camer
         let html_path = dir.join("report.html");
         let mut h = format!(
             "<!doctype html><html><head><meta charset=\"utf-8\"><title>dncal diagnose</title><style>body{{font-family:sans-serif;max-width:1050px;margin:2em auto}}td,th{{padding:2px 10px}}</style></head><body><h1>dncal diagnose: {}</h1>\
-             <p>Baseline: {}. Held-out RMS of the normalized residual {:.3} (1 is noise).</p><table><tr><th>effect</th><th>ADC</th><th>significance</th><th>RMS before</th><th>after</th><th>gain</th><th>figure</th><th>evidence</th></tr>",
+             <h2>Findings</h2><p>Each effect the baseline model lacks, in the order they were added; significance in standard deviations of the drop of the held-out mean squared residual; \
+             RMS of the normalized residual (1 is noise) on the held-out data the finding is tested on, before and after adding it. The remainder is at the end.</p>\
+             <table><tr><th>effect</th><th>ADC</th><th>significance</th><th>RMS before</th><th>after</th><th>gain</th><th>figure</th><th>evidence</th></tr>",
             crate::outputs::html_path(input),
-            diagnosis.baseline.model,
-            diagnosis.baseline.rms
         );
         // Finding figures are numbered 1, 2, ... in the order of the table, which links them.
         let mut figure_of = Vec::with_capacity(diagnosis.findings.len());
@@ -330,7 +330,10 @@ fn report(input: &Path, diagnosis: Diagnosis, model: Option<crate::camera::Camer
             let link = number.map_or("-".to_string(), |k| format!("<a href=\"#figure-{k}\">{k}</a>"));
             let _ = write!(h, "<tr><td>{}</td><td>{}</td><td>{:.1}</td><td>{:.3}</td><td>{:.3}</td><td>{:.2}</td><td>{link}</td><td>{}</td></tr>", f.effect, f.adc.map_or("-".into(), |a| a.to_string()), f.significance, f.rms_before, f.rms_after, f.gain, crate::outputs::html_escape(&f.detail));
         }
-        let _ = write!(h, "</table><p>Unexplained: held-out RMS {:.3}.</p><figure><img src=\"residuals.png\" width=\"1000\" alt=\"Held-out residuals over noise of the extended model\"></figure>", diagnosis.unexplained_rms);
+        if diagnosis.findings.is_empty() {
+            h += "<tr><td colspan=\"8\">none: the baseline explains the data to within what the tests resolve</td></tr>";
+        }
+        h += "</table>";
         // One figure per finding: the held-out residuals just before and just after it.
         for (f, number) in diagnosis.findings.iter().zip(&figure_of) {
             let (Some(r), Some(k)) = (&f.residuals, number) else { continue };
@@ -346,6 +349,15 @@ fn report(input: &Path, diagnosis: Diagnosis, model: Option<crate::camera::Camer
             let _ = write!(h, "<h2 id=\"figure-{k}\">Figure {k}: {what}</h2><p>{}</p><figure><img src=\"{name}\" width=\"1000\" alt=\"{what}: held-out residuals before and after\"></figure>", crate::outputs::html_escape(&f.detail));
             outputs.push(dir.join(name));
         }
+        // The remainder last: what the baseline left, and what the findings leave unexplained.
+        let _ = write!(
+            h,
+            "<h2>Remainder</h2><p>Baseline: {}. Held-out RMS of the normalized residual over all the data: {:.3} before the findings, <b>{:.3} unexplained</b> after all of them (1 is noise).</p>\
+             <figure><img src=\"residuals.png\" width=\"1000\" alt=\"Held-out residuals over noise, baseline and with the findings\"></figure>",
+            crate::outputs::html_escape(&diagnosis.baseline.model),
+            diagnosis.baseline.rms,
+            diagnosis.unexplained_rms
+        );
         h += "</body></html>";
         if let Some(r) = &diagnosis.code_residuals {
             let codes_fig = dir.join("codes.png");
