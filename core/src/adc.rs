@@ -73,6 +73,14 @@ impl<const CODES: usize> Code<CODES> {
     }
 }
 
+/// The ADC that digitizes sensor column `column` of a camera with `n_adc` ADCs (at
+/// least 1): column `c` goes to ADC `c mod n_adc`. For a count known only at run time
+/// (read from a file); [`AdcMap`] is the same map with the count fixed at compile time.
+#[inline]
+pub const fn adc_of_column(column: usize, n_adc: usize) -> usize {
+    column % if n_adc == 0 { 1 } else { n_adc }
+}
+
 /// The map from sensor column to ADC: column `c` goes to ADC `c mod N`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -85,7 +93,7 @@ impl<const N: usize> AdcMap<N> {
     #[inline]
     pub const fn adc(column: u32) -> usize {
         let () = Self::VALID;
-        (column as usize) % N
+        adc_of_column(column as usize, N)
     }
 }
 
@@ -108,6 +116,9 @@ mod tests {
         for c in 0..100u32 {
             assert_eq!(AdcMap::<4>::adc(c), (c % 4) as usize);
             assert_eq!(AdcMap::<3>::adc(c), (c % 3) as usize);
+            // The run-time map is the same map; no ADC count means one ADC, not a panic.
+            assert_eq!(adc_of_column(c as usize, 4), AdcMap::<4>::adc(c));
+            assert_eq!(adc_of_column(c as usize, 0), 0);
         }
     }
 }

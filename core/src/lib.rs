@@ -47,12 +47,12 @@ pub mod regs;
 pub mod stream;
 
 pub use accumulate::{Corrector, FrameCount, Geometry, LineReport, Status, SumImages, EXACT_FRAMES, MAX_STATES};
-pub use adc::{AdcMap, Code};
+pub use adc::{adc_of_column, AdcMap, Code};
 pub use banks::{LutBanks, StagingState};
 pub use error::{CoreError, LinkFault, LinkStep};
 pub use histogram::{HistogramSet, Roi};
 pub use image::{encode_image, image_len, ImageLoader};
-pub use lut::{LutEntry, LutSet, Weight, FRAC_BITS, LUT_ENTRY_LIMIT};
+pub use lut::{units_to_dn, LutEntry, LutSet, Weight, FRAC_BITS, LUT_ENTRY_LIMIT, UNITS_PER_DN};
 pub use noise::{NoiseEstimator, NoiseReport};
 pub use stream::StreamHeader;
 

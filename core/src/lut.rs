@@ -40,6 +40,17 @@ use crate::CoreError;
 /// Fractional bits of a LUT entry: the table adds 11 bits of resolution below one DN.
 pub const FRAC_BITS: u32 = 11;
 
+/// LUT units (of an entry, or of a sum of entries) per DN: 2^11. The host converts with
+/// [`units_to_dn`] and this, never with its own constant.
+pub const UNITS_PER_DN: f64 = (1u32 << FRAC_BITS) as f64;
+
+/// A value in LUT units (an entry's bits, or a sum of entries such as the corrector's
+/// 32-bit sums) in DN. Exact: the scale is a power of two.
+#[inline]
+pub fn units_to_dn(units: u64) -> f64 {
+    units as f64 / UNITS_PER_DN
+}
+
 /// Every LUT entry is strictly below this: 2^23 raw units (12 integer + 11 fractional bits).
 pub const LUT_ENTRY_LIMIT: u32 = 1 << 23;
 
@@ -82,6 +93,11 @@ impl LutEntry {
     /// The entry as a fixed-point number of DN.
     pub const fn to_fixed(self) -> U21F11 {
         self.0
+    }
+
+    /// The entry in DN (exact).
+    pub fn to_dn(self) -> f64 {
+        units_to_dn(self.to_bits() as u64)
     }
 }
 
@@ -233,6 +249,21 @@ pub(crate) fn check_entry(adc: usize, code: usize, previous: u32, bits: u32) -> 
 
 #[cfg(test)]
 mod tests {
+    use super::{units_to_dn, LutEntry, UNITS_PER_DN};
+
+    #[test]
+    fn entries_and_sums_read_in_dn_exactly() {
+        // An ideal code k reads k + 1/2 DN; a sum of 512 top entries is 512 times the
+        // entry, with no rounding (2^-11 is a power of two and the sums fit f64's 53 bits).
+        for k in [0u16, 1, 1000, 4095] {
+            assert_eq!(LutEntry::ideal(k).to_dn(), k as f64 + 0.5);
+        }
+        let top = LutEntry::from_bits((1 << 23) - 1).unwrap();
+        assert_eq!(units_to_dn(512 * top.to_bits() as u64), 512.0 * top.to_dn());
+        assert_eq!(units_to_dn(u32::MAX as u64) * UNITS_PER_DN, u32::MAX as f64);
+        assert_eq!(top.to_dn(), ((1u32 << 23) - 1) as f64 / 2048.0);
+    }
+
     use super::*;
 
     fn w(x: f64) -> Weight {

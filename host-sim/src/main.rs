@@ -835,7 +835,7 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
                         t += "  code      entry          DN     step   offset\n";
                         for k in 0..a.entries.len() {
                             let step = if k == 0 { f64::NAN } else { a.step_dn[k - 1] };
-                            t += &format!("  {k:4} {:10} {:11.5} {:8.5} {:+8.5}\n", a.entries[k], a.entries[k] as f64 / 2048.0, step, a.cumulative_offset_dn[k]);
+                            t += &format!("  {k:4} {:10} {:11.5} {:8.5} {:+8.5}\n", a.entries[k], dncal_core::units_to_dn(a.entries[k].into()), step, a.cumulative_offset_dn[k]);
                         }
                     }
                 }

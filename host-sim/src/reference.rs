@@ -38,7 +38,7 @@ impl ReferenceLut {
 
     /// The entries the core's rounding rule gives: `RNE(2^11 c_k)`, as integers.
     pub fn quantized(&self) -> Vec<Vec<u64>> {
-        self.centers.iter().map(|t| t.iter().map(|&c| (c * 2048.0).round_ties_even() as u64).collect()).collect()
+        self.centers.iter().map(|t| t.iter().map(|&c| (c * dncal_core::UNITS_PER_DN).round_ties_even() as u64).collect()).collect()
     }
 
     /// Deviation of each code's center from an ideal ADC's `k + 1/2`, DN: the cumulative

@@ -545,7 +545,7 @@ fn run_segment(
             if q > u32::MAX as u64 {
                 report.saturated_sums += 1;
             } else {
-                let err = (got as f64 / 2048.0 - f).abs();
+                let err = (dncal_core::units_to_dn(got.into()) - f).abs();
                 report.max_abs_err_dn = report.max_abs_err_dn.max(err);
                 if err > bound {
                     report.out_of_bound += 1;

@@ -280,7 +280,7 @@ fn run_typed<const N: usize, const CODES: usize>(
     let frames_max = (0..p.states).map(|s| corrector.sums().frames(s).get()).max().unwrap_or(0);
     let bound_dn = frames_max as f64 * 2f64.powi(-12);
     let mismatches = sums.iter().zip(&ref_q).filter(|(&s, &q)| s as u64 != q).count() as u64;
-    let errors: Vec<f64> = sums.iter().zip(&ref_f).map(|(&s, &f)| (s as f64 / 2048.0 - f).abs()).collect();
+    let errors: Vec<f64> = sums.iter().zip(&ref_f).map(|(&s, &f)| (dncal_core::units_to_dn(s.into()) - f).abs()).collect();
     let max_abs_err_dn = errors.iter().cloned().fold(0.0, f64::max);
     let out_of_bound = errors.iter().filter(|&&e| e > bound_dn).count() as u64;
     let pixels = p.frames as u64 * (w * h) as u64;

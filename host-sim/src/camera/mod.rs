@@ -55,7 +55,7 @@ impl Camera {
     /// The ADC of column `column`.
     #[inline]
     pub fn adc_of(&self, column: usize) -> &PipelinedAdc {
-        &self.adcs[column % self.adcs.len()]
+        &self.adcs[dncal_core::adc_of_column(column, self.adcs.len())]
     }
 
     /// The noiseless response: photoelectrons `n` (already clipped or not) to electrons

@@ -134,7 +134,7 @@ impl Camera {
         let (inv_gain, offset, read, qe) = (1.0 / cfg.gain_e_per_dn, cfg.offset_dn, cfg.read_noise_e, cfg.qe);
         // The ADC index walks with the column (column mod n_adc without a division per pixel).
         let n_adc = self.adcs.len();
-        let mut adc = columns.start % n_adc;
+        let mut adc = dncal_core::adc_of_column(columns.start, n_adc);
         for (c, slot) in columns.zip(out.iter_mut()) {
             let i = base + c;
             let code = match self.pixels.state[i] {

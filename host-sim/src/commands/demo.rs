@@ -268,9 +268,9 @@ fn report_html(s: &DemoSummary, camera: &Camera, ramp: &RampParams, flat: &Flatt
     }
     h.push_str("</table><p>Errors are against the simulated ADCs' true code centers after removing a best-fit offset and gain, over the calibrated codes.</p>");
     for (img, caption) in [
-        ("histograms.png", "Flattened histograms (the LUT weights) and the true code widths, per ADC."),
+        ("histograms.png", "Flattened histograms (the LUT weights, solid) over the true code widths (dashed), per ADC. The paper's Fig. 3, top row: the normalized histograms of the four ADCs of an MV-D1024E."),
         ("histograms_zoom.png", "The same around the major transition at half scale."),
-        ("offsets.png", "Cumulative offset of the LUT from a perfect ADC, and the true offsets aligned to it (best-fit offset and gain of the difference removed)."),
+        ("offsets.png", "Cumulative offset of the LUT from a perfect ADC, and the true offsets aligned to it (best-fit offset and gain of the difference removed). The paper's Fig. 3, bottom row: cumulative offsets of about 1 DN."),
         ("correction_error.png", "Error of the raw code and of the LUT value against the true code centers."),
     ] {
         let _ = write!(h, "<figure><img src=\"{img}\" width=\"1000\" alt=\"{caption}\"><figcaption>{caption}</figcaption></figure>");
@@ -281,10 +281,10 @@ fn report_html(s: &DemoSummary, camera: &Camera, ramp: &RampParams, flat: &Flatt
         "<h2>The paper's other analyses</h2><p>Each is a command of its own; <code>docs/paper.md</code> compares every number with the paper.</p>\
          <h3>Quantization (section 2, Fig. 1): <code>dncal quantization</code></h3><p>At this camera's read noise, {:.3} DN, the worst-case bias of an averaged readout \
          is {:.2e} DN. A bias of 0.01 DN or less needs {:.3} DN of noise.</p>\
-         <figure><img src=\"quantization.png\" width=\"900\" alt=\"|bias| over lambda mod 1 and noise, contours at 1e-1 to 1e-4 DN.\"><figcaption>|bias| over lambda mod 1 and noise, contours at 1e-1 to 1e-4 DN.</figcaption></figure>\
+         <figure><img src=\"quantization.png\" width=\"900\" alt=\"|bias| over lambda mod 1 and noise, contours at 1e-1 to 1e-4 DN.\"><figcaption>|bias| over lambda mod 1 and noise, contours at 1e-1 to 1e-4 DN; grey: below 1e-6 of the largest bias. The paper's Fig. 1 is this map.</figcaption></figure>\
          <h3>K-Coronagraph model (section 4, Figs. 4-5): <code>dncal kcor-model</code></h3><p>ADC {}, {} ms frames ({:.3e} e-/s per B_sun per pixel): the largest systematic error \
          in Q is {:.2e} B_sun raw and {:.2e} B_sun with a LUT from the true widths with {}% noise per code: raw / LUT = {:.1} (the paper: about 10; the table at the top gives the cause, measured in this run).</p>\
-         <figure><img src=\"kcor_raw.png\" width=\"900\" alt=\"Raw ADC.\"><figcaption>Raw ADC.</figcaption></figure><figure><img src=\"kcor_lut.png\" width=\"900\" alt=\"With the LUT.\"><figcaption>With the LUT.</figcaption></figure>\
+         <figure><img src=\"kcor_raw.png\" width=\"900\" alt=\"Raw ADC.\"><figcaption>Raw ADC. The paper's Fig. 4: the 4th ADC of the K-Cor camera, errors of several times 1e-9 B_sun. One color scale for both maps; grey: zero or below the scale (a millionth of the largest error), white: outside the model (|Q| &gt; I).</figcaption></figure><figure><img src=\"kcor_lut.png\" width=\"900\" alt=\"With the LUT.\"><figcaption>With the LUT (true widths with 1% noise per code). The paper's Fig. 5: the error about ten times lower; here it is not (the table at the top says why).</figcaption></figure>\
          <h3>Pixel-wise nonlinearity (section 5, Figs. 6-8): <code>dncal linearity</code></h3><p>{} pixels x {} levels, {} masked. Largest RMS residual over the levels: raw {:.2e}, \
          standard correction {:.2e}, pixel-wise 4th order {:.2e}, random noise {:.2e}. Coefficients and mask: <a href=\"linearity/coefficients.fits\">coefficients.fits</a>.</p>\
          <figure><img src=\"linearity/flat_image.png\" width=\"800\" alt=\"Fig. 6: the flat, raw, scaled +-10% of full scale around its median.\"><figcaption>Fig. 6: the flat, raw, scaled +-10% of full scale around its median.</figcaption></figure>\

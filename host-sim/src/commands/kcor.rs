@@ -96,9 +96,9 @@ pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, real
         }
         None => noisy_table(p.seed)?,
     };
-    let mut luts: Vec<Vec<f64>> = vec![entries.iter().map(|&e| e as f64 / 2048.0).collect()];
+    let mut luts: Vec<Vec<f64>> = vec![entries.iter().map(|&e| dncal_core::units_to_dn(e.into())).collect()];
     for r in 1..realizations as u64 {
-        luts.push(noisy_table(p.seed.wrapping_add(r))?.iter().map(|&e| e as f64 / 2048.0).collect());
+        luts.push(noisy_table(p.seed.wrapping_add(r))?.iter().map(|&e| dncal_core::units_to_dn(e.into())).collect());
     }
     let lut_refs: Vec<&[f64]> = luts.iter().map(|l| l.as_slice()).collect();
     let mut results = run_luts(camera, adc, &lut_refs, p);

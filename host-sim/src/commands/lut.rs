@@ -235,7 +235,7 @@ pub fn inspect(path: &Path) -> Result<InspectSummary, HostError> {
         .into_iter()
         .enumerate()
         .map(|(adc, entries)| {
-            let dn: Vec<f64> = entries.iter().map(|&e| e as f64 / 2048.0).collect();
+            let dn: Vec<f64> = entries.iter().map(|&e| dncal_core::units_to_dn(e.into())).collect();
             let step_dn: Vec<f64> = dn.windows(2).map(|p| p[1] - p[0]).collect();
             let cumulative_offset_dn: Vec<f64> = dn.iter().enumerate().map(|(k, v)| v - (k as f64 + 0.5)).collect();
             InspectAdc {
@@ -336,7 +336,7 @@ pub fn import_kcor(specs: &[String], output: &Path) -> Result<ImportSummary, Hos
             let max_rounding_dn = (0..t.entries.len())
                 .map(|k| {
                     let step = if k == 0 { t.entries[0] as f64 * unit } else { steps[k - 1] };
-                    (t.entries[k] as f64 * unit - step / 2.0 - o[k] as f64 / 2048.0).abs()
+                    (t.entries[k] as f64 * unit - step / 2.0 - dncal_core::units_to_dn(o[k].into())).abs()
                 })
                 .fold(0.0, f64::max);
             let step_range = (steps.iter().cloned().fold(f64::INFINITY, f64::min), steps.iter().cloned().fold(f64::NEG_INFINITY, f64::max));

@@ -45,7 +45,7 @@ impl<'a, T: Sample> Pixels<'a, T> {
 
     /// The ADC of pixel `i`: column `c` is read by ADC `c mod n_adc`.
     pub fn adc(&self, i: usize) -> usize {
-        (self.index[i] % self.set.width) % self.n_adc()
+        dncal_core::adc_of_column(self.index[i] % self.set.width, self.n_adc())
     }
 
     /// Whether pixel `i` lies on an even row: those estimate shared parameters, the odd
