@@ -5,6 +5,7 @@
 use std::path::Path;
 use std::sync::Once;
 
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 use plotters::element::DashedPathElement;
 use plotters::style::{register_font, FontStyle};
@@ -87,6 +88,25 @@ fn trim_zeros(text: &str) -> &str {
     if t == "-0" { "0" } else { t }
 }
 
+/// Draws `chart`'s axes: their labels (with units, the caller's) and tick labels
+/// formatted for the axis ranges `x` and `y` ([`tick_format`]); grid lines unless `mesh`
+/// is false (maps).
+fn draw_axes<DB: DrawingBackend>(
+    chart: &mut ChartContext<'_, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>,
+    (x_label, x): (&str, std::ops::Range<f64>),
+    (y_label, y): (&str, std::ops::Range<f64>),
+    font: u32,
+    mesh: bool,
+    path: &Path,
+) -> Result<(), HostError> {
+    let (x_ticks, y_ticks) = (tick_format(x.start, x.end), tick_format(y.start, y.end));
+    let mut style = chart.configure_mesh();
+    if !mesh {
+        style.disable_mesh();
+    }
+    style.x_desc(x_label).y_desc(y_label).x_label_formatter(&x_ticks).y_label_formatter(&y_ticks).label_style(("sans-serif", font)).draw().map_err(|e| plot_err(path, e))
+}
+
 /// Width of the legend column right of a line plot's panels, pixels: legends go beside
 /// the data, never over it.
 const LEGEND_WIDTH: u32 = 250;
@@ -162,22 +182,13 @@ pub fn line_plot_paired(out: &mut Outputs, path: &Path, title: &str, x_label: &s
             }
             let pad = ((y1 - y0) * 0.05).max(1e-12);
             let (xr, yr) = (x0..x1.max(x0 + 1e-12), (y0 - pad)..(y1 + pad));
-            let (x_ticks, y_ticks) = (tick_format(xr.start, xr.end), tick_format(yr.start, yr.end));
             let mut chart = ChartBuilder::on(&area)
                 .margin(8)
                 .x_label_area_size(36)
                 .y_label_area_size(70)
-                .build_cartesian_2d(xr, yr)
+                .build_cartesian_2d(xr.clone(), yr.clone())
                 .map_err(|e| plot_err(path, e))?;
-            chart
-                .configure_mesh()
-                .x_desc(x_label)
-                .y_desc(y_label)
-                .x_label_formatter(&x_ticks)
-                .y_label_formatter(&y_ticks)
-                .label_style(("sans-serif", 14))
-                .draw()
-                .map_err(|e| plot_err(path, e))?;
+            draw_axes(&mut chart, (x_label, xr), (y_label, yr), 14, true, path)?;
             // References (dashed) first, so that the measured curves are drawn over them.
             let color_of = |i: usize| if i >= dashed_from { COLORS[(i - dashed_from) % COLORS.len()] } else { COLORS[i % COLORS.len()] };
             for &(i, s) in mine.iter().filter(|(i, _)| *i >= dashed_from).chain(mine.iter().filter(|(i, _)| *i < dashed_from)) {
@@ -220,23 +231,15 @@ pub fn level_lines_plot(out: &mut Outputs, path: &Path, title: &str, x_label: &s
             if !x0.is_finite() {
                 continue;
             }
-            let (x_ticks, y_ticks) = (tick_format(x0, x1), tick_format(y_range.0, y_range.1));
+            let (xr, yr) = (x0..x1.max(x0 + 1e-12), y_range.0..y_range.1);
             let mut chart = ChartBuilder::on(area)
                 .caption(name, ("sans-serif", 16))
                 .margin(8)
                 .x_label_area_size(36)
                 .y_label_area_size(60)
-                .build_cartesian_2d(x0..x1.max(x0 + 1e-12), y_range.0..y_range.1)
+                .build_cartesian_2d(xr.clone(), yr.clone())
                 .map_err(|e| plot_err(path, e))?;
-            chart
-                .configure_mesh()
-                .x_desc(x_label)
-                .y_desc(y_label)
-                .x_label_formatter(&x_ticks)
-                .y_label_formatter(&y_ticks)
-                .label_style(("sans-serif", 13))
-                .draw()
-                .map_err(|e| plot_err(path, e))?;
+            draw_axes(&mut chart, (x_label, xr), (y_label, yr), 13, true, path)?;
             let n = lines.len().max(2);
             for (l, line) in lines.iter().enumerate() {
                 let color = ViridisRGB.get_color(l as f32 / (n - 1) as f32);
@@ -343,23 +346,13 @@ pub fn map_plot(out: &mut Outputs, path: &Path, map: &Map) -> Result<(), HostErr
         let dx = (x1 - x0) / (cols - 1) as f64;
         let dy = (y1 - y0) / (rows - 1) as f64;
         let (xr, yr) = ((x0 - dx / 2.0)..(x1 + dx / 2.0), (y0 - dy / 2.0)..(y1 + dy / 2.0));
-        let (x_ticks, y_ticks) = (tick_format(xr.start, xr.end), tick_format(yr.start, yr.end));
         let mut chart = ChartBuilder::on(&main)
             .margin(10)
             .x_label_area_size(44)
             .y_label_area_size(70)
-            .build_cartesian_2d(xr, yr)
+            .build_cartesian_2d(xr.clone(), yr.clone())
             .map_err(|e| plot_err(path, e))?;
-        chart
-            .configure_mesh()
-            .disable_mesh()
-            .x_desc(map.x_label)
-            .y_desc(map.y_label)
-            .x_label_formatter(&x_ticks)
-            .y_label_formatter(&y_ticks)
-            .label_style(("sans-serif", 15))
-            .draw()
-            .map_err(|e| plot_err(path, e))?;
+        draw_axes(&mut chart, (map.x_label, xr), (map.y_label, yr), 15, false, path)?;
         // Below the scale (zero, on a log scale) in grey, no value (NaN) in white: neither
         // may pass for the bottom of the scale.
         let color = |x: f64| -> RGBColor {
