@@ -286,6 +286,17 @@ pub fn stage_lut(out: &mut Outputs, path: &Path, lut: &LutTables) -> Result<(), 
     })
 }
 
+/// The parameters of the command being run, every one with the value it took (defaults
+/// included), as `main` reads them from the command line: written as a `HISTORY` record
+/// into every FITS file the process writes, beside the command line itself.
+static PARAMETERS: std::sync::OnceLock<String> = std::sync::OnceLock::new();
+
+/// Records `text` as the run's parameters for [`PARAMETERS`] (once; later calls are
+/// ignored).
+pub fn record_parameters(text: String) {
+    let _ = PARAMETERS.set(text);
+}
+
 /// A FITS file being written at a temporary path; errors name the final `path`.
 struct FitsWriter<'a> {
     file: FitsFile,
@@ -320,8 +331,9 @@ impl<'a> FitsWriter<'a> {
     }
 
     /// Where the file comes from, in the primary HDU: `DATE` (UTC, when written),
-    /// `CREATOR` (dncal and its version), `ORIGIN`, and the command line that made it as
-    /// `HISTORY` cards (cfitsio continues a long line on further cards).
+    /// `CREATOR` (dncal and its version), `ORIGIN`, and as `HISTORY` cards (cfitsio
+    /// continues a long line on further cards) the command line that made it and every
+    /// parameter it ran with, defaults included ([`record_parameters`]).
     fn provenance(&mut self) -> Result<(), HostError> {
         let path = self.path;
         let mut status = 0;
@@ -332,13 +344,22 @@ impl<'a> FitsWriter<'a> {
         self.key("ORIGIN", ("dncal", "camera detector correction and characterization"))?;
         // (`args_os`: `args` panics on an argument that is not Unicode, such as a path.)
         let args: Vec<String> = std::env::args_os().map(|a| a.to_string_lossy().into_owned()).collect();
-        let command = format!("command: {}", args.join(" "));
-        // Printable ASCII only (a FITS header holds nothing else); at most 4 KB of it.
-        let command: String = command.chars().map(|c| if (' '..='~').contains(&c) { c } else { '?' }).take(4096).collect();
-        let Ok(text) = std::ffi::CString::new(command) else { return Ok(()) };
-        // SAFETY: as above; `text` is NUL-terminated.
+        self.history(&format!("command: {}", args.join(" ")))?;
+        match PARAMETERS.get() {
+            Some(p) => self.history(&format!("parameters: {p}")),
+            None => Ok(()),
+        }
+    }
+
+    /// One `HISTORY` record of `text`: printable ASCII only (a FITS header holds nothing
+    /// else, the rest becomes `?`), at most 4 KB of it.
+    fn history(&mut self, text: &str) -> Result<(), HostError> {
+        let text: String = text.chars().map(|c| if (' '..='~').contains(&c) { c } else { '?' }).take(4096).collect();
+        let Ok(text) = std::ffi::CString::new(text) else { return Ok(()) };
+        let mut status = 0;
+        // SAFETY: `self.file` is open with the primary HDU current; `text` is NUL-terminated.
         unsafe { fitsio::sys::ffphis(self.file.as_raw(), text.as_ptr(), &mut status) };
-        fitsio::errors::check_status(status).map_err(|e| fits_error(path, "writing HISTORY", &e))
+        fitsio::errors::check_status(status).map_err(|e| fits_error(self.path, "writing HISTORY", &e))
     }
 
     /// Writes `value` (a value or a (value, comment) pair) as key `name` of the current HDU.

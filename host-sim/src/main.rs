@@ -706,7 +706,35 @@ fn command() -> clap::Command {
 
 fn parse() -> Result<Cli, clap::Error> {
     let matches = command().try_get_matches()?;
+    dncal_host::fits::record_parameters(effective_parameters(&matches));
     <Cli as clap::FromArgMatches>::from_arg_matches(&matches)
+}
+
+/// Every argument's value as the command runs with it, defaults included and marked:
+/// `subcommand: name=value name=value (default) ...`, for the FITS files' HISTORY (the
+/// command line alone does not say what the defaults were).
+fn effective_parameters(matches: &clap::ArgMatches) -> String {
+    let (mut path, mut parts) = (Vec::new(), Vec::new());
+    // A global argument (`--quiet`, `--max-memory`) is in every level's matches: once.
+    let mut seen = std::collections::HashSet::new();
+    let mut m = matches;
+    loop {
+        for id in m.ids().filter(|id| seen.insert(id.as_str().to_string())) {
+            // A group's id has no values of its own (an error here, not a panic).
+            let Ok(Some(values)) = m.try_get_raw(id.as_str()) else { continue };
+            let values: Vec<String> = values.map(|v| v.to_string_lossy().into_owned()).collect();
+            let default = m.value_source(id.as_str()) == Some(clap::parser::ValueSource::DefaultValue);
+            parts.push(format!("{id}={}{}", values.join(","), if default { " (default)" } else { "" }));
+        }
+        match m.subcommand() {
+            Some((name, sub)) => {
+                path.push(name.to_string());
+                m = sub;
+            }
+            None => break,
+        }
+    }
+    format!("{}: {}", path.join(" "), parts.join(" "))
 }
 
 /// `dncal man`: the top page on stdout, or every page into `out`.

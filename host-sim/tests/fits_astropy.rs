@@ -352,3 +352,28 @@ print(json.dumps(out))
     let e = read_linearity(&s).unwrap_err().to_string();
     assert!(e.contains("the HDU 1 fails its checksum: its data do not match DATASUM (the file was changed or damaged after it was written;"), "{e}");
 }
+
+/// A file written by the command records, beside its command line, every parameter the
+/// command ran with, defaults marked: astropy reads them back from HISTORY.
+#[test]
+fn astropy_reads_the_parameters_a_file_was_made_with() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_dncal"))
+        .args(["simulate", "linearity", "--roi", "16x16+0+0", "--frames", "2", "-o", "p.fits", "-q"])
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    const HISTORY: &str = "import sys\nfrom astropy.io import fits\nprint(''.join(str(c) for c in fits.getheader(sys.argv[1])['HISTORY']))";
+    let py = Command::new("python3").arg("-c").arg(HISTORY).arg(dir.path().join("p.fits")).output().expect("python3 with astropy");
+    assert!(py.status.success(), "{}", String::from_utf8_lossy(&py.stderr));
+    // cfitsio continues a long record on further cards: joined, it is the record again.
+    let history = String::from_utf8_lossy(&py.stdout).trim().to_string();
+    let parameters = &history[history.find("parameters: ").expect("a parameters record")..];
+    assert!(parameters.starts_with("parameters: simulate linearity: "), "{parameters}");
+    for want in ["roi=16x16+0+0 ", "frames=2 ", "out=p.fits ", "levels=41 (default)", "seed=41 (default)"] {
+        assert!(parameters.contains(want), "{want:?} missing from {parameters}");
+    }
+    // A global flag given once is recorded once.
+    assert_eq!(parameters.matches("quiet=true").count(), 1, "{parameters}");
+}

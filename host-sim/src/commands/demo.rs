@@ -20,7 +20,7 @@ use crate::commands::kcor::KcorSummary;
 use crate::commands::linearity::LinearitySummary;
 use crate::commands::quantization::SigmaReport;
 use crate::kcor::KcorParams;
-use crate::paper_claims::{claims, Claim, Measured, Verdict};
+use crate::paper_claims::{claims, finite_range, Claim, Measured, Verdict};
 use crate::camera::Camera;
 use crate::commands::adc::AdcReport;
 use crate::commands::progress::{bar, stage};
@@ -66,7 +66,9 @@ pub struct DemoSummary {
 /// The table of [`crate::paper_claims`] from the demo's steps; `kcor_reductions` are
 /// the K-Cor model's raw / LUT ratios by the LUT's noise per code, the paper's 1% first.
 fn paper_claims(adc: &AdcReport, q: &SigmaReport, kcor: &KcorSummary, kcor_reductions: Vec<(f64, f64)>, l: &crate::linearity::LinearityReport) -> Vec<Claim> {
-    let finite_range = |v: &[f64]| v.iter().copied().filter(|x| x.is_finite()).fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| (a.min(x), b.max(x)));
+    // Over the calibrated levels: the corrections are exact at the dark and the flat (NaN).
+    let calibrated = |v: &[f64]| -> Vec<f64> { v.iter().enumerate().filter(|&(k, _)| k != 0 && k != l.gain_level).map(|(_, &x)| x).collect() };
+    let max = |v: &[f64]| finite_range(&calibrated(v)).1;
     let best_improvement = l.rms_standard.iter().zip(&l.rms_pixelwise).map(|(s, p)| s / p).filter(|r| r.is_finite()).fold(0.0, f64::max);
     claims(&Measured {
         sigma_for_bias_001_dn: crate::quantization::sigma_for_bias(0.01).unwrap_or(f64::NAN),
@@ -77,11 +79,11 @@ fn paper_claims(adc: &AdcReport, q: &SigmaReport, kcor: &KcorSummary, kcor_reduc
         rms_lut_dn: adc.adcs.iter().map(|a| a.truth.as_ref().map(|t| t.rms_lut_dn)).collect(),
         kcor_raw_bsun: kcor.result.max_abs_sys_err_bsun_raw,
         kcor_reductions,
-        standard_max: l.rms_standard_max,
-        pixelwise_max: l.rms_pixelwise_max,
+        standard_max: max(&l.rms_standard),
+        pixelwise_max: max(&l.rms_pixelwise),
         best_improvement,
-        level_noise: finite_range(&l.rms_random_level_only),
-        propagated_noise: finite_range(&l.rms_random),
+        level_noise: finite_range(&calibrated(&l.rms_random_level_only)),
+        propagated_noise: finite_range(&calibrated(&l.rms_random)),
     })
 }
 
