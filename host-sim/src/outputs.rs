@@ -367,6 +367,13 @@ pub fn html_path(path: &Path) -> String {
     html_escape(&std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf()).display().to_string())
 }
 
+/// One figure of a report page: image `src` shown `width` pixels wide, `alt` the text for
+/// a reader that does not show it, and `caption` under it when given (all escaped here).
+pub fn html_figure(src: &str, width: u32, alt: &str, caption: Option<&str>) -> String {
+    let caption = caption.map_or(String::new(), |c| format!("<figcaption>{}</figcaption>", html_escape(c)));
+    format!("<figure><img src=\"{}\" width=\"{width}\" alt=\"{}\">{caption}</figure>", html_escape(src), html_escape(alt))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -471,4 +478,3 @@ mod tests {
         assert_eq!(names(d), want);
     }
 }
-

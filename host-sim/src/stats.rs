@@ -64,8 +64,33 @@ pub fn max_abs(v: &[f64]) -> f64 {
 /// Root mean square of the finite values of `v`; NaN when there are none (a quantity
 /// undefined everywhere, such as a relative error at a level of zero signal).
 pub fn rms_finite(v: impl IntoIterator<Item = f64>) -> f64 {
-    let (s, n) = v.into_iter().filter(|x| x.is_finite()).fold((0.0, 0usize), |(s, n), x| (s + x * x, n + 1));
-    if n == 0 { f64::NAN } else { (s / n as f64).sqrt() }
+    v.into_iter().fold(RmsSum::default(), |mut acc, x| {
+        acc.add(x);
+        acc
+    })
+    .rms()
+}
+
+/// [`rms_finite`] one value at a time: for a pass that accumulates several RMS at once.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct RmsSum {
+    sum: f64,
+    n: usize,
+}
+
+impl RmsSum {
+    /// Counts `v` if it is finite.
+    pub fn add(&mut self, v: f64) {
+        if v.is_finite() {
+            self.sum += v * v;
+            self.n += 1;
+        }
+    }
+
+    /// The RMS of the values counted; NaN when there are none.
+    pub fn rms(self) -> f64 {
+        if self.n == 0 { f64::NAN } else { (self.sum / self.n as f64).sqrt() }
+    }
 }
 
 /// Least-squares line `y = a + b x`: (a, b, R^2). NaN where `x` has no spread.

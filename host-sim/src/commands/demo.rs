@@ -26,7 +26,7 @@ use crate::commands::adc::AdcReport;
 use crate::commands::progress::{bar, stage};
 use crate::flatten::FlattenParams;
 use crate::streaming::{run_stream, StreamParams, StreamReport};
-use crate::outputs::{OutDir, Outputs};
+use crate::outputs::{html_figure, OutDir, Outputs};
 use crate::HostError;
 
 /// What the demo did and measured.
@@ -203,6 +203,8 @@ fn claims_table(rows: &[Claim]) -> String {
 }
 
 fn report_html(s: &DemoSummary, camera: &Camera, ramp: &RampParams, flat: &FlattenParams) -> String {
+    // Every figure of the report has its caption, which is also its alternative text.
+    let figure = |src: &str, width: u32, caption: &str| html_figure(src, width, caption, Some(caption));
     let c = &camera.config;
     let mut h = String::new();
     let _ = write!(
@@ -275,7 +277,7 @@ fn report_html(s: &DemoSummary, camera: &Camera, ramp: &RampParams, flat: &Flatt
         ("offsets.png", "Cumulative offset of the LUT from a perfect ADC, and the true offsets aligned to it (best-fit offset and gain of the difference removed). The paper's Fig. 3, bottom row: cumulative offsets of about 1 DN."),
         ("correction_error.png", "Error of the raw code and of the LUT value against the true code centers."),
     ] {
-        let _ = write!(h, "<figure><img src=\"{img}\" width=\"1000\" alt=\"{caption}\"><figcaption>{caption}</figcaption></figure>");
+        h += &figure(img, 1000, caption);
     }
     let (q, k, l) = (&s.quantization, &s.kcor.result, &s.linearity.report);
     let _ = write!(
@@ -283,15 +285,15 @@ fn report_html(s: &DemoSummary, camera: &Camera, ramp: &RampParams, flat: &Flatt
         "<h2>The paper's other analyses</h2><p>Each is a command of its own; <code>docs/paper.md</code> compares every number with the paper.</p>\
          <h3>Quantization (section 2, Fig. 1): <code>dncal quantization</code></h3><p>At this camera's read noise, {:.3} DN, the worst-case bias of an averaged readout \
          is {:.2e} DN. A bias of 0.01 DN or less needs {:.3} DN of noise.</p>\
-         <figure><img src=\"quantization.png\" width=\"900\" alt=\"|bias| over lambda mod 1 and noise, contours at 1e-1 to 1e-4 DN.\"><figcaption>|bias| over lambda mod 1 and noise, contours at 1e-1 to 1e-4 DN; grey: below 1e-6 of the largest bias. The paper's Fig. 1 is this map.</figcaption></figure>\
+         {fig_quantization}\
          <h3>K-Coronagraph model (section 4, Figs. 4-5): <code>dncal kcor-model</code></h3><p>ADC {}, {} ms frames ({:.3e} e-/s per B_sun per pixel): the largest systematic error \
          in Q is {:.2e} B_sun raw and {:.2e} B_sun with a LUT from the true widths with {}% noise per code: raw / LUT = {:.1} (the paper: about 10; the table at the top gives the cause, measured in this run).</p>\
-         <figure><img src=\"kcor_raw.png\" width=\"900\" alt=\"Raw ADC.\"><figcaption>Raw ADC. The paper's Fig. 4: the 4th ADC of the K-Cor camera, errors of several times 1e-9 B_sun. One color scale for both maps; grey: zero or below the scale (a millionth of the largest error), white: outside the model (|Q| &gt; I).</figcaption></figure><figure><img src=\"kcor_lut.png\" width=\"900\" alt=\"With the LUT.\"><figcaption>With the LUT (true widths with 1% noise per code). The paper's Fig. 5: the error about ten times lower; here it is not (the table at the top says why).</figcaption></figure>\
+         {fig_kcor_raw}{fig_kcor_lut}\
          <h3>Pixel-wise nonlinearity (section 5, Figs. 6-8): <code>dncal linearity</code></h3><p>{} pixels x {} levels, {} masked. Largest RMS residual over the levels: raw {:.2e}, \
          standard correction {:.2e}, pixel-wise 4th order {:.2e}, random noise {:.2e}. Coefficients and mask: <a href=\"linearity/coefficients.fits\">coefficients.fits</a>.</p>\
-         <figure><img src=\"linearity/flat_image.png\" width=\"800\" alt=\"Fig. 6: the flat, raw, scaled +-10% of full scale around its median.\"><figcaption>Fig. 6: the flat, raw, scaled +-10% of full scale around its median.</figcaption></figure>\
-         <figure><img src=\"linearity/pixels_levels.png\" width=\"1000\" alt=\"Fig. 7: 100 pixels of the middle row at every level, raw, standard and pixel-wise.\"><figcaption>Fig. 7: 100 pixels of the middle row at every level, raw, standard and pixel-wise.</figcaption></figure>\
-         <figure><img src=\"linearity/linearity_rms.png\" width=\"1000\" alt=\"Fig. 8: RMS residual per level (solid) and the random noise propagated through each correction (dashed).\"><figcaption>Fig. 8: RMS residual per level (solid) and the random noise propagated through each correction (dashed).</figcaption></figure>",
+         {fig_flat_image}\
+         {fig_pixels_levels}\
+         {fig_linearity_rms}",
         q.sigma,
         q.max_abs_bias_dn,
         crate::quantization::sigma_for_bias(0.01).unwrap_or(f64::NAN),
@@ -308,7 +310,13 @@ fn report_html(s: &DemoSummary, camera: &Camera, ramp: &RampParams, flat: &Flatt
         l.rms_raw_max,
         l.rms_standard_max,
         l.rms_pixelwise_max,
-        l.rms_random_max
+        l.rms_random_max,
+        fig_quantization = figure("quantization.png", 900, "|bias| over lambda mod 1 and noise, contours at 1e-1 to 1e-4 DN; grey: below 1e-6 of the largest bias. The paper's Fig. 1 is this map."),
+        fig_kcor_raw = figure("kcor_raw.png", 900, "Raw ADC. The paper's Fig. 4: the 4th ADC of the K-Cor camera, errors of several times 1e-9 B_sun. One color scale for both maps; grey: zero or below the scale (a millionth of the largest error), white: outside the model (|Q| > I)."),
+        fig_kcor_lut = figure("kcor_lut.png", 900, "With the LUT (true widths with 1% noise per code). The paper's Fig. 5: the error about ten times lower; here it is not (the table at the top says why)."),
+        fig_flat_image = figure("linearity/flat_image.png", 800, "Fig. 6: the flat, raw, scaled +-10% of full scale around its median."),
+        fig_pixels_levels = figure("linearity/pixels_levels.png", 1000, "Fig. 7: 100 pixels of the middle row at every level, raw, standard and pixel-wise."),
+        fig_linearity_rms = figure("linearity/linearity_rms.png", 1000, "Fig. 8: RMS residual per level (solid) and the random noise propagated through each correction (dashed)."),
     );
     for (what, d, dir) in [("the calibration histograms", &s.diagnose, "diagnose"), ("the linearity set", &s.diagnose_linearity, "diagnose-linearity")] {
         let dg = &d.diagnosis;

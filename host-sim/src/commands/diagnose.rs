@@ -8,7 +8,7 @@ use serde::Serialize;
 
 use crate::diagnose::{diagnose_code_density, diagnose_histograms, diagnose_linearity, diagnose_ptc, Diagnosis, Finding};
 use crate::fits::{read_histograms_for_analysis, read_linearity_as};
-use crate::outputs::{OutDir, Outputs};
+use crate::outputs::{html_figure, OutDir, Outputs};
 use crate::flatten::FlattenParams;
 use crate::plots::{line_plot, Series};
 use crate::HostError;
@@ -323,9 +323,12 @@ fn report(input: &Path, diagnosis: Diagnosis, model: Option<crate::camera::Camer
             crate::outputs::html_path(input),
         );
         // Finding figures are numbered 1, 2, ... in the order of the table, which links them.
-        let mut figure_of = Vec::with_capacity(diagnosis.findings.len());
+        let (mut figure_of, mut figures) = (Vec::with_capacity(diagnosis.findings.len()), 0);
         for f in &diagnosis.findings {
-            let number = f.residuals.is_some().then(|| figure_of.iter().flatten().count() + 1);
+            let number = f.residuals.is_some().then(|| {
+                figures += 1;
+                figures
+            });
             figure_of.push(number);
             let link = number.map_or("-".to_string(), |k| format!("<a href=\"#figure-{k}\">{k}</a>"));
             let _ = write!(h, "<tr><td>{}</td><td>{}</td><td>{:.1}</td><td>{:.3}</td><td>{:.3}</td><td>{:.2}</td><td>{link}</td><td>{}</td></tr>", f.effect, f.adc.map_or("-".into(), |a| a.to_string()), f.significance, f.rms_before, f.rms_after, f.gain, crate::outputs::html_escape(&f.detail));
@@ -346,17 +349,17 @@ fn report(input: &Path, diagnosis: Diagnosis, model: Option<crate::camera::Camer
             // An ADC's code widths are seen by code, except in a linearity set (by level).
             let axis = if f.effect == "adc-dnl" && diagnosis.baseline.kind != "linearity-set" { "code (DN)" } else { x_label };
             line_plot(files, &dir.join(&name), &format!("{what}: held-out residuals / noise, before and after (gain {:.2})", f.gain), axis, "normalized residual", &series, 1)?;
-            let _ = write!(h, "<h2 id=\"figure-{k}\">Figure {k}: {what}</h2><p>{}</p><figure><img src=\"{name}\" width=\"1000\" alt=\"{what}: held-out residuals before and after\"></figure>", crate::outputs::html_escape(&f.detail));
+            let _ = write!(h, "<h2 id=\"figure-{k}\">Figure {k}: {what}</h2><p>{}</p>{}", crate::outputs::html_escape(&f.detail), html_figure(&name, 1000, &format!("{what}: held-out residuals before and after"), None));
             outputs.push(dir.join(name));
         }
         // The remainder last: what the baseline left, and what the findings leave unexplained.
         let _ = write!(
             h,
-            "<h2>Remainder</h2><p>Baseline: {}. Held-out RMS of the normalized residual over all the data: {:.3} before the findings, <b>{:.3} unexplained</b> after all of them (1 is noise).</p>\
-             <figure><img src=\"residuals.png\" width=\"1000\" alt=\"Held-out residuals over noise, baseline and with the findings\"></figure>",
+            "<h2>Remainder</h2><p>Baseline: {}. Held-out RMS of the normalized residual over all the data: {:.3} before the findings, <b>{:.3} unexplained</b> after all of them (1 is noise).</p>{}",
             crate::outputs::html_escape(&diagnosis.baseline.model),
             diagnosis.baseline.rms,
-            diagnosis.unexplained_rms
+            diagnosis.unexplained_rms,
+            html_figure("residuals.png", 1000, "Held-out residuals over noise, baseline and with the findings", None)
         );
         h += "</body></html>";
         if let Some(r) = &diagnosis.code_residuals {
@@ -366,7 +369,7 @@ fn report(input: &Path, diagnosis: Diagnosis, model: Option<crate::camera::Camer
                 Series { label: "with the findings".into(), points: r.extended.iter().map(|&(k, z)| (k as f64, z)).collect() },
             ];
             line_plot(files, &codes_fig, "Code density of the frames: held-out residuals / expected noise", "code (DN)", "normalized residual", &series, 1)?;
-            h = h.replace("</body></html>", "<h2>Code density of the frames</h2><figure><img src=\"codes.png\" width=\"1000\" alt=\"Code density of the frames\"></figure></body></html>");
+            h = h.replace("</body></html>", &format!("<h2>Code density of the frames</h2>{}</body></html>", html_figure("codes.png", 1000, "Code density of the frames", None)));
             outputs.push(codes_fig);
         }
         files.write_bytes(&html_path, &h)?;

@@ -7,10 +7,9 @@
 use std::path::{Path, PathBuf};
 
 use super::{Datasheet, Release};
-use crate::outputs::{html_escape as esc, html_path, Outputs};
+use crate::outputs::{html_escape as esc, html_figure, html_path, Outputs};
 use crate::plots::{line_plot, Series};
 use crate::HostError;
-
 
 /// One datasheet row: value with unit, or the reason it has none.
 fn row(sheet: &Datasheet, name: &str, key: &str, value: Option<f64>, unit: &str, digits: usize) -> String {
@@ -189,7 +188,7 @@ pub fn write_datasheet(dir: &Path, descriptor: &Path, sheet: &Datasheet) -> Resu
         ("defect_histograms.png", "Defect-pixel histograms"),
     ] {
         if files.iter().any(|f| f.ends_with(file)) {
-            html += &format!("<h2>{caption}</h2><figure><img src=\"{file}\" width=\"1000\" alt=\"{caption}\"></figure>");
+            html += &format!("<h2>{caption}</h2>{}", html_figure(file, 1000, caption, None));
         }
     }
     html += "</body></html>\n";

@@ -2,7 +2,7 @@
 //!
 //! The inversion runs for every pixel and level (43 M times on a 1024 x 1024 x 41 set).
 //! Newton's iteration is a chain of dependent multiply-adds and a division, about 35
-//! cycles a step, so one pixel at a time the processor waits on latency. [`invert_lanes`]
+//! cycles a step, so one pixel at a time the processor waits on latency. [`invert_all`]
 //! runs [`LANES`] pixels' iterations side by side, each lane doing exactly the steps
 //! [`invert`] does (same operations in the same order, stopping at the same step), so
 //! the results are bit for bit those of [`invert`]; lanes that leave the fast path (a
@@ -30,13 +30,8 @@ const STEP_TOLERANCE: f64 = 1e-9;
 /// `x` with `P(x) = m`: Newton from `guess`, then bisection on [-0.5, 2] if Newton fails;
 /// NaN when `P - m` does not change sign there.
 pub fn invert(a: &[f64], m: f64, guess: f64) -> f64 {
-    finish(a, m, guess, NEWTON_STEPS)
-}
-
-/// [`invert`] from the point `x` its Newton iteration has reached with `steps` steps
-/// left (0: it broke off at a zero or non-finite slope).
-fn finish(a: &[f64], m: f64, mut x: f64, steps: usize) -> f64 {
-    for _ in 0..steps {
+    let mut x = guess;
+    for _ in 0..NEWTON_STEPS {
         // Value and slope in one Horner pass (the slope by synthetic division).
         let (mut f, mut d) = (0.0, 0.0);
         for &c in a.iter().rev() {
@@ -94,6 +89,8 @@ pub const LANES: usize = 8;
 /// Where a lane's Newton iteration stands after a round.
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Lane {
+    /// No polynomial in this lane (a skipped pixel, or past the end of a short batch).
+    Idle,
     Converged,
     /// A zero or non-finite slope: [`invert`] breaks out of Newton here.
     BrokeOff,
@@ -103,7 +100,7 @@ enum Lane {
 
 /// Up to `steps` Newton steps of [`invert`] in every lane of `x` that is `Running`, lane
 /// `i` on `sum_k a[k][i] x^k = m[i]`; the same operations in the same order as
-/// [`finish`], branch-free per lane (the compiler turns the selects into blends).
+/// [`invert`]'s loop, branch-free per lane (the compiler turns the selects into blends).
 fn newton_lanes(a: &[[f64; LANES]], m: &[f64; LANES], x: &mut [f64; LANES], state: &mut [Lane; LANES], steps: usize) {
     let mut done = state.map(|s| s != Lane::Running);
     let mut broke = [false; LANES];
@@ -142,8 +139,12 @@ fn newton_lanes(a: &[[f64; LANES]], m: &[f64; LANES], x: &mut [f64; LANES], stat
 pub fn invert_all(out: &mut [f64], k1: usize, guess: f64, coef: impl Fn(usize, usize) -> f64, m: impl Fn(usize) -> f64, skip: impl Fn(usize) -> bool) {
     let mut batch = Batch { a: vec![[0.0; LANES]; k1], coef, m, skip, aside: Vec::with_capacity(2 * LANES) };
     for first in (0..out.len()).step_by(LANES) {
-        let js: Vec<usize> = (first..(first + LANES).min(out.len())).collect();
-        batch.round(out, &js, [guess; LANES], FIRST_ROUND);
+        let mut js = [0; LANES];
+        let n = LANES.min(out.len() - first);
+        for (i, j) in js[..n].iter_mut().enumerate() {
+            *j = first + i;
+        }
+        batch.round(out, &js[..n], [guess; LANES], FIRST_ROUND);
         if batch.aside.len() >= LANES {
             batch.second_round(out);
         }
@@ -167,7 +168,7 @@ impl<C: Fn(usize, usize) -> f64, M: Fn(usize) -> f64, S: Fn(usize) -> bool> Batc
     /// Polynomials `js` (at most [`LANES`]) from `x`, `steps` Newton steps side by side;
     /// each result into `out`, or set aside when the first round leaves it running.
     fn round(&mut self, out: &mut [f64], js: &[usize], mut x: [f64; LANES], steps: usize) {
-        let (mut ms, mut state) = ([0.0; LANES], [Lane::Converged; LANES]);
+        let (mut ms, mut state) = ([0.0; LANES], [Lane::Idle; LANES]);
         for (i, &j) in js.iter().enumerate() {
             out[j] = f64::NAN;
             if (self.skip)(j) {
@@ -181,8 +182,8 @@ impl<C: Fn(usize, usize) -> f64, M: Fn(usize) -> f64, S: Fn(usize) -> bool> Batc
         newton_lanes(&self.a, &ms, &mut x, &mut state, steps);
         for (i, &j) in js.iter().enumerate() {
             match state[i] {
-                Lane::Converged if !(self.skip)(j) => out[j] = x[i],
-                Lane::Converged => {}
+                Lane::Idle => {}
+                Lane::Converged => out[j] = x[i],
                 Lane::Running if steps == FIRST_ROUND => self.aside.push((j, x[i])),
                 // Broke off, or out of all of `invert`'s steps: its checks and bisection.
                 Lane::BrokeOff | Lane::Running => {
@@ -196,12 +197,11 @@ impl<C: Fn(usize, usize) -> f64, M: Fn(usize) -> f64, S: Fn(usize) -> bool> Batc
     /// Up to [`LANES`] of the lanes set aside, through the rest of `invert`'s steps.
     fn second_round(&mut self, out: &mut [f64]) {
         let n = LANES.min(self.aside.len());
-        let (mut js, mut x) = (Vec::with_capacity(n), [0.0; LANES]);
+        let (mut js, mut x) = ([0; LANES], [0.0; LANES]);
         for (i, (j, xj)) in self.aside.drain(..n).enumerate() {
-            js.push(j);
-            x[i] = xj;
+            (js[i], x[i]) = (j, xj);
         }
-        self.round(out, &js, x, NEWTON_STEPS - FIRST_ROUND);
+        self.round(out, &js[..n], x, NEWTON_STEPS - FIRST_ROUND);
     }
 }
 

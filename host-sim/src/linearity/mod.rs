@@ -42,7 +42,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::fits::{LinearitySet, Sample};
-use crate::stats::{median, rms_finite};
+use crate::stats::{median, rms_finite, RmsSum};
 
 mod inverse;
 pub use inverse::invert;
@@ -274,27 +274,6 @@ pub fn example_row(set: &LinearitySet, report: &LinearityReport, px: &PixelResul
     }
 }
 
-/// Sum of squares of the finite values pushed: [`rms_finite`] one value at a time (the
-/// same sum in the same order).
-#[derive(Debug, Clone, Copy, Default)]
-struct RmsSum {
-    sum: f64,
-    n: usize,
-}
-
-impl RmsSum {
-    fn add(&mut self, v: f64) {
-        if v.is_finite() {
-            self.sum += v * v;
-            self.n += 1;
-        }
-    }
-
-    fn rms(self) -> f64 {
-        if self.n == 0 { f64::NAN } else { (self.sum / self.n as f64).sqrt() }
-    }
-}
-
 /// One correction's terms at a pixel's dark and flat, for the dark and gain correction
 /// `c = (y_l - y_0) / (y_g - y_0)` of what it makes of the pixel's means (`y`) and the
 /// propagation of the frames' noise through it. Held once per pixel for all levels,
@@ -469,13 +448,13 @@ pub fn analyze_unsaturated(set: &LinearitySet, order: usize, flat: Option<usize>
     let gpinv = pseudo_inverse(&usable.iter().map(|&l| med_levels[l] / top).collect::<Vec<_>>(), GLOBAL_ORDER);
     let global: Vec<f64> = (&gpinv * DVector::from_iterator(usable.len(), usable.iter().map(|&l| x[l]))).iter().copied().collect();
     let inversion = Inversion { coef: &coef, k1, mask: &mask, mean: &set.mean[..], np };
-    // Each correction as `(y, y')`, what it makes of a mean and its slope, at the dark and
-    // at the flat: the terms of every level's dark and gain correction, once per pixel.
+    // The pixel-wise correction at the dark and at the flat, used at every level.
     let (xh0, xhg) = (inversion.level(0, x[0]), inversion.level(g, x[g]));
     let nf = f64::from(set.n_frames.max(1)).sqrt();
     let (inv_nf, inv_top) = (1.0 / nf, 1.0 / top);
     let f = |v: f64| poly(&global, v * inv_top);
-    // Each correction as `(y, y')`, what it makes of a mean and its slope.
+    // Each correction as `(y, y')`, what it makes of a mean and its slope; their terms at
+    // the dark and the flat ([`Ends`]) once per pixel for all levels.
     let identity = |l: usize, p: usize, _: f64| (m(l, p), 1.0);
     let standard = |l: usize, p: usize, _: f64| (f(m(l, p)), poly_slope(&global, m(l, p) * inv_top) * inv_top);
     let pixelwise = |_: usize, p: usize, xh: f64| (xh, 1.0 / poly_slope(fit(p), xh));
