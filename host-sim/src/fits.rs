@@ -169,6 +169,7 @@ pub fn stage_histograms(out: &mut Outputs, path: &Path, hist: &AdcHistograms) ->
     out.write(path, |tmp| {
         let mut fits = FitsWriter::create(tmp, path, ImageType::LongLong, &[hist.n_adc(), codes])?;
         fits.adc_keys(hist.bit_depth, hist.n_adc())?;
+        fits.key("BUNIT", ("count", "samples per code"))?;
         fits.image(&flat)?;
         fits.finish()
     })
@@ -245,14 +246,16 @@ pub fn stage_pixel_correction(out: &mut Outputs, path: &Path, c: &PixelCorrectio
     })
 }
 
-/// Stages a float64 cube of `levels` images (`NAXIS3 = levels`) with `BUNIT`.
-pub fn stage_cube(out: &mut Outputs, path: &Path, data: &[f64], levels: usize, width: usize, height: usize, bunit: &str) -> Result<(), HostError> {
+/// Stages a float64 cube of `levels` images (`NAXIS3 = levels`) with `BUNIT` `unit` (a
+/// unit astropy parses: `DN`, `count`, or empty for a dimensionless quantity, which the
+/// comment then names).
+pub fn stage_cube(out: &mut Outputs, path: &Path, data: &[f64], levels: usize, width: usize, height: usize, (unit, comment): (&str, &str)) -> Result<(), HostError> {
     if data.len() != levels * width * height {
         return Err(format_error(path, "cube does not match its shape"));
     }
     out.write(path, |tmp| {
         let mut fits = FitsWriter::create(tmp, path, ImageType::Double, &[levels, height, width])?;
-        fits.key("BUNIT", (bunit.to_string(), "per level"))?;
+        fits.key("BUNIT", (unit.to_string(), comment.to_string()))?;
         fits.image(data)?;
         fits.finish()
     })

@@ -1003,12 +1003,13 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
                     t += "  no finding: the baseline explains the data\n";
                 }
                 for f in &d.findings {
-                    t += &format!("  {}{}: significance {:.1}, RMS {:.3} -> {:.3} (gain {:.2}); {}\n", f.effect, f.adc.map_or(String::new(), |a| format!(" (ADC {a})")), f.significance, f.rms_before, f.rms_after, f.gain, f.detail);
+                    let all = f.all_data_rms_after.map_or(String::new(), |r| format!("all data -> {r:.3}; "));
+                    t += &format!("  {}{}: significance {:.1}, {all}its test RMS {:.3} -> {:.3} (gain {:.2}); {}\n", f.effect, f.adc.map_or(String::new(), |a| format!(" (ADC {a})")), f.significance, f.rms_before, f.rms_after, f.gain, f.detail);
                 }
                 for note in &d.not_tested {
                     t += &format!("  not tested: {note}\n");
                 }
-                t += &format!("  unexplained RMS {:.3}\n", d.unexplained_rms);
+                t += &format!("  all data: RMS {:.3} unexplained (baseline {:.3})\n", d.unexplained_rms, d.baseline.rms);
                 t
             };
             if several {

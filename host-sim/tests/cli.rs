@@ -617,6 +617,18 @@ fn diagnose_names_dnl_in_simulated_histograms_and_nothing_in_ideal_ones() {
     assert_eq!(adcs, vec![0, 1, 2, 3], "every simulated ADC has DN error");
     assert!((s["unexplained_rms"].as_f64().unwrap() - 1.0).abs() < 0.1);
     assert!(d.join("rep/report.html").exists() && d.join("rep/residuals.png").exists());
+    // One scale for all: from the baseline, each ADC's widths lower the RMS over all the
+    // codes of all ADCs, down to what is left unexplained; the page's table says it so,
+    // baseline first and the remainder last.
+    let mut steps = vec![s["baseline"]["rms"].as_f64().unwrap()];
+    steps.extend(s["findings"].as_array().unwrap().iter().map(|f| f["all_data_rms_after"].as_f64().unwrap()));
+    assert!(steps.windows(2).all(|w| w[1] < w[0]), "{steps:?}");
+    assert!((steps[4] - s["unexplained_rms"].as_f64().unwrap()).abs() < 1e-12, "{steps:?}");
+    let page = std::fs::read_to_string(d.join("rep/report.html")).unwrap();
+    let row = |label: &str, rms: f64| format!("<tr><td>{label}</td><td>-</td><td>-</td><td>{rms:.3}</td>");
+    let (first, last) = (page.find(&row("baseline", steps[0])), page.find(&row("<b>left unexplained</b>", steps[4]).replace(&format!("<td>{:.3}</td>", steps[4]), &format!("<td><b>{:.3}</b></td>", steps[4]))));
+    let findings: Vec<usize> = (1..=4).map(|k| page.find(&format!("<td>{:.3}</td>", steps[k])).unwrap_or_else(|| panic!("all-data RMS {} of finding {k} not on the page", steps[k]))).collect();
+    assert!(first.is_some_and(|f| findings.iter().all(|&x| x > f)) && last.is_some_and(|l| findings.iter().all(|&x| x < l)), "baseline row at {first:?}, findings at {findings:?}, remainder row at {last:?}");
     // Close the loop: simulating from the extended model and diagnosing the result names
     // nothing new (the same DNL, on the same ADCs, and no unexplained remainder).
     let again = dncal(&["simulate", "histograms", "--model", "rep/model.toml", "-o", "again.fits", "--first-ramp", "60", "--last-ramp", "61"], d);

@@ -377,3 +377,46 @@ fn astropy_reads_the_parameters_a_file_was_made_with() {
     // A global flag given once is recorded once.
     assert_eq!(parameters.matches("quiet=true").count(), 1, "{parameters}");
 }
+
+/// Every `BUNIT` the commands write is a unit astropy parses (its generic format, which
+/// `CCDData` and `Quantity` use: `DN` is not in the FITS standard's list, `adu` is, but DN
+/// is what camera users read and astropy knows it), and the one each quantity has: counts
+/// per code, DN for means, deviations and coefficients, dimensionless for a cube
+/// normalized to the reference. A LUT carries none: its entries are in `2^-FRACBITS` DN,
+/// which `FRACBITS` says.
+#[test]
+fn every_bunit_written_is_the_quantitys_unit_for_astropy() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = |args: &[&str]| {
+        let out = Command::new(env!("CARGO_BIN_EXE_dncal")).args(args).arg("-q").current_dir(dir.path()).output().unwrap();
+        assert!(out.status.success(), "{args:?}: {}", String::from_utf8_lossy(&out.stderr));
+    };
+    run(&["simulate", "linearity", "--roi", "16x16+0+0", "--frames", "4", "-o", "lin.fits"]);
+    run(&["linearity", "lin.fits", "-o", "corr"]);
+    write_histograms(&dir.path().join("h.fits"), &AdcHistograms { bit_depth: 3, counts: vec![vec![5; 8]; 2] }).unwrap();
+    const UNITS: &str = r#"
+import json, sys
+import astropy.units as u
+from astropy.io import fits
+out = {}
+for path in sys.argv[1:]:
+    with fits.open(path) as hdul:
+        for hdu in hdul:
+            if "BUNIT" in hdu.header:
+                unit = u.Unit(hdu.header["BUNIT"])
+                out[path.split("/")[-1] + ":" + hdu.name] = "dimensionless" if unit == u.dimensionless_unscaled else unit.to_string()
+print(json.dumps(out))
+"#;
+    let files = ["lin.fits", "corr/coefficients.fits", "corr/corrected.fits", "h.fits"].map(|f| dir.path().join(f));
+    let py = Command::new("python3").arg("-c").arg(UNITS).args(&files).output().expect("python3 with astropy");
+    assert!(py.status.success(), "{}", String::from_utf8_lossy(&py.stderr));
+    let got: Value = serde_json::from_slice(&py.stdout).unwrap();
+    let want = serde_json::json!({
+        "lin.fits:PRIMARY": "DN",
+        "lin.fits:STD": "DN",
+        "coefficients.fits:PRIMARY": "DN",
+        "corrected.fits:PRIMARY": "dimensionless",
+        "h.fits:PRIMARY": "ct",
+    });
+    assert_eq!(got, want);
+}

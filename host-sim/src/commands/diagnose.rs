@@ -303,7 +303,10 @@ pub fn diagnose_as(read_from: &Path, input: &Path, flatten: &FlattenParams, seed
 }
 
 /// Stages the report of `diagnosis` (and the extended `model`, if any) in `out`.
-fn report(input: &Path, diagnosis: Diagnosis, model: Option<crate::camera::CameraConfig>, out: Option<OutDir<'_>>, (x_label, base_label): (&str, &str)) -> Result<DiagnoseSummary, HostError> {
+fn report(input: &Path, mut diagnosis: Diagnosis, model: Option<crate::camera::CameraConfig>, out: Option<OutDir<'_>>, (x_label, base_label): (&str, &str)) -> Result<DiagnoseSummary, HostError> {
+    // What the model leaves is listed after what it found (stable: the findings keep the
+    // order they entered the model in).
+    diagnosis.findings.sort_by_key(|f| f.effect == "unexplained");
     let mut outputs = Vec::new();
     if let Some(OutDir { files, dir }) = out {
         let n = diagnosis.residuals.len();
@@ -317,10 +320,16 @@ fn report(input: &Path, diagnosis: Diagnosis, model: Option<crate::camera::Camer
         let html_path = dir.join("report.html");
         let mut h = format!(
             "<!doctype html><html><head><meta charset=\"utf-8\"><title>dncal diagnose</title><style>body{{font-family:sans-serif;max-width:1050px;margin:2em auto}}td,th{{padding:2px 10px}}</style></head><body><h1>dncal diagnose: {}</h1>\
-             <h2>Findings</h2><p>Each effect the baseline model lacks, in the order they were added; significance in standard deviations of the drop of the held-out mean squared residual; \
-             RMS of the normalized residual (1 is noise) on the held-out data the finding is tested on, before and after adding it. The remainder is at the end.</p>\
-             <table><tr><th>effect</th><th>ADC</th><th>significance</th><th>RMS before</th><th>after</th><th>gain</th><th>figure</th><th>evidence</th></tr>",
+             <h2>Findings</h2><p>Each effect the baseline model lacks, in the order they entered the model; significance in standard deviations of the drop of the held-out mean squared residual. \
+             RMS of the normalized residual (1 is noise) on two scales: <b>all data</b>, over every held-out point the baseline is scored on, from the baseline (first row) through the model with each finding and those above it to what is left unexplained (last row); \
+             and <b>its test</b>, on the held-out data each finding is tested on, before and after adding it (their ratio is the gain). \
+             A dash on the all-data scale: the finding is tested on other data (maps of dark and gain, flagged pixels, the frames' code density, the dark noise) and leaves those residuals as they were, or names what the model leaves.</p>\
+             <table><tr><th rowspan=\"2\">effect</th><th rowspan=\"2\">ADC</th><th rowspan=\"2\">significance</th><th>all data</th><th colspan=\"3\">its test</th><th rowspan=\"2\">figure</th><th rowspan=\"2\">evidence</th></tr>\
+             <tr><th>RMS after</th><th>RMS before</th><th>after</th><th>gain</th></tr>\
+             <tr><td>baseline</td><td>-</td><td>-</td><td>{:.3}</td><td>-</td><td>-</td><td>-</td><td>-</td><td>{}</td></tr>",
             crate::outputs::html_path(input),
+            diagnosis.baseline.rms,
+            crate::outputs::html_escape(&diagnosis.baseline.model),
         );
         // Finding figures are numbered 1, 2, ... in the order of the table, which links them.
         let (mut figure_of, mut figures) = (Vec::with_capacity(diagnosis.findings.len()), 0);
@@ -331,12 +340,13 @@ fn report(input: &Path, diagnosis: Diagnosis, model: Option<crate::camera::Camer
             });
             figure_of.push(number);
             let link = number.map_or("-".to_string(), |k| format!("<a href=\"#figure-{k}\">{k}</a>"));
-            let _ = write!(h, "<tr><td>{}</td><td>{}</td><td>{:.1}</td><td>{:.3}</td><td>{:.3}</td><td>{:.2}</td><td>{link}</td><td>{}</td></tr>", f.effect, f.adc.map_or("-".into(), |a| a.to_string()), f.significance, f.rms_before, f.rms_after, f.gain, crate::outputs::html_escape(&f.detail));
+            let all = f.all_data_rms_after.map_or("-".to_string(), |r| format!("{r:.3}"));
+            let _ = write!(h, "<tr><td>{}</td><td>{}</td><td>{:.1}</td><td>{all}</td><td>{:.3}</td><td>{:.3}</td><td>{:.2}</td><td>{link}</td><td>{}</td></tr>", f.effect, f.adc.map_or("-".into(), |a| a.to_string()), f.significance, f.rms_before, f.rms_after, f.gain, crate::outputs::html_escape(&f.detail));
         }
         if diagnosis.findings.is_empty() {
-            h += "<tr><td colspan=\"8\">none: the baseline explains the data to within what the tests resolve</td></tr>";
+            h += "<tr><td colspan=\"9\">no finding: the baseline explains the data to within what the tests resolve</td></tr>";
         }
-        h += "</table>";
+        let _ = write!(h, "<tr><td><b>left unexplained</b></td><td>-</td><td>-</td><td><b>{:.3}</b></td><td>-</td><td>-</td><td>-</td><td>-</td><td>the extended model's held-out residual over all the data</td></tr></table>", diagnosis.unexplained_rms);
         // One figure per finding: the held-out residuals just before and just after it.
         for (f, number) in diagnosis.findings.iter().zip(&figure_of) {
             let (Some(r), Some(k)) = (&f.residuals, number) else { continue };

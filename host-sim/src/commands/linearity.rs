@@ -76,7 +76,7 @@ pub fn linearity_as(read_from: &Path, input: &Path, order: usize, flat: Option<u
         let pc = PixelCorrection { coeffs: &px.coeffs, mask: &px.mask, width: set.width, height: set.height, order, bit_depth: set.bit_depth, n_adc: set.n_adc };
         stage_pixel_correction(files, &c, &pc)?;
         let k = dir.join("corrected.fits");
-        stage_cube(files, &k, &px.corrected, set.levels, set.width, set.height, "normalized intensity")?;
+        stage_cube(files, &k, &px.corrected, set.levels, set.width, set.height, ("", "dimensionless: intensity normalized to the reference"))?;
         let fig = dir.join("linearity_rms.png");
         let series = |label: &str, v: &[f64]| Series {
             label: label.into(),

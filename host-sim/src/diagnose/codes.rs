@@ -204,6 +204,8 @@ pub fn diagnose_code_density(a: &[u64], b: &[u64], adc: usize) -> Result<(Vec<Fi
             rms_before: m0.sqrt(),
             rms_after: m1.sqrt(),
             gain: (m0 / m1).sqrt(),
+            // The frames' code density, not the photon-transfer levels of the baseline.
+            all_data_rms_after: None,
             detail: format!(
                 "code density of all frames: widths differ from uniform by {:.2}% rms ({:.2}% the pattern by code mod {strongest}, {:.2}% code to code beyond it; the counts' Poisson noise taken out) over {} codes inside the illuminated peaks (fitted on the frames of alternate levels, scored on the others'); strongest structure mod {} (chi^2 {:.1} per class), mean widths by code mod {strongest}: {}",
                 100.0 * width_rms,

@@ -75,6 +75,7 @@ pub fn diagnose_defects(set: &EmvaSet) -> Result<DefectOutcome, HostError> {
         rms_before: before.sqrt(),
         rms_after: after.sqrt(),
         gain: (before / after.max(1e-300)).sqrt(),
+        all_data_rms_after: None,
         detail: format!(
             "{count} defect pixels flagged alike on both halves of the spatial series ({half} + {half} frames): {} hot, {} dead, {} high PRNU (dncal's criteria, docs/emva.md); flagged on one half only: {}",
             by(HOT),

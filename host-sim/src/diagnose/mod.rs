@@ -87,6 +87,16 @@ pub struct Finding {
     pub rms_after: f64,
     /// `rms_before / rms_after`.
     pub gain: f64,
+    /// Held-out RMS of the normalized residual over *all* the data the baseline is scored
+    /// on ([`Baseline::rms`]'s scale, ending at [`Diagnosis::unexplained_rms`]) once this
+    /// finding and the model steps before it are in the model: the one scale on which
+    /// findings tested on different subsets compare. Findings that enter the model in
+    /// one step (the parts of a linearity set's level term) share its value. `None` where
+    /// the finding is tested on other data than those residuals (maps of dark and gain,
+    /// flagged pixels, the frames' code density, the dark noise) or is what remains
+    /// (`unexplained`): it leaves that scale as it was.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub all_data_rms_after: Option<f64>,
     /// The evidence in words.
     pub detail: String,
     /// Held-out residuals just before and just after this extension (for its figure).
@@ -164,6 +174,7 @@ pub(crate) fn insufficient_noise(what: &str, sigma_dn: f64, accuracy_dn: f64) ->
         rms_before: worst,
         rms_after: worst,
         gain: 1.0,
+        all_data_rms_after: None,
         detail: format!("{what} {sigma_dn:.3} DN leaves a worst-case averaging bias of {worst:.2e} DN, above {accuracy_dn} DN"),
     })
 }
@@ -186,6 +197,7 @@ pub(crate) fn unexplained_by_residue(adc: usize, codes: &[usize], z: &[f64], pre
             rms_before: mf.sqrt(),
             rms_after: mf.sqrt(),
             gain: 1.0,
+            all_data_rms_after: None,
             detail: format!("{prefix}held-out residual {:.3} rms where 1 is noise; strongest residue structure mod {} (chi^2 {:.1} per class)", mf.sqrt(), st[0].modulus, st[0].chi2_per_class),
         }
     })

@@ -192,6 +192,8 @@ pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Res
             rms_before: m_s.sqrt(),
             rms_after: m_r.sqrt(),
             gain: (m_s / m_r).sqrt(),
+            // Every finding here is scored on all the held-out levels: the baseline's data.
+            all_data_rms_after: Some(m_r.sqrt()),
             detail: format!(
                 "{what}; held-out levels move by up to {:.3} DN ({:.2e} of the signal) at {:.0} photons",
                 dz * sig[i],
@@ -246,7 +248,12 @@ pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Res
         let base_score = score(base).ok_or("the photon-transfer fit failed")?;
         let significance = significance(current, &base_score, &current_score);
         let what = format!("the response bends: x^2 .. x^{} in the photons (the degree the held-out levels favour)", current.degree);
-        findings.push(finding("global-nonlinearity", what, significance, &base_score, &current_score));
+        let mut f = finding("global-nonlinearity", what, significance, &base_score, &current_score);
+        // Listed before the low-signal term, the bend is on the all-data scale without it.
+        if low_named.is_some() {
+            f.all_data_rms_after = Some(plain_score.0.sqrt());
+        }
+        findings.push(f);
     }
     if let Some((s, significance)) = &low_named {
         findings.push(finding("low-signal-nonlinearity", "a departure confined to the lowest 10% of the range".into(), *significance, &plain_score, s));
@@ -271,6 +278,7 @@ pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Res
             rms_before: mcur.sqrt(),
             rms_after: mcur.sqrt(),
             gain: 1.0,
+            all_data_rms_after: None,
             detail: format!("held-out levels still scatter {:.1} times their noise (temporal plus frame-to-frame): a response the chosen shape does not follow, or level-to-level errors of the light calibration", mcur.sqrt()),
         });
     }

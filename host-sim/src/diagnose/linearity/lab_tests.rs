@@ -220,3 +220,31 @@ fn level_errors_leave_the_cameras_effects_visible() {
         assert_eq!(got, want, "{h:?}: {:#?}", d.findings);
     }
 }
+
+/// The all-data scale ([`Finding::all_data_rms_after`]) runs from the baseline to what is
+/// left: a planted effect the model then describes exactly brings the held-out RMS over
+/// all the data from far above to the closed form of a correct model (a 2-parameter fit
+/// per pixel scored on 21 held-out levels: `E z^2 = 1 + 2/21`, as for a clean set), and
+/// the model's last step is what is left unexplained.
+#[test]
+fn the_all_data_scale_runs_from_the_baseline_to_what_is_left() {
+    let correct = (1.0f64 + 2.0 / 21.0).sqrt();
+    let cases = [
+        (Hidden::GlobalNonlinearity { c2: 0.02 }, "global-nonlinearity", Some(correct)),
+        (Hidden::AdcCurvature { adc: 2, e: 0.01 }, "adc-mismatch 2", Some(correct)),
+        (Hidden::LevelErrors { rel_rms: 1e-3, offset_dn: 1.0 }, "level-errors", Some(correct)),
+        // Each pixel's own quartic: more parameters, no closed form; below the baseline.
+        (Hidden::PixelNonlinearity { rms: 0.005 }, "pixel-nonlinearity", None),
+    ];
+    for (seed, (h, name, expected)) in cases.into_iter().enumerate() {
+        let d = diagnose_linearity(&linearity_set(&Plant::default(), std::slice::from_ref(&h), 950 + seed as u64), 0.01).unwrap();
+        assert_eq!(names(&d), vec![name.to_string()], "{h:?}: {:#?}", d.findings);
+        let after = d.findings[0].all_data_rms_after.unwrap_or_else(|| panic!("{h:?}: no all-data RMS"));
+        assert!(d.baseline.rms > 1.2 * after, "{h:?}: baseline {} against {after} after", d.baseline.rms);
+        if let Some(e) = expected {
+            assert!((after - e).abs() < 0.02, "{h:?}: {after} after, a correct model gives {e}");
+        }
+        // (Level errors: with the smooth part of them that a shared curve takes.)
+        assert!((after - d.unexplained_rms).abs() < 1e-12 * after, "{h:?}: last step {after}, unexplained {}", d.unexplained_rms);
+    }
+}

@@ -82,7 +82,7 @@ mod pixel_fits;
 mod remainder;
 
 use super::levels::{wald, Block};
-use super::pixel_fit::{fit_and_score, Response};
+use super::pixel_fit::{fit_and_score, Response, Totals};
 use super::points::{Common, Pixels};
 use super::scores::{Cell, Scores};
 use super::*;
@@ -102,7 +102,7 @@ fn with_residuals(r: AdcResiduals, mut f: Finding) -> Finding {
 }
 
 fn finding(effect: &str, adc: Option<usize>, significance: f64, before: f64, after: f64, detail: String) -> Finding {
-    Finding { effect: effect.into(), adc, count: None, sigma_dn: None, significance, rms_before: before, rms_after: after, gain: before / after, detail, residuals: None }
+    Finding { effect: effect.into(), adc, count: None, sigma_dn: None, significance, rms_before: before, rms_after: after, gain: before / after, all_data_rms_after: None, detail, residuals: None }
 }
 
 /// The set checked (enough levels and frames, positive reference, noise known, at most
@@ -166,7 +166,6 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
     let LevelStage { term: levels_term, accepted: level_accepted, mut findings } = level_stage(&px, nl);
     // From here every pixel's points are its means less the term, where one was found.
     let common: Option<&dyn Common> = (level_accepted || levels_term.per_adc.is_some()).then_some(&levels_term as &dyn Common);
-    let halves = |i: usize| px.halves(i, common);
 
     // Each pixel's own fits, the population of dark and gain, the bad-pixel flags.
     let stage = PixelStage::new(&px, common, n_adc);
@@ -188,10 +187,10 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
     }
     let good: Vec<usize> = (0..n).filter(|&i| is_good(i)).collect();
     let cell = |j: usize| Cell { adc: adc_of(good[j]), odd: !estimating(good[j]) };
-    let score_all = |model: &(dyn Fn(usize) -> Response + Sync)| -> Scores {
+    let score_with = |common: Option<&dyn Common>, model: &(dyn Fn(usize) -> Response + Sync)| -> Scores {
         Scores::collect(good.len(), n_adc, nl, &cell, &|j| {
             let i = good[j];
-            let (ev, od) = halves(i);
+            let (ev, od) = px.halves(i, common);
             let m = model(i);
             let start = match m {
                 Response::Curve(..) => fits[i].line[0].map_or(vec![0.0; 2], |l| l.to_vec()),
@@ -200,9 +199,28 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
             fit_and_score(m, &start, &ev, &od)
         })
     };
+    let score_all = |model: &(dyn Fn(usize) -> Response + Sync)| score_with(common, model);
     let all = |_: Cell| true;
     let base = score_all(&|_| linear);
-    let t0 = base.totals(&all);
+    // The baseline proper leaves the level term in the means: the scale every model step
+    // is measured on ([`Finding::all_data_rms_after`]), starting here.
+    let raw = common.is_some().then(|| score_with(None, &|_| linear));
+    let base0 = raw.as_ref().unwrap_or(&base);
+    let t0 = base0.totals(&all);
+    let baseline_adcs: Vec<AdcBaseline> = (0..n_adc)
+        .map(|a| {
+            let t = base0.totals(&|c| c.adc == a);
+            AdcBaseline { adc: a, codes_scored: t.n, rms: t.rms(), by_residue: Vec::new() }
+        })
+        .collect();
+    let baseline_by_level = base0.by_level(&all);
+    drop(raw);
+    let level_findings = findings.len();
+    // On all the data: the ADCs in `apart` under their own curves, the others under
+    // `others`.
+    let with_own = |apart: &[usize], own_curve: &Scores, others: &Scores| -> f64 {
+        (0..n_adc).fold(Totals::default(), |t, b| t.plus(&if apart.contains(&b) { own_curve } else { others }.totals(&|c| c.adc == b))).rms()
+    };
     let bend = |c: [f64; 3], s: f64| s * (c[0] * s + c[1] * s * s + c[2] * s * s * s);
     // ADC curvature first: each ADC's own curve against the consensus of the others, on
     // its held-out pixels (so that one bending ADC is not mistaken for a shared bend).
@@ -211,6 +229,8 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
     // only a majority remains. It needs three ADCs at least: with two, the data cannot
     // say which one differs.
     let mut adc_own = vec![false; n_adc];
+    // The ADCs set apart, in the order they were.
+    let mut apart = Vec::new();
     let mut adc_findings: Vec<Option<Finding>> = vec![None; n_adc];
     let own_curve = (n_adc >= 3).then(|| score_all(&|i| Response::Curve(adc_curves[adc_of(i)], top)));
     let mut glob = score_all(&|_| Response::Curve(global, top));
@@ -223,6 +243,7 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
         let on = |c: Cell| c == Cell { adc: a, odd: true };
         let (ta, tb) = (glob.totals(&on), own_curve.totals(&on));
         adc_own[a] = true;
+        apart.push(a);
         let steps = AdcResiduals { baseline: glob.by_level(&on), extended: own_curve.by_level(&on) };
         adc_findings[a] = Some(with_residuals(steps, finding(
             "adc-mismatch",
@@ -278,13 +299,32 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
         _ => &base,
     };
     let mut current = Scores::per_adc(&|a| if adc_own[a] { own_curve.as_ref().unwrap_or(follower) } else { follower }, &|j| adc_of(good[j]), good.len(), n_adc);
+    let mut tcur = current.totals(&all);
+    // The all-data scale of the steps so far, in the order of the model: the level term
+    // (with the smooth part a shared curve takes of it where no bend is named), each ADC
+    // set apart under its own curve, the shared bend.
+    let others = followed.as_ref().unwrap_or(&base);
+    if common.is_some() {
+        let after = others.totals(&all).rms();
+        findings[..level_findings].iter_mut().for_each(|f| f.all_data_rms_after = Some(after));
+    }
+    if let Some(own_curve) = &own_curve {
+        for (k, &a) in apart.iter().enumerate() {
+            if let Some(f) = adc_findings[a].as_mut() {
+                f.all_data_rms_after = Some(with_own(&apart[..=k], own_curve, others));
+            }
+        }
+    }
+    if let Some(f) = findings[level_findings..].iter_mut().find(|f| f.effect == "global-nonlinearity") {
+        f.all_data_rms_after = Some(tcur.rms());
+    }
     // (What `current` took of them is copied.)
     drop((glob, own_curve, followed));
-    let mut tcur = current.totals(&all);
     // Pixel-to-pixel nonlinearity: each pixel's own quartic.
     let own = score_all(&|_| quartic);
     let t3 = own.totals(&all);
-    if let Some(f) = pixel_nonlinearity(&px, common, fits, &good, (&current, tcur), (&own, t3)) {
+    if let Some(mut f) = pixel_nonlinearity(&px, common, fits, &good, (&current, tcur), (&own, t3)) {
+        f.all_data_rms_after = Some(t3.rms());
         findings.push(f);
         current = own;
         tcur = t3;
@@ -302,7 +342,11 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
     let dark_noise = upper_median(good.iter().map(|&i| px.std(0, i)));
     let measured = measure_camera(&px, &good, fits, set.n_frames, top, stage.bad_count());
     findings.extend(insufficient_noise("median dark noise", dark_noise, accuracy_dn));
-    findings.extend(remainder(&px, common, &current, tcur, &good, n_adc, nl));
+    // What remains: with a noise scaled by one factor (`excess-noise`) that is the model's
+    // last step.
+    let rest = remainder(&px, common, &current, tcur, &good, n_adc, nl);
+    let unexplained_rms = rest.as_ref().and_then(|f| f.all_data_rms_after).unwrap_or(tcur.rms());
+    findings.extend(rest);
     Ok(Diagnosis {
         not_tested: Vec::new(),
         measured,
@@ -312,17 +356,12 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
         baseline: Baseline {
             kind: "linearity-set".into(),
             model: "linear response with per-pixel dark and gain from one population, shot and read noise".into(),
-            adcs: (0..n_adc)
-                .map(|a| {
-                    let t = base.totals(&|c| c.adc == a);
-                    AdcBaseline { adc: a, codes_scored: t.n, rms: t.rms(), by_residue: Vec::new() }
-                })
-                .collect(),
+            adcs: baseline_adcs,
             rms: t0.rms(),
         },
         findings,
-        unexplained_rms: tcur.rms(),
-        residuals: vec![AdcResiduals { baseline: base.by_level(&all), extended: current.by_level(&all) }],
+        unexplained_rms,
+        residuals: vec![AdcResiduals { baseline: baseline_by_level, extended: current.by_level(&all) }],
     })
 }
 

@@ -40,7 +40,7 @@ pub(super) fn remainder<T: Sample>(px: &Pixels<T>, common: Option<&dyn Common>, 
     if noise_only {
         let rms = current.by_level(&all);
         let scaled = rms.iter().map(|&(l, r)| (l, r / k2.sqrt())).collect();
-        out = Some(with_residuals(AdcResiduals { baseline: rms, extended: scaled }, finding(
+        let mut f = with_residuals(AdcResiduals { baseline: rms, extended: scaled }, finding(
             "excess-noise",
             None,
             tcur.excess(),
@@ -51,7 +51,9 @@ pub(super) fn remainder<T: Sample>(px: &Pixels<T>, common: Option<&dyn Common>, 
                 k2.sqrt(),
                 100.0 * (k2 - 1.0)
             ),
-        )));
+        ));
+        f.all_data_rms_after = Some(tcur.rms() / k2.sqrt());
+        out = Some(f);
     }
     if tcur.excess() > SIGNIFICANCE && !noise_only {
         out = Some(finding(
