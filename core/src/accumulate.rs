@@ -605,4 +605,29 @@ mod tests {
         let mut buf = [0u32; 17];
         assert!(matches!(SumImages::new(g, &mut buf), Err(CoreError::Length { expected: 18, got: 17, .. })));
     }
+
+    /// The readout cycle: a frame is open between begin and end (and clearing is refused
+    /// then), clearing zeroes every sum and frame count, and there is no state beyond the
+    /// last.
+    #[test]
+    fn clearing_after_a_readout_zeroes_sums_and_frame_counts() {
+        let g = Geometry::new(4, 1, 2, 0).unwrap();
+        let mut buf = [0u32; 8];
+        let mut banks = LutBanks::new(LutSet::<4, 4096>::ideal());
+        let mut c = Corrector::new(&mut banks, g, &mut buf).unwrap();
+        assert!(!c.frame_open());
+        c.begin_frame(1).unwrap();
+        assert!(c.frame_open());
+        assert_eq!(c.clear_sums(), Err(CoreError::FrameOpen));
+        c.accumulate_line(0, &[0, 1, 2, 3]).unwrap();
+        c.end_frame().unwrap();
+        assert!(!c.frame_open());
+        // Ideal entries: code k reads (k + 1/2) 2^11 units.
+        assert_eq!(c.sums().state(1).unwrap(), &[1024, 3072, 5120, 7168]);
+        assert_eq!(c.sums().frames(1).get(), 1);
+        assert_eq!(c.sums().state(2), None, "two states: 0 and 1");
+        c.clear_sums().unwrap();
+        assert_eq!(c.sums().state(1).unwrap(), &[0; 4]);
+        assert_eq!((c.sums().frames(0).get(), c.sums().frames(1).get()), (0, 0));
+    }
 }

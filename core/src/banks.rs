@@ -204,4 +204,18 @@ mod tests {
         banks.upload(&image).unwrap();
         banks.finish_upload().unwrap();
     }
+
+    /// The active bank's index: 0 at boot, the other one after each swap.
+    #[test]
+    fn the_active_index_follows_the_swaps() {
+        let mut banks = LutBanks::new(LutSet::<1, 4>::ideal());
+        assert_eq!(banks.active_index(), 0);
+        for expected in [1, 0, 1] {
+            banks.stage(&LutSet::<1, 4>::from_bits(&[[1, 2, 3, 4]]).unwrap());
+            banks.request_activation().unwrap();
+            assert!(banks.swap_if_pending());
+            assert_eq!(banks.active_index(), expected);
+        }
+        assert!(!banks.swap_if_pending());
+    }
 }

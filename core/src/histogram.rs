@@ -121,4 +121,18 @@ mod tests {
         assert!(Roi::new((0, 4), (9, 18), g).is_err());
         assert!(Roi::new((2, 2), (10, 18), g).is_err());
     }
+
+    /// Out-of-range codes are counted one by one, and clearing forgets counts and them.
+    #[test]
+    fn clearing_forgets_counts_and_out_of_range_codes() {
+        let g = Geometry::new(4, 1, 1, 0).unwrap();
+        let roi = Roi::new((0, 1), (0, 4), g).unwrap();
+        let mut h = HistogramSet::<4, 16>::new();
+        h.capture_line(&roi, 0, 0, &[16, 17, 3, 99]);
+        assert_eq!(h.out_of_range(), 3);
+        assert_eq!(h.counts(2).unwrap()[3], 1);
+        h.clear();
+        assert_eq!(h.out_of_range(), 0);
+        assert!((0..4).all(|a| h.counts(a).unwrap().iter().all(|&n| n == 0)));
+    }
 }

@@ -288,4 +288,20 @@ mod tests {
         let mut loader = ImageLoader::<1, 4>::new();
         assert_eq!(loader.feed(t.tables_mut(), &wrong[..36]), Err(CoreError::ImageLayout { bits: 2, adcs: 2, frac_bits: 11 }));
     }
+
+    /// A header declaring another entry count is refused with the length it declares
+    /// (16 header bytes, 4 per entry, 4 of CRC: 3 entries declare 32 bytes) against the
+    /// length this layout needs (4 entries: 36).
+    #[test]
+    fn a_wrong_entry_count_is_refused_with_the_length_it_declares() {
+        let mut buf = [0u8; image_len::<1, 4>()];
+        encode_image(&LutSet::<1, 4>::ideal(), &mut buf).unwrap();
+        buf[12] = 3;
+        let mut t = LutSet::<1, 4>::ideal();
+        let mut loader = ImageLoader::<1, 4>::new();
+        assert_eq!(loader.feed(t.tables_mut(), &buf[..16]), Err(CoreError::ImageLength { expected: 32, got: 36 }));
+        buf[12] = 200;
+        let mut loader = ImageLoader::<1, 4>::new();
+        assert_eq!(loader.feed(t.tables_mut(), &buf[..16]), Err(CoreError::ImageLength { expected: 16 + 800 + 4, got: 36 }));
+    }
 }

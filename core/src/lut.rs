@@ -339,4 +339,35 @@ mod tests {
         );
         assert!(LutSet::<1, 4>::from_bits(&[[5, 5, 5, (1 << 23) - 1]]).is_ok());
     }
+
+    /// The range check at its boundary, derived by hand: 31 weights of 130 DN and a last
+    /// weight `v` give the last entry `RNE((2 * 31 * 130 * 2^24 + v_bits) / 2^14)` units
+    /// = 8253440 + v_bits / 2^14; `v_bits = 135167 * 2^14` makes it `2^23 - 1` (accepted),
+    /// one unit more `2^23` (refused, naming code 31 and the bits).
+    #[test]
+    fn the_last_entry_is_range_checked_at_exactly_2_pow_23() {
+        let mut weights = [w(130.0); 32];
+        weights[31] = Weight::from_bits(135_167 << 14);
+        let set = LutSet::<1, 32>::from_weights(&[&weights]).unwrap();
+        assert_eq!(set.table(0).unwrap()[31].to_bits(), LUT_ENTRY_LIMIT - 1);
+        assert_eq!(set.table(0).unwrap()[30].to_bits(), (30 * 130 * 2048) + 65 * 2048);
+        weights[31] = Weight::from_bits(135_168 << 14);
+        assert_eq!(
+            LutSet::<1, 32>::from_weights(&[&weights]),
+            Err(CoreError::EntryOutOfRange { adc: 0, code: 31, bits: LUT_ENTRY_LIMIT })
+        );
+    }
+
+    /// What a set says of itself: its tables by ADC (none beyond the last), its bits per
+    /// code, and a Debug line that does not print 4 x 4096 entries.
+    #[test]
+    fn a_set_describes_itself() {
+        extern crate std;
+        let set = LutSet::<4, 4096>::ideal();
+        assert_eq!(set.table(3), Some(&set.tables()[3]));
+        assert_eq!(set.table(3).unwrap()[7], LutEntry::ideal(7));
+        assert_eq!(set.table(4), None);
+        assert_eq!((LutSet::<4, 4096>::bits(), LutSet::<1, 32>::bits()), (12, 5));
+        assert_eq!(std::format!("{set:?}"), "LutSet<4 ADCs, 4096 codes>");
+    }
 }

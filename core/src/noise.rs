@@ -185,4 +185,24 @@ mod tests {
         assert!(!r.ok());
         assert_eq!(NoiseEstimator::new(4095).check(0.2), Err(CoreError::NoiseSamples { samples: 0 }));
     }
+
+    /// Frames offset from each other (a mean difference) leave the variance of the
+    /// differences as it was: `var(d) = E[d^2] - E[d]^2` (the planted test above has a
+    /// zero mean). Differences 3 and 5 alternate: mean 4, var(d) = 1, sigma_q^2 = 1/2.
+    /// And exactly MIN_SAMPLES samples are enough.
+    #[test]
+    fn a_mean_difference_is_not_noise() {
+        let n = MIN_SAMPLES as usize;
+        let a: std::vec::Vec<u16> = (0..n).map(|i| 200 + if i % 2 == 0 { 3 } else { 5 }).collect();
+        let b = std::vec![200u16; n];
+        let mut e = NoiseEstimator::new(4095);
+        e.add_pair(&a, &b).unwrap();
+        let r = e.check(0.2).unwrap();
+        assert_eq!(r.samples, MIN_SAMPLES);
+        assert!((r.sigma_quantized_dn - 0.5f32.sqrt()).abs() < 1e-6, "{}", r.sigma_quantized_dn);
+        assert!((r.sigma_dn as f64 - (0.5f64 - 1.0 / 12.0).sqrt()).abs() < 1e-6, "{}", r.sigma_dn);
+        let mut short = NoiseEstimator::new(4095);
+        short.add_pair(&a[..n - 1], &b[..n - 1]).unwrap();
+        assert_eq!(short.check(0.2), Err(CoreError::NoiseSamples { samples: MIN_SAMPLES - 1 }));
+    }
 }

@@ -21,9 +21,16 @@ impl core::fmt::Display for FpgaError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
             FpgaError::Config(field, why) => write!(f, "fpga config {field}: {why}"),
-            FpgaError::Core(e) => write!(f, "{e:?}"),
+            FpgaError::Core(e) => write!(f, "{e}"),
         }
     }
 }
 
-impl std::error::Error for FpgaError {}
+impl std::error::Error for FpgaError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            FpgaError::Core(e) => Some(e),
+            FpgaError::Config(..) => None,
+        }
+    }
+}

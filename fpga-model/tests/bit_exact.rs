@@ -31,6 +31,28 @@ fn case() -> impl Strategy<Value = Case> {
     })
 }
 
+/// The LUT entries of per-code `weights` by the paper's definition, in units of 2^-11 DN:
+/// entry k = round-half-even((sum_{j<k} w_j + w_k / 2) 2^11), computed in exact rationals
+/// (the weights are on the core's 2^-24 grid: `n_k = 2 sum_{j<k} w_j + w_k` in units of
+/// 2^-24 is an integer, the entry is `n_k / 2^14` rounded half to even).
+fn entries(weights: &[Vec<f64>]) -> Vec<Vec<u64>> {
+    weights
+        .iter()
+        .map(|t| {
+            let bits: Vec<u64> = t.iter().map(|&w| (w * (1u64 << 24) as f64).round() as u64).collect();
+            let mut below = 0u64;
+            bits.iter()
+                .map(|&w| {
+                    let n = 2 * below + w;
+                    below += w;
+                    let (q, r) = (n >> 14, n & ((1 << 14) - 1));
+                    if r > (1 << 13) || (r == (1 << 13) && q % 2 == 1) { q + 1 } else { q }
+                })
+                .collect()
+        })
+        .collect()
+}
+
 proptest! {
     #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
     #[test]
@@ -45,6 +67,14 @@ proptest! {
         let first = luts(&weights(1));
         dp.upload_lut_image(&image(&first)).unwrap();
 
+        // The independent reference: the sums by their definition, in u64, one frame at a
+        // time (entry of ADC (first column + c) mod 4 at the code, a code above the top
+        // read as the top code), clipped to u32 at the end; the core's arithmetic is not
+        // used (the model and the core share `lookup` and `saturating_sum`).
+        let pixels = c.width as usize * c.height as usize;
+        let mut naive = vec![vec![0u64; pixels]; c.states as usize];
+        let mut naive_weights = weights(1);
+        let mut naive_frames = vec![0u32; c.states as usize];
         let mut banks = LutBanks::new(Mvd1024eLuts::ideal());
         let mut sums = vec![0u32; geometry.sum_len()];
         let mut core = Corrector::new(&mut banks, geometry, &mut sums).unwrap();
@@ -53,6 +83,7 @@ proptest! {
 
         for (state, lines, new_lut) in &c.frames {
             if let Some(seed) = new_lut {
+                naive_weights = weights(*seed);
                 let l = luts(&weights(*seed));
                 dp.upload_lut_image(&image(&l)).unwrap();
                 core.banks_mut().stage(&l);
@@ -67,12 +98,23 @@ proptest! {
                 core.accumulate_line(row as u16, line).unwrap();
             }
             core.end_frame().unwrap();
+            let table = entries(&naive_weights);
+            for (row, line) in lines.iter().enumerate() {
+                for (col, &raw) in line.iter().enumerate() {
+                    let adc = (c.first_column as usize + col) % 4;
+                    naive[*state as usize][row * c.width as usize + col] += table[adc][(raw as usize).min(4095)];
+                }
+            }
+            naive_frames[*state as usize] += 1;
         }
         let counters = dp.counters().unwrap();
         prop_assert_eq!(dp.fifo_overflows().unwrap(), 0);
         let mut fpga = dp.release();
         fpga.drain();
         for s in 0..c.states {
+            let want: Vec<u32> = naive[s as usize].iter().map(|&v| v.min(u32::MAX as u64) as u32).collect();
+            prop_assert_eq!(fpga.sums(s).unwrap(), &want[..], "state {} against the naive sums", s);
+            prop_assert_eq!(fpga.frames(s), naive_frames[s as usize]);
             prop_assert_eq!(fpga.sums(s).unwrap(), core.sums().state(s).unwrap(), "state {}", s);
             prop_assert_eq!(fpga.frames(s), core.sums().frames(s).get());
         }
@@ -114,12 +156,30 @@ fn a_frame_shorter_than_the_memory_latency_shows_hazards() {
     // A 2-pixel frame, no blanking, 50 cycles of latency: the second frame's pixels are
     // issued while the first frame's writes to the same sums are in flight.
     let config = Config { taps: 2, fifo_depth: 16, mem_latency: 50, mem_words_per_cycle: 4, h_blank: 0, v_blank: 0, ..Config::default() };
-    let mut fpga = Fpga::new(config, Geometry::new(2, 1, 1, 0).unwrap()).unwrap();
+    let mut fpga = Fpga::new(config.clone(), Geometry::new(2, 1, 1, 0).unwrap()).unwrap();
     let line = [5u16, 6];
     fpga.stream_frame(0, &[&line]).unwrap();
     fpga.stream_frame(0, &[&line]).unwrap();
     fpga.drain();
+    // Each of the second frame's two pixels reads its sum a few cycles after the first
+    // frame's write to it was issued, 50 cycles before that write lands: one hazard per
+    // pixel of every frame after the first (the first frame's two sums are distinct).
     assert_eq!(fpga.stats().rmw_hazards, 2);
+    fpga.stream_frame(0, &[&line]).unwrap();
+    fpga.drain();
+    assert_eq!(fpga.stats().rmw_hazards, 2, "a frame after a drain finds every write landed");
+    fpga.stream_frame(0, &[&line]).unwrap();
+    fpga.stream_frame(0, &[&line]).unwrap();
+    fpga.drain();
+    assert_eq!(fpga.stats().rmw_hazards, 4);
+    // With a 1-cycle memory every write lands before the next frame's read.
+    let quick = Config { mem_latency: 1, ..config };
+    let mut fpga = Fpga::new(quick, Geometry::new(2, 1, 1, 0).unwrap()).unwrap();
+    for _ in 0..3 {
+        fpga.stream_frame(0, &[&line]).unwrap();
+    }
+    fpga.drain();
+    assert_eq!(fpga.stats().rmw_hazards, 0);
 }
 
 #[test]
@@ -143,17 +203,27 @@ fn a_bad_or_partial_upload_never_reaches_the_active_tables() {
     }
     dp.write_reg(Reg::Control, control::LUT_COMMIT).unwrap();
     assert!(!dp.status().unwrap().activation_pending, "a partial image is not activated");
-    // Malformed transactions are refused, not panics.
+    // Malformed transactions are refused (embedded-hal's `Other`: the bus carried a frame
+    // the device does not take), not panics, and change nothing.
     let fpga = dp.device_mut();
-    assert!(fpga.transaction(&mut []).is_err());
-    assert!(fpga.transaction(&mut [Operation::Write(&[0x7F])]).is_err());
+    let refused = Err(embedded_hal::spi::ErrorKind::Other);
+    assert_eq!(fpga.transaction(&mut []), refused);
+    assert_eq!(fpga.transaction(&mut [Operation::Write(&[0x7F])]), refused);
     let mut unknown_register = [CMD_WRITE_REG, 0x99, 0, 0, 0, 0, 0];
     unknown_register[6] = frame_crc(&unknown_register[..6]);
-    assert!(fpga.transaction(&mut [Operation::Write(&unknown_register)]).is_err());
-    assert!(fpga.transaction(&mut [Operation::Write(&lut_header(0, 0xFFFF)), Operation::Write(&[0; 4])]).is_err());
-    // (A refused frame holds writes until the next read; a read ends the hold.)
-    assert!(fpga.transaction(&mut [Operation::Write(&dncal_core::regs::read_request(Reg::Id)), Operation::Read(&mut [0; 7])]).is_ok());
-    assert!(fpga.transaction(&mut [Operation::Write(&write_frame(Reg::Width, 0))]).is_err(), "a zero width is refused");
+    assert_eq!(fpga.transaction(&mut [Operation::Write(&unknown_register)]), refused);
+    assert_eq!(fpga.transaction(&mut [Operation::Write(&lut_header(0, 0xFFFF)), Operation::Write(&[0; 4])]), refused);
+    // A refused frame holds writes until the next read: a good write is refused too and
+    // the width stays; a read ends the hold, and the same write then takes effect.
+    assert_eq!(fpga.transaction(&mut [Operation::Write(&write_frame(Reg::Width, 8))]), refused);
+    assert_eq!(fpga.geometry().width(), 16);
+    assert_eq!(fpga.transaction(&mut [Operation::Write(&dncal_core::regs::read_request(Reg::Id)), Operation::Read(&mut [0; 7])]), Ok(()));
+    assert_eq!(fpga.transaction(&mut [Operation::Write(&write_frame(Reg::Width, 8))]), Ok(()));
+    assert_eq!(fpga.geometry().width(), 8);
+    assert_eq!(fpga.transaction(&mut [Operation::Write(&write_frame(Reg::Width, 16))]), Ok(()));
+    // A bad value: refused, the register kept (no hold: the next write applies).
+    assert_eq!(fpga.transaction(&mut [Operation::Write(&write_frame(Reg::Width, 0))]), refused, "a zero width is refused");
+    assert_eq!(fpga.geometry().width(), 16);
     // Frames are corrected with the good tables only.
     let line: Vec<u16> = (0..16).map(|c| 100 * c as u16).collect();
     fpga.stream_frame(0, &[&line, &line]).unwrap();
@@ -192,7 +262,8 @@ fn latency_is_the_memorys_plus_two_and_zero_is_refused() {
         fpga.drain();
         assert_eq!(fpga.stats().max_latency, u64::from(l) + 2, "latency {l}");
     }
-    assert!(Fpga::new(Config { mem_latency: 0, ..Config::default() }, Geometry::new(1, 1, 1, 0).unwrap()).is_err());
+    let Err(e) = Fpga::new(Config { mem_latency: 0, ..Config::default() }, Geometry::new(1, 1, 1, 0).unwrap()) else { panic!("a 0-cycle memory was accepted") };
+    assert!(matches!(e, dncal_fpga_model::FpgaError::Config("mem_latency", _)), "{e}");
 }
 
 /// No burst above the memory's bandwidth after a blanking: on 2 words per cycle (one
@@ -221,7 +292,7 @@ fn a_geometry_beyond_the_sum_memory_is_refused() {
     let write = |fpga: &mut Fpga, reg: Reg, v: u32| fpga.transaction(&mut [Operation::Write(&write_frame(reg, v))]);
     assert!(write(&mut fpga, Reg::States, 8).is_ok());
     assert!(write(&mut fpga, Reg::Width, 65535).is_ok(), "8 x 65535 x 2 words fit");
-    assert!(write(&mut fpga, Reg::Height, 65535).is_err());
+    assert_eq!(write(&mut fpga, Reg::Height, 65535), Err(embedded_hal::spi::ErrorKind::Other));
     assert_eq!(fpga.geometry(), Geometry::new(65535, 2, 8, 0).unwrap());
     assert_eq!(fpga.sums(0).unwrap().len(), 65535 * 2);
 }

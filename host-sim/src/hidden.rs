@@ -27,6 +27,7 @@
 use rand::{rngs::StdRng, Rng, SeedableRng};
 use rand_distr::{ChiSquared, Distribution, Normal};
 
+use crate::diagnose::Effect;
 use crate::fits::LinearitySet;
 
 /// One planted effect.
@@ -58,16 +59,16 @@ pub enum Hidden {
 }
 
 impl Hidden {
-    /// The `effect` name `diagnose` should give, and the ADC.
-    pub fn expected(&self) -> (&'static str, Option<usize>) {
+    /// The effect `diagnose` should name, and the ADC.
+    pub fn expected(&self) -> (Effect, Option<usize>) {
         match self {
-            Hidden::GlobalNonlinearity { .. } => ("global-nonlinearity", None),
-            Hidden::PixelNonlinearity { .. } => ("pixel-nonlinearity", None),
-            Hidden::AdcGain { adc, .. } | Hidden::AdcOffset { adc, .. } | Hidden::AdcCurvature { adc, .. } => ("adc-mismatch", Some(*adc)),
-            Hidden::BadPixels { .. } => ("bad-pixels", None),
-            Hidden::LevelErrors { .. } => ("level-errors", None),
-            Hidden::SubtleBad { .. } => ("unexplained", None),
-            Hidden::ChargeLoss { .. } => ("low-signal-nonlinearity", None),
+            Hidden::GlobalNonlinearity { .. } => (Effect::GlobalNonlinearity, None),
+            Hidden::PixelNonlinearity { .. } => (Effect::PixelNonlinearity, None),
+            Hidden::AdcGain { adc, .. } | Hidden::AdcOffset { adc, .. } | Hidden::AdcCurvature { adc, .. } => (Effect::AdcMismatch, Some(*adc)),
+            Hidden::BadPixels { .. } => (Effect::BadPixels, None),
+            Hidden::LevelErrors { .. } => (Effect::LevelErrors, None),
+            Hidden::SubtleBad { .. } => (Effect::Unexplained, None),
+            Hidden::ChargeLoss { .. } => (Effect::LowSignalNonlinearity, None),
         }
     }
 }

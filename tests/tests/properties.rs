@@ -28,6 +28,54 @@ fn rule_reference(weights: &[u32]) -> Vec<u128> {
         .collect()
 }
 
+/// CRC-32 (zlib's polynomial, reflected), by the textbook bitwise algorithm.
+fn crc32(bytes: &[u8]) -> u32 {
+    let mut crc = 0xFFFF_FFFFu32;
+    for &b in bytes {
+        crc ^= b as u32;
+        for _ in 0..8 {
+            crc = if crc & 1 == 1 { (crc >> 1) ^ 0xEDB8_8320 } else { crc >> 1 };
+        }
+    }
+    !crc
+}
+
+/// The error the LUT-image format (docs: header of 16 bytes, entries little-endian by ADC
+/// then code, CRC-32 of all before it) says a reader must give for `flipped`, the valid
+/// image `image` of `adcs` tables of `codes` entries with one bit changed: the header's
+/// fields in their order, an entry out of range or out of order as the entries arrive
+/// (the changed one, or the next one of its table that it now exceeds), else the CRC.
+fn expected_rejection(image: &[u8], flipped: &[u8], adcs: usize, codes: usize) -> CoreError {
+    let at = image.iter().zip(flipped).position(|(a, b)| a != b).expect("one byte differs");
+    let word = |b: &[u8], i: usize| u32::from_le_bytes(b[16 + 4 * i..20 + 4 * i].try_into().unwrap());
+    let entries_end = 16 + 4 * adcs * codes;
+    match at {
+        0..4 => CoreError::ImageMagic,
+        4..6 => CoreError::ImageVersion { version: u16::from_le_bytes([flipped[4], flipped[5]]) },
+        6..9 => CoreError::ImageLayout { bits: flipped[6], adcs: flipped[7], frac_bits: flipped[8] },
+        9..12 => CoreError::ImageReserved,
+        12..16 => {
+            let count = u32::from_le_bytes(flipped[12..16].try_into().unwrap()) as u64;
+            CoreError::ImageLength { expected: (20 + 4 * count).min(u32::MAX as u64) as u32, got: image.len() as u32 }
+        }
+        _ if at < entries_end => {
+            let i = (at - 16) / 4;
+            let (adc, code) = (i / codes, i % codes);
+            let v = word(flipped, i);
+            if v >= 1 << 23 {
+                CoreError::EntryOutOfRange { adc: adc as u16, code: code as u16, bits: v }
+            } else if code > 0 && v < word(flipped, i - 1) {
+                CoreError::NonMonotonic { adc: adc as u16, code: code as u16 }
+            } else if code + 1 < codes && word(flipped, i + 1) < v {
+                CoreError::NonMonotonic { adc: adc as u16, code: (code + 1) as u16 }
+            } else {
+                CoreError::ImageCrc { stored: word(image, adcs * codes), computed: crc32(&flipped[..entries_end]) }
+            }
+        }
+        _ => CoreError::ImageCrc { stored: word(flipped, adcs * codes), computed: crc32(&image[..entries_end]) },
+    }
+}
+
 fn weights_strategy(codes: usize) -> impl Strategy<Value = Vec<u32>> {
     // Raw Weight bits (2^-24 DN units): anything from 0 to ~3 DN wide, ties included.
     proptest::collection::vec(prop_oneof![0u32..(3 << 24), Just(1 << 24), Just(1 << 13), Just(3 << 13)], codes)
@@ -165,9 +213,10 @@ proptest! {
         let luts = LutSet::<4, 4096>::from_weights(&[&weights[0], &weights[1], &weights[2], &weights[3]]).unwrap();
         let mut image = vec![0u8; image_len::<4, 4096>()];
         encode_image(&luts, &mut image).unwrap();
+        let original = image.clone();
         image[bit / 8] ^= 1 << (bit % 8);
         let mut banks = Box::new(LutBanks::new(LutSet::<4, 4096>::ideal()));
-        prop_assert!(banks.load_image(&image).is_err());
+        prop_assert_eq!(banks.load_image(&image), Err(expected_rejection(&original, &image, 4, 4096)));
         prop_assert!(matches!(banks.staging_state(), StagingState::Failed(_)));
         prop_assert_eq!(banks.request_activation(), Err(CoreError::StagingNotValid));
         prop_assert_eq!(banks.active(), &LutSet::<4, 4096>::ideal());
@@ -200,7 +249,7 @@ fn every_single_bit_flip_of_an_image_is_rejected() {
         let mut flipped = image.clone();
         flipped[bit / 8] ^= 1 << (bit % 8);
         let mut banks = LutBanks::new(LutSet::<4, 16>::ideal());
-        assert!(banks.load_image(&flipped).is_err(), "bit {bit} flipped was accepted");
+        assert_eq!(banks.load_image(&flipped), Err(expected_rejection(&image, &flipped, 4, 16)), "bit {bit} flipped");
         assert_eq!(banks.active(), &LutSet::<4, 16>::ideal());
     }
 }
@@ -213,8 +262,9 @@ fn every_truncation_of_an_image_is_rejected_and_leaves_the_active_bank() {
     for len in 0..image.len() {
         let mut banks = LutBanks::new(LutSet::<2, 8>::ideal());
         banks.begin_upload();
-        let fed = banks.upload(&image[..len]);
-        assert!(fed.is_err() || banks.finish_upload().is_err(), "truncated at {len} accepted");
+        // Every prefix of a valid image is valid as far as it goes: the end is refused.
+        assert_eq!(banks.upload(&image[..len]), Ok(()), "truncated at {len}");
+        assert_eq!(banks.finish_upload(), Err(CoreError::ImageLength { expected: image.len() as u32, got: len as u32 }), "truncated at {len}");
         assert_eq!(banks.request_activation(), Err(CoreError::StagingNotValid));
         assert_eq!(banks.active(), &LutSet::<2, 8>::ideal());
     }

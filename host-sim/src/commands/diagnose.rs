@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::diagnose::{diagnose_code_density, diagnose_histograms, diagnose_linearity, diagnose_ptc, Diagnosis, Finding};
+use crate::diagnose::{diagnose_code_density, diagnose_histograms, diagnose_linearity, diagnose_ptc, Diagnosis, Effect, Finding};
 use crate::fits::{read_histograms_for_analysis, read_linearity_as};
 use crate::outputs::{html_figure, OutDir, Outputs};
 use crate::flatten::FlattenParams;
@@ -22,7 +22,7 @@ pub fn extended_model(hist: &crate::fits::AdcHistograms, d: &Diagnosis, flatten:
     let trimmed = crate::diagnose::trimmed_params(flatten);
     let mut widths = Vec::new();
     for (adc, counts) in hist.counts.iter().enumerate() {
-        if d.findings.iter().any(|f| f.effect == "adc-dnl" && f.adc == Some(adc)) {
+        if d.findings.iter().any(|f| f.effect == Effect::AdcDnl && f.adc == Some(adc)) {
             let f = crate::flatten::flatten_histogram(counts, &trimmed).map_err(|e| format!("ADC {adc}: {e}"))?;
             widths.push(f.weights.iter().map(|w| w.max(1e-6)).collect());
         } else {
@@ -74,7 +74,7 @@ pub fn apply_measured(mut c: crate::camera::CameraConfig, d: &Diagnosis) -> crat
     }
     let scale = c.full_well_e / g;
     c.nonlinearity = d.curve_per_dn.as_ref().map_or(Vec::new(), |b| b.iter().enumerate().map(|(k, b)| b * scale.powi(k as i32 + 1)).collect());
-    c.pixel_nonlinearity_rms = match (m.pixel_b2_rms_per_dn, d.findings.iter().any(|f| f.effect == "pixel-nonlinearity")) {
+    c.pixel_nonlinearity_rms = match (m.pixel_b2_rms_per_dn, d.findings.iter().any(|f| f.effect == Effect::PixelNonlinearity)) {
         (Some(r), true) => {
             // A spread needs a term to spread: a zero shared a2 when no shared curve was found.
             if c.nonlinearity.is_empty() {
@@ -121,7 +121,7 @@ pub fn ptc_model(set: &crate::emva::EmvaSet, sheet: &crate::emva::Datasheet, dar
     c.name = "EMVA 1288 set, model extended by dncal diagnose".into();
     c.adc.stage_bits = vec![set.bits];
     c.adc.stage_error_lsb = vec![0.0];
-    if d.findings.iter().any(|f| f.effect == "adc-dnl") {
+    if d.findings.iter().any(|f| f.effect == Effect::AdcDnl) {
         if let Some(cd) = &d.code_density {
             c.adc.widths = vec![cd.widths.clone()];
         }
@@ -134,7 +134,7 @@ pub fn ptc_model(set: &crate::emva::EmvaSet, sheet: &crate::emva::Datasheet, dar
         saturated: summary.saturation_reached,
         prnu_rms: sheet.spatial.prnu_pct.map(|p| p / 100.0),
         dsnu_dn: sheet.spatial.dsnu_dn,
-        bad_fraction: d.findings.iter().find(|f| f.effect == "bad-pixels").and_then(|f| f.count).map(|n| n as f64 / (set.width * set.height).max(1) as f64),
+        bad_fraction: d.findings.iter().find(|f| f.effect == Effect::BadPixels).and_then(|f| f.count).map(|n| n as f64 / (set.width * set.height).max(1) as f64),
         ..Default::default()
     };
     apply_measured(c, d)
@@ -147,11 +147,11 @@ pub fn ptc_model(set: &crate::emva::EmvaSet, sheet: &crate::emva::Datasheet, dar
 /// list of those ADCs.
 fn code_density_by_adc([a, b]: &[Vec<Vec<u64>>; 2], mut findings: Vec<Finding>) -> (Vec<Finding>, Vec<usize>) {
     let by_adc: Vec<Option<Vec<Finding>>> =
-        a.iter().zip(b).enumerate().map(|(adc, (a, b))| diagnose_code_density(a, b, adc).ok().map(|(f, _, _)| f.into_iter().filter(|f| f.effect == "adc-dnl").collect())).collect();
+        a.iter().zip(b).enumerate().map(|(adc, (a, b))| diagnose_code_density(a, b, adc).ok().map(|(f, _, _)| f.into_iter().filter(|f| f.effect == Effect::AdcDnl).collect())).collect();
     let named: Vec<usize> = by_adc.iter().enumerate().filter(|(_, f)| f.as_ref().is_some_and(|f| !f.is_empty())).map(|(adc, _)| adc).collect();
     let tested = by_adc.iter().filter(|f| f.is_some()).count();
     if tested == INTERLEAVED_ADCS && !named.is_empty() && named.len() < INTERLEAVED_ADCS {
-        findings.retain(|f| f.effect != "adc-dnl");
+        findings.retain(|f| f.effect != Effect::AdcDnl);
         for mut f in by_adc.into_iter().flatten().flatten() {
             f.detail = format!("columns c mod {INTERLEAVED_ADCS} = {} only: {}", f.adc.unwrap_or(0), f.detail);
             findings.push(f);
@@ -306,7 +306,7 @@ pub fn diagnose_as(read_from: &Path, input: &Path, flatten: &FlattenParams, seed
 fn report(input: &Path, mut diagnosis: Diagnosis, model: Option<crate::camera::CameraConfig>, out: Option<OutDir<'_>>, (x_label, base_label): (&str, &str)) -> Result<DiagnoseSummary, HostError> {
     // What the model leaves is listed after what it found (stable: the findings keep the
     // order they entered the model in).
-    diagnosis.findings.sort_by_key(|f| f.effect == "unexplained");
+    diagnosis.findings.sort_by_key(|f| f.effect == Effect::Unexplained);
     let mut outputs = Vec::new();
     if let Some(OutDir { files, dir }) = out {
         let n = diagnosis.residuals.len();
@@ -357,7 +357,7 @@ fn report(input: &Path, mut diagnosis: Diagnosis, model: Option<crate::camera::C
                 Series { label: format!("with {what}"), points: r.extended.iter().map(|&(k, z)| (k as f64, z)).collect() },
             ];
             // An ADC's code widths are seen by code, except in a linearity set (by level).
-            let axis = if f.effect == "adc-dnl" && diagnosis.baseline.kind != "linearity-set" { "code (DN)" } else { x_label };
+            let axis = if f.effect == Effect::AdcDnl && diagnosis.baseline.kind != "linearity-set" { "code (DN)" } else { x_label };
             line_plot(files, &dir.join(&name), &format!("{what}: held-out residuals / noise, before and after (gain {:.2})", f.gain), axis, "normalized residual", &series, 1)?;
             let _ = write!(h, "<h2 id=\"figure-{k}\">Figure {k}: {what}</h2><p>{}</p>{}", crate::outputs::html_escape(&f.detail), html_figure(&name, 1000, &format!("{what}: held-out residuals before and after"), None));
             outputs.push(dir.join(name));
@@ -395,10 +395,11 @@ fn report(input: &Path, mut diagnosis: Diagnosis, model: Option<crate::camera::C
             let text = toml::to_string(m).map_err(|e| HostError::Format { path: path.clone(), message: e.to_string() })?;
             // Level errors and excess noise belong to the measurement (the light source, the
             // frames' independence), not to the camera: named, never simulated.
-            let note = |f: &Finding| match f.effect.as_str() {
-                "adc-mismatch" | "unexplained" | "low-signal-nonlinearity" => Some(format!("# not in the camera model yet: {}{}\n", f.effect, f.adc.map_or(String::new(), |a| format!(" (ADC {a})")))),
-                "level-errors" | "excess-noise" => Some(format!("# of the measurement, not the camera (not simulated): {}\n", f.effect)),
-                _ => None,
+            let note = |f: &Finding| match f.effect {
+                Effect::AdcMismatch | Effect::Unexplained | Effect::LowSignalNonlinearity => Some(format!("# not in the camera model yet: {}{}\n", f.effect, f.adc.map_or(String::new(), |a| format!(" (ADC {a})")))),
+                Effect::LevelErrors | Effect::ExcessNoise => Some(format!("# of the measurement, not the camera (not simulated): {}\n", f.effect)),
+                // In the model (or, for the noise, a property of the data it records).
+                Effect::AdcDnl | Effect::GlobalNonlinearity | Effect::PixelNonlinearity | Effect::BadPixels | Effect::InsufficientNoise => None,
             };
             let mut not_simulated: Vec<String> = diagnosis.findings.iter().filter_map(note).collect();
             if let (false, Some(f)) = (diagnosis.measured.saturated, diagnosis.measured.full_scale_dn) {

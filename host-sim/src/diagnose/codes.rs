@@ -196,7 +196,7 @@ pub fn diagnose_code_density(a: &[u64], b: &[u64], adc: usize) -> Result<(Vec<Fi
     if accepted {
         findings.push(Finding {
             residuals: Some(AdcResiduals::over(&codes, &z0, &z1)),
-            effect: "adc-dnl".into(),
+            effect: Effect::AdcDnl,
             adc: Some(adc),
             count: None,
             sigma_dn: None,
@@ -333,7 +333,7 @@ mod tests {
             let widths: Vec<f64> = (0..4096).map(|k| pattern[k % 4] + normal.sample(&mut gen)).collect();
             let (f, _, cd) = diagnose_code_density_pair(&lumpy(&widths, seed)).unwrap();
             assert_eq!(f.len(), 1, "seed {seed}, amp {amp}: {f:?}");
-            assert_eq!((f[0].effect.as_str(), f[0].adc), ("adc-dnl", Some(0)));
+            assert_eq!((f[0].effect.name(), f[0].adc), ("adc-dnl", Some(0)));
             assert!(f[0].gain > 1.1 && (f[0].rms_after - 1.0).abs() < 0.1, "{:?}", f[0]);
             assert_eq!(cd.class_widths.len() % 4, 0, "{cd:?}");
             // Pattern rms 0.79 amp, and the 1% random widths.

@@ -67,7 +67,7 @@ pub fn diagnose_defects(set: &EmvaSet) -> Result<DefectOutcome, HostError> {
         return Ok(DefectOutcome::Tested(None));
     }
     Ok(DefectOutcome::Tested(Some(Finding {
-        effect: "bad-pixels".into(),
+        effect: Effect::BadPixels,
         adc: None,
         count: Some(count),
         sigma_dn: None,

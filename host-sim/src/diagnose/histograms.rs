@@ -91,7 +91,7 @@ pub fn diagnose_histograms(h: &AdcHistograms, flatten: &FlattenParams, seed: u64
             let top = &structure[0];
             findings.push(Finding {
                 residuals: Some(AdcResiduals::over(&codes, &z0, &z1)),
-                effect: "adc-dnl".into(),
+                effect: Effect::AdcDnl,
                 adc: Some(adc),
                 count: None,
                 sigma_dn: None,
@@ -119,7 +119,7 @@ pub fn diagnose_histograms(h: &AdcHistograms, flatten: &FlattenParams, seed: u64
     // On the all-data scale the findings replace, in their order, one ADC's baseline sum by
     // its sum with the code widths.
     let mut sum: f64 = dnl_steps.iter().map(|s| s.0).sum();
-    for f in findings.iter_mut().filter(|f| f.effect == "adc-dnl") {
+    for f in findings.iter_mut().filter(|f| f.effect == Effect::AdcDnl) {
         let (before, after) = f.adc.map_or((0.0, 0.0), |a| dnl_steps[a]);
         sum += after - before;
         f.all_data_rms_after = Some((sum / all0.len().max(1) as f64).sqrt());
@@ -208,7 +208,7 @@ mod tests {
             let adcs: Vec<PipelinedAdc> = (0..4).map(|i| if i == hidden { PipelinedAdc::from_config(&cfg, 10, i).unwrap() } else { PipelinedAdc::ideal(10) }).collect();
             let h = measure(&adcs, 20_000.0, seed);
             let d = diagnose_histograms(&h, &params(10), seed).unwrap();
-            let named: Vec<(String, Option<usize>)> = d.findings.iter().map(|f| (f.effect.clone(), f.adc)).collect();
+            let named: Vec<(String, Option<usize>)> = d.findings.iter().map(|f| (f.effect.to_string(), f.adc)).collect();
             assert_eq!(named, vec![("adc-dnl".to_string(), Some(hidden))], "seed {seed} (amp {amp}): {:?}", d.findings);
             let f = &d.findings[0];
             assert!(f.gain > 1.2, "seed {seed}: gain {}", f.gain);

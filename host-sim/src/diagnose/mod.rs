@@ -65,11 +65,77 @@ pub struct Baseline {
     pub rms: f64,
 }
 
+/// An effect of the catalog (`docs/diagnose.md`): what a finding names. Serialized, and
+/// displayed, by its name there (`adc-dnl`, ...), which the JSON output, the report and
+/// the figures' file names carry.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Effect {
+    /// Code widths that differ from uniform (DN error), per ADC.
+    AdcDnl,
+    /// One ADC's offset, gain or curvature off the others'.
+    AdcMismatch,
+    /// A response every pixel shares that bends.
+    GlobalNonlinearity,
+    /// Each pixel's own bend beyond the shared one.
+    PixelNonlinearity,
+    /// A departure confined to the lowest signals (charge loss, an offset).
+    LowSignalNonlinearity,
+    /// Errors of the measurement every pixel shares at a level (light, black level).
+    LevelErrors,
+    /// Pixels the model cannot follow (hot, dead, kinked).
+    BadPixels,
+    /// A noise larger than the frames' spread says, alike everywhere.
+    ExcessNoise,
+    /// Noise too low to average below one code.
+    InsufficientNoise,
+    /// What the extended model leaves.
+    Unexplained,
+}
+
+impl Effect {
+    /// Every effect, in the catalog's order.
+    pub const ALL: [Effect; 10] = [
+        Effect::AdcDnl,
+        Effect::AdcMismatch,
+        Effect::GlobalNonlinearity,
+        Effect::PixelNonlinearity,
+        Effect::LowSignalNonlinearity,
+        Effect::LevelErrors,
+        Effect::BadPixels,
+        Effect::ExcessNoise,
+        Effect::InsufficientNoise,
+        Effect::Unexplained,
+    ];
+
+    /// The catalog's name.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Effect::AdcDnl => "adc-dnl",
+            Effect::AdcMismatch => "adc-mismatch",
+            Effect::GlobalNonlinearity => "global-nonlinearity",
+            Effect::PixelNonlinearity => "pixel-nonlinearity",
+            Effect::LowSignalNonlinearity => "low-signal-nonlinearity",
+            Effect::LevelErrors => "level-errors",
+            Effect::BadPixels => "bad-pixels",
+            Effect::ExcessNoise => "excess-noise",
+            Effect::InsufficientNoise => "insufficient-noise",
+            Effect::Unexplained => "unexplained",
+        }
+    }
+}
+
+impl std::fmt::Display for Effect {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
 /// One accepted model extension.
 #[derive(Debug, Clone, Serialize)]
 pub struct Finding {
-    /// The effect, from the catalog (`adc-dnl`, ..., `unexplained`).
-    pub effect: String,
+    /// The effect, from the catalog.
+    pub effect: Effect,
     /// The ADC, for per-ADC effects.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub adc: Option<usize>,
@@ -166,7 +232,7 @@ pub(crate) fn insufficient_noise(what: &str, sigma_dn: f64, accuracy_dn: f64) ->
     let worst = crate::quantization::worst_bias(sigma_dn).max_abs_bias_dn;
     (worst > accuracy_dn).then(|| Finding {
         residuals: None,
-        effect: "insufficient-noise".into(),
+        effect: Effect::InsufficientNoise,
         adc: None,
         count: None,
         sigma_dn: Some(sigma_dn),
@@ -189,7 +255,7 @@ pub(crate) fn unexplained_by_residue(adc: usize, codes: &[usize], z: &[f64], pre
         let st = by_residue(codes, z);
         Finding {
             residuals: None,
-            effect: "unexplained".into(),
+            effect: Effect::Unexplained,
             adc: Some(adc),
             count: None,
             sigma_dn: None,
@@ -245,3 +311,24 @@ pub fn trimmed_params(flatten: &FlattenParams) -> FlattenParams {
     FlattenParams { trim_below_fraction: flatten.trim_below_fraction.max(0.1), ..flatten.clone() }
 }
 
+
+#[cfg(test)]
+mod effect_tests {
+    use super::Effect;
+
+    /// The JSON name of each effect is the catalog's (serde's kebab-case and `name` agree)
+    /// and no two effects share one.
+    #[test]
+    fn effects_serialize_to_the_catalogs_names() {
+        let json: Vec<String> = Effect::ALL.iter().map(|e| serde_json::to_string(e).unwrap()).collect();
+        let names: Vec<String> = Effect::ALL.iter().map(|e| format!("\"{e}\"")).collect();
+        assert_eq!(json, names);
+        let doc = include_str!("../../../docs/diagnose.md");
+        for e in Effect::ALL {
+            assert!(doc.contains(&format!("`{e}`")), "{e} is not in docs/diagnose.md's catalog");
+        }
+        let mut unique = names.clone();
+        unique.dedup();
+        assert_eq!(unique.len(), names.len());
+    }
+}

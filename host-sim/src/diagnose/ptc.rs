@@ -179,12 +179,12 @@ pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Res
         (g > SIGNIFICANCE && rich.0 < simpler.0).then_some(g)
     };
     // A finding from the held-out residuals before and after it.
-    let finding = |effect: &str, what: String, significance: f64, (m_s, z_s): &Score, (m_r, z_r): &Score| {
+    let finding = |effect: Effect, what: String, significance: f64, (m_s, z_s): &Score, (m_r, z_r): &Score| {
         // How large the effect is, in DN and relative, at the largest change.
         let (i, dz) = z_r.iter().zip(z_s).map(|((i, a), (_, b))| (*i, (b - a).abs())).fold((0, 0.0), |acc, v| if v.1 > acc.1 { v } else { acc });
         Finding {
             residuals: Some(AdcResiduals { baseline: z_s.clone(), extended: z_r.clone() }),
-            effect: effect.into(),
+            effect,
             adc: None,
             count: None,
             sigma_dn: None,
@@ -248,7 +248,7 @@ pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Res
         let base_score = score(base).ok_or("the photon-transfer fit failed")?;
         let significance = significance(current, &base_score, &current_score);
         let what = format!("the response bends: x^2 .. x^{} in the photons (the degree the held-out levels favour)", current.degree);
-        let mut f = finding("global-nonlinearity", what, significance, &base_score, &current_score);
+        let mut f = finding(Effect::GlobalNonlinearity, what, significance, &base_score, &current_score);
         // Listed before the low-signal term, the bend is on the all-data scale without it.
         if low_named.is_some() {
             f.all_data_rms_after = Some(plain_score.0.sqrt());
@@ -256,7 +256,7 @@ pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Res
         findings.push(f);
     }
     if let Some((s, significance)) = &low_named {
-        findings.push(finding("low-signal-nonlinearity", "a departure confined to the lowest 10% of the range".into(), *significance, &plain_score, s));
+        findings.push(finding(Effect::LowSignalNonlinearity, "a departure confined to the lowest 10% of the range".into(), *significance, &plain_score, s));
     }
     let (mcur, zcur) = current_score;
     let (ecur, sdcur) = moments(current);
@@ -270,7 +270,7 @@ pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Res
     if (mcur - ecur) / sdcur > SIGNIFICANCE {
         findings.push(Finding {
             residuals: None,
-            effect: "unexplained".into(),
+            effect: Effect::Unexplained,
             adc: None,
             count: None,
             sigma_dn: None,
@@ -362,13 +362,13 @@ mod tests {
             // line, 2 to 8 times the light source's frame-to-frame scatter).
             let q = gen.random_range(0.01..0.05);
             let d = diagnose_ptc(&ptc(64, 300_000, |p| 0.12 * p * (1.0 - q * p / 25600.0), seed), 300_000, 0.01).unwrap();
-            let named: Vec<&str> = d.findings.iter().map(|f| f.effect.as_str()).collect();
+            let named: Vec<&str> = d.findings.iter().map(|f| f.effect.name()).collect();
             assert_eq!(named, vec!["global-nonlinearity"], "seed {seed}, q {q}: {:?}", d.findings);
             assert!(d.findings[0].gain > 2.0);
             // Low-signal: a loss of 4 to 10 DN that fades out within a few % of the range.
             let loss = gen.random_range(4.0..10.0);
             let d = diagnose_ptc(&ptc(64, 300_000, |p| 0.12 * p - loss * (-p / 600.0).exp(), seed), 300_000, 0.01).unwrap();
-            let named: Vec<&str> = d.findings.iter().map(|f| f.effect.as_str()).collect();
+            let named: Vec<&str> = d.findings.iter().map(|f| f.effect.name()).collect();
             assert!(named.contains(&"low-signal-nonlinearity"), "seed {seed}, loss {loss}: {:?}", d.findings);
             // Compressive near the top, `y (1 - a (y / y_max)^3)` with a of 2% to 10%: an
             // x^4 term, one smooth shape (the cubic left it `unexplained`), and its curve
@@ -377,7 +377,7 @@ mod tests {
             let y_max = 0.12 * 25600.0;
             let compressive = |p: f64| 0.12 * p * (1.0 - a * (0.12 * p / y_max).powi(3));
             let d = diagnose_ptc(&ptc(64, 300_000, compressive, seed), 300_000, 0.01).unwrap();
-            let named: Vec<&str> = d.findings.iter().map(|f| f.effect.as_str()).collect();
+            let named: Vec<&str> = d.findings.iter().map(|f| f.effect.name()).collect();
             assert_eq!(named, vec!["global-nonlinearity"], "seed {seed}, a {a}: {:?}", d.findings);
             // Within the fitted range (levels below 90% of the largest-variance level, here
             // the top one, near 0.9 y_max), the accepted curve bends as the planted one: the
@@ -395,7 +395,7 @@ mod tests {
             // shape is not the planted exponential's, so an `unexplained` remainder may
             // follow, as with the loss alone).
             let d = diagnose_ptc(&ptc(64, 300_000, |p| compressive(p) - loss * (-p / 600.0).exp(), seed), 300_000, 0.01).unwrap();
-            let named: Vec<&str> = d.findings.iter().map(|f| f.effect.as_str()).collect();
+            let named: Vec<&str> = d.findings.iter().map(|f| f.effect.name()).collect();
             assert_eq!(named[..2], ["global-nonlinearity", "low-signal-nonlinearity"], "seed {seed}, a {a}, loss {loss}: {:?}", d.findings);
         }
     }
@@ -418,7 +418,7 @@ mod tests {
             p.dark_var_dn2 = 0.15 * 0.15;
         }
         let d = diagnose_ptc(&pts, 300_000, 0.01).unwrap();
-        let f = d.findings.iter().find(|f| f.effect == "insufficient-noise").expect("named");
+        let f = d.findings.iter().find(|f| f.effect.name() == "insufficient-noise").expect("named");
         assert!((f.sigma_dn.unwrap() - 0.15).abs() < 1e-12);
     }
 }

@@ -7,7 +7,7 @@ use rayon::prelude::*;
 use super::super::pixel_fit::{fit_and_score, Response};
 use super::super::points::{Common, Pixels};
 use super::super::scores::Scores;
-use super::super::{Finding, SIGNIFICANCE};
+use super::super::{Effect, Finding, SIGNIFICANCE};
 use super::finding;
 use super::pixel_fits::PixelFits;
 use crate::fits::Sample;
@@ -171,7 +171,7 @@ pub(super) fn adc_maps<T: Sample>(px: &Pixels<T>, common: Option<&dyn Common>, f
                         (f.significance, f.rms_before, f.rms_after, f.gain) = (sig, b, af, b / af);
                     }
                 }
-                None => adc_findings[a] = Some(finding("adc-mismatch", Some(a), sig, b, af, part)),
+                None => adc_findings[a] = Some(finding(Effect::AdcMismatch, Some(a), sig, b, af, part)),
             }
         }
     }

@@ -4,7 +4,7 @@
 
 use super::super::levels::{held_out_rms, level_term, wald, Block, LevelTerm, Shape};
 use super::super::points::Pixels;
-use super::super::{Finding, SIGNIFICANCE};
+use super::super::{Effect, Finding, SIGNIFICANCE};
 use super::{finding, with_residuals};
 use crate::fits::Sample;
 
@@ -53,7 +53,7 @@ pub(super) fn level_stage<T: Sample>(px: &Pixels<T>, nl: usize) -> LevelStage {
                 (sig > SIGNIFICANCE && after < before).then(|| {
                     let lows = count(&low);
                     with_residuals(skipped.skipped_by_level.clone(), finding(
-                        "low-signal-nonlinearity",
+                        Effect::LowSignalNonlinearity,
                         None,
                         sig,
                         before,
@@ -100,7 +100,7 @@ pub(super) fn level_stage<T: Sample>(px: &Pixels<T>, nl: usize) -> LevelStage {
     for (a, &t) in levels_term.adc_significance.iter().enumerate().filter(|(_, t)| **t > SIGNIFICANCE) {
         let (before, after) = held_out_rms(&levels_term.adc_by_level[a]);
         findings.push(with_residuals(levels_term.adc_by_level[a].clone(), finding(
-            "adc-dnl",
+            Effect::AdcDnl,
             Some(a),
             t,
             before,
@@ -119,15 +119,15 @@ pub(super) fn level_stage<T: Sample>(px: &Pixels<T>, nl: usize) -> LevelStage {
 pub(super) fn level_finding(term: &LevelTerm) -> Finding {
     let (before, after) = held_out_rms(&term.by_level);
     let (effect, detail) = match term.shape {
-        Shape::Random => ("level-errors", format!(
+        Shape::Random => (Effect::LevelErrors, format!(
             "every pixel is off alike at some levels, beyond any smooth response, uncorrelated from level to level and spread over the range: light {:.2e} rms (relative) off the reference detector and black level {:.3} DN rms (odd rows' level residuals against the even rows' estimate); taken out of every pixel's means (the light's part scaled by each pixel's local slope, the black level's by its ADC's); their smooth part cannot be told from a shared nonlinearity: a shared curve takes it, and is named only if it stands out against the level errors too",
             term.light_rel, term.black_dn
         )),
-        Shape::LowSignal { share } => ("low-signal-nonlinearity", format!(
+        Shape::LowSignal { share } => (Effect::LowSignalNonlinearity, format!(
             "every pixel departs alike from any smooth response at the lowest signals: {:.0}% of the agreement between even and odd rows lies in the lowest 10% of the range (an offset or a charge loss); taken out of every pixel's means",
             100.0 * share
         )),
-        Shape::Correlated { rho } => ("unexplained", format!(
+        Shape::Correlated { rho } => (Effect::Unexplained, format!(
             "every pixel departs alike from any smooth response, correlated from level to level (lag-1 correlation {rho:.2} over the levels by signal): a shared response no quartic follows, not random level errors; taken out of every pixel's means"
         )),
     };

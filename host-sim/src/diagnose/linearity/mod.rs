@@ -101,8 +101,8 @@ fn with_residuals(r: AdcResiduals, mut f: Finding) -> Finding {
     f
 }
 
-fn finding(effect: &str, adc: Option<usize>, significance: f64, before: f64, after: f64, detail: String) -> Finding {
-    Finding { effect: effect.into(), adc, count: None, sigma_dn: None, significance, rms_before: before, rms_after: after, gain: before / after, all_data_rms_after: None, detail, residuals: None }
+fn finding(effect: Effect, adc: Option<usize>, significance: f64, before: f64, after: f64, detail: String) -> Finding {
+    Finding { effect, adc, count: None, sigma_dn: None, significance, rms_before: before, rms_after: after, gain: before / after, all_data_rms_after: None, detail, residuals: None }
 }
 
 /// The set checked (enough levels and frames, positive reference, noise known, at most
@@ -246,7 +246,7 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
         apart.push(a);
         let steps = AdcResiduals { baseline: glob.by_level(&on), extended: own_curve.by_level(&on) };
         adc_findings[a] = Some(with_residuals(steps, finding(
-            "adc-mismatch",
+            Effect::AdcMismatch,
             Some(a),
             sig,
             ta.rms(),
@@ -282,7 +282,7 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
     if global_accepted {
         let steps = AdcResiduals { baseline: base.by_level(&follows), extended: glob.by_level(&follows) };
         findings.push(with_residuals(steps, finding(
-            "global-nonlinearity",
+            Effect::GlobalNonlinearity,
             None,
             sig,
             tb0.rms(),
@@ -315,7 +315,7 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
             }
         }
     }
-    if let Some(f) = findings[level_findings..].iter_mut().find(|f| f.effect == "global-nonlinearity") {
+    if let Some(f) = findings[level_findings..].iter_mut().find(|f| f.effect == Effect::GlobalNonlinearity) {
         f.all_data_rms_after = Some(tcur.rms());
     }
     // (What `current` took of them is copied.)
@@ -372,7 +372,7 @@ mod tests {
     use rand::SeedableRng;
 
     fn named(d: &Diagnosis) -> Vec<(String, Option<usize>)> {
-        let mut v: Vec<(String, Option<usize>)> = d.findings.iter().map(|f| (f.effect.clone(), f.adc)).collect();
+        let mut v: Vec<(String, Option<usize>)> = d.findings.iter().map(|f| (f.effect.to_string(), f.adc)).collect();
         v.sort();
         v
     }

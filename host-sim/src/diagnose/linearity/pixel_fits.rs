@@ -8,7 +8,7 @@ use super::super::pixel_fit::{fit_and_score, Point, Response};
 use super::super::pixel_fit::Totals;
 use super::super::points::{Common, Pixels};
 use super::super::scores::{Cell, Scores};
-use super::super::{AdcResiduals, Finding, SIGNIFICANCE};
+use super::super::{AdcResiduals, Effect, Finding, SIGNIFICANCE};
 use super::adc_apart::population;
 use super::{finding, with_residuals};
 use crate::fits::Sample;
@@ -189,7 +189,7 @@ impl PixelStage {
         let significance = (s_all - s_ok - removed) / (2.0 * n_all as f64).sqrt();
         (significance > SIGNIFICANCE).then(|| {
             let mut f = finding(
-                "bad-pixels",
+                Effect::BadPixels,
                 None,
                 significance,
                 before,
@@ -228,7 +228,7 @@ pub(super) fn pixel_nonlinearity<T: Sample>(px: &Pixels<T>, common: Option<&dyn 
         let rms_spread = (spread.iter().map(|v| v * v).sum::<f64>() / spread.len().max(1) as f64).sqrt();
         let steps = AdcResiduals { baseline: current.by_level(&all), extended: own.by_level(&all) };
         return Some(with_residuals(steps, finding(
-            "pixel-nonlinearity",
+            Effect::PixelNonlinearity,
             None,
             sig,
             tcur.rms(),

@@ -5,7 +5,7 @@
 use super::super::pixel_fit::Totals;
 use super::super::points::{Common, Pixels};
 use super::super::scores::{Cell, Scores};
-use super::super::{AdcResiduals, Finding, SIGNIFICANCE};
+use super::super::{AdcResiduals, Effect, Finding, SIGNIFICANCE};
 use super::{finding, with_residuals};
 use crate::fits::Sample;
 
@@ -41,7 +41,7 @@ pub(super) fn remainder<T: Sample>(px: &Pixels<T>, common: Option<&dyn Common>, 
         let rms = current.by_level(&all);
         let scaled = rms.iter().map(|&(l, r)| (l, r / k2.sqrt())).collect();
         let mut f = with_residuals(AdcResiduals { baseline: rms, extended: scaled }, finding(
-            "excess-noise",
+            Effect::ExcessNoise,
             None,
             tcur.excess(),
             to.rms(),
@@ -57,7 +57,7 @@ pub(super) fn remainder<T: Sample>(px: &Pixels<T>, common: Option<&dyn Common>, 
     }
     if tcur.excess() > SIGNIFICANCE && !noise_only {
         out = Some(finding(
-            "unexplained",
+            Effect::Unexplained,
             None,
             tcur.excess(),
             tcur.rms(),

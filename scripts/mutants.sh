@@ -1,0 +1,64 @@
+#!/usr/bin/env bash
+# Mutation testing (cargo-mutants): each mutant is a small change to the code (an
+# operator flipped, a function returning a default, a condition negated); a mutant the
+# tests do not notice ("missed") is code whose result no test checks.
+#
+#   scripts/mutants.sh core   the correction core (accumulate, lut, image, banks,
+#                             histogram, noise) against the core's tests and the FPGA
+#                             model's (which check the model against naive sums)
+#   scripts/mutants.sh host   diagnose/, flatten.rs, quantization.rs, kcor.rs and the
+#                             other files named in docs/testing.md against the host's
+#                             library tests (the CLI tests run whole commands: hours)
+#   scripts/mutants.sh FILE.. those files, tested by their own package
+#
+# Reports go to target/mutants/<name>/mutants.out (missed.txt, caught.txt, ...); the
+# survival rates and the equivalent mutants, with the reason each changes no result, are
+# in docs/testing.md. Installs cargo-mutants (from crates.io) when missing. Runs from a
+# fresh clone; a copy of the tree is mutated, never the working tree.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+VERSION=27.1.0
+if ! cargo mutants --version 2>/dev/null | grep -q "$VERSION"; then
+    echo "installing cargo-mutants $VERSION" >&2
+    cargo install cargo-mutants --locked --version "$VERSION"
+fi
+
+JOBS=${MUTANTS_JOBS:-2}
+run() {
+    local name=$1
+    shift
+    echo "== mutants: $name" >&2
+    mkdir -p "target/mutants/$name"
+    # Exit 2 means missed mutants: reported, not an error of the script.
+    cargo mutants --no-shuffle -j "$JOBS" --timeout 300 --build-timeout 600 -o "target/mutants/$name" "$@" || {
+        local rc=$?
+        [ "$rc" -eq 2 ] || [ "$rc" -eq 3 ] || return "$rc"
+    }
+    local out="target/mutants/$name/mutants.out"
+    printf '%s: caught %s, missed %s, timeout %s, unviable %s\n' "$name" \
+        "$(wc -l < "$out/caught.txt")" "$(wc -l < "$out/missed.txt")" \
+        "$(wc -l < "$out/timeout.txt")" "$(wc -l < "$out/unviable.txt")"
+    if [ -s "$out/missed.txt" ]; then
+        echo "missed:"
+        sed 's/^/  /' "$out/missed.txt"
+    fi
+}
+
+case "${1:-core}" in
+core)
+    files=()
+    for f in accumulate lut image banks histogram noise; do files+=(-f "core/src/$f.rs"); done
+    run core -p dncal-core "${files[@]}" --test-package dncal-core --test-package dncal-fpga-model
+    ;;
+host)
+    files=()
+    for f in diagnose flatten.rs quantization.rs kcor.rs commands/adc.rs camera/calibration.rs; do files+=(-f "host-sim/src/$f"); done
+    run host -p dncal-host "${files[@]}" --test-package dncal-host --cargo-test-arg=--lib
+    ;;
+*)
+    files=()
+    for f in "$@"; do files+=(-f "$f"); done
+    run files "${files[@]}" --test-workspace=false
+    ;;
+esac
