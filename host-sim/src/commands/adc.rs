@@ -246,8 +246,16 @@ mod tests {
         for (a, b) in r.iter().zip(&rb) {
             assert!((a - b).abs() < 1e-12);
         }
-        let (c0, c1) = line_fit(&x, &x.iter().map(|v| 2.0 + 5.0 * v).collect::<Vec<_>>());
+        let line: Vec<f64> = x.iter().map(|v| 2.0 + 5.0 * v).collect();
+        let (c0, c1) = line_fit(&x, &line);
         assert!((c0 - 2.0).abs() < 1e-12 && (c1 - 5.0).abs() < 1e-12);
+        // A line leaves nothing; a parabola about the middle of symmetric x leaves its
+        // curvature less its mean: x^2 - mean(x^2) exactly (the odd part is the line's).
+        assert!(detrend(&x, &line).iter().all(|r| r.abs() < 1e-12));
+        let sym: Vec<f64> = (-10..=10).map(f64::from).collect();
+        let mean_sq = sym.iter().map(|v| v * v).sum::<f64>() / sym.len() as f64;
+        let r = detrend(&sym, &sym.iter().map(|v| v * v + 3.0 * v).collect::<Vec<_>>());
+        assert!(r.iter().zip(&sym).all(|(r, v)| (r - (v * v - mean_sq)).abs() < 1e-9), "{r:?}");
     }
 
     #[test]

@@ -313,6 +313,24 @@ pub fn trimmed_params(flatten: &FlattenParams) -> FlattenParams {
 
 
 #[cfg(test)]
+mod noise_tests {
+    use super::*;
+
+    /// The threshold by hand: at sigma = 0.5 DN the worst-case averaging bias is the
+    /// leading Fourier term `exp(-2 pi^2 sigma^2) / pi` = 2.2906e-3 DN (the next term,
+    /// `exp(-8 pi^2 sigma^2) / (2 pi)`, is 4e-10), so an accuracy 10% below that is
+    /// `insufficient-noise` and one 10% above is not.
+    #[test]
+    fn insufficient_noise_is_named_exactly_above_the_accuracy() {
+        let worst = (-2.0 * std::f64::consts::PI.powi(2) * 0.25).exp() / std::f64::consts::PI;
+        let f = insufficient_noise("dark noise", 0.5, 0.9 * worst).expect("a bias above the accuracy is named");
+        assert_eq!(f.effect, Effect::InsufficientNoise);
+        assert!((f.rms_before - worst).abs() < 1e-6 * worst && (f.significance - 1.0 / 0.9).abs() < 1e-5, "{f:?}");
+        assert!(insufficient_noise("dark noise", 0.5, 1.1 * worst).is_none());
+    }
+}
+
+#[cfg(test)]
 mod effect_tests {
     use super::Effect;
 
