@@ -74,6 +74,22 @@ pub enum HostError {
         /// The budget, bytes.
         limit: u64,
     },
+    /// A command-line value clap's types cannot judge alone (out of range for the data,
+    /// or given with an option it does not apply to): a usage error, exit code 2.
+    #[error("{flag}: {message}")]
+    Argument {
+        /// The option, as typed (`--order`).
+        flag: String,
+        /// What is wrong with its value.
+        message: String,
+    },
+    /// The FPGA model refused its configuration or a frame.
+    #[error("FPGA model: {source}")]
+    Fpga {
+        /// The model's error.
+        #[source]
+        source: dncal_fpga_model::FpgaError,
+    },
     /// A file's contents are not what they must be.
     #[error("{path}: {message}")]
     Format {
@@ -88,6 +104,18 @@ impl HostError {
     /// An I/O error on `path`.
     pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
         HostError::Io { path: path.into(), source }
+    }
+    /// A usage error of option `flag`.
+    pub fn argument(flag: impl Into<String>, message: impl Into<String>) -> Self {
+        HostError::Argument { flag: flag.into(), message: message.into() }
+    }
+    /// The process exit code for this error: 2 for usage errors (as clap's own), 1 for
+    /// everything else (bad data, I/O, a failed tool).
+    pub fn exit_code(&self) -> u8 {
+        match self {
+            HostError::Argument { .. } => 2,
+            _ => 1,
+        }
     }
     /// A core error while doing `context`.
     pub fn core(context: impl Into<String>, source: CoreError) -> Self {

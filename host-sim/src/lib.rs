@@ -29,6 +29,7 @@ pub mod quantization;
 pub mod parallel;
 pub mod real_adcs;
 pub mod reference;
+pub mod roi;
 pub mod select;
 pub mod soak;
 pub mod stats;

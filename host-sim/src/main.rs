@@ -15,6 +15,7 @@ use dncal_host::commands::{adc, bench, demo, diagnose, kcor, linearity, lut, qua
 use dncal_host::firmware::{build_firmware, run_firmware, run_on_host, RunInputs};
 use dncal_host::flatten::FlattenParams;
 use dncal_host::outputs::{OutDir, Outputs};
+use dncal_host::roi::RoiSpec;
 use dncal_host::streaming::StreamParams;
 use dncal_host::synth::{dn_error_weights, synthetic_frames, Rng};
 use dncal_host::HostError;
@@ -35,38 +36,57 @@ struct Cli {
     quiet: bool,
 }
 
-/// Which datapath `stream` drives.
+/// The datapaths `stream` can drive.
+#[derive(clap::ValueEnum, Debug, Clone, Copy, PartialEq, Eq)]
+enum EngineKind {
+    /// The correction core, as the MCU runs it.
+    Core,
+    /// The cycle-level frame-grabber model, configured over SPI by the core's driver and
+    /// compared with the core sum by sum.
+    Fpga,
+}
+
+/// Which datapath `stream` drives. The FPGA model's settings apply to it alone: given
+/// with `--engine core` they are refused, not ignored.
 #[derive(Args, Debug, Clone)]
 struct EngineArgs {
-    /// `core` (the correction core, as the MCU runs it) or `fpga` (the cycle-level
-    /// frame-grabber model, configured over SPI by the core's driver and compared with
-    /// the core sum by sum).
-    #[arg(long, default_value = "core")]
-    engine: String,
-    /// FPGA: pixels per clock (1 to 8).
-    #[arg(long, default_value_t = 4)]
-    taps: usize,
-    /// FPGA: input FIFO depth, pixels.
-    #[arg(long, default_value_t = 1024)]
-    fifo_depth: usize,
-    /// FPGA: sum-memory latency, cycles.
-    #[arg(long, default_value_t = 32)]
-    mem_latency: u32,
-    /// FPGA: sum-memory bandwidth, 32-bit words per clock (a pixel needs 2).
-    #[arg(long, default_value_t = 8)]
-    mem_words_per_cycle: u32,
+    /// The datapath.
+    #[arg(long, value_enum, default_value_t = EngineKind::Core)]
+    engine: EngineKind,
+    /// FPGA: pixels per clock, 1 to 8 [default: 4].
+    #[arg(long, help_heading = "FPGA model (--engine fpga)")]
+    taps: Option<usize>,
+    /// FPGA: input FIFO depth, pixels [default: 1024].
+    #[arg(long, help_heading = "FPGA model (--engine fpga)")]
+    fifo_depth: Option<usize>,
+    /// FPGA: sum-memory latency, cycles [default: 32].
+    #[arg(long, help_heading = "FPGA model (--engine fpga)")]
+    mem_latency: Option<u32>,
+    /// FPGA: sum-memory bandwidth, 32-bit words per clock (a pixel needs 2) [default: 8].
+    #[arg(long, help_heading = "FPGA model (--engine fpga)")]
+    mem_words_per_cycle: Option<u32>,
 }
 
 impl EngineArgs {
     fn engine(&self) -> Result<dncal_host::streaming::Engine, HostError> {
-        match self.engine.as_str() {
-            "core" => Ok(dncal_host::streaming::Engine::Core),
-            "fpga" => {
-                let config = dncal_fpga_model::Config { taps: self.taps, fifo_depth: self.fifo_depth, mem_latency: self.mem_latency, mem_words_per_cycle: self.mem_words_per_cycle, ..Default::default() };
-                config.validate().map_err(|e| HostError::Format { path: "--engine fpga".into(), message: e.to_string() })?;
+        let fpga_flags = [("--taps", self.taps.is_some()), ("--fifo-depth", self.fifo_depth.is_some()), ("--mem-latency", self.mem_latency.is_some()), ("--mem-words-per-cycle", self.mem_words_per_cycle.is_some())];
+        match self.engine {
+            EngineKind::Core => match fpga_flags.iter().find(|f| f.1) {
+                Some((flag, _)) => Err(HostError::argument(*flag, "applies to the FPGA model only: add --engine fpga")),
+                None => Ok(dncal_host::streaming::Engine::Core),
+            },
+            EngineKind::Fpga => {
+                let d = dncal_fpga_model::Config::default();
+                let config = dncal_fpga_model::Config {
+                    taps: self.taps.unwrap_or(4),
+                    fifo_depth: self.fifo_depth.unwrap_or(1024),
+                    mem_latency: self.mem_latency.unwrap_or(32),
+                    mem_words_per_cycle: self.mem_words_per_cycle.unwrap_or(8),
+                    ..d
+                };
+                config.validate().map_err(|e| HostError::argument("--engine fpga", e.to_string()))?;
                 Ok(dncal_host::streaming::Engine::Fpga(config))
             }
-            other => Err(HostError::Format { path: "--engine".into(), message: format!("{other:?} is not an engine (core or fpga)") }),
         }
     }
 }
@@ -181,7 +201,7 @@ enum Cmd {
         states: u8,
         /// ROI as WIDTHxHEIGHT+COLUMN+ROW (default: the whole sensor).
         #[arg(long)]
-        roi: Option<String>,
+        roi: Option<RoiSpec>,
         /// Seed of the frames.
         #[arg(long, default_value_t = 735)]
         seed: u64,
@@ -456,7 +476,7 @@ enum SimulateCmd {
         frames: u32,
         /// ROI as WIDTHxHEIGHT+COLUMN+ROW (default: 128x128 at the sensor center).
         #[arg(long)]
-        roi: Option<String>,
+        roi: Option<RoiSpec>,
         /// Seed of the frames.
         #[arg(long, default_value_t = 41)]
         seed: u64,
@@ -529,16 +549,6 @@ enum LutCmd {
         #[arg(long)]
         json: bool,
     },
-}
-
-/// Parses `WxH+X+Y`.
-fn parse_roi(s: &str) -> Result<(usize, usize, usize, usize), HostError> {
-    let bad = || HostError::Format { path: "--roi".into(), message: format!("'{s}' is not WIDTHxHEIGHT+COLUMN+ROW") };
-    let (size, rest) = s.split_once('+').ok_or_else(bad)?;
-    let (x, y) = rest.split_once('+').ok_or_else(bad)?;
-    let (w, h) = size.split_once('x').ok_or_else(bad)?;
-    let n = |t: &str| t.trim().parse::<usize>().map_err(|_| bad());
-    Ok((n(w)?, n(h)?, n(x)?, n(y)?))
 }
 
 fn print<T: Serialize>(json: bool, value: &T, text: impl FnOnce(&T) -> String) -> Result<(), HostError> {
@@ -690,7 +700,7 @@ fn main() -> ExitCode {
         Ok(code) => code,
         Err(e) => {
             eprintln!("dncal: error: {e}");
-            ExitCode::FAILURE
+            ExitCode::from(e.exit_code())
         }
     }
 }
@@ -815,7 +825,7 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
             let paper = LinearityParams::paper(&cam);
             let roi = match roi {
                 Some(r) => {
-                    let (w, h, x, y) = parse_roi(&r)?;
+                    let (w, h, x, y) = r.parts();
                     (x, y, w, h)
                 }
                 None => paper.roi,
@@ -878,7 +888,7 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
             p.engine = engine.engine()?;
             let fit = |what: &str, v: usize| u16::try_from(v).map_err(|_| HostError::Format { path: what.into(), message: format!("{v} does not fit 16 bits") });
             if let Some(r) = roi {
-                let (w, h, x, y) = parse_roi(&r)?;
+                let (w, h, x, y) = r.parts();
                 (p.width, p.height, p.first_column, p.first_row) = (fit("--roi", w)?, fit("--roi", h)?, fit("--roi", x)?, fit("--roi", y)?);
             }
             if let Some(path) = frames_from {
@@ -1022,7 +1032,7 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
             let sigma = match (sigma, read_noise_e, gain_e_per_dn) {
                 (Some(s), _, _) => Some(s),
                 (None, Some(r), Some(g)) if g > 0.0 => Some(r / g),
-                (None, Some(_), Some(g)) => return Err(HostError::Format { path: "--gain-e-per-dn".into(), message: format!("{g} e-/DN must be > 0") }),
+                (None, Some(_), Some(g)) => return Err(HostError::Argument { flag: "--gain-e-per-dn".into(), message: format!("{g} e-/DN must be > 0") }),
                 _ => None,
             };
             if sigma.is_none() && bias.is_none() && figure.is_none() {
@@ -1105,9 +1115,18 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
         }
         Cmd::FpgaSize { cameras, size, frame_rate, states, fifo_depth, mem_latency, lut, out, json } => {
             let config = dncal_fpga_model::Config { fifo_depth, mem_latency, ..Default::default() };
-            config.validate().map_err(|e| HostError::Format { path: "fpga-size".into(), message: e.to_string() })?;
-            if !(frame_rate.is_finite() && frame_rate > 0.0) || cameras == 0 || size == 0 || size > 8192 {
-                return Err(HostError::Format { path: "fpga-size".into(), message: "cameras and frame rate must be positive and the size 1 to 8192 pixels (the model holds a frame's sums in memory)".into() });
+            config.validate().map_err(|e| HostError::argument("--fifo-depth / --mem-latency", e.to_string()))?;
+            if cameras == 0 {
+                return Err(HostError::argument("--cameras", "must be at least 1"));
+            }
+            if !(frame_rate.is_finite() && frame_rate > 0.0) {
+                return Err(HostError::argument("--frame-rate", format!("{frame_rate} Hz must be finite and > 0")));
+            }
+            if size == 0 || size > 8192 {
+                return Err(HostError::argument("--size", format!("{size}: 1 to 8192 pixels (the model holds a frame's sums in memory)")));
+            }
+            if states == 0 || states > 8 {
+                return Err(HostError::argument("--states", format!("{states}: 1 to 8 modulation states")));
             }
             let system = dncal_fpga_model::sizing::System { cameras, width: size, height: size, frame_rate_hz: frame_rate, ..Default::default() };
             let r = dncal_host::commands::fpga::fpga_size(&system, states, &config, lut.as_deref(), out.as_deref())?;

@@ -217,7 +217,7 @@ fn run_typed<const N: usize, const CODES: usize>(
     let mut fpga = match &p.engine {
         Engine::Core => None,
         Engine::Fpga(config) => {
-            let model = dncal_fpga_model::Fpga::new(config.clone(), geometry).map_err(|e| HostError::Format { path: "--engine fpga".into(), message: e.to_string() })?;
+            let model = dncal_fpga_model::Fpga::new(config.clone(), geometry).map_err(|source| HostError::Fpga { source })?;
             let mut dp = Datapath::new(model);
             dp.identify().map_err(|e| HostError::core(ctx("fpga identify"), e))?;
             dp.configure(geometry).map_err(|e| HostError::core(ctx("fpga configure"), e))?;
@@ -272,7 +272,7 @@ fn run_typed<const N: usize, const CODES: usize>(
         core_s += t.elapsed().as_secs_f64();
         if let Some(dp) = fpga.as_mut() {
             let lines: Vec<&[u16]> = codes.chunks_exact(w).collect();
-            dp.device_mut().stream_frame(state, &lines).map_err(|e| HostError::Format { path: "--engine fpga".into(), message: e.to_string() })?;
+            dp.device_mut().stream_frame(state, &lines).map_err(|source| HostError::Fpga { source })?;
         }
         progress(frame as u64 + 1);
     }

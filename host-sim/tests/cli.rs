@@ -12,7 +12,7 @@ use std::process::Command;
 
 use dncal_host::fits::{read_histograms, read_lut};
 use serde_json::Value;
-use support::{assert_clean_failure, dncal, listing, stdout_json};
+use support::{assert_clean_failure, assert_usage_failure, dncal, listing, stdout_json};
 
 fn python(script: &str, dir: &Path) {
     let out = Command::new("python3").arg("-c").arg(script).current_dir(dir).output().expect("python3 must be installed");
@@ -181,8 +181,9 @@ fn fpga_size_reports_the_clock_and_writes_readmemh() {
         assert_eq!(&values, table, "ADC {a}");
     }
     assert_clean_failure(&dncal(&["fpga-size", "--lut", "missing.fits", "-o", "x"], d), "missing.fits", "No such file");
-    assert_clean_failure(&dncal(&["fpga-size", "--size", "60000"], d), "fpga-size", "8192");
-    assert_clean_failure(&dncal(&["fpga-size", "--states", "0"], d), "fpga-size", "");
+    assert_usage_failure(&dncal(&["fpga-size", "--size", "60000"], d), "--size", "60000: 1 to 8192 pixels");
+    assert_usage_failure(&dncal(&["fpga-size", "--states", "0"], d), "--states", "0: 1 to 8 modulation states");
+    assert_usage_failure(&dncal(&["fpga-size", "--frame-rate", "0"], d), "--frame-rate", "0 Hz must be finite and > 0");
 }
 
 #[test]
@@ -222,8 +223,13 @@ fn stream_through_the_fpga_model_matches_the_core() {
     assert_eq!(out.status.code(), Some(1));
     let s: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert!(s["fpga"]["fifo_overflows"].as_u64().unwrap() > 0 && s["fpga"]["mismatches_vs_core"].as_u64().unwrap() > 0, "{s}");
-    assert_clean_failure(&dncal(&["stream", "--engine", "fpga", "--taps", "9"], dir.path()), "--engine fpga", "taps");
-    assert_clean_failure(&dncal(&["stream", "--engine", "gpu"], dir.path()), "--engine", "not an engine");
+    assert_usage_failure(&dncal(&["stream", "--engine", "fpga", "--taps", "9"], dir.path()), "--engine fpga", "fpga config taps: must be 1 to 8, got 9");
+    assert_usage_failure(&dncal(&["stream", "--engine", "gpu"], dir.path()), "--engine", "invalid value 'gpu' for '--engine <ENGINE>' [possible values: core, fpga]");
+    // The model's settings are refused without the model, not silently ignored.
+    for flag in ["--taps", "--fifo-depth", "--mem-latency", "--mem-words-per-cycle"] {
+        assert_usage_failure(&dncal(&["stream", flag, "2"], dir.path()), flag, "applies to the FPGA model only: add --engine fpga");
+    }
+    assert_usage_failure(&dncal(&["stream", "--roi", "12x3"], dir.path()), "--roi", "'12x3' is not WIDTHxHEIGHT+COLUMN+ROW");
 }
 
 #[test]
@@ -452,8 +458,8 @@ fn quantization_matches_numerical_integration_and_the_paper() {
     let fig = dncal(&["quantization", "--figure", "q.png"], dir.path());
     assert!(fig.status.success());
     assert_eq!(&std::fs::read(dir.path().join("q.png")).unwrap()[..4], b"\x89PNG");
-    assert_clean_failure(&dncal(&["quantization", "--bias", "0"], dir.path()), "--bias", "> 0");
-    assert_clean_failure(&dncal(&["quantization", "--sigma=-1"], dir.path()), "--sigma", ">= 0");
+    assert_usage_failure(&dncal(&["quantization", "--bias", "0"], dir.path()), "--bias", "no noise level gives a worst-case bias of at most 0 DN (it must be > 0)");
+    assert_usage_failure(&dncal(&["quantization", "--sigma=-1"], dir.path()), "--sigma", "noise rms -1 DN must be finite and >= 0");
 }
 
 #[test]
@@ -504,7 +510,7 @@ fn kcor_model_reports_raw_and_lut_errors() {
     for f in ["kcor_raw.png", "kcor_lut.png"] {
         assert_eq!(&std::fs::read(d.join("k").join(f)).unwrap()[..4], b"\x89PNG");
     }
-    assert_clean_failure(&dncal(&["kcor-model", "--adc", "7"], d), "--adc", "ADC 7");
+    assert_usage_failure(&dncal(&["kcor-model", "--adc", "7"], d), "--adc", "ADC 7 does not exist; the camera has 4");
     assert_clean_failure(&dncal(&["kcor-model", "--lut", "missing.fits"], d), "missing.fits", "No such file");
     // Realizations share the PMFs but not the LUTs: each row is what a single run with
     // its seed gives.
@@ -519,8 +525,8 @@ fn kcor_model_reports_raw_and_lut_errors() {
         }
     }
     assert_ne!(rows[0]["max_abs_sys_err_bsun_lut"], rows[1]["max_abs_sys_err_bsun_lut"], "draws differ");
-    assert_clean_failure(&dncal(&["kcor-model", "--realizations", "0"], d), "--realizations", "at least 1");
-    assert_clean_failure(&dncal(&["kcor-model", "--realizations", "2", "--lut", "x.fits"], d), "--realizations", "not with --lut");
+    assert_usage_failure(&dncal(&["kcor-model", "--realizations", "0"], d), "--realizations", "need at least 1");
+    assert_usage_failure(&dncal(&["kcor-model", "--realizations", "2", "--lut", "x.fits"], d), "--realizations", "not with --lut");
 }
 
 #[test]
@@ -572,7 +578,7 @@ with fits.open('out/corrected.fits') as h:
         d,
     );
     assert_clean_failure(&dncal(&["linearity", "missing.fits"], d), "missing.fits", "No such file");
-    assert_clean_failure(&dncal(&["linearity", "lin.fits", "--order", "0"], d), "--order", "1 to 8");
+    assert_usage_failure(&dncal(&["linearity", "lin.fits", "--order", "0"], d), "--order", "0: the pixel-wise polynomial order must be 1 to 8");
     // The flat can be chosen (the paper's Figs. 6-7 use level 22): the standard correction
     // is then exact there and not at the default flat (20).
     assert_eq!(s["gain_level"], 20);
@@ -583,12 +589,12 @@ with fits.open('out/corrected.fits') as h:
         assert_eq!(&std::fs::read(d.join("out").join(png)).unwrap()[..4], b"\x89PNG", "{png}");
     }
     for bad in ["0", "41"] {
-        assert_clean_failure(&dncal(&["linearity", "lin.fits", "--flat-level", bad], d), "--flat-level", "illuminated levels 1 to 40");
+        assert_usage_failure(&dncal(&["linearity", "lin.fits", "--flat-level", bad], d), "--flat-level", "illuminated levels 1 to 40");
     }
     // At level 40 nearly every pixel is saturated: refused, not a silently masked sensor.
-    assert_clean_failure(&dncal(&["linearity", "lin.fits", "--flat-level", "40"], d), "--flat-level", "saturated at that level");
+    assert_usage_failure(&dncal(&["linearity", "lin.fits", "--flat-level", "40"], d), "--flat-level", "saturated at that level");
     std::fs::write(d.join("h.fits"), b"").unwrap();
-    assert_clean_failure(&dncal(&["linearity", "h.fits"], d), "h.fits", "");
+    assert_clean_failure(&dncal(&["linearity", "h.fits"], d), "h.fits", "not a readable FITS file: the file ends early");
 }
 
 #[test]
@@ -784,8 +790,8 @@ fn bench_reports_ratios_against_in_process_references() {
             assert_eq!(r["holds"].as_bool().unwrap(), ratio >= t, "{r}");
         }
     }
-    assert_clean_failure(&dncal(&["bench", "--runs", "0"], dir.path()), "--runs", "at least 1");
-    assert_clean_failure(&dncal(&["bench", "--runs", "9", "--frames", "300"], dir.path()), "--frames", "512 frames per state");
+    assert_usage_failure(&dncal(&["bench", "--runs", "0"], dir.path()), "--runs", "need at least 1 run and 1 frame");
+    assert_usage_failure(&dncal(&["bench", "--runs", "9", "--frames", "300"], dir.path()), "--frames", "300 frames x 10 runs (one to warm up) exceed 512 frames per state");
 }
 
 /// `stream --frames-from` replays recorded frames (written here by astropy, an outside

@@ -37,7 +37,7 @@ fn negative_numbers_are_values_and_get_the_domain_message() {
     for args in [&["quantization", "--sigma", "-1"][..], &["quantization", "--sigma=-1"]] {
         let out = dncal(args, Path::new("."));
         assert_eq!(String::from_utf8_lossy(&out.stderr), "dncal: error: --sigma: noise rms -1 DN must be finite and >= 0\n", "{args:?}");
-        assert_eq!(out.status.code(), Some(1));
+        assert_eq!(out.status.code(), Some(2), "a value out of its domain is a usage error");
     }
 }
 

@@ -207,12 +207,12 @@ fn python(script: &str, arg: &std::ffi::OsStr) -> Result<Vec<u8>, String> {
 pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, HostError> {
     let (runs, frames) = (p.runs, p.frames);
     if runs == 0 || frames == 0 {
-        return Err(HostError::Format { path: "--runs / --frames".into(), message: "need at least 1 run and 1 frame".into() });
+        return Err(HostError::Argument { flag: "--runs / --frames".into(), message: "need at least 1 run and 1 frame".into() });
     }
     // The core's exact mode holds 512 frames per state; the bench compares its sums with
     // the plain loop's wrapping ones, so it stays inside (warm-up run included).
     if frames * (runs + 1) > 512 * STATES {
-        return Err(HostError::Format { path: "--frames".into(), message: format!("{frames} frames x {} runs (one to warm up) exceed 512 frames per state in 4 states", runs + 1) });
+        return Err(HostError::Argument { flag: "--frames".into(), message: format!("{frames} frames x {} runs (one to warm up) exceed 512 frames per state in 4 states", runs + 1) });
     }
     let mut notes = Vec::new();
     let mut rng = StdRng::seed_from_u64(17);

@@ -42,7 +42,7 @@ pub fn fpga_size(system: &System, states: u8, config: &Config, lut: Option<&Path
         }
         _ => None,
     };
-    let sizing = size(system, states, config, &[1, 2, 4, 8]).map_err(|e| HostError::Format { path: "fpga-size".into(), message: e.to_string() })?;
+    let sizing = size(system, states, config, &[1, 2, 4, 8]).map_err(|source| HostError::Fpga { source })?;
     let mut files = Vec::new();
     if let Some((luts, out)) = luts {
         for (a, table) in luts.tables().iter().enumerate() {

@@ -51,7 +51,7 @@ pub struct Realization {
 /// it, the paper's: the ADC's true widths with `p.lut_noise` relative noise per code, in
 /// `realizations` draws (seeds `p.seed`, `p.seed + 1`, ...; the figures show the first).
 pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, realizations: usize, mut out: Option<OutDir<'_>>) -> Result<KcorSummary, HostError> {
-    let adc = camera.adcs.get(p.adc).ok_or_else(|| HostError::Format { path: "--adc".into(), message: format!("ADC {} does not exist; the camera has {}", p.adc, camera.adcs.len()) })?;
+    let adc = camera.adcs.get(p.adc).ok_or_else(|| HostError::Argument { flag: "--adc".into(), message: format!("ADC {} does not exist; the camera has {}", p.adc, camera.adcs.len()) })?;
     if !(p.exposure_s > 0.0 && p.exposure_s.is_finite() && p.fill > 0.0 && p.fill <= 1.0 && p.lut_noise >= 0.0 && p.flat_fraction > 0.0 && p.flat_fraction <= 1.0 && p.q_fraction > 0.0 && p.q_fraction <= 1.0) {
         return Err(HostError::Format { path: "arguments".into(), message: "need exposure > 0, 0 < fill <= 1, 0 < flat fraction <= 1, 0 < q fraction <= 1 and LUT noise >= 0".into() });
     }
@@ -74,7 +74,7 @@ pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, real
         });
     }
     if realizations == 0 || (realizations > 1 && lut_file.is_some()) {
-        return Err(HostError::Format { path: "--realizations".into(), message: "need at least 1, and more than 1 only for the noisy LUT (not with --lut)".into() });
+        return Err(HostError::Argument { flag: "--realizations".into(), message: "need at least 1, and more than 1 only for the noisy LUT (not with --lut)".into() });
     }
     if let Some(o) = out.as_mut() {
         o.files.create_dir(o.dir)?;

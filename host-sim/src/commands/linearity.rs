@@ -43,7 +43,7 @@ pub fn linearity(input: &Path, order: usize, flat: Option<usize>, out: Option<Ou
 /// set it has staged but not published yet (`demo`).
 pub fn linearity_as(read_from: &Path, input: &Path, order: usize, flat: Option<usize>, mut out: Option<OutDir<'_>>) -> Result<LinearitySummary, HostError> {
     if !(1..=MAX_ORDER).contains(&order) {
-        return Err(HostError::Format { path: "--order".into(), message: format!("{order}: the pixel-wise polynomial order must be 1 to {MAX_ORDER}") });
+        return Err(HostError::Argument { flag: "--order".into(), message: format!("{order}: the pixel-wise polynomial order must be 1 to {MAX_ORDER}") });
     }
     if let Some(o) = out.as_mut() {
         o.files.create_dir(o.dir)?;
@@ -63,7 +63,7 @@ pub fn linearity_as(read_from: &Path, input: &Path, order: usize, flat: Option<u
     let start = std::time::Instant::now();
     let valid = unsaturated_levels(&set);
     if let Some(l) = flat {
-        check_flat_level(&valid, set.levels, l).map_err(|m| HostError::Format { path: "--flat-level".into(), message: format!("{m} ({})", input.display()) })?;
+        check_flat_level(&valid, set.levels, l).map_err(|m| HostError::Argument { flag: "--flat-level".into(), message: format!("{m} ({})", input.display()) })?;
     }
     let spin = spinner(&format!("fitting {} pixels ({} levels): standard and pixel-wise corrections", set.width * set.height, set.levels));
     let analysis = analyze_unsaturated(&set, order, flat, valid);

@@ -308,7 +308,7 @@ pub fn kcor_files(specs: &[String]) -> Result<[PathBuf; 4], HostError> {
     match specs {
         [one] => crate::kcor_tables::expand(one),
         [a, b, c, d] => Ok([a, b, c, d].map(PathBuf::from)),
-        _ => Err(HostError::Format { path: "--kcor".into(), message: format!("{} files given; give the four tables of ADC 0-3, or one prefix", specs.len()) }),
+        _ => Err(HostError::Argument { flag: "--kcor".into(), message: format!("{} files given; give the four tables of ADC 0-3, or one prefix", specs.len()) }),
     }
 }
 

@@ -37,7 +37,7 @@ pub struct SigmaReport {
 /// The worst case at `sigma` DN, with a Monte Carlo check of `samples` readouts.
 pub fn at_sigma(sigma: f64, samples: u64, seed: u64) -> Result<SigmaReport, HostError> {
     if !(sigma.is_finite() && sigma >= 0.0) {
-        return Err(HostError::Format { path: "--sigma".into(), message: format!("noise rms {sigma} DN must be finite and >= 0") });
+        return Err(HostError::Argument { flag: "--sigma".into(), message: format!("noise rms {sigma} DN must be finite and >= 0") });
     }
     let WorstBias { max_abs_bias_dn, at_lambda_frac, .. } = worst_bias(sigma);
     let lambda = 2048.0 + at_lambda_frac;
@@ -68,7 +68,7 @@ pub struct BiasReport {
 /// The smallest noise rms (DN) whose worst-case bias is at most `bias` DN.
 pub fn for_bias(bias: f64) -> Result<BiasReport, HostError> {
     let sigma = sigma_for_bias(bias)
-        .ok_or_else(|| HostError::Format { path: "--bias".into(), message: format!("no noise level gives a worst-case bias of at most {bias} DN (it must be > 0)") })?;
+        .ok_or_else(|| HostError::Argument { flag: "--bias".into(), message: format!("no noise level gives a worst-case bias of at most {bias} DN (it must be > 0)") })?;
     Ok(BiasReport { bias, sigma })
 }
 

@@ -107,6 +107,17 @@ pub fn assert_clean_failure(out: &Output, file: &str, words: &str) {
     assert!(stderr.to_lowercase().contains(&words.to_lowercase()), "{stderr:?} should say {words:?}");
 }
 
+/// A usage error (a value clap's types or the command refuse): exit code 2, one line
+/// naming the option `flag` and saying `words`, no panic.
+pub fn assert_usage_failure(out: &Output, flag: &str, words: &str) {
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "stderr: {stderr}");
+    assert!(!stderr.contains("panicked"), "panic: {stderr}");
+    assert!(stderr.starts_with("dncal: error: ") && stderr.lines().count() == 1, "{stderr}");
+    assert!(stderr.contains(flag), "{stderr:?} should name {flag}");
+    assert!(stderr.to_lowercase().contains(&words.to_lowercase()), "{stderr:?} should say {words:?}");
+}
+
 /// Files in `dir`, sorted, hidden ones included: to see that nothing was written.
 pub fn listing(dir: &Path) -> Vec<PathBuf> {
     let mut v: Vec<PathBuf> = std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().path()).collect();
