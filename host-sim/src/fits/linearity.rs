@@ -1,0 +1,263 @@
+//! Linearity sets and what `linearity` writes of them: the pixel-wise correction and the
+//! corrected cube (`docs/formats.md`, section 2).
+
+use super::*;
+
+/// The value type a linearity set's cubes are held in: `f64` (the default, every
+/// command that writes from them) or `f32` (`diagnose`, which holds the cubes through the
+/// whole run: half the memory, each value to 2^-24 of itself).
+pub trait Sample: Copy + Into<f64> + Send + Sync + std::fmt::Display + 'static {
+    /// A bound on the variance the type's rounding adds to a value `v`: `(v 2^-24)^2 / 3`
+    /// for `f32` (an error uniform within half a last place taken at its widest relative
+    /// size; up to 4 times the true variance, negligible beside a mean's noise either
+    /// way), 0 for `f64`.
+    fn rounding_var(v: f64) -> f64;
+}
+
+impl Sample for f64 {
+    fn rounding_var(_: f64) -> f64 {
+        0.0
+    }
+}
+
+impl Sample for f32 {
+    fn rounding_var(v: f64) -> f64 {
+        (v * 2.0f64.powi(-24)).powi(2) / 3.0
+    }
+}
+
+/// A linearity measurement: frames averaged at illumination levels of known reference
+/// voltage.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LinearitySet<T: Sample = f64> {
+    /// Bits per code of the camera.
+    pub bit_depth: u32,
+    /// ADCs of the camera; column `c` is read by ADC `c mod n_adc`.
+    pub n_adc: usize,
+    /// Frames averaged at each level.
+    pub n_frames: u32,
+    /// Columns per frame.
+    pub width: usize,
+    /// Rows per frame.
+    pub height: usize,
+    /// Illumination levels; level 0 is dark.
+    pub levels: usize,
+    /// Mean frames in DN, level-major, then row, then column:
+    /// `mean[(level * height + row) * width + column]`.
+    pub mean: Vec<T>,
+    /// Per-pixel standard deviation of the frames in DN, laid out as `mean`.
+    pub std: Vec<T>,
+    /// Reference photodiode voltage of each level in V.
+    pub voltage: Vec<f64>,
+    /// Known bad pixels, `mask[row * width + column]`, 1 = bad, 0 = good.
+    pub mask: Option<Vec<u8>>,
+}
+
+/// Writes a linearity set atomically: see [`stage_linearity`].
+pub fn write_linearity(path: &Path, set: &LinearitySet) -> Result<(), HostError> {
+    write_one(|out| stage_linearity(out, path, set))
+}
+
+/// Stages a linearity set in `out`: primary float64 cube of mean frames, extensions `STD`
+/// (same cube), `MASK` (uint8, when present) and `REFERENCE` (table, column `VOLTAGE`).
+pub fn stage_linearity(out: &mut Outputs, path: &Path, set: &LinearitySet) -> Result<(), HostError> {
+    check_linearity(set).map_err(|m| format_error(path, m))?;
+    out.write(path, |tmp| {
+        let cube = [set.levels, set.height, set.width];
+        let mut fits = FitsWriter::create(tmp, path, ImageType::Double, &cube)?;
+        fits.adc_keys(set.bit_depth, set.n_adc)?;
+        fits.key("NFRAMES", (i64::from(set.n_frames), "frames averaged per illumination level"))?;
+        fits.key("BUNIT", ("DN", "mean of the frames at each level"))?;
+        fits.image(&set.mean)?;
+        fits.add_image("STD", ImageType::Double, &cube)?;
+        fits.key("BUNIT", ("DN", "standard deviation of the frames"))?;
+        fits.image(&set.std)?;
+        if let Some(mask) = &set.mask {
+            fits.add_image("MASK", ImageType::UnsignedByte, &[set.height, set.width])?;
+            fits.image(mask)?;
+        }
+        // Last, so that a file cut at an HDU boundary lacks a required HDU rather than
+        // reading as a valid set without its (optional) mask.
+        fits.add_table("REFERENCE", "VOLTAGE", "V", &set.voltage)?;
+        fits.finish()
+    })
+}
+
+/// The pixel-wise correction as written: see [`stage_pixel_correction`].
+#[derive(Debug, Clone, Copy)]
+pub struct PixelCorrection<'a> {
+    /// Coefficient cube, plane-major (`a_k` planes of `height x width`).
+    pub coeffs: &'a [f64],
+    /// Mask reasons per pixel.
+    pub mask: &'a [u8],
+    /// Columns.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// Polynomial order.
+    pub order: usize,
+    /// Camera bits per code.
+    pub bit_depth: u32,
+    /// Camera ADCs.
+    pub n_adc: usize,
+}
+
+/// Stages the pixel-wise nonlinearity correction (`dncal linearity`): a float64 cube of
+/// the polynomial coefficients (`NAXIS1` columns, `NAXIS2` rows, `NAXIS3 = ORDER + 1`,
+/// plane k holds a_k of `m = sum a_k x^k`, x the normalized reference) and the uint8
+/// extension `MASK` (non-zero = masked; bit 1 input mask, 2 low signal, 4 anomalous trend,
+/// 8 unfitted).
+pub fn stage_pixel_correction(out: &mut Outputs, path: &Path, c: &PixelCorrection) -> Result<(), HostError> {
+    let PixelCorrection { coeffs, mask, width, height, order, bit_depth, n_adc } = *c;
+    if coeffs.len() != (order + 1) * width * height || mask.len() != width * height {
+        return Err(format_error(path, "coefficient cube or mask does not match the frame size"));
+    }
+    out.write(path, |tmp| {
+        let mut fits = FitsWriter::create(tmp, path, ImageType::Double, &[order + 1, height, width])?;
+        fits.adc_keys(bit_depth, n_adc)?;
+        fits.key("ORDER", (order as i64, "m = sum_k a_k x^k, k = 0..ORDER; x = V / max V"))?;
+        fits.key("BUNIT", ("DN", "coefficients give DN"))?;
+        fits.image(coeffs)?;
+        fits.add_image("MASK", ImageType::UnsignedByte, &[height, width])?;
+        fits.image(mask)?;
+        fits.finish()
+    })
+}
+
+/// Stages a float64 cube of `levels` images (`NAXIS3 = levels`) with `BUNIT` `unit` (a
+/// unit astropy parses: `DN`, `count`, or empty for a dimensionless quantity, which the
+/// comment then names).
+pub fn stage_cube(out: &mut Outputs, path: &Path, data: &[f64], levels: usize, width: usize, height: usize, (unit, comment): (&str, &str)) -> Result<(), HostError> {
+    if data.len() != levels * width * height {
+        return Err(format_error(path, "cube does not match its shape"));
+    }
+    out.write(path, |tmp| {
+        let mut fits = FitsWriter::create(tmp, path, ImageType::Double, &[levels, height, width])?;
+        fits.key("BUNIT", (unit.to_string(), comment.to_string()))?;
+        fits.image(data)?;
+        fits.finish()
+    })
+}
+
+/// Reads a linearity set. Rejects missing keys or extensions, shapes that disagree between
+/// the primary cube, `STD`, `MASK` and the rows of `REFERENCE`, NaN or infinite values,
+/// negative standard deviations and mask values other than 0 and 1.
+pub fn read_linearity(path: &Path) -> Result<LinearitySet, HostError> {
+    read_linearity_as(path)
+}
+
+/// [`read_linearity`] into cubes of `T` (converted by cfitsio as they are read: an
+/// `f32` set never holds the `f64` one).
+pub fn read_linearity_as<T: Sample>(path: &Path) -> Result<LinearitySet<T>, HostError>
+where
+    Vec<T>: ReadImage,
+{
+    let mut r = FitsReader::open(path)?;
+    r.expect_kind(FileKind::Linearity)?;
+    let (bit_depth, n_adc, _) = r.adc_keys()?;
+    let n_frames = r.required_int(0, PRIMARY, "NFRAMES")?;
+    let n_frames = u32::try_from(n_frames)
+        .ok()
+        .filter(|&n| n >= 1)
+        .ok_or_else(|| r.error(format!("NFRAMES = {n_frames}, must be 1 to {}", u32::MAX)))?;
+    let image = r.image(0, PRIMARY, 3)?;
+    let (width, height, levels) = (image.naxes[0], image.naxes[1], image.naxes[2]);
+    if width == 0 || height == 0 || levels == 0 {
+        return Err(r.error(format!("the primary cube is {width} x {height} x {levels}: empty")));
+    }
+    let mean: Vec<T> = r.pixels(&image)?;
+
+    let std_hdu = r.require_extension("STD", "per-pixel standard deviations")?;
+    let std_image = r.image(std_hdu, "extension STD", 3)?;
+    if std_image.naxes != image.naxes {
+        return Err(r.error(format!(
+            "extension STD is {} but the primary cube is {} (columns x rows x levels)",
+            shape_text(&std_image.naxes),
+            shape_text(&image.naxes)
+        )));
+    }
+    let std: Vec<T> = r.pixels(&std_image)?;
+
+    let ref_hdu = r.require_extension("REFERENCE", "reference voltages")?;
+    let voltage = r.column_f64(ref_hdu, "extension REFERENCE", "VOLTAGE")?;
+    if voltage.len() != levels {
+        return Err(r.error(format!("extension REFERENCE has {} rows, the cube has {levels} levels", voltage.len())));
+    }
+
+    let mask = match r.extension("MASK")? {
+        None => None,
+        Some(hdu) => {
+            let mask_image = r.image(hdu, "extension MASK", 2)?;
+            if mask_image.naxes != [width, height] {
+                return Err(r.error(format!(
+                    "extension MASK is {} but frames are {width} x {height} (columns x rows)",
+                    shape_text(&mask_image.naxes)
+                )));
+            }
+            let mask: Vec<u8> = r.integer_pixels(&mask_image, "mask values")?.convert().map_err(|(i, v)| {
+                r.error(format!("mask value {v} at row {}, column {} is not 0 or 1", i / width, i % width))
+            })?;
+            Some(mask)
+        }
+    };
+    let set = LinearitySet { bit_depth, n_adc, n_frames, width, height, levels, mean, std, voltage, mask };
+    check_linearity(&set).map_err(|m| r.error(m))?;
+    Ok(set)
+}
+
+/// Everything a [`LinearitySet`] must satisfy, whether about to be written or just read.
+pub(super) fn check_linearity<T: Sample>(s: &LinearitySet<T>) -> Result<(), String> {
+    codes_for(s.bit_depth)?;
+    if s.n_adc == 0 {
+        return Err("no ADCs: NADC must be at least 1".into());
+    }
+    if s.n_frames == 0 {
+        return Err("NFRAMES must be at least 1".into());
+    }
+    let frame = s.width.checked_mul(s.height).filter(|&n| n > 0);
+    let (Some(frame), Some(cube)) = (frame, frame.and_then(|f| f.checked_mul(s.levels)).filter(|&n| n > 0)) else {
+        return Err(format!(
+            "shape {} x {} x {} (columns x rows x levels) is empty or too large",
+            s.width, s.height, s.levels
+        ));
+    };
+    let at = |i: usize| format!("level {}, row {}, column {}", i / frame, i % frame / s.width, i % s.width);
+    for (name, values) in [("mean", &s.mean), ("std", &s.std)] {
+        if values.len() != cube {
+            return Err(format!(
+                "{name} holds {} values, {} x {} x {} (columns x rows x levels) needs {cube}",
+                values.len(),
+                s.width,
+                s.height,
+                s.levels
+            ));
+        }
+        if let Some(i) = values.iter().position(|&v| !v.into().is_finite()) {
+            return Err(format!("{name} is {} at {}", values[i], at(i)));
+        }
+    }
+    // Negative at single precision: a negative subnormal below f32's smallest (a zero
+    // written with a rounding error) reads as -0.0 in the f32 reader, which must not
+    // accept what this one refuses (found by the `fits_linearity` fuzz target: -8e-322).
+    if let Some(i) = s.std.iter().position(|&v| (v.into() as f32) < 0.0) {
+        return Err(format!("std is negative ({}) at {}", s.std[i], at(i)));
+    }
+    if s.voltage.len() != s.levels {
+        return Err(format!("{} reference voltages for {} levels", s.voltage.len(), s.levels));
+    }
+    if let Some(level) = s.voltage.iter().position(|v| !v.is_finite()) {
+        return Err(format!("reference voltage is {} at level {level}", s.voltage[level]));
+    }
+    if let Some(mask) = &s.mask {
+        if mask.len() != frame {
+            return Err(format!("mask holds {} values, {} x {} frames need {frame}", mask.len(), s.width, s.height));
+        }
+        if let Some(i) = mask.iter().position(|&m| m > 1) {
+            return Err(format!("mask value {} at row {}, column {} is not 0 or 1", mask[i], i / s.width, i % s.width));
+        }
+    }
+    Ok(())
+}
+
+// ---------------------------------------------------------------------------------------
+// Errors

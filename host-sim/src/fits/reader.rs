@@ -1,0 +1,490 @@
+//! Reading: every access to a file turned into a [`HostError`] naming it; keys read card
+//! by card where `fitsio` would panic on legal FITS it does not expect.
+
+use super::*;
+
+/// What an image HDU's header says about its data.
+pub(super) struct ImageHeader {
+    /// HDU number, 0 = primary.
+    hdu: usize,
+    /// How messages name the HDU.
+    label: String,
+    bitpix: i64,
+    /// NAXIS1 (fastest, columns) first.
+    pub(super) naxes: Vec<usize>,
+    bzero: f64,
+    bscale: f64,
+    elements: usize,
+}
+
+/// Integer pixel values as cfitsio delivers them after BZERO.
+pub(super) enum IntegerPixels {
+    Signed(Vec<i64>),
+    /// BITPIX 64 with BZERO 2^63: the only integer data that does not fit `i64`.
+    Unsigned(Vec<u64>),
+}
+
+impl IntegerPixels {
+    /// Every value as `T`, or the flat index and value of the first that does not fit.
+    pub(super) fn convert<T: TryFrom<i128>>(self) -> Result<Vec<T>, (usize, i128)> {
+        fn all<T: TryFrom<i128>>(values: impl Iterator<Item = i128>) -> Result<Vec<T>, (usize, i128)> {
+            values.enumerate().map(|(i, v)| T::try_from(v).map_err(|_| (i, v))).collect()
+        }
+        match self {
+            IntegerPixels::Signed(v) => all(v.into_iter().map(i128::from)),
+            IntegerPixels::Unsigned(v) => all(v.into_iter().map(i128::from)),
+        }
+    }
+}
+
+/// Why a key could not be read.
+pub(super) enum KeyError {
+    Fits(FitsioError),
+    /// A string key whose value is not a quoted string: the card, trimmed.
+    NotString(String),
+}
+
+/// A key value the readers read: numbers and logicals through fitsio, strings from the
+/// card itself ([`string_from_card`]).
+pub(super) trait KeyValue: Sized {
+    /// Key `name` of HDU `hdu` (0-based), `None` when absent.
+    fn read(file: &mut FitsFile, hdu: usize, name: &str) -> Result<Option<Self>, KeyError>;
+}
+
+macro_rules! key_through_fitsio {
+    ($($t:ty),*) => {$(
+        impl KeyValue for $t {
+            fn read(file: &mut FitsFile, hdu: usize, name: &str) -> Result<Option<Self>, KeyError> {
+                // A hand-made handle: `FitsFile::hdu` would describe the HDU first, which
+                // panics inside fitsio on some legal HDUs (see the module documentation).
+                let handle = FitsHdu { info: HduInfo::AnyInfo, number: hdu };
+                match handle.read_key::<$t>(file, name) {
+                    Ok(v) => Ok(Some(v)),
+                    Err(FitsioError::Fits(e)) if e.status == KEY_NO_EXIST => Ok(None),
+                    Err(e) => Err(KeyError::Fits(e)),
+                }
+            }
+        }
+    )*};
+}
+key_through_fitsio!(f64, bool);
+
+impl KeyValue for String {
+    /// The card is read whole (`ffgcrd`, into cfitsio's 81-byte card size) and its quoted
+    /// value parsed here. fitsio reads a string key into a 71-byte buffer, and cfitsio
+    /// copies an unquoted value of up to 71 characters (a card with no space after `=`)
+    /// into it with its terminating NUL: a heap overflow by one byte, found by the
+    /// `fits_lut` fuzz target under AddressSanitizer (`EXTNAME =YYYY...` over the whole card).
+    fn read(file: &mut FitsFile, hdu: usize, name: &str) -> Result<Option<Self>, KeyError> {
+        let fits_error = |status| KeyError::Fits(fitsio::errors::check_status(status).err().unwrap_or(FitsioError::Message("unknown cfitsio error".into())));
+        let Ok(key) = std::ffi::CString::new(name) else { return Ok(None) };
+        let mut card = [0 as std::ffi::c_char; 81];
+        let mut status = 0;
+        // SAFETY: `file` is open and `hdu` one of its HDUs (or cfitsio sets a status);
+        // `key` is NUL-terminated; `card` holds FLEN_CARD (81) bytes, the most ffgcrd writes.
+        unsafe {
+            let raw = file.as_raw();
+            fitsio::sys::ffmahd(raw, hdu as i32 + 1, std::ptr::null_mut(), &mut status);
+            fitsio::sys::ffgcrd(raw, key.as_ptr(), card.as_mut_ptr(), &mut status);
+        }
+        match status {
+            0 => {}
+            KEY_NO_EXIST => return Ok(None),
+            _ => return Err(fits_error(status)),
+        }
+        let bytes: Vec<u8> = card.iter().take_while(|&&c| c != 0).map(|&c| c as u8).collect();
+        string_from_card(&bytes).map(Some).ok_or_else(|| KeyError::NotString(printable(&bytes)))
+    }
+}
+
+/// The value of a string card (`KEY     = 'value'  / comment`): the characters between
+/// the quotes with `''` read as one quote, trailing spaces dropped (they are not
+/// significant in FITS), `None` if the value is not a quoted string.
+pub(super) fn string_from_card(card: &[u8]) -> Option<String> {
+    let value = card.get(8..)?.strip_prefix(b"=")?;
+    let start = value.iter().position(|&b| b != b' ')?;
+    let mut bytes = value[start..].strip_prefix(b"'")?.iter().peekable();
+    // Bytes up to the closing quote only: the comment after it may hold anything.
+    let mut out = Vec::new();
+    loop {
+        match *bytes.next()? {
+            b'\'' if bytes.peek() == Some(&&b'\'') => {
+                bytes.next();
+                out.push(b'\'');
+            }
+            b'\'' => return Some(String::from_utf8_lossy(&out).trim_end().to_string()),
+            b => out.push(b),
+        }
+    }
+}
+
+/// A card as a message shows it: bytes outside printable ASCII (a newline would break the
+/// one-line error, NULs fill a block cut short) as `?`, trailing spaces dropped.
+pub(super) fn printable(card: &[u8]) -> String {
+    card.iter().map(|&b| if (0x20..0x7f).contains(&b) { b as char } else { '?' }).collect::<String>().trim_end().to_string()
+}
+
+/// A FITS file open for reading, with every access turned into a [`HostError`] naming it.
+pub(super) struct FitsReader<'a> {
+    file: FitsFile,
+    /// Kept while cfitsio has the file open.
+    _name: CfitsioName,
+    path: &'a Path,
+    /// Most data bytes the file can hold: no header may make us allocate more. The file
+    /// size, or for a gzip-, compress- or zip-compressed file (cfitsio opens those too)
+    /// the size times 1100, above deflate's largest ratio of 1032.
+    len: u64,
+}
+
+impl<'a> FitsReader<'a> {
+    pub(super) fn open(path: &'a Path) -> Result<Self, HostError> {
+        // A device or FIFO never reaches cfitsio, which would read or wait for ever.
+        let mut plain_file = crate::input::open_regular(path)?;
+        let size = plain_file.metadata().map_err(|e| HostError::io(path, e))?.len();
+        let mut start = [0u8; 9];
+        // Compressed by the magic numbers cfitsio recognizes (gzip, compress, pack, LZH,
+        // zip); anything else is read as it is. (Deciding "plain" by an exact `SIMPLE  =`
+        // let a file with `SIMPLE   =`, which cfitsio reads, skip the table check: found by
+        // `fits_linearity`.)
+        let read = std::io::Read::read_exact(&mut plain_file, &mut start).is_ok();
+        let compressed = read && matches!(start[..2], [0x1f, 0x8b | 0x9d | 0x1e | 0xa0] | [b'P', b'K']);
+        let plain = !compressed;
+        let len = if plain { size } else { size.saturating_mul(1100) };
+        if let Some(declared) = declared_uncompressed_size(&mut plain_file, size).map_err(|e| HostError::io(path, e))? {
+            if declared > len {
+                return Err(format_error(path, format!(
+                    "a compressed file of {size} bytes whose header declares {declared} bytes uncompressed, more than it can hold; cfitsio would allocate them at once"
+                )));
+            }
+            crate::budget::check(path, "decompressing it (the size its header declares)", declared)?;
+            if start[..2] == [0x1f, 0x8b] {
+                check_gzip_inflates_within(&mut plain_file, path, len.min(crate::budget::limit()))?;
+            }
+        }
+        if plain {
+            if let Some((at, card)) = malformed_table(&mut plain_file, size).map_err(|e| HostError::io(path, e))? {
+                return Err(format_error(path, format!(
+                    "the table header at byte {at} has \"{card}\"; a table header opens with BITPIX, NAXIS, NAXIS1, NAXIS2, PCOUNT, GCOUNT and TFIELDS (0 to 999), integers in range (cfitsio would take it for valid)"
+                )));
+            }
+        }
+        let name = CfitsioName::for_reading(path)?;
+        let file = FitsFile::open(&name.name).map_err(|e| fits_error(path, "not a readable FITS file", &e))?;
+        let mut reader = FitsReader { file, _name: name, path, len };
+        reader.check_declared_sizes(plain)?;
+        reader.verify_checksums()?;
+        Ok(reader)
+    }
+
+    /// Refuses an HDU whose `CHECKSUM` or `DATASUM` (where present: files of other tools
+    /// often have none) does not match its bytes: the file changed after it was written.
+    fn verify_checksums(&mut self) -> Result<(), HostError> {
+        let (mut status, mut count) = (0, 0);
+        // SAFETY: `self.file` is open; ffthdu counts its HDUs.
+        unsafe { fitsio::sys::ffthdu(self.file.as_raw(), &mut count, &mut status) };
+        for hdu in 1..=count {
+            // cfitsio's ffvcks reads both keys into 71-byte buffers that an unquoted value
+            // filling the card overruns (see `String::read`): each must be absent or a
+            // quoted string, read safely first.
+            let label = if hdu == 1 { PRIMARY.to_string() } else { format!("HDU {}", hdu - 1) };
+            for key in ["CHECKSUM", "DATASUM"] {
+                let _: Option<String> = self.key(hdu as usize - 1, &label, key)?;
+            }
+            let (mut data_ok, mut hdu_ok) = (0, 0);
+            // SAFETY: as above; ffvcks reads the current HDU and writes the two flags
+            // (1 verified, 0 no key, -1 wrong).
+            unsafe {
+                let raw = self.file.as_raw();
+                fitsio::sys::ffmahd(raw, hdu, std::ptr::null_mut(), &mut status);
+                fitsio::sys::ffvcks(raw, &mut data_ok, &mut hdu_ok, &mut status);
+            }
+            fitsio::errors::check_status(status).map_err(|e| fits_error(self.path, &format!("verifying the checksums of HDU {}", hdu - 1), &e))?;
+            if data_ok < 0 || hdu_ok < 0 {
+                let which = if data_ok < 0 { "its data do not match DATASUM" } else { "its header and data do not match CHECKSUM" };
+                return Err(self.error(format!(
+                    "the {label} fails its checksum: {which} (the file was changed or damaged after it was written; a tool that edited it kept the old keys: have it write new ones, astropy's writeto(..., checksum=True), or delete CHECKSUM and DATASUM)"
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    /// Refuses a file whose HDUs declare more bytes than it has: each HDU's header, data
+    /// and heap (`PCOUNT`), in 2880-byte blocks, as cfitsio lays them out. cfitsio itself
+    /// checks only what is read, so a binary table declaring a 2 GB heap would pass.
+    fn check_declared_sizes(&mut self, plain: bool) -> Result<(), HostError> {
+        let count = self.file.num_hdus().map_err(|e| fits_error(self.path, "counting HDUs", &e))?;
+        for hdu in 0..count {
+            let (mut status, mut end) = (0, 0);
+            // SAFETY: `self.file` is open and `hdu` below its HDU count; cfitsio skips the
+            // null outputs (HDU type, header and data start) and writes only `end`.
+            unsafe {
+                let raw = self.file.as_raw();
+                fitsio::sys::ffmahd(raw, hdu as i32 + 1, std::ptr::null_mut(), &mut status);
+                fitsio::sys::ffghadll(raw, std::ptr::null_mut(), std::ptr::null_mut(), &mut end, &mut status);
+            }
+            fitsio::errors::check_status(status)
+                .map_err(|e| fits_error(self.path, &format!("reading the header of HDU {hdu}"), &e))?;
+            if end as u64 > self.len {
+                let label = match (hdu, self.key::<String>(hdu, "HDU", "EXTNAME")?) {
+                    (0, _) => PRIMARY.to_string(),
+                    (_, Some(name)) => format!("HDU {hdu} ({})", name.trim()),
+                    (_, None) => format!("HDU {hdu}"),
+                };
+                let has = if plain { format!("the file has {} bytes", self.len) } else { "more than the compressed file can hold".into() };
+                return Err(self.error(format!(
+                    "the {label} declares its header, data and heap (PCOUNT) to end at byte {end}; {has} (truncated?)"
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    pub(super) fn error(&self, message: impl Into<String>) -> HostError {
+        format_error(self.path, message)
+    }
+
+    /// Key `name` of HDU `hdu`, `None` when absent.
+    pub(super) fn key<T: KeyValue>(&mut self, hdu: usize, label: &str, name: &str) -> Result<Option<T>, HostError> {
+        match T::read(&mut self.file, hdu, name) {
+            Ok(v) => Ok(v),
+            Err(KeyError::Fits(e)) => Err(fits_error(self.path, &format!("key {name} of the {label}"), &e)),
+            Err(KeyError::NotString(card)) => Err(self.error(format!("key {name} of the {label} is not a quoted string: \"{card}\""))),
+        }
+    }
+
+    fn required<T: KeyValue>(&mut self, hdu: usize, label: &str, name: &str) -> Result<T, HostError> {
+        self.key(hdu, label, name)?.ok_or_else(|| self.error(format!("missing key {name} in the {label}")))
+    }
+
+    /// An integer-valued key (read as a float so that `4.5` is an error, not 4).
+    pub(super) fn int_key(&mut self, hdu: usize, label: &str, name: &str) -> Result<Option<i64>, HostError> {
+        match self.key::<f64>(hdu, label, name)? {
+            None => Ok(None),
+            Some(v) if v.fract() == 0.0 && v.abs() <= 9.007_199_254_740_992e15 => Ok(Some(v as i64)),
+            Some(v) => Err(self.error(format!("key {name} of the {label} is {v}, not an integer"))),
+        }
+    }
+
+    pub(super) fn required_int(&mut self, hdu: usize, label: &str, name: &str) -> Result<i64, HostError> {
+        self.int_key(hdu, label, name)?.ok_or_else(|| self.error(format!("missing key {name} in the {label}")))
+    }
+
+    /// The kind of dncal file the primary HDU announces by the keys its writer puts there
+    /// (`FRACBITS`: a LUT; `NFRAMES`: a linearity set; `BITDEPTH` on a 2-D image without
+    /// either: a histogram set), `None` for anything else.
+    fn kind(&mut self) -> Result<Option<FileKind>, HostError> {
+        if self.key::<f64>(0, PRIMARY, "FRACBITS")?.is_some() {
+            return Ok(Some(FileKind::Lut));
+        }
+        if self.key::<f64>(0, PRIMARY, "NFRAMES")?.is_some() {
+            return Ok(Some(FileKind::Linearity));
+        }
+        let two_d = self.key::<f64>(0, PRIMARY, "NAXIS")? == Some(2.0);
+        Ok((two_d && self.key::<f64>(0, PRIMARY, "BITDEPTH")?.is_some()).then_some(FileKind::Histograms))
+    }
+
+    /// Refuses a dncal file of another kind than `want`, naming what it is and which
+    /// command reads it (rather than the first key it lacks).
+    pub(super) fn expect_kind(&mut self, want: FileKind) -> Result<(), HostError> {
+        match self.kind()? {
+            Some(found) if found != want => Err(self.error(format!("this is {}, not {}", found.describe(), want.name()))),
+            _ => Ok(()),
+        }
+    }
+
+    /// `BITDEPTH`, `NADC` and `ADCMAP` of the primary HDU: (bits, ADCs, codes).
+    pub(super) fn adc_keys(&mut self) -> Result<(u32, usize, usize), HostError> {
+        let bits = self.required_int(0, PRIMARY, "BITDEPTH")?;
+        let bit_depth = u32::try_from(bits).unwrap_or(0);
+        let codes =
+            codes_for(bit_depth).map_err(|_| self.error(format!("BITDEPTH = {bits}, must be 1 to {MAX_BIT_DEPTH}")))?;
+        let n = self.required_int(0, PRIMARY, "NADC")?;
+        let n_adc = usize::try_from(n)
+            .ok()
+            .filter(|&n| n >= 1)
+            .ok_or_else(|| self.error(format!("NADC = {n}, must be at least 1")))?;
+        let map: String = self.required(0, PRIMARY, "ADCMAP")?;
+        if map.trim() != ADCMAP_COLMOD {
+            return Err(self.error(format!(
+                "ADCMAP = '{map}'; only '{ADCMAP_COLMOD}' (column c read by ADC c mod NADC) is defined"
+            )));
+        }
+        Ok((bit_depth, n_adc, codes))
+    }
+
+    /// The first extension named `name` (case-insensitive), if any.
+    pub(super) fn extension(&mut self, name: &str) -> Result<Option<usize>, HostError> {
+        let count = self.file.num_hdus().map_err(|e| fits_error(self.path, "counting HDUs", &e))?;
+        for hdu in 1..count {
+            let label = format!("HDU {hdu}");
+            if let Some(extname) = self.key::<String>(hdu, &label, "EXTNAME")? {
+                if extname.trim().eq_ignore_ascii_case(name) {
+                    return Ok(Some(hdu));
+                }
+            }
+        }
+        Ok(None)
+    }
+
+    pub(super) fn require_extension(&mut self, name: &str, holding: &str) -> Result<usize, HostError> {
+        match self.extension(name)? {
+            Some(hdu) => Ok(hdu),
+            None => {
+                let count = self.file.num_hdus().unwrap_or(0);
+                Err(self.error(format!("missing extension {name} ({holding}); the file has {count} HDUs")))
+            }
+        }
+    }
+
+    /// The header of image HDU `hdu`, which must have `naxis` axes.
+    pub(super) fn image(&mut self, hdu: usize, label: &str, naxis: usize) -> Result<ImageHeader, HostError> {
+        if hdu > 0 {
+            let xtension: String = self.required(hdu, label, "XTENSION")?;
+            if xtension.trim() != "IMAGE" {
+                let hint = match self.key::<bool>(hdu, label, "ZIMAGE") {
+                    Ok(Some(true)) => " (a tile-compressed image: write it uncompressed)",
+                    _ => "",
+                };
+                return Err(self.error(format!("the {label} is a {} extension, not an image{hint}", xtension.trim())));
+            }
+        }
+        let bitpix = self.required_int(hdu, label, "BITPIX")?;
+        if ![8, 16, 32, 64, -32, -64].contains(&bitpix) {
+            return Err(self.error(format!("the {label} has BITPIX = {bitpix}, not a FITS data type")));
+        }
+        let found = self.required_int(hdu, label, "NAXIS")?;
+        if found != naxis as i64 {
+            return Err(self.error(format!("the {label} has NAXIS = {found}, expected {naxis} axes")));
+        }
+        let mut naxes = Vec::with_capacity(naxis);
+        for axis in 1..=naxis {
+            let key = format!("NAXIS{axis}");
+            let n = self.required_int(hdu, label, &key)?;
+            naxes.push(usize::try_from(n).map_err(|_| self.error(format!("{key} = {n} in the {label}")))?);
+        }
+        let bzero = self.key::<f64>(hdu, label, "BZERO")?.unwrap_or(0.0);
+        let bscale = self.key::<f64>(hdu, label, "BSCALE")?.unwrap_or(1.0);
+        let elements = naxes.iter().try_fold(1usize, |acc, &n| acc.checked_mul(n));
+        let bytes = elements.and_then(|n| n.checked_mul(bitpix.unsigned_abs() as usize / 8));
+        match (elements, bytes) {
+            (Some(elements), Some(bytes)) if bytes as u64 <= self.len => {
+                Ok(ImageHeader { hdu, label: label.into(), bitpix, naxes, bzero, bscale, elements })
+            }
+            _ => Err(self.error(format!(
+                "the {label} declares {} pixels of BITPIX {bitpix}, more than the file can hold (truncated?)",
+                shape_text(&naxes)
+            ))),
+        }
+    }
+
+    /// Checks a per-ADC table image: NAXIS1 = codes, NAXIS2 = ADCs.
+    pub(super) fn check_adc_image_shape(
+        &self,
+        image: &ImageHeader,
+        codes: usize,
+        n_adc: usize,
+        bits: u32,
+    ) -> Result<(), HostError> {
+        if image.naxes[0] != codes {
+            return Err(self.error(format!(
+                "the {} has NAXIS1 = {} codes, BITDEPTH = {bits} needs 2^{bits} = {codes}",
+                image.label, image.naxes[0]
+            )));
+        }
+        if image.naxes[1] != n_adc {
+            return Err(self.error(format!("the {} has NAXIS2 = {} rows, NADC = {n_adc}", image.label, image.naxes[1])));
+        }
+        Ok(())
+    }
+
+    /// All pixels of an image as `T` (cfitsio converts), if they fit the memory budget.
+    pub(super) fn pixels<T>(&mut self, image: &ImageHeader) -> Result<Vec<T>, HostError>
+    where
+        Vec<T>: ReadImage,
+    {
+        let what = format!("the {} ({} pixels as {}-byte values)", image.label, shape_text(&image.naxes), std::mem::size_of::<T>());
+        crate::budget::check(self.path, &what, crate::budget::bytes_of(image.elements as u64, std::mem::size_of::<T>() as u64))?;
+        let shape = image.naxes.iter().rev().copied().collect();
+        let handle = FitsHdu { info: HduInfo::ImageInfo { shape, image_type: ImageType::Double }, number: image.hdu };
+        handle
+            .read_section(&mut self.file, 0, image.elements)
+            .map_err(|e| fits_error(self.path, &format!("reading the data of the {}", image.label), &e))
+    }
+
+    /// All pixels of an integer image, physical values (BZERO applied).
+    pub(super) fn integer_pixels(&mut self, image: &ImageHeader, what: &str) -> Result<IntegerPixels, HostError> {
+        if image.bitpix < 0 {
+            return Err(self.error(format!(
+                "the {} is a floating-point image (BITPIX = {}); {what} must be integers",
+                image.label, image.bitpix
+            )));
+        }
+        if image.bscale != 1.0 || image.bzero.fract() != 0.0 {
+            return Err(self.error(format!(
+                "the {} is scaled (BSCALE = {}, BZERO = {}); {what} must be unscaled integers",
+                image.label, image.bscale, image.bzero
+            )));
+        }
+        if image.bitpix == 64 && image.bzero == 9_223_372_036_854_775_808.0 {
+            Ok(IntegerPixels::Unsigned(self.pixels(image)?))
+        } else {
+            Ok(IntegerPixels::Signed(self.pixels(image)?))
+        }
+    }
+
+    /// Scalar numeric column `column` (case-insensitive) of binary table `hdu`.
+    pub(super) fn column_f64(&mut self, hdu: usize, label: &str, column: &str) -> Result<Vec<f64>, HostError> {
+        let xtension: String = self.required(hdu, label, "XTENSION")?;
+        if xtension.trim() != "BINTABLE" {
+            return Err(self.error(format!("the {label} is a {} extension, not a binary table", xtension.trim())));
+        }
+        let row_bytes = self.required_int(hdu, label, "NAXIS1")?;
+        let rows = self.required_int(hdu, label, "NAXIS2")?;
+        if row_bytes.checked_mul(rows).is_none_or(|b| b < 0 || b as u64 > self.len) {
+            return Err(
+                self.error(format!("the {label} declares {rows} rows of {row_bytes} bytes, more than the file holds"))
+            );
+        }
+        let fields = self.required_int(hdu, label, "TFIELDS")?;
+        let mut found = None;
+        for n in 1..=fields {
+            let tform: String = self.required(hdu, label, &format!("TFORM{n}"))?;
+            let (repeat, letter) = split_tform(&tform);
+            // fitsio describes every column when reading any, and panics on the types it
+            // cannot describe: variable-length (P, Q) and complex (C, M) columns.
+            if !matches!(letter, Some('L' | 'X' | 'B' | 'I' | 'J' | 'K' | 'E' | 'D' | 'A')) {
+                return Err(self.error(format!(
+                    "column {n} of the {label} has TFORM{n} = '{tform}'; variable-length and complex columns are not supported"
+                )));
+            }
+            let name: Option<String> = self.key(hdu, label, &format!("TTYPE{n}"))?;
+            if let Some(name) = name.filter(|t| t.trim().eq_ignore_ascii_case(column)) {
+                found = Some((name, tform.clone(), repeat, letter));
+            }
+        }
+        let (name, tform, repeat, letter) =
+            found.ok_or_else(|| self.error(format!("the {label} has no column {column}")))?;
+        if repeat != Some(1) || !matches!(letter, Some('B' | 'I' | 'J' | 'K' | 'E' | 'D')) {
+            return Err(self.error(format!(
+                "column {column} of the {label} has TFORM '{tform}'; it must hold one number per row (e.g. 'D')"
+            )));
+        }
+        let handle = FitsHdu { info: HduInfo::AnyInfo, number: hdu };
+        handle
+            .read_col::<f64>(&mut self.file, &name)
+            .map_err(|e| fits_error(self.path, &format!("reading column {column} of the {label}"), &e))
+    }
+}
+
+/// The repeat count (`None` if unreadable) and type letter of a binary-table TFORM such as
+/// `1D`, `D` or `10A`.
+pub(super) fn split_tform(tform: &str) -> (Option<usize>, Option<char>) {
+    let tform = tform.trim();
+    let digits = tform.len() - tform.trim_start_matches(|c: char| c.is_ascii_digit()).len();
+    let repeat = if digits == 0 { Some(1) } else { tform[..digits].parse().ok() };
+    (repeat, tform[digits..].chars().next().map(|c| c.to_ascii_uppercase()))
+}
+
+// ---------------------------------------------------------------------------------------
+// Validation shared by writers and readers
