@@ -90,6 +90,16 @@ pub enum HostError {
         #[source]
         source: dncal_fpga_model::FpgaError,
     },
+    /// A camera configuration (a TOML file, a model file, the defaults) that cannot be
+    /// built.
+    #[error("{path}: {source}")]
+    Config {
+        /// The file, or what stands for it ("default camera").
+        path: PathBuf,
+        /// The rule it breaks.
+        #[source]
+        source: crate::camera::ConfigError,
+    },
     /// A file's contents are not what they must be.
     #[error("{path}: {message}")]
     Format {

@@ -21,7 +21,7 @@
 use rand::{rngs::StdRng, SeedableRng};
 use rand_distr::{Distribution, Normal};
 
-use super::config::AdcConfig;
+use super::config::{AdcConfig, ConfigError};
 
 /// One ADC's transfer: its transition levels.
 #[derive(Debug, Clone, PartialEq)]
@@ -33,11 +33,11 @@ pub struct PipelinedAdc {
 impl PipelinedAdc {
     /// The ADC number `index` of a camera: stage errors drawn from `config` with seed
     /// `config.seed + index`. Fails if a code would have zero or negative width.
-    pub fn from_config(config: &AdcConfig, bits: u32, index: usize) -> Result<Self, String> {
+    pub fn from_config(config: &AdcConfig, bits: u32, index: usize) -> Result<Self, ConfigError> {
         let mut rng = StdRng::seed_from_u64(config.seed.wrapping_add(index as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
         let mut stage_errors = Vec::new();
         for (&b, &sigma) in config.stage_bits.iter().zip(&config.stage_error_lsb) {
-            let normal = Normal::new(0.0, sigma).map_err(|e| e.to_string())?;
+            let normal = Normal::new(0.0, sigma).map_err(|_| ConfigError::StageErrors)?;
             let mut e: Vec<f64> = (0..1usize << b).map(|_| normal.sample(&mut rng)).collect();
             e[0] = 0.0;
             stage_errors.push(e);
@@ -55,7 +55,7 @@ impl PipelinedAdc {
         }
         let adc = PipelinedAdc { levels };
         if let Some(k) = (1..codes - 1).find(|&k| adc.levels[k + 1] <= adc.levels[k]) {
-            return Err(format!("ADC {index}: code {k} has no width (stage errors {:?} LSB are too large)", config.stage_error_lsb));
+            return Err(ConfigError::NoWidth { adc: index, code: k, stage_error_lsb: config.stage_error_lsb.clone() });
         }
         Ok(adc)
     }
@@ -68,7 +68,7 @@ impl PipelinedAdc {
 
     /// An ADC whose code k is `widths[k]` DN wide (codes 0 and top: open ends, their
     /// widths unused): `T_k = 1/2 + sum_{0<j<k} w_j`, so unit widths are the ideal ADC.
-    pub fn from_widths(widths: &[f64]) -> Result<Self, String> {
+    pub fn from_widths(widths: &[f64]) -> Result<Self, ConfigError> {
         let levels: Vec<f64> = (1..widths.len()).scan(0.5, |t, k| {
             let level = *t;
             *t += widths[k];
@@ -78,9 +78,9 @@ impl PipelinedAdc {
     }
 
     /// An ADC with the given transition levels `T_1..T_{codes-1}` (strictly increasing).
-    pub fn from_levels(levels_from_1: &[f64]) -> Result<Self, String> {
+    pub fn from_levels(levels_from_1: &[f64]) -> Result<Self, ConfigError> {
         if !(levels_from_1.len() + 1).is_power_of_two() || levels_from_1.windows(2).any(|p| p[1] <= p[0]) {
-            return Err("transition levels must be 2^B - 1 strictly increasing values".into());
+            return Err(ConfigError::Levels);
         }
         let mut levels = vec![f64::NEG_INFINITY];
         levels.extend_from_slice(levels_from_1);

@@ -375,10 +375,16 @@ mod tests {
         }
     }
 
+    /// A 16 x 8 camera whose pixels are all alike (no PRNU, DSNU, own nonlinearity or bad
+    /// pixels): every pixel of an ADC has the same exact code PMF.
+    fn uniform_camera() -> Camera {
+        let cfg = CameraConfig { width: 16, height: 8, prnu_rms: 0.0, dsnu_rms_e: 0.0, pixel_nonlinearity_rms: vec![], bad_pixel_fraction: 0.0, ..Default::default() };
+        Camera::new(cfg).unwrap()
+    }
+
     #[test]
     fn linearity_means_follow_the_exact_model() {
-        let cfg = CameraConfig { width: 16, height: 8, prnu_rms: 0.0, dsnu_rms_e: 0.0, pixel_nonlinearity_rms: vec![], bad_pixel_fraction: 0.0, ..Default::default() };
-        let cam = Camera::new(cfg).unwrap();
+        let cam = uniform_camera();
         let p = LinearityParams { levels: 5, frames: 64, roi: (4, 2, 8, 4), overshoot: 1.0, volts_per_photon: 1e-5, seed: 9 };
         let d = cam.linearity_set(&p, |_| {});
         assert_eq!(d.mean.len(), 5 * 32);
@@ -405,8 +411,7 @@ mod tests {
     /// checked to 5 of them (a per-pixel tolerance of 45% let a halved variance pass).
     #[test]
     fn linearity_variances_pooled_over_pixels_are_the_exact_models() {
-        let cfg = CameraConfig { width: 16, height: 8, prnu_rms: 0.0, dsnu_rms_e: 0.0, pixel_nonlinearity_rms: vec![], bad_pixel_fraction: 0.0, ..Default::default() };
-        let cam = Camera::new(cfg).unwrap();
+        let cam = uniform_camera();
         let p = LinearityParams { levels: 3, frames: 256, roi: (0, 0, 16, 8), overshoot: 1.0, volts_per_photon: 1e-5, seed: 4 };
         let d = cam.linearity_set(&p, |_| {});
         let photons = cam.saturation_photons() / 2.0;

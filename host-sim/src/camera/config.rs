@@ -130,7 +130,7 @@ impl CameraConfig {
             crate::HostError::Format { path: p, message } => crate::HostError::Format { path: path.into(), message: format!("adc.widths_from: {}: {message}", p.display()) },
             other => other,
         })?;
-        config.validate().map_err(|message| crate::HostError::Format { path: path.into(), message })?;
+        config.validate().map_err(|source| crate::HostError::Config { path: path.into(), source })?;
         Ok(config)
     }
 
@@ -159,8 +159,8 @@ impl CameraConfig {
         1 << self.bits
     }
 
-    /// Checks every parameter for range and consistency; the message names the field.
-    pub fn validate(&self) -> Result<(), String> {
+    /// Checks every parameter for range and consistency; the error names the field.
+    pub fn validate(&self) -> Result<(), ConfigError> {
         let positive = [
             ("width", self.width as f64),
             ("height", self.height as f64),
@@ -172,7 +172,7 @@ impl CameraConfig {
         ];
         for (name, v) in positive {
             if !(v.is_finite() && v > 0.0) {
-                return Err(format!("{name} must be positive and finite, got {v}"));
+                return Err(ConfigError::NotPositive { field: name, value: v });
             }
         }
         let non_negative = [
@@ -184,55 +184,106 @@ impl CameraConfig {
         ];
         for (name, v) in non_negative {
             if !(v.is_finite() && v >= 0.0) {
-                return Err(format!("{name} must be non-negative and finite, got {v}"));
+                return Err(ConfigError::Negative { field: name, value: v });
             }
         }
         if !self.offset_dn.is_finite() {
-            return Err("offset_dn must be finite".into());
+            return Err(ConfigError::NotFinite { field: "offset_dn" });
         }
         if !(1..=16).contains(&self.bits) {
-            return Err(format!("bits must be 1..=16, got {}", self.bits));
+            return Err(ConfigError::Bits { bits: self.bits });
         }
         if self.qe > 1.0 {
-            return Err(format!("qe is a fraction (0, 1], got {}", self.qe));
+            return Err(ConfigError::Qe { qe: self.qe });
         }
         if self.bad_pixel_fraction > 1.0 {
-            return Err(format!("bad_pixel_fraction must be <= 1, got {}", self.bad_pixel_fraction));
+            return Err(ConfigError::BadPixelFraction { fraction: self.bad_pixel_fraction });
         }
         if self.n_adc > 255 || self.width > 65_535 || self.height > 65_535 {
-            return Err("at most 255 ADCs and 65535 x 65535 pixels".into());
+            return Err(ConfigError::Dimensions);
         }
         // Physical ranges, so that a typo cannot ask for memory no machine has (issue 18:
         // dark_e = 1e19 made kcor-model ask for 607 GB; a 65535 x 65535 sensor aborted).
         if self.width * self.height > MAX_PIXELS {
-            return Err(format!("width x height = {} x {} exceeds {MAX_PIXELS} pixels (8192 x 8192), the largest sensor the model holds in memory", self.width, self.height));
+            return Err(ConfigError::Sensor { width: self.width, height: self.height });
         }
         for (name, v) in [("full_well_e", self.full_well_e), ("dark_e", self.dark_e), ("read_noise_e", self.read_noise_e), ("dsnu_rms_e", self.dsnu_rms_e)] {
             if v > MAX_ELECTRONS {
-                return Err(format!("{name} = {v:e} electrons exceeds {MAX_ELECTRONS:e}, above any sensor's full well"));
+                return Err(ConfigError::Electrons { field: name, value: v });
             }
         }
         if self.nonlinearity.iter().chain(&self.pixel_nonlinearity_rms).any(|a| !a.is_finite()) {
-            return Err("nonlinearity coefficients must be finite".into());
+            return Err(ConfigError::NotFinite { field: "nonlinearity" });
         }
         if self.pixel_nonlinearity_rms.len() > self.nonlinearity.len() {
-            return Err("pixel_nonlinearity_rms has more terms than nonlinearity".into());
+            return Err(ConfigError::PixelNonlinearityTerms);
         }
         // Summed wide: a u32 sum of [2^32 - 1, 13] wraps to 12 and passed (issue 18).
         let stage_sum: u64 = self.adc.stage_bits.iter().map(|&b| u64::from(b)).sum();
         if stage_sum != u64::from(self.bits) || self.adc.stage_bits.contains(&0) {
-            return Err(format!("adc.stage_bits {:?} must be positive and sum to bits = {}", self.adc.stage_bits, self.bits));
+            return Err(ConfigError::StageBits { stage_bits: self.adc.stage_bits.clone(), bits: self.bits });
         }
         if !self.adc.widths.is_empty()
             && (self.adc.widths.len() != self.n_adc || self.adc.widths.iter().any(|w| w.len() != self.codes() || w.iter().any(|x| !(x.is_finite() && *x > 0.0))))
         {
-            return Err(format!("adc.widths needs {} lists of {} positive widths (or none)", self.n_adc, self.codes()));
+            return Err(ConfigError::Widths { n_adc: self.n_adc, codes: self.codes() });
         }
         if self.adc.stage_error_lsb.len() != self.adc.stage_bits.len() || self.adc.stage_error_lsb.iter().any(|e| !(e.is_finite() && *e >= 0.0)) {
-            return Err("adc.stage_error_lsb needs one non-negative value per stage".into());
+            return Err(ConfigError::StageErrors);
         }
         Ok(())
     }
+}
+
+/// Why a camera configuration cannot be built: the field and the rule it breaks. The
+/// messages name the TOML field as the user wrote it.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ConfigError {
+    /// A quantity that must be positive is not.
+    #[error("{field} must be positive and finite, got {value}")]
+    NotPositive { field: &'static str, value: f64 },
+    /// A quantity that must be at least zero is not.
+    #[error("{field} must be non-negative and finite, got {value}")]
+    Negative { field: &'static str, value: f64 },
+    /// A value or coefficient that is NaN or infinite.
+    #[error("{field} must be finite")]
+    NotFinite { field: &'static str },
+    /// Bits per code outside what the formats hold.
+    #[error("bits must be 1..=16, got {bits}")]
+    Bits { bits: u32 },
+    /// A quantum efficiency above 1.
+    #[error("qe is a fraction (0, 1], got {qe}")]
+    Qe { qe: f64 },
+    /// More bad pixels than pixels.
+    #[error("bad_pixel_fraction must be <= 1, got {fraction}")]
+    BadPixelFraction { fraction: f64 },
+    /// ADCs or a side beyond the 8- and 16-bit registers.
+    #[error("at most 255 ADCs and 65535 x 65535 pixels")]
+    Dimensions,
+    /// A sensor larger than the model holds in memory.
+    #[error("width x height = {width} x {height} exceeds {MAX_PIXELS} pixels (8192 x 8192), the largest sensor the model holds in memory")]
+    Sensor { width: usize, height: usize },
+    /// A charge beyond any sensor's full well.
+    #[error("{field} = {value:e} electrons exceeds {MAX_ELECTRONS:e}, above any sensor's full well")]
+    Electrons { field: &'static str, value: f64 },
+    /// A pixel-to-pixel spread for a nonlinearity term the camera does not have.
+    #[error("pixel_nonlinearity_rms has more terms than nonlinearity")]
+    PixelNonlinearityTerms,
+    /// Pipeline stages that do not make up the code.
+    #[error("adc.stage_bits {stage_bits:?} must be positive and sum to bits = {bits}")]
+    StageBits { stage_bits: Vec<u32>, bits: u32 },
+    /// Measured code widths of the wrong shape or sign.
+    #[error("adc.widths needs {n_adc} lists of {codes} positive widths (or none)")]
+    Widths { n_adc: usize, codes: usize },
+    /// Stage errors that do not match the stages.
+    #[error("adc.stage_error_lsb needs one non-negative value per stage")]
+    StageErrors,
+    /// Stage errors so large that a code has no width.
+    #[error("ADC {adc}: code {code} has no width (stage errors {stage_error_lsb:?} LSB are too large)")]
+    NoWidth { adc: usize, code: usize, stage_error_lsb: Vec<f64> },
+    /// Transition levels that are not an ADC's.
+    #[error("transition levels must be 2^B - 1 strictly increasing values")]
+    Levels,
 }
 
 #[cfg(test)]
@@ -245,20 +296,32 @@ mod tests {
         // overflow); [2^32 - 64, 76] to 12 as well.
         for bits in [vec![u32::MAX, 13], vec![u32::MAX - 63, 76]] {
             let c = CameraConfig { adc: AdcConfig { stage_bits: bits.clone(), stage_error_lsb: vec![0.0; 2], ..AdcConfig::default() }, ..CameraConfig::default() };
-            let e = c.validate().unwrap_err();
+            let e = c.validate().unwrap_err().to_string();
             assert!(e.contains("must be positive and sum to bits = 12"), "{bits:?}: {e}");
         }
         let ok = CameraConfig { adc: AdcConfig { stage_bits: vec![6, 6], stage_error_lsb: vec![0.0; 2], ..AdcConfig::default() }, ..CameraConfig::default() };
         assert_eq!(ok.validate(), Ok(()));
     }
 
+    /// The error is a value a caller can match on, and the host's error keeps it as its
+    /// source under the file's name.
+    #[test]
+    fn a_config_error_is_typed_and_the_hosts_errors_source() {
+        let e = CameraConfig { qe: 2.0, ..CameraConfig::default() }.validate().unwrap_err();
+        assert_eq!(e, ConfigError::Qe { qe: 2.0 });
+        let host = crate::HostError::Config { path: "cam.toml".into(), source: e.clone() };
+        assert_eq!(host.to_string(), "cam.toml: qe is a fraction (0, 1], got 2");
+        let source = std::error::Error::source(&host).and_then(|s| s.downcast_ref::<ConfigError>());
+        assert_eq!(source, Some(&e));
+    }
+
     #[test]
     fn sizes_and_electrons_beyond_physical_ranges_are_refused() {
-        let e = CameraConfig { dark_e: 1e19, ..CameraConfig::default() }.validate().unwrap_err();
+        let e = CameraConfig { dark_e: 1e19, ..CameraConfig::default() }.validate().unwrap_err().to_string();
         assert!(e.contains("dark_e = 1e19") && e.contains("1e7"), "{e}");
-        let e = CameraConfig { full_well_e: 2e7, ..CameraConfig::default() }.validate().unwrap_err();
+        let e = CameraConfig { full_well_e: 2e7, ..CameraConfig::default() }.validate().unwrap_err().to_string();
         assert!(e.contains("full_well_e"), "{e}");
-        let e = CameraConfig { width: 65_535, height: 65_535, ..CameraConfig::default() }.validate().unwrap_err();
+        let e = CameraConfig { width: 65_535, height: 65_535, ..CameraConfig::default() }.validate().unwrap_err().to_string();
         assert!(e.contains("65535 x 65535 exceeds 67108864 pixels"), "{e}");
         // The edges are accepted.
         assert_eq!(CameraConfig { width: 8192, height: 8192, dark_e: 1e7, ..CameraConfig::default() }.validate(), Ok(()));

@@ -25,7 +25,7 @@ pub mod pixels;
 pub mod sample;
 
 pub use adc::PipelinedAdc;
-pub use config::{AdcConfig, CameraConfig};
+pub use config::{AdcConfig, CameraConfig, ConfigError};
 pub use pixels::{PixelMaps, PixelState};
 
 /// A camera: its configuration, one ADC per ADC index, and its pixel maps.
@@ -41,7 +41,7 @@ pub struct Camera {
 impl Camera {
     /// Builds the camera of `config` (validated): ADCs from the stage errors, pixel maps
     /// from the seed.
-    pub fn new(config: CameraConfig) -> Result<Self, String> {
+    pub fn new(config: CameraConfig) -> Result<Self, ConfigError> {
         config.validate()?;
         let adcs = if config.adc.widths.is_empty() {
             (0..config.n_adc).map(|a| PipelinedAdc::from_config(&config.adc, config.bits, a)).collect::<Result<Vec<_>, _>>()?

@@ -316,7 +316,7 @@ pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, Ho
     // check) on 1024 x 1024 frames, against one K-Coronagraph camera's rate (1024 x 1024 x
     // 150 Hz): a fixed rate, not a run in this process, so its ratio's spread is the
     // stream's own.
-    let camera = crate::camera::Camera::new(crate::camera::CameraConfig::default()).map_err(|e| HostError::Format { path: "default camera".into(), message: e })?;
+    let camera = crate::camera::Camera::new(crate::camera::CameraConfig::default()).map_err(|source| HostError::Config { path: "default camera".into(), source })?;
     let weights = crate::commands::stream::oracle_weights(&camera)?;
     let stream_frames = 8u32;
     let mut stream_rates = Vec::new();

@@ -15,12 +15,12 @@ use crate::HostError;
 /// Builds the camera of `config`, naming `source` (a file or "defaults") in errors.
 pub fn camera_from(config: CameraConfig, source: &str) -> Result<Camera, HostError> {
     // Ranges first (a sensor of 10^6 x 10^6 pixels is out of range, not over budget).
-    config.validate().map_err(|message| HostError::Format { path: source.into(), message })?;
+    config.validate().map_err(|e| HostError::Config { path: source.into(), source: e })?;
     // The pixel maps: gain, dark, the nonlinearity terms (f64 each) and a state byte.
     let per_pixel = 17 + 8 * config.nonlinearity.len() as u64;
     let what = format!("the camera model of {} x {} pixels", config.width, config.height);
     crate::budget::check(source.as_ref(), &what, crate::budget::bytes_of(config.width as u64 * config.height as u64, per_pixel))?;
-    Camera::new(config).map_err(|message| HostError::Format { path: source.into(), message })
+    Camera::new(config).map_err(|e| HostError::Config { path: source.into(), source: e })
 }
 
 /// What `simulate histograms` wrote.

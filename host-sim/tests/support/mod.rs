@@ -99,22 +99,21 @@ pub fn assert_error(out: &Output, line: &str) {
 /// The command failed cleanly: exit 1, one error line naming `file` and containing
 /// `words` (case-insensitive), no panic.
 pub fn assert_clean_failure(out: &Output, file: &str, words: &str) {
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "stderr: {stderr}");
-    assert!(!stderr.contains("panicked"), "panic: {stderr}");
-    assert!(stderr.starts_with("dncal: error: ") && stderr.lines().count() == 1, "{stderr}");
-    assert!(stderr.contains(file), "{stderr:?} should name {file}");
-    assert!(stderr.to_lowercase().contains(&words.to_lowercase()), "{stderr:?} should say {words:?}");
+    assert_one_line_error(out, 1, file, words);
 }
 
 /// A usage error (a value clap's types or the command refuse): exit code 2, one line
 /// naming the option `flag` and saying `words`, no panic.
 pub fn assert_usage_failure(out: &Output, flag: &str, words: &str) {
+    assert_one_line_error(out, 2, flag, words);
+}
+
+fn assert_one_line_error(out: &Output, code: i32, names: &str, words: &str) {
     let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(2), "stderr: {stderr}");
+    assert_eq!(out.status.code(), Some(code), "stderr: {stderr}");
     assert!(!stderr.contains("panicked"), "panic: {stderr}");
     assert!(stderr.starts_with("dncal: error: ") && stderr.lines().count() == 1, "{stderr}");
-    assert!(stderr.contains(flag), "{stderr:?} should name {flag}");
+    assert!(stderr.contains(names), "{stderr:?} should name {names}");
     assert!(stderr.to_lowercase().contains(&words.to_lowercase()), "{stderr:?} should say {words:?}");
 }
 
