@@ -100,6 +100,16 @@ pub enum HostError {
         #[source]
         source: crate::camera::ConfigError,
     },
+    /// A data set that cannot be diagnosed (too little of it, or what a test needs is
+    /// missing).
+    #[error("{path}: {source}")]
+    Diagnose {
+        /// The file.
+        path: PathBuf,
+        /// What is missing.
+        #[source]
+        source: crate::diagnose::DiagnoseError,
+    },
     /// A file's contents are not what they must be.
     #[error("{path}: {message}")]
     Format {

@@ -402,7 +402,7 @@ pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, Ho
         for _ in 0..runs.min(3) {
             let t = Instant::now();
             let set = crate::fits::read_linearity_as::<f32>(&path)?;
-            black_box(crate::diagnose::diagnose_linearity(&set, 0.01).map_err(|m| HostError::Format { path: path.clone(), message: m })?);
+            black_box(crate::diagnose::diagnose_linearity(&set, 0.01).map_err(|source| HostError::Diagnose { path: path.clone(), source })?);
             let seconds = t.elapsed().as_secs_f64();
             let set = &wide;
             let t = Instant::now();

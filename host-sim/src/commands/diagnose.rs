@@ -249,7 +249,7 @@ pub fn diagnose_as(read_from: &Path, input: &Path, flatten: &FlattenParams, seed
             let kept = columns.iter().filter(|c| **c).count();
             (crate::emva::photon_transfer_columns(&set, &columns)?, kept * set.height)
         };
-        let mut d = diagnose_ptc(&ptc_points, ptc_pixels, 0.01).map_err(|m| HostError::Format { path: input.into(), message: m })?;
+        let mut d = diagnose_ptc(&ptc_points, ptc_pixels, 0.01).map_err(|source| HostError::Diagnose { path: input.into(), source })?;
         if !dnl_adcs.is_empty() {
             let list: Vec<String> = dnl_adcs.iter().map(|a| a.to_string()).collect();
             d.baseline.model += &format!("; the columns of ADC {} left out (named code widths: their integral nonlinearity moves the level means)", list.join(", "));
@@ -286,7 +286,7 @@ pub fn diagnose_as(read_from: &Path, input: &Path, flatten: &FlattenParams, seed
                 let spin = crate::commands::progress::spinner(&format!("diagnosing {} (linearity set, {} x {} pixels, {} levels)", input.display(), set.width, set.height, set.levels));
                 let d = diagnose_linearity(&set, 0.01);
                 spin.finish_and_clear();
-                let d = d.map_err(|m| HostError::Format { path: input.into(), message: m })?;
+                let d = d.map_err(|source| HostError::Diagnose { path: input.into(), source })?;
                 let model = linearity_model(&set, &d);
                 return report(input, d, Some(model), out, ("level", "baseline (linear pixels): RMS over pixels"));
             }
@@ -294,7 +294,7 @@ pub fn diagnose_as(read_from: &Path, input: &Path, flatten: &FlattenParams, seed
         let spin = crate::commands::progress::spinner(&format!("diagnosing {} (histogram set, {} ADCs)", input.display(), hist.counts.len()));
         let d = diagnose_histograms(&hist, flatten, seed);
         spin.finish_and_clear();
-        let d = d.map_err(|m| HostError::Format { path: input.into(), message: m })?;
+        let d = d.map_err(|source| HostError::Diagnose { path: input.into(), source })?;
         model = Some(extended_model(&hist, &d, flatten).map_err(|m| HostError::Format { path: input.into(), message: m })?);
         d
     };

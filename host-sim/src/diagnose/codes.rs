@@ -102,7 +102,7 @@ fn unfold_period(ratios: &[f64], l: &[f64]) -> Vec<f64> {
 
 /// The test on one ADC's code histograms of two halves of the levels, `a` and `b` (see
 /// the module documentation).
-pub fn diagnose_code_density(a: &[u64], b: &[u64], adc: usize) -> Result<(Vec<Finding>, AdcResiduals, CodeDensity), String> {
+pub fn diagnose_code_density(a: &[u64], b: &[u64], adc: usize) -> Result<(Vec<Finding>, AdcResiduals, CodeDensity), DiagnoseError> {
     let l = leave_one_out_weights();
     let top = a.len().min(b.len()).saturating_sub(1);
     // Inside the peaks of both halves, and only where the density changes by less than a
@@ -115,7 +115,7 @@ pub fn diagnose_code_density(a: &[u64], b: &[u64], adc: usize) -> Result<(Vec<Fi
     };
     let codes: Vec<usize> = (HALF + 1..top.saturating_sub(HALF)).filter(|&k| followable(a, k) && followable(b, k)).collect();
     if codes.len() < 64 {
-        return Err(format!("only {} codes lie inside illuminated peaks with 20 or more counts in both halves of the levels; the code-density test needs 64", codes.len()));
+        return Err(DiagnoseError::TooFewPeakCodes { codes: codes.len() });
     }
     let smooth = |h: &[u64], k: usize| -> (f64, f64) {
         (0..l.len()).fold((0.0, 0.0), |(v, var), j| {
@@ -295,7 +295,7 @@ mod tests {
         assert!(alarms <= 1, "{alarms} alarms");
     }
 
-    fn diagnose_code_density_pair((a, b): &(Vec<u64>, Vec<u64>)) -> Result<(Vec<Finding>, AdcResiduals, CodeDensity), String> {
+    fn diagnose_code_density_pair((a, b): &(Vec<u64>, Vec<u64>)) -> Result<(Vec<Finding>, AdcResiduals, CodeDensity), DiagnoseError> {
         diagnose_code_density(a, b, 0)
     }
 

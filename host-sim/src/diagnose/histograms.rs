@@ -34,7 +34,7 @@ use crate::fits::AdcHistograms;
 use crate::flatten::{flatten_histogram, FlattenParams};
 
 /// Diagnoses a histogram set; `seed` drives the binomial split.
-pub fn diagnose_histograms(h: &AdcHistograms, flatten: &FlattenParams, seed: u64) -> Result<Diagnosis, String> {
+pub fn diagnose_histograms(h: &AdcHistograms, flatten: &FlattenParams, seed: u64) -> Result<Diagnosis, DiagnoseError> {
     let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
     let mut adcs = Vec::new();
     let mut findings = Vec::new();
@@ -46,7 +46,7 @@ pub fn diagnose_histograms(h: &AdcHistograms, flatten: &FlattenParams, seed: u64
         let a: Vec<u64> = counts.iter().map(|&c| if c == 0 { 0 } else { Binomial::new(c, 0.5).map(|d| d.sample(&mut rng)).unwrap_or(c / 2) }).collect();
         let b: Vec<u64> = counts.iter().zip(&a).map(|(c, a)| c - a).collect();
         let trimmed = trimmed_params(flatten);
-        let f = flatten_histogram(&a, &trimmed).map_err(|e| format!("ADC {adc}: {e}"))?;
+        let f = flatten_histogram(&a, &trimmed).map_err(|source| DiagnoseError::Flatten { adc, source })?;
         // Scored codes: fitted, with a usable smooth expectation, and away from the ends
         // of the fit by a median window plus a knot interval, where the smooth fit cannot
         // follow the edges of the illumination (that is not the ADC's doing).
@@ -56,7 +56,7 @@ pub fn diagnose_histograms(h: &AdcHistograms, flatten: &FlattenParams, seed: u64
             .filter(|&k| f.normalized[k].is_finite() && f.normalized[k] > 0.0 && a[k] > 0 && f.spline[k] > 20.0)
             .collect();
         if codes.len() < 16 {
-            return Err(format!("ADC {adc}: only {} codes have enough counts to diagnose", codes.len()));
+            return Err(DiagnoseError::TooFewCodes { adc, codes: codes.len() });
         }
         let sa: f64 = codes.iter().map(|&k| a[k] as f64).sum();
         let sb: f64 = codes.iter().map(|&k| b[k] as f64).sum();

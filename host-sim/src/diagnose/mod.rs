@@ -131,6 +131,55 @@ impl std::fmt::Display for Effect {
     }
 }
 
+/// Why a data set cannot be diagnosed: too little of it, or what the tests need is
+/// missing. The messages say what is needed; the caller names the file.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum DiagnoseError {
+    /// An ADC's histogram could not be flattened (the paper's recipe).
+    #[error("ADC {adc}: {source}")]
+    Flatten {
+        adc: usize,
+        #[source]
+        source: crate::flatten::FlattenError,
+    },
+    /// Too few codes with counts to score.
+    #[error("ADC {adc}: only {codes} codes have enough counts to diagnose")]
+    TooFewCodes { adc: usize, codes: usize },
+    /// Too few codes inside the illuminated peaks for the code-density test.
+    #[error("only {codes} codes lie inside illuminated peaks with 20 or more counts in both halves of the levels; the code-density test needs 64")]
+    TooFewPeakCodes { codes: usize },
+    /// No level above dark in a photon-transfer set.
+    #[error("no illuminated levels")]
+    NoIlluminatedLevels,
+    /// Too few photon-transfer levels below saturation to hold half out.
+    #[error("{levels} usable levels below 90% of saturation; the held-out split needs at least 12")]
+    TooFewPtcLevels { levels: usize },
+    /// A weighted fit of the photon-transfer levels failed (singular).
+    #[error("the photon-transfer fit failed")]
+    PtcFit,
+    /// Too few levels in a linearity set for the held-out split.
+    #[error("{levels} levels: the held-out split needs at least 11 (a quartic on the even levels and one on the odd ones)")]
+    TooFewLevels { levels: usize },
+    /// More levels than the diagnosis indexes.
+    #[error("{levels} levels: at most {} are diagnosed (levels are indexed in 16 bits)", u16::MAX)]
+    TooManyLevels { levels: usize },
+    /// Too few frames per level for the noise of a mean.
+    #[error("{frames} frames per level: the noise of a mean from the frames' standard deviation needs at least 4")]
+    TooFewFrames { frames: u32 },
+    /// The reference detector's voltages are not positive.
+    #[error("the reference voltages are not positive")]
+    Reference,
+    /// The frames' standard deviations are zero nearly everywhere.
+    #[error("the standard deviations are zero at most pixels and levels: the noise of the means is unknown")]
+    NoNoise,
+    /// More ADCs than the per-ADC tests handle.
+    #[error("NADC = {n_adc}: the per-ADC tests are for at most {max} pipelined ADCs (their work grows with the ADCs times the pixels); a set with NADC = 1 is diagnosed pixel by pixel")]
+    TooManyAdcs { n_adc: usize, max: usize },
+    /// No pixel has enough unsaturated levels.
+    #[error("no pixel has enough unsaturated levels to fit")]
+    NoPixelFits,
+}
+
 /// One accepted model extension.
 #[derive(Debug, Clone, Serialize)]
 pub struct Finding {

@@ -81,14 +81,14 @@ fn eval_terms(terms: Terms, c: &[f64], x: f64) -> f64 {
 /// polynomial of degree 3, 4 or 5 in the photons, the degree chosen on the held-out
 /// levels), then `low-signal-nonlinearity` (a term confined to the lowest 10% of the
 /// range, beside the chosen shape), and `insufficient-noise` from the dark noise.
-pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Result<Diagnosis, String> {
+pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Result<Diagnosis, DiagnoseError> {
     let mut pts: Vec<PtcPoint> = points.to_vec();
     pts.sort_by(|a, b| a.photons.total_cmp(&b.photons));
-    let sat = (0..pts.len()).max_by(|&a, &b| pts[a].var_dn2.total_cmp(&pts[b].var_dn2)).ok_or("no illuminated levels")?;
+    let sat = (0..pts.len()).max_by(|&a, &b| pts[a].var_dn2.total_cmp(&pts[b].var_dn2)).ok_or(DiagnoseError::NoIlluminatedLevels)?;
     let sat_mean = pts[sat].mean_dn;
     let used: Vec<PtcPoint> = pts.into_iter().filter(|p| p.mean_dn < 0.9 * sat_mean && p.photons > 0.0).collect();
     if used.len() < 12 {
-        return Err(format!("{} usable levels below 90% of saturation; the held-out split needs at least 12", used.len()));
+        return Err(DiagnoseError::TooFewPtcLevels { levels: used.len() });
     }
     let pmax = used.iter().map(|p| p.photons).fold(0.0, f64::max);
     let x: Vec<f64> = used.iter().map(|p| p.photons / pmax).collect();
@@ -166,7 +166,7 @@ pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Res
         let (e, sd) = null_moments(terms, &pick(&x, &train), &pick(&sig, &train), &pick(&x, &test), &pick(&sig, &test));
         (e, (sd * sd + scale_rel_var * e * e).sqrt())
     };
-    let (m0, z0) = score(Terms::LINEAR).ok_or("the linear fit failed")?;
+    let (m0, z0) = score(Terms::LINEAR).ok_or(DiagnoseError::PtcFit)?;
     // How far the simpler model's held-out misfit `m_s` lies above what the richer model
     // leaves by chance, in the richer model's own null spread; `beats`: `None` unless
     // that exceeds SIGNIFICANCE.
@@ -213,8 +213,8 @@ pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Res
     // a bend already named; at SIGNIFICANCE, a compressive curve whose x^4 term the cubic
     // missed by 4.9 units went on to `unexplained` at 5.6).
     const REFINE: f64 = 2.0;
-    let select = |from: Terms| -> Result<(Terms, Score), String> {
-        let mut best = (from, score(from).ok_or("the photon-transfer fit failed")?);
+    let select = |from: Terms| -> Result<(Terms, Score), DiagnoseError> {
+        let mut best = (from, score(from).ok_or(DiagnoseError::PtcFit)?);
         for degree in Terms::BENDS.into_iter().filter(|d| *d > from.degree) {
             let t = Terms { degree, low: from.low };
             // At least two fitting levels per parameter beyond it.
@@ -236,7 +236,7 @@ pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Res
     // misfit a higher degree removes).
     let (shape, _) = select(Terms { degree: 1, low })?;
     let plain = Terms { degree: shape.degree, low: false };
-    let plain_score = score(plain).ok_or("the photon-transfer fit failed")?;
+    let plain_score = score(plain).ok_or(DiagnoseError::PtcFit)?;
     let with_low = Terms { degree: shape.degree, low: true };
     let low_named = if low { score(with_low).and_then(|s| beats(with_low, &plain_score, &s).map(|g| (s, g))) } else { None };
     let (current, current_score) = match &low_named {
@@ -245,7 +245,7 @@ pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Res
     };
     if current.degree > 1 {
         let base = Terms { degree: 1, low: current.low };
-        let base_score = score(base).ok_or("the photon-transfer fit failed")?;
+        let base_score = score(base).ok_or(DiagnoseError::PtcFit)?;
         let significance = significance(current, &base_score, &current_score);
         let what = format!("the response bends: x^2 .. x^{} in the photons (the degree the held-out levels favour)", current.degree);
         let mut f = finding(Effect::GlobalNonlinearity, what, significance, &base_score, &current_score);

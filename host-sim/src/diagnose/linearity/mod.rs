@@ -108,22 +108,22 @@ fn finding(effect: Effect, adc: Option<usize>, significance: f64, before: f64, a
 /// The set checked (enough levels and frames, positive reference, noise known, at most
 /// [`MAX_ADCS`] ADCs) and its pixels as the diagnosis reads them: the masked ones left
 /// out, each mean's noise with the quantization floor; and the number of ADCs.
-fn prepare<T: Sample>(set: &LinearitySet<T>) -> Result<(Pixels<'_, T>, usize), String> {
+fn prepare<T: Sample>(set: &LinearitySet<T>) -> Result<(Pixels<'_, T>, usize), DiagnoseError> {
     let (nl, np) = (set.levels, set.width * set.height);
     if nl < 11 {
-        return Err(format!("{nl} levels: the held-out split needs at least 11 (a quartic on the even levels and one on the odd ones)"));
+        return Err(DiagnoseError::TooFewLevels { levels: nl });
     }
     if nl > usize::from(u16::MAX) {
-        return Err(format!("{nl} levels: at most {} are diagnosed (levels are indexed in 16 bits)", u16::MAX));
+        return Err(DiagnoseError::TooManyLevels { levels: nl });
     }
     if set.n_frames < 4 {
-        return Err(format!("{} frames per level: the noise of a mean from the frames' standard deviation needs at least 4", set.n_frames));
+        return Err(DiagnoseError::TooFewFrames { frames: set.n_frames });
     }
     let nf = f64::from(set.n_frames);
     let kappa = if set.n_frames > 3 { (nf - 1.0) / (nf - 3.0) } else { 1.0 };
     let vmax = set.voltage.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
     if vmax.is_nan() || vmax <= 0.0 {
-        return Err("the reference voltages are not positive".into());
+        return Err(DiagnoseError::Reference);
     }
     let x: Vec<f64> = set.voltage.iter().map(|v| v / vmax).collect();
     let valid = unsaturated_levels(set);
@@ -131,13 +131,13 @@ fn prepare<T: Sample>(set: &LinearitySet<T>) -> Result<(Pixels<'_, T>, usize), S
     // are (counted: a sorted copy of the cube was 4 bytes per value more at its peak).
     let (zero, finite) = set.std.iter().map(|&v| v.into()).filter(|v: &f64| v.is_finite()).fold((0usize, 0usize), |(z, n), v| (z + usize::from(v <= 0.0), n + 1));
     if finite > 0 && zero > finite / 2 {
-        return Err("the standard deviations are zero at most pixels and levels: the noise of the means is unknown".into());
+        return Err(DiagnoseError::NoNoise);
     }
     let known_bad = |p: usize| set.mask.as_ref().is_some_and(|m| m[p] != 0);
     // (More ADCs than columns read as one per column: column `c` is ADC `c` either way.)
     let n_adc = set.n_adc.clamp(1, set.width.max(1));
     if n_adc > MAX_ADCS {
-        return Err(format!("NADC = {}: the per-ADC tests are for at most {MAX_ADCS} pipelined ADCs (their work grows with the ADCs times the pixels); a set with NADC = 1 is diagnosed pixel by pixel", set.n_adc));
+        return Err(DiagnoseError::TooManyAdcs { n_adc: set.n_adc, max: MAX_ADCS });
     }
     let pixels: Vec<usize> = (0..np).filter(|&p| !known_bad(p)).collect();
     let bias2 = quantization_floor(set, &pixels);
@@ -151,7 +151,7 @@ fn prepare<T: Sample>(set: &LinearitySet<T>) -> Result<(Pixels<'_, T>, usize), S
 /// what stays here is the shared response (ADC curvature, `global-nonlinearity`), whose
 /// steps hand each other their held-out scores (each accepted model is the next one's
 /// baseline), and the assembly of the report: about 170 lines, one idea.
-pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) -> Result<Diagnosis, String> {
+pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) -> Result<Diagnosis, DiagnoseError> {
     let (px, n_adc) = prepare(set)?;
     let (nl, top) = (set.levels, ((1u64 << set.bit_depth) - 1) as f64);
     let n = px.len();
@@ -183,7 +183,7 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
     let adc_curves: Vec<[f64; 3]> = (0..n_adc).map(|a| curve_of(&|i| adc_of(i) == a)).collect();
     let mut global = curve_of(&|_| true);
     if global.iter().any(|c| !c.is_finite()) {
-        return Err("no pixel has enough unsaturated levels to fit".into());
+        return Err(DiagnoseError::NoPixelFits);
     }
     let good: Vec<usize> = (0..n).filter(|&i| is_good(i)).collect();
     let cell = |j: usize| Cell { adc: adc_of(good[j]), odd: !estimating(good[j]) };
@@ -481,14 +481,23 @@ mod bad_input_tests {
         cases.push(("eight levels", linearity_set(&few, &[], 1)));
         let flat = LinearitySet { mean: base.mean.iter().enumerate().map(|(i, _)| 100.0 + (i % 30) as f64).collect(), ..base.clone() };
         cases.push(("no response", flat));
+        // Where the set lacks what a test needs, the error says which.
+        let expected = |what: &str| match what {
+            "one frame" => Some(DiagnoseError::TooFewFrames { frames: 1 }),
+            "zero noise" => Some(DiagnoseError::NoNoise),
+            "zero voltages" | "nan voltages" => Some(DiagnoseError::Reference),
+            "eight levels" => Some(DiagnoseError::TooFewLevels { levels: 8 }),
+            _ => None,
+        };
         for (what, set) in cases {
-            match diagnose_linearity(&set, 0.01) {
-                Ok(d) => {
+            match (diagnose_linearity(&set, 0.01), expected(what)) {
+                (Ok(d), None) => {
                     for f in &d.findings {
                         assert!(f.significance.is_finite() && f.rms_before.is_finite() && f.rms_after.is_finite(), "{what}: {f:?}");
                     }
                 }
-                Err(e) => assert!(!e.is_empty(), "{what}"),
+                (Err(e), want) => assert!(want.as_ref().is_none_or(|w| *w == e), "{what}: {e}, expected {want:?}"),
+                (Ok(_), Some(want)) => panic!("{what}: diagnosed, expected {want}"),
             }
         }
     }
