@@ -110,6 +110,15 @@ pub enum HostError {
         #[source]
         source: crate::diagnose::DiagnoseError,
     },
+    /// A linearity set that cannot be corrected as asked.
+    #[error("{path}: {source}")]
+    Linearity {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        #[source]
+        source: crate::linearity::LinearityError,
+    },
     /// A file's contents are not what they must be.
     #[error("{path}: {message}")]
     Format {

@@ -63,12 +63,12 @@ pub fn linearity_as(read_from: &Path, input: &Path, order: usize, flat: Option<u
     let start = std::time::Instant::now();
     let valid = unsaturated_levels(&set);
     if let Some(l) = flat {
-        check_flat_level(&valid, set.levels, l).map_err(|m| HostError::Argument { flag: "--flat-level".into(), message: format!("{m} ({})", input.display()) })?;
+        check_flat_level(&valid, set.levels, l).map_err(|e| HostError::Argument { flag: "--flat-level".into(), message: format!("{e} ({})", input.display()) })?;
     }
     let spin = spinner(&format!("fitting {} pixels ({} levels): standard and pixel-wise corrections", set.width * set.height, set.levels));
     let analysis = analyze_unsaturated(&set, order, flat, valid);
     spin.finish_and_clear();
-    let (report, px) = analysis.map_err(|message| HostError::Format { path: input.into(), message })?;
+    let (report, px) = analysis.map_err(|source| HostError::Linearity { path: input.into(), source })?;
     let analysis_s = start.elapsed().as_secs_f64();
     let mut outputs = Vec::new();
     if let Some(OutDir { files, dir }) = out {

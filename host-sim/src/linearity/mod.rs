@@ -346,7 +346,7 @@ impl Inversion<'_> {
 
 /// Analyzes `set` with the pixel-wise polynomial of `order` (clamped to 1..=[`MAX_ORDER`]):
 /// masks, the three corrections, their RMS per level, the random noise.
-pub fn analyze(set: &LinearitySet, order: usize) -> Result<(LinearityReport, PixelResults), String> {
+pub fn analyze(set: &LinearitySet, order: usize) -> Result<(LinearityReport, PixelResults), LinearityError> {
     analyze_with_flat(set, order, None)
 }
 
@@ -354,8 +354,28 @@ pub fn analyze(set: &LinearitySet, order: usize) -> Result<(LinearityReport, Pix
 /// caller checks, [`check_flat_level`]), `None` the level whose reference is nearest half
 /// the maximum (the paper's text: "approximately half saturation"; its Figs. 6-7 use a
 /// flat near 57%).
-pub fn analyze_with_flat(set: &LinearitySet, order: usize, flat: Option<usize>) -> Result<(LinearityReport, PixelResults), String> {
+pub fn analyze_with_flat(set: &LinearitySet, order: usize, flat: Option<usize>) -> Result<(LinearityReport, PixelResults), LinearityError> {
     analyze_unsaturated(set, order, flat, unsaturated_levels(set))
+}
+
+/// Why a linearity set cannot be corrected as asked.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum LinearityError {
+    /// A flat level that is dark or beyond the set.
+    #[error("{level}: the flat must be one of the illuminated levels 1 to {}", levels - 1)]
+    FlatLevel { level: usize, levels: usize },
+    /// A flat level where most pixels saturate (it would mask most of the sensor).
+    #[error("{level}: {saturated} of {pixels} pixels are saturated at that level; {}", match highest_usable {
+        Some(k) => format!("levels 1 to {k} keep at least half of them unsaturated"),
+        None => "no level keeps half of them unsaturated".to_string(),
+    })]
+    SaturatedFlat { level: usize, saturated: usize, pixels: usize, highest_usable: Option<usize> },
+    /// Every pixel masked before or during the fits.
+    #[error("no pixel left to correct: all {pixels} are masked (the input MASK, too little signal at the flat, no fit of order {order}, or a residual 10x the median)")]
+    AllMasked { pixels: usize, order: usize },
+    /// Too few levels for the standard correction's global polynomial.
+    #[error("{levels} levels where most good pixels are unsaturated; the standard correction's global polynomial of order {GLOBAL_ORDER} needs {}", GLOBAL_ORDER + 1)]
+    TooFewLevels { levels: usize },
 }
 
 /// Whether level `l` can be the flat of a set whose pixels keep `valid[p]` levels below
@@ -363,25 +383,22 @@ pub fn analyze_with_flat(set: &LinearitySet, order: usize, flat: Option<usize>) 
 /// least half the pixels are unsaturated (a pixel can only be fit and flat-fielded if it
 /// is unsaturated there: a flat where most saturate would mask most of the sensor). The
 /// message names the highest usable level.
-pub fn check_flat_level(valid: &[usize], levels: usize, l: usize) -> Result<(), String> {
+pub fn check_flat_level(valid: &[usize], levels: usize, l: usize) -> Result<(), LinearityError> {
     if !(1..levels).contains(&l) {
-        return Err(format!("{l}: the flat must be one of the illuminated levels 1 to {}", levels - 1));
+        return Err(LinearityError::FlatLevel { level: l, levels });
     }
     let np = valid.len();
     let unsaturated_at = |level: usize| valid.iter().filter(|&&n| n > level).count();
     if 2 * unsaturated_at(l) < np {
-        let hint = match (1..levels).rev().find(|&k| 2 * unsaturated_at(k) >= np) {
-            Some(k) => format!("levels 1 to {k} keep at least half of them unsaturated"),
-            None => "no level keeps half of them unsaturated".into(),
-        };
-        return Err(format!("{l}: {} of {np} pixels are saturated at that level; {hint}", np - unsaturated_at(l)));
+        let highest_usable = (1..levels).rev().find(|&k| 2 * unsaturated_at(k) >= np);
+        return Err(LinearityError::SaturatedFlat { level: l, saturated: np - unsaturated_at(l), pixels: np, highest_usable });
     }
     Ok(())
 }
 
 /// [`analyze_with_flat`] given the set's [`unsaturated_levels`] (a caller that checked the
 /// flat with them computes them once).
-pub fn analyze_unsaturated(set: &LinearitySet, order: usize, flat: Option<usize>, valid: Vec<usize>) -> Result<(LinearityReport, PixelResults), String> {
+pub fn analyze_unsaturated(set: &LinearitySet, order: usize, flat: Option<usize>, valid: Vec<usize>) -> Result<(LinearityReport, PixelResults), LinearityError> {
     let order = order.clamp(1, MAX_ORDER);
     let (nl, w, h) = (set.levels, set.width, set.height);
     let np = w * h;
@@ -437,13 +454,13 @@ pub fn analyze_unsaturated(set: &LinearitySet, order: usize, flat: Option<usize>
     }
     let good: Vec<usize> = (0..np).filter(|&p| mask[p] == 0).collect();
     if good.is_empty() {
-        return Err(format!("no pixel left to correct: all {np} are masked (the input MASK, too little signal at the flat, no fit of order {order}, or a residual 10x the median)"));
+        return Err(LinearityError::AllMasked { pixels: np, order });
     }
     // Standard correction: global cubic x = f(m / top) from the median good pixel.
     let med_levels: Vec<f64> = (0..nl).map(|l| median(good.iter().filter(|&&p| l < valid[p]).map(|&p| m(l, p)))).collect();
     let usable: Vec<usize> = (0..nl).filter(|&l| med_levels[l].is_finite() && good.iter().filter(|&&p| l < valid[p]).count() * 2 > good.len()).collect();
     if usable.len() <= GLOBAL_ORDER {
-        return Err(format!("{} levels where most good pixels are unsaturated; the standard correction's global polynomial of order {GLOBAL_ORDER} needs {}", usable.len(), GLOBAL_ORDER + 1));
+        return Err(LinearityError::TooFewLevels { levels: usable.len() });
     }
     let gpinv = pseudo_inverse(&usable.iter().map(|&l| med_levels[l] / top).collect::<Vec<_>>(), GLOBAL_ORDER);
     let global: Vec<f64> = (&gpinv * DVector::from_iterator(usable.len(), usable.iter().map(|&l| x[l]))).iter().copied().collect();
