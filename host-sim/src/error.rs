@@ -119,6 +119,15 @@ pub enum HostError {
         #[source]
         source: crate::linearity::LinearityError,
     },
+    /// A photon-transfer set that cannot be characterized.
+    #[error("{path}: {source}")]
+    Ptc {
+        /// The descriptor.
+        path: PathBuf,
+        /// Why.
+        #[source]
+        source: crate::emva::datasheet::PtcError,
+    },
     /// A file's contents are not what they must be.
     #[error("{path}: {message}")]
     Format {

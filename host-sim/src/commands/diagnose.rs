@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::diagnose::{diagnose_code_density, diagnose_histograms, diagnose_linearity, diagnose_ptc, Diagnosis, Effect, Finding};
+use crate::diagnose::{diagnose_code_density, diagnose_histograms, diagnose_linearity, diagnose_ptc, DiagnoseError, Diagnosis, Effect, Finding};
 use crate::fits::{read_histograms_for_analysis, read_linearity_as};
 use crate::outputs::{html_figure, OutDir, Outputs};
 use crate::flatten::FlattenParams;
@@ -17,13 +17,13 @@ use crate::HostError;
 /// camera at the data's bit depth and ADC count, with every ADC that shows `adc-dnl`
 /// given the code widths flattened from all its counts (the others ideal). A missing code
 /// keeps a width of 1e-6 DN (the model needs increasing transition levels).
-pub fn extended_model(hist: &crate::fits::AdcHistograms, d: &Diagnosis, flatten: &FlattenParams) -> Result<crate::camera::CameraConfig, String> {
+pub fn extended_model(hist: &crate::fits::AdcHistograms, d: &Diagnosis, flatten: &FlattenParams) -> Result<crate::camera::CameraConfig, DiagnoseError> {
     let codes = 1usize << hist.bit_depth;
     let trimmed = crate::diagnose::trimmed_params(flatten);
     let mut widths = Vec::new();
     for (adc, counts) in hist.counts.iter().enumerate() {
         if d.findings.iter().any(|f| f.effect == Effect::AdcDnl && f.adc == Some(adc)) {
-            let f = crate::flatten::flatten_histogram(counts, &trimmed).map_err(|e| format!("ADC {adc}: {e}"))?;
+            let f = crate::flatten::flatten_histogram(counts, &trimmed).map_err(|source| DiagnoseError::Flatten { adc, source })?;
             widths.push(f.weights.iter().map(|w| w.max(1e-6)).collect());
         } else {
             widths.push(vec![1.0; codes]);
@@ -295,7 +295,7 @@ pub fn diagnose_as(read_from: &Path, input: &Path, flatten: &FlattenParams, seed
         let d = diagnose_histograms(&hist, flatten, seed);
         spin.finish_and_clear();
         let d = d.map_err(|source| HostError::Diagnose { path: input.into(), source })?;
-        model = Some(extended_model(&hist, &d, flatten).map_err(|m| HostError::Format { path: input.into(), message: m })?);
+        model = Some(extended_model(&hist, &d, flatten).map_err(|source| HostError::Diagnose { path: input.into(), source })?);
         d
     };
     let labels = if is_descriptor { ("level (by photons)", "baseline (linear camera)") } else { ("code (DN)", "baseline (ideal ADC)") };

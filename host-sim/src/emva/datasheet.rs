@@ -204,21 +204,50 @@ fn saturation_index(var: &[f64]) -> usize {
     at
 }
 
+/// Why a photon-transfer set cannot be characterized at all.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum PtcError {
+    /// Too few illuminated levels.
+    #[error("{levels} illuminated two-frame levels: at least {MIN_LEVELS} are needed (the standard asks for {STANDARD_LEVELS})")]
+    TooFewLevels { levels: usize },
+    /// A level whose statistics are NaN or infinite (its descriptor line).
+    #[error("level at line {line} has no finite mean or variance")]
+    NotFinite { line: usize },
+    /// Every level at the same photon count.
+    #[error("every illuminated level states the same photon count: the responsivity and linearity cannot be measured")]
+    OnePhotonCount,
+    /// Identical frame pairs: no temporal noise.
+    #[error("every pair of frames is identical: no temporal noise, so the variance does not rise with the signal and the photon transfer cannot be measured")]
+    NoNoise,
+    /// No signal above dark at the variance maximum.
+    #[error("the mean above dark at the variance maximum is {mean_dn:.4} DN: the signal does not rise above dark")]
+    NoSignal { mean_dn: f64 },
+    /// Fewer than two levels for the gain fit.
+    #[error("fewer than two levels up to 70% of saturation ({limit_dn:.1} DN above dark) for the gain fit")]
+    TooFewGainLevels { limit_dn: f64 },
+    /// A conversion gain that is not positive.
+    #[error("the temporal variance does not rise with the signal (K = {gain:.4e} DN/e-): no photon transfer to characterize")]
+    Gain { gain: f64 },
+    /// A responsivity that is not positive.
+    #[error("the signal does not rise with the photons (R = {responsivity:.4e} DN/photon): check the photon counts")]
+    Responsivity { responsivity: f64 },
+}
+
 /// The temporal datasheet from photon-transfer `points` (any order). Errors, as one
 /// line, when the set cannot be characterized at all: too few levels, a variance that
 /// does not rise with the signal (K <= 0, or all frames equal), a signal that does not
 /// rise with the photons (R <= 0).
-pub fn summarize_points(points: &[PtcPoint], release: Release) -> Result<PtcSummary, String> {
+pub fn summarize_points(points: &[PtcPoint], release: Release) -> Result<PtcSummary, PtcError> {
     let mut p = points.to_vec();
     p.sort_by(|a, b| a.photons.total_cmp(&b.photons).then(a.exposure.total_cmp(&b.exposure)));
     if p.len() < MIN_LEVELS {
-        return Err(format!("{} illuminated two-frame levels: at least {MIN_LEVELS} are needed (the standard asks for {STANDARD_LEVELS})", p.len()));
+        return Err(PtcError::TooFewLevels { levels: p.len() });
     }
     if let Some(bad) = p.iter().find(|q| !(q.mean_dn.is_finite() && q.var_dn2.is_finite() && q.dark_var_dn2.is_finite())) {
-        return Err(format!("level at line {} has no finite mean or variance", bad.line));
+        return Err(PtcError::NotFinite { line: bad.line });
     }
     if p.first().map(|q| q.photons) == p.last().map(|q| q.photons) {
-        return Err("every illuminated level states the same photon count: the responsivity and linearity cannot be measured".into());
+        return Err(PtcError::OnePhotonCount);
     }
     let mut why = BTreeMap::new();
     if p.len() < STANDARD_LEVELS {
@@ -228,7 +257,7 @@ pub fn summarize_points(points: &[PtcPoint], release: Release) -> Result<PtcSumm
     let var: Vec<f64> = p.iter().map(|q| q.var_dn2 - q.dark_var_dn2).collect();
     let photons: Vec<f64> = p.iter().map(|q| q.photons).collect();
     if p.iter().all(|q| q.var_dn2 == 0.0 && q.dark_var_dn2 == 0.0) {
-        return Err("every pair of frames is identical: no temporal noise, so the variance does not rise with the signal and the photon transfer cannot be measured".into());
+        return Err(PtcError::NoNoise);
     }
     let variance: Vec<f64> = p.iter().map(|q| q.var_dn2).collect();
     let variance_sat = saturation_index(&variance);
@@ -252,12 +281,12 @@ pub fn summarize_points(points: &[PtcPoint], release: Release) -> Result<PtcSumm
     };
     let y_sat = y[sat];
     if y_sat.is_nan() || y_sat <= 0.0 {
-        return Err(format!("the mean above dark at the variance maximum is {y_sat:.4} DN: the signal does not rise above dark"));
+        return Err(PtcError::NoSignal { mean_dn: y_sat });
     }
     // Fit ranges as index ranges from the first level, as the reference takes them.
     let last_at_most = |limit: f64| (0..y.len()).rev().find(|&i| y[i] <= limit);
     let Some(gain_end) = last_at_most(0.7 * y_sat).filter(|&i| i >= 1) else {
-        return Err(format!("fewer than two levels up to 70% of saturation ({:.1} DN above dark) for the gain fit", 0.7 * y_sat));
+        return Err(PtcError::TooFewGainLevels { limit_dn: 0.7 * y_sat });
     };
     let range = 0..gain_end + 1;
     // Release 4.0 eq. 50 fits the variance with a free offset; 3.1 and the reference
@@ -268,11 +297,11 @@ pub fn summarize_points(points: &[PtcPoint], release: Release) -> Result<PtcSumm
         Release::R4 => free_slope,
     };
     if !(gain.is_finite() && gain > 0.0) {
-        return Err(format!("the temporal variance does not rise with the signal (K = {gain:.4e} DN/e-): no photon transfer to characterize"));
+        return Err(PtcError::Gain { gain });
     }
     let responsivity = fit_origin(&photons[range.clone()], &y[range.clone()]);
     if !(responsivity.is_finite() && responsivity > 0.0) {
-        return Err(format!("the signal does not rise with the photons (R = {responsivity:.4e} DN/photon): check the photon counts"));
+        return Err(PtcError::Responsivity { responsivity });
     }
     let (_, _, linearity_r2) = fit_line(&photons[range.clone()], &y[range.clone()]);
     let qe = responsivity / gain;
@@ -432,8 +461,7 @@ mod tests {
                 top_fraction: 0.0,
             })
             .collect();
-        let err = summarize_points(&points, Release::R3).unwrap_err();
-        assert!(err.contains("same photon count"), "{err}");
+        assert_eq!(summarize_points(&points, Release::R3).unwrap_err(), PtcError::OnePhotonCount);
     }
 
     #[test]

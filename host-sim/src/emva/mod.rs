@@ -28,5 +28,5 @@ pub use temporal::{photon_transfer, photon_transfer_columns, PtcPoint};
 /// The temporal datasheet of `points` with `release`'s definitions; an error names the
 /// descriptor `path`.
 pub fn summarize(path: &std::path::Path, points: &[PtcPoint], release: Release) -> Result<PtcSummary, crate::HostError> {
-    summarize_points(points, release).map_err(|message| crate::HostError::Format { path: path.to_path_buf(), message })
+    summarize_points(points, release).map_err(|source| crate::HostError::Ptc { path: path.to_path_buf(), source })
 }
