@@ -156,10 +156,10 @@ struct RampArgs {
 impl RampArgs {
     fn params(&self) -> Result<RampParams, HostError> {
         if self.first_ramp < 2 || self.last_ramp < self.first_ramp {
-            return Err(HostError::Format { path: "arguments".into(), message: "ramps need --first-ramp >= 2 and --last-ramp >= --first-ramp".into() });
+            return Err(HostError::argument("--first-ramp / --last-ramp", "ramps need --first-ramp >= 2 and --last-ramp >= --first-ramp"));
         }
         if !(0.0..1.0).contains(&self.field_spread) {
-            return Err(HostError::Format { path: "arguments".into(), message: "--field-spread must be in [0, 1)".into() });
+            return Err(HostError::argument("--field-spread", "must be in [0, 1)"));
         }
         Ok(RampParams {
             ramp_levels: (self.first_ramp..=self.last_ramp).collect(),
@@ -1036,7 +1036,7 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
                 _ => None,
             };
             if sigma.is_none() && bias.is_none() && figure.is_none() {
-                return Err(HostError::Format { path: "arguments".into(), message: "give --sigma (or --read-noise-e with --gain-e-per-dn), --bias or --figure".into() });
+                return Err(HostError::argument("quantization", "give --sigma (or --read-noise-e with --gain-e-per-dn), --bias or --figure"));
             }
             if let Some(path) = &figure {
                 dncal_host::outputs::write_one(|o| quantization::figure(o, path))?;

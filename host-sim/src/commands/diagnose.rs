@@ -305,8 +305,9 @@ pub fn diagnose_as(read_from: &Path, input: &Path, flatten: &FlattenParams, seed
 /// Stages the report of `diagnosis` (and the extended `model`, if any) in `out`.
 fn report(input: &Path, mut diagnosis: Diagnosis, model: Option<crate::camera::CameraConfig>, out: Option<OutDir<'_>>, (x_label, base_label): (&str, &str)) -> Result<DiagnoseSummary, HostError> {
     // What the model leaves is listed after what it found (stable: the findings keep the
-    // order they entered the model in).
-    diagnosis.findings.sort_by_key(|f| f.effect == Effect::Unexplained);
+    // order they entered the model in; a level term named `unexplained` is a model step
+    // and keeps its place).
+    diagnosis.findings.sort_by_key(|f| f.effect == Effect::Unexplained && f.all_data_rms_after.is_none());
     let mut outputs = Vec::new();
     if let Some(OutDir { files, dir }) = out {
         let n = diagnosis.residuals.len();

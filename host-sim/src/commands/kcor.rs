@@ -53,7 +53,7 @@ pub struct Realization {
 pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, realizations: usize, mut out: Option<OutDir<'_>>) -> Result<KcorSummary, HostError> {
     let adc = camera.adcs.get(p.adc).ok_or_else(|| HostError::Argument { flag: "--adc".into(), message: format!("ADC {} does not exist; the camera has {}", p.adc, camera.adcs.len()) })?;
     if !(p.exposure_s > 0.0 && p.exposure_s.is_finite() && p.fill > 0.0 && p.fill <= 1.0 && p.lut_noise >= 0.0 && p.flat_fraction > 0.0 && p.flat_fraction <= 1.0 && p.q_fraction > 0.0 && p.q_fraction <= 1.0) {
-        return Err(HostError::Format { path: "arguments".into(), message: "need exposure > 0, 0 < fill <= 1, 0 < flat fraction <= 1, 0 < q fraction <= 1 and LUT noise >= 0".into() });
+        return Err(HostError::argument("--exposure-ms / --q-fraction / --lut-noise", "need exposure > 0, 0 < fill <= 1, 0 < flat fraction <= 1, 0 < q fraction <= 1 and LUT noise >= 0"));
     }
     // A dark level at the top code (or the full well) leaves no state a signal: every
     // error would be 0 and every reduction 0/0 (it printed "infx less").

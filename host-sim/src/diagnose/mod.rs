@@ -206,10 +206,12 @@ pub struct Finding {
     /// on ([`Baseline::rms`]'s scale, ending at [`Diagnosis::unexplained_rms`]) once this
     /// finding and the model steps before it are in the model: the one scale on which
     /// findings tested on different subsets compare. Findings that enter the model in
-    /// one step (the parts of a linearity set's level term) share its value. `None` where
-    /// the finding is tested on other data than those residuals (maps of dark and gain,
-    /// flagged pixels, the frames' code density, the dark noise) or is what remains
-    /// (`unexplained`): it leaves that scale as it was.
+    /// one step (the parts of a linearity set's level term, even one named `unexplained`
+    /// because no quartic follows it) share its value. `None` where the finding is tested
+    /// on other data than those residuals (maps of dark and gain, flagged pixels, the
+    /// frames' code density, the dark noise), rescales the noise rather than the model
+    /// (`excess-noise`), or names what the model leaves (`unexplained`): it leaves that
+    /// scale as it was.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub all_data_rms_after: Option<f64>,
     /// The evidence in words.
@@ -395,7 +397,22 @@ mod effect_tests {
             assert!(doc.contains(&format!("`{e}`")), "{e} is not in docs/diagnose.md's catalog");
         }
         let mut unique = names.clone();
+        unique.sort();
         unique.dedup();
         assert_eq!(unique.len(), names.len());
+        // ALL holds every variant, in the order of the declaration.
+        let index = |e: Effect| match e {
+            Effect::AdcDnl => 0,
+            Effect::AdcMismatch => 1,
+            Effect::GlobalNonlinearity => 2,
+            Effect::PixelNonlinearity => 3,
+            Effect::LowSignalNonlinearity => 4,
+            Effect::LevelErrors => 5,
+            Effect::BadPixels => 6,
+            Effect::ExcessNoise => 7,
+            Effect::InsufficientNoise => 8,
+            Effect::Unexplained => 9,
+        };
+        assert!(Effect::ALL.iter().enumerate().all(|(i, &e)| index(e) == i));
     }
 }

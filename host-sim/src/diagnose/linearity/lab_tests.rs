@@ -248,3 +248,15 @@ fn the_all_data_scale_runs_from_the_baseline_to_what_is_left() {
         assert!((after - d.unexplained_rms).abs() < 1e-12 * after, "{h:?}: last step {after}, unexplained {}", d.unexplained_rms);
     }
 }
+
+/// Two effects, one ADC's own bend and a shared bend, enter in that order: the findings
+/// are listed so, and the all-data RMS falls at each step to the model's remainder.
+#[test]
+fn findings_are_listed_in_the_order_they_enter_the_model() {
+    let hidden = [Hidden::AdcCurvature { adc: 2, e: 0.01 }, Hidden::GlobalNonlinearity { c2: 0.02 }];
+    let d = diagnose_linearity(&linearity_set(&Plant::default(), &hidden, 970), 0.01).unwrap();
+    assert_eq!(names(&d), vec!["adc-mismatch 2".to_string(), "global-nonlinearity".to_string()], "{:#?}", d.findings);
+    let steps: Vec<f64> = std::iter::once(d.baseline.rms).chain(d.findings.iter().map(|f| f.all_data_rms_after.unwrap())).collect();
+    assert!(steps.windows(2).all(|w| w[1] < w[0]), "{steps:?}");
+    assert!((steps[2] - (1.0f64 + 2.0 / 21.0).sqrt()).abs() < 0.02, "{steps:?}");
+}

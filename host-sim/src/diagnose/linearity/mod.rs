@@ -336,17 +336,18 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
         if adc_own[a] { Response::Curve(adc_curves[a], top) } else { follower_model }
     };
     adc_maps(&px, common, fits, &good, &curve_for, &mut adc_findings);
+    // Listed in the order they entered the model: the ADCs set apart under their own
+    // curves right after the level term (before the shared bend), the others' offset and
+    // gain (tested on the maps) after the per-pixel steps.
+    let curved: Vec<Finding> = apart.iter().filter_map(|&a| adc_findings[a].take()).collect();
+    findings.splice(level_findings..level_findings, curved);
     findings.extend(adc_findings.into_iter().flatten());
     findings.extend(stage.finding(&px));
     // Noise: the dark level's temporal noise against the quantization bias.
     let dark_noise = upper_median(good.iter().map(|&i| px.std(0, i)));
     let measured = measure_camera(&px, &good, fits, set.n_frames, top, stage.bad_count());
     findings.extend(insufficient_noise("median dark noise", dark_noise, accuracy_dn));
-    // What remains: with a noise scaled by one factor (`excess-noise`) that is the model's
-    // last step.
-    let rest = remainder(&px, common, &current, tcur, &good, n_adc, nl);
-    let unexplained_rms = rest.as_ref().and_then(|f| f.all_data_rms_after).unwrap_or(tcur.rms());
-    findings.extend(rest);
+    findings.extend(remainder(&px, common, &current, tcur, &good, n_adc, nl));
     Ok(Diagnosis {
         not_tested: Vec::new(),
         measured,
@@ -360,7 +361,7 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
             rms: t0.rms(),
         },
         findings,
-        unexplained_rms,
+        unexplained_rms: tcur.rms(),
         residuals: vec![AdcResiduals { baseline: baseline_by_level, extended: current.by_level(&all) }],
     })
 }

@@ -40,7 +40,7 @@ pub(super) fn remainder<T: Sample>(px: &Pixels<T>, common: Option<&dyn Common>, 
     if noise_only {
         let rms = current.by_level(&all);
         let scaled = rms.iter().map(|&(l, r)| (l, r / k2.sqrt())).collect();
-        let mut f = with_residuals(AdcResiduals { baseline: rms, extended: scaled }, finding(
+        let f = with_residuals(AdcResiduals { baseline: rms, extended: scaled }, finding(
             Effect::ExcessNoise,
             None,
             tcur.excess(),
@@ -52,7 +52,8 @@ pub(super) fn remainder<T: Sample>(px: &Pixels<T>, common: Option<&dyn Common>, 
                 100.0 * (k2 - 1.0)
             ),
         ));
-        f.all_data_rms_after = Some(tcur.rms() / k2.sqrt());
+        // (The residuals stay as they are: the noise they are divided by is what changes,
+        // by a factor measured on half of them. No all-data value.)
         out = Some(f);
     }
     if tcur.excess() > SIGNIFICANCE && !noise_only {
