@@ -78,10 +78,10 @@ impl EngineArgs {
             EngineKind::Fpga => {
                 let d = dncal_fpga_model::Config::default();
                 let config = dncal_fpga_model::Config {
-                    taps: self.taps.unwrap_or(4),
-                    fifo_depth: self.fifo_depth.unwrap_or(1024),
-                    mem_latency: self.mem_latency.unwrap_or(32),
-                    mem_words_per_cycle: self.mem_words_per_cycle.unwrap_or(8),
+                    taps: self.taps.unwrap_or(d.taps),
+                    fifo_depth: self.fifo_depth.unwrap_or(d.fifo_depth),
+                    mem_latency: self.mem_latency.unwrap_or(d.mem_latency),
+                    mem_words_per_cycle: self.mem_words_per_cycle.unwrap_or(d.mem_words_per_cycle),
                     ..d
                 };
                 config.validate().map_err(|e| HostError::argument("--engine fpga", e.to_string()))?;

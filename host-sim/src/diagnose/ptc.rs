@@ -68,6 +68,22 @@ fn eval_terms(terms: Terms, c: &[f64], x: f64) -> f64 {
     terms.row(x).iter().zip(c).map(|(r, c)| r * c).sum()
 }
 
+/// A pooled variance with the relative variance of its estimate, from `v`, values each a
+/// variance times a chi^2(1) variable: their mean from the median of n of them (the median
+/// of chi^2(1) is 0.4549 of its mean; asymptotic relative variance 2.33^2 / n, 0.3^2 at 58
+/// levels) where there are at least five, from their mean (relative variance 2 / n) where
+/// fewer. Non-finite values are left out; none gives (0, 0).
+fn pooled(v: Vec<f64>) -> (f64, f64) {
+    let mut v: Vec<f64> = v.into_iter().filter(|x| x.is_finite()).collect();
+    v.sort_by(f64::total_cmp);
+    let n = v.len() as f64;
+    match v.len() {
+        0 => (0.0, 0.0),
+        1..5 => (v.iter().sum::<f64>() / n, 2.0 / n),
+        _ => (v[v.len() / 2] / 0.4549, 2.33f64.powi(2) / n),
+    }
+}
+
 /// Diagnoses photon-transfer data (an EMVA 1288 set's levels) measured with `pixels`
 /// pixels per frame. The baseline is the standard's linear camera: mean above dark
 /// `mu = b + a p` in the photons `p`; the scored residual of a level is its mean minus the
@@ -98,20 +114,6 @@ pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Res
     // show, pooled over the levels as a part proportional to the signal and a constant
     // (each difference d of two frames estimates the variance of their mean as d^2 / 4).
     let temporal: Vec<f64> = used.iter().map(|p| (p.var_dn2 + p.dark_var_dn2) / (2.0 * pixels as f64)).collect();
-    // Each pooled variance with the relative variance of its estimate: a chi^2(1)
-    // variable's mean from the median of n of them (the median is 0.455 of the mean;
-    // asymptotic relative variance 2.33^2 / n, 0.3^2 at 58 levels) where there are at
-    // least five, from their mean (relative variance 2 / n) where fewer.
-    let pooled = |v: Vec<f64>| -> (f64, f64) {
-        let mut v: Vec<f64> = v.into_iter().filter(|x| x.is_finite()).collect();
-        v.sort_by(f64::total_cmp);
-        let n = v.len() as f64;
-        match v.len() {
-            0 => (0.0, 0.0),
-            1..5 => (v.iter().sum::<f64>() / n, 2.0 / n),
-            _ => (v[v.len() / 2] / 0.4549, 2.33f64.powi(2) / n),
-        }
-    };
     // A dark pair shared by levels of the same exposure is one estimate, not several.
     let mut dark_pairs: Vec<(usize, f64)> = used.iter().map(|p| (p.dark_line, p.dark_frame_diff_dn)).collect();
     dark_pairs.sort_by_key(|d| d.0);
@@ -409,6 +411,16 @@ mod tests {
         for (want, got) in [5.0, 2000.0, -7.0, 3.0].iter().zip(&c) {
             assert!((want - got).abs() < 1e-6 * want.abs().max(1.0), "{c:?}");
         }
+    }
+
+    /// The pooled variance by hand: under five values their mean and 2/n; from five on
+    /// the median over chi^2(1)'s median-to-mean 0.4549 and 2.33^2/n; NaN left out.
+    #[test]
+    fn pooled_variances_follow_their_estimators() {
+        assert_eq!(pooled(vec![]), (0.0, 0.0));
+        assert_eq!(pooled(vec![1.0, 2.0, f64::NAN, 6.0]), (3.0, 2.0 / 3.0));
+        let (m, r) = pooled(vec![5.0, 1.0, 4.0, 2.0, 3.0]);
+        assert!((m - 3.0 / 0.4549).abs() < 1e-12 && (r - 2.33f64.powi(2) / 5.0).abs() < 1e-12, "{m} {r}");
     }
 
     #[test]
