@@ -1006,22 +1006,7 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
                 all.push(diagnose::diagnose(f, &flatten.params(), seed, dir.as_deref().map(|d| OutDir::new(&mut staged, d)))?);
             }
             staged.publish()?;
-            let text = |s: &diagnose::DiagnoseSummary| {
-                let d = &s.diagnosis;
-                let mut t = format!("{}: baseline ({}) held-out RMS {:.3}\n", s.input.display(), d.baseline.model, d.baseline.rms);
-                if d.findings.is_empty() {
-                    t += "  no finding: the baseline explains the data\n";
-                }
-                for f in &d.findings {
-                    let all = f.all_data_rms_after.map_or(String::new(), |r| format!("all data -> {r:.3}; "));
-                    t += &format!("  {}{}: significance {:.1}, {all}its test RMS {:.3} -> {:.3} (gain {:.2}); {}\n", f.effect, f.adc.map_or(String::new(), |a| format!(" (ADC {a})")), f.significance, f.rms_before, f.rms_after, f.gain, f.detail);
-                }
-                for note in &d.not_tested {
-                    t += &format!("  not tested: {note}\n");
-                }
-                t += &format!("  all data: RMS {:.3} unexplained (baseline {:.3})\n", d.unexplained_rms, d.baseline.rms);
-                t
-            };
+            let text = diagnose::DiagnoseSummary::text;
             if several {
                 print(json, &all, |all| all.iter().map(text).collect::<String>())?;
             } else {

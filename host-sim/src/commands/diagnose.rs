@@ -302,6 +302,29 @@ pub fn diagnose_as(read_from: &Path, input: &Path, flatten: &FlattenParams, seed
     report(input, diagnosis, model, out, labels)
 }
 
+impl DiagnoseSummary {
+    /// The summary as `dncal diagnose` prints it without `--json`: the baseline, each
+    /// finding (on the all-data scale and on its own test), what was not tested, and what
+    /// is left unexplained.
+    pub fn text(&self) -> String {
+        let d = &self.diagnosis;
+        let mut t = format!("{}: baseline ({}) held-out RMS {:.3}\n", self.input.display(), d.baseline.model, d.baseline.rms);
+        if d.findings.is_empty() {
+            t += "  no finding: the baseline explains the data\n";
+        }
+        for f in &d.findings {
+            let all = f.all_data_rms_after.map_or(String::new(), |r| format!("all data -> {r:.3}; "));
+            let adc = f.adc.map_or(String::new(), |a| format!(" (ADC {a})"));
+            t += &format!("  {}{adc}: significance {:.1}, {all}its test RMS {:.3} -> {:.3} (gain {:.2}); {}\n", f.effect, f.significance, f.rms_before, f.rms_after, f.gain, f.detail);
+        }
+        for note in &d.not_tested {
+            t += &format!("  not tested: {note}\n");
+        }
+        t += &format!("  all data: RMS {:.3} unexplained (baseline {:.3})\n", d.unexplained_rms, d.baseline.rms);
+        t
+    }
+}
+
 /// Stages the report of `diagnosis` (and the extended `model`, if any) in `out`.
 fn report(input: &Path, mut diagnosis: Diagnosis, model: Option<crate::camera::CameraConfig>, out: Option<OutDir<'_>>, (x_label, base_label): (&str, &str)) -> Result<DiagnoseSummary, HostError> {
     // What the model leaves is listed after what it found (stable: the findings keep the
