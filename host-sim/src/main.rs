@@ -902,21 +902,8 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
                 p.recorded = Some(std::sync::Arc::new(cube));
             }
             let r = stream::stream(&cam, hist.as_deref(), &flatten.params(), &p)?;
-            let ok = r.mismatches == 0 && r.out_of_bound == 0 && r.fpga.as_ref().is_none_or(|f| f.mismatches_vs_core == 0 && f.mismatches_vs_reference == 0 && f.fifo_overflows == 0);
-            print(json, &r, |r| {
-                let mut t = format!(
-                    "{} frames, {} pixels through the core: {} mismatches against the float reference, max |error| {:.3e} DN (bound {:.3e} DN), core {:.3e} pixels/s, {:.1} s\n",
-                    r.frames, r.pixels, r.mismatches, r.max_abs_err_dn, r.bound_dn, r.pixels_per_s, r.wall_s
-                );
-                if let Some(f) = &r.fpga {
-                    t += &format!(
-                        "fpga model ({} taps): {} mismatches against the core, {} against the float reference; {} cycles, {:.3} pixels per clock, FIFO high water {} pixels, {} dropped, latency up to {} cycles, {} read-modify-write hazards\n",
-                        f.taps, f.mismatches_vs_core, f.mismatches_vs_reference, f.cycles, f.pixels_per_clock, f.fifo_high_water, f.fifo_overflows, f.max_latency_cycles, f.rmw_hazards
-                    );
-                }
-                t
-            })?;
-            return Ok(if ok { ExitCode::SUCCESS } else { ExitCode::FAILURE });
+            print(json, &r, dncal_host::streaming::StreamReport::text)?;
+            return Ok(if r.passed() { ExitCode::SUCCESS } else { ExitCode::FAILURE });
         }
         Cmd::Adc { from_luts, out, json, .. } if !from_luts.is_empty() => {
             let r = staged_in(&out, |o| adc::from_luts(&from_luts, o))?;
@@ -1078,7 +1065,7 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
         Cmd::Demo { camera, out, frames, ramp, flatten, json } => {
             let cam = camera.camera()?;
             let s = demo::demo(&cam, &out, &ramp.params()?, &flatten.params(), frames)?;
-            let ok = s.stream.mismatches == 0 && s.stream.out_of_bound == 0 && s.stream_fpga.mismatches == 0 && s.stream_fpga.fpga.as_ref().is_some_and(|f| f.mismatches_vs_core == 0 && f.mismatches_vs_reference == 0 && f.fifo_overflows == 0);
+            let ok = s.stream.passed() && s.stream_fpga.passed() && s.stream_fpga.fpga.is_some();
             print(json, &s, |s| {
                 let mut t = format!("dncal demo on {}: {} ramp levels, {:.1} s\n", s.camera, s.ramp_levels, s.seconds);
                 t += &format!(

@@ -110,6 +110,30 @@ pub struct StreamReport {
     pub fpga: Option<FpgaReport>,
 }
 
+impl StreamReport {
+    /// Whether the run passed: no sum off the float reference or beyond its bound, and
+    /// with the FPGA model none off the core or the reference and no pixel dropped.
+    pub fn passed(&self) -> bool {
+        self.mismatches == 0 && self.out_of_bound == 0 && self.fpga.as_ref().is_none_or(|f| f.mismatches_vs_core == 0 && f.mismatches_vs_reference == 0 && f.fifo_overflows == 0)
+    }
+
+    /// The report as `dncal stream` prints it without `--json`.
+    pub fn text(&self) -> String {
+        let r = self;
+        let mut t = format!(
+            "{} frames, {} pixels through the core: {} mismatches against the float reference, max |error| {:.3e} DN (bound {:.3e} DN), core {:.3e} pixels/s, {:.1} s\n",
+            r.frames, r.pixels, r.mismatches, r.max_abs_err_dn, r.bound_dn, r.pixels_per_s, r.wall_s
+        );
+        if let Some(f) = &r.fpga {
+            t += &format!(
+                "fpga model ({} taps): {} mismatches against the core, {} against the float reference; {} cycles, {:.3} pixels per clock, FIFO high water {} pixels, {} dropped, latency up to {} cycles, {} read-modify-write hazards\n",
+                f.taps, f.mismatches_vs_core, f.mismatches_vs_reference, f.cycles, f.pixels_per_clock, f.fifo_high_water, f.fifo_overflows, f.max_latency_cycles, f.rmw_hazards
+            );
+        }
+        t
+    }
+}
+
 /// The FPGA engine's run.
 #[derive(Debug, Clone, Serialize)]
 pub struct FpgaReport {
