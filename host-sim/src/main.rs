@@ -1097,8 +1097,9 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
             if size == 0 || size > 8192 {
                 return Err(HostError::argument("--size", format!("{size}: 1 to 8192 pixels (the model holds a frame's sums in memory)")));
             }
-            if states == 0 || states > 8 {
-                return Err(HostError::argument("--states", format!("{states}: 1 to 8 modulation states")));
+            // The core's bound on modulation states, said here with the option's name.
+            if states == 0 || usize::from(states) > dncal_core::MAX_STATES {
+                return Err(HostError::argument("--states", format!("{states}: 1 to {} modulation states", dncal_core::MAX_STATES)));
             }
             let system = dncal_fpga_model::sizing::System { cameras, width: size, height: size, frame_rate_hz: frame_rate, ..Default::default() };
             let r = dncal_host::commands::fpga::fpga_size(&system, states, &config, lut.as_deref(), out.as_deref())?;

@@ -314,8 +314,7 @@ impl DiagnoseSummary {
         }
         for f in &d.findings {
             let all = f.all_data_rms_after.map_or(String::new(), |r| format!("all data -> {r:.3}; "));
-            let adc = f.adc.map_or(String::new(), |a| format!(" (ADC {a})"));
-            t += &format!("  {}{adc}: significance {:.1}, {all}its test RMS {:.3} -> {:.3} (gain {:.2}); {}\n", f.effect, f.significance, f.rms_before, f.rms_after, f.gain, f.detail);
+            t += &format!("  {}: significance {:.1}, {all}its test RMS {:.3} -> {:.3} (gain {:.2}); {}\n", f.label(), f.significance, f.rms_before, f.rms_after, f.gain, f.detail);
         }
         for note in &d.not_tested {
             t += &format!("  not tested: {note}\n");
@@ -375,7 +374,7 @@ fn report(input: &Path, mut diagnosis: Diagnosis, model: Option<crate::camera::C
         for (f, number) in diagnosis.findings.iter().zip(&figure_of) {
             let (Some(r), Some(k)) = (&f.residuals, number) else { continue };
             let name = format!("finding-{k}-{}.png", f.effect);
-            let what = format!("{}{}", f.effect, f.adc.map_or(String::new(), |a| format!(" (ADC {a})")));
+            let what = f.label();
             let series = [
                 Series { label: "before".into(), points: r.baseline.iter().map(|&(k, z)| (k as f64, z)).collect() },
                 Series { label: format!("with {what}"), points: r.extended.iter().map(|&(k, z)| (k as f64, z)).collect() },
@@ -420,7 +419,7 @@ fn report(input: &Path, mut diagnosis: Diagnosis, model: Option<crate::camera::C
             // Level errors and excess noise belong to the measurement (the light source, the
             // frames' independence), not to the camera: named, never simulated.
             let note = |f: &Finding| match f.effect {
-                Effect::AdcMismatch | Effect::Unexplained | Effect::LowSignalNonlinearity => Some(format!("# not in the camera model yet: {}{}\n", f.effect, f.adc.map_or(String::new(), |a| format!(" (ADC {a})")))),
+                Effect::AdcMismatch | Effect::Unexplained | Effect::LowSignalNonlinearity => Some(format!("# not in the camera model yet: {}\n", f.label())),
                 Effect::LevelErrors | Effect::ExcessNoise => Some(format!("# of the measurement, not the camera (not simulated): {}\n", f.effect)),
                 // In the model (or, for the noise, a property of the data it records).
                 Effect::AdcDnl | Effect::GlobalNonlinearity | Effect::PixelNonlinearity | Effect::BadPixels | Effect::InsufficientNoise => None,

@@ -221,6 +221,16 @@ pub struct Finding {
     pub residuals: Option<AdcResiduals>,
 }
 
+impl Finding {
+    /// The effect and, for a per-ADC effect, its ADC: `adc-dnl (ADC 2)`.
+    pub fn label(&self) -> String {
+        match self.adc {
+            Some(a) => format!("{} (ADC {a})", self.effect),
+            None => self.effect.to_string(),
+        }
+    }
+}
+
 /// What `diagnose` concluded.
 #[derive(Debug, Clone, Serialize)]
 pub struct Diagnosis {
