@@ -232,6 +232,23 @@ impl<'a> OutDir<'a> {
     }
 }
 
+/// Runs `command` with its output directory `dir`, if any, in a fresh set of outputs, and
+/// publishes them: all files of the command or, if it fails, none.
+pub fn staged<T>(dir: Option<&Path>, command: impl FnOnce(Option<OutDir<'_>>) -> Result<T, HostError>) -> Result<T, HostError> {
+    let mut files = Outputs::new();
+    let result = command(dir.map(|d| OutDir::new(&mut files, d)))?;
+    files.publish()?;
+    Ok(result)
+}
+
+/// [`staged`] for a command that always has an output directory.
+pub fn staged_in<T>(dir: &Path, command: impl FnOnce(OutDir<'_>) -> Result<T, HostError>) -> Result<T, HostError> {
+    let mut files = Outputs::new();
+    let result = command(OutDir::new(&mut files, dir))?;
+    files.publish()?;
+    Ok(result)
+}
+
 /// Runs `stage` on a fresh set and publishes it: for a command or writer of one file.
 pub fn write_one(stage: impl FnOnce(&mut Outputs) -> Result<(), HostError>) -> Result<(), HostError> {
     let mut out = Outputs::new();

@@ -117,8 +117,10 @@ impl StreamReport {
         self.mismatches == 0 && self.out_of_bound == 0 && self.fpga.as_ref().is_none_or(|f| f.mismatches_vs_core == 0 && f.mismatches_vs_reference == 0 && f.fifo_overflows == 0)
     }
 
-    /// The report as `dncal stream` prints it without `--json`.
-    pub fn text(&self) -> String {
+}
+
+impl crate::commands::Report for StreamReport {
+    fn text(&self) -> String {
         let r = self;
         let mut t = format!(
             "{} frames, {} pixels through the core: {} mismatches against the float reference, max |error| {:.3e} DN (bound {:.3e} DN), core {:.3e} pixels/s, {:.1} s\n",

@@ -460,6 +460,14 @@ fn quantization_matches_numerical_integration_and_the_paper() {
     assert_eq!(&std::fs::read(dir.path().join("q.png")).unwrap()[..4], b"\x89PNG");
     assert_usage_failure(&dncal(&["quantization", "--bias", "0"], dir.path()), "--bias", "no noise level gives a worst-case bias of at most 0 DN (it must be > 0)");
     assert_usage_failure(&dncal(&["quantization", "--sigma=-1"], dir.path()), "--sigma", "noise rms -1 DN must be finite and >= 0");
+    // A refused value leaves no figure behind; a figure alone is still JSON.
+    assert_usage_failure(&dncal(&["quantization", "--sigma=-1", "--figure", "bad.png"], dir.path()), "--sigma", "noise rms -1 DN must be finite and >= 0");
+    assert!(!dir.path().join("bad.png").exists());
+    assert_eq!(stdout_json(&dncal(&["quantization", "--figure", "q2.png", "--json"], dir.path())), serde_json::json!({ "figure": "q2.png" }));
+    // Both answers: one object holding each as it is alone.
+    let both = stdout_json(&dncal(&["quantization", "--sigma", "0.3", "--samples", "1000", "--bias", "0.01", "--json"], dir.path()));
+    assert_eq!(both["for_bias"]["sigma"].as_f64(), Some(need("0.01")));
+    assert!((both["at_sigma"]["sigma"].as_f64().unwrap() - 0.3).abs() < 1e-15);
 }
 
 #[test]
@@ -496,6 +504,9 @@ fn kcor_model_reports_raw_and_lut_errors() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let s = stdout_json(&dncal(&["kcor-model", "--steps", "20", "-o", "k", "--json"], d));
+    // The text says the frame time as given (0.7e-3 s * 1e3 is 0.7000000000000001).
+    let text = String::from_utf8(dncal(&["kcor-model", "--steps", "4", "--exposure-ms", "0.7"], d).stdout).unwrap();
+    assert!(text.starts_with("K-Cor model, ADC 3, 0.7 ms frames: "), "{text}");
     for key in ["max_abs_sys_err_bsun_raw", "max_abs_sys_err_bsun_lut", "reduction"] {
         assert!(s[key].as_f64().is_some(), "missing {key}: {s}");
     }

@@ -12,6 +12,7 @@ use crate::camera::calibration::RampParams;
 use crate::camera::{Camera, PipelinedAdc};
 use crate::commands::lut::{build_luts, summarize, AdcLutSummary, BuiltLuts};
 use crate::commands::progress::{bar, stage};
+use crate::commands::Report;
 use crate::fits::{read_histograms_for_analysis, stage_histograms, stage_lut, AdcHistograms};
 use crate::flatten::{cumulative_offsets, FlattenParams};
 use crate::plots::{line_plot, line_plot_paired, Series};
@@ -77,6 +78,38 @@ pub struct AdcReport {
     pub adcs: Vec<AdcStats>,
     /// The figures written.
     pub figures: Vec<PathBuf>,
+}
+
+impl AdcReport {
+    /// Each ADC's DN error and offsets, two lines where the true ADC is known (the demo
+    /// prints these too).
+    pub fn adc_lines(&self) -> String {
+        let mut t = String::new();
+        for a in &self.adcs {
+            t += &format!(
+                "ADC {}: DN error {:.2}% rms per code, cumulative offset {:.3} DN peak to peak (max |offset| {:.3} DN, largest step {:.3} DN)\n",
+                a.adc, a.width_rms_pct, a.offset_p2p_dn, a.lut.max_abs_offset_dn, a.max_offset_step_dn
+            );
+            if let Some(c) = &a.truth {
+                t += &format!(
+                    "  vs the true ADC: widths {:.4} DN rms; code centers rms {:.4} DN raw -> {:.4} DN with LUT (max {:.3} -> {:.3})\n",
+                    c.width_err_rms_dn, c.rms_raw_dn, c.rms_lut_dn, c.max_raw_dn, c.max_lut_dn
+                );
+            }
+        }
+        t
+    }
+}
+
+impl Report for AdcReport {
+    fn text(&self) -> String {
+        format!("{}: {} ADCs\n{}figures: {}\n", self.histograms.display(), self.adcs.len(), self.adc_lines(), figure_list(&self.figures))
+    }
+}
+
+/// The figures, comma-separated on one line.
+fn figure_list(figures: &[PathBuf]) -> String {
+    figures.iter().map(|f| f.display().to_string()).collect::<Vec<_>>().join(", ")
 }
 
 /// The calibrated codes: from the fixed low codes to the one below the top.
@@ -306,6 +339,21 @@ pub struct RealAdcsReport {
     pub mean_correlation_other_cameras: Option<f64>,
     /// Files written.
     pub figures: Vec<PathBuf>,
+}
+
+impl Report for RealAdcsReport {
+    fn text(&self) -> String {
+        let mut t = String::from("camera                               ADC  DN error  max |offset|  trend bow  period  stage fit (held out): 1x12 2x6 3x4 4x3 4+8\n");
+        for a in &self.adcs {
+            let fits: Vec<String> = a.stage_fits.iter().map(|f| format!("{:.2}", f.held_out_explained)).collect();
+            let period = a.period_codes.map_or("-".to_string(), |p| p.to_string());
+            t += &format!("{:36} {:3}  {:6.2} %  {:8.3} DN  {:7.1} DN  {period:>6}  {}\n", a.camera, a.adc, a.dn_error_rms_pct, a.offset_max_dn, a.trend_bow_dn, fits.join(" "));
+        }
+        if let (Some(s), Some(o)) = (self.mean_correlation_same_camera, self.mean_correlation_other_cameras) {
+            t += &format!("DN-error correlation: {s:.3} between ADCs of one camera, {o:.3} across cameras\n");
+        }
+        t + &format!("figures: {}\n", figure_list(&self.figures))
+    }
 }
 
 /// The camera label of a table file: its name without the `adcN` tag and extension.

@@ -18,6 +18,7 @@ use dncal_core::{Corrector, Geometry, LutBanks, Mvd1024eLuts};
 use rand::{rngs::StdRng, Rng, SeedableRng};
 use serde::Serialize;
 
+use crate::commands::Report;
 use crate::parallel::Bands;
 use crate::stats::median;
 use crate::HostError;
@@ -75,6 +76,23 @@ pub struct BenchReport {
     pub ratios: Vec<Ratio>,
     /// What was skipped and why.
     pub notes: Vec<String>,
+}
+
+impl Report for BenchReport {
+    fn text(&self) -> String {
+        let mut t = format!("{}; {} runs; ratios are per run (median, min-max)\n", self.machine, self.runs);
+        for x in &self.ratios {
+            let target = x.target.map_or(String::new(), |g| format!("  target >= {g}: {}", if x.holds == Some(true) { "holds" } else { "NOT MET" }));
+            t += &format!(
+                "{:<22} {:>8.1} {}  vs {:<24} {:>8.1}: {:.2}x ({:.2}-{:.2}){target}\n",
+                x.name, x.rate, x.unit, x.baseline, x.baseline_rate, x.ratio_median, x.ratio_min, x.ratio_max
+            );
+        }
+        for n in &self.notes {
+            t += &format!("note: {n}\n");
+        }
+        t
+    }
 }
 
 const WIDTH: usize = 1024;

@@ -24,6 +24,7 @@ use crate::paper_claims::{claims, finite_range, Claim, Measured, Verdict};
 use crate::camera::Camera;
 use crate::commands::adc::AdcReport;
 use crate::commands::progress::{bar, stage};
+use crate::commands::Report;
 use crate::flatten::FlattenParams;
 use crate::streaming::{run_stream, StreamParams, StreamReport};
 use crate::outputs::{html_figure, OutDir, Outputs};
@@ -61,6 +62,37 @@ pub struct DemoSummary {
     pub seconds: f64,
     /// The paper's claims beside this run's numbers (the report's first table).
     pub paper: Vec<Claim>,
+}
+
+impl DemoSummary {
+    /// Whether the demo's checks passed: the core bit-exact with the reference, and the
+    /// FPGA model run and bit-exact with both (`dncal demo`'s exit code).
+    pub fn passed(&self) -> bool {
+        self.stream.passed() && self.stream_fpga.passed() && self.stream_fpga.fpga.is_some()
+    }
+}
+
+impl Report for DemoSummary {
+    fn text(&self) -> String {
+        let s = &self.stream;
+        let mut t = format!("dncal demo on {}: {} ramp levels, {:.1} s\n", self.camera, self.ramp_levels, self.seconds);
+        t += &format!(
+            "stream: {} frames, {} pixels, {} mismatches, max |error| {:.3e} DN (bound {:.3e}), core {:.3e} pixels/s\n",
+            s.frames, s.pixels, s.mismatches, s.max_abs_err_dn, s.bound_dn, s.pixels_per_s
+        );
+        if let Some(f) = &self.stream_fpga.fpga {
+            t += &format!(
+                "fpga model: {} frames, {} pixels, {} mismatches against the core, {} against the reference, {:.3} pixels per clock, {} dropped\n",
+                self.stream_fpga.frames, self.stream_fpga.pixels, f.mismatches_vs_core, f.mismatches_vs_reference, f.pixels_per_clock, f.fifo_overflows
+            );
+        }
+        t += &self.adc.adc_lines();
+        for (what, d) in [("histograms", &self.diagnose), ("linearity set", &self.diagnose_linearity)] {
+            let names: Vec<String> = d.diagnosis.findings.iter().map(|f| format!("{} (gain {:.2})", f.label(), f.gain)).collect();
+            t += &format!("diagnose {what}: {}\n", if names.is_empty() { "no finding".to_string() } else { names.join(", ") });
+        }
+        t + &format!("report: {}\n", self.report.display())
+    }
 }
 
 /// The table of [`crate::paper_claims`] from the demo's steps; `kcor_reductions` are

@@ -9,6 +9,7 @@ use serde::Serialize;
 use crate::diagnose::{diagnose_code_density, diagnose_histograms, diagnose_linearity, diagnose_ptc, DiagnoseError, Diagnosis, Effect, Finding};
 use crate::fits::{read_histograms_for_analysis, read_linearity_as};
 use crate::outputs::{html_figure, OutDir, Outputs};
+use crate::commands::Report;
 use crate::flatten::FlattenParams;
 use crate::plots::{line_plot, Series};
 use crate::HostError;
@@ -199,6 +200,24 @@ pub fn diagnose(input: &Path, flatten: &FlattenParams, seed: u64, out: Option<Ou
     diagnose_as(input, input, flatten, seed, out)
 }
 
+/// [`diagnose`] of each of `inputs`; with `out`, the reports in `out` (one input) or in
+/// `out/0`, `out/1`, ... (several), all published together: a failure on the last input
+/// leaves no report of the first.
+pub fn diagnose_files(inputs: &[PathBuf], flatten: &FlattenParams, seed: u64, out: Option<&Path>) -> Result<Vec<DiagnoseSummary>, HostError> {
+    let several = inputs.len() > 1;
+    let dirs: Vec<Option<PathBuf>> = (0..inputs.len()).map(|i| out.map(|o| if several { o.join(i.to_string()) } else { o.to_path_buf() })).collect();
+    let mut staged = Outputs::new();
+    for d in dirs.iter().flatten() {
+        expect_report(&mut staged, d)?;
+    }
+    let mut all = Vec::new();
+    for (input, dir) in inputs.iter().zip(&dirs) {
+        all.push(diagnose(input, flatten, seed, dir.as_deref().map(|d| OutDir::new(&mut staged, d)))?);
+    }
+    staged.publish()?;
+    Ok(all)
+}
+
 /// The files every report of [`diagnose`] may write, checked and created (the directory)
 /// before anything is computed; the figures of the findings are named only once found.
 pub fn expect_report(files: &mut Outputs, dir: &Path) -> Result<(), HostError> {
@@ -302,11 +321,11 @@ pub fn diagnose_as(read_from: &Path, input: &Path, flatten: &FlattenParams, seed
     report(input, diagnosis, model, out, labels)
 }
 
-impl DiagnoseSummary {
-    /// The summary as `dncal diagnose` prints it without `--json`: the baseline, each
-    /// finding (on the all-data scale and on its own test), what was not tested, and what
-    /// is left unexplained.
-    pub fn text(&self) -> String {
+/// The summary as `dncal diagnose` prints it without `--json`: the baseline, each finding
+/// (on the all-data scale and on its own test), what was not tested, and what is left
+/// unexplained.
+impl Report for DiagnoseSummary {
+    fn text(&self) -> String {
         let d = &self.diagnosis;
         let mut t = format!("{}: baseline ({}) held-out RMS {:.3}\n", self.input.display(), d.baseline.model, d.baseline.rms);
         if d.findings.is_empty() {

@@ -9,6 +9,7 @@ use dncal_fpga_model::sizing::{readmemh, size, Sizing, System};
 use dncal_fpga_model::Config;
 use serde::Serialize;
 
+use crate::commands::{wrote, Report};
 use crate::fits::read_lut;
 use crate::outputs::Outputs;
 use crate::HostError;
@@ -23,14 +24,63 @@ pub struct FpgaSizeReport {
     /// The sizing.
     #[serde(flatten)]
     pub sizing: Sizing,
+    /// Modulation states the sum memory holds.
+    pub states: u8,
     /// `$readmemh` files written.
     pub readmemh: Vec<PathBuf>,
+}
+
+impl Report for FpgaSizeReport {
+    fn text(&self) -> String {
+        let s = &self.sizing;
+        let mut t = format!(
+            "{} camera(s) of {}x{} at {} frames/s: {:.1} Mpixel/s; sum memory {:.2} GB/s (a 32-bit read and write per pixel), {:.1} MiB per camera for {} states\n",
+            s.system.cameras,
+            s.system.width,
+            s.system.height,
+            s.system.frame_rate_hz,
+            s.pixels_per_s / 1e6,
+            s.sum_bandwidth_bytes_per_s / 1e9,
+            s.sum_memory_bytes as f64 / 1048576.0,
+            self.states
+        );
+        for row in &s.taps {
+            t += &format!(
+                "{} taps: clock {:.1} MHz per camera, {} cycles per frame, {:.3} pixels/clock, latency {} cycles, FIFO high water {} ({} dropped), read-modify-writes in flight up to {}, LUT BRAM {} bits; {}\n",
+                row.taps, row.clock_mhz, row.cycles_per_frame, row.pixels_per_clock, row.latency_cycles, row.fifo_high_water, row.fifo_overflows, row.inflight_high_water, row.bram_bits, row.lut_access
+            );
+        }
+        t + &wrote(&self.readmemh)
+    }
+}
+
+/// The request's limits, each said with the `fpga-size` option that sets it: the model
+/// holds a square frame's sums in memory (up to 8192 pixels a side) and the core's bound
+/// on modulation states.
+fn check(system: &System, states: u8, config: &Config) -> Result<(), HostError> {
+    config.validate().map_err(|e| HostError::argument("--fifo-depth / --mem-latency", e.to_string()))?;
+    if system.cameras == 0 {
+        return Err(HostError::argument("--cameras", "must be at least 1"));
+    }
+    if !(system.frame_rate_hz.is_finite() && system.frame_rate_hz > 0.0) {
+        return Err(HostError::argument("--frame-rate", format!("{} Hz must be finite and > 0", system.frame_rate_hz)));
+    }
+    for side in [system.width, system.height] {
+        if side == 0 || side > 8192 {
+            return Err(HostError::argument("--size", format!("{side}: 1 to 8192 pixels (the model holds a frame's sums in memory)")));
+        }
+    }
+    if states == 0 || usize::from(states) > dncal_core::MAX_STATES {
+        return Err(HostError::argument("--states", format!("{states}: 1 to {} modulation states", dncal_core::MAX_STATES)));
+    }
+    Ok(())
 }
 
 /// Sizes for `system` at 1, 2, 4 and 8 taps; with `lut` and `out`, writes one
 /// `lut_adc{a}.hex` per ADC of the LUT FITS file into `out` (validated by the core first),
 /// all of them or none.
 pub fn fpga_size(system: &System, states: u8, config: &Config, lut: Option<&Path>, out: Option<&Path>) -> Result<FpgaSizeReport, HostError> {
+    check(system, states, config)?;
     // The LUT first: a bad file is reported at once, not after the sizing's seconds.
     let mut staged = Outputs::new();
     let luts = match (lut, out) {
@@ -52,7 +102,7 @@ pub fn fpga_size(system: &System, states: u8, config: &Config, lut: Option<&Path
         }
     }
     staged.publish()?;
-    Ok(FpgaSizeReport { fifo_depth: config.fifo_depth, mem_latency: config.mem_latency, sizing, readmemh: files })
+    Ok(FpgaSizeReport { fifo_depth: config.fifo_depth, mem_latency: config.mem_latency, sizing, states, readmemh: files })
 }
 
 /// The LUT FITS `lut` as the FPGA model's four 12-bit tables, validated by the core.

@@ -7,6 +7,7 @@ use serde::Serialize;
 
 use crate::camera::Camera;
 use crate::commands::lut::{inspect, tables_from_weights};
+use crate::commands::{wrote, Report};
 use crate::flatten::to_core_weights;
 use crate::kcor::{noisy_weights, run_luts, KcorParams, KcorResult};
 use crate::plots::{map_plot, Map};
@@ -28,6 +29,41 @@ pub struct KcorSummary {
     pub realizations: Vec<Realization>,
     /// Figures written.
     pub figures: Vec<PathBuf>,
+}
+
+impl Report for KcorSummary {
+    fn text(&self) -> String {
+        let r = &self.result;
+        let mut t = format!(
+            "K-Cor model, ADC {}, {} ms frames: {:.4e} e-/s per B_sun per pixel, 1 DN in a state = {:.3e} B_sun in Q; I up to {:.3e} B_sun\n",
+            r.params.adc,
+            // The frame time as given in ms (rounded to the ns: the product of the
+            // ms -> s division and back would print 0.7000000000000001).
+            (r.params.exposure_s * 1e9).round() / 1e6,
+            r.electrons_per_s_per_bsun,
+            r.bsun_per_dn,
+            r.i_max_bsun
+        );
+        t += &format!(
+            "max |systematic error in Q|: {:.3e} B_sun raw, {:.3e} B_sun with the LUT ({}): {:.1}x less\n",
+            r.max_abs_sys_err_bsun_raw, r.max_abs_sys_err_bsun_lut, self.lut_source, r.reduction
+        );
+        t += &format!("rms  |systematic error in Q|: {:.3e} B_sun raw, {:.3e} B_sun with the LUT: {:.1}x less\n", r.rms_sys_err_bsun_raw, r.rms_sys_err_bsun_lut, r.rms_reduction);
+        if !self.realizations.is_empty() {
+            let spread = |f: fn(&Realization) -> f64| {
+                let v: Vec<f64> = self.realizations.iter().map(f).collect();
+                let (lo, hi) = v.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+                (lo, crate::stats::median(v), hi)
+            };
+            let (a, b, c) = spread(|x| x.reduction);
+            let (d, e, f) = spread(|x| x.rms_reduction);
+            t += &format!(
+                "over {} noise realizations: reduction of max |dQ| {a:.2}x / {b:.2}x / {c:.2}x, of rms dQ {d:.2}x / {e:.2}x / {f:.2}x (min / median / max)\n",
+                self.realizations.len()
+            );
+        }
+        t + &wrote(&self.figures)
+    }
 }
 
 /// One noise realization of the paper's LUT.

@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 
 use crate::commands::progress::{spinner, stage};
+use crate::commands::{wrote, Report};
 use crate::fits::{read_linearity, stage_cube, stage_pixel_correction, PixelCorrection};
 use crate::linearity::{analyze_unsaturated, check_flat_level, example_row, unsaturated_levels, LinearityReport, MAX_ORDER};
 use crate::plots::{level_lines_plot, line_plot_paired, map_plot, Map, Series};
@@ -25,6 +26,15 @@ pub struct LinearitySummary {
     pub analysis_s: f64,
     /// Files written.
     pub outputs: Vec<PathBuf>,
+}
+
+impl Report for LinearitySummary {
+    fn text(&self) -> String {
+        let r = &self.report;
+        let mut t = format!("{}: {} levels x {} pixels, gain level {}, {} masked, analysis {:.2} s\n", self.input.display(), r.levels, r.pixels, r.gain_level, r.masked_pixels, self.analysis_s);
+        t += &format!("max RMS over levels: raw {:.3e}, standard {:.3e}, pixel-wise {:.3e}, random {:.3e}\n", r.rms_raw_max, r.rms_standard_max, r.rms_pixelwise_max, r.rms_random_max);
+        t + &wrote(&self.outputs)
+    }
 }
 
 /// The files of [`linearity`]'s report, in its directory.

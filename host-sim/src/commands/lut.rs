@@ -11,6 +11,7 @@ use std::path::{Path, PathBuf};
 use dncal_core::{encode_image, image_len, LutSet, Weight};
 use serde::Serialize;
 
+use crate::commands::Report;
 use crate::fits::{read_histograms_for_analysis, read_lut, stage_lut, AdcHistograms, LutTables};
 use crate::flatten::{flatten_histogram, to_core_weights, FlattenParams, Flattened};
 use crate::reference::ReferenceLut;
@@ -45,6 +46,20 @@ pub struct BuildSummary {
     pub device_image: PathBuf,
     /// Per ADC.
     pub adcs: Vec<AdcLutSummary>,
+}
+
+impl Report for BuildSummary {
+    fn text(&self) -> String {
+        let mut t = format!("read {}\nwrote {} and {}\n", self.input.display(), self.lut_fits.display(), self.device_image.display());
+        t += "(code widths: each code's normalized width, the LUT's weights; `lut inspect` shows entry steps, the mean width of two neighbouring codes, a narrower range)\n";
+        for a in &self.adcs {
+            t += &format!(
+                "ADC {}: code widths {:.4}..{:.4} DN, max |cumulative offset| {:.3} DN, top offset {:+.4} DN before normalization, {:+.2e} DN after, top entry {}\n",
+                a.adc, a.weight_range.0, a.weight_range.1, a.max_abs_offset_dn, a.top_offset_before_dn, a.top_offset_dn, a.top_entry
+            );
+        }
+        t
+    }
 }
 
 /// The LUTs built from a histogram set: weights, flattening details, core tables, image.
@@ -205,13 +220,35 @@ pub struct InspectSummary {
     pub bit_depth: u32,
     /// Per ADC.
     pub adcs: Vec<InspectAdc>,
+    /// Whether the readable text lists every code (`--table`; JSON always has them).
+    #[serde(skip)]
+    pub list_codes: bool,
+}
+
+impl Report for InspectSummary {
+    fn text(&self) -> String {
+        let mut t = format!("{} ({}, {} bits, {} ADCs)\n", self.path.display(), self.kind, self.bit_depth, self.adcs.len());
+        t += "(entry steps: entry k+1 - entry k, the mean width of codes k and k+1; `lut build` reports the single-code widths, a wider range)\n";
+        for a in &self.adcs {
+            t += &format!("ADC {}: entry steps {:.4}..{:.4} DN, max |cumulative offset| {:.3} DN, top entry {}\n", a.adc, a.step_range.0, a.step_range.1, a.max_abs_offset_dn, a.entries.last().copied().unwrap_or(0));
+            if self.list_codes {
+                t += "  code      entry          DN     step   offset\n";
+                for k in 0..a.entries.len() {
+                    let step = if k == 0 { f64::NAN } else { a.step_dn[k - 1] };
+                    t += &format!("  {k:4} {:10} {:11.5} {:8.5} {:+8.5}\n", a.entries[k], dncal_core::units_to_dn(a.entries[k].into()), step, a.cumulative_offset_dn[k]);
+                }
+            }
+        }
+        t
+    }
 }
 
 /// The largest device image the core loads (4 ADCs of 14 bits); a longer file is not
 /// read whole.
 const DEVICE_IMAGE_LIMIT: crate::input::SizeLimit = crate::input::SizeLimit { what: "device image", bytes: image_len::<4, 16384>() as u64 };
 
-/// `lut inspect FILE`: a LUT FITS or a device image (validated by the core).
+/// `lut inspect FILE`: a LUT FITS or a device image (validated by the core). The text
+/// lists every code when the caller sets `list_codes`.
 pub fn inspect(path: &Path) -> Result<InspectSummary, HostError> {
     let (kind, tables) = if crate::input::starts_with(path, b"DNLT")? {
         let bytes = crate::input::read_regular(path, DEVICE_IMAGE_LIMIT)?;
@@ -248,7 +285,7 @@ pub fn inspect(path: &Path) -> Result<InspectSummary, HostError> {
             }
         })
         .collect();
-    Ok(InspectSummary { path: path.into(), kind: kind.into(), bit_depth: codes.trailing_zeros(), adcs })
+    Ok(InspectSummary { path: path.into(), kind: kind.into(), bit_depth: codes.trailing_zeros(), adcs, list_codes: false })
 }
 
 /// The core's checks of a LUT set (every entry below 2^23, non-decreasing).
@@ -287,6 +324,16 @@ pub struct ImportSummary {
     /// Per ADC: our top entry (units of 2^-11 DN) and the largest difference between our
     /// entry (a code's center) and the K-Cor value of the code (its top), in DN.
     pub adcs: Vec<ImportedAdc>,
+}
+
+impl Report for ImportSummary {
+    fn text(&self) -> String {
+        let mut t = format!("read {} K-Cor tables (last entry 2^{} - 1)\nwrote {} and {}\n", self.inputs.len(), self.kcor_bits, self.lut_fits.display(), self.device_image.display());
+        for a in &self.adcs {
+            t += &format!("ADC {}: K-Cor steps {:.4}..{:.4} DN, top entry {}, largest rounding {:.2e} DN\n", a.adc, a.step_range.0, a.step_range.1, a.top_entry, a.max_rounding_dn);
+        }
+        t
+    }
 }
 
 /// One imported ADC.
@@ -359,6 +406,13 @@ pub struct ExportSummary {
     pub kcor_bits: u32,
     /// The four tables written, ADC 0 to 3.
     pub outputs: Vec<PathBuf>,
+}
+
+impl Report for ExportSummary {
+    fn text(&self) -> String {
+        let outputs: Vec<String> = self.outputs.iter().map(|p| p.display().to_string()).collect();
+        format!("read {}\nwrote {} (K-Cor tables, last entry 2^{} - 1)\n", self.input.display(), outputs.join(", "), self.kcor_bits)
+    }
 }
 
 /// `lut export --format kcor LUT -o PREFIX [--bits B]`: the four K-Cor tables from the

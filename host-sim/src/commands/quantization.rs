@@ -1,11 +1,12 @@
 //! `dncal quantization`: the bias of averaged readouts (paper section 2) for a noise
 //! level, the noise a bias target needs, and the paper's Fig. 1.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use rand::SeedableRng;
 use serde::Serialize;
 
+use crate::commands::{wrote, Report};
 use crate::outputs::Outputs;
 use crate::plots::{map_plot, Map};
 use crate::quantization::{bias_erf, bias_exact_gaussian, bias_fourier, bias_map, bias_monte_carlo, sigma_for_bias, worst_bias, WorstBias};
@@ -92,4 +93,102 @@ pub fn figure(files: &mut Outputs, path: &Path) -> Result<(), HostError> {
             range: None,
         },
     )
+}
+
+/// What `dncal quantization` was asked: a noise level (directly, or as read noise and
+/// gain), a bias target, a figure, or any of them together.
+#[derive(Debug, Clone, Default)]
+pub struct Request {
+    /// Noise rms, DN.
+    pub sigma: Option<f64>,
+    /// Read noise, e- (with `gain_e_per_dn`, instead of `sigma`).
+    pub read_noise_e: Option<f64>,
+    /// Conversion gain, e-/DN.
+    pub gain_e_per_dn: Option<f64>,
+    /// Worst-case bias target, DN.
+    pub bias: Option<f64>,
+    /// Where to write Fig. 1.
+    pub figure: Option<PathBuf>,
+    /// Monte Carlo readouts for the check at `sigma`.
+    pub samples: u64,
+}
+
+/// What `dncal quantization` answered. JSON: the one answer asked for as its own object,
+/// both as `{"at_sigma": ..., "for_bias": ...}`, a figure alone as `{"figure": ...}`.
+#[derive(Debug, Clone)]
+pub struct QuantizationReport {
+    /// The worst case at the requested noise.
+    pub at_sigma: Option<SigmaReport>,
+    /// The noise the requested bias needs.
+    pub for_bias: Option<BiasReport>,
+    /// The figure written.
+    pub figure: Option<PathBuf>,
+}
+
+impl Serialize for QuantizationReport {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeMap;
+        match (&self.at_sigma, &self.for_bias) {
+            (Some(a), None) => a.serialize(s),
+            (None, Some(b)) => b.serialize(s),
+            (a, b) => {
+                let mut m = s.serialize_map(None)?;
+                if let (Some(a), Some(b)) = (a, b) {
+                    m.serialize_entry("at_sigma", a)?;
+                    m.serialize_entry("for_bias", b)?;
+                }
+                if let Some(f) = &self.figure {
+                    m.serialize_entry("figure", f)?;
+                }
+                m.end()
+            }
+        }
+    }
+}
+
+impl Report for QuantizationReport {
+    fn text(&self) -> String {
+        let mut t = wrote(self.figure.as_slice());
+        match (&self.at_sigma, &self.for_bias) {
+            (Some(a), None) => {
+                t += &format!(
+                    "noise {:.4} DN: worst-case bias {:.4e} DN at lambda mod 1 = {:.4}\n  Fourier series {:+.6e}, eq. 4 {:+.6e}, exact sum {:+.6e}, Monte Carlo {:+.6e} +- {:.1e} DN ({} readouts)\n",
+                    a.sigma, a.max_abs_bias_dn, a.at_lambda_frac, a.fourier_bias_dn, a.erf_bias_dn, a.exact_bias_dn, a.monte_carlo_bias_dn, a.monte_carlo_se_dn, a.monte_carlo_samples
+                );
+                if a.sigma == 0.0 {
+                    t += "  (without noise the bias is a sawtooth whose jump is at lambda mod 1 = 0.5: the worst case is the value beside the jump, which the other three give; a Fourier series converges to the middle of a jump, 0)\n";
+                }
+            }
+            (None, Some(b)) => t += &format!("worst-case bias <= {} DN needs noise >= {:.4} DN\n", b.bias, b.sigma),
+            (Some(a), Some(b)) => {
+                t += &format!(
+                    "noise {:.4} DN: worst-case bias {:.4e} DN at lambda mod 1 = {:.4}\nworst-case bias <= {} DN needs noise >= {:.4} DN\n",
+                    a.sigma, a.max_abs_bias_dn, a.at_lambda_frac, b.bias, b.sigma
+                )
+            }
+            (None, None) => {}
+        }
+        t
+    }
+}
+
+/// Answers `request`: the noise level from read noise and gain where `sigma` is not
+/// given; at least one of noise, bias or figure must be asked for.
+pub fn quantization(request: &Request) -> Result<QuantizationReport, HostError> {
+    let sigma = match (request.sigma, request.read_noise_e, request.gain_e_per_dn) {
+        (Some(s), _, _) => Some(s),
+        (None, Some(r), Some(g)) if g > 0.0 => Some(r / g),
+        (None, Some(_), Some(g)) => return Err(HostError::argument("--gain-e-per-dn", format!("{g} e-/DN must be > 0"))),
+        _ => None,
+    };
+    if sigma.is_none() && request.bias.is_none() && request.figure.is_none() {
+        return Err(HostError::argument("quantization", "give --sigma (or --read-noise-e with --gain-e-per-dn), --bias or --figure"));
+    }
+    // The answers first: a refused value leaves no figure behind.
+    let at_sigma = sigma.map(|s| at_sigma(s, request.samples, 1)).transpose()?;
+    let for_bias = request.bias.map(for_bias).transpose()?;
+    if let Some(path) = &request.figure {
+        crate::outputs::write_one(|o| figure(o, path))?;
+    }
+    Ok(QuantizationReport { at_sigma, for_bias, figure: request.figure.clone() })
 }

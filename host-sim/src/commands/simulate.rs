@@ -8,6 +8,7 @@ use serde::Serialize;
 use crate::camera::calibration::{LinearityParams, RampParams};
 use crate::camera::{Camera, CameraConfig};
 use crate::commands::progress::{bar, stage};
+use crate::commands::Report;
 use crate::fits::{stage_linearity, write_histograms, AdcHistograms, LinearitySet};
 use crate::outputs::Outputs;
 use crate::HostError;
@@ -38,6 +39,12 @@ pub struct HistogramSummary {
     pub counts_per_adc: Vec<u64>,
     /// Wall time, s.
     pub seconds: f64,
+}
+
+impl Report for HistogramSummary {
+    fn text(&self) -> String {
+        format!("wrote {} ({} ADCs x {} codes, {} levels, {:.1} s)\n", self.output.display(), self.n_adc, 1u32 << self.bit_depth, self.levels, self.seconds)
+    }
 }
 
 /// Simulates the ramps of `ramp` and writes the summed per-ADC histograms.
@@ -77,6 +84,12 @@ pub struct LinearitySummary {
     pub masked_pixels: usize,
     /// Wall time, s.
     pub seconds: f64,
+}
+
+impl Report for LinearitySummary {
+    fn text(&self) -> String {
+        format!("wrote {} ({}x{} pixels, {} levels x {} frames, {} masked, {:.1} s)\n", self.output.display(), self.width, self.height, self.levels, self.frames, self.masked_pixels, self.seconds)
+    }
 }
 
 /// Simulates a linearity set and writes it.

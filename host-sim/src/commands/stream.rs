@@ -2,6 +2,7 @@
 //! reference ([`crate::streaming`]).
 
 use std::path::Path;
+use std::sync::Arc;
 
 use dncal_core::Weight;
 
@@ -11,6 +12,7 @@ use crate::commands::progress::{bar, stage};
 use crate::fits::read_histograms_for_analysis;
 use crate::flatten::{to_core_weights, FlattenParams};
 use crate::streaming::{run_stream, StreamParams, StreamReport};
+use crate::roi::RoiSpec;
 use crate::HostError;
 
 /// The weights of a perfect calibration: each ADC's true code widths, normalized.
@@ -43,4 +45,28 @@ pub fn stream(camera: &Camera, hist: Option<&Path>, flatten: &FlattenParams, par
     let report = run_stream(camera, &weights, params, |n| pb.set_position(n));
     pb.finish_and_clear();
     report
+}
+
+/// `params` for a part of the sensor: the ROI `roi` (`WxH+X+Y`) and, with `frames_from`,
+/// the recorded frames of that FITS cube instead of the camera model (its size and frame
+/// count replace the ROI's and `params.frames`, placed at the ROI's corner).
+pub fn placed(camera: &Camera, mut params: StreamParams, roi: Option<RoiSpec>, frames_from: Option<&Path>) -> Result<StreamParams, HostError> {
+    let fit = |flag: &str, v: usize| u16::try_from(v).map_err(|_| HostError::argument(flag, format!("{v} does not fit 16 bits")));
+    if let Some(r) = roi {
+        let (w, h, x, y) = r.parts();
+        (params.width, params.height, params.first_column, params.first_row) = (fit("--roi", w)?, fit("--roi", h)?, fit("--roi", x)?, fit("--roi", y)?);
+    }
+    if let Some(path) = frames_from {
+        let cube = crate::fits::read_frames(path)?;
+        let (x, y) = (params.first_column as usize, params.first_row as usize);
+        if x + cube.width > camera.config.width || y + cube.height > camera.config.height {
+            return Err(HostError::Format { path: path.into(), message: format!("{}x{} frames at ({x}, {y}) do not fit the {}x{} sensor", cube.width, cube.height, camera.config.width, camera.config.height) });
+        }
+        let too_large = |what: &str| HostError::Format { path: path.into(), message: format!("{what} does not fit 16 bits") };
+        params.width = u16::try_from(cube.width).map_err(|_| too_large("the frame width"))?;
+        params.height = u16::try_from(cube.height).map_err(|_| too_large("the frame height"))?;
+        params.frames = u32::try_from(cube.frames).map_err(|_| HostError::Format { path: path.into(), message: "too many frames".into() })?;
+        params.recorded = Some(Arc::new(cube));
+    }
+    Ok(params)
 }

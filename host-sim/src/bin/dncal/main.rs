@@ -1,0 +1,242 @@
+//! `dncal`: the command people run. Library code returns `HostError` and a
+//! [`Report`]; this file dispatches the parsed arguments ([`cli`]), prints the report as
+//! text or JSON (`--json`), and turns errors into a message on stderr and a nonzero exit.
+
+mod cli;
+
+use std::io::Write;
+use std::path::Path;
+use std::process::ExitCode;
+
+use cli::{Cli, Cmd, LutCmd, SimulateCmd};
+use dncal_host::camera::calibration::LinearityParams;
+use dncal_host::commands::firmware::{firmware_check, CheckParams};
+use dncal_host::commands::{adc, bench, demo, diagnose, emva, fpga, kcor, linearity, lut, progress, quantization, simulate, stream, Report};
+use dncal_host::outputs::{staged, staged_in};
+use dncal_host::streaming::StreamParams;
+use dncal_host::HostError;
+
+fn main() -> ExitCode {
+    let cli = match parse() {
+        Ok(cli) => cli,
+        Err(e) => return usage_error(e),
+    };
+    match run(cli) {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("dncal: error: {e}");
+            ExitCode::from(e.exit_code())
+        }
+    }
+}
+
+/// Runs the command and prints its report; the exit code is a failure where the command
+/// ran but its check did not pass (`stream`, `demo`, `firmware-check`).
+fn run(cli: Cli) -> Result<ExitCode, HostError> {
+    if let Some(bytes) = cli.max_memory {
+        dncal_host::budget::set_limit(bytes);
+    }
+    progress::set_quiet(cli.quiet);
+    let passed = |ok: bool| if ok { ExitCode::SUCCESS } else { ExitCode::FAILURE };
+    match cli.command {
+        Cmd::Simulate { what: SimulateCmd::Histograms { camera, ramp, out, json } } => print(json, &simulate::simulate_histograms(&camera.camera()?, &ramp.params()?, out)?)?,
+        Cmd::Simulate { what: SimulateCmd::Linearity { camera, levels, frames, roi, seed, out, json } } => {
+            let cam = camera.camera()?;
+            let paper = LinearityParams::paper(&cam);
+            let roi = roi.map_or(paper.roi, |r| {
+                let (w, h, x, y) = r.parts();
+                (x, y, w, h)
+            });
+            print(json, &simulate::simulate_linearity(&cam, &LinearityParams { levels, frames, roi, seed, ..paper }, out)?)?;
+        }
+        Cmd::Lut { what: LutCmd::Build { hist, out, flatten, json } } => print(json, &lut::build(&hist, &out, &flatten.params())?)?,
+        Cmd::Lut { what: LutCmd::Import { kcor, out, json } } => print(json, &lut::import_kcor(&kcor, &out)?)?,
+        Cmd::Lut { what: LutCmd::Export { lut: file, format: _, out, bits, json } } => print(json, &lut::export_kcor(&file, &out, bits)?)?,
+        Cmd::Lut { what: LutCmd::Inspect { file, table, json } } => print(json, &lut::InspectSummary { list_codes: table, ..lut::inspect(&file)? })?,
+        Cmd::Stream { camera, hist, flatten, frames, states, roi, seed, frames_from, engine, json } => {
+            let cam = camera.camera()?;
+            let p = StreamParams { states, seed, engine: engine.engine()?, ..StreamParams::full_frame(&cam, frames) };
+            let p = stream::placed(&cam, p, roi, frames_from.as_deref())?;
+            let r = stream::stream(&cam, hist.as_deref(), &flatten.params(), &p)?;
+            print(json, &r)?;
+            return Ok(passed(r.passed()));
+        }
+        Cmd::Adc { from_luts, out, json, .. } if !from_luts.is_empty() => print(json, &staged_in(&out, |o| adc::from_luts(&from_luts, o))?)?,
+        Cmd::Adc { camera, hist, out, ramp, flatten, json, .. } => {
+            let (cam, ramp) = (camera.camera()?, ramp.params()?);
+            print(json, &staged_in(&out, |o| adc::run(&cam, hist.as_deref(), &ramp, &flatten.params(), o))?.0)?;
+        }
+        Cmd::KcorModel { camera, adc, exposure_ms, steps, lut_noise, lut, q_fraction, seed, realizations, out, json } => {
+            let cam = camera.camera()?;
+            let p = dncal_host::kcor::KcorParams { adc, exposure_s: exposure_ms * 1e-3, steps, lut_noise, q_fraction, seed, ..Default::default() };
+            let spin = progress::spinner(&format!("K-Coronagraph model: ADC {adc}, {steps} steps of the Stokes map, {realizations} realization(s)"));
+            let s = staged(out.as_deref(), |o| kcor::kcor_model(&cam, &p, lut.as_deref(), realizations, o));
+            spin.finish_and_clear();
+            print(json, &s?)?;
+        }
+        Cmd::Linearity { file, order, flat_level, out, json } => print(json, &staged(out.as_deref(), |o| linearity::linearity(&file, order, flat_level, o))?)?,
+        Cmd::Diagnose { files, flatten, seed, out, json } => match &diagnose::diagnose_files(&files, &flatten.params(), seed, out.as_deref())?[..] {
+            [one] => print(json, one)?,
+            several => print(json, several)?,
+        },
+        Cmd::Quantization { sigma, read_noise_e, gain_e_per_dn, bias, figure, samples, json } => {
+            let request = quantization::Request { sigma, read_noise_e, gain_e_per_dn, bias, figure, samples };
+            print(json, &quantization::quantization(&request)?)?;
+        }
+        Cmd::Emva { descriptor, release, out, json } => print(json, &emva::emva(&descriptor, release, out.as_deref())?)?,
+        Cmd::Completions { shell } => {
+            // Into memory first: clap_complete panics on a failed write (a closed pipe).
+            let mut script = Vec::new();
+            clap_complete::generate(shell, &mut command(), "dncal", &mut script);
+            to_stdout(&script)?;
+        }
+        Cmd::Man { out } => man_pages(out.as_deref())?,
+        Cmd::Demo { camera, out, frames, ramp, flatten, json } => {
+            let s = demo::demo(&camera.camera()?, &out, &ramp.params()?, &flatten.params(), frames)?;
+            print(json, &s)?;
+            return Ok(passed(s.passed()));
+        }
+        Cmd::FpgaSize { cameras, size, frame_rate, states, fifo_depth, mem_latency, lut, out, json } => {
+            let config = dncal_fpga_model::Config { fifo_depth, mem_latency, ..Default::default() };
+            let system = dncal_fpga_model::sizing::System { cameras, width: size, height: size, frame_rate_hz: frame_rate, ..Default::default() };
+            print(json, &fpga::fpga_size(&system, states, &config, lut.as_deref(), out.as_deref())?)?;
+        }
+        Cmd::FirmwareCheck { frames_per_state, states, size, seed, json } => {
+            let r = firmware_check(CheckParams { frames_per_state, states, size, seed })?;
+            print(json, &r)?;
+            return Ok(passed(r.ok));
+        }
+        Cmd::Bench { runs, frames, no_numpy, json } => {
+            let pb = progress::bar(runs as u64, "bench");
+            let r = bench::bench(&bench::BenchParams { runs, frames, numpy: !no_numpy }, |_| pb.inc(1));
+            pb.finish_and_clear();
+            print(json, &r?)?;
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The report as JSON (`--json`) or as its readable text, on stdout.
+fn print(json: bool, report: &(impl Report + ?Sized)) -> Result<(), HostError> {
+    let out = if json {
+        let mut s = serde_json::to_string_pretty(report).map_err(|e| HostError::Format { path: "stdout".into(), message: e.to_string() })?;
+        s.push('\n');
+        s
+    } else {
+        report.text()
+    };
+    to_stdout(out.as_bytes())
+}
+
+/// Writes `bytes` to stdout; a closed pipe (`dncal ... | head`) is the reader's choice,
+/// not an error.
+fn to_stdout(bytes: &[u8]) -> Result<(), HostError> {
+    match std::io::stdout().lock().write_all(bytes) {
+        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(HostError::io("stdout", e)),
+        _ => Ok(()),
+    }
+}
+
+/// The command line as clap reads it, negative numbers taken as values everywhere
+/// (`--sigma -1`, not an unknown flag `-1`).
+fn command() -> clap::Command {
+    fn negatives(c: clap::Command) -> clap::Command {
+        c.allow_negative_numbers(true).mut_subcommands(negatives)
+    }
+    negatives(<Cli as clap::CommandFactory>::command())
+}
+
+fn parse() -> Result<Cli, clap::Error> {
+    let matches = command().try_get_matches()?;
+    dncal_host::fits::record_parameters(effective_parameters(&matches));
+    <Cli as clap::FromArgMatches>::from_arg_matches(&matches)
+}
+
+/// Every argument's value as the command runs with it, defaults included and marked:
+/// `subcommand: name=value name=value (default) ...`, for the FITS files' HISTORY (the
+/// command line alone does not say what the defaults were).
+fn effective_parameters(matches: &clap::ArgMatches) -> String {
+    let (mut path, mut parts) = (Vec::new(), Vec::new());
+    // A global argument (`--quiet`, `--max-memory`) is in every level's matches: once.
+    let mut seen = std::collections::HashSet::new();
+    let mut m = matches;
+    loop {
+        for id in m.ids().filter(|id| seen.insert(id.as_str().to_string())) {
+            // A group's id has no values of its own (an error here, not a panic).
+            let Ok(Some(values)) = m.try_get_raw(id.as_str()) else { continue };
+            let values: Vec<String> = values.map(|v| v.to_string_lossy().into_owned()).collect();
+            let default = m.value_source(id.as_str()) == Some(clap::parser::ValueSource::DefaultValue);
+            parts.push(format!("{id}={}{}", values.join(","), if default { " (default)" } else { "" }));
+        }
+        match m.subcommand() {
+            Some((name, sub)) => {
+                path.push(name.to_string());
+                m = sub;
+            }
+            None => break,
+        }
+    }
+    format!("{}: {}", path.join(" "), parts.join(" "))
+}
+
+/// `dncal man`: the top page on stdout, or every page into `out`.
+fn man_pages(out: Option<&Path>) -> Result<(), HostError> {
+    fn render(cmd: &clap::Command) -> Result<Vec<u8>, HostError> {
+        let mut page = Vec::new();
+        clap_mangen::Man::new(cmd.clone()).render(&mut page).map_err(|e| HostError::io("man page", e))?;
+        Ok(page)
+    }
+    let mut cmd = command();
+    cmd.build();
+    let Some(dir) = out else {
+        return to_stdout(&render(&cmd)?);
+    };
+    let mut files = dncal_host::outputs::Outputs::new();
+    files.create_dir(dir)?;
+    // Each subcommand's page is named by its path (`dncal-lut-build.1`), as git's are.
+    fn walk(cmd: &clap::Command, name: String, dir: &Path, files: &mut dncal_host::outputs::Outputs) -> Result<(), HostError> {
+        let named = cmd.clone().name(name.clone());
+        files.write_bytes(&dir.join(format!("{name}.1")), render(&named)?)?;
+        for sub in cmd.get_subcommands().filter(|s| s.get_name() != "help") {
+            walk(sub, format!("{name}-{}", sub.get_name()), dir, files)?;
+        }
+        Ok(())
+    }
+    walk(&cmd, "dncal".into(), dir, &mut files)?;
+    let written = files.publish()?;
+    to_stdout(format!("wrote {} manual pages into {}\n", written.len(), dir.display()).as_bytes())
+}
+
+/// clap's help and version as clap prints them; its usage errors in the one-line format
+/// of every other error, exit code 2 (bad data is exit 1), naming the subcommand whose
+/// `--help` explains: `dncal: error: invalid value 'abc' for '--sigma <SIGMA>': invalid
+/// float literal (see dncal quantization --help)`.
+fn usage_error(e: clap::Error) -> ExitCode {
+    use clap::error::ErrorKind;
+    if matches!(e.kind(), ErrorKind::DisplayHelp | ErrorKind::DisplayVersion) {
+        let _ = e.print();
+        return ExitCode::SUCCESS;
+    }
+    // A command given without its subcommand: its help, on stderr, exit 2 (as clap does).
+    if e.kind() == ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand {
+        let _ = e.print();
+        return ExitCode::from(2);
+    }
+    let text = e.render().to_string();
+    // The error is what precedes the first blank line (a missing-arguments error lists
+    // them on the lines below its first); the rest is usage and tips.
+    let message: Vec<&str> = text.lines().take_while(|l| !l.trim().is_empty()).map(str::trim).collect();
+    let message = message.join(" ");
+    let message = message.trim_start_matches("error: ");
+    // The subcommand path: the words of the command line that name subcommands.
+    let mut cmd = command();
+    let mut path = vec!["dncal".to_string()];
+    // (`args_os`: an argument that is not Unicode must not panic here.)
+    for word in std::env::args_os().skip(1) {
+        let Some(sub) = word.to_str().and_then(|w| cmd.find_subcommand(w)).cloned() else { continue };
+        path.push(sub.get_name().to_string());
+        cmd = sub;
+    }
+    eprintln!("dncal: error: {message} (see {} --help)", path.join(" "));
+    ExitCode::from(2)
+}
