@@ -383,6 +383,32 @@ fn lut_action(c: &mut Corrector<'_, N, CODES>, pool: &Pool, model: &mut BankMode
     }
 }
 
+/// What the references hold of a segment: exact sums (u64, never clipped) and f64 sums
+/// of the code centres per pixel and state, the frames streamed per state, and the
+/// recount of out-of-range codes and clipped additions.
+struct References {
+    pixels: usize,
+    quantized: Vec<u64>,
+    centers: Vec<f64>,
+    frames: Vec<u64>,
+    out_of_range: u64,
+    clipped: u64,
+}
+
+impl References {
+    fn new(g: Geometry) -> Self {
+        References { pixels: g.pixels(), quantized: vec![0; g.sum_len()], centers: vec![0.0; g.sum_len()], frames: vec![0; g.states() as usize], out_of_range: 0, clipped: 0 }
+    }
+
+    /// State `s`'s sums.
+    fn range(&self, s: usize) -> std::ops::Range<usize> {
+        s * self.pixels..(s + 1) * self.pixels
+    }
+}
+
+/// Streams `seg` (its frames drawn from `seed`) through the core on `banks` and, if the
+/// segment asks, the FPGA model, with LUT actions at random moments, and checks every
+/// counter and sum against the references.
 #[allow(clippy::too_many_arguments)]
 fn run_segment(
     seg: &Segment,
@@ -396,12 +422,8 @@ fn run_segment(
 ) -> Result<(), HostError> {
     let g = seg.geometry;
     let (w, h, states) = (g.width() as usize, g.height() as usize, g.states() as usize);
-    let x0 = g.first_column() as usize;
     let mut sums = vec![0u32; g.sum_len()];
-    let mut ref_q = vec![0u64; g.sum_len()];
-    let mut ref_f = vec![0f64; g.sum_len()];
-    let mut frames_in = vec![0u64; states];
-    let (mut oor, mut clipped) = (0u64, 0u64);
+    let mut refs = References::new(g);
     let swaps_before = model.swaps;
     let mut corrector = Corrector::new(banks, g, &mut sums).map_err(|e| HostError::core("soak corrector", e))?;
     let mut fpga = match &seg.fpga {
@@ -414,8 +436,6 @@ fn run_segment(
             Some((dp, None::<usize>))
         }
     };
-    let cfg = &camera.config;
-    let full_scale_photons = (TOP as f64 - cfg.offset_dn) * cfg.gain_e_per_dn / cfg.qe;
     let mut codes = vec![0u16; w * h];
     for frame in 0..seg.frames {
         let state = (frame as usize % states) as u8;
@@ -425,36 +445,7 @@ fn run_segment(
         }
         let lut = model.active;
         let frame_seed = seed.wrapping_mul(0x2545_F491_4F6C_DD1D).wrapping_add(frame as u64);
-        let light: Vec<f64> = match seg.codes {
-            Codes::Camera { peak } => (0..w).map(|x| full_scale_photons * peak * (0.05 + 0.9 * x as f64 / w.max(2) as f64) * (1.0 - 0.1 * state as f64 / states as f64)).collect(),
-            _ => vec![],
-        };
-        // Draw the frame and add it to the references, line by line in parallel.
-        let base = state as usize * w * h;
-        let (q_tables, c_tables) = (&pool.quantized[lut], &pool.centers[lut]);
-        let (frame_oor, frame_clipped) = codes
-            .par_chunks_mut(w)
-            .zip(ref_q[base..base + w * h].par_chunks_mut(w))
-            .zip(ref_f[base..base + w * h].par_chunks_mut(w))
-            .enumerate()
-            .map(|(y, ((line, q), f))| {
-                draw_line(seg.codes, camera, seg.first_row as usize + y, x0, frame_seed, &light, line);
-                let (mut oor, mut clipped) = (0u64, 0u64);
-                for (x, &code) in line.iter().enumerate() {
-                    let adc = (x0 + x) % N;
-                    let k = usize::from(code.min(TOP));
-                    oor += u64::from(code > TOP);
-                    let e = q_tables[adc][k];
-                    clipped += u64::from(q[x].min(u32::MAX as u64) + e > u32::MAX as u64);
-                    q[x] += e;
-                    f[x] += c_tables[adc][k];
-                }
-                (oor, clipped)
-            })
-            .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
-        oor += frame_oor;
-        clipped += frame_clipped;
-        frames_in[state as usize] += 1;
+        draw_frame(seg, camera, frame_seed, state, (&pool.quantized[lut], &pool.centers[lut]), &mut codes, &mut refs);
         // The core: the whole frame in one call, or line by line with perhaps a LUT
         // change asked in the middle (it must wait for the frame's end).
         corrector.begin_frame(state).map_err(|e| HostError::core("soak begin frame", e))?;
@@ -481,36 +472,94 @@ fn run_segment(
         }
         report.frames += 1;
         report.pixels_core += (w * h) as u64;
-        // The FPGA: the frame's LUT uploaded over SPI if it has another, sometimes a
-        // corrupted image first (refused, nothing changes), then the frame.
         if let Some((dp, loaded)) = fpga.as_mut() {
-            if rng.below(64) == 0 {
-                let mut bad = pool.images[lut].clone();
-                let at = rng.below(bad.len() as u64) as usize;
-                bad[at] ^= 1 << rng.below(8);
-                match dp.upload_lut_image(&bad) {
-                    Err(CoreError::StagingNotValid) => report.fpga_corrupt_refused += 1,
-                    other => report.fail(format!("segment {}: the FPGA took a corrupted image: {other:?}", report.segments)),
-                }
-            }
-            if *loaded != Some(lut) {
-                dp.upload_lut_image(&pool.images[lut]).map_err(|e| HostError::core("soak FPGA upload", e))?;
-                *loaded = Some(lut);
-                report.fpga_uploads += 1;
-            }
-            let lines: Vec<&[u16]> = codes.chunks_exact(w).collect();
-            dp.device_mut().stream_frame(state, &lines).map_err(|e| HostError::Format { path: "soak FPGA".into(), message: e.to_string() })?;
-            report.pixels_fpga += (w * h) as u64;
+            fpga_frame(dp, loaded, pool, lut, state, &codes, w, rng, report)?;
         }
     }
-    // The counters against the recount.
+    check_counters(&corrector, seg, &refs, model.swaps - swaps_before, report);
+    report.out_of_range_codes += refs.out_of_range;
+    report.saturated_additions += corrector.status().saturated_additions as u64;
+    report.lut_swaps += model.swaps - swaps_before;
+    drop(corrector);
+    let shape = format!("{w}x{h}+{}+{} x {states} states x {} frames, {:?}", g.first_column(), seg.first_row, seg.frames, seg.codes);
+    check_core_sums(&sums, &refs, &shape, report);
+    if let Some((mut dp, _)) = fpga {
+        check_fpga_sums(dp.device_mut(), &refs, &shape, report);
+    }
+    Ok(())
+}
+
+/// Draws frame `frame_seed` of `seg` into `codes` and adds it to the references of
+/// `state` with the active LUT's `(quantized, centers)` tables, line by line in parallel.
+fn draw_frame(seg: &Segment, camera: &Camera, frame_seed: u64, state: u8, (q_tables, c_tables): (&[Vec<u64>], &[Vec<f64>]), codes: &mut [u16], refs: &mut References) {
+    let g = seg.geometry;
+    let (w, states, x0) = (g.width() as usize, g.states() as usize, g.first_column() as usize);
+    let cfg = &camera.config;
+    let full_scale_photons = (TOP as f64 - cfg.offset_dn) * cfg.gain_e_per_dn / cfg.qe;
+    let light: Vec<f64> = match seg.codes {
+        Codes::Camera { peak } => (0..w).map(|x| full_scale_photons * peak * (0.05 + 0.9 * x as f64 / w.max(2) as f64) * (1.0 - 0.1 * state as f64 / states as f64)).collect(),
+        _ => vec![],
+    };
+    let range = refs.range(state as usize);
+    let (frame_oor, frame_clipped) = codes
+        .par_chunks_mut(w)
+        .zip(refs.quantized[range.clone()].par_chunks_mut(w))
+        .zip(refs.centers[range].par_chunks_mut(w))
+        .enumerate()
+        .map(|(y, ((line, q), f))| {
+            draw_line(seg.codes, camera, seg.first_row as usize + y, x0, frame_seed, &light, line);
+            let (mut oor, mut clipped) = (0u64, 0u64);
+            for (x, &code) in line.iter().enumerate() {
+                let adc = (x0 + x) % N;
+                let k = usize::from(code.min(TOP));
+                oor += u64::from(code > TOP);
+                let e = q_tables[adc][k];
+                clipped += u64::from(q[x].min(u32::MAX as u64) + e > u32::MAX as u64);
+                q[x] += e;
+                f[x] += c_tables[adc][k];
+            }
+            (oor, clipped)
+        })
+        .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+    refs.out_of_range += frame_oor;
+    refs.clipped += frame_clipped;
+    refs.frames[state as usize] += 1;
+}
+
+/// The FPGA's frame: the frame's LUT uploaded over SPI if it has another (`loaded`),
+/// sometimes a corrupted image first (refused, nothing changes), then the frame.
+#[allow(clippy::too_many_arguments)]
+fn fpga_frame(dp: &mut Datapath<dncal_fpga_model::Fpga>, loaded: &mut Option<usize>, pool: &Pool, lut: usize, state: u8, codes: &[u16], w: usize, rng: &mut SplitMix64, report: &mut SoakReport) -> Result<(), HostError> {
+    if rng.below(64) == 0 {
+        let mut bad = pool.images[lut].clone();
+        let at = rng.below(bad.len() as u64) as usize;
+        bad[at] ^= 1 << rng.below(8);
+        match dp.upload_lut_image(&bad) {
+            Err(CoreError::StagingNotValid) => report.fpga_corrupt_refused += 1,
+            other => report.fail(format!("segment {}: the FPGA took a corrupted image: {other:?}", report.segments)),
+        }
+    }
+    if *loaded != Some(lut) {
+        dp.upload_lut_image(&pool.images[lut]).map_err(|e| HostError::core("soak FPGA upload", e))?;
+        *loaded = Some(lut);
+        report.fpga_uploads += 1;
+    }
+    let lines: Vec<&[u16]> = codes.chunks_exact(w).collect();
+    dp.device_mut().stream_frame(state, &lines).map_err(|e| HostError::Format { path: "soak FPGA".into(), message: e.to_string() })?;
+    report.pixels_fpga += codes.len() as u64;
+    Ok(())
+}
+
+/// The core's counters against the recount: out-of-range codes, clipped additions,
+/// frames, `swaps` LUT swaps, no rejected line or incomplete frame, frames per state.
+fn check_counters(corrector: &Corrector<'_, N, CODES>, seg: &Segment, refs: &References, swaps: u64, report: &mut SoakReport) {
     let status = corrector.status();
     let recount = |n: u64| n.min(u32::MAX as u64) as u32;
     let expected = [
-        ("out-of-range codes", status.out_of_range_codes, recount(oor)),
-        ("clipped additions", status.saturated_additions, recount(clipped)),
+        ("out-of-range codes", status.out_of_range_codes, recount(refs.out_of_range)),
+        ("clipped additions", status.saturated_additions, recount(refs.clipped)),
         ("frames", status.frames, recount(seg.frames as u64)),
-        ("LUT swaps", status.lut_swaps, recount(model.swaps - swaps_before)),
+        ("LUT swaps", status.lut_swaps, recount(swaps)),
         ("rejected lines", status.rejected_lines, 0),
         ("incomplete frames", status.incomplete_frames, 0),
     ];
@@ -520,23 +569,22 @@ fn run_segment(
             report.fail(format!("segment {}: {what}: the core counted {got}, the recount is {want}", report.segments));
         }
     }
-    for (s, &streamed) in frames_in.iter().enumerate() {
+    for (s, &streamed) in refs.frames.iter().enumerate() {
         let got = corrector.sums().frames(s as u8).get() as u64;
         if got != streamed {
             report.counter_mismatches += 1;
             report.fail(format!("segment {}: state {s} holds {got} frames, {streamed} were streamed", report.segments));
         }
     }
-    report.out_of_range_codes += oor;
-    report.saturated_additions += status.saturated_additions as u64;
-    report.lut_swaps += model.swaps - swaps_before;
-    drop(corrector);
-    // Every sum against the reference.
-    let shape = format!("{w}x{h}+{x0}+{} x {states} states x {} frames, {:?}", seg.first_row, seg.frames, seg.codes);
-    for (s, &streamed) in frames_in.iter().enumerate() {
-        let range = s * w * h..(s + 1) * w * h;
+}
+
+/// Every core sum against the exact reference (clipped at u32::MAX) and, where it did
+/// not clip, against the f64 reference within 2^-12 DN per frame.
+fn check_core_sums(sums: &[u32], refs: &References, shape: &str, report: &mut SoakReport) {
+    for (s, &streamed) in refs.frames.iter().enumerate() {
+        let range = refs.range(s);
         let bound = streamed as f64 * 2f64.powi(-12) + 1e-9;
-        for ((&got, &q), &f) in sums[range.clone()].iter().zip(&ref_q[range.clone()]).zip(&ref_f[range.clone()]) {
+        for ((&got, &q), &f) in sums[range.clone()].iter().zip(&refs.quantized[range.clone()]).zip(&refs.centers[range]) {
             let want = q.min(u32::MAX as u64);
             if got as u64 != want {
                 report.mismatches_core += 1;
@@ -553,33 +601,33 @@ fn run_segment(
                 }
             }
         }
-        report.sums_checked += (w * h) as u64;
+        report.sums_checked += refs.pixels as u64;
     }
-    if let Some((mut dp, _)) = fpga {
-        let device = dp.device_mut();
-        device.drain();
-        let stats = device.stats();
-        if stats.fifo_overflows != 0 {
-            report.fail(format!("segment {} ({shape}): the FPGA dropped {} pixels", report.segments, stats.fifo_overflows));
+}
+
+/// The FPGA model's sums and frame counts, drained, against the exact reference; no
+/// pixel dropped.
+fn check_fpga_sums(device: &mut dncal_fpga_model::Fpga, refs: &References, shape: &str, report: &mut SoakReport) {
+    device.drain();
+    let stats = device.stats();
+    if stats.fifo_overflows != 0 {
+        report.fail(format!("segment {} ({shape}): the FPGA dropped {} pixels", report.segments, stats.fifo_overflows));
+    }
+    for (s, &streamed) in refs.frames.iter().enumerate() {
+        let got = device.sums(s as u8).unwrap_or(&[]);
+        if got.len() != refs.pixels || device.frames(s as u8) as u64 != streamed {
+            report.mismatches_fpga += refs.pixels as u64;
+            report.fail(format!("segment {} ({shape}): the FPGA holds {} sums and {} frames in state {s}", report.segments, got.len(), device.frames(s as u8)));
+            continue;
         }
-        for (s, &streamed) in frames_in.iter().enumerate() {
-            let range = s * w * h..(s + 1) * w * h;
-            let got = device.sums(s as u8).unwrap_or(&[]);
-            if got.len() != w * h || device.frames(s as u8) as u64 != streamed {
-                report.mismatches_fpga += (w * h) as u64;
-                report.fail(format!("segment {} ({shape}): the FPGA holds {} sums and {} frames in state {s}", report.segments, got.len(), device.frames(s as u8)));
-                continue;
-            }
-            for (&got, &q) in got.iter().zip(&ref_q[range]) {
-                let want = q.min(u32::MAX as u64);
-                if got as u64 != want {
-                    report.mismatches_fpga += 1;
-                    report.fail(format!("segment {} ({shape}): FPGA sum {got}, reference {want}", report.segments));
-                }
+        for (&got, &q) in got.iter().zip(&refs.quantized[refs.range(s)]) {
+            let want = q.min(u32::MAX as u64);
+            if got as u64 != want {
+                report.mismatches_fpga += 1;
+                report.fail(format!("segment {} ({shape}): FPGA sum {got}, reference {want}", report.segments));
             }
         }
     }
-    Ok(())
 }
 
 /// Fills `line` (sensor row `row`, from column `x0`) with codes of the segment's kind.

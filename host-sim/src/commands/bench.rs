@@ -221,7 +221,7 @@ fn python(script: &str, arg: &std::ffi::OsStr) -> Result<Vec<u8>, String> {
     Ok(out.stdout)
 }
 
-/// Runs the bench.
+/// Runs the bench: the core against its baselines, then the whole-command rows.
 pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, HostError> {
     let (runs, frames) = (p.runs, p.frames);
     if runs == 0 || frames == 0 {
@@ -233,28 +233,64 @@ pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, Ho
         return Err(HostError::Argument { flag: "--frames".into(), message: format!("{frames} frames x {} runs (one to warm up) exceed 512 frames per state in 4 states", runs + 1) });
     }
     let mut notes = Vec::new();
-    let mut rng = StdRng::seed_from_u64(17);
-    // Uniform codes: every table entry equally likely (the least cache-friendly case).
-    let codes: Vec<u16> = (0..WIDTH * HEIGHT).map(|_| rng.random_range(0..4096u16)).collect();
+    let core = core_runs(p, &progress, &mut notes)?;
+    let mut ratios = vec![
+        ratio("core, line by line", &core.by_line, "plain LUT loop", &core.plain, "Mpx/s", None),
+        ratio("core, frame as a block", &core.by_block, "plain LUT loop", &core.plain, "Mpx/s", Some(0.95)),
+        ratio("core, frame as a block", &core.by_block, "byte bound (no LUT)", &core.bytes, "Mpx/s", Some(0.4)),
+    ];
+    match &core.banded {
+        Some((threads, n, one)) => ratios.push(ratio(&format!("core, {threads} bands, {threads} threads"), n, "core, 1 band, 1 thread", one, "Mpx/s", Some(1.8))),
+        None => notes.push("one core: the parallel path was not measured".into()),
+    }
+    let camera = crate::camera::Camera::new(crate::camera::CameraConfig::default()).map_err(|source| HostError::Config { path: "default camera".into(), source })?;
+    ratios.extend(stream_ratios(&camera, runs)?);
+    ratios.push(poisson_ratio(runs));
+    if p.numpy && notes.is_empty() {
+        ratios.extend(linearity_ratio(&camera, runs, &mut notes)?);
+    }
+    ratios.push(diagnose_ratio(&camera, runs)?);
+    if core.numpy.len() == runs {
+        ratios.push(ratio("core, frame as a block", &core.by_block, "numpy lut[adc, codes]", &core.numpy, "Mpx/s", Some(8.0)));
+    } else if p.numpy && notes.is_empty() {
+        notes.push("numpy: not every run measured".into());
+    }
+    Ok(BenchReport { machine: machine(), runs, ratios, notes })
+}
+
+/// The core's rates per run, Mpx/s, and its baselines' in the same runs.
+struct CoreRates {
+    by_line: Vec<f64>,
+    by_block: Vec<f64>,
+    plain: Vec<f64>,
+    bytes: Vec<f64>,
+    numpy: Vec<f64>,
+    /// With more than one thread: the thread count, the banded rates on that many
+    /// threads and on one.
+    banded: Option<(usize, Vec<f64>, Vec<f64>)>,
+}
+
+/// Times the core (line by line, a frame as a block, in bands on every thread and on one)
+/// and the plain LUT loop, the byte bound and numpy on the same frames of uniform codes,
+/// each once per run (run 0 warms up); the core's sums must equal the plain loop's.
+fn core_runs(p: &BenchParams, progress: &impl Fn(&str), notes: &mut Vec<String>) -> Result<CoreRates, HostError> {
+    let (runs, frames) = (p.runs, p.frames);
+    let codes = uniform_codes(WIDTH * HEIGHT);
     let bits: Box<[[u32; 4096]; 4]> = Box::new(core::array::from_fn(|a| core::array::from_fn(|k| ((a * 4096 + k) as u32 * 2048) % (1 << 23))));
     let luts = Mvd1024eLuts::from_bits(&bits).map_err(|e| HostError::Format { path: "bench LUT".into(), message: format!("{e:?}") })?;
-    let luts_for_bands = luts.clone();
     let mut banks_line = Box::new(LutBanks::new(luts.clone()));
-    let mut banks_block = Box::new(LutBanks::new(luts));
+    let mut banks_block = Box::new(LutBanks::new(luts.clone()));
     let geometry = Geometry::new(WIDTH as u16, HEIGHT as u16, STATES as u8, 0).map_err(|e| HostError::Format { path: "bench geometry".into(), message: format!("{e:?}") })?;
     let core_err = |e: dncal_core::CoreError| HostError::Format { path: "bench".into(), message: format!("the core refused the bench's frame: {e:?}") };
-    let mut line_sums = vec![0u32; STATES * WIDTH * HEIGHT];
-    let mut block_sums = vec![0u32; STATES * WIDTH * HEIGHT];
-    let mut plain_sums = vec![0u32; STATES * WIDTH * HEIGHT];
-    let mut byte_sums = vec![0u32; STATES * WIDTH * HEIGHT];
-    let (mut by_line, mut by_block, mut plain, mut bytes, mut numpy) = (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let n = WIDTH * HEIGHT;
+    let (mut line_sums, mut block_sums, mut plain_sums, mut byte_sums) = (vec![0u32; STATES * n], vec![0u32; STATES * n], vec![0u32; STATES * n], vec![0u32; STATES * n]);
+    let mut r = CoreRates { by_line: Vec::new(), by_block: Vec::new(), plain: Vec::new(), bytes: Vec::new(), numpy: Vec::new(), banded: None };
     // The parallel path against itself on one band: both clear their sums once per run.
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let mut one_band = Bands::new(&luts_for_bands, geometry, 1).map_err(core_err)?;
-    let mut many_bands = Bands::new(&luts_for_bands, geometry, threads).map_err(core_err)?;
+    let mut one_band = Bands::new(&luts, geometry, 1).map_err(core_err)?;
+    let mut many_bands = Bands::new(&luts, geometry, threads).map_err(core_err)?;
     let frame_list: Vec<(u8, &[u16])> = (0..frames).map(|f| ((f % STATES) as u8, codes.as_slice())).collect();
     let (mut banded_1, mut banded_n) = (Vec::new(), Vec::new());
-    let n = WIDTH * HEIGHT;
     let mut c_line = Corrector::new(&mut banks_line, geometry, &mut line_sums).map_err(core_err)?;
     let mut c_block = Corrector::new(&mut banks_block, geometry, &mut block_sums).map_err(core_err)?;
     // Run 0 warms up (first touches of the sum buffers fault their pages in) and is not
@@ -271,7 +307,7 @@ pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, Ho
             }
             Ok(())
         };
-        timed(&mut by_line, &mut || {
+        timed(&mut r.by_line, &mut || {
             for f in 0..frames {
                 c_line.begin_frame((f % STATES) as u8).map_err(core_err)?;
                 for (row, line) in codes.chunks_exact(WIDTH).enumerate() {
@@ -281,7 +317,7 @@ pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, Ho
             }
             Ok(())
         })?;
-        timed(&mut by_block, &mut || {
+        timed(&mut r.by_block, &mut || {
             for f in 0..frames {
                 c_block.begin_frame((f % STATES) as u8).map_err(core_err)?;
                 black_box(c_block.accumulate_lines(0, black_box(&codes)).map_err(core_err)?);
@@ -291,23 +327,17 @@ pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, Ho
         })?;
         timed(&mut banded_1, &mut || one_band.run(&frame_list).map(|_| ()).map_err(core_err))?;
         timed(&mut banded_n, &mut || many_bands.run(&frame_list).map(|_| ()).map_err(core_err))?;
-        timed(&mut plain, &mut || {
-            for f in 0..frames {
-                let s = f % STATES;
-                plain_lut_frame(&bits, black_box(&codes), &mut plain_sums[s * n..(s + 1) * n]);
-            }
+        timed(&mut r.plain, &mut || {
+            (0..frames).for_each(|f| plain_lut_frame(&bits, black_box(&codes), &mut plain_sums[f % STATES * n..][..n]));
             Ok(())
         })?;
-        timed(&mut bytes, &mut || {
-            for f in 0..frames {
-                let s = f % STATES;
-                bytes_frame(black_box(&codes), &mut byte_sums[s * n..(s + 1) * n]);
-            }
+        timed(&mut r.bytes, &mut || {
+            (0..frames).for_each(|f| bytes_frame(black_box(&codes), &mut byte_sums[f % STATES * n..][..n]));
             Ok(())
         })?;
         if run > 0 && p.numpy && notes.is_empty() {
             match numpy_rate(frames) {
-                Ok(r) => numpy.push(r),
+                Ok(rate) => r.numpy.push(rate),
                 Err(e) => notes.push(format!("numpy skipped: {e}")),
             }
         }
@@ -317,51 +347,46 @@ pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, Ho
     if c_line.sums().as_slice() != plain_sums.as_slice() || c_block.sums().as_slice() != plain_sums.as_slice() {
         return Err(HostError::Format { path: "bench".into(), message: "the core's sums differ from the plain LUT loop's".into() });
     }
-    let mut ratios = vec![
-        ratio("core, line by line", &by_line, "plain LUT loop", &plain, "Mpx/s", None),
-        ratio("core, frame as a block", &by_block, "plain LUT loop", &plain, "Mpx/s", Some(0.95)),
-        ratio("core, frame as a block", &by_block, "byte bound (no LUT)", &bytes, "Mpx/s", Some(0.4)),
-    ];
     if many_bands.sums() != one_band.sums() {
         return Err(HostError::Format { path: "bench".into(), message: "the bands' sums differ from one band's".into() });
     }
-    if threads > 1 {
-        ratios.push(ratio(&format!("core, {threads} bands, {threads} threads"), &banded_n, "core, 1 band, 1 thread", &banded_1, "Mpx/s", Some(1.8)));
-    } else {
-        notes.push("one core: the parallel path was not measured".into());
-    }
-    // End to end: `dncal stream` (camera model sampling, the core, the float reference
-    // check) on 1024 x 1024 frames, against one K-Coronagraph camera's rate (1024 x 1024 x
-    // 150 Hz): a fixed rate, not a run in this process, so its ratio's spread is the
-    // stream's own.
-    let camera = crate::camera::Camera::new(crate::camera::CameraConfig::default()).map_err(|source| HostError::Config { path: "default camera".into(), source })?;
-    let weights = crate::commands::stream::oracle_weights(&camera)?;
-    let stream_frames = 8u32;
-    let mut stream_rates = Vec::new();
-    for _ in 0..runs.min(3) {
-        let r = crate::streaming::run_stream(&camera, &weights, &crate::streaming::StreamParams::full_frame(&camera, stream_frames), |_| {})?;
-        if r.mismatches != 0 {
-            return Err(HostError::Format { path: "bench".into(), message: format!("stream: {} mismatches against the float reference", r.mismatches) });
-        }
-        stream_rates.push(r.pixels as f64 / r.wall_s / 1e6);
-    }
-    let camera_rate = vec![1024.0 * 1024.0 * 150.0 / 1e6; stream_rates.len()];
-    ratios.push(ratio("stream, end to end", &stream_rates, "one K-Cor camera (fixed)", &camera_rate, "Mpx/s", Some(1.0)));
-    // Replay (`stream --frames-from`): the same frames of uniform codes, recorded.
-    let cube = crate::fits::FrameCube { width: WIDTH, height: HEIGHT, frames: 16, codes: codes.repeat(16) };
-    let replay = crate::streaming::StreamParams { recorded: Some(std::sync::Arc::new(cube)), ..crate::streaming::StreamParams::full_frame(&camera, 16) };
-    let mut replay_rates = Vec::new();
-    for _ in 0..runs.min(3) {
-        let r = crate::streaming::run_stream(&camera, &weights, &replay, |_| {})?;
-        if r.mismatches != 0 {
-            return Err(HostError::Format { path: "bench".into(), message: format!("replay: {} mismatches against the float reference", r.mismatches) });
-        }
-        replay_rates.push(r.pixels as f64 / r.wall_s / 1e6);
-    }
-    ratios.push(ratio("stream --frames-from", &replay_rates, "one K-Cor camera (fixed)", &camera_rate[..1].repeat(replay_rates.len()), "Mpx/s", Some(1.0)));
-    // The camera sampler's Poisson draw, a mean per pixel as in a frame with PRNU: PTRS
-    // (`camera::sample::poisson`) against rand_distr's `Poisson` built per mean, on the same
-    // generator and means (electrons across the range, 200 to 180 000).
+    r.banded = (threads > 1).then_some((threads, banded_n, banded_1));
+    Ok(r)
+}
+
+/// End to end: `dncal stream` (camera model sampling, the core, the float reference
+/// check) on 1024 x 1024 frames, and replay (`stream --frames-from`) of recorded frames
+/// of uniform codes, against one K-Coronagraph camera's rate (1024 x 1024 x 150 Hz): a
+/// fixed rate, not a run in this process, so a ratio's spread is the stream's own.
+fn stream_ratios(camera: &crate::camera::Camera, runs: usize) -> Result<[Ratio; 2], HostError> {
+    use crate::streaming::{run_stream, StreamParams};
+    let weights = crate::commands::stream::oracle_weights(camera)?;
+    let cube = crate::fits::FrameCube { width: WIDTH, height: HEIGHT, frames: 16, codes: uniform_codes(WIDTH * HEIGHT).repeat(16) };
+    let replay = StreamParams { recorded: Some(std::sync::Arc::new(cube)), ..StreamParams::full_frame(camera, 16) };
+    let rates = |what: &str, params: &StreamParams| -> Result<Vec<f64>, HostError> {
+        (0..runs.min(3))
+            .map(|_| {
+                let r = run_stream(camera, &weights, params, |_| {})?;
+                match r.mismatches {
+                    0 => Ok(r.pixels as f64 / r.wall_s / 1e6),
+                    m => Err(HostError::Format { path: "bench".into(), message: format!("{what}: {m} mismatches against the float reference") }),
+                }
+            })
+            .collect()
+    };
+    let sampled = rates("stream", &StreamParams::full_frame(camera, 8))?;
+    let replayed = rates("replay", &replay)?;
+    let camera_rate = |n: usize| vec![1024.0 * 1024.0 * 150.0 / 1e6; n];
+    Ok([
+        ratio("stream, end to end", &sampled, "one K-Cor camera (fixed)", &camera_rate(sampled.len()), "Mpx/s", Some(1.0)),
+        ratio("stream --frames-from", &replayed, "one K-Cor camera (fixed)", &camera_rate(replayed.len()), "Mpx/s", Some(1.0)),
+    ])
+}
+
+/// The camera sampler's Poisson draw, a mean per pixel as in a frame with PRNU: PTRS
+/// (`camera::sample::poisson`) against rand_distr's `Poisson` built per mean, on the same
+/// generator and means (electrons across the range, 200 to 180 000).
+fn poisson_ratio(runs: usize) -> Ratio {
     let means: Vec<f64> = (0..1 << 18).map(|i| 200.0 + (i as f64 * 0.618_034).fract() * 179_800.0).collect();
     let (mut ptrs_rates, mut crate_rates) = (Vec::new(), Vec::new());
     for run in 0..=runs {
@@ -377,63 +402,64 @@ pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, Ho
             crate_rates.push(means.len() as f64 / b / 1e6);
         }
     }
-    ratios.push(ratio("Poisson draw, a mean per pixel (PTRS)", &ptrs_rates, "rand_distr Poisson::new + sample", &crate_rates, "Mdraws/s", None));
-    // `linearity` on a 256 x 256 x 41-level set against the same steps in numpy, both
-    // from reading the file to the RMS per level (the numpy script's own clock starts
-    // after its imports), on the same file; the results must agree.
-    if p.numpy && notes.is_empty() {
-        let (_dir, set) = simulated_linearity(&camera, 256)?;
-        let (mut ours, mut theirs) = (Vec::new(), Vec::new());
-        for _ in 0..runs.min(3) {
-            let t = Instant::now();
-            let r = crate::commands::linearity::linearity(&set, 4, None, None)?;
-            let seconds = t.elapsed().as_secs_f64();
-            match numpy_linearity(&set) {
-                Ok((s, pw)) => {
-                    let want = r.report.rms_pixelwise_max;
-                    if (pw - want).abs() > 1e-9 * want.abs() {
-                        return Err(HostError::Format { path: "bench".into(), message: format!("linearity: numpy's largest pixel-wise RMS {pw} differs from ours {want}") });
-                    }
-                    ours.push(1.0 / seconds);
-                    theirs.push(1.0 / s);
+    ratio("Poisson draw, a mean per pixel (PTRS)", &ptrs_rates, "rand_distr Poisson::new + sample", &crate_rates, "Mdraws/s", None)
+}
+
+/// `linearity` on a 256 x 256 x 41-level set against the same steps in numpy, both from
+/// reading the file to the RMS per level (the numpy script's own clock starts after its
+/// imports), on the same file; the results must agree. None, with a note, where numpy
+/// could not run.
+fn linearity_ratio(camera: &crate::camera::Camera, runs: usize, notes: &mut Vec<String>) -> Result<Option<Ratio>, HostError> {
+    let (_dir, set) = simulated_linearity(camera, 256)?;
+    let (mut ours, mut theirs) = (Vec::new(), Vec::new());
+    for _ in 0..runs.min(3) {
+        let t = Instant::now();
+        let r = crate::commands::linearity::linearity(&set, 4, None, None)?;
+        let seconds = t.elapsed().as_secs_f64();
+        match numpy_linearity(&set) {
+            Ok((s, pw)) => {
+                let want = r.report.rms_pixelwise_max;
+                if (pw - want).abs() > 1e-9 * want.abs() {
+                    return Err(HostError::Format { path: "bench".into(), message: format!("linearity: numpy's largest pixel-wise RMS {pw} differs from ours {want}") });
                 }
-                Err(e) => {
-                    notes.push(format!("numpy linearity skipped: {e}"));
-                    break;
-                }
+                ours.push(1.0 / seconds);
+                theirs.push(1.0 / s);
+            }
+            Err(e) => {
+                notes.push(format!("numpy linearity skipped: {e}"));
+                return Ok(None);
             }
         }
-        if !ours.is_empty() && ours.len() == theirs.len() {
-            ratios.push(ratio("linearity, 256 x 256 x 41", &ours, "numpy/astropy, same steps", &theirs, "sets/s", Some(10.0)));
-        }
     }
-    // `diagnose` on a 128 x 128 x 41-level linearity set (read from its file, as the
-    // command does) against the plainest per-pixel work it contains: one weighted
-    // least-squares quartic per pixel through all its levels by nalgebra's SVD, on the
-    // same means. The ratio says how many such fits a diagnosis costs per pixel.
-    {
-        let (_dir, path) = simulated_linearity(&camera, 128)?;
-        // The baseline's means, read once (the diagnosis reads its file every run, as the
-        // command does).
-        let wide = crate::fits::read_linearity(&path)?;
-        let (mut ours, mut fits) = (Vec::new(), Vec::new());
-        for _ in 0..runs.min(3) {
-            let t = Instant::now();
-            let set = crate::fits::read_linearity_as::<f32>(&path)?;
-            black_box(crate::diagnose::diagnose_linearity(&set, 0.01).map_err(|source| HostError::Diagnose { path: path.clone(), source })?);
-            let seconds = t.elapsed().as_secs_f64();
-            let set = &wide;
-            let t = Instant::now();
-            black_box(quartic_per_pixel(set));
-            fits.push((set.width * set.height) as f64 / t.elapsed().as_secs_f64() / 1e3);
-            ours.push((set.width * set.height) as f64 / seconds / 1e3);
-        }
-        ratios.push(ratio("diagnose, 128 x 128 x 41 linearity set", &ours, "one quartic SVD fit per pixel", &fits, "kpx/s", None));
+    Ok(Some(ratio("linearity, 256 x 256 x 41", &ours, "numpy/astropy, same steps", &theirs, "sets/s", Some(10.0))))
+}
+
+/// `diagnose` on a 128 x 128 x 41-level linearity set (read from its file, as the command
+/// does) against the plainest per-pixel work it contains: one weighted least-squares
+/// quartic per pixel through all its levels by nalgebra's SVD, on the same means. The
+/// ratio says how many such fits a diagnosis costs per pixel.
+fn diagnose_ratio(camera: &crate::camera::Camera, runs: usize) -> Result<Ratio, HostError> {
+    let (_dir, path) = simulated_linearity(camera, 128)?;
+    // The baseline's means, read once (the diagnosis reads its file every run, as the
+    // command does).
+    let wide = crate::fits::read_linearity(&path)?;
+    let pixels = (wide.width * wide.height) as f64;
+    let (mut ours, mut fits) = (Vec::new(), Vec::new());
+    for _ in 0..runs.min(3) {
+        let t = Instant::now();
+        let set = crate::fits::read_linearity_as::<f32>(&path)?;
+        black_box(crate::diagnose::diagnose_linearity(&set, 0.01).map_err(|source| HostError::Diagnose { path: path.clone(), source })?);
+        ours.push(pixels / t.elapsed().as_secs_f64() / 1e3);
+        let t = Instant::now();
+        black_box(quartic_per_pixel(&wide));
+        fits.push(pixels / t.elapsed().as_secs_f64() / 1e3);
     }
-    if numpy.len() == runs {
-        ratios.push(ratio("core, frame as a block", &by_block, "numpy lut[adc, codes]", &numpy, "Mpx/s", Some(8.0)));
-    } else if p.numpy && notes.is_empty() {
-        notes.push("numpy: not every run measured".into());
-    }
-    Ok(BenchReport { machine: machine(), runs, ratios, notes })
+    Ok(ratio("diagnose, 128 x 128 x 41 linearity set", &ours, "one quartic SVD fit per pixel", &fits, "kpx/s", None))
+}
+
+/// `n` codes drawn uniformly from 0..4096 (seed 17): every table entry equally likely,
+/// the least cache-friendly case.
+fn uniform_codes(n: usize) -> Vec<u16> {
+    let mut rng = StdRng::seed_from_u64(17);
+    (0..n).map(|_| rng.random_range(0..4096u16)).collect()
 }

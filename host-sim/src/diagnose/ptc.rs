@@ -84,35 +84,22 @@ fn pooled(v: Vec<f64>) -> (f64, f64) {
     }
 }
 
-/// Diagnoses photon-transfer data (an EMVA 1288 set's levels) measured with `pixels`
-/// pixels per frame. The baseline is the standard's linear camera: mean above dark
-/// `mu = b + a p` in the photons `p`; the scored residual of a level is its mean minus the
-/// model, over its noise: the temporal noise of the two-frame mean,
-/// `sqrt((var + dark var) / (2 N))`, plus the frame-to-frame scatter that the difference of
-/// the two frames' means measures (pooled: `alpha^2 mu^2 + 2 beta^2`, from the illuminated
-/// and the dark pairs). Without that term the real CCD's means scatter 12 times more than
-/// the model allowed and every significance came out 100-1000 times too large.
-/// Levels below 90% of saturation (the level of largest variance) are used; the even
-/// levels (by photons) fit, the odd ones score. Catalog: `global-nonlinearity` (a
-/// polynomial of degree 3, 4 or 5 in the photons, the degree chosen on the held-out
-/// levels), then `low-signal-nonlinearity` (a term confined to the lowest 10% of the
-/// range, beside the chosen shape), and `insufficient-noise` from the dark noise.
-pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Result<Diagnosis, DiagnoseError> {
-    let mut pts: Vec<PtcPoint> = points.to_vec();
-    pts.sort_by(|a, b| a.photons.total_cmp(&b.photons));
-    let sat = (0..pts.len()).max_by(|&a, &b| pts[a].var_dn2.total_cmp(&pts[b].var_dn2)).ok_or(DiagnoseError::NoIlluminatedLevels)?;
-    let sat_mean = pts[sat].mean_dn;
-    let used: Vec<PtcPoint> = pts.into_iter().filter(|p| p.mean_dn < 0.9 * sat_mean && p.photons > 0.0).collect();
-    if used.len() < 12 {
-        return Err(DiagnoseError::TooFewPtcLevels { levels: used.len() });
-    }
-    let pmax = used.iter().map(|p| p.photons).fold(0.0, f64::max);
-    let x: Vec<f64> = used.iter().map(|p| p.photons / pmax).collect();
-    let y: Vec<f64> = used.iter().map(|p| p.mean_dn).collect();
-    // Noise of a level's mean above dark: the temporal noise of two-frame means over N
-    // pixels, plus the frame-to-frame (common-mode) scatter the frame-mean differences
-    // show, pooled over the levels as a part proportional to the signal and a constant
-    // (each difference d of two frames estimates the variance of their mean as d^2 / 4).
+/// The noise of each used level's mean above dark: the temporal noise of two-frame means
+/// over N pixels plus the frame-to-frame (common-mode) scatter the frame-mean differences
+/// show, pooled over the levels as a part proportional to the signal (`alpha^2 mu^2`) and
+/// a constant (`2 beta^2`); each difference d of two frames estimates the variance of
+/// their mean as d^2 / 4. The relative variances of the two pooled estimates go into the
+/// null spread of every score.
+struct LevelNoise {
+    /// Per level, DN.
+    sigma: Vec<f64>,
+    alpha2: f64,
+    alpha2_rel_var: f64,
+    beta2: f64,
+    beta2_rel_var: f64,
+}
+
+fn level_noise(used: &[PtcPoint], pixels: usize) -> LevelNoise {
     let temporal: Vec<f64> = used.iter().map(|p| (p.var_dn2 + p.dark_var_dn2) / (2.0 * pixels as f64)).collect();
     // A dark pair shared by levels of the same exposure is one estimate, not several.
     let mut dark_pairs: Vec<(usize, f64)> = used.iter().map(|p| (p.dark_line, p.dark_frame_diff_dn)).collect();
@@ -147,110 +134,171 @@ pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Res
         alpha2_var = 1.0 / den;
     }
     let alpha2_rel_var = if alpha2 > 0.0 { alpha2_var / (alpha2 * alpha2) } else { 0.0 };
-    let sig: Vec<f64> = used.iter().zip(&temporal).map(|(p, t)| (t + alpha2 * p.mean_dn.powi(2) + 2.0 * beta2).sqrt().max(1e-12)).collect();
-    let (train, test): (Vec<usize>, Vec<usize>) = (0..used.len()).partition(|i| i % 2 == 0);
-    let pick = |v: &[f64], idx: &[usize]| idx.iter().map(|&i| v[i]).collect::<Vec<f64>>();
-    // A model's held-out misfit: mean z^2 and the residuals z by level.
-    type Score = (f64, Vec<(usize, f64)>);
-    let score = |terms: Terms| -> Option<Score> {
-        let c = fit_terms(terms, &pick(&x, &train), &pick(&y, &train), &pick(&sig, &train))?;
-        let z: Vec<(usize, f64)> = test.iter().map(|&i| (i, (y[i] - eval_terms(terms, &c, x[i])) / sig[i])).collect();
+    let sigma = used.iter().zip(&temporal).map(|(p, t)| (t + alpha2 * p.mean_dn.powi(2) + 2.0 * beta2).sqrt().max(1e-12)).collect();
+    LevelNoise { sigma, alpha2, alpha2_rel_var, beta2, beta2_rel_var }
+}
+
+/// A model's held-out misfit: mean z^2 and the residuals z by level.
+type Score = (f64, Vec<(usize, f64)>);
+
+/// Models fitted on the even levels (by photons) and scored on the odd ones, in units of
+/// each level's noise.
+struct HeldOut<'a> {
+    /// Photons over the largest used, per level.
+    x: &'a [f64],
+    /// Mean above dark, DN.
+    y: &'a [f64],
+    /// Noise of the mean, DN.
+    sigma: &'a [f64],
+    train: Vec<usize>,
+    test: Vec<usize>,
+    /// Relative variance of a scale error common to all held-out z^2 (the pooled
+    /// variances are estimates).
+    scale_rel_var: f64,
+}
+
+impl HeldOut<'_> {
+    fn pick(v: &[f64], idx: &[usize]) -> Vec<f64> {
+        idx.iter().map(|&i| v[i]).collect()
+    }
+
+    fn fit(&self, terms: Terms) -> Option<Vec<f64>> {
+        fit_terms(terms, &Self::pick(self.x, &self.train), &Self::pick(self.y, &self.train), &Self::pick(self.sigma, &self.train))
+    }
+
+    fn score(&self, terms: Terms) -> Option<Score> {
+        let c = self.fit(terms)?;
+        let z: Vec<(usize, f64)> = self.test.iter().map(|&i| (i, (self.y[i] - eval_terms(terms, &c, self.x[i])) / self.sigma[i])).collect();
         let m = z.iter().map(|(_, v)| v * v).sum::<f64>() / z.len() as f64;
         Some((m, z))
-    };
-    // The pooled variances are estimates: a scale error common to all levels moves every
-    // z^2 together, by the share of the frame-to-frame terms in the held-out levels'
-    // variances (without it, 15 of 400 linear cameras with a light source of 1e-3 rms
-    // scatter named `unexplained` at 5-7.7 "sigma").
-    let share = |f: &dyn Fn(usize) -> f64| test.iter().map(|&i| f(i) / sig[i].powi(2)).sum::<f64>() / test.len() as f64;
-    let scale_rel_var = share(&|i| alpha2 * y[i].powi(2)).powi(2) * alpha2_rel_var + share(&|_| 2.0 * beta2).powi(2) * beta2_rel_var;
-    let moments = |terms: Terms| {
-        let (e, sd) = null_moments(terms, &pick(&x, &train), &pick(&sig, &train), &pick(&x, &test), &pick(&sig, &test));
-        (e, (sd * sd + scale_rel_var * e * e).sqrt())
-    };
-    let (m0, z0) = score(Terms::LINEAR).ok_or(DiagnoseError::PtcFit)?;
-    // How far the simpler model's held-out misfit `m_s` lies above what the richer model
-    // leaves by chance, in the richer model's own null spread; `beats`: `None` unless
-    // that exceeds SIGNIFICANCE.
-    let significance = |richer: Terms, (m_s, _): &Score, (m_r, _): &Score| -> f64 {
-        let (e, sd) = moments(richer);
+    }
+
+    /// Mean and spread of the held-out misfit when `terms` is right, the common scale
+    /// error included.
+    fn moments(&self, terms: Terms) -> (f64, f64) {
+        let (e, sd) = null_moments(terms, &Self::pick(self.x, &self.train), &Self::pick(self.sigma, &self.train), &Self::pick(self.x, &self.test), &Self::pick(self.sigma, &self.test));
+        (e, (sd * sd + self.scale_rel_var * e * e).sqrt())
+    }
+
+    /// How far the simpler model's held-out misfit `m_s` lies above what the richer model
+    /// leaves by chance, in the richer model's own null spread.
+    fn significance(&self, richer: Terms, (m_s, _): &Score, (m_r, _): &Score) -> f64 {
+        let (e, sd) = self.moments(richer);
         (m_s - m_r.max(e)) / sd
-    };
-    let beats = |richer: Terms, simpler: &Score, rich: &Score| -> Option<f64> {
-        let g = significance(richer, simpler, rich);
+    }
+
+    /// The significance where it exceeds SIGNIFICANCE and the richer model fits better.
+    fn beats(&self, richer: Terms, simpler: &Score, rich: &Score) -> Option<f64> {
+        let g = self.significance(richer, simpler, rich);
         (g > SIGNIFICANCE && rich.0 < simpler.0).then_some(g)
-    };
-    // A finding from the held-out residuals before and after it.
-    let finding = |effect: Effect, what: String, significance: f64, (m_s, z_s): &Score, (m_r, z_r): &Score| {
-        // How large the effect is, in DN and relative, at the largest change.
-        let (i, dz) = z_r.iter().zip(z_s).map(|((i, a), (_, b))| (*i, (b - a).abs())).fold((0, 0.0), |acc, v| if v.1 > acc.1 { v } else { acc });
-        Finding {
-            residuals: Some(AdcResiduals { baseline: z_s.clone(), extended: z_r.clone() }),
-            effect,
-            adc: None,
-            count: None,
-            sigma_dn: None,
-            significance,
-            rms_before: m_s.sqrt(),
-            rms_after: m_r.sqrt(),
-            gain: (m_s / m_r).sqrt(),
-            // Every finding here is scored on all the held-out levels: the baseline's data.
-            all_data_rms_after: Some(m_r.sqrt()),
-            detail: format!(
-                "{what}; held-out levels move by up to {:.3} DN ({:.2e} of the signal) at {:.0} photons",
-                dz * sig[i],
-                dz * sig[i] / y[i].abs().max(1e-12),
-                used[i].photons
-            ),
-        }
-    };
-    let mut findings = Vec::new();
-    // The low-signal term lives below 10% of the range: it needs three fitting and three
-    // held-out levels there to be tested at all.
-    let low_count = |idx: &[usize]| idx.iter().filter(|&&i| x[i] < 0.1).count();
-    let low = low_count(&train) >= 3 && low_count(&test) >= 3;
-    // The shape: starting from `from`, each higher degree kept only where it beats the
-    // shape before it: a bend at all must beat the line at SIGNIFICANCE (the effect is
-    // named on that), a higher degree the bend before it at REFINE (choosing the order of
-    // a bend already named; at SIGNIFICANCE, a compressive curve whose x^4 term the cubic
-    // missed by 4.9 units went on to `unexplained` at 5.6).
-    const REFINE: f64 = 2.0;
-    let select = |from: Terms| -> Result<(Terms, Score), DiagnoseError> {
-        let mut best = (from, score(from).ok_or(DiagnoseError::PtcFit)?);
+    }
+
+    /// The shape: starting from `from`, each higher degree kept only where it beats the
+    /// shape before it: a bend at all must beat the line at SIGNIFICANCE (the effect is
+    /// named on that), a higher degree the bend before it at REFINE (choosing the order of
+    /// a bend already named; at SIGNIFICANCE, a compressive curve whose x^4 term the cubic
+    /// missed by 4.9 units went on to `unexplained` at 5.6).
+    fn select(&self, from: Terms) -> Result<(Terms, Score), DiagnoseError> {
+        const REFINE: f64 = 2.0;
+        let mut best = (from, self.score(from).ok_or(DiagnoseError::PtcFit)?);
         for degree in Terms::BENDS.into_iter().filter(|d| *d > from.degree) {
             let t = Terms { degree, low: from.low };
             // At least two fitting levels per parameter beyond it.
-            if train.len() < t.params() + 2 {
+            if self.train.len() < t.params() + 2 {
                 break;
             }
             let bar = if best.0.degree == 1 { SIGNIFICANCE } else { REFINE };
-            if let Some(s) = score(t).filter(|s| significance(t, &best.1, s) > bar && s.0 < best.1 .0) {
+            if let Some(s) = self.score(t).filter(|s| self.significance(t, &best.1, s) > bar && s.0 < best.1 .0) {
                 best = (t, s);
             }
         }
         Ok(best)
-    };
+    }
+}
+
+/// A finding from the held-out residuals before and after it, with how large the effect
+/// is in DN and relative to the signal at the level it moves most.
+fn ptc_finding(effect: Effect, what: String, significance: f64, (m_s, z_s): &Score, (m_r, z_r): &Score, used: &[PtcPoint], noise: &LevelNoise) -> Finding {
+    let (i, dz) = z_r.iter().zip(z_s).map(|((i, a), (_, b))| (*i, (b - a).abs())).fold((0, 0.0), |acc, v| if v.1 > acc.1 { v } else { acc });
+    let dn = dz * noise.sigma[i];
+    Finding {
+        residuals: Some(AdcResiduals { baseline: z_s.clone(), extended: z_r.clone() }),
+        effect,
+        adc: None,
+        count: None,
+        sigma_dn: None,
+        significance,
+        rms_before: m_s.sqrt(),
+        rms_after: m_r.sqrt(),
+        gain: (m_s / m_r).sqrt(),
+        // Every finding here is scored on all the held-out levels: the baseline's data.
+        all_data_rms_after: Some(m_r.sqrt()),
+        detail: format!("{what}; held-out levels move by up to {dn:.3} DN ({:.2e} of the signal) at {:.0} photons", dn / used[i].mean_dn.abs().max(1e-12), used[i].photons),
+    }
+}
+
+/// Diagnoses photon-transfer data (an EMVA 1288 set's levels) measured with `pixels`
+/// pixels per frame. The baseline is the standard's linear camera: mean above dark
+/// `mu = b + a p` in the photons `p`; the scored residual of a level is its mean minus the
+/// model, over its noise ([`level_noise`]): the temporal noise of the two-frame mean,
+/// `sqrt((var + dark var) / (2 N))`, plus the frame-to-frame scatter that the difference of
+/// the two frames' means measures (pooled: `alpha^2 mu^2 + 2 beta^2`, from the illuminated
+/// and the dark pairs). Without that term the real CCD's means scatter 12 times more than
+/// the model allowed and every significance came out 100-1000 times too large.
+/// Levels below 90% of saturation (the level of largest variance) are used; the even
+/// levels (by photons) fit, the odd ones score. Catalog: `global-nonlinearity` (a
+/// polynomial of degree 3, 4 or 5 in the photons, the degree chosen on the held-out
+/// levels), then `low-signal-nonlinearity` (a term confined to the lowest 10% of the
+/// range, beside the chosen shape), and `insufficient-noise` from the dark noise.
+pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Result<Diagnosis, DiagnoseError> {
+    let mut pts: Vec<PtcPoint> = points.to_vec();
+    pts.sort_by(|a, b| a.photons.total_cmp(&b.photons));
+    let sat = (0..pts.len()).max_by(|&a, &b| pts[a].var_dn2.total_cmp(&pts[b].var_dn2)).ok_or(DiagnoseError::NoIlluminatedLevels)?;
+    let sat_mean = pts[sat].mean_dn;
+    let used: Vec<PtcPoint> = pts.into_iter().filter(|p| p.mean_dn < 0.9 * sat_mean && p.photons > 0.0).collect();
+    if used.len() < 12 {
+        return Err(DiagnoseError::TooFewPtcLevels { levels: used.len() });
+    }
+    let pmax = used.iter().map(|p| p.photons).fold(0.0, f64::max);
+    let x: Vec<f64> = used.iter().map(|p| p.photons / pmax).collect();
+    let y: Vec<f64> = used.iter().map(|p| p.mean_dn).collect();
+    let noise = level_noise(&used, pixels);
+    let (train, test): (Vec<usize>, Vec<usize>) = (0..used.len()).partition(|i| i % 2 == 0);
+    // The pooled variances are estimates: a scale error common to all levels moves every
+    // z^2 together, by the share of the frame-to-frame terms in the held-out levels'
+    // variances (without it, 15 of 400 linear cameras with a light source of 1e-3 rms
+    // scatter named `unexplained` at 5-7.7 "sigma").
+    let sig = &noise.sigma;
+    let share = |f: &dyn Fn(usize) -> f64| test.iter().map(|&i| f(i) / sig[i].powi(2)).sum::<f64>() / test.len() as f64;
+    let scale_rel_var = share(&|i| noise.alpha2 * y[i].powi(2)).powi(2) * noise.alpha2_rel_var + share(&|_| 2.0 * noise.beta2).powi(2) * noise.beta2_rel_var;
+    let h = HeldOut { x: &x, y: &y, sigma: sig, train, test, scale_rel_var };
+    let (m0, z0) = h.score(Terms::LINEAR).ok_or(DiagnoseError::PtcFit)?;
+    let mut findings = Vec::new();
+    // The low-signal term lives below 10% of the range: it needs three fitting and three
+    // held-out levels there to be tested at all.
+    let low_count = |idx: &[usize]| idx.iter().filter(|&&i| x[i] < 0.1).count();
+    let low = low_count(&h.train) >= 3 && low_count(&h.test) >= 3;
     // The shape first, with the low-signal term (where testable) in every candidate as a
     // nuisance: the two compete otherwise (a degree-5 polynomial mimics a charge loss at
     // the lowest levels; the low-signal term soaks up a cubic's misfit to a compressive
     // curve there). Then the low-signal term beside that shape; where it is not named,
     // the shape is chosen again without it (the nuisance term had taken some of the
     // misfit a higher degree removes).
-    let (shape, _) = select(Terms { degree: 1, low })?;
+    let (shape, _) = h.select(Terms { degree: 1, low })?;
     let plain = Terms { degree: shape.degree, low: false };
-    let plain_score = score(plain).ok_or(DiagnoseError::PtcFit)?;
+    let plain_score = h.score(plain).ok_or(DiagnoseError::PtcFit)?;
     let with_low = Terms { degree: shape.degree, low: true };
-    let low_named = if low { score(with_low).and_then(|s| beats(with_low, &plain_score, &s).map(|g| (s, g))) } else { None };
+    let low_named = if low { h.score(with_low).and_then(|s| h.beats(with_low, &plain_score, &s).map(|g| (s, g))) } else { None };
     let (current, current_score) = match &low_named {
         Some((s, _)) => (with_low, s.clone()),
-        None => select(plain)?,
+        None => h.select(plain)?,
     };
     if current.degree > 1 {
         let base = Terms { degree: 1, low: current.low };
-        let base_score = score(base).ok_or(DiagnoseError::PtcFit)?;
-        let significance = significance(current, &base_score, &current_score);
+        let base_score = h.score(base).ok_or(DiagnoseError::PtcFit)?;
+        let significance = h.significance(current, &base_score, &current_score);
         let what = format!("the response bends: x^2 .. x^{} in the photons (the degree the held-out levels favour)", current.degree);
-        let mut f = finding(Effect::GlobalNonlinearity, what, significance, &base_score, &current_score);
+        let mut f = ptc_finding(Effect::GlobalNonlinearity, what, significance, &base_score, &current_score, &used, &noise);
         // Listed before the low-signal term, the bend is on the all-data scale without it.
         if low_named.is_some() {
             f.all_data_rms_after = Some(plain_score.0.sqrt());
@@ -258,15 +306,12 @@ pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Res
         findings.push(f);
     }
     if let Some((s, significance)) = &low_named {
-        findings.push(finding(Effect::LowSignalNonlinearity, "a departure confined to the lowest 10% of the range".into(), *significance, &plain_score, s));
+        findings.push(ptc_finding(Effect::LowSignalNonlinearity, "a departure confined to the lowest 10% of the range".into(), *significance, &plain_score, s, &used, &noise));
     }
     let (mcur, zcur) = current_score;
-    let (ecur, sdcur) = moments(current);
+    let (ecur, sdcur) = h.moments(current);
     // The accepted curve per DN of linear signal S = c1 x: y - c0 = S + sum_k (c_k / c1^k) S^k.
-    let curve_per_dn = (current.degree > 1)
-        .then(|| fit_terms(current, &pick(&x, &train), &pick(&y, &train), &pick(&sig, &train)))
-        .flatten()
-        .map(|c| (2..=current.degree).map(|k| c[k] / c[1].powi(k as i32)).collect());
+    let curve_per_dn = (current.degree > 1).then(|| h.fit(current)).flatten().map(|c| (2..=current.degree).map(|k| c[k] / c[1].powi(k as i32)).collect());
     let sigma_dn = used.iter().map(|p| p.dark_var_dn2).fold(f64::INFINITY, f64::min).max(0.0).sqrt();
     findings.extend(insufficient_noise("dark noise", sigma_dn, accuracy_dn));
     if (mcur - ecur) / sdcur > SIGNIFICANCE {
@@ -293,7 +338,7 @@ pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Res
         baseline: Baseline {
             kind: "photon-transfer".into(),
             model: "linear response (offset and gain), shot and read noise".into(),
-            adcs: vec![AdcBaseline { adc: 0, codes_scored: test.len(), rms: m0.sqrt(), by_residue: Vec::new() }],
+            adcs: vec![AdcBaseline { adc: 0, codes_scored: h.test.len(), rms: m0.sqrt(), by_residue: Vec::new() }],
             rms: m0.sqrt(),
         },
         findings,

@@ -233,6 +233,83 @@ pub enum PtcError {
     Responsivity { responsivity: f64 },
 }
 
+/// The saturation level's index and whether the set reached saturation: Release 4.0's
+/// (the last level with at most OVERFLOW_MAX of its pixels at the top code, where some
+/// level has OVERFLOW_MIN there), else the variance maximum where the variance turned
+/// over, else the brightest level (not reached). `why` notes a Release 4.0 fallback.
+fn saturation(p: &[PtcPoint], release: Release, why: &mut BTreeMap<String, String>) -> (usize, bool) {
+    let variance: Vec<f64> = p.iter().map(|q| q.var_dn2).collect();
+    let variance_sat = saturation_index(&variance);
+    // The variance turned over when a brighter level lies well below the maximum (a
+    // clipped pixel has almost none); noise alone moves the reference's search off the
+    // brightest level of a set that never saturated.
+    let turned_over = variance[variance_sat + 1..].iter().any(|&v| v < TURNOVER * variance[variance_sat]);
+    let by_variance = if turned_over { variance_sat } else { p.len() - 1 };
+    let overflow_sat = (0..p.len()).rev().find(|&i| p[i].top_fraction <= OVERFLOW_MAX);
+    let overflowed = p.iter().any(|q| q.top_fraction >= OVERFLOW_MIN);
+    match (release, overflow_sat) {
+        (Release::R4, Some(i)) if overflowed => (i, true),
+        (Release::R4, _) => {
+            why.insert(
+                "saturation".into(),
+                format!("no level has {:.1}% of its pixels at the top code (Release 4.0's saturation); the variance maximum is used", 100.0 * OVERFLOW_MIN),
+            );
+            (by_variance, turned_over)
+        }
+        (Release::R3, _) => (by_variance, turned_over),
+    }
+}
+
+/// Linearity error over 5% to 95% of saturation (`y_sat` DN above dark): the smallest,
+/// largest and mean absolute deviation from the relative fit, %, and every level's
+/// deviation against its photons. `why` says what could not be measured.
+#[allow(clippy::type_complexity)]
+fn linearity_error(photons: &[f64], y: &[f64], y_sat: f64, why: &mut BTreeMap<String, String>) -> (Option<f64>, Option<f64>, Option<f64>, Vec<(f64, f64)>) {
+    let lin_start = (0..y.len()).find(|&i| y[i] >= 0.05 * y_sat);
+    let lin_end = (0..y.len()).rev().find(|&i| y[i] <= 0.95 * y_sat);
+    match (lin_start, lin_end) {
+        (Some(a), Some(b)) if b > a => {
+            let (slope, offset) = fit_relative(&photons[a..=b], &y[a..=b]);
+            let dev: Vec<f64> = photons.iter().zip(y).map(|(&x, &v)| 100.0 * (v - (slope * x + offset)) / (slope * x + offset)).collect();
+            let inside = &dev[a..=b];
+            let le_min = checked(why, "linearity_error_min_pct", inside.iter().copied().fold(f64::INFINITY, f64::min), || "the linearity fit failed".into());
+            let le_max = checked(why, "linearity_error_max_pct", inside.iter().copied().fold(f64::NEG_INFINITY, f64::max), || "the linearity fit failed".into());
+            let mean_abs = inside.iter().map(|d| d.abs()).sum::<f64>() / inside.len() as f64;
+            let le_mean = checked(why, "linearity_error_pct", mean_abs, || "the linearity fit failed".into());
+            (le_min, le_max, le_mean, photons.iter().copied().zip(dev).collect())
+        }
+        _ => {
+            for key in ["linearity_error_min_pct", "linearity_error_max_pct", "linearity_error_pct"] {
+                why.insert(key.into(), "fewer than two levels between 5% and 95% of saturation".into());
+            }
+            (None, None, None, Vec::new())
+        }
+    }
+}
+
+/// Dark current, e-/s, from the mean and the variance of the dark levels `darks`
+/// (exposure ns, mean DN, variance DN^2) against exposure time, with more than two
+/// exposure times; `gain` DN/e-.
+fn dark_current(darks: &[(f64, f64, f64)], gain: f64, why: &mut BTreeMap<String, String>) -> (Option<f64>, Option<f64>) {
+    if darks.len() <= 2 {
+        for key in ["dark_current_mean_e_per_s", "dark_current_var_e_per_s"] {
+            why.insert(key.into(), format!("{} exposure time(s): a dark-current series needs more than two", darks.len()));
+        }
+        return (None, None);
+    }
+    let t: Vec<f64> = darks.iter().map(|d| d.0 * 1e-9).collect();
+    let (_, mean_slope, _) = fit_line(&t, &darks.iter().map(|d| d.1).collect::<Vec<_>>());
+    let (_, var_slope, _) = fit_line(&t, &darks.iter().map(|d| d.2).collect::<Vec<_>>());
+    let dc_mean = checked(why, "dark_current_mean_e_per_s", mean_slope / gain, || "no finite slope".into());
+    let dc_var = if var_slope >= 0.0 {
+        checked(why, "dark_current_var_e_per_s", var_slope / (gain * gain), || "no finite slope".into())
+    } else {
+        why.insert("dark_current_var_e_per_s".into(), format!("the dark variance falls with exposure time ({var_slope:.3e} DN^2/s)"));
+        None
+    };
+    (dc_mean, dc_var)
+}
+
 /// The temporal datasheet from photon-transfer `points` (any order). Errors, as one
 /// line, when the set cannot be characterized at all: too few levels, a variance that
 /// does not rise with the signal (K <= 0, or all frames equal), a signal that does not
@@ -259,26 +336,7 @@ pub fn summarize_points(points: &[PtcPoint], release: Release) -> Result<PtcSumm
     if p.iter().all(|q| q.var_dn2 == 0.0 && q.dark_var_dn2 == 0.0) {
         return Err(PtcError::NoNoise);
     }
-    let variance: Vec<f64> = p.iter().map(|q| q.var_dn2).collect();
-    let variance_sat = saturation_index(&variance);
-    // The variance turned over when a brighter level lies well below the maximum (a
-    // clipped pixel has almost none); noise alone moves the reference's search off the
-    // brightest level of a set that never saturated.
-    let turned_over = variance[variance_sat + 1..].iter().any(|&v| v < TURNOVER * variance[variance_sat]);
-    let by_variance = if turned_over { variance_sat } else { p.len() - 1 };
-    let overflow_sat = (0..p.len()).rev().find(|&i| p[i].top_fraction <= OVERFLOW_MAX);
-    let overflowed = p.iter().any(|q| q.top_fraction >= OVERFLOW_MIN);
-    let (sat, saturation_reached) = match (release, overflow_sat) {
-        (Release::R4, Some(i)) if overflowed => (i, true),
-        (Release::R4, _) => {
-            why.insert(
-                "saturation".into(),
-                format!("no level has {:.1}% of its pixels at the top code (Release 4.0's saturation); the variance maximum is used", 100.0 * OVERFLOW_MIN),
-            );
-            (by_variance, turned_over)
-        }
-        (Release::R3, _) => (by_variance, turned_over),
-    };
+    let (sat, saturation_reached) = saturation(&p, release, &mut why);
     let y_sat = y[sat];
     if y_sat.is_nan() || y_sat <= 0.0 {
         return Err(PtcError::NoSignal { mean_dn: y_sat });
@@ -352,46 +410,8 @@ pub fn summarize_points(points: &[PtcPoint], release: Release) -> Result<PtcSumm
         why.insert("saturation_photons".into(), not_reached());
     }
 
-    // Linearity, 5% to 95% of saturation.
-    let lin_start = (0..y.len()).find(|&i| y[i] >= 0.05 * y_sat);
-    let lin_end = last_at_most(0.95 * y_sat);
-    let (mut le_min, mut le_max, mut le_mean, mut deviation) = (None, None, None, Vec::new());
-    match (lin_start, lin_end) {
-        (Some(a), Some(b)) if b > a => {
-            let (slope, offset) = fit_relative(&photons[a..=b], &y[a..=b]);
-            let dev: Vec<f64> = photons.iter().zip(&y).map(|(&x, &v)| 100.0 * (v - (slope * x + offset)) / (slope * x + offset)).collect();
-            let inside = &dev[a..=b];
-            le_min = checked(&mut why, "linearity_error_min_pct", inside.iter().copied().fold(f64::INFINITY, f64::min), || "the linearity fit failed".into());
-            le_max = checked(&mut why, "linearity_error_max_pct", inside.iter().copied().fold(f64::NEG_INFINITY, f64::max), || "the linearity fit failed".into());
-            let mean_abs = inside.iter().map(|d| d.abs()).sum::<f64>() / inside.len() as f64;
-            le_mean = checked(&mut why, "linearity_error_pct", mean_abs, || "the linearity fit failed".into());
-            deviation = photons.iter().copied().zip(dev).collect();
-        }
-        _ => {
-            for key in ["linearity_error_min_pct", "linearity_error_max_pct", "linearity_error_pct"] {
-                why.insert(key.into(), "fewer than two levels between 5% and 95% of saturation".into());
-            }
-        }
-    }
-
-    // Dark current, with more than two exposure times (exposures in ns).
-    let (mut dc_mean, mut dc_var) = (None, None);
-    if series {
-        let t: Vec<f64> = darks.iter().map(|d| d.0 * 1e-9).collect();
-        let (_, mean_slope, _) = fit_line(&t, &darks.iter().map(|d| d.1).collect::<Vec<_>>());
-        let (_, var_slope, _) = fit_line(&t, &darks.iter().map(|d| d.2).collect::<Vec<_>>());
-        dc_mean = checked(&mut why, "dark_current_mean_e_per_s", mean_slope / gain, || "no finite slope".into());
-        dc_var = if var_slope >= 0.0 {
-            checked(&mut why, "dark_current_var_e_per_s", var_slope / (gain * gain), || "no finite slope".into())
-        } else {
-            why.insert("dark_current_var_e_per_s".into(), format!("the dark variance falls with exposure time ({var_slope:.3e} DN^2/s)"));
-            None
-        };
-    } else {
-        for key in ["dark_current_mean_e_per_s", "dark_current_var_e_per_s"] {
-            why.insert(key.into(), format!("{} exposure time(s): a dark-current series needs more than two", darks.len()));
-        }
-    }
+    let (le_min, le_max, le_mean, deviation) = linearity_error(&photons, &y, y_sat, &mut why);
+    let (dc_mean, dc_var) = dark_current(&darks, gain, &mut why);
 
     let sigma_d2 = dark_noise_e.map_or(f64::NAN, |s| s * s);
     let snr = p

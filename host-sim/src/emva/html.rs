@@ -33,10 +33,23 @@ pub fn write_datasheet(dir: &Path, descriptor: &Path, sheet: &Datasheet) -> Resu
     staged.create_dir(dir)?;
     let names = ["photon_transfer.png", "snr.png", "linearity.png", "spectrograms.png", "defect_histograms.png", "datasheet.html", "datasheet.json"];
     staged.expect(names.map(|n| dir.join(n)))?;
-    let t = &sheet.temporal;
-    let s = &sheet.spatial;
-    let mut files = Vec::new();
+    let mut files = figures(&mut staged, dir, sheet)?;
+    let page = dir.join("datasheet.html");
+    staged.write_bytes(&page, page_html(descriptor, sheet, &files))?;
+    files.push(page);
+    let json = dir.join("datasheet.json");
+    let text = serde_json::to_string_pretty(sheet).map_err(|e| HostError::Format { path: json.clone(), message: e.to_string() })?;
+    staged.write_bytes(&json, text + "\n")?;
+    files.push(json);
+    staged.publish()?;
+    Ok(files)
+}
 
+/// Stages the datasheet's figures in `dir`: photon transfer, SNR, linearity and, where
+/// the set has the spatial images, the spectrograms and defect histograms.
+fn figures(staged: &mut Outputs, dir: &Path, sheet: &Datasheet) -> Result<Vec<PathBuf>, HostError> {
+    let (t, s) = (&sheet.temporal, &sheet.spatial);
+    let mut files = Vec::new();
     let ptc = dir.join("photon_transfer.png");
     let points: Vec<(f64, f64)> = t.photon_transfer.iter().map(|p| (p.0, p.1)).collect();
     let fit_end = t.photon_transfer.get(t.gain_fit_levels.saturating_sub(1)).map_or(0.0, |p| p.0);
@@ -46,7 +59,7 @@ pub fn write_datasheet(dir: &Path, descriptor: &Path, sheet: &Datasheet) -> Resu
     };
     let fit: Vec<(f64, f64)> = [0.0, fit_end].iter().map(|&x| (x, offset + t.gain_dn_per_e * x)).collect();
     line_plot(
-        &mut staged,
+        staged,
         &ptc,
         "Photon transfer: temporal variance above dark against mean above dark",
         "mean above dark (DN)",
@@ -62,7 +75,7 @@ pub fn write_datasheet(dir: &Path, descriptor: &Path, sheet: &Datasheet) -> Resu
     let snr = dir.join("snr.png");
     let log = |v: f64| if v > 0.0 { v.log10() } else { f64::NAN };
     line_plot(
-        &mut staged,
+        staged,
         &snr,
         "Signal-to-noise ratio",
         "log10 photons per pixel",
@@ -77,7 +90,7 @@ pub fn write_datasheet(dir: &Path, descriptor: &Path, sheet: &Datasheet) -> Resu
 
     let lin = dir.join("linearity.png");
     line_plot(
-        &mut staged,
+        staged,
         &lin,
         "Linearity: deviation from the fit over 5-95% of saturation",
         "photons per pixel",
@@ -94,7 +107,7 @@ pub fn write_datasheet(dir: &Path, descriptor: &Path, sheet: &Datasheet) -> Resu
         let r4 = t.release == Release::R4;
         let spec = dir.join("spectrograms.png");
         line_plot(
-            &mut staged,
+            staged,
             &spec,
             if r4 { "Spectrograms of the high-pass filtered images (frequency 0 left out)" } else { "Spectrograms (frequency 0 left out)" },
             "cycles per pixel",
@@ -110,7 +123,7 @@ pub fn write_datasheet(dir: &Path, descriptor: &Path, sheet: &Datasheet) -> Resu
         files.push(spec);
         let hist = dir.join("defect_histograms.png");
         line_plot(
-            &mut staged,
+            staged,
             &hist,
             "Logarithmic histograms of the averaged images (defect pixels)",
             "deviation (DN)",
@@ -123,7 +136,13 @@ pub fn write_datasheet(dir: &Path, descriptor: &Path, sheet: &Datasheet) -> Resu
         )?;
         files.push(hist);
     }
+    Ok(files)
+}
 
+/// The datasheet's page: every quantity with its JSON key, the defect pixels, and the
+/// `figures` written.
+fn page_html(descriptor: &Path, sheet: &Datasheet, figures: &[PathBuf]) -> String {
+    let (t, s) = (&sheet.temporal, &sheet.spatial);
     let release = match t.release {
         Release::R3 => "3.1 (as the reference implementation emva1288 1.0.2 computes it)",
         Release::R4 => "4.0",
@@ -187,18 +206,9 @@ pub fn write_datasheet(dir: &Path, descriptor: &Path, sheet: &Datasheet) -> Resu
         ("spectrograms.png", "Spectrograms"),
         ("defect_histograms.png", "Defect-pixel histograms"),
     ] {
-        if files.iter().any(|f| f.ends_with(file)) {
+        if figures.iter().any(|f| f.ends_with(file)) {
             html += &format!("<h2>{caption}</h2>{}", html_figure(file, 1000, caption, None));
         }
     }
-    html += "</body></html>\n";
-    let page = dir.join("datasheet.html");
-    staged.write_bytes(&page, html)?;
-    files.push(page);
-    let json = dir.join("datasheet.json");
-    let text = serde_json::to_string_pretty(sheet).map_err(|e| HostError::Format { path: json.clone(), message: e.to_string() })?;
-    staged.write_bytes(&json, text + "\n")?;
-    files.push(json);
-    staged.publish()?;
-    Ok(files)
+    html + "</body></html>\n"
 }

@@ -396,6 +396,77 @@ pub fn check_flat_level(valid: &[usize], levels: usize, l: usize) -> Result<(), 
     Ok(())
 }
 
+/// Every pixel's polynomial of `order` in the reference `x` through its first
+/// `valid[p]` levels (least squares, one pseudo-inverse per prefix length): the
+/// coefficients, `order + 1` per pixel, and the fit's rms residual, DN; NaN where the
+/// pixel has too few levels or none past the flat `g`.
+fn fit_pixels(set: &LinearitySet, x: &[f64], order: usize, valid: &[usize], g: usize) -> (Vec<f64>, Vec<f64>) {
+    let np = set.width * set.height;
+    let pinv: Vec<Option<DMatrix<f64>>> = (0..=set.levels).map(|n| (n > order + 1).then(|| pseudo_inverse(&x[..n], order))).collect();
+    let k1 = order + 1;
+    let mut coef = vec![f64::NAN; k1 * np];
+    let resid: Vec<f64> = coef
+        .par_chunks_mut(k1)
+        .enumerate()
+        .map(|(p, a)| {
+            let n = valid[p];
+            let m = |l: usize| set.mean[l * np + p];
+            match &pinv[n] {
+                Some(pi) if n > g => {
+                    let y = DVector::from_iterator(n, (0..n).map(m));
+                    a.copy_from_slice((pi * &y).as_slice());
+                    rms_finite((0..n).map(|l| poly(a, x[l]) - m(l)))
+                }
+                _ => f64::NAN,
+            }
+        })
+        .collect();
+    (coef, resid)
+}
+
+/// Why each pixel is left out ([`reason`] bits): flagged in the input, a signal at the
+/// flat `g` below half the median, no fit, or a fit residual `resid` beyond 10 times the
+/// median.
+fn pixel_mask(set: &LinearitySet, resid: &[f64], g: usize) -> Vec<u8> {
+    let np = set.width * set.height;
+    let mut mask = vec![0u8; np];
+    if let Some(input) = &set.mask {
+        for (m, &i) in mask.iter_mut().zip(input) {
+            if i != 0 {
+                *m |= reason::INPUT;
+            }
+        }
+    }
+    let signal: Vec<f64> = (0..np).map(|p| set.mean[g * np + p] - set.mean[p]).collect();
+    let med_signal = median(signal.clone());
+    let med_resid = median(resid.iter().copied());
+    for p in 0..np {
+        if signal[p].is_nan() || signal[p] < 0.5 * med_signal {
+            mask[p] |= reason::LOW;
+        }
+        if resid[p].is_nan() {
+            mask[p] |= reason::UNFIT;
+        } else if resid[p] > 10.0 * med_resid.max(1e-12) {
+            mask[p] |= reason::TREND;
+        }
+    }
+    mask
+}
+
+/// The standard correction: a global cubic `x = f(m / top)` through the median of the
+/// `good` pixels at each level that more than half of them reach unsaturated.
+fn global_correction(set: &LinearitySet, x: &[f64], good: &[usize], valid: &[usize], top: f64) -> Result<Vec<f64>, LinearityError> {
+    let np = set.width * set.height;
+    let reached = |l: usize| good.iter().filter(move |&&p| l < valid[p]);
+    let med_levels: Vec<f64> = (0..set.levels).map(|l| median(reached(l).map(|&p| set.mean[l * np + p]))).collect();
+    let usable: Vec<usize> = (0..set.levels).filter(|&l| med_levels[l].is_finite() && reached(l).count() * 2 > good.len()).collect();
+    if usable.len() <= GLOBAL_ORDER {
+        return Err(LinearityError::TooFewLevels { levels: usable.len() });
+    }
+    let gpinv = pseudo_inverse(&usable.iter().map(|&l| med_levels[l] / top).collect::<Vec<_>>(), GLOBAL_ORDER);
+    Ok((&gpinv * DVector::from_iterator(usable.len(), usable.iter().map(|&l| x[l]))).iter().copied().collect())
+}
+
 /// [`analyze_with_flat`] given the set's [`unsaturated_levels`] (a caller that checked the
 /// flat with them computes them once).
 pub fn analyze_unsaturated(set: &LinearitySet, order: usize, flat: Option<usize>, valid: Vec<usize>) -> Result<(LinearityReport, PixelResults), LinearityError> {
@@ -409,61 +480,15 @@ pub fn analyze_unsaturated(set: &LinearitySet, order: usize, flat: Option<usize>
     let e: Vec<f64> = x.iter().map(|xl| (xl - x[0]) / (x[g] - x[0])).collect();
     let m = |l: usize, p: usize| set.mean[l * np + p];
     let sd = |l: usize, p: usize| set.std[l * np + p];
-    // One pseudo-inverse per prefix length.
-    let pinv: Vec<Option<DMatrix<f64>>> = (0..=nl).map(|n| (n > order + 1).then(|| pseudo_inverse(&x[..n], order))).collect();
-    // Coefficients pixel by pixel (`k1` per pixel, NaN where unfitted) and the fit's rms.
     let k1 = order + 1;
-    let mut coef = vec![f64::NAN; k1 * np];
-    let resid: Vec<f64> = coef
-        .par_chunks_mut(k1)
-        .enumerate()
-        .map(|(p, a)| {
-            let n = valid[p];
-            match &pinv[n] {
-                Some(pi) if n > g => {
-                    let y = DVector::from_iterator(n, (0..n).map(|l| m(l, p)));
-                    a.copy_from_slice((pi * &y).as_slice());
-                    rms_finite((0..n).map(|l| poly(a, x[l]) - m(l, p)))
-                }
-                _ => f64::NAN,
-            }
-        })
-        .collect();
+    let (coef, resid) = fit_pixels(set, &x, order, &valid, g);
     let fit = |p: usize| &coef[p * k1..(p + 1) * k1];
-    // Masks.
-    let mut mask = vec![0u8; np];
-    if let Some(input) = &set.mask {
-        for (m, &i) in mask.iter_mut().zip(input) {
-            if i != 0 {
-                *m |= reason::INPUT;
-            }
-        }
-    }
-    let signal: Vec<f64> = (0..np).map(|p| m(g, p) - m(0, p)).collect();
-    let med_signal = median(signal.clone());
-    let med_resid = median(resid.iter().copied());
-    for p in 0..np {
-        if signal[p].is_nan() || signal[p] < 0.5 * med_signal {
-            mask[p] |= reason::LOW;
-        }
-        if resid[p].is_nan() {
-            mask[p] |= reason::UNFIT;
-        } else if resid[p] > 10.0 * med_resid.max(1e-12) {
-            mask[p] |= reason::TREND;
-        }
-    }
+    let mask = pixel_mask(set, &resid, g);
     let good: Vec<usize> = (0..np).filter(|&p| mask[p] == 0).collect();
     if good.is_empty() {
         return Err(LinearityError::AllMasked { pixels: np, order });
     }
-    // Standard correction: global cubic x = f(m / top) from the median good pixel.
-    let med_levels: Vec<f64> = (0..nl).map(|l| median(good.iter().filter(|&&p| l < valid[p]).map(|&p| m(l, p)))).collect();
-    let usable: Vec<usize> = (0..nl).filter(|&l| med_levels[l].is_finite() && good.iter().filter(|&&p| l < valid[p]).count() * 2 > good.len()).collect();
-    if usable.len() <= GLOBAL_ORDER {
-        return Err(LinearityError::TooFewLevels { levels: usable.len() });
-    }
-    let gpinv = pseudo_inverse(&usable.iter().map(|&l| med_levels[l] / top).collect::<Vec<_>>(), GLOBAL_ORDER);
-    let global: Vec<f64> = (&gpinv * DVector::from_iterator(usable.len(), usable.iter().map(|&l| x[l]))).iter().copied().collect();
+    let global = global_correction(set, &x, &good, &valid, top)?;
     let inversion = Inversion { coef: &coef, k1, mask: &mask, mean: &set.mean[..], np };
     // The pixel-wise correction at the dark and at the flat, used at every level.
     let (xh0, xhg) = (inversion.level(0, x[0]), inversion.level(g, x[g]));
@@ -541,9 +566,7 @@ pub fn analyze_unsaturated(set: &LinearitySet, order: usize, flat: Option<usize>
     // The coefficients k-major for the FITS cube.
     let mut coeffs = vec![f64::NAN; k1 * np];
     for (p, a) in coef.chunks_exact(k1).enumerate() {
-        for (k, &ak) in a.iter().enumerate() {
-            coeffs[k * np + p] = ak;
-        }
+        a.iter().enumerate().for_each(|(k, &ak)| coeffs[k * np + p] = ak);
     }
     let report = LinearityReport {
         levels: nl,
