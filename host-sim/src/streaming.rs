@@ -208,6 +208,53 @@ pub fn run_stream_against(
     crate::dispatch_lut_dims!(camera.config.n_adc, camera.config.codes(), "camera config", run_typed(camera, weights, reference_weights, p, progress))
 }
 
+/// The run asked for fits the sensor, and recorded frames are the run's size and count.
+fn check_params(camera: &Camera, p: &StreamParams) -> Result<(), HostError> {
+    if p.first_column as usize + p.width as usize > camera.config.width || p.first_row as usize + p.height as usize > camera.config.height {
+        return Err(HostError::Format { path: "stream parameters".into(), message: format!("ROI {}x{} at ({}, {}) exceeds the {}x{} sensor", p.width, p.height, p.first_column, p.first_row, camera.config.width, camera.config.height) });
+    }
+    if let Some(cube) = &p.recorded {
+        if (cube.width, cube.height) != (p.width as usize, p.height as usize) || cube.frames != p.frames as usize {
+            return Err(HostError::Format { path: "stream parameters".into(), message: format!("{} frames of {}x{} recorded, {} of {}x{} asked", cube.frames, cube.width, cube.height, p.frames, p.width, p.height) });
+        }
+    }
+    Ok(())
+}
+
+/// The FPGA model for `geometry`, identified and configured over SPI by the core's driver,
+/// with `luts` uploaded as a device image.
+fn fpga_datapath<const N: usize, const CODES: usize>(config: &dncal_fpga_model::Config, geometry: Geometry, luts: &LutSet<N, CODES>) -> Result<Datapath<dncal_fpga_model::Fpga>, HostError> {
+    let ctx = |what: &str| format!("stream: {what}");
+    let model = dncal_fpga_model::Fpga::new(config.clone(), geometry).map_err(|source| HostError::Fpga { source })?;
+    let mut dp = Datapath::new(model);
+    dp.identify().map_err(|e| HostError::core(ctx("fpga identify"), e))?;
+    dp.configure(geometry).map_err(|e| HostError::core(ctx("fpga configure"), e))?;
+    let mut image = vec![0u8; image_len::<N, CODES>()];
+    encode_image(luts, &mut image).map_err(|e| HostError::core(ctx("LUT image"), e))?;
+    dp.upload_lut_image(&image).map_err(|e| HostError::core(ctx("fpga LUT upload (the model is built for 4 ADCs of 12 bits)"), e))?;
+    Ok(dp)
+}
+
+/// The FPGA model's run, drained: its sums against the core's `sums` and the exact
+/// reference `ref_q`, and its timing.
+fn fpga_report(model: &mut dncal_fpga_model::Fpga, states: u8, sums: &[u32], ref_q: &[u64]) -> FpgaReport {
+    model.drain();
+    let stats = model.stats();
+    let fpga_sums: Vec<u32> = (0..states).flat_map(|s| model.sums(s).unwrap_or(&[]).to_vec()).collect();
+    FpgaReport {
+        taps: model.config().taps,
+        mismatches_vs_core: fpga_sums.iter().zip(sums).filter(|(a, b)| a != b).count() as u64 + sums.len().abs_diff(fpga_sums.len()) as u64,
+        mismatches_vs_reference: fpga_sums.iter().zip(ref_q).filter(|(&s, &q)| s as u64 != q).count() as u64,
+        cycles: stats.cycles,
+        pixels_per_clock: stats.pixels as f64 / stats.cycles.max(1) as f64,
+        fifo_high_water: stats.fifo_high_water,
+        fifo_overflows: stats.fifo_overflows,
+        max_latency_cycles: stats.max_latency,
+        inflight_high_water: stats.inflight_high_water,
+        rmw_hazards: stats.rmw_hazards,
+    }
+}
+
 fn run_typed<const N: usize, const CODES: usize>(
     camera: &Camera,
     weights: &[Vec<Weight>],
@@ -218,14 +265,7 @@ fn run_typed<const N: usize, const CODES: usize>(
     let start = Instant::now();
     let ctx = |what: &str| format!("stream: {what}");
     let geometry = Geometry::new(p.width, p.height, p.states, p.first_column).map_err(|e| HostError::core(ctx("geometry"), e))?;
-    if p.first_column as usize + p.width as usize > camera.config.width || p.first_row as usize + p.height as usize > camera.config.height {
-        return Err(HostError::Format { path: "stream parameters".into(), message: format!("ROI {}x{} at ({}, {}) exceeds the {}x{} sensor", p.width, p.height, p.first_column, p.first_row, camera.config.width, camera.config.height) });
-    }
-    if let Some(cube) = &p.recorded {
-        if (cube.width, cube.height) != (p.width as usize, p.height as usize) || cube.frames != p.frames as usize {
-            return Err(HostError::Format { path: "stream parameters".into(), message: format!("{} frames of {}x{} recorded, {} of {}x{} asked", cube.frames, cube.width, cube.height, p.frames, p.width, p.height) });
-        }
-    }
+    check_params(camera, p)?;
     let slices: Vec<&[Weight]> = weights.iter().map(|w| w.as_slice()).collect();
     let slices: &[&[Weight]; N] = slices.as_slice().try_into().map_err(|_| HostError::Format { path: "weights".into(), message: format!("{} weight vectors for {N} ADCs", weights.len()) })?;
     let luts = Box::new(LutSet::<N, CODES>::from_weights(slices).map_err(|e| HostError::core(ctx("LUT from weights"), e))?);
@@ -242,16 +282,7 @@ fn run_typed<const N: usize, const CODES: usize>(
     let mut corrector = Corrector::new(&mut banks, geometry, &mut sums).map_err(|e| HostError::core(ctx("corrector"), e))?;
     let mut fpga = match &p.engine {
         Engine::Core => None,
-        Engine::Fpga(config) => {
-            let model = dncal_fpga_model::Fpga::new(config.clone(), geometry).map_err(|source| HostError::Fpga { source })?;
-            let mut dp = Datapath::new(model);
-            dp.identify().map_err(|e| HostError::core(ctx("fpga identify"), e))?;
-            dp.configure(geometry).map_err(|e| HostError::core(ctx("fpga configure"), e))?;
-            let mut image = vec![0u8; image_len::<N, CODES>()];
-            encode_image(&*luts, &mut image).map_err(|e| HostError::core(ctx("LUT image"), e))?;
-            dp.upload_lut_image(&image).map_err(|e| HostError::core(ctx("fpga LUT upload (the model is built for 4 ADCs of 12 bits)"), e))?;
-            Some(dp)
-        }
+        Engine::Fpga(config) => Some(fpga_datapath(config, geometry, &luts)?),
     };
     let cfg = &camera.config;
     let full_scale_photons = ((cfg.codes() - 1) as f64 - cfg.offset_dn) * cfg.gain_e_per_dn / cfg.qe;
@@ -310,24 +341,7 @@ fn run_typed<const N: usize, const CODES: usize>(
     let max_abs_err_dn = errors.iter().cloned().fold(0.0, f64::max);
     let out_of_bound = errors.iter().filter(|&&e| e > bound_dn).count() as u64;
     let pixels = p.frames as u64 * (w * h) as u64;
-    let fpga = fpga.map(|mut dp| {
-        let model = dp.device_mut();
-        model.drain();
-        let stats = model.stats();
-        let fpga_sums: Vec<u32> = (0..p.states).flat_map(|s| model.sums(s).unwrap_or(&[]).to_vec()).collect();
-        FpgaReport {
-            taps: model.config().taps,
-            mismatches_vs_core: fpga_sums.iter().zip(&sums).filter(|(a, b)| a != b).count() as u64 + sums.len().abs_diff(fpga_sums.len()) as u64,
-            mismatches_vs_reference: fpga_sums.iter().zip(&ref_q).filter(|(&s, &q)| s as u64 != q).count() as u64,
-            cycles: stats.cycles,
-            pixels_per_clock: stats.pixels as f64 / stats.cycles.max(1) as f64,
-            fifo_high_water: stats.fifo_high_water,
-            fifo_overflows: stats.fifo_overflows,
-            max_latency_cycles: stats.max_latency,
-            inflight_high_water: stats.inflight_high_water,
-            rmw_hazards: stats.rmw_hazards,
-        }
-    });
+    let fpga = fpga.map(|mut dp| fpga_report(dp.device_mut(), p.states, &sums, &ref_q));
     Ok(StreamReport {
         engine: if fpga.is_some() { "fpga" } else { "core" }.into(),
         fpga,

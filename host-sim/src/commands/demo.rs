@@ -235,8 +235,6 @@ fn claims_table(rows: &[Claim]) -> String {
 }
 
 fn report_html(s: &DemoSummary, camera: &Camera, ramp: &RampParams, flat: &FlattenParams) -> String {
-    // Every figure of the report has its caption, which is also its alternative text.
-    let figure = |src: &str, width: u32, caption: &str| html_figure(src, width, caption, Some(caption));
     let c = &camera.config;
     let mut h = String::new();
     let _ = write!(
@@ -269,6 +267,22 @@ fn report_html(s: &DemoSummary, camera: &Camera, ramp: &RampParams, flat: &Flatt
         flat.fixed_low_codes,
         if flat.set_last_to_one { "and the last " } else { "" },
     );
+    h += &stream_sections(s);
+    h += &lut_section(s);
+    h += &other_analyses(s);
+    h += &diagnosis_sections(s);
+    let _ = write!(h, "<p>Run time {:.1} s.</p></body></html>", s.seconds);
+    h
+}
+
+/// Every figure of the report has its caption, which is also its alternative text.
+fn figure(src: &str, width: u32, caption: &str) -> String {
+    html_figure(src, width, caption, Some(caption))
+}
+
+/// The streaming checks: through the core and through the FPGA model.
+fn stream_sections(s: &DemoSummary) -> String {
+    let mut h = String::new();
     let st = &s.stream;
     let _ = write!(
         h,
@@ -285,6 +299,12 @@ fn report_html(s: &DemoSummary, camera: &Camera, ramp: &RampParams, flat: &Flatt
             s.stream_fpga.frames, s.stream_fpga.pixels, f.taps, f.mismatches_vs_core, f.mismatches_vs_reference, f.cycles, f.pixels_per_clock, f.fifo_high_water, f.fifo_overflows, f.max_latency_cycles
         );
     }
+    h
+}
+
+/// The LUTs' offsets and the correction error per ADC, with the ADC figures.
+fn lut_section(s: &DemoSummary) -> String {
+    let mut h = String::new();
     h.push_str("<h2>LUTs and correction error</h2><table><tr><th>ADC</th><th>top offset before normalization (DN)</th><th>after (DN)</th><th>max |cumulative offset| (DN)</th><th>rms error raw (DN)</th><th>rms error with LUT (DN)</th><th>max raw (DN)</th><th>max with LUT (DN)</th></tr>");
     for a in &s.adc.adcs {
         let (l, e) = (&a.lut, a.truth.as_ref());
@@ -311,6 +331,13 @@ fn report_html(s: &DemoSummary, camera: &Camera, ramp: &RampParams, flat: &Flatt
     ] {
         h += &figure(img, 1000, caption);
     }
+    h
+}
+
+/// Quantization, the K-Coronagraph model and the pixel-wise nonlinearity, each a command
+/// of its own.
+fn other_analyses(s: &DemoSummary) -> String {
+    let mut h = String::new();
     let (q, k, l) = (&s.quantization, &s.kcor.result, &s.linearity.report);
     let _ = write!(
         h,
@@ -350,6 +377,12 @@ fn report_html(s: &DemoSummary, camera: &Camera, ramp: &RampParams, flat: &Flatt
         fig_pixels_levels = figure("linearity/pixels_levels.png", 1000, "Fig. 7: 100 pixels of the middle row at every level, raw, standard and pixel-wise."),
         fig_linearity_rms = figure("linearity/linearity_rms.png", 1000, "Fig. 8: RMS residual per level (solid) and the random noise propagated through each correction (dashed)."),
     );
+    h
+}
+
+/// What `diagnose` found in the calibration histograms and in the linearity set.
+fn diagnosis_sections(s: &DemoSummary) -> String {
+    let mut h = String::new();
     for (what, d, dir) in [("the calibration histograms", &s.diagnose, "diagnose"), ("the linearity set", &s.diagnose_linearity, "diagnose-linearity")] {
         let dg = &d.diagnosis;
         let _ = write!(
@@ -358,10 +391,9 @@ fn report_html(s: &DemoSummary, camera: &Camera, ramp: &RampParams, flat: &Flatt
              Unexplained RMS after them: {:.3}. <a href=\"{dir}/report.html\">The diagnosis report</a>, <a href=\"{dir}/model.toml\">the extended model</a>.</p>",
             dg.baseline.model,
             dg.baseline.rms,
-            if dg.findings.is_empty() { "none".to_string() } else { dg.findings.iter().map(|f| format!("{}{} (gain {:.1})", f.effect, f.adc.map_or(String::new(), |a| format!(" ADC {a}")), f.gain)).collect::<Vec<_>>().join(", ") },
+            if dg.findings.is_empty() { "none".to_string() } else { dg.findings.iter().map(|f| format!("{} (gain {:.1})", f.label(), f.gain)).collect::<Vec<_>>().join(", ") },
             dg.unexplained_rms
         );
     }
-    let _ = write!(h, "<p>Run time {:.1} s.</p></body></html>", s.seconds);
     h
 }

@@ -100,6 +100,64 @@ fn unfold_period(ratios: &[f64], l: &[f64]) -> Vec<f64> {
     w
 }
 
+/// The code widths the two halves' ratios share (`codes` scored, the halves' width
+/// ratios `wa`, `wb` and their Poisson `noise`), by class `code mod strongest` and code by
+/// code.
+struct Widths {
+    /// Per class, shrunk by the share of it the halves reproduce.
+    class_widths: Vec<f64>,
+    /// Per code of all `n_codes`: its class's width, plus its own departure shrunk
+    /// (empirical Bayes) where scored.
+    all_widths: Vec<f64>,
+    /// `sqrt(pattern^2 + tau^2)`, relative.
+    width_rms: f64,
+    /// The class pattern's variance and the code-to-code spread beyond it.
+    pattern2: f64,
+    tau2: f64,
+}
+
+fn widths(codes: &[usize], (wa, wb): (&[f64], &[f64]), noise: &[f64], strongest: usize, n_codes: usize) -> Widths {
+    let l = leave_one_out_weights();
+    let n = codes.len() as f64;
+    let class_means = |w: &[f64]| -> Vec<f64> {
+        (0..strongest)
+            .map(|c| {
+                let v: Vec<f64> = codes.iter().zip(w).filter(|(k, _)| *k % strongest == c).map(|(_, w)| *w).collect();
+                v.iter().sum::<f64>() / v.len().max(1) as f64
+            })
+            .collect()
+    };
+    let widths: Vec<f64> = wa.iter().zip(wb).map(|(x, y)| (x + y) / 2.0).collect();
+    // Each half's class means, and of the mean widths their mean (the class mean is linear).
+    let (ra, rb) = (class_means(wa), class_means(wb));
+    let ratios: Vec<f64> = ra.iter().zip(&rb).map(|(x, y)| (x + y) / 2.0).collect();
+    let unfolded = unfold_period(&ratios, &l);
+    // The widths of each half carry their counts' Poisson noise (1.9% rms for an ideal
+    // ADC at the tests' counts) and the misfit of the local polynomial to that half's own
+    // lumps; neither is shared by the two halves, a width pattern is. So the pattern's
+    // variance is the mean product of the halves' departures (by class, unfolded), the
+    // spread beyond it `tau^2` the same over codes; each code's width is shrunk toward its
+    // class's by `tau^2 / (tau^2 + var)` (empirical Bayes), and the rms reported is the
+    // pattern's and `tau`'s.
+    let (ua, ub) = (unfold_period(&ra, &l), unfold_period(&rb, &l));
+    let pattern2 = (ua.iter().zip(&ub).map(|(x, y)| (x - 1.0) * (y - 1.0)).sum::<f64>() / strongest as f64).max(0.0);
+    // The class pattern shrunk by the share of it the halves reproduce: unfolding divides
+    // by the smoother's own share of the pattern, which for a period the window nearly
+    // follows (a smooth pattern over 16 codes) is small and amplifies noise (an ideal
+    // ADC read a 1.2% period-16 sinusoid before this).
+    let seen2 = unfolded.iter().map(|u| (u - 1.0).powi(2)).sum::<f64>() / strongest as f64;
+    let keep = if seen2 > 0.0 { (pattern2 / seen2).min(1.0) } else { 0.0 };
+    let class_widths: Vec<f64> = unfolded.iter().map(|u| 1.0 + keep * (u - 1.0)).collect();
+    let tau2 = (codes.iter().enumerate().map(|(j, &k)| (wa[j] - ra[k % strongest]) * (wb[j] - rb[k % strongest])).sum::<f64>() / n).max(0.0);
+    let width_rms = (pattern2 + tau2).sqrt();
+    let mut all_widths: Vec<f64> = (0..n_codes).map(|k| class_widths[k % strongest]).collect();
+    for (j, &k) in codes.iter().enumerate() {
+        let off = widths[j] - ratios[k % strongest];
+        all_widths[k] = (class_widths[k % strongest] + tau2 / (tau2 + noise[j]).max(1e-300) * off).max(1e-6);
+    }
+    Widths { class_widths, all_widths, width_rms, pattern2, tau2 }
+}
+
 /// The test on one ADC's code histograms of two halves of the levels, `a` and `b` (see
 /// the module documentation).
 pub fn diagnose_code_density(a: &[u64], b: &[u64], adc: usize) -> Result<(Vec<Finding>, AdcResiduals, CodeDensity), DiagnoseError> {
@@ -153,43 +211,7 @@ pub fn diagnose_code_density(a: &[u64], b: &[u64], adc: usize) -> Result<(Vec<Fi
     let (m0, m1) = (mean_sq(&z0), mean_sq(&z1));
     let structure = by_residue(&codes, &z0);
     let strongest = structure.iter().find(|r| r.modulus <= 16).map_or(4, |r| r.modulus);
-    let class_means = |w: &[f64]| -> Vec<f64> {
-        (0..strongest)
-            .map(|c| {
-                let v: Vec<f64> = codes.iter().zip(w).filter(|(k, _)| *k % strongest == c).map(|(_, w)| *w).collect();
-                v.iter().sum::<f64>() / v.len().max(1) as f64
-            })
-            .collect()
-    };
-    let widths: Vec<f64> = wa.iter().zip(&wb).map(|(x, y)| (x + y) / 2.0).collect();
-    // Each half's class means, and of the mean widths their mean (the class mean is linear).
-    let (ra, rb) = (class_means(&wa), class_means(&wb));
-    let ratios: Vec<f64> = ra.iter().zip(&rb).map(|(x, y)| (x + y) / 2.0).collect();
-    let unfolded = unfold_period(&ratios, &l);
-    // The widths of each half carry their counts' Poisson noise (1.9% rms for an ideal
-    // ADC at the tests' counts) and the misfit of the local polynomial to that half's own
-    // lumps; neither is shared by the two halves, a width pattern is. So the pattern's
-    // variance is the mean product of the halves' departures (by class, unfolded), the
-    // spread beyond it `tau^2` the same over codes; each code's width is shrunk toward its
-    // class's by `tau^2 / (tau^2 + var)` (empirical Bayes), and the rms reported is the
-    // pattern's and `tau`'s.
-    let (ua, ub) = (unfold_period(&ra, &l), unfold_period(&rb, &l));
-    let pattern2 = (ua.iter().zip(&ub).map(|(x, y)| (x - 1.0) * (y - 1.0)).sum::<f64>() / strongest as f64).max(0.0);
-    // The class pattern shrunk by the share of it the halves reproduce: unfolding divides
-    // by the smoother's own share of the pattern, which for a period the window nearly
-    // follows (a smooth pattern over 16 codes) is small and amplifies noise (an ideal
-    // ADC read a 1.2% period-16 sinusoid before this).
-    let seen2 = unfolded.iter().map(|u| (u - 1.0).powi(2)).sum::<f64>() / strongest as f64;
-    let keep = if seen2 > 0.0 { (pattern2 / seen2).min(1.0) } else { 0.0 };
-    let class_widths: Vec<f64> = unfolded.iter().map(|u| 1.0 + keep * (u - 1.0)).collect();
-    let tau2 = (codes.iter().enumerate().map(|(j, &k)| (wa[j] - ra[k % strongest]) * (wb[j] - rb[k % strongest])).sum::<f64>() / n).max(0.0);
-    let width_rms = (pattern2 + tau2).sqrt();
-    let n_codes = a.len();
-    let mut all_widths: Vec<f64> = (0..n_codes).map(|k| class_widths[k % strongest]).collect();
-    for (j, &k) in codes.iter().enumerate() {
-        let off = widths[j] - ratios[k % strongest];
-        all_widths[k] = (class_widths[k % strongest] + tau2 / (tau2 + noise[j]).max(1e-300) * off).max(1e-6);
-    }
+    let Widths { class_widths, all_widths, width_rms, pattern2, tau2 } = widths(&codes, (&wa, &wb), &noise, strongest, a.len());
     let mut findings = Vec::new();
     let significance = (m0 - m1) / sd;
     let accepted = significance > SIGNIFICANCE && m1 < m0;

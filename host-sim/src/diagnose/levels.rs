@@ -274,19 +274,11 @@ fn clipped_means(n: usize, cells: usize, visit: &Visit) -> Vec<Clipped> {
         .collect()
 }
 
-/// Estimates the common per-level term from every pixel's levels, the pixels of even rows
-/// against those of odd rows ([`Pixels::estimating`]). Levels with `skip[l]` take no part
-/// in the pixels' fits or in the tests: their term is what the fits of the others leave
-/// there (a departure at the lowest signals, which a quartic over all levels spreads over
-/// the range where it passes for level errors).
-pub(super) fn level_term<T: Sample>(px: &Pixels<T>, skip: &[bool]) -> LevelTerm {
-    let levels = skip.len();
-    let (n, n_adc, x) = (px.len(), px.n_adc(), &px.x);
+/// Per pixel: its quartic and its straight line through its levels not skipped (`skip`).
+fn pixel_fits<T: Sample>(px: &Pixels<T>, skip: &[bool]) -> (Vec<QuarticFit>, Vec<LineFit>) {
     let skipped = |l: usize| skip.get(l).copied().unwrap_or(false);
-    let quartic = Response::Poly(4);
-    let line = Response::Poly(1);
-    // Per pixel: its quartic and its straight line through its levels not skipped.
-    let fits: Vec<(QuarticFit, LineFit)> = (0..n)
+    let (quartic, line) = (Response::Poly(4), Response::Poly(1));
+    let fits: Vec<(QuarticFit, LineFit)> = (0..px.len())
         .into_par_iter()
         .map(|i| {
             let used: Vec<Point> = px.all(i, None).into_iter().filter(|p| !skipped(p.level)).collect();
@@ -296,56 +288,14 @@ pub(super) fn level_term<T: Sample>(px: &Pixels<T>, skip: &[bool]) -> LevelTerm 
             }
         })
         .collect();
-    let (quartics, lines): (Vec<QuarticFit>, Vec<LineFit>) = fits.into_iter().unzip();
-    // The pixels' local slopes at each level.
-    let slope_median: Vec<f64> = x.iter().map(|&xl| upper_median(quartics.par_iter().filter_map(|q| Some(slope(q.as_ref()?, xl))).filter(|s| s.is_finite()).collect::<Vec<f64>>())).collect();
-    // Per level, each ADC's median slope ratio (its pixels grouped in one pass).
-    let by_level: Vec<Vec<f64>> = (0..levels)
-        .map(|l| {
-            let mut by = vec![Vec::new(); n_adc];
-            (0..n).for_each(|i| by[px.adc(i)].push(slope_over(quartics[i].as_ref(), x[l], slope_median[l])));
-            by.into_iter().map(upper_median).map(|r| if r.is_finite() { r } else { 1.0 }).collect()
-        })
-        .collect();
-    let adc_ratio: Vec<Vec<f64>> = (0..n_adc).map(|a| by_level.iter().map(|r| r[a]).collect()).collect();
-    // Each pixel's quartic residuals on all its levels, recomputed per pass: (level,
-    // residual DN, sigma DN, the quartic's signal there above its dark).
-    let quartic_residuals = |i: usize, f: &mut dyn FnMut(usize, f64, f64, f64)| {
-        let Some(q) = &quartics[i] else { return };
-        let mut grad = [0.0; 5];
-        let at0 = quartic.eval(q, 0.0, &mut grad);
-        for p in px.all(i, None).iter().filter(|p| p.level < levels) {
-            let v = quartic.eval(q, p.x, &mut grad);
-            f(p.level, p.y - v, p.sigma, v - at0);
-        }
-    };
-    let half = |i: usize| usize::from(!px.estimating(i));
-    // Cells: per level and half, then per ADC, level and half.
-    let adc_cell = |a: usize, l: usize, h: usize| 2 * levels + 2 * (a * levels + l) + h;
-    let means = clipped_means(n, 2 * levels * (1 + n_adc), &|i, f| {
-        let (a, h) = (px.adc(i), half(i));
-        quartic_residuals(i, &mut |l, r, s, _| {
-            f(2 * l + h, r, s);
-            f(adc_cell(a, l, h), r, s);
-        })
-    });
-    let est: Vec<[(f64, f64); 2]> = (0..levels).map(|l| [0, 1].map(|h| (means[2 * l + h].c, means[2 * l + h].var))).collect();
-    let adc_est: Vec<Vec<[(f64, f64); 2]>> = (0..n_adc).map(|a| (0..levels).map(|l| [0, 1].map(|h| (means[adc_cell(a, l, h)].c, means[adc_cell(a, l, h)].var))).collect()).collect();
-    // The signal per level: the median over pixels of their quartics' signal there.
-    let signal = crate::select::upper_medians(n, levels, &|i, f| quartic_residuals(i, &mut |l, _, _, sig| f(l, sig)));
-    // Agreement of the halves, over the levels where both have an estimate.
-    let both: Vec<(usize, f64, f64)> = (0..levels)
-        .filter(|&l| !skipped(l) && est[l].iter().all(|(c, v)| c.is_finite() && *v > 0.0))
-        .map(|l| (l, est[l][0].0 / est[l][0].1.sqrt(), est[l][1].0 / est[l][1].1.sqrt()))
-        .collect();
+    fits.into_iter().unzip()
+}
+
+/// `tau^2 = black^2 + light^2 S^2`, the variance of the level errors, from the halves'
+/// products `E[c_e c_o]` over the levels `both` (level, even z, odd z) with the per-level
+/// estimates `est` and signals `signal`: (black^2 DN^2, light^2, their covariance).
+fn fit_tau(both: &[(usize, f64, f64)], est: &[[(f64, f64); 2]], signal: &[f64]) -> (f64, f64, [[f64; 2]; 2]) {
     let nl = both.len() as f64;
-    let significance = agreement(&both.iter().map(|&(_, a, b)| (a, b)).collect::<Vec<_>>());
-    // tau^2 = black^2 + light^2 S^2 from E[c_e c_o] (the noises are independent), each
-    // product weighted by its variance `(t + v_e)(t + v_o) + t^2` at the current `tau^2`
-    // (`t`), iterated from `t = 0`; scaled back through the quartic's projection
-    // (L / (L - 5)). Weighted by the noises alone, the quiet low levels carried the fit:
-    // its `tau^2` had the spread of a few levels', and a test against it at the low levels
-    // passed 5 sigma in 4 of 300 sets of level errors alone.
     let (mut black2, mut light2) = (0.0, 0.0);
     let mut tau_cov = [[0.0; 2]; 2];
     if both.len() > 8 {
@@ -391,60 +341,134 @@ pub(super) fn level_term<T: Sample>(px: &Pixels<T>, skip: &[bool]) -> LevelTerm 
             tau_cov = cov.map(|r| r.map(|c| c * scale * scale));
         }
     }
+    (black2, light2, tau_cov)
+}
+
+/// The shape of the level term over the levels `both` (level, even z, odd z) ordered by
+/// `signal`: how the mean estimate runs from level to level. Random errors are
+/// uncorrelated from level to level (after the quartic's projection, about -1/L); a
+/// response is not.
+fn level_shape(both: &[(usize, f64, f64)], signal: &[f64]) -> Shape {
+    let nl = both.len() as f64;
+    let mut ordered: Vec<(f64, f64, f64)> = both.iter().map(|&(l, a, b)| (signal[l], a * b, 0.5 * (a + b))).collect();
+    ordered.sort_by(|x, y| x.0.total_cmp(&y.0));
+    let top = ordered.last().map_or(0.0, |o| o.0);
+    let total: f64 = ordered.iter().map(|o| o.1).sum();
+    let low: f64 = ordered.iter().filter(|o| o.0 < 0.1 * top).map(|o| o.1).sum();
+    let lows = ordered.iter().filter(|o| o.0 < 0.1 * top).count();
+    let m2: f64 = ordered.iter().map(|o| o.2 * o.2).sum();
+    let rho = ordered.windows(2).map(|w| w[0].2 * w[1].2).sum::<f64>() / m2.max(1e-300);
+    // A departure at the lowest signals puts most of the halves' agreement there (a
+    // charge loss of 0.5 DN: 82%); random errors spread it, though in noise units the
+    // quiet low levels weigh about six times more (random black-level errors reached
+    // 52% in 1 of 100 sets, hence 70%). Beside level errors the share is diluted: see
+    // [`Block::Levels`].
+    if total > 0.0 && lows >= 2 && low / total > 0.7 {
+        Shape::LowSignal { share: low / total }
+    } else if nl > 8.0 && rho > 4.0 / nl.sqrt() {
+        Shape::Correlated { rho }
+    } else {
+        Shape::Random
+    }
+}
+
+/// Each ADC's departure from the common term, even rows against odd rows (its variance
+/// about `v_a - v`: the common term holds the ADC's own pixels), from the per-ADC
+/// estimates `adc_est`, the common `est` and each ADC's slope ratio per level.
+fn adc_departures(adc_est: &[Vec<[(f64, f64); 2]>], est: &[[(f64, f64); 2]], adc_ratio: &[Vec<f64>], skipped: &dyn Fn(usize) -> bool) -> Vec<f64> {
+    let levels = est.len();
+    adc_est
+        .iter()
+        .enumerate()
+        .map(|(ai, a)| {
+            // The common term as this ADC's pixels would see it: light and black level
+            // both through the ADC's gain (a 3% ADC gain beside 1 DN of black-level
+            // errors read as `adc-dnl` in 14 of 16 sets when only the light's share was
+            // scaled).
+            let d: Vec<(f64, f64)> = (0..levels)
+                .filter(|&l| !skipped(l))
+                .filter_map(|l| {
+                    let scale = adc_ratio[ai][l];
+                    let side = |h: usize| {
+                        let ((ca, va), (c, v)) = (a[l][h], est[l][h]);
+                        let var = va - v * scale * scale;
+                        (ca.is_finite() && c.is_finite() && var > 0.0).then(|| (ca - c * scale) / var.sqrt())
+                    };
+                    Some((side(0)?, side(1)?))
+                })
+                .collect();
+            agreement(&d)
+        })
+        .collect()
+}
+
+/// Estimates the common per-level term from every pixel's levels, the pixels of even rows
+/// against those of odd rows ([`Pixels::estimating`]). Levels with `skip[l]` take no part
+/// in the pixels' fits or in the tests: their term is what the fits of the others leave
+/// there (a departure at the lowest signals, which a quartic over all levels spreads over
+/// the range where it passes for level errors).
+pub(super) fn level_term<T: Sample>(px: &Pixels<T>, skip: &[bool]) -> LevelTerm {
+    let levels = skip.len();
+    let (n, n_adc, x) = (px.len(), px.n_adc(), &px.x);
+    let skipped = |l: usize| skip.get(l).copied().unwrap_or(false);
+    let quartic = Response::Poly(4);
+    let (quartics, lines) = pixel_fits(px, skip);
+    // The pixels' local slopes at each level.
+    let slope_median: Vec<f64> = x.iter().map(|&xl| upper_median(quartics.par_iter().filter_map(|q| Some(slope(q.as_ref()?, xl))).filter(|s| s.is_finite()).collect::<Vec<f64>>())).collect();
+    // Per level, each ADC's median slope ratio (its pixels grouped in one pass).
+    let by_level: Vec<Vec<f64>> = (0..levels)
+        .map(|l| {
+            let mut by = vec![Vec::new(); n_adc];
+            (0..n).for_each(|i| by[px.adc(i)].push(slope_over(quartics[i].as_ref(), x[l], slope_median[l])));
+            by.into_iter().map(upper_median).map(|r| if r.is_finite() { r } else { 1.0 }).collect()
+        })
+        .collect();
+    let adc_ratio: Vec<Vec<f64>> = (0..n_adc).map(|a| by_level.iter().map(|r| r[a]).collect()).collect();
+    // Each pixel's quartic residuals on all its levels, recomputed per pass: (level,
+    // residual DN, sigma DN, the quartic's signal there above its dark).
+    let quartic_residuals = |i: usize, f: &mut dyn FnMut(usize, f64, f64, f64)| {
+        let Some(q) = &quartics[i] else { return };
+        let mut grad = [0.0; 5];
+        let at0 = quartic.eval(q, 0.0, &mut grad);
+        for p in px.all(i, None).iter().filter(|p| p.level < levels) {
+            let v = quartic.eval(q, p.x, &mut grad);
+            f(p.level, p.y - v, p.sigma, v - at0);
+        }
+    };
+    let half = |i: usize| usize::from(!px.estimating(i));
+    // Cells: per level and half, then per ADC, level and half.
+    let adc_cell = |a: usize, l: usize, h: usize| 2 * levels + 2 * (a * levels + l) + h;
+    let means = clipped_means(n, 2 * levels * (1 + n_adc), &|i, f| {
+        let (a, h) = (px.adc(i), half(i));
+        quartic_residuals(i, &mut |l, r, s, _| {
+            f(2 * l + h, r, s);
+            f(adc_cell(a, l, h), r, s);
+        })
+    });
+    let est: Vec<[(f64, f64); 2]> = (0..levels).map(|l| [0, 1].map(|h| (means[2 * l + h].c, means[2 * l + h].var))).collect();
+    let adc_est: Vec<Vec<[(f64, f64); 2]>> = (0..n_adc).map(|a| (0..levels).map(|l| [0, 1].map(|h| (means[adc_cell(a, l, h)].c, means[adc_cell(a, l, h)].var))).collect()).collect();
+    // The signal per level: the median over pixels of their quartics' signal there.
+    let signal = crate::select::upper_medians(n, levels, &|i, f| quartic_residuals(i, &mut |l, _, _, sig| f(l, sig)));
+    // Agreement of the halves, over the levels where both have an estimate.
+    let both: Vec<(usize, f64, f64)> = (0..levels)
+        .filter(|&l| !skipped(l) && est[l].iter().all(|(c, v)| c.is_finite() && *v > 0.0))
+        .map(|l| (l, est[l][0].0 / est[l][0].1.sqrt(), est[l][1].0 / est[l][1].1.sqrt()))
+        .collect();
+    let significance = agreement(&both.iter().map(|&(_, a, b)| (a, b)).collect::<Vec<_>>());
+    // tau^2 = black^2 + light^2 S^2 from E[c_e c_o] (the noises are independent), each
+    // product weighted by its variance `(t + v_e)(t + v_o) + t^2` at the current `tau^2`
+    // (`t`), iterated from `t = 0`; scaled back through the quartic's projection
+    // (L / (L - 5)). Weighted by the noises alone, the quiet low levels carried the fit:
+    // its `tau^2` had the spread of a few levels', and a test against it at the low levels
+    // passed 5 sigma in 4 of 300 sets of level errors alone.
+    let (black2, light2, tau_cov) = fit_tau(&both, &est, &signal);
     // The shape over the levels ordered by signal: how the mean estimate runs from level
     // to level. Random errors are uncorrelated from level to level (after the quartic's
     // projection, about -1/L); a response is not.
-    let shape = {
-        let mut ordered: Vec<(f64, f64, f64)> = both.iter().map(|&(l, a, b)| (signal[l], a * b, 0.5 * (a + b))).collect();
-        ordered.sort_by(|x, y| x.0.total_cmp(&y.0));
-        let top = ordered.last().map_or(0.0, |o| o.0);
-        let total: f64 = ordered.iter().map(|o| o.1).sum();
-        let low: f64 = ordered.iter().filter(|o| o.0 < 0.1 * top).map(|o| o.1).sum();
-        let lows = ordered.iter().filter(|o| o.0 < 0.1 * top).count();
-        let m2: f64 = ordered.iter().map(|o| o.2 * o.2).sum();
-        let rho = ordered.windows(2).map(|w| w[0].2 * w[1].2).sum::<f64>() / m2.max(1e-300);
-        // A departure at the lowest signals puts most of the halves' agreement there (a
-        // charge loss of 0.5 DN: 82%); random errors spread it, though in noise units the
-        // quiet low levels weigh about six times more (random black-level errors reached
-        // 52% in 1 of 100 sets, hence 70%). Beside level errors the share is diluted: see
-        // [`Block::Levels`].
-        if total > 0.0 && lows >= 2 && low / total > 0.7 {
-            Shape::LowSignal { share: low / total }
-        } else if nl > 8.0 && rho > 4.0 / nl.sqrt() {
-            Shape::Correlated { rho }
-        } else {
-            Shape::Random
-        }
-    };
+    let shape = level_shape(&both, &signal);
     // Each ADC's departure from the common term, even rows against odd rows (its variance
     // about `v_a - v`: the common term holds the ADC's own pixels).
-    let adc_significance: Vec<f64> = if n_adc >= 2 {
-        adc_est
-            .iter()
-            .enumerate()
-            .map(|(ai, a)| {
-                // The common term as this ADC's pixels would see it: light and black level
-                // both through the ADC's gain (a 3% ADC gain beside 1 DN of black-level
-                // errors read as `adc-dnl` in 14 of 16 sets when only the light's share was
-                // scaled).
-                let d: Vec<(f64, f64)> = (0..levels)
-                    .filter(|&l| !skipped(l))
-                    .filter_map(|l| {
-                        let scale = adc_ratio[ai][l];
-                        let side = |h: usize| {
-                            let ((ca, va), (c, v)) = (a[l][h], est[l][h]);
-                            let var = va - v * scale * scale;
-                            (ca.is_finite() && c.is_finite() && var > 0.0).then(|| (ca - c * scale) / var.sqrt())
-                        };
-                        Some((side(0)?, side(1)?))
-                    })
-                    .collect();
-                agreement(&d)
-            })
-            .collect()
-    } else {
-        Vec::new()
-    };
+    let adc_significance = if n_adc >= 2 { adc_departures(&adc_est, &est, &adc_ratio, &skipped) } else { Vec::new() };
     let per_adc = adc_significance.iter().any(|&t| t > super::SIGNIFICANCE).then(|| adc_est.iter().map(|a| a.iter().map(|h| h[0]).collect()).collect());
     let by_level = held_out_by_level(&est, |l| !skipped(l));
     let skipped_by_level = held_out_by_level(&est, skipped);

@@ -287,6 +287,31 @@ fn linearity_error(photons: &[f64], y: &[f64], y_sat: f64, why: &mut BTreeMap<St
     }
 }
 
+/// The dark levels, one per exposure time in increasing order: (exposure ns, mean DN,
+/// variance DN^2).
+fn dark_levels(p: &[PtcPoint]) -> Vec<(f64, f64, f64)> {
+    let mut darks: Vec<(f64, f64, f64)> = Vec::new();
+    for q in p {
+        if !darks.iter().any(|d| d.0 == q.exposure) {
+            darks.push((q.exposure, q.dark_mean_dn, q.dark_var_dn2));
+        }
+    }
+    darks.sort_by(|a, b| a.0.total_cmp(&b.0));
+    darks
+}
+
+/// The dark variance, DN^2: Release 4.0 measures it at the shortest exposure; 3.1 and the
+/// reference take the zero-exposure intercept of a dark-current series (more than two
+/// exposure times).
+fn dark_variance(darks: &[(f64, f64, f64)], release: Release) -> f64 {
+    if darks.len() > 2 && release == Release::R3 {
+        let (t, v): (Vec<f64>, Vec<f64>) = darks.iter().map(|d| (d.0, d.2)).unzip();
+        fit_line(&t, &v).0
+    } else {
+        darks[0].2
+    }
+}
+
 /// Dark current, e-/s, from the mean and the variance of the dark levels `darks`
 /// (exposure ns, mean DN, variance DN^2) against exposure time, with more than two
 /// exposure times; `gain` DN/e-.
@@ -314,6 +339,10 @@ fn dark_current(darks: &[(f64, f64, f64)], gain: f64, why: &mut BTreeMap<String,
 /// line, when the set cannot be characterized at all: too few levels, a variance that
 /// does not rise with the signal (K <= 0, or all frames equal), a signal that does not
 /// rise with the photons (R <= 0).
+///
+/// About 130 lines: the datasheet's quantities in the standard's order, each from those
+/// before it (gain, responsivity, QE, dark noise, threshold, saturation quantities);
+/// saturation, linearity, the dark levels and dark current are functions of their own.
 pub fn summarize_points(points: &[PtcPoint], release: Release) -> Result<PtcSummary, PtcError> {
     let mut p = points.to_vec();
     p.sort_by(|a, b| a.photons.total_cmp(&b.photons).then(a.exposure.total_cmp(&b.exposure)));
@@ -364,23 +393,8 @@ pub fn summarize_points(points: &[PtcPoint], release: Release) -> Result<PtcSumm
     let (_, _, linearity_r2) = fit_line(&photons[range.clone()], &y[range.clone()]);
     let qe = responsivity / gain;
 
-    // Dark noise: per exposure time, the dark level's variance.
-    let mut darks: Vec<(f64, f64, f64)> = Vec::new(); // (exposure, mean, variance)
-    for q in &p {
-        if !darks.iter().any(|d| d.0 == q.exposure) {
-            darks.push((q.exposure, q.dark_mean_dn, q.dark_var_dn2));
-        }
-    }
-    darks.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let series = darks.len() > 2;
-    // Release 4.0 measures it at the shortest exposure; 3.1 and the reference take the
-    // zero-exposure intercept of a dark-current series.
-    let dark_var = if series && release == Release::R3 {
-        let (t, v): (Vec<f64>, Vec<f64>) = darks.iter().map(|d| (d.0, d.2)).unzip();
-        fit_line(&t, &v).0
-    } else {
-        darks[0].2
-    };
+    let darks = dark_levels(&p);
+    let dark_var = dark_variance(&darks, release);
     let dark_noise_measured = dark_var.max(0.0).sqrt();
     let dark_var_used = dark_var.max(DARK_VAR_FLOOR_DN2);
     let dark_noise_dn = dark_var_used.sqrt();

@@ -83,6 +83,9 @@ pub(super) fn check_gzip_inflates_within(file: &mut std::fs::File, path: &Path, 
 /// The walk reads the headers only, skipping each data unit by the size its header
 /// declares; past a header it cannot follow (cfitsio reads some values this parse does
 /// not) it checks every following 2880-byte block that starts like a table header.
+///
+/// About 115 lines: one walk over the file's blocks with its position as the state; the
+/// card parsing it needs is local helpers.
 pub(super) fn malformed_table(file: &mut std::fs::File, size: u64) -> std::io::Result<Option<(u64, String)>> {
     use std::io::{Read, Seek, SeekFrom};
     const BLOCK: u64 = 2880;

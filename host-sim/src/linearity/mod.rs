@@ -469,6 +469,10 @@ fn global_correction(set: &LinearitySet, x: &[f64], good: &[usize], valid: &[usi
 
 /// [`analyze_with_flat`] given the set's [`unsaturated_levels`] (a caller that checked the
 /// flat with them computes them once).
+///
+/// About 125 lines: the per-pixel fits, the masks and the global cubic are functions of
+/// their own; what stays is the one pass per level that shares the corrections' ends,
+/// the inversion and the statistics' accumulators (split, it would pass them all).
 pub fn analyze_unsaturated(set: &LinearitySet, order: usize, flat: Option<usize>, valid: Vec<usize>) -> Result<(LinearityReport, PixelResults), LinearityError> {
     let order = order.clamp(1, MAX_ORDER);
     let (nl, w, h) = (set.levels, set.width, set.height);

@@ -6,9 +6,9 @@ use rayon::prelude::*;
 
 use super::super::pixel_fit::{fit_and_score, Response};
 use super::super::points::{Common, Pixels};
-use super::super::scores::Scores;
-use super::super::{Effect, Finding, SIGNIFICANCE};
-use super::finding;
+use super::super::scores::{Cell, Scores};
+use super::super::{AdcResiduals, Effect, Finding, SIGNIFICANCE};
+use super::{finding, with_residuals};
 use super::pixel_fits::PixelFits;
 use crate::fits::Sample;
 use crate::stats::{robust, upper_median};
@@ -175,6 +175,63 @@ pub(super) fn adc_maps<T: Sample>(px: &Pixels<T>, common: Option<&dyn Common>, f
             }
         }
     }
+}
+
+/// `S (c2 S + c3 S^2 + c4 S^3)`: how far the shared curve `c` bends at signal `s` (a
+/// fraction of full scale), as a fraction of full scale.
+pub(super) fn bend(c: [f64; 3], s: f64) -> f64 {
+    s * (c[0] * s + c[1] * s * s + c[2] * s * s * s)
+}
+
+/// The consensus of the ADCs not set apart (`true`): its curve and held-out scores.
+pub(super) type Consensus<'a> = dyn Fn(&[bool]) -> ([f64; 3], Scores) + 'a;
+
+/// The outcome of [`adc_curvature`].
+pub(super) struct Curvature {
+    /// Per ADC: set apart under its own curve.
+    pub adc_own: Vec<bool>,
+    /// The ADCs set apart, in the order they were.
+    pub apart: Vec<usize>,
+    /// Per ADC: its `adc-mismatch` (curvature) finding, if set apart.
+    pub adc_findings: Vec<Option<Finding>>,
+    /// The consensus curve of the ADCs not set apart, and its held-out scores.
+    pub global: [f64; 3],
+    pub glob: Scores,
+}
+
+/// ADC curvature: each ADC's own curve (`adc_curves`, scored as `own_curve`) against the
+/// consensus of the others, on its held-out pixels (so that one bending ADC is not
+/// mistaken for a shared bend). The consensus (`consensus(set apart)`: the curve of all
+/// ADCs not yet set apart, and its scores) starts from all ADCs; the most significant ADC
+/// above threshold is set apart and the consensus refitted, until none is left or only a
+/// majority remains. Without `own_curve` (fewer than three ADCs: with two, the data
+/// cannot say which one differs) none is set apart.
+pub(super) fn adc_curvature(adc_curves: &[[f64; 3]], own_curve: Option<&Scores>, cell: &dyn Fn(usize) -> Cell, consensus: &Consensus<'_>) -> Curvature {
+    let n_adc = adc_curves.len();
+    let mut adc_own = vec![false; n_adc];
+    let mut apart = Vec::new();
+    let mut adc_findings: Vec<Option<Finding>> = vec![None; n_adc];
+    let (mut global, mut glob) = consensus(&adc_own);
+    while let Some(own_curve) = own_curve.filter(|_| adc_own.iter().filter(|&&o| !o).count() * 2 > n_adc + 1) {
+        let tested: Vec<(usize, f64)> = (0..n_adc).filter(|&a| !adc_own[a]).map(|a| (a, paired(&glob, own_curve, |j| cell(j) == Cell { adc: a, odd: true }))).collect();
+        let Some(&(a, sig)) = tested.iter().filter(|x| x.1.is_finite()).max_by(|x, y| x.1.total_cmp(&y.1)) else { break };
+        if sig <= SIGNIFICANCE {
+            break;
+        }
+        let on = |c: Cell| c == Cell { adc: a, odd: true };
+        let (ta, tb) = (glob.totals(&on), own_curve.totals(&on));
+        adc_own[a] = true;
+        apart.push(a);
+        let steps = AdcResiduals { baseline: glob.by_level(&on), extended: own_curve.by_level(&on) };
+        let detail = format!(
+            "curvature: ADC {a}'s response bends by {:.3}% of full scale where the others' bends by {:.3}% (held-out levels of its pixels)",
+            100.0 * bend(adc_curves[a], 1.0),
+            100.0 * bend(global, 1.0)
+        );
+        adc_findings[a] = Some(with_residuals(steps, finding(Effect::AdcMismatch, Some(a), sig, ta.rms(), tb.rms(), detail)));
+        (global, glob) = consensus(&adc_own);
+    }
+    Curvature { adc_own, apart, adc_findings, global, glob }
 }
 
 #[cfg(test)]

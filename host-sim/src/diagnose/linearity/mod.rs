@@ -89,7 +89,7 @@ use super::*;
 use crate::fits::{LinearitySet, Sample};
 use crate::linearity::unsaturated_levels;
 use crate::stats::upper_median;
-use adc_apart::{adc_maps, paired, MAX_ADCS};
+use adc_apart::{adc_curvature, adc_maps, bend, paired, Curvature, MAX_ADCS};
 use camera::{measure_camera, quantization_floor};
 use curves::shared_curve;
 use level_stage::{level_stage, LevelStage};
@@ -144,13 +144,33 @@ fn prepare<T: Sample>(set: &LinearitySet<T>) -> Result<(Pixels<'_, T>, usize), D
     Ok((Pixels::new(set, x, kappa, bias2, valid, pixels), n_adc))
 }
 
+/// The baseline on all the data (`base`: the linear model's held-out scores), overall
+/// and per ADC.
+fn baseline(base: &Scores, n_adc: usize) -> Baseline {
+    let adcs = (0..n_adc)
+        .map(|a| {
+            let t = base.totals(&|c| c.adc == a);
+            AdcBaseline { adc: a, codes_scored: t.n, rms: t.rms(), by_residue: Vec::new() }
+        })
+        .collect();
+    Baseline {
+        kind: "linearity-set".into(),
+        model: "linear response with per-pixel dark and gain from one population, shot and read noise".into(),
+        adcs,
+        rms: base.totals(&|_| true).rms(),
+    }
+}
+
 /// Diagnoses a linearity set; `accuracy_dn` is the averaging accuracy the
 /// `insufficient-noise` check asks for.
 ///
 /// The steps run in the catalogue's order (module documentation), each in its module;
 /// what stays here is the shared response (ADC curvature, `global-nonlinearity`), whose
 /// steps hand each other their held-out scores (each accepted model is the next one's
-/// baseline), and the assembly of the report: about 170 lines, one idea.
+/// baseline), and the assembly of the report: about 175 lines, one idea. The ADC
+/// curvature search and the baseline are functions of their own; what is left shares a
+/// dozen closures over the same pixels and scores, which a split would pass around as
+/// arguments (the block-wise diagnosis of issue 17 is the moment to give them a type).
 pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) -> Result<Diagnosis, DiagnoseError> {
     let (px, n_adc) = prepare(set)?;
     let (nl, top) = (set.levels, ((1u64 << set.bit_depth) - 1) as f64);
@@ -181,8 +201,7 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
     };
     let curve_of = |sel: &dyn Fn(usize) -> bool| shared_of(sel, None);
     let adc_curves: Vec<[f64; 3]> = (0..n_adc).map(|a| curve_of(&|i| adc_of(i) == a)).collect();
-    let mut global = curve_of(&|_| true);
-    if global.iter().any(|c| !c.is_finite()) {
+    if curve_of(&|_| true).iter().any(|c| !c.is_finite()) {
         return Err(DiagnoseError::NoPixelFits);
     }
     let good: Vec<usize> = (0..n).filter(|&i| is_good(i)).collect();
@@ -205,57 +224,21 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
     // The baseline proper leaves the level term in the means: the scale every model step
     // is measured on ([`Finding::all_data_rms_after`]), starting here.
     let raw = common.is_some().then(|| score_with(None, &|_| linear));
-    let base0 = raw.as_ref().unwrap_or(&base);
-    let t0 = base0.totals(&all);
-    let baseline_adcs: Vec<AdcBaseline> = (0..n_adc)
-        .map(|a| {
-            let t = base0.totals(&|c| c.adc == a);
-            AdcBaseline { adc: a, codes_scored: t.n, rms: t.rms(), by_residue: Vec::new() }
-        })
-        .collect();
-    let baseline_by_level = base0.by_level(&all);
+    let baseline = baseline(raw.as_ref().unwrap_or(&base), n_adc);
+    let baseline_by_level = raw.as_ref().unwrap_or(&base).by_level(&all);
     drop(raw);
     let level_findings = findings.len();
-    // On all the data: the ADCs in `apart` under their own curves, the others under
-    // `others`.
-    let with_own = |apart: &[usize], own_curve: &Scores, others: &Scores| -> f64 {
-        (0..n_adc).fold(Totals::default(), |t, b| t.plus(&if apart.contains(&b) { own_curve } else { others }.totals(&|c| c.adc == b))).rms()
-    };
-    let bend = |c: [f64; 3], s: f64| s * (c[0] * s + c[1] * s * s + c[2] * s * s * s);
     // ADC curvature first: each ADC's own curve against the consensus of the others, on
     // its held-out pixels (so that one bending ADC is not mistaken for a shared bend).
     // The consensus is the curve of all ADCs not yet set apart; the most significant ADC
     // above threshold is set apart and the consensus refitted, until none is left or
     // only a majority remains. It needs three ADCs at least: with two, the data cannot
     // say which one differs.
-    let mut adc_own = vec![false; n_adc];
-    // The ADCs set apart, in the order they were.
-    let mut apart = Vec::new();
-    let mut adc_findings: Vec<Option<Finding>> = vec![None; n_adc];
     let own_curve = (n_adc >= 3).then(|| score_all(&|i| Response::Curve(adc_curves[adc_of(i)], top)));
-    let mut glob = score_all(&|_| Response::Curve(global, top));
-    while let Some(own_curve) = own_curve.as_ref().filter(|_| adc_own.iter().filter(|&&o| !o).count() * 2 > n_adc + 1) {
-        let tested: Vec<(usize, f64)> = (0..n_adc).filter(|&a| !adc_own[a]).map(|a| (a, paired(&glob, own_curve, |j| cell(j) == Cell { adc: a, odd: true }))).collect();
-        let Some(&(a, sig)) = tested.iter().filter(|x| x.1.is_finite()).max_by(|x, y| x.1.total_cmp(&y.1)) else { break };
-        if sig <= SIGNIFICANCE {
-            break;
-        }
-        let on = |c: Cell| c == Cell { adc: a, odd: true };
-        let (ta, tb) = (glob.totals(&on), own_curve.totals(&on));
-        adc_own[a] = true;
-        apart.push(a);
-        let steps = AdcResiduals { baseline: glob.by_level(&on), extended: own_curve.by_level(&on) };
-        adc_findings[a] = Some(with_residuals(steps, finding(
-            Effect::AdcMismatch,
-            Some(a),
-            sig,
-            ta.rms(),
-            tb.rms(),
-            format!("curvature: ADC {a}'s response bends by {:.3}% of full scale where the others' bends by {:.3}% (held-out levels of its pixels)", 100.0 * bend(adc_curves[a], 1.0), 100.0 * bend(global, 1.0)),
-        )));
-        global = curve_of(&|i| !adc_own[adc_of(i)]);
-        glob = score_all(&|_| Response::Curve(global, top));
-    }
+    let Curvature { adc_own, apart, mut adc_findings, global, glob } = adc_curvature(&adc_curves, own_curve.as_ref(), &cell, &|own| {
+        let global = curve_of(&|i| !own[adc_of(i)]);
+        (global, score_all(&|_| Response::Curve(global, top)))
+    });
     // The shared bend, fitted on and scored over the pixels of the ADCs that follow the
     // consensus.
     let follows = |c: Cell| !adc_own[c.adc] && c.odd;
@@ -309,9 +292,12 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
         findings[..level_findings].iter_mut().for_each(|f| f.all_data_rms_after = Some(after));
     }
     if let Some(own_curve) = &own_curve {
+        // On all the data: the ADCs set apart so far under their own curves, the others
+        // under `others`.
         for (k, &a) in apart.iter().enumerate() {
+            let with_own = (0..n_adc).fold(Totals::default(), |t, b| t.plus(&if apart[..=k].contains(&b) { own_curve } else { others }.totals(&|c| c.adc == b)));
             if let Some(f) = adc_findings[a].as_mut() {
-                f.all_data_rms_after = Some(with_own(&apart[..=k], own_curve, others));
+                f.all_data_rms_after = Some(with_own.rms());
             }
         }
     }
@@ -354,12 +340,7 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
         code_density: None,
         code_residuals: None,
         curve_per_dn: global_accepted.then(|| vec![global[0] / top, global[1] / (top * top), global[2] / (top * top * top)]),
-        baseline: Baseline {
-            kind: "linearity-set".into(),
-            model: "linear response with per-pixel dark and gain from one population, shot and read noise".into(),
-            adcs: baseline_adcs,
-            rms: t0.rms(),
-        },
+        baseline,
         findings,
         unexplained_rms: tcur.rms(),
         residuals: vec![AdcResiduals { baseline: baseline_by_level, extended: current.by_level(&all) }],
