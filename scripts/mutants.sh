@@ -74,10 +74,10 @@ host)
     # host crate's test targets from a cold start of the copy (about 110 s each, 614 s for
     # the baseline), so this mode mutates in place a worktree of HEAD kept under
     # target/mutants-tree, whose own warm target folder makes a mutant an incremental
-    # rebuild of the library's tests (about 10 s) plus the tests (about a minute); `--lib`
+    # rebuild of the library's tests (about 50 s) plus the tests (about a minute); `--lib`
     # goes to both of cargo-mutants' cargo commands (with --cargo-test-arg only the test
     # run had it, and the build built every integration test too: 99 s). What is
-    # tested is the committed HEAD, never the working tree. Still hours for all of them:
+    # tested is the committed HEAD, never the working tree. Still two days for all:
     # a uniform sample instead, every K-th mutant in a fixed order (MUTANTS_SHARD=0/K,
     # default 0/400; 1/400 is the next sample, and so on).
     tree=target/mutants-tree

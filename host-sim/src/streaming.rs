@@ -116,7 +116,6 @@ impl StreamReport {
     pub fn passed(&self) -> bool {
         self.mismatches == 0 && self.out_of_bound == 0 && self.fpga.as_ref().is_none_or(|f| f.mismatches_vs_core == 0 && f.mismatches_vs_reference == 0 && f.fifo_overflows == 0)
     }
-
 }
 
 impl crate::commands::Report for StreamReport {

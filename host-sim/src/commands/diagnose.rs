@@ -321,10 +321,10 @@ pub fn diagnose_as(read_from: &Path, input: &Path, flatten: &FlattenParams, seed
     report(input, diagnosis, model, out, labels)
 }
 
-/// The summary as `dncal diagnose` prints it without `--json`: the baseline, each finding
-/// (on the all-data scale and on its own test), what was not tested, and what is left
-/// unexplained.
 impl Report for DiagnoseSummary {
+    /// The summary as `dncal diagnose` prints it without `--json`: the baseline, each
+    /// finding (on the all-data scale and on its own test), what was not tested, and what
+    /// is left unexplained.
     fn text(&self) -> String {
         let d = &self.diagnosis;
         let mut t = format!("{}: baseline ({}) held-out RMS {:.3}\n", self.input.display(), d.baseline.model, d.baseline.rms);

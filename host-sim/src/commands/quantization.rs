@@ -114,7 +114,8 @@ pub struct Request {
 }
 
 /// What `dncal quantization` answered. JSON: the one answer asked for as its own object,
-/// both as `{"at_sigma": ..., "for_bias": ...}`, a figure alone as `{"figure": ...}`.
+/// both as `{"at_sigma": ..., "for_bias": ...}`, a figure without an answer as
+/// `{"figure": ...}` (beside an answer, the figure is in the text only).
 #[derive(Debug, Clone)]
 pub struct QuantizationReport {
     /// The worst case at the requested noise.
@@ -133,12 +134,13 @@ impl Serialize for QuantizationReport {
             (None, Some(b)) => b.serialize(s),
             (a, b) => {
                 let mut m = s.serialize_map(None)?;
-                if let (Some(a), Some(b)) = (a, b) {
-                    m.serialize_entry("at_sigma", a)?;
-                    m.serialize_entry("for_bias", b)?;
-                }
-                if let Some(f) = &self.figure {
-                    m.serialize_entry("figure", f)?;
+                match (a, b, &self.figure) {
+                    (Some(a), Some(b), _) => {
+                        m.serialize_entry("at_sigma", a)?;
+                        m.serialize_entry("for_bias", b)?;
+                    }
+                    (_, _, Some(f)) => m.serialize_entry("figure", f)?,
+                    _ => {}
                 }
                 m.end()
             }

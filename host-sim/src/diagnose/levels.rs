@@ -173,10 +173,13 @@ impl LevelTerm {
 
     /// The variance of the estimate of `tau^2` at signal `s`, DN^4.
     fn tau2_var(&self, s: f64) -> f64 {
-        let v = [1.0, s * s];
-        let c = &self.tau_cov;
-        (v[0] * (c[0][0] * v[0] + c[0][1] * v[1]) + v[1] * (c[1][0] * v[0] + c[1][1] * v[1])).max(0.0)
+        quadratic_form([1.0, s * s], &self.tau_cov).max(0.0)
     }
+}
+
+/// `v^T c v`: the variance of `v . x` for estimates `x` of covariance `c`.
+fn quadratic_form(v: [f64; 2], c: &[[f64; 2]; 2]) -> f64 {
+    v[0] * (c[0][0] * v[0] + c[0][1] * v[1]) + v[1] * (c[1][0] * v[0] + c[1][1] * v[1])
 }
 
 impl Common for LevelTerm {
@@ -591,5 +594,21 @@ pub(super) fn wald<T: Sample>(term: &LevelTerm, px: &Pixels<T>, sel: &(dyn Fn(us
     } else {
         let h = 2.0 / (9.0 * kf);
         ((chi2 / kf).cbrt() - (1.0 - h)) / h.sqrt()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_variance_of_tau2_is_the_quadratic_form_by_hand() {
+        // v = (1, s^2) at s = 2; both off-diagonal terms differ so that each is seen:
+        // 1*4*1 + 1*1.5*4 + 4*0.5*1 + 4*9*4 = 156.
+        assert_eq!(quadratic_form([1.0, 4.0], &[[4.0, 1.5], [0.5, 9.0]]), 156.0);
+        // Against nalgebra's product.
+        let (v, c) = (nalgebra::Vector2::new(0.3, -2.0), nalgebra::Matrix2::new(2.0, -0.7, -0.7, 5.0));
+        let want = (v.transpose() * c * v)[(0, 0)];
+        assert!((quadratic_form([0.3, -2.0], &[[2.0, -0.7], [-0.7, 5.0]]) - want).abs() < 1e-12);
     }
 }

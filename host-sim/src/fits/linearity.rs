@@ -6,7 +6,7 @@ use super::*;
 /// The value type a linearity set's cubes are held in: `f64` (the default, every
 /// command that writes from them) or `f32` (`diagnose`, which holds the cubes through the
 /// whole run: half the memory, each value to 2^-24 of itself).
-pub trait Sample: Copy + Into<f64> + Send + Sync + std::fmt::Display + 'static {
+pub trait Sample: Copy + Into<f64> + Send + Sync + std::fmt::Display + super::direct::BigEndianFloat + 'static {
     /// A bound on the variance the type's rounding adds to a value `v`: `(v 2^-24)^2 / 3`
     /// for `f32` (an error uniform within half a last place taken at its widest relative
     /// size; up to 4 times the true variance, negligible beside a mean's noise either
@@ -146,13 +146,17 @@ pub fn read_linearity(path: &Path) -> Result<LinearitySet, HostError> {
     read_linearity_as(path)
 }
 
-/// [`read_linearity`] into cubes of `T` (converted by cfitsio as they are read: an
-/// `f32` set never holds the `f64` one).
+/// [`read_linearity`] into cubes of `T`: stored as `T`, read directly in parallel with
+/// their checksums taken in the same pass ([`super::direct`]); stored otherwise,
+/// converted by cfitsio as they are read (an `f32` set never holds the `f64` one), the
+/// checksum a pass of its own before.
 pub fn read_linearity_as<T: Sample>(path: &Path) -> Result<LinearitySet<T>, HostError>
 where
     Vec<T>: ReadImage,
 {
-    let mut r = FitsReader::open(path)?;
+    // The two cubes are most of the file: their checksums wait until they are read (in
+    // the same pass where they are stored as `T`).
+    let mut r = FitsReader::open_deferring(path)?;
     r.expect_kind(FileKind::Linearity)?;
     let (bit_depth, n_adc, _) = r.adc_keys()?;
     let n_frames = r.required_int(0, PRIMARY, "NFRAMES")?;
@@ -165,7 +169,7 @@ where
     if width == 0 || height == 0 || levels == 0 {
         return Err(r.error(format!("the primary cube is {width} x {height} x {levels}: empty")));
     }
-    let mean: Vec<T> = r.pixels(&image)?;
+    let mean: Vec<T> = r.float_pixels(&image)?;
 
     let std_hdu = r.require_extension("STD", "per-pixel standard deviations")?;
     let std_image = r.image(std_hdu, "extension STD", 3)?;
@@ -176,7 +180,7 @@ where
             shape_text(&image.naxes)
         )));
     }
-    let std: Vec<T> = r.pixels(&std_image)?;
+    let std: Vec<T> = r.float_pixels(&std_image)?;
 
     let ref_hdu = r.require_extension("REFERENCE", "reference voltages")?;
     let voltage = r.column_f64(ref_hdu, "extension REFERENCE", "VOLTAGE")?;
@@ -202,6 +206,7 @@ where
     };
     let set = LinearitySet { bit_depth, n_adc, n_frames, width, height, levels, mean, std, voltage, mask };
     check_linearity(&set).map_err(|m| r.error(m))?;
+    r.finish()?;
     Ok(set)
 }
 

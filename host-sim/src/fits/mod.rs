@@ -50,6 +50,7 @@ use fitsio::FitsFile;
 use crate::outputs::{write_one, Outputs};
 use crate::HostError;
 
+mod direct;
 mod frames;
 mod histograms;
 mod linearity;

@@ -1,6 +1,7 @@
 //! Reading: every access to a file turned into a [`HostError`] naming it; keys read card
 //! by card where `fitsio` would panic on legal FITS it does not expect.
 
+use super::direct::BigEndianFloat;
 use super::*;
 
 /// What an image HDU's header says about its data.
@@ -134,10 +135,46 @@ pub(super) struct FitsReader<'a> {
     /// size, or for a gzip-, compress- or zip-compressed file (cfitsio opens those too)
     /// the size times 1100, above deflate's largest ratio of 1032.
     len: u64,
+    /// The file itself, where it is not compressed: large float images are read from it
+    /// directly ([`super::direct`]).
+    raw: Option<std::fs::File>,
+    /// Large float images whose checksums are verified as their data are read
+    /// ([`FitsReader::float_pixels`]) or at [`FitsReader::finish`], not at open.
+    pub(super) deferred: Vec<Deferred>,
 }
+
+/// A data unit of at least [`DEFER_BYTES`] whose checksum verification waits for its
+/// data to be read (one pass instead of two).
+pub(super) struct Deferred {
+    /// HDU number, 0 = primary.
+    pub(super) hdu: usize,
+    /// Byte offsets of its data unit (padding included) in the file.
+    data: (u64, u64),
+    /// The ones' complement sum of its header blocks.
+    header_sum: u32,
+    /// `DATASUM`'s value; `CHECKSUM` is present too, and agrees with the header and
+    /// this value.
+    datasum: u32,
+}
+
+/// Data units this large are verified as they are read, where the caller asks.
+const DEFER_BYTES: u64 = 16 << 20;
 
 impl<'a> FitsReader<'a> {
     pub(super) fn open(path: &'a Path) -> Result<Self, HostError> {
+        Self::open_with(path, None)
+    }
+
+    /// [`FitsReader::open`]; with `defer`, the checksums of large float images in an
+    /// uncompressed file are verified as [`FitsReader::float_pixels`] reads them, and the
+    /// caller calls [`FitsReader::finish`] to verify any it did not read.
+    pub(super) fn open_deferring(path: &'a Path) -> Result<Self, HostError> {
+        Self::open_with(path, Some(DEFER_BYTES))
+    }
+
+    /// Opens `path`; with `defer`, float images of at least that many data bytes are
+    /// verified as they are read ([`FitsReader::open_deferring`]).
+    pub(super) fn open_with(path: &'a Path, defer: Option<u64>) -> Result<Self, HostError> {
         // A device or FIFO never reaches cfitsio, which would read or wait for ever.
         let mut plain_file = crate::input::open_regular(path)?;
         let size = plain_file.metadata().map_err(|e| HostError::io(path, e))?.len();
@@ -170,15 +207,16 @@ impl<'a> FitsReader<'a> {
         }
         let name = CfitsioName::for_reading(path)?;
         let file = FitsFile::open(&name.name).map_err(|e| fits_error(path, "not a readable FITS file", &e))?;
-        let mut reader = FitsReader { file, _name: name, path, len };
+        let raw = plain.then_some(plain_file);
+        let mut reader = FitsReader { file, _name: name, path, len, raw, deferred: Vec::new() };
         reader.check_declared_sizes(plain)?;
-        reader.verify_checksums()?;
+        reader.verify_checksums(defer)?;
         Ok(reader)
     }
 
     /// Refuses an HDU whose `CHECKSUM` or `DATASUM` (where present: files of other tools
     /// often have none) does not match its bytes: the file changed after it was written.
-    fn verify_checksums(&mut self) -> Result<(), HostError> {
+    fn verify_checksums(&mut self, defer: Option<u64>) -> Result<(), HostError> {
         let (mut status, mut count) = (0, 0);
         // SAFETY: `self.file` is open; ffthdu counts its HDUs.
         unsafe { fitsio::sys::ffthdu(self.file.as_raw(), &mut count, &mut status) };
@@ -187,8 +225,15 @@ impl<'a> FitsReader<'a> {
             // filling the card overruns (see `String::read`): each must be absent or a
             // quoted string, read safely first.
             let label = if hdu == 1 { PRIMARY.to_string() } else { format!("HDU {}", hdu - 1) };
-            for key in ["CHECKSUM", "DATASUM"] {
-                let _: Option<String> = self.key(hdu as usize - 1, &label, key)?;
+            let mut keys = [None, None];
+            for (k, key) in keys.iter_mut().zip(["CHECKSUM", "DATASUM"]) {
+                *k = self.key::<String>(hdu as usize - 1, &label, key)?;
+            }
+            if let Some(min) = defer {
+                if let Some(d) = self.deferrable(hdu as usize - 1, &label, &keys, min)? {
+                    self.deferred.push(d);
+                    continue;
+                }
             }
             let (mut data_ok, mut hdu_ok) = (0, 0);
             // SAFETY: as above; ffvcks reads the current HDU and writes the two flags
@@ -205,6 +250,89 @@ impl<'a> FitsReader<'a> {
                     "the {label} fails its checksum: {which} (the file was changed or damaged after it was written; a tool that edited it kept the old keys: have it write new ones, astropy's writeto(..., checksum=True), or delete CHECKSUM and DATASUM)"
                 )));
             }
+        }
+        Ok(())
+    }
+
+    /// The HDU `hdu` as a [`Deferred`] where its verification can wait for its data: an
+    /// uncompressed file, an image (primary or IMAGE extension) of floats, a data unit of
+    /// at least `min` bytes, both checksum keys, a header that agrees with them. `keys`:
+    /// its `CHECKSUM` and `DATASUM`, read safely.
+    fn deferrable(&mut self, hdu: usize, label: &str, keys: &[Option<String>; 2], min: u64) -> Result<Option<Deferred>, HostError> {
+        if self.raw.is_none() {
+            return Ok(None);
+        }
+        let (mut status, mut head, mut start, mut end) = (0, 0, 0, 0);
+        // SAFETY: `self.file` is open and `hdu` below its HDU count; ffghadll writes the
+        // three offsets.
+        unsafe {
+            let f = self.file.as_raw();
+            fitsio::sys::ffmahd(f, hdu as i32 + 1, std::ptr::null_mut(), &mut status);
+            fitsio::sys::ffghadll(f, &mut head, &mut start, &mut end, &mut status);
+        }
+        fitsio::errors::check_status(status).map_err(|e| fits_error(self.path, &format!("reading the header of HDU {hdu}"), &e))?;
+        let (head, start, end) = (head as u64, start as u64, end as u64);
+        if end.saturating_sub(start) < min.max(1) {
+            return Ok(None);
+        }
+        // A header this cannot read is left to cfitsio's verification (and to the errors
+        // of whatever reads it next).
+        let image = hdu == 0 || self.key::<String>(hdu, label, "XTENSION").ok().flatten().is_some_and(|x| x.trim() == "IMAGE");
+        if !image || !matches!(self.required_int(hdu, label, "BITPIX").ok(), Some(-32 | -64)) {
+            return Ok(None);
+        }
+        // Both keys, DATASUM a plain 32-bit sum (anything else, and a file without keys,
+        // which ffvcks passes without reading, is left to ffvcks).
+        let given = |v: &Option<String>| v.as_deref().map(str::trim).filter(|v| !v.is_empty()).map(str::to_string);
+        let (Some(_), Some(datasum)) = (given(&keys[0]), given(&keys[1]).and_then(|v| v.parse::<u32>().ok())) else {
+            return Ok(None);
+        };
+        let Some(raw) = &self.raw else { return Ok(None) };
+        let header_sum = super::direct::checksum_at(raw, head, start - head).map_err(|e| HostError::io(self.path, e))?;
+        // The header must agree with CHECKSUM given the data sum DATASUM states: a header
+        // changed since (or read with another layout than it was written with, as a
+        // damaged END card makes cfitsio do) is judged now, by ffvcks, so its error is
+        // the checksum's and comes before anything that reads the header.
+        let total = super::direct::add(header_sum, datasum);
+        if total != 0 && total != u32::MAX {
+            return Ok(None);
+        }
+        Ok(Some(Deferred { hdu, data: (start, end), header_sum, datasum }))
+    }
+
+    /// The verdict on a deferred HDU whose data unit sums to `data_sum`, as ffvcks gives
+    /// it: DATASUM equal to the sum, the header and data summing to zero (either sign).
+    fn check_deferred(&self, d: &Deferred, data_sum: u32) -> Result<(), HostError> {
+        let data_ok = d.datasum == data_sum;
+        let total = super::direct::add(d.header_sum, data_sum);
+        let hdu_ok = total == 0 || total == u32::MAX;
+        if data_ok && hdu_ok {
+            return Ok(());
+        }
+        let label = if d.hdu == 0 { PRIMARY.to_string() } else { format!("HDU {}", d.hdu) };
+        let which = if !data_ok { "its data do not match DATASUM" } else { "its header and data do not match CHECKSUM" };
+        Err(self.error(format!(
+            "the {label} fails its checksum: {which} (the file was changed or damaged after it was written; a tool that edited it kept the old keys: have it write new ones, astropy's writeto(..., checksum=True), or delete CHECKSUM and DATASUM)"
+        )))
+    }
+
+    /// Verifies the deferred HDU `hdu`, if it is one, by reading its data unit (for a
+    /// caller that reads its data otherwise, or not at all).
+    pub(super) fn verify_deferred(&mut self, hdu: usize) -> Result<(), HostError> {
+        let Some(i) = self.deferred.iter().position(|d| d.hdu == hdu) else { return Ok(()) };
+        let d = self.deferred.remove(i);
+        // (Only an uncompressed file, which `raw` is, defers.)
+        let Some(raw) = &self.raw else { return Err(self.error("a deferred checksum without the file to read it from")) };
+        let sum = super::direct::checksum_at(raw, d.data.0, d.data.1 - d.data.0).map_err(|e| HostError::io(self.path, e))?;
+        self.check_deferred(&d, sum)
+    }
+
+    /// Verifies every deferred HDU not yet read: a reader opened with
+    /// [`FitsReader::open_deferring`] ends with this (on its way to `Ok`: an error
+    /// returned before it refuses the file anyway).
+    pub(super) fn finish(mut self) -> Result<(), HostError> {
+        while let Some(hdu) = self.deferred.first().map(|d| d.hdu) {
+            self.verify_deferred(hdu)?;
         }
         Ok(())
     }
@@ -410,6 +538,33 @@ impl<'a> FitsReader<'a> {
         handle
             .read_section(&mut self.file, 0, image.elements)
             .map_err(|e| fits_error(self.path, &format!("reading the data of the {}", image.label), &e))
+    }
+
+    /// [`FitsReader::pixels`] of a float image: a deferred one (unscaled, stored as `T`)
+    /// read directly and verified in the same pass ([`super::direct`]); any other through
+    /// cfitsio, a deferred one verified first.
+    pub(super) fn float_pixels<T: BigEndianFloat>(&mut self, image: &ImageHeader) -> Result<Vec<T>, HostError>
+    where
+        Vec<T>: ReadImage,
+    {
+        let direct = image.bitpix == T::BITPIX && image.bscale == 1.0 && image.bzero == 0.0;
+        let i = self.deferred.iter().position(|d| d.hdu == image.hdu);
+        let (Some(i), Some(raw), true) = (i, &self.raw, direct) else {
+            self.verify_deferred(image.hdu)?;
+            return self.pixels(image);
+        };
+        let what = format!("the {} ({} pixels as {}-byte values)", image.label, shape_text(&image.naxes), T::SIZE);
+        crate::budget::check(self.path, &what, crate::budget::bytes_of(image.elements as u64, T::SIZE as u64))?;
+        let d = self.deferred.remove(i);
+        let io = |e| HostError::io(self.path, e);
+        let values_end = d.data.0 + (image.elements * T::SIZE) as u64;
+        if values_end > d.data.1 {
+            return Err(self.error(format!("the {} declares more data than its unit holds", image.label)));
+        }
+        let (values, sum) = super::direct::read_values::<T>(raw, d.data.0, image.elements).map_err(io)?;
+        let padding = super::direct::checksum_at(raw, values_end, d.data.1 - values_end).map_err(io)?;
+        self.check_deferred(&d, super::direct::add(sum, padding))?;
+        Ok(values)
     }
 
     /// All pixels of an integer image, physical values (BZERO applied).

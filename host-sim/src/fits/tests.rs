@@ -507,3 +507,63 @@ fn string_cards_read_as_the_standard_defines_them() {
         assert_eq!(string_from_card(&card(bad)), None, "{bad}");
     }
 }
+
+/// The checksums of float images verified as they are read directly
+/// ([`reader::FitsReader::open_deferring`], [`direct`]) give cfitsio's own verdict
+/// (`ffvcks` at open) on every damaged copy of a linearity file: one bit flipped at every
+/// byte of the primary header and every 7th byte of the rest (headers, values and
+/// padding alike), the same message or none.
+#[test]
+fn checksums_verified_while_reading_give_cfitsios_verdicts() {
+    use reader::FitsReader;
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("l.fits");
+    write_linearity(&path, &linearity(true)).unwrap();
+    let clean = std::fs::read(&path).unwrap();
+    let oracle = |p: &Path| FitsReader::open(p).err().map(|e| e.to_string());
+    let ours = |p: &Path| -> Option<String> {
+        let run = || -> Result<usize, HostError> {
+            // Every float image deferred, however small.
+            let mut r = FitsReader::open_with(p, Some(0))?;
+            let hdus: Vec<usize> = r.deferred.iter().map(|d| d.hdu).collect();
+            for &h in &hdus {
+                match r.image(h, "cube", 3) {
+                    Ok(image) => drop(r.float_pixels::<f64>(&image)?),
+                    // A damaged header: verified without its data read.
+                    Err(_) => r.verify_deferred(h)?,
+                }
+            }
+            r.finish()?;
+            Ok(hdus.len())
+        };
+        run().err().map(|e| e.to_string())
+    };
+    assert_eq!((oracle(&path), ours(&path)), (None, None));
+    // Both cubes are deferred on the clean file: the fast path is what is compared.
+    let mut r = FitsReader::open_with(&path, Some(0)).unwrap();
+    assert_eq!(r.deferred.iter().map(|d| d.hdu).collect::<Vec<_>>(), [0, 1]);
+    let image = r.image(0, "cube", 3).unwrap();
+    let direct: Vec<f64> = r.float_pixels(&image).unwrap();
+    assert_eq!(direct, linearity(true).mean, "the values read directly");
+    let (mut failures, mut damaged) = (0, 0);
+    let copy = dir.path().join("damaged.fits");
+    // Every byte of the primary header (each kind of card: keys, CHECKSUM, DATASUM,
+    // END and its blanks), every 7th byte elsewhere.
+    for at in (0..2880).chain((2880..clean.len()).step_by(7)) {
+        let mut bytes = clean.clone();
+        bytes[at] ^= 1 << (at % 8);
+        std::fs::write(&copy, &bytes).unwrap();
+        let (want, got) = (oracle(&copy), ours(&copy));
+        assert_eq!(got, want, "byte {at} (block {}) flipped", at / 2880);
+        damaged += 1;
+        failures += usize::from(want.is_some_and(|m| m.contains("fails its checksum")));
+    }
+    // A flipped value is not seen at open: its check waits for the direct read.
+    let mut bytes = clean.clone();
+    bytes[2880 + 5] ^= 1;
+    std::fs::write(&copy, &bytes).unwrap();
+    assert_eq!(FitsReader::open_with(&copy, Some(0)).unwrap().deferred.len(), 2);
+    assert!(ours(&copy).is_some_and(|m| m.ends_with(&oracle(&copy).unwrap()[copy.display().to_string().len()..])));
+    // Most flips are caught by the checksums (some break the header first).
+    assert!(failures * 2 > damaged, "{failures} checksum failures of {damaged}");
+}

@@ -8,6 +8,7 @@ use dncal_host::camera::calibration::RampParams;
 use dncal_host::camera::{Camera, CameraConfig};
 use dncal_host::commands::simulate;
 use dncal_host::flatten::FlattenParams;
+use dncal_host::kcor::KcorParams;
 use dncal_host::roi::RoiSpec;
 use dncal_host::HostError;
 
@@ -101,13 +102,13 @@ impl CameraArgs {
 #[derive(Args, Clone)]
 pub(crate) struct FlattenArgs {
     /// Points of the smoothing spline.
-    #[arg(long, default_value_t = 50)]
+    #[arg(long, default_value_t = FlattenParams::default().spline_points)]
     pub(crate) spline_points: usize,
     /// Width of the running median, codes (odd).
-    #[arg(long, default_value_t = 21)]
+    #[arg(long, default_value_t = FlattenParams::default().median_window)]
     pub(crate) median_window: usize,
     /// Lowest codes set to 1.
-    #[arg(long, default_value_t = 150)]
+    #[arg(long, default_value_t = FlattenParams::default().fixed_low_codes)]
     pub(crate) fixed_low_codes: usize,
     /// Keep the last (saturation) code's measured weight instead of setting it to 1.
     #[arg(long)]
@@ -252,25 +253,25 @@ pub(crate) enum Cmd {
         #[command(flatten)]
         camera: CameraArgs,
         /// Which ADC (the paper used the camera's 4th).
-        #[arg(long, default_value_t = 3)]
+        #[arg(long, default_value_t = KcorParams::default().adc)]
         adc: usize,
         /// Exposure time of one frame, ms.
-        #[arg(long, default_value_t = 1.0)]
+        #[arg(long, default_value_t = KcorParams::default().exposure_s * 1e3)]
         exposure_ms: f64,
         /// Grid steps in I (Q gets twice as many, from -I to I).
-        #[arg(long, default_value_t = 100)]
+        #[arg(long, default_value_t = KcorParams::default().steps)]
         steps: usize,
         /// Relative Gaussian noise on the histogram the LUT is built from.
-        #[arg(long, default_value_t = 0.01)]
+        #[arg(long, default_value_t = KcorParams::default().lut_noise)]
         lut_noise: f64,
         /// LUT to apply (FITS or device image; default: the true widths with --lut-noise).
         #[arg(long)]
         lut: Option<PathBuf>,
         /// Largest |Q| of the grid as a fraction of the brightest I.
-        #[arg(long, default_value_t = 1.0)]
+        #[arg(long, default_value_t = KcorParams::default().q_fraction)]
         q_fraction: f64,
         /// Seed of that noise.
-        #[arg(long, default_value_t = 2018)]
+        #[arg(long, default_value_t = KcorParams::default().seed)]
         seed: u64,
         /// Noise realizations of the LUT (seeds SEED, SEED+1, ...): the reduction's spread
         /// over draws; the figures show the first.
@@ -375,10 +376,10 @@ pub(crate) enum Cmd {
         #[arg(long, default_value_t = 4)]
         states: u8,
         /// Input FIFO depth, pixels (taps, blanking and memory bandwidth are set per row).
-        #[arg(long, default_value_t = 1024)]
+        #[arg(long, default_value_t = dncal_fpga_model::Config::default().fifo_depth)]
         fifo_depth: usize,
         /// Sum-memory latency, cycles.
-        #[arg(long, default_value_t = 32)]
+        #[arg(long, default_value_t = dncal_fpga_model::Config::default().mem_latency)]
         mem_latency: u32,
         /// LUT FITS file to write as `$readmemh` files (with --out).
         #[arg(long, value_name = "FITS", requires = "out")]

@@ -202,16 +202,16 @@ pub(super) struct Curvature {
 /// ADC curvature: each ADC's own curve (`adc_curves`, scored as `own_curve`) against the
 /// consensus of the others, on its held-out pixels (so that one bending ADC is not
 /// mistaken for a shared bend). The consensus (`consensus(set apart)`: the curve of all
-/// ADCs not yet set apart, and its scores) starts from all ADCs; the most significant ADC
+/// ADCs not yet set apart, and its scores) starts from all ADCs (`first`); the most significant ADC
 /// above threshold is set apart and the consensus refitted, until none is left or only a
 /// majority remains. Without `own_curve` (fewer than three ADCs: with two, the data
 /// cannot say which one differs) none is set apart.
-pub(super) fn adc_curvature(adc_curves: &[[f64; 3]], own_curve: Option<&Scores>, cell: &dyn Fn(usize) -> Cell, consensus: &Consensus<'_>) -> Curvature {
+pub(super) fn adc_curvature(adc_curves: &[[f64; 3]], own_curve: Option<&Scores>, cell: &dyn Fn(usize) -> Cell, first: ([f64; 3], Scores), consensus: &Consensus<'_>) -> Curvature {
     let n_adc = adc_curves.len();
     let mut adc_own = vec![false; n_adc];
     let mut apart = Vec::new();
     let mut adc_findings: Vec<Option<Finding>> = vec![None; n_adc];
-    let (mut global, mut glob) = consensus(&adc_own);
+    let (mut global, mut glob) = first;
     while let Some(own_curve) = own_curve.filter(|_| adc_own.iter().filter(|&&o| !o).count() * 2 > n_adc + 1) {
         let tested: Vec<(usize, f64)> = (0..n_adc).filter(|&a| !adc_own[a]).map(|a| (a, paired(&glob, own_curve, |j| cell(j) == Cell { adc: a, odd: true }))).collect();
         let Some(&(a, sig)) = tested.iter().filter(|x| x.1.is_finite()).max_by(|x, y| x.1.total_cmp(&y.1)) else { break };

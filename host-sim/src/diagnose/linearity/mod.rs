@@ -201,7 +201,8 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
     };
     let curve_of = |sel: &dyn Fn(usize) -> bool| shared_of(sel, None);
     let adc_curves: Vec<[f64; 3]> = (0..n_adc).map(|a| curve_of(&|i| adc_of(i) == a)).collect();
-    if curve_of(&|_| true).iter().any(|c| !c.is_finite()) {
+    let all_curve = curve_of(&|_| true);
+    if all_curve.iter().any(|c| !c.is_finite()) {
         return Err(DiagnoseError::NoPixelFits);
     }
     let good: Vec<usize> = (0..n).filter(|&i| is_good(i)).collect();
@@ -235,7 +236,8 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
     // only a majority remains. It needs three ADCs at least: with two, the data cannot
     // say which one differs.
     let own_curve = (n_adc >= 3).then(|| score_all(&|i| Response::Curve(adc_curves[adc_of(i)], top)));
-    let Curvature { adc_own, apart, mut adc_findings, global, glob } = adc_curvature(&adc_curves, own_curve.as_ref(), &cell, &|own| {
+    let first = (all_curve, score_all(&|_| Response::Curve(all_curve, top)));
+    let Curvature { adc_own, apart, mut adc_findings, global, glob } = adc_curvature(&adc_curves, own_curve.as_ref(), &cell, first, &|own| {
         let global = curve_of(&|i| !own[adc_of(i)]);
         (global, score_all(&|_| Response::Curve(global, top)))
     });
