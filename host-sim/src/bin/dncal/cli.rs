@@ -27,6 +27,13 @@ pub(crate) struct Cli {
     pub(crate) quiet: bool,
 }
 
+/// The formats `lut export` writes.
+#[derive(clap::ValueEnum, Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum ExportFormat {
+    /// The K-Coronagraph's four per-ADC tables (`OUT_adc0.bin` .. `OUT_adc3.bin`, little-endian u32; docs/kcor-luts.md).
+    Kcor,
+}
+
 /// The datapaths `stream` can drive.
 #[derive(clap::ValueEnum, Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) enum EngineKind {
@@ -515,8 +522,8 @@ pub(crate) enum LutCmd {
         /// LUT FITS.
         lut: PathBuf,
         /// The file format to write.
-        #[arg(long, value_parser = ["kcor"])]
-        format: String,
+        #[arg(long, value_enum)]
+        format: ExportFormat,
         /// Output prefix.
         #[arg(short, long)]
         out: String,

@@ -8,7 +8,7 @@ use std::io::Write;
 use std::path::Path;
 use std::process::ExitCode;
 
-use cli::{Cli, Cmd, LutCmd, SimulateCmd};
+use cli::{Cli, Cmd, ExportFormat, LutCmd, SimulateCmd};
 use dncal_host::camera::calibration::LinearityParams;
 use dncal_host::commands::firmware::{firmware_check, CheckParams};
 use dncal_host::commands::{adc, bench, demo, diagnose, emva, fpga, kcor, linearity, lut, progress, quantization, simulate, stream, Report};
@@ -51,7 +51,7 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
         }
         Cmd::Lut { what: LutCmd::Build { hist, out, flatten, json } } => print(json, &lut::build(&hist, &out, &flatten.params())?)?,
         Cmd::Lut { what: LutCmd::Import { kcor, out, json } } => print(json, &lut::import_kcor(&kcor, &out)?)?,
-        Cmd::Lut { what: LutCmd::Export { lut: file, format: _, out, bits, json } } => print(json, &lut::export_kcor(&file, &out, bits)?)?,
+        Cmd::Lut { what: LutCmd::Export { lut: file, format: ExportFormat::Kcor, out, bits, json } } => print(json, &lut::export_kcor(&file, &out, bits)?)?,
         Cmd::Lut { what: LutCmd::Inspect { file, table, json } } => print(json, &lut::InspectSummary { list_codes: table, ..lut::inspect(&file)? })?,
         Cmd::Stream { camera, hist, flatten, frames, states, roi, seed, frames_from, engine, json } => {
             let cam = camera.camera()?;
