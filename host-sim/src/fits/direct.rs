@@ -68,6 +68,11 @@ pub trait BigEndianFloat: Copy + Default + Send + Sync {
     const SIZE: usize;
     /// The value of its big-endian bytes (`SIZE` of them).
     fn from_be(bytes: &[u8]) -> Self;
+    /// A stored `f64` as this type: rounded to nearest as C's `(float)` cast, which is
+    /// cfitsio's conversion (out of range: infinite; NaN stays NaN).
+    fn from_f64(v: f64) -> Self;
+    /// A stored `f32` as this type (exact).
+    fn from_f32(v: f32) -> Self;
 }
 
 impl BigEndianFloat for f32 {
@@ -75,6 +80,12 @@ impl BigEndianFloat for f32 {
     const SIZE: usize = 4;
     fn from_be(b: &[u8]) -> Self {
         f32::from_be_bytes([b[0], b[1], b[2], b[3]])
+    }
+    fn from_f64(v: f64) -> Self {
+        v as f32
+    }
+    fn from_f32(v: f32) -> Self {
+        v
     }
 }
 
@@ -84,12 +95,19 @@ impl BigEndianFloat for f64 {
     fn from_be(b: &[u8]) -> Self {
         f64::from_be_bytes([b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]])
     }
+    fn from_f64(v: f64) -> Self {
+        v
+    }
+    fn from_f32(v: f32) -> Self {
+        f64::from(v)
+    }
 }
 
-/// `n` values of `T` stored from `offset` of `file`, read and converted in parallel, and
-/// the checksum of their bytes (the unit's padding is the caller's).
-pub(super) fn read_values<T: BigEndianFloat>(file: &File, offset: u64, n: usize) -> io::Result<(Vec<T>, u32)> {
-    let per_chunk = CHUNK / T::SIZE;
+/// `n` values stored as `S` from `offset` of `file`, read and converted to `T` by
+/// `convert` in parallel, and the checksum of their bytes (the unit's padding is the
+/// caller's).
+pub(super) fn read_values<S: BigEndianFloat, T: Copy + Default + Send + Sync>(file: &File, offset: u64, n: usize, convert: impl Fn(S) -> T + Sync) -> io::Result<(Vec<T>, u32)> {
+    let per_chunk = CHUNK / S::SIZE;
     let mut values = vec![T::default(); n];
     let sum = values
         .par_chunks_mut(per_chunk)
@@ -97,10 +115,10 @@ pub(super) fn read_values<T: BigEndianFloat>(file: &File, offset: u64, n: usize)
         .map_init(
             || vec![0u8; CHUNK],
             |buf, (k, out)| {
-                let bytes = &mut buf[..out.len() * T::SIZE];
-                file.read_exact_at(bytes, offset + (k * per_chunk * T::SIZE) as u64)?;
-                for (v, b) in out.iter_mut().zip(bytes.chunks_exact(T::SIZE)) {
-                    *v = T::from_be(b);
+                let bytes = &mut buf[..out.len() * S::SIZE];
+                file.read_exact_at(bytes, offset + (k * per_chunk * S::SIZE) as u64)?;
+                for (v, b) in out.iter_mut().zip(bytes.chunks_exact(S::SIZE)) {
+                    *v = convert(S::from_be(b));
                 }
                 // Every chunk starts on a word: the unit does (a 2880-byte block), and
                 // each chunk is a whole number of 4- or 8-byte values.
@@ -159,14 +177,18 @@ mod tests {
         let mut file = tempfile::tempfile().unwrap();
         file.write_all(b"0123456789ab").unwrap();
         file.write_all(&bytes).unwrap();
-        let (got, sum) = read_values::<f64>(&file, 12, values.len()).unwrap();
+        let (got, sum) = read_values::<f64, f64>(&file, 12, values.len(), f64::from_f64).unwrap();
         assert_eq!(got, values);
         assert_eq!(sum, seaman(&bytes));
         assert_eq!(checksum_at(&file, 12, bytes.len() as u64).unwrap(), sum);
-        let (got32, _) = read_values::<f32>(&file, 12, 5).unwrap();
+        let (got32, _) = read_values::<f32, f32>(&file, 12, 5, f32::from_f32).unwrap();
         let want32: Vec<f32> = bytes[..20].chunks_exact(4).map(|b| f32::from_be_bytes([b[0], b[1], b[2], b[3]])).collect();
         assert_eq!(got32, want32);
         // Past the end: an error, not a short read taken for data.
-        assert_eq!(read_values::<f64>(&file, 12, values.len() + 1).unwrap_err().kind(), io::ErrorKind::UnexpectedEof);
+        // Narrowed as it is read: the f64 values rounded to f32.
+        let (narrow, narrow_sum) = read_values::<f64, f32>(&file, 12, values.len(), f32::from_f64).unwrap();
+        assert_eq!(narrow, values.iter().map(|&v| v as f32).collect::<Vec<_>>());
+        assert_eq!(narrow_sum, sum, "the checksum is of the stored bytes");
+        assert_eq!(read_values::<f64, f64>(&file, 12, values.len() + 1, f64::from_f64).unwrap_err().kind(), io::ErrorKind::UnexpectedEof);
     }
 }

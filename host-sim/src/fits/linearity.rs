@@ -146,16 +146,15 @@ pub fn read_linearity(path: &Path) -> Result<LinearitySet, HostError> {
     read_linearity_as(path)
 }
 
-/// [`read_linearity`] into cubes of `T`: stored as `T`, read directly in parallel with
-/// their checksums taken in the same pass ([`super::direct`]); stored otherwise,
-/// converted by cfitsio as they are read (an `f32` set never holds the `f64` one), the
-/// checksum a pass of its own before.
+/// [`read_linearity`] into cubes of `T`, read directly in parallel with their checksums
+/// taken in the same pass and converted as they are read, as cfitsio converts
+/// ([`super::direct`]; an `f32` set never holds the `f64` one).
 pub fn read_linearity_as<T: Sample>(path: &Path) -> Result<LinearitySet<T>, HostError>
 where
     Vec<T>: ReadImage,
 {
-    // The two cubes are most of the file: their checksums wait until they are read (in
-    // the same pass where they are stored as `T`).
+    // The two cubes are most of the file: their checksums wait until they are read, in
+    // the same pass.
     let mut r = FitsReader::open_deferring(path)?;
     r.expect_kind(FileKind::Linearity)?;
     let (bit_depth, n_adc, _) = r.adc_keys()?;

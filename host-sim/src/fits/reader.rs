@@ -540,14 +540,19 @@ impl<'a> FitsReader<'a> {
             .map_err(|e| fits_error(self.path, &format!("reading the data of the {}", image.label), &e))
     }
 
-    /// [`FitsReader::pixels`] of a float image: a deferred one (unscaled, stored as `T`)
-    /// read directly and verified in the same pass ([`super::direct`]); any other through
-    /// cfitsio, a deferred one verified first.
+    /// [`FitsReader::pixels`] of a float image: a deferred one (unscaled floats) read
+    /// directly, converted to `T` as cfitsio converts, and verified in the same pass
+    /// ([`super::direct`]); any other through cfitsio, a deferred one verified first.
     pub(super) fn float_pixels<T: BigEndianFloat>(&mut self, image: &ImageHeader) -> Result<Vec<T>, HostError>
     where
         Vec<T>: ReadImage,
     {
-        let direct = image.bitpix == T::BITPIX && image.bscale == 1.0 && image.bzero == 0.0;
+        let stored = match image.bitpix {
+            -32 => 4,
+            -64 => 8,
+            _ => 0,
+        };
+        let direct = stored > 0 && image.bscale == 1.0 && image.bzero == 0.0;
         let i = self.deferred.iter().position(|d| d.hdu == image.hdu);
         let (Some(i), Some(raw), true) = (i, &self.raw, direct) else {
             self.verify_deferred(image.hdu)?;
@@ -557,11 +562,15 @@ impl<'a> FitsReader<'a> {
         crate::budget::check(self.path, &what, crate::budget::bytes_of(image.elements as u64, T::SIZE as u64))?;
         let d = self.deferred.remove(i);
         let io = |e| HostError::io(self.path, e);
-        let values_end = d.data.0 + (image.elements * T::SIZE) as u64;
+        let values_end = d.data.0 + (image.elements * stored) as u64;
         if values_end > d.data.1 {
             return Err(self.error(format!("the {} declares more data than its unit holds", image.label)));
         }
-        let (values, sum) = super::direct::read_values::<T>(raw, d.data.0, image.elements).map_err(io)?;
+        let (values, sum) = match stored {
+            4 => super::direct::read_values::<f32, T>(raw, d.data.0, image.elements, T::from_f32),
+            _ => super::direct::read_values::<f64, T>(raw, d.data.0, image.elements, T::from_f64),
+        }
+        .map_err(io)?;
         let padding = super::direct::checksum_at(raw, values_end, d.data.1 - values_end).map_err(io)?;
         self.check_deferred(&d, super::direct::add(sum, padding))?;
         Ok(values)

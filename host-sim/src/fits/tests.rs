@@ -567,3 +567,49 @@ fn checksums_verified_while_reading_give_cfitsios_verdicts() {
     // Most flips are caught by the checksums (some break the header first).
     assert!(failures * 2 > damaged, "{failures} checksum failures of {damaged}");
 }
+
+/// Floats read directly and converted as they are read ([`direct::read_values`]) are
+/// cfitsio's, value for value, bit for bit: f64 narrowed to f32 (rounding, overflow to
+/// infinity, subnormals, NaN, -0), f32 widened, each as stored.
+#[test]
+fn floats_read_directly_are_cfitsios_in_every_conversion() {
+    use reader::FitsReader;
+    let dir = tempfile::tempdir().unwrap();
+    let special = [0.0, -0.0, 1.0 / 3.0, -2.5e-8, 1e300, -1e300, 1e-310, 3.4028235677973366e38, f64::NAN, f64::INFINITY, f64::NEG_INFINITY, 16_777_217.0, 0.1];
+    let mut x = 0x9e37_79b9_7f4a_7c15u64;
+    let mut values: Vec<f64> = special.to_vec();
+    values.extend((0..2000).map(|_| {
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        f64::from_bits(x)
+    }));
+    let path = dir.path().join("floats.fits");
+    for (stored, data_type) in [(8, ImageType::Double), (4, ImageType::Float)] {
+        let mut w = writer::FitsWriter::create(&path, &path, data_type, &[values.len()]).unwrap();
+        match stored {
+            8 => w.image(&values).unwrap(),
+            _ => w.image(&values.iter().map(|&v| v as f32).collect::<Vec<f32>>()).unwrap(),
+        }
+        w.finish().unwrap();
+        let theirs = |r: &mut FitsReader| {
+            let image = r.image(0, "image", 1).unwrap();
+            (r.pixels::<f32>(&image).unwrap(), r.pixels::<f64>(&image).unwrap())
+        };
+        let (want32, want64) = theirs(&mut FitsReader::open(&path).unwrap());
+        for (as_f32, as_f64) in [(true, false), (false, true)] {
+            let mut r = FitsReader::open_with(&path, Some(0)).unwrap();
+            assert_eq!(r.deferred.len(), 1, "the image is read directly");
+            let image = r.image(0, "image", 1).unwrap();
+            let bits32 = |v: &[f32]| v.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
+            let bits64 = |v: &[f64]| v.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
+            if as_f32 {
+                assert_eq!(bits32(&r.float_pixels::<f32>(&image).unwrap()), bits32(&want32), "stored {stored} bytes, read as f32");
+            }
+            if as_f64 {
+                assert_eq!(bits64(&r.float_pixels::<f64>(&image).unwrap()), bits64(&want64), "stored {stored} bytes, read as f64");
+            }
+            r.finish().unwrap();
+        }
+    }
+}
