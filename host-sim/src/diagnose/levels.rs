@@ -235,8 +235,9 @@ fn clipped_means(n: usize, cells: usize, visit: &Visit) -> Vec<Clipped> {
     let kept = |k: usize, r: f64, s: f64| clip[k].0.is_finite() && (r / s - clip[k].0).abs() <= clip[k].1;
     // Per cell: values, kept values, `sum 1 / s^2`, `sum r / s^2`; then the scatter.
     let sums = |first: bool, c: &[f64]| -> Vec<[f64; 4]> {
-        let t = (4 * rayon::current_num_threads()).clamp(1, n.max(1));
-        (0..t)
+        // Task sums added in task order ([`super::TASKS`]).
+        let t = super::TASKS.clamp(1, n.max(1));
+        let parts: Vec<Vec<[f64; 4]>> = (0..t)
             .into_par_iter()
             .map(|task| {
                 let mut acc = vec![[0.0; 4]; cells];
@@ -259,10 +260,11 @@ fn clipped_means(n: usize, cells: usize, visit: &Visit) -> Vec<Clipped> {
                 }
                 acc
             })
-            .reduce(|| vec![[0.0; 4]; cells], |mut a, b| {
-                a.iter_mut().zip(&b).for_each(|(x, y)| (0..4).for_each(|j| x[j] += y[j]));
-                a
-            })
+            .collect();
+        parts.into_iter().fold(vec![[0.0; 4]; cells], |mut a, b| {
+            a.iter_mut().zip(&b).for_each(|(x, y)| (0..4).for_each(|j| x[j] += y[j]));
+            a
+        })
     };
     let first = sums(true, &[]);
     let enough = |a: &[f64; 4]| a[0] as usize >= MIN_PIXELS && a[1] as usize >= MIN_PIXELS;

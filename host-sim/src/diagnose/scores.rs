@@ -75,10 +75,11 @@ impl Scores {
         let n_adc = n_adc.max(1);
         let mut per = vec![None; n];
         let empty = || vec![Sums::new(levels); 2 * n_adc];
-        // Four tasks per thread, each with its own sums (one set of sums per task, not per
-        // few pixels: they are 2 x ADCs x levels).
-        let chunk = n.div_ceil(4 * rayon::current_num_threads()).max(1);
-        let cells = per
+        // A fixed number of tasks, each with its own sums (one set per task, not per few
+        // pixels: they are 2 x ADCs x levels), added in task order: the same sums
+        // whichever thread did which task, on any machine ([`super::TASKS`]).
+        let chunk = n.div_ceil(super::TASKS).max(1);
+        let parts: Vec<Vec<Sums>> = per
             .par_chunks_mut(chunk)
             .enumerate()
             .map(|(c, out)| {
@@ -99,10 +100,11 @@ impl Scores {
                 }
                 sums
             })
-            .reduce(empty, |mut a, b| {
-                a.iter_mut().zip(&b).for_each(|(x, y)| x.add(y));
-                a
-            });
+            .collect();
+        let cells = parts.into_iter().fold(empty(), |mut a, b| {
+            a.iter_mut().zip(&b).for_each(|(x, y)| x.add(y));
+            a
+        });
         Scores { per, cells }
     }
 

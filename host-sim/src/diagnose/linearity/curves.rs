@@ -19,10 +19,12 @@ use crate::fits::Sample;
 /// coefficients either: those are nearly collinear and too noisy (0.5-1 DN of shared error
 /// per level on a 64 x 64 set, an 'unexplained' excess of 13 standard deviations).
 pub(super) fn shared_curve<T: Sample>(px: &Pixels<T>, common: Option<&dyn Common>, pixels: &[(usize, f64)], top: f64) -> [f64; 3] {
-    let (n, r) = pixels
-        .par_iter()
-        .filter(|(_, g)| g.is_finite())
-        .map(|&(i, g)| {
+    let zero = || (DMatrix::zeros(3, 3), DVector::zeros(3));
+    let add = |a: (DMatrix<f64>, DVector<f64>), b: (DMatrix<f64>, DVector<f64>)| (a.0 + b.0, a.1 + b.1);
+    // Summed in pixel order within a task and in task order across them (`TASKS`).
+    let parts: Vec<(DMatrix<f64>, DVector<f64>)> = pixels
+        .par_chunks(pixels.len().div_ceil(super::super::TASKS).max(1))
+        .map(|chunk| chunk.iter().filter(|(_, g)| g.is_finite()).map(|&(i, g)| {
             let pts = px.halves(i, common).0;
             let k = pts.len();
             if k <= 3 {
@@ -36,8 +38,9 @@ pub(super) fn shared_curve<T: Sample>(px: &Pixels<T>, common: Option<&dyn Common
             let q = DMatrix::identity(k, k) - &x * inv * x.transpose();
             let qu = &q * &u;
             (qu.transpose() * &qu, qu.transpose() * (&q * y))
-        })
-        .reduce(|| (DMatrix::zeros(3, 3), DVector::zeros(3)), |a, b| (a.0 + b.0, a.1 + b.1));
+        }).fold(zero(), add))
+        .collect();
+    let (n, r) = parts.into_iter().fold(zero(), add);
     match n.try_inverse() {
         Some(inv) => {
             let sol = inv * r;
