@@ -273,3 +273,14 @@ fn a_diagnosis_is_the_same_number_for_number_on_every_run() {
         assert_eq!(run, &runs[0], "run {k}");
     }
 }
+
+/// The bad-pixels finding's RMS after is that of the pixels left, whose held-out
+/// residuals are noise: near 1, and below the RMS with the bad pixels in (a mutant that
+/// took the remainder instead of the mean of the squares survived every test).
+#[test]
+fn bad_pixels_leave_the_others_at_their_noise() {
+    let d = diagnose_linearity(&linearity_set(&Plant::default(), &[Hidden::BadPixels { count: 10 }], 1234), 0.01).unwrap();
+    let f = d.findings.iter().find(|f| f.effect == Effect::BadPixels).expect("bad pixels named");
+    assert!((0.8..1.3).contains(&f.rms_after), "{f:#?}");
+    assert!(f.rms_before > f.rms_after, "{f:#?}");
+}
