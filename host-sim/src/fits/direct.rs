@@ -28,6 +28,12 @@ pub(super) fn add(a: u32, b: u32) -> u32 {
     fold(u64::from(a) + u64::from(b))
 }
 
+/// Whether a ones' complement sum is zero (either sign, as cfitsio's `ffvcks` takes it):
+/// what an HDU whose `CHECKSUM` matches sums to.
+pub(super) fn is_zero(sum: u32) -> bool {
+    sum == 0 || sum == u32::MAX
+}
+
 /// A sum of 32-bit words, carries folded back in (end-around).
 fn fold(mut s: u64) -> u32 {
     while s >> 32 != 0 {

@@ -245,10 +245,7 @@ impl<'a> FitsReader<'a> {
             }
             fitsio::errors::check_status(status).map_err(|e| fits_error(self.path, &format!("verifying the checksums of HDU {}", hdu - 1), &e))?;
             if data_ok < 0 || hdu_ok < 0 {
-                let which = if data_ok < 0 { "its data do not match DATASUM" } else { "its header and data do not match CHECKSUM" };
-                return Err(self.error(format!(
-                    "the {label} fails its checksum: {which} (the file was changed or damaged after it was written; a tool that edited it kept the old keys: have it write new ones, astropy's writeto(..., checksum=True), or delete CHECKSUM and DATASUM)"
-                )));
+                return Err(self.checksum_failure(hdu as usize - 1, data_ok < 0));
             }
         }
         Ok(())
@@ -293,8 +290,7 @@ impl<'a> FitsReader<'a> {
         // changed since (or read with another layout than it was written with, as a
         // damaged END card makes cfitsio do) is judged now, by ffvcks, so its error is
         // the checksum's and comes before anything that reads the header.
-        let total = super::direct::add(header_sum, datasum);
-        if total != 0 && total != u32::MAX {
+        if !super::direct::is_zero(super::direct::add(header_sum, datasum)) {
             return Ok(None);
         }
         Ok(Some(Deferred { hdu, data: (start, end), header_sum, datasum }))
@@ -304,16 +300,19 @@ impl<'a> FitsReader<'a> {
     /// it: DATASUM equal to the sum, the header and data summing to zero (either sign).
     fn check_deferred(&self, d: &Deferred, data_sum: u32) -> Result<(), HostError> {
         let data_ok = d.datasum == data_sum;
-        let total = super::direct::add(d.header_sum, data_sum);
-        let hdu_ok = total == 0 || total == u32::MAX;
-        if data_ok && hdu_ok {
+        if data_ok && super::direct::is_zero(super::direct::add(d.header_sum, data_sum)) {
             return Ok(());
         }
-        let label = if d.hdu == 0 { PRIMARY.to_string() } else { format!("HDU {}", d.hdu) };
-        let which = if !data_ok { "its data do not match DATASUM" } else { "its header and data do not match CHECKSUM" };
-        Err(self.error(format!(
+        Err(self.checksum_failure(d.hdu, !data_ok))
+    }
+
+    /// HDU `hdu` (0 = primary) fails its checksum: its data (`data`) or else its header.
+    fn checksum_failure(&self, hdu: usize, data: bool) -> HostError {
+        let label = if hdu == 0 { PRIMARY.to_string() } else { format!("HDU {hdu}") };
+        let which = if data { "its data do not match DATASUM" } else { "its header and data do not match CHECKSUM" };
+        self.error(format!(
             "the {label} fails its checksum: {which} (the file was changed or damaged after it was written; a tool that edited it kept the old keys: have it write new ones, astropy's writeto(..., checksum=True), or delete CHECKSUM and DATASUM)"
-        )))
+        ))
     }
 
     /// Verifies the deferred HDU `hdu`, if it is one, by reading its data unit (for a
