@@ -755,6 +755,31 @@ fn diagnose_recovers_the_simulated_cameras_nonlinearity() {
     assert_eq!(names2, names, "{s2}");
 }
 
+/// A linearity set that does not fit the memory budget held whole is read from its file
+/// by blocks of rows, and `--block-rows` asks for it: the report says so and its numbers
+/// are those of the set held whole, byte for byte.
+#[test]
+fn diagnose_reads_a_set_by_rows_beyond_its_budget_with_the_same_numbers() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let out = dncal(&["simulate", "linearity", "--roi", "64x64+480+480", "--frames", "16", "-o", "lin.fits"], d);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let held = stdout_json(&dncal(&["diagnose", "lin.fits", "--json"], d));
+    assert!(held.get("block_rows").is_none(), "{held}");
+    assert!(!held["findings"].as_array().unwrap().is_empty(), "{held}");
+    // 64 x 64 pixels: 400 bytes each of state (1.6 MB) fit 2 MiB, with the set as f32
+    // (41 levels x 2 cubes x 4 bytes, 1.3 MB more) they do not.
+    for (args, rows) in [(&["--max-memory", "2M"][..], 64), (&["--block-rows", "5"][..], 5)] {
+        let mut by_rows = stdout_json(&dncal(&[&["diagnose", "lin.fits", "--json"][..], args].concat(), d));
+        assert_eq!(by_rows.as_object_mut().unwrap().remove("block_rows"), Some(serde_json::json!(rows)), "{args:?}");
+        assert_eq!(by_rows.to_string(), held.to_string(), "{args:?}");
+    }
+    let text = dncal(&["diagnose", "lin.fits", "--block-rows", "5"], d);
+    assert!(String::from_utf8_lossy(&text.stdout).contains("the set read from its file 5 rows at a time"), "{}", String::from_utf8_lossy(&text.stdout));
+    let zero = dncal(&["diagnose", "lin.fits", "--block-rows", "0"], d);
+    assert_eq!(zero.status.code(), Some(2), "{}", String::from_utf8_lossy(&zero.stderr));
+}
+
 /// The default camera's pipelined ADCs have their own DN error: in a linearity set it
 /// shows as level means off alike within each ADC, and is named `adc-dnl` on each ADC,
 /// not taken for the light (`level-errors`) or left `unexplained`; with ideal ADCs

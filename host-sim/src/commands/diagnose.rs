@@ -6,8 +6,8 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::diagnose::{diagnose_code_density, diagnose_histograms, diagnose_linearity, diagnose_ptc, DiagnoseError, Diagnosis, Effect, Finding};
-use crate::fits::{read_histograms_for_analysis, read_linearity_as};
+use crate::diagnose::{diagnose_code_density, diagnose_histograms, diagnose_linearity, diagnose_linearity_rows, diagnose_ptc, DiagnoseError, Diagnosis, Effect, Finding};
+use crate::fits::{open_linearity_rows, read_histograms_for_analysis, read_linearity_as};
 use crate::outputs::{html_figure, OutDir, Outputs};
 use crate::commands::Report;
 use crate::flatten::FlattenParams;
@@ -92,10 +92,11 @@ pub fn apply_measured(mut c: crate::camera::CameraConfig, d: &Diagnosis) -> crat
 /// bit depth and ADC count with what the set measured ([`apply_measured`]) and an ideal ADC
 /// (a linearity set cannot see code widths). Not yet in the camera model: per-ADC offset,
 /// gain and curvature (an `adc-mismatch` is named in the file's header, not simulated).
-pub fn linearity_model<T: crate::fits::Sample>(set: &crate::fits::LinearitySet<T>, d: &Diagnosis) -> crate::camera::CameraConfig {
-    let mut c = crate::camera::CameraConfig { bits: set.bit_depth, n_adc: set.n_adc, width: set.width, height: set.height, ..Default::default() };
+pub fn linearity_model(set: &impl crate::fits::LinearityKeys, d: &Diagnosis) -> crate::camera::CameraConfig {
+    let (bit_depth, n_adc, [width, height, _]) = (set.bit_depth(), set.n_adc(), set.shape());
+    let mut c = crate::camera::CameraConfig { bits: bit_depth, n_adc, width, height, ..Default::default() };
     c.name = "linearity set, model extended by dncal diagnose".into();
-    c.adc.stage_bits = vec![set.bit_depth];
+    c.adc.stage_bits = vec![bit_depth];
     c.adc.stage_error_lsb = vec![0.0];
     apply_measured(c, d)
 }
@@ -177,6 +178,49 @@ pub struct DiagnoseSummary {
     pub outputs: Vec<PathBuf>,
 }
 
+/// The diagnosis of the linearity set at `read_from` (named `input`) and its camera
+/// model. The set is held as f32 (half the memory of f64; see [`crate::fits::Sample`]),
+/// or, where it would not fit the memory budget held or `block_rows` is given, read from
+/// its file by blocks of rows: the same diagnosis in a block per thread. A set whose
+/// cubes cannot be read directly (a compressed file, scaled cubes) is held.
+fn diagnose_linearity_file(read_from: &Path, input: &Path, block_rows: Option<usize>) -> Result<(Diagnosis, crate::camera::CameraConfig), HostError> {
+    use crate::budget::{bytes_of, check};
+    // The per-pixel state beyond the input: 388 bytes measured on 2048 x 2048
+    // (docs/diagnose.md).
+    const STATE: &str = "diagnosing each pixel (about 400 bytes per pixel beyond the set)";
+    let spin = |w: usize, h: usize, l: usize, how: &str| crate::commands::progress::spinner(&format!("diagnosing {} (linearity set, {w} x {h} pixels, {l} levels{how})", input.display()));
+    let failed = |source| HostError::Diagnose { path: input.into(), source };
+    let Some(rows) = open_linearity_rows::<f32>(read_from)? else {
+        let set = read_linearity_as::<f32>(read_from)?;
+        check(read_from, STATE, bytes_of((set.width * set.height) as u64, 400))?;
+        let s = spin(set.width, set.height, set.levels, "");
+        let d = diagnose_linearity(&set, 0.01).map_err(failed);
+        s.finish_and_clear();
+        let d = d?;
+        let model = linearity_model(&set, &d);
+        return Ok((d, model));
+    };
+    let (w, h, l) = (rows.width, rows.height, rows.levels);
+    let np = (w * h) as u64;
+    check(read_from, STATE, bytes_of(np, 400))?;
+    let held = bytes_of(np, 400).saturating_add(bytes_of(np * l as u64, 8));
+    let d = if block_rows.is_some() || check(read_from, "", held).is_err() {
+        let s = spin(w, h, l, ", read by blocks of rows");
+        let d = diagnose_linearity_rows(&rows, block_rows, 0.01);
+        s.finish_and_clear();
+        d
+    } else {
+        let set = rows.read_all::<f32>()?;
+        let s = spin(w, h, l, "");
+        let d = diagnose_linearity(&set, 0.01);
+        s.finish_and_clear();
+        d
+    }
+    .map_err(failed)?;
+    let model = linearity_model(&rows, &d);
+    Ok((d, model))
+}
+
 /// Whether `input` is an EMVA descriptor (text with an `n` record) rather than FITS (which
 /// starts with SIMPLE). Only a regular file is looked at, and only one small enough to be
 /// a descriptor is read whole; anything larger is left to the FITS readers.
@@ -196,14 +240,27 @@ fn looks_like_descriptor(input: &Path) -> Result<bool, HostError> {
 /// `out`, stages `residuals.png`, `report.html`, `model.toml` (the extended camera model
 /// `dncal simulate --model` reads), one figure per finding and, for EMVA sets, `codes.png`
 /// in its directory (published by the caller with the rest of its outputs).
-pub fn diagnose(input: &Path, flatten: &FlattenParams, seed: u64, out: Option<OutDir<'_>>) -> Result<DiagnoseSummary, HostError> {
-    diagnose_as(input, input, flatten, seed, out)
+pub fn diagnose(input: &Path, params: &DiagnoseParams, out: Option<OutDir<'_>>) -> Result<DiagnoseSummary, HostError> {
+    diagnose_as(input, input, params, out)
+}
+
+/// How `diagnose` reads and splits its data.
+#[derive(Debug, Clone, Default)]
+pub struct DiagnoseParams {
+    /// The flattening of a histogram set's counts (the paper's recipe).
+    pub flatten: FlattenParams,
+    /// Seed of a histogram set's held-out split.
+    pub seed: u64,
+    /// A linearity set read from its file this many rows at a time instead of held whole
+    /// ([`crate::diagnose::diagnose_linearity_rows`]); without it, so read only where the
+    /// set held whole would not fit the memory budget.
+    pub block_rows: Option<usize>,
 }
 
 /// [`diagnose`] of each of `inputs`; with `out`, the reports in `out` (one input) or in
 /// `out/0`, `out/1`, ... (several), all published together: a failure on the last input
 /// leaves no report of the first.
-pub fn diagnose_files(inputs: &[PathBuf], flatten: &FlattenParams, seed: u64, out: Option<&Path>) -> Result<Vec<DiagnoseSummary>, HostError> {
+pub fn diagnose_files(inputs: &[PathBuf], params: &DiagnoseParams, out: Option<&Path>) -> Result<Vec<DiagnoseSummary>, HostError> {
     let several = inputs.len() > 1;
     let dirs: Vec<Option<PathBuf>> = (0..inputs.len()).map(|i| out.map(|o| if several { o.join(i.to_string()) } else { o.to_path_buf() })).collect();
     let mut staged = Outputs::new();
@@ -212,7 +269,7 @@ pub fn diagnose_files(inputs: &[PathBuf], flatten: &FlattenParams, seed: u64, ou
     }
     let mut all = Vec::new();
     for (input, dir) in inputs.iter().zip(&dirs) {
-        all.push(diagnose(input, flatten, seed, dir.as_deref().map(|d| OutDir::new(&mut staged, d)))?);
+        all.push(diagnose(input, params, dir.as_deref().map(|d| OutDir::new(&mut staged, d)))?);
     }
     staged.publish()?;
     Ok(all)
@@ -227,7 +284,8 @@ pub fn expect_report(files: &mut Outputs, dir: &Path) -> Result<(), HostError> {
 
 /// [`diagnose`] of the file at `read_from`, named `input` in the report: for a command
 /// that diagnoses a file it has staged but not published yet (`demo`).
-pub fn diagnose_as(read_from: &Path, input: &Path, flatten: &FlattenParams, seed: u64, mut out: Option<OutDir<'_>>) -> Result<DiagnoseSummary, HostError> {
+pub fn diagnose_as(read_from: &Path, input: &Path, params: &DiagnoseParams, mut out: Option<OutDir<'_>>) -> Result<DiagnoseSummary, HostError> {
+    let (flatten, seed) = (&params.flatten, params.seed);
     if let Some(o) = out.as_mut() {
         expect_report(o.files, o.dir)?;
     }
@@ -293,20 +351,12 @@ pub fn diagnose_as(read_from: &Path, input: &Path, flatten: &FlattenParams, seed
             Ok(h) => h,
             Err(e) => {
                 // Not a histogram set: a linearity set, or the histogram reader's error.
-                // Held as f32 (half the memory of the run; see `fits::Sample`).
-                let set = match read_linearity_as::<f32>(read_from) {
-                    Ok(set) => set,
-                    Err(over @ HostError::OverBudget { .. }) => return Err(over),
+                // Not a histogram set: a linearity set, or the histogram reader's error.
+                let (d, model) = match diagnose_linearity_file(read_from, input, params.block_rows) {
+                    Ok(r) => r,
+                    Err(kept @ (HostError::OverBudget { .. } | HostError::Diagnose { .. })) => return Err(kept),
                     Err(_) => return Err(e),
                 };
-                // The per-pixel state beyond the input: 388 bytes measured on 2048 x 2048
-                // (docs/diagnose.md).
-                crate::budget::check(read_from, "diagnosing each pixel (about 400 bytes per pixel beyond the set)", crate::budget::bytes_of((set.width * set.height) as u64, 400))?;
-                let spin = crate::commands::progress::spinner(&format!("diagnosing {} (linearity set, {} x {} pixels, {} levels)", input.display(), set.width, set.height, set.levels));
-                let d = diagnose_linearity(&set, 0.01);
-                spin.finish_and_clear();
-                let d = d.map_err(|source| HostError::Diagnose { path: input.into(), source })?;
-                let model = linearity_model(&set, &d);
                 return report(input, d, Some(model), out, ("level", "baseline (linear pixels): RMS over pixels"));
             }
         };
@@ -337,6 +387,9 @@ impl Report for DiagnoseSummary {
         }
         for note in &d.not_tested {
             t += &format!("  not tested: {note}\n");
+        }
+        if let Some(rows) = d.block_rows {
+            t += &format!("  (the set read from its file {rows} rows at a time: the numbers of the set held whole, in less memory)\n");
         }
         t += &format!("  all data: RMS {:.3} unexplained (baseline {:.3})\n", d.unexplained_rms, d.baseline.rms);
         t

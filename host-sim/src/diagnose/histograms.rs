@@ -134,6 +134,7 @@ pub fn diagnose_histograms(h: &AdcHistograms, flatten: &FlattenParams, seed: u64
         findings,
         unexplained_rms: mean_sq(&all_final).sqrt(),
         residuals,
+        block_rows: None,
     })
 }
 

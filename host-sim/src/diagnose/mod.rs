@@ -6,6 +6,7 @@
 //! spatial series), [`linearity`] (linearity sets).
 
 mod codes;
+mod cubes;
 mod defects;
 mod histograms;
 mod levels;
@@ -18,7 +19,7 @@ mod scores;
 pub use codes::{diagnose_code_density, CodeDensity};
 pub use defects::{diagnose_defects, DefectOutcome};
 pub use histograms::diagnose_histograms;
-pub use linearity::diagnose_linearity;
+pub use linearity::{diagnose_linearity, diagnose_linearity_rows};
 pub use ptc::diagnose_ptc;
 
 use serde::Serialize;
@@ -185,6 +186,9 @@ pub enum DiagnoseError {
     /// No pixel has enough unsaturated levels.
     #[error("no pixel has enough unsaturated levels to fit")]
     NoPixelFits,
+    /// The set's file could not be read while it was diagnosed by blocks of rows.
+    #[error("{message}")]
+    Read { message: String },
 }
 
 /// One accepted model extension.
@@ -267,6 +271,10 @@ pub struct Diagnosis {
     /// absent).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub not_tested: Vec<String>,
+    /// A linearity set read from its file this many rows at a time instead of held
+    /// whole ([`diagnose_linearity_rows`]): the same numbers either way.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub block_rows: Option<usize>,
 }
 
 /// Camera parameters a diagnosis measured on the way, each `None` when the data do not

@@ -3,8 +3,9 @@
 //! pixel's points took 1.3 KB at 41 levels, most of what `diagnose` held per pixel
 //! (5.1 KB in all), and each costs a few flops to recompute against a Gauss-Newton fit.
 
+use super::cubes::{Levels, SetView};
 use super::pixel_fit::Point;
-use crate::fits::{LinearitySet, Sample};
+use crate::fits::Sample;
 
 /// A per-level term common to pixels, taken out of their means: `(c, var)` in DN and
 /// DN^2 at `level` for pixel `i` (an index into [`Pixels`]) read by `adc`, where there is
@@ -15,7 +16,7 @@ pub(super) trait Common: Sync {
 
 /// The pixels of a set a diagnosis fits (those not masked) and what their points need.
 pub(super) struct Pixels<'a, T: Sample> {
-    set: &'a LinearitySet<T>,
+    set: &'a SetView<'a, T>,
     /// Reference per level, `V_l / max V`.
     pub x: Vec<f64>,
     /// `(N - 1) / (N - 3)`: the mean of `1 / s^2` over Gaussian frames, relative.
@@ -23,13 +24,13 @@ pub(super) struct Pixels<'a, T: Sample> {
     /// Per level, the quantization's mean square error of a mean, DN^2.
     bias2: Vec<f64>,
     /// Per pixel of the set, its levels below saturation.
-    pub valid: Vec<usize>,
+    valid: Vec<u16>,
     /// Index into the set's pixels of each pixel fitted.
     pub index: Vec<usize>,
 }
 
 impl<'a, T: Sample> Pixels<'a, T> {
-    pub fn new(set: &'a LinearitySet<T>, x: Vec<f64>, kappa: f64, bias2: Vec<f64>, valid: Vec<usize>, index: Vec<usize>) -> Self {
+    pub fn new(set: &'a SetView<'a, T>, x: Vec<f64>, kappa: f64, bias2: Vec<f64>, valid: Vec<u16>, index: Vec<usize>) -> Self {
         Pixels { set, x, kappa, bias2, valid, index }
     }
 
@@ -56,7 +57,7 @@ impl<'a, T: Sample> Pixels<'a, T> {
 
     /// Levels of pixel `i` below saturation.
     pub fn valid(&self, i: usize) -> usize {
-        self.valid[self.index[i]]
+        usize::from(self.valid[self.index[i]])
     }
 
     /// The levels of pixel `i`, split: (even levels, odd levels); less the `common` term
@@ -64,21 +65,23 @@ impl<'a, T: Sample> Pixels<'a, T> {
     /// mean's value type: [`Sample::rounding_var`]).
     pub fn halves(&self, i: usize, common: Option<&dyn Common>) -> (Vec<Point>, Vec<Point>) {
         let set = self.set;
-        let (np, p, valid) = (set.width * set.height, self.index[i], self.valid(i));
+        let (p, valid) = (self.index[i], self.valid(i));
         let n = f64::from(set.n_frames.max(1));
         let floor = 1.0 / (12.0 * n);
         let adc = self.adc(i);
-        let pts = (0..valid)
-            .map(|l| {
-                let (c, v) = common.and_then(|t| t.at(l, adc, i)).unwrap_or((0.0, 0.0));
-                let (m, s): (f64, f64) = (set.mean[l * np + p].into(), set.std[l * np + p].into());
-                Point { level: l, x: self.x[l], y: m - c, sigma: ((self.kappa * s * s / n).max(floor) + self.bias2[l] + v + T::rounding_var(m)).sqrt() }
-            })
-            .filter(|q| q.x.is_finite() && q.y.is_finite() && q.sigma.is_finite());
         let mut halves = (Vec::with_capacity(valid.div_ceil(2)), Vec::with_capacity(valid / 2));
-        for q in pts {
-            if q.level % 2 == 0 { halves.0.push(q) } else { halves.1.push(q) }
-        }
+        set.with_pixel(p, |at| {
+            let pts = (0..valid)
+                .map(|l| {
+                    let (c, v) = common.and_then(|t| t.at(l, adc, i)).unwrap_or((0.0, 0.0));
+                    let (m, s) = (at.mean(l), at.std(l));
+                    Point { level: l, x: self.x[l], y: m - c, sigma: ((self.kappa * s * s / n).max(floor) + self.bias2[l] + v + T::rounding_var(m)).sqrt() }
+                })
+                .filter(|q| q.x.is_finite() && q.y.is_finite() && q.sigma.is_finite());
+            for q in pts {
+                if q.level % 2 == 0 { halves.0.push(q) } else { halves.1.push(q) }
+            }
+        });
         halves
     }
 
@@ -89,13 +92,18 @@ impl<'a, T: Sample> Pixels<'a, T> {
         ev
     }
 
+    /// `f` of the levels of pixel `i` ([`SetView::with_pixel`]).
+    pub fn with_levels<R>(&self, i: usize, f: impl FnOnce(Levels<'_, T>) -> R) -> R {
+        self.set.with_pixel(self.index[i], f)
+    }
+
     /// The raw mean of pixel `i` at `level`, DN.
     pub fn mean(&self, level: usize, i: usize) -> f64 {
-        self.set.mean[level * self.set.width * self.set.height + self.index[i]].into()
+        self.with_levels(i, |at| at.mean(level))
     }
 
     /// The frames' standard deviation of pixel `i` at `level`, DN.
     pub fn std(&self, level: usize, i: usize) -> f64 {
-        self.set.std[level * self.set.width * self.set.height + self.index[i]].into()
+        self.with_levels(i, |at| at.std(level))
     }
 }

@@ -156,6 +156,161 @@ where
     // The two cubes are most of the file: their checksums wait until they are read, in
     // the same pass.
     let mut r = FitsReader::open_deferring(path)?;
+    let h = read_header(&mut r)?;
+    let mean: Vec<T> = r.float_pixels(&h.cubes[0])?;
+    let std: Vec<T> = r.float_pixels(&h.cubes[1])?;
+    let (voltage, mask) = read_reference(&mut r, &h)?;
+    let Header { bit_depth, n_adc, n_frames, width, height, levels, .. } = h;
+    let set = LinearitySet { bit_depth, n_adc, n_frames, width, height, levels, mean, std, voltage, mask };
+    check_linearity(&set).map_err(|m| r.error(m))?;
+    r.finish()?;
+    Ok(set)
+}
+
+/// A linearity set read by blocks of rows from its file (`dncal diagnose` on a set its
+/// memory budget cannot hold whole): what [`LinearitySet`] holds besides its cubes, and
+/// where the cubes are. Opening it reads every value once and checks it as
+/// [`read_linearity_as`] does (same errors), with the checksums.
+#[derive(Debug)]
+pub struct LinearityRows {
+    /// Bits per code of the camera.
+    pub bit_depth: u32,
+    /// ADCs of the camera; column `c` is read by ADC `c mod n_adc`.
+    pub n_adc: usize,
+    /// Frames averaged at each level.
+    pub n_frames: u32,
+    /// Columns per frame.
+    pub width: usize,
+    /// Rows per frame.
+    pub height: usize,
+    /// Illumination levels; level 0 is dark.
+    pub levels: usize,
+    /// Reference photodiode voltage of each level in V.
+    pub voltage: Vec<f64>,
+    /// Known bad pixels, `mask[row * width + column]`, 1 = bad, 0 = good.
+    pub mask: Option<Vec<u8>>,
+    path: std::path::PathBuf,
+    /// The mean and the standard-deviation cube.
+    cubes: [StoredFloats; 2],
+}
+
+impl LinearityRows {
+    /// The file it reads.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Rows `rows` of every level of both cubes as `T` (converted as cfitsio converts):
+    /// `mean[(level * rows.len() + row - rows.start) * width + column]`, `std` alike;
+    /// `bytes` a buffer the caller reuses.
+    pub fn read_rows<T: Sample>(&self, rows: std::ops::Range<usize>, mean: &mut Vec<T>, std: &mut Vec<T>, bytes: &mut Vec<u8>) -> std::io::Result<()> {
+        let (w, n) = (self.width, rows.len() * self.width);
+        for (cube, out) in self.cubes.iter().zip([mean, std]) {
+            out.resize(self.levels * n, T::default());
+            for (l, plane) in out.chunks_exact_mut(n.max(1)).enumerate() {
+                cube.read((l * self.height + rows.start) * w, plane, bytes)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Pixel `p`'s value at every level of both cubes, as [`LinearityRows::read_rows`]
+    /// of one pixel (`mean[level]`, `std[level]`).
+    pub fn read_pixel<T: Sample>(&self, p: usize, mean: &mut Vec<T>, std: &mut Vec<T>, bytes: &mut Vec<u8>) -> std::io::Result<()> {
+        let frame = self.width * self.height;
+        for (cube, out) in self.cubes.iter().zip([mean, std]) {
+            out.resize(self.levels, T::default());
+            for (l, v) in out.iter_mut().enumerate() {
+                cube.read(l * frame + p, std::slice::from_mut(v), bytes)?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// What a linearity set's keys say, held or read by rows.
+pub trait LinearityKeys {
+    /// Bits per code.
+    fn bit_depth(&self) -> u32;
+    /// ADCs (`NADC`).
+    fn n_adc(&self) -> usize;
+    /// Columns, rows, levels.
+    fn shape(&self) -> [usize; 3];
+}
+
+impl<T: Sample> LinearityKeys for LinearitySet<T> {
+    fn bit_depth(&self) -> u32 {
+        self.bit_depth
+    }
+    fn n_adc(&self) -> usize {
+        self.n_adc
+    }
+    fn shape(&self) -> [usize; 3] {
+        [self.width, self.height, self.levels]
+    }
+}
+
+impl LinearityKeys for LinearityRows {
+    fn bit_depth(&self) -> u32 {
+        self.bit_depth
+    }
+    fn n_adc(&self) -> usize {
+        self.n_adc
+    }
+    fn shape(&self) -> [usize; 3] {
+        [self.width, self.height, self.levels]
+    }
+}
+
+impl LinearityRows {
+    /// The whole set held as `T` (checked when it was opened), its cubes read in
+    /// parallel; the caller has checked its memory budget.
+    pub fn read_all<T: Sample>(&self) -> Result<LinearitySet<T>, HostError> {
+        let n = self.levels * self.width * self.height;
+        let mut cubes = self.cubes.iter().map(|c| c.read_all::<T>(n).map_err(|e| HostError::io(&self.path, e)));
+        let (mean, std) = (cubes.next().unwrap_or_else(|| Ok(Vec::new()))?, cubes.next().unwrap_or_else(|| Ok(Vec::new()))?);
+        let LinearityRows { bit_depth, n_adc, n_frames, width, height, levels, .. } = *self;
+        Ok(LinearitySet { bit_depth, n_adc, n_frames, width, height, levels, mean, std, voltage: self.voltage.clone(), mask: self.mask.clone() })
+    }
+}
+
+/// Opens a linearity set to be read by blocks of rows, its values checked as `T`
+/// ([`LinearityRows`]); `None` where its cubes cannot be read directly (a compressed
+/// file, scaled or integer cubes): [`read_linearity_as`] reads those whole.
+pub fn open_linearity_rows<T: Sample>(path: &Path) -> Result<Option<LinearityRows>, HostError> {
+    let mut r = FitsReader::open_deferring(path)?;
+    let h = read_header(&mut r)?;
+    let (Some(mean_at), Some(std_at)) = (r.stored_floats(&h.cubes[0])?, r.stored_floats(&h.cubes[1])?) else {
+        return Ok(None);
+    };
+    let (frame, _) = check_shape(&h).map_err(|m| r.error(m))?;
+    for (name, image, at) in [("mean", &h.cubes[0], &mean_at), ("std", &h.cubes[1], &std_at)] {
+        let bad = |v: T| !v.into().is_finite() || (name == "std" && (v.into() as f32) < 0.0);
+        if let Some((i, v)) = r.scan_floats::<T>(image, at, bad)? {
+            return Err(r.error(value_error(name, v, i, frame, h.width)));
+        }
+    }
+    let (voltage, mask) = read_reference(&mut r, &h)?;
+    check_reference(&voltage, h.levels, mask.as_deref(), frame, h.width).map_err(|m| r.error(m))?;
+    r.finish()?;
+    let Header { bit_depth, n_adc, n_frames, width, height, levels, .. } = h;
+    Ok(Some(LinearityRows { bit_depth, n_adc, n_frames, width, height, levels, voltage, mask, path: path.to_path_buf(), cubes: [mean_at, std_at] }))
+}
+
+/// What a linearity set's file says before its data: its keys and the headers of its two
+/// cubes (same shape).
+struct Header {
+    bit_depth: u32,
+    n_adc: usize,
+    n_frames: u32,
+    width: usize,
+    height: usize,
+    levels: usize,
+    /// The primary cube (means) and extension `STD`.
+    cubes: [ImageHeader; 2],
+}
+
+fn read_header(r: &mut FitsReader) -> Result<Header, HostError> {
     r.expect_kind(FileKind::Linearity)?;
     let (bit_depth, n_adc, _) = r.adc_keys()?;
     let n_frames = r.required_int(0, PRIMARY, "NFRAMES")?;
@@ -168,8 +323,6 @@ where
     if width == 0 || height == 0 || levels == 0 {
         return Err(r.error(format!("the primary cube is {width} x {height} x {levels}: empty")));
     }
-    let mean: Vec<T> = r.float_pixels(&image)?;
-
     let std_hdu = r.require_extension("STD", "per-pixel standard deviations")?;
     let std_image = r.image(std_hdu, "extension STD", 3)?;
     if std_image.naxes != image.naxes {
@@ -179,14 +332,18 @@ where
             shape_text(&image.naxes)
         )));
     }
-    let std: Vec<T> = r.float_pixels(&std_image)?;
+    Ok(Header { bit_depth, n_adc, n_frames, width, height, levels, cubes: [image, std_image] })
+}
 
+/// The reference voltages (extension `REFERENCE`) and the mask (`MASK`, where present)
+/// of a set whose header is `h`.
+fn read_reference(r: &mut FitsReader, h: &Header) -> Result<(Vec<f64>, Option<Vec<u8>>), HostError> {
+    let (width, height, levels) = (h.width, h.height, h.levels);
     let ref_hdu = r.require_extension("REFERENCE", "reference voltages")?;
     let voltage = r.column_f64(ref_hdu, "extension REFERENCE", "VOLTAGE")?;
     if voltage.len() != levels {
         return Err(r.error(format!("extension REFERENCE has {} rows, the cube has {levels} levels", voltage.len())));
     }
-
     let mask = match r.extension("MASK")? {
         None => None,
         Some(hdu) => {
@@ -203,29 +360,12 @@ where
             Some(mask)
         }
     };
-    let set = LinearitySet { bit_depth, n_adc, n_frames, width, height, levels, mean, std, voltage, mask };
-    check_linearity(&set).map_err(|m| r.error(m))?;
-    r.finish()?;
-    Ok(set)
+    Ok((voltage, mask))
 }
 
 /// Everything a [`LinearitySet`] must satisfy, whether about to be written or just read.
 pub(super) fn check_linearity<T: Sample>(s: &LinearitySet<T>) -> Result<(), String> {
-    codes_for(s.bit_depth)?;
-    if s.n_adc == 0 {
-        return Err("no ADCs: NADC must be at least 1".into());
-    }
-    if s.n_frames == 0 {
-        return Err("NFRAMES must be at least 1".into());
-    }
-    let frame = s.width.checked_mul(s.height).filter(|&n| n > 0);
-    let (Some(frame), Some(cube)) = (frame, frame.and_then(|f| f.checked_mul(s.levels)).filter(|&n| n > 0)) else {
-        return Err(format!(
-            "shape {} x {} x {} (columns x rows x levels) is empty or too large",
-            s.width, s.height, s.levels
-        ));
-    };
-    let at = |i: usize| format!("level {}, row {}, column {}", i / frame, i % frame / s.width, i % s.width);
+    let (frame, cube) = check_frame(s.bit_depth, s.n_adc, s.n_frames, [s.width, s.height, s.levels])?;
     for (name, values) in [("mean", &s.mean), ("std", &s.std)] {
         if values.len() != cube {
             return Err(format!(
@@ -237,27 +377,67 @@ pub(super) fn check_linearity<T: Sample>(s: &LinearitySet<T>) -> Result<(), Stri
             ));
         }
         if let Some(i) = values.iter().position(|&v| !v.into().is_finite()) {
-            return Err(format!("{name} is {} at {}", values[i], at(i)));
+            return Err(value_error(name, values[i], i, frame, s.width));
         }
     }
     // Negative at single precision: a negative subnormal below f32's smallest (a zero
     // written with a rounding error) reads as -0.0 in the f32 reader, which must not
     // accept what this one refuses (found by the `fits_linearity` fuzz target: -8e-322).
     if let Some(i) = s.std.iter().position(|&v| (v.into() as f32) < 0.0) {
-        return Err(format!("std is negative ({}) at {}", s.std[i], at(i)));
+        return Err(format!("std is negative ({}) at {}", s.std[i], at(i, frame, s.width)));
     }
-    if s.voltage.len() != s.levels {
-        return Err(format!("{} reference voltages for {} levels", s.voltage.len(), s.levels));
+    check_reference(&s.voltage, s.levels, s.mask.as_deref(), frame, s.width)
+}
+
+/// [`check_frame`] of a header.
+fn check_shape(h: &Header) -> Result<(usize, usize), String> {
+    check_frame(h.bit_depth, h.n_adc, h.n_frames, [h.width, h.height, h.levels])
+}
+
+/// The keys and shape a set must have: pixels per frame and values per cube.
+fn check_frame(bit_depth: u32, n_adc: usize, n_frames: u32, [width, height, levels]: [usize; 3]) -> Result<(usize, usize), String> {
+    codes_for(bit_depth)?;
+    if n_adc == 0 {
+        return Err("no ADCs: NADC must be at least 1".into());
     }
-    if let Some(level) = s.voltage.iter().position(|v| !v.is_finite()) {
-        return Err(format!("reference voltage is {} at level {level}", s.voltage[level]));
+    if n_frames == 0 {
+        return Err("NFRAMES must be at least 1".into());
     }
-    if let Some(mask) = &s.mask {
+    let frame = width.checked_mul(height).filter(|&n| n > 0);
+    match (frame, frame.and_then(|f| f.checked_mul(levels)).filter(|&n| n > 0)) {
+        (Some(frame), Some(cube)) => Ok((frame, cube)),
+        _ => Err(format!("shape {width} x {height} x {levels} (columns x rows x levels) is empty or too large")),
+    }
+}
+
+/// Where value `i` of a cube is.
+fn at(i: usize, frame: usize, width: usize) -> String {
+    format!("level {}, row {}, column {}", i / frame, i % frame / width, i % width)
+}
+
+/// Value `v` at `i` of cube `name` is not finite, or (`std`) negative.
+fn value_error<T: Sample>(name: &str, v: T, i: usize, frame: usize, width: usize) -> String {
+    if v.into().is_finite() {
+        format!("{name} is negative ({v}) at {}", at(i, frame, width))
+    } else {
+        format!("{name} is {v} at {}", at(i, frame, width))
+    }
+}
+
+/// The reference voltages (one per level, finite) and the mask (a frame of 0 and 1).
+fn check_reference(voltage: &[f64], levels: usize, mask: Option<&[u8]>, frame: usize, width: usize) -> Result<(), String> {
+    if voltage.len() != levels {
+        return Err(format!("{} reference voltages for {levels} levels", voltage.len()));
+    }
+    if let Some(level) = voltage.iter().position(|v| !v.is_finite()) {
+        return Err(format!("reference voltage is {} at level {level}", voltage[level]));
+    }
+    if let Some(mask) = mask {
         if mask.len() != frame {
-            return Err(format!("mask holds {} values, {} x {} frames need {frame}", mask.len(), s.width, s.height));
+            return Err(format!("mask holds {} values, {width} x {} frames need {frame}", mask.len(), frame / width));
         }
         if let Some(i) = mask.iter().position(|&m| m > 1) {
-            return Err(format!("mask value {} at row {}, column {} is not 0 or 1", mask[i], i / s.width, i % s.width));
+            return Err(format!("mask value {} at row {}, column {} is not 0 or 1", mask[i], i / width, i % width));
         }
     }
     Ok(())

@@ -143,6 +143,35 @@ pub(super) struct FitsReader<'a> {
     pub(super) deferred: Vec<Deferred>,
 }
 
+/// A float image's values in an uncompressed file: `bytes` (4 or 8) each, big-endian,
+/// unscaled, from `offset`; the file opened once more (its own handle).
+#[derive(Debug)]
+pub(super) struct StoredFloats {
+    pub(super) file: std::fs::File,
+    pub(super) offset: u64,
+    pub(super) bytes: usize,
+}
+
+impl StoredFloats {
+    /// The first `n` values of the image, converted to `T`, read in parallel.
+    pub(super) fn read_all<T: BigEndianFloat>(&self, n: usize) -> std::io::Result<Vec<T>> {
+        Ok(match self.bytes {
+            4 => super::direct::read_values::<f32, T>(&self.file, self.offset, n, T::from_f32)?.0,
+            _ => super::direct::read_values::<f64, T>(&self.file, self.offset, n, T::from_f64)?.0,
+        })
+    }
+
+    /// Values `first..first + out.len()` of the image, converted to `T` as cfitsio
+    /// converts (`bytes`: a buffer the caller reuses).
+    pub(super) fn read<T: BigEndianFloat>(&self, first: usize, out: &mut [T], bytes: &mut Vec<u8>) -> std::io::Result<()> {
+        let at = self.offset + (first * self.bytes) as u64;
+        match self.bytes {
+            4 => super::direct::read_into::<f32, T>(&self.file, at, out, T::from_f32, bytes),
+            _ => super::direct::read_into::<f64, T>(&self.file, at, out, T::from_f64, bytes),
+        }
+    }
+}
+
 /// A data unit of at least [`DEFER_BYTES`] whose checksum verification waits for its
 /// data to be read (one pass instead of two).
 pub(super) struct Deferred {
@@ -259,16 +288,7 @@ impl<'a> FitsReader<'a> {
         if self.raw.is_none() {
             return Ok(None);
         }
-        let (mut status, mut head, mut start, mut end) = (0, 0, 0, 0);
-        // SAFETY: `self.file` is open and `hdu` below its HDU count; ffghadll writes the
-        // three offsets.
-        unsafe {
-            let f = self.file.as_raw();
-            fitsio::sys::ffmahd(f, hdu as i32 + 1, std::ptr::null_mut(), &mut status);
-            fitsio::sys::ffghadll(f, &mut head, &mut start, &mut end, &mut status);
-        }
-        fitsio::errors::check_status(status).map_err(|e| fits_error(self.path, &format!("reading the header of HDU {hdu}"), &e))?;
-        let (head, start, end) = (head as u64, start as u64, end as u64);
+        let (head, start, end) = self.offsets(hdu)?;
         if end.saturating_sub(start) < min.max(1) {
             return Ok(None);
         }
@@ -294,6 +314,20 @@ impl<'a> FitsReader<'a> {
             return Ok(None);
         }
         Ok(Some(Deferred { hdu, data: (start, end), header_sum, datasum }))
+    }
+
+    /// Byte offsets of HDU `hdu` in the file: its header, its data unit, its end.
+    fn offsets(&mut self, hdu: usize) -> Result<(u64, u64, u64), HostError> {
+        let (mut status, mut head, mut start, mut end) = (0, 0, 0, 0);
+        // SAFETY: `self.file` is open and `hdu` below its HDU count; ffghadll writes the
+        // three offsets.
+        unsafe {
+            let f = self.file.as_raw();
+            fitsio::sys::ffmahd(f, hdu as i32 + 1, std::ptr::null_mut(), &mut status);
+            fitsio::sys::ffghadll(f, &mut head, &mut start, &mut end, &mut status);
+        }
+        fitsio::errors::check_status(status).map_err(|e| fits_error(self.path, &format!("reading the header of HDU {hdu}"), &e))?;
+        Ok((head as u64, start as u64, end as u64))
     }
 
     /// The verdict on a deferred HDU whose data unit sums to `data_sum`, as ffvcks gives
@@ -573,6 +607,45 @@ impl<'a> FitsReader<'a> {
         let padding = super::direct::checksum_at(raw, values_end, d.data.1 - values_end).map_err(io)?;
         self.check_deferred(&d, super::direct::add(sum, padding))?;
         Ok(values)
+    }
+
+    /// Where a float image's values can be read directly, as [`super::direct`] reads
+    /// them: an uncompressed file, unscaled IEEE floats. `None` for any other image.
+    pub(super) fn stored_floats(&mut self, image: &ImageHeader) -> Result<Option<StoredFloats>, HostError> {
+        let bytes = match image.bitpix {
+            -32 => 4,
+            -64 => 8,
+            _ => return Ok(None),
+        };
+        let Some(raw) = &self.raw else { return Ok(None) };
+        if image.bscale != 1.0 || image.bzero != 0.0 {
+            return Ok(None);
+        }
+        let file = raw.try_clone().map_err(|e| HostError::io(self.path, e))?;
+        let (_, start, end) = self.offsets(image.hdu)?;
+        if start + (image.elements * bytes) as u64 > end {
+            return Err(self.error(format!("the {} declares more data than its unit holds", image.label)));
+        }
+        Ok(Some(StoredFloats { file, offset: start, bytes }))
+    }
+
+    /// One pass over a float image read directly ([`FitsReader::stored_floats`]), holding
+    /// none of it: its values converted to `T`, the first that `bad` flags, and its
+    /// checksum verified where it was deferred (else cfitsio verified it at open).
+    pub(super) fn scan_floats<T: BigEndianFloat>(&mut self, image: &ImageHeader, at: &StoredFloats, bad: impl Fn(T) -> bool + Sync) -> Result<Option<(usize, T)>, HostError> {
+        let io = |e| HostError::io(self.path, e);
+        let (flagged, sum) = match at.bytes {
+            4 => super::direct::scan_values::<f32, T>(&at.file, at.offset, image.elements, T::from_f32, bad),
+            _ => super::direct::scan_values::<f64, T>(&at.file, at.offset, image.elements, T::from_f64, bad),
+        }
+        .map_err(io)?;
+        if let Some(i) = self.deferred.iter().position(|d| d.hdu == image.hdu) {
+            let d = self.deferred.remove(i);
+            let values_end = at.offset + (image.elements * at.bytes) as u64;
+            let padding = super::direct::checksum_at(&at.file, values_end, d.data.1 - values_end).map_err(io)?;
+            self.check_deferred(&d, super::direct::add(sum, padding))?;
+        }
+        Ok(flagged)
     }
 
     /// All pixels of an integer image, physical values (BZERO applied).

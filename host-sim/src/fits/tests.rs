@@ -337,7 +337,17 @@ fn linearity_reader_rejects_bad_files() {
         edit(&mut p);
         write_parts(&path, &p);
         assert_rejects(read_linearity(&path), &path, expected);
+        // A set opened to be read by rows (`diagnose` beyond its memory budget) is
+        // refused with the words of the whole read, as f32.
+        assert_eq!(open_linearity_rows::<f32>(&path).unwrap_err().to_string(), read_linearity_as::<f32>(&path).unwrap_err().to_string());
     }
+    // Past f32's range: infinite as f32, as cfitsio converts it.
+    let mut p = parts();
+    p.mean[23] = 1e300;
+    write_parts(&path, &p);
+    read_linearity(&path).unwrap();
+    assert_rejects(read_linearity_as::<f32>(&path), &path, "mean is inf at level 1, row 1, column 3");
+    assert_eq!(open_linearity_rows::<f32>(&path).unwrap_err().to_string(), read_linearity_as::<f32>(&path).unwrap_err().to_string());
 }
 
 #[test]

@@ -209,11 +209,7 @@ pub fn unsaturated_levels<T: Sample>(set: &LinearitySet<T>) -> Vec<usize> {
     let top = ((1u64 << set.bit_depth) - 1) as f64;
     let m = |l: usize, p: usize| -> f64 { set.mean[l * np + p].into() };
     let sd = |l: usize, p: usize| -> f64 { set.std[l * np + p].into() };
-    let saturated = |l: usize, p: usize| {
-        !(m(l, p).is_finite() && sd(l, p).is_finite())
-            || m(l, p) >= top - 4.0 * sd(l, p).max(0.5)
-            || (l > 0 && m(l, p) > 0.5 * top && sd(l, p) < 0.5 * sd(l - 1, p))
-    };
+    let saturated = |l: usize, p: usize| saturated_at(l, top, |l| m(l, p), |l| sd(l, p));
     // Level by level over blocks of pixels: the cube is level-major, so a pixel's levels
     // are a frame apart and walking them pixel by pixel misses the cache at every level.
     const BLOCK: usize = 4096;
@@ -229,6 +225,12 @@ pub fn unsaturated_levels<T: Sample>(set: &LinearitySet<T>) -> Vec<usize> {
         }
     });
     valid
+}
+
+/// Whether a pixel whose mean and frame deviation at level `k` are `m(k)` and `sd(k)`
+/// is saturated at level `l` (see [`unsaturated_levels`]); `top` is the top code.
+pub(crate) fn saturated_at(l: usize, top: f64, m: impl Fn(usize) -> f64, sd: impl Fn(usize) -> f64) -> bool {
+    !(m(l).is_finite() && sd(l).is_finite()) || m(l) >= top - 4.0 * sd(l).max(0.5) || (l > 0 && m(l) > 0.5 * top && sd(l) < 0.5 * sd(l - 1))
 }
 
 /// The paper's Fig. 7 data: `n` consecutive pixels centered in the region's middle row,

@@ -319,6 +319,11 @@ pub(crate) enum Cmd {
         /// Seed of the held-out split.
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// Read a linearity set from its file this many rows at a time instead of holding
+        /// it (the same diagnosis in less memory; automatic where the set held whole would
+        /// not fit --max-memory).
+        #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
+        block_rows: Option<u64>,
         /// Report folder (one subfolder per input when several).
         #[arg(short, long)]
         out: Option<PathBuf>,

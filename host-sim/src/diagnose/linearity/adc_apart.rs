@@ -5,11 +5,10 @@
 use rayon::prelude::*;
 
 use super::super::pixel_fit::{fit_and_score, Response};
-use super::super::points::{Common, Pixels};
+use super::scoring::Scoring;
 use super::super::scores::{Cell, Scores};
 use super::super::{AdcResiduals, Effect, Finding, SIGNIFICANCE};
 use super::{finding, with_residuals};
-use super::pixel_fits::PixelFits;
 use crate::fits::Sample;
 use crate::stats::{robust, upper_median};
 
@@ -149,7 +148,8 @@ pub(super) fn adcs_apart(values: &[(usize, bool, f64)], n_adc: usize) -> Vec<Apa
 /// response `curve_for` (all its levels), and the ADCs whose pixels sit apart
 /// ([`adcs_apart`]), added to their findings in `adc_findings` (one per ADC) or made into
 /// new ones.
-pub(super) fn adc_maps<T: Sample>(px: &Pixels<T>, common: Option<&dyn Common>, fits: &[PixelFits], good: &[usize], curve_for: &(dyn Fn(usize) -> Response + Sync), adc_findings: &mut [Option<Finding>]) {
+pub(super) fn adc_maps<T: Sample>(s: &Scoring<'_, T>, curve_for: &(dyn Fn(usize) -> Response + Sync), adc_findings: &mut [Option<Finding>]) {
+    let (px, common, fits, good) = (s.px, s.common, s.fits, &s.good);
     let n_adc = adc_findings.len();
     let dg: Vec<Option<[f64; 2]>> = good
         .par_iter()

@@ -1,12 +1,13 @@
 //! What a linearity set measures of the camera (for the model file), and the
 //! quantization floor of the means its noise model needs.
 
-use super::super::points::Pixels;
+use rayon::prelude::*;
+
+use super::super::cubes::SetView;
+use super::scoring::Scoring;
 use super::super::Measured;
 use super::adc_apart::population;
-use super::pixel_fits::PixelFits;
-use crate::fits::{LinearitySet, Sample};
-use crate::stats::upper_median;
+use crate::fits::Sample;
 
 /// Per level, the mean square error a mean of quantized frames carries beyond what their
 /// spread shows ([`crate::quantization::mean_square_bias`] at the analog noise behind the
@@ -15,15 +16,36 @@ use crate::stats::upper_median;
 /// it a set with 0.1 DN of noise gave `bad-pixels` at 950 sigma and `unexplained` at 800
 /// (its means were taken to be good to 1/sqrt(12 N) of a code); with the median frame
 /// deviation taken for the analog noise (0.3 DN read for 0.17), `unexplained` at 98.
-pub(super) fn quantization_floor<T: Sample>(set: &LinearitySet<T>, pixels: &[usize]) -> Vec<f64> {
-    let np = set.width * set.height;
-    (0..set.levels)
+pub(super) fn quantization_floor<T: Sample>(set: &SetView<'_, T>, pixels: &[usize]) -> Vec<f64> {
+    let nl = set.levels;
+    // Per level, the finite deviations; their upper median (exact, in passes over the
+    // pixels: [`crate::select`]) sets the cut.
+    let finite = |i: usize, f: &mut dyn FnMut(usize, f64)| {
+        set.with_pixel(pixels[i], |at| (0..nl).map(|l| (l, at.std(l))).filter(|(_, v)| v.is_finite()).for_each(|(l, v)| f(l, v)))
+    };
+    // Noisy or hot pixels out: they are not the level's noise.
+    let cut: Vec<f64> = crate::select::upper_medians(pixels.len(), nl, &finite).into_iter().map(|m| 5.0 * m.max(0.0) + 1.0).collect();
+    // Their mean square below the cut, summed in a fixed order ([`super::super::TASKS`]).
+    let n = pixels.len();
+    let chunk = n.div_ceil(super::super::TASKS).max(1);
+    let parts: Vec<Vec<(f64, usize)>> = (0..n.div_ceil(chunk))
+        .into_par_iter()
+        .map(|c| {
+            let mut acc = vec![(0.0, 0usize); nl];
+            for i in c * chunk..((c + 1) * chunk).min(n) {
+                finite(i, &mut |l, v| {
+                    if v <= cut[l] {
+                        acc[l] = (acc[l].0 + v * v, acc[l].1 + 1);
+                    }
+                });
+            }
+            acc
+        })
+        .collect();
+    (0..nl)
         .map(|l| {
-            let s: Vec<f64> = pixels.iter().map(|&p| set.std[l * np + p].into()).filter(|v: &f64| v.is_finite()).collect();
-            // Noisy or hot pixels out: they are not the level's noise.
-            let cut = 5.0 * upper_median(s.clone()).max(0.0) + 1.0;
-            let kept: Vec<f64> = s.into_iter().filter(|&v| v <= cut).collect();
-            let v = kept.iter().map(|v| v * v).sum::<f64>() / kept.len().max(1) as f64;
+            let (sum, count) = parts.iter().fold((0.0, 0), |(s, k), p| (s + p[l].0, k + p[l].1));
+            let v = sum / count.max(1) as f64;
             crate::quantization::mean_square_bias(crate::quantization::sigma_from_quantized_variance(v))
         })
         .collect()
@@ -38,7 +60,8 @@ pub(super) fn quantization_floor<T: Sample>(set: &LinearitySet<T>, pixels: &[usi
 /// pixel-to-pixel rms of the quadratic response term from the *covariance* of the
 /// pixels' even-level and odd-level quartics (their noises are independent, so the
 /// covariance over pixels is the spread of the true terms alone).
-pub(super) fn measure_camera<T: Sample>(px: &Pixels<T>, good: &[usize], fits: &[PixelFits], n_frames: u32, top: f64, bad: usize) -> Measured {
+pub(super) fn measure_camera<T: Sample>(scoring: &Scoring<'_, T>, n_frames: u32, bad: usize) -> Measured {
+    let (px, good, fits, top) = (scoring.px, &scoring.good, scoring.fits, scoring.top);
     let levels = px.x.len();
     // The median of `s^2` is `sigma^2` times the median of `chi^2_(N-1) / (N-1)`,
     // `(1 - 2 / (9 (N-1)))^3` (Wilson-Hilferty): 0.26% low at 256 frames, and the gain
@@ -52,19 +75,41 @@ pub(super) fn measure_camera<T: Sample>(px: &Pixels<T>, good: &[usize], fits: &[
         let (_, centre, scatter) = population(v.iter().copied(), n_adc);
         (centre, scatter)
     };
+    // The medians over the good pixels, exact, in passes over them ([`crate::select`]):
+    // cell 0 the dark level, 1 the dark frames' variance of a mean, 2 the signal at the
+    // last unsaturated level, then per level from 1 the signal and the frames' variance.
+    let (dark_cell, noise_cell, full_cell, signal_cell, var_cell) = (0, 1, 2, |l: usize| 1 + 2 * l, |l: usize| 2 + 2 * l);
+    let nf = f64::from(n_frames.max(1));
+    let medians = crate::select::upper_medians(good.len(), 2 * levels + 1, &|j, f| {
+        let i = good[j];
+        let valid = px.valid(i);
+        px.with_levels(i, |at| {
+            let dark = at.mean(0);
+            f(dark_cell, dark);
+            f(noise_cell, at.std(0).powi(2) / nf);
+            if valid > 1 {
+                f(full_cell, at.mean(valid - 1) - dark);
+            }
+            for l in 1..valid.min(levels) {
+                f(signal_cell(l), at.mean(l) - dark);
+                f(var_cell(l), at.std(l).powi(2));
+            }
+        })
+    });
     let (mut s, mut v) = (Vec::new(), Vec::new());
-    let dark = upper_median(good.iter().map(|&i| px.mean(0, i)));
+    let dark = medians[dark_cell];
+    let mut on = vec![0usize; levels];
+    good.iter().for_each(|&i| on[..px.valid(i).min(levels)].iter_mut().for_each(|n| *n += 1));
     for l in 1..levels {
-        let on: Vec<usize> = good.iter().copied().filter(|&i| l < px.valid(i)).collect();
-        if on.len() * 2 < good.len() {
+        if on[l] * 2 < good.len() {
             break;
         }
-        let signal = upper_median(on.iter().map(|&i| px.mean(l, i) - px.mean(0, i)));
+        let signal = medians[signal_cell(l)];
         if signal > 0.7 * (top - dark) {
             break;
         }
         s.push(signal);
-        v.push(upper_median(on.iter().map(|&i| px.std(l, i).powi(2))) / median_chi2);
+        v.push(medians[var_cell(l)] / median_chi2);
     }
     let (gain, read) = if s.len() >= 3 {
         let (a, b, _) = crate::emva::fit_line(&s, &v);
@@ -75,9 +120,8 @@ pub(super) fn measure_camera<T: Sample>(px: &Pixels<T>, good: &[usize], fits: &[
     // DSNU from the dark frames themselves, less their own noise; PRNU from the signal at
     // the level nearest half scale (fitted intercepts and slopes would absorb part of each
     // pixel's own curvature: they read 2.1 DN of DSNU where the camera had 0.9).
-    let n_frames = f64::from(n_frames.max(1));
     let (_, d_scatter) = about_own_adc(&good.iter().map(|&i| (px.adc(i), px.mean(0, i))).collect::<Vec<_>>());
-    let d_noise = upper_median(good.iter().map(|&i| px.std(0, i).powi(2) / n_frames)) / median_chi2;
+    let d_noise = medians[noise_cell] / median_chi2;
     let half = s.iter().enumerate().min_by(|a, b| (a.1 - 0.5 * s.last().copied().unwrap_or(0.0) / 0.7).abs().total_cmp(&(b.1 - 0.5 * s.last().copied().unwrap_or(0.0) / 0.7).abs())).map_or(1, |(j, _)| j + 1);
     let sig_half: Vec<(usize, f64)> = good.iter().copied().filter(|&i| half < px.valid(i)).map(|i| (px.adc(i), px.mean(half, i) - px.mean(0, i))).collect();
     let (gm, gs) = about_own_adc(&sig_half);
@@ -97,7 +141,7 @@ pub(super) fn measure_camera<T: Sample>(px: &Pixels<T>, good: &[usize], fits: &[
         gain_e_per_dn: gain,
         read_noise_dn: read,
         offset_dn: Some(dark),
-        full_scale_dn: Some(upper_median(good.iter().copied().filter(|&i| px.valid(i) > 1).map(|i| px.mean(px.valid(i) - 1, i) - px.mean(0, i)))),
+        full_scale_dn: Some(medians[full_cell]),
         saturated: good.iter().filter(|&&i| px.valid(i) < levels).count() * 2 > good.len(),
         prnu_rms: Some(gs / gm),
         dsnu_dn: Some((d_scatter.powi(2) - d_noise).max(0.0).sqrt()),

@@ -80,18 +80,20 @@ mod curves;
 mod level_stage;
 mod pixel_fits;
 mod remainder;
+mod scoring;
 
 use super::levels::{wald, Block};
-use super::pixel_fit::{fit_and_score, Response, Totals};
+use super::pixel_fit::{Response, Totals};
 use super::points::{Common, Pixels};
 use super::scores::{Cell, Scores};
 use super::*;
-use crate::fits::{LinearitySet, Sample};
-use crate::linearity::unsaturated_levels;
+use super::cubes::SetView;
+use crate::fits::{LinearityRows, LinearitySet, Sample};
+use crate::linearity::saturated_at;
 use crate::stats::upper_median;
 use adc_apart::{adc_curvature, adc_maps, bend, paired, Curvature, MAX_ADCS};
 use camera::{measure_camera, quantization_floor};
-use curves::shared_curve;
+use scoring::Scoring;
 use level_stage::{level_stage, LevelStage};
 use pixel_fits::{pixel_nonlinearity, PixelStage, LINEAR, QUARTIC};
 use remainder::remainder;
@@ -108,8 +110,8 @@ fn finding(effect: Effect, adc: Option<usize>, significance: f64, before: f64, a
 /// The set checked (enough levels and frames, positive reference, noise known, at most
 /// [`MAX_ADCS`] ADCs) and its pixels as the diagnosis reads them: the masked ones left
 /// out, each mean's noise with the quantization floor; and the number of ADCs.
-fn prepare<T: Sample>(set: &LinearitySet<T>) -> Result<(Pixels<'_, T>, usize), DiagnoseError> {
-    let (nl, np) = (set.levels, set.width * set.height);
+fn prepare<'a, T: Sample>(set: &'a SetView<'a, T>) -> Result<(Pixels<'a, T>, usize), DiagnoseError> {
+    let (nl, np) = (set.levels, set.frame());
     if nl < 11 {
         return Err(DiagnoseError::TooFewLevels { levels: nl });
     }
@@ -126,14 +128,37 @@ fn prepare<T: Sample>(set: &LinearitySet<T>) -> Result<(Pixels<'_, T>, usize), D
         return Err(DiagnoseError::Reference);
     }
     let x: Vec<f64> = set.voltage.iter().map(|v| v / vmax).collect();
-    let valid = unsaturated_levels(set);
-    // The upper median of the finite deviations is at most 0 when more than half of them
-    // are (counted: a sorted copy of the cube was 4 bytes per value more at its peak).
-    let (zero, finite) = set.std.iter().map(|&v| v.into()).filter(|v: &f64| v.is_finite()).fold((0usize, 0usize), |(z, n), v| (z + usize::from(v <= 0.0), n + 1));
+    // One pass over the blocks of rows, level by level within each (the cubes are
+    // level-major): each pixel's levels below saturation, as
+    // [`crate::linearity::unsaturated_levels`] finds them, and how many of the finite
+    // deviations are zero: the upper median of them is at most 0 when more than half are
+    // (counted: a sorted copy of the cube was 4 bytes per value more at its peak).
+    let top = ((1u64 << set.bit_depth) - 1) as f64;
+    let blocks = set.blocks(|b| {
+        let pixels = b.rows.start * set.width..b.rows.end * set.width;
+        let mut valid = vec![nl as u16; pixels.len()];
+        let (mut zero, mut finite) = (0usize, 0usize);
+        for l in 0..nl {
+            for (v, p) in valid.iter_mut().zip(pixels.clone()) {
+                let at = b.pixel(p);
+                let s = at.std(l);
+                if s.is_finite() {
+                    finite += 1;
+                    zero += usize::from(s <= 0.0);
+                }
+                if usize::from(*v) == nl && saturated_at(l, top, |k| at.mean(k), |k| at.std(k)) {
+                    *v = l as u16;
+                }
+            }
+        }
+        (valid, zero, finite)
+    });
+    let (zero, finite) = blocks.iter().fold((0, 0), |(z, n), b| (z + b.1, n + b.2));
     if finite > 0 && zero > finite / 2 {
         return Err(DiagnoseError::NoNoise);
     }
-    let known_bad = |p: usize| set.mask.as_ref().is_some_and(|m| m[p] != 0);
+    let valid: Vec<u16> = blocks.into_iter().flat_map(|b| b.0).collect();
+    let known_bad = |p: usize| set.mask.is_some_and(|m| m[p] != 0);
     // (More ADCs than columns read as one per column: column `c` is ADC `c` either way.)
     let n_adc = set.n_adc.clamp(1, set.width.max(1));
     if n_adc > MAX_ADCS {
@@ -161,20 +186,34 @@ fn baseline(base: &Scores, n_adc: usize) -> Baseline {
     }
 }
 
-/// Diagnoses a linearity set; `accuracy_dn` is the averaging accuracy the
+/// Diagnoses a linearity set held in memory; `accuracy_dn` is the averaging accuracy the
 /// `insufficient-noise` check asks for.
-///
-/// The steps run in the catalogue's order (module documentation), each in its module;
-/// what stays here is the shared response (ADC curvature, `global-nonlinearity`), whose
-/// steps hand each other their held-out scores (each accepted model is the next one's
-/// baseline), and the assembly of the report: about 175 lines, one idea. The ADC
-/// curvature search and the baseline are functions of their own; what is left shares a
-/// dozen closures over the same pixels and scores, which a split would pass around as
-/// arguments (the block-wise diagnosis of issue 17 is the moment to give them a type).
 pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) -> Result<Diagnosis, DiagnoseError> {
+    diagnose_set(&SetView::held(set), accuracy_dn)
+}
+
+/// [`diagnose_linearity`] of a set read from its file by blocks of `rows` rows (`None`:
+/// blocks of a few MiB): the memory of the values is a block per thread, the file is read
+/// once a pass. The same diagnosis, number for number, as of the set held as `f32`.
+pub fn diagnose_linearity_rows(file: &LinearityRows, rows: Option<usize>, accuracy_dn: f64) -> Result<Diagnosis, DiagnoseError> {
+    let set = SetView::<f32>::rows(file, rows);
+    let d = diagnose_set(&set, accuracy_dn);
+    match set.failed() {
+        Some(message) => Err(DiagnoseError::Read { message }),
+        None => d.map(|d| Diagnosis { block_rows: set.block_rows(), ..d }),
+    }
+}
+
+/// The diagnosis of a set however it is read.
+///
+/// The steps run in the catalogue's order (module documentation), each in its module,
+/// each scoring through one [`Scoring`] (the pixels, the level term, their fits); what
+/// stays here is the shared response (ADC curvature, `global-nonlinearity`), whose steps
+/// hand each other their held-out scores (each accepted model is the next one's
+/// baseline), and the assembly of the report.
+fn diagnose_set<T: Sample>(set: &SetView<'_, T>, accuracy_dn: f64) -> Result<Diagnosis, DiagnoseError> {
     let (px, n_adc) = prepare(set)?;
     let (nl, top) = (set.levels, ((1u64 << set.bit_depth) - 1) as f64);
-    let n = px.len();
     let adc_of = |i: usize| px.adc(i);
     // Shared parameters (curves, population medians) are estimated on the pixels of even
     // rows and scored on those of odd rows: a pixel's own curvature or gain is common to
@@ -189,42 +228,21 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
 
     // Each pixel's own fits, the population of dark and gain, the bad-pixel flags.
     let stage = PixelStage::new(&px, common, n_adc);
-    let fits = &stage.fits;
-    let is_good = |i: usize| stage.is_good(i);
+    let s = Scoring::new(&px, common, &stage, n_adc, nl, top);
     let (quartic, linear) = (QUARTIC, LINEAR);
 
     // Shared curves from the good pixels' even-level quartics.
-    // `at_gain`: every pixel at that gain (an additive common term), else its own.
-    let shared_of = |sel: &dyn Fn(usize) -> bool, at_gain: Option<f64>| -> [f64; 3] {
-        let chosen: Vec<(usize, f64)> = (0..n).filter(|&i| is_good(i) && estimating(i) && sel(i)).filter_map(|i| Some((i, at_gain.unwrap_or(fits[i].quartic[0]?.gain)))).collect();
-        shared_curve(&px, common, &chosen, top)
-    };
-    let curve_of = |sel: &dyn Fn(usize) -> bool| shared_of(sel, None);
-    let adc_curves: Vec<[f64; 3]> = (0..n_adc).map(|a| curve_of(&|i| adc_of(i) == a)).collect();
-    let all_curve = curve_of(&|_| true);
+    let adc_curves: Vec<[f64; 3]> = (0..n_adc).map(|a| s.curve_of(&|i| adc_of(i) == a)).collect();
+    let all_curve = s.curve_of(&|_| true);
     if all_curve.iter().any(|c| !c.is_finite()) {
         return Err(DiagnoseError::NoPixelFits);
     }
-    let good: Vec<usize> = (0..n).filter(|&i| is_good(i)).collect();
-    let cell = |j: usize| Cell { adc: adc_of(good[j]), odd: !estimating(good[j]) };
-    let score_with = |common: Option<&dyn Common>, model: &(dyn Fn(usize) -> Response + Sync)| -> Scores {
-        Scores::collect(good.len(), n_adc, nl, &cell, &|j| {
-            let i = good[j];
-            let (ev, od) = px.halves(i, common);
-            let m = model(i);
-            let start = match m {
-                Response::Curve(..) => fits[i].line[0].map_or(vec![0.0; 2], |l| l.to_vec()),
-                _ => vec![0.0; m.params()],
-            };
-            fit_and_score(m, &start, &ev, &od)
-        })
-    };
-    let score_all = |model: &(dyn Fn(usize) -> Response + Sync)| score_with(common, model);
+    let (good, cell) = (&s.good, |j: usize| s.cell(j));
     let all = |_: Cell| true;
-    let base = score_all(&|_| linear);
+    let base = s.score(&|_| linear);
     // The baseline proper leaves the level term in the means: the scale every model step
     // is measured on ([`Finding::all_data_rms_after`]), starting here.
-    let raw = common.is_some().then(|| score_with(None, &|_| linear));
+    let raw = common.is_some().then(|| s.score_with(None, &|_| linear));
     let baseline = baseline(raw.as_ref().unwrap_or(&base), n_adc);
     let baseline_by_level = raw.as_ref().unwrap_or(&base).by_level(&all);
     drop(raw);
@@ -235,11 +253,11 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
     // above threshold is set apart and the consensus refitted, until none is left or
     // only a majority remains. It needs three ADCs at least: with two, the data cannot
     // say which one differs.
-    let own_curve = (n_adc >= 3).then(|| score_all(&|i| Response::Curve(adc_curves[adc_of(i)], top)));
-    let first = (all_curve, score_all(&|_| Response::Curve(all_curve, top)));
+    let own_curve = (n_adc >= 3).then(|| s.score(&|i| Response::Curve(adc_curves[adc_of(i)], top)));
+    let first = (all_curve, s.score(&|_| Response::Curve(all_curve, top)));
     let Curvature { adc_own, apart, mut adc_findings, global, glob } = adc_curvature(&adc_curves, own_curve.as_ref(), &cell, first, &|own| {
-        let global = curve_of(&|i| !own[adc_of(i)]);
-        (global, score_all(&|_| Response::Curve(global, top)))
+        let global = s.curve_of(&|i| !own[adc_of(i)]);
+        (global, s.score(&|_| Response::Curve(global, top)))
     });
     // The shared bend, fitted on and scored over the pixels of the ADCs that follow the
     // consensus.
@@ -248,14 +266,14 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
     let paired_sig = paired(&base, &glob, |j| follows(cell(j)));
     // With levels as the units too: a chance smooth part of level errors is common to
     // every pixel and passes the test over pixels.
-    let level_sig = wald(&levels_term, &px, &|i| is_good(i) && !adc_own[adc_of(i)], Block::Bend);
+    let level_sig = wald(&levels_term, &px, &|i| stage.is_good(i) && !adc_own[adc_of(i)], Block::Bend);
     let sig = paired_sig.min(level_sig);
     let global_accepted = sig > SIGNIFICANCE && tb1.s < tb0.s;
     // Where level errors were found, the shared curve stays in the model either way: it
     // takes their smooth part (named `global-nonlinearity` only when it stands out).
     let absorb = level_accepted && !global_accepted;
-    let g0 = upper_median(good.iter().filter(|&&i| estimating(i) && !adc_own[adc_of(i)]).filter_map(|&i| Some(fits[i].quartic[0]?.gain)));
-    let smooth = if absorb { shared_of(&|i| !adc_own[adc_of(i)], Some(g0)) } else { [0.0; 3] };
+    let g0 = upper_median(good.iter().filter(|&&i| estimating(i) && !adc_own[adc_of(i)]).filter_map(|&i| Some(stage.fits[i].quartic[0]?.gain)));
+    let smooth = if absorb { s.shared_of(&|i| !adc_own[adc_of(i)], Some(g0)) } else { [0.0; 3] };
     let follower_model = if global_accepted {
         Response::Curve(global, top)
     } else if absorb && smooth.iter().all(|c| c.is_finite()) {
@@ -263,7 +281,7 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
     } else {
         linear
     };
-    let followed = matches!(follower_model, Response::Common(..)).then(|| score_all(&|_| follower_model));
+    let followed = matches!(follower_model, Response::Common(..)).then(|| s.score(&|_| follower_model));
     if global_accepted {
         let steps = AdcResiduals { baseline: base.by_level(&follows), extended: glob.by_level(&follows) };
         findings.push(with_residuals(steps, finding(
@@ -309,9 +327,9 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
     // (What `current` took of them is copied.)
     drop((glob, own_curve, followed));
     // Pixel-to-pixel nonlinearity: each pixel's own quartic.
-    let own = score_all(&|_| quartic);
+    let own = s.score(&|_| quartic);
     let t3 = own.totals(&all);
-    if let Some(mut f) = pixel_nonlinearity(&px, common, fits, &good, (&current, tcur), (&own, t3)) {
+    if let Some(mut f) = pixel_nonlinearity(&s, (&current, tcur), (&own, t3)) {
         f.all_data_rms_after = Some(t3.rms());
         findings.push(f);
         current = own;
@@ -323,7 +341,7 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
         let a = adc_of(i);
         if adc_own[a] { Response::Curve(adc_curves[a], top) } else { follower_model }
     };
-    adc_maps(&px, common, fits, &good, &curve_for, &mut adc_findings);
+    adc_maps(&s, &curve_for, &mut adc_findings);
     // Listed in the order they entered the model: the ADCs set apart under their own
     // curves right after the level term (before the shared bend), the others' offset and
     // gain (tested on the maps) after the per-pixel steps.
@@ -333,9 +351,9 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
     findings.extend(stage.finding(&px));
     // Noise: the dark level's temporal noise against the quantization bias.
     let dark_noise = upper_median(good.iter().map(|&i| px.std(0, i)));
-    let measured = measure_camera(&px, &good, fits, set.n_frames, top, stage.bad_count());
+    let measured = measure_camera(&s, set.n_frames, stage.bad_count());
     findings.extend(insufficient_noise("median dark noise", dark_noise, accuracy_dn));
-    findings.extend(remainder(&px, common, &current, tcur, &good, n_adc, nl));
+    findings.extend(remainder(&s, &current, tcur));
     Ok(Diagnosis {
         not_tested: Vec::new(),
         measured,
@@ -346,6 +364,7 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
         findings,
         unexplained_rms: tcur.rms(),
         residuals: vec![AdcResiduals { baseline: baseline_by_level, extended: current.by_level(&all) }],
+        block_rows: None,
     })
 }
 
@@ -434,6 +453,9 @@ mod tests {
 
 #[cfg(test)]
 mod lab_tests;
+
+#[cfg(test)]
+mod rows_tests;
 
 #[cfg(test)]
 mod bad_input_tests {

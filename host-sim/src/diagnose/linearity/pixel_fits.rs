@@ -6,6 +6,7 @@ use statrs::distribution::{ChiSquared, ContinuousCDF};
 
 use super::super::pixel_fit::{fit_and_score, Point, Response};
 use super::super::pixel_fit::Totals;
+use super::scoring::Scoring;
 use super::super::points::{Common, Pixels};
 use super::super::scores::{Cell, Scores};
 use super::super::{AdcResiduals, Effect, Finding, SIGNIFICANCE};
@@ -208,7 +209,8 @@ impl PixelStage {
 /// `pixel-nonlinearity`: each pixel's own quartic (scores `own`, totals `t3`) against the
 /// shared model (`current`, `tcur`) on the `good` pixels' held-out levels, with how far the
 /// pixels' curves depart from the shared one at their highest held-out level.
-pub(super) fn pixel_nonlinearity<T: Sample>(px: &Pixels<T>, common: Option<&dyn Common>, fits: &[PixelFits], good: &[usize], (current, tcur): (&Scores, Totals), (own, t3): (&Scores, Totals)) -> Option<Finding> {
+pub(super) fn pixel_nonlinearity<T: Sample>(s: &Scoring<'_, T>, (current, tcur): (&Scores, Totals), (own, t3): (&Scores, Totals)) -> Option<Finding> {
+    let (px, common, fits, good) = (s.px, s.common, s.fits, &s.good);
     let all = |_: Cell| true;
     let sig = tcur.significance_to(&t3);
     if sig > SIGNIFICANCE && t3.s < tcur.s {

@@ -3,15 +3,16 @@
 //! the worst levels and the RMS by ADC).
 
 use super::super::pixel_fit::Totals;
-use super::super::points::{Common, Pixels};
+use super::scoring::Scoring;
 use super::super::scores::{Cell, Scores};
 use super::super::{AdcResiduals, Effect, Finding, SIGNIFICANCE};
 use super::{finding, with_residuals};
 use crate::fits::Sample;
 
-/// The finding for what `current` (the accepted model's held-out scores of the `good`
-/// pixels, totals `tcur`) leaves on `px`'s `nl` levels, if anything stands out.
-pub(super) fn remainder<T: Sample>(px: &Pixels<T>, common: Option<&dyn Common>, current: &Scores, tcur: Totals, good: &[usize], n_adc: usize, nl: usize) -> Option<Finding> {
+/// The finding for what `current` (the accepted model's held-out scores of the good
+/// pixels, totals `tcur`) leaves, if anything stands out.
+pub(super) fn remainder<T: Sample>(s: &Scoring<'_, T>, current: &Scores, tcur: Totals) -> Option<Finding> {
+    let (px, common, good, n_adc, nl) = (s.px, s.common, &s.good, s.n_adc, s.levels);
     let all = |_: Cell| true;
     let mut out = None;
     // The noise model off by one factor everywhere (frames that are not independent) is

@@ -1,0 +1,73 @@
+//! What every model step of a linearity diagnosis scores with: the pixels, the level term
+//! taken out of their means (where one was found), each pixel's own fits, and the good
+//! pixels (not flagged bad, fitted on their even levels), which every score is over.
+
+use super::super::pixel_fit::{fit_and_score, Response};
+use super::super::points::{Common, Pixels};
+use super::super::scores::{Cell, Scores};
+use super::curves::shared_curve;
+use super::pixel_fits::{PixelFits, PixelStage};
+use crate::fits::Sample;
+
+/// The pixels of a diagnosis as its model steps score them.
+pub(super) struct Scoring<'a, T: Sample> {
+    pub px: &'a Pixels<'a, T>,
+    /// The level term, taken out of every pixel's means; `None` where none was found.
+    pub common: Option<&'a dyn Common>,
+    /// Each pixel's own fits (by index into `px`).
+    pub fits: &'a [PixelFits],
+    /// The good pixels, by index into `px`: score `j` of a [`Scores`] is pixel `good[j]`.
+    pub good: Vec<usize>,
+    /// ADCs of the camera.
+    pub n_adc: usize,
+    /// Levels of the set.
+    pub levels: usize,
+    /// The top code, DN.
+    pub top: f64,
+}
+
+impl<'a, T: Sample> Scoring<'a, T> {
+    pub fn new(px: &'a Pixels<'a, T>, common: Option<&'a dyn Common>, stage: &'a PixelStage, n_adc: usize, levels: usize, top: f64) -> Self {
+        let good = (0..px.len()).filter(|&i| stage.is_good(i)).collect();
+        Scoring { px, common, fits: &stage.fits, good, n_adc, levels, top }
+    }
+
+    /// Where score `j` (pixel `good[j]`) is summed.
+    pub fn cell(&self, j: usize) -> Cell {
+        let i = self.good[j];
+        Cell { adc: self.px.adc(i), odd: !self.px.estimating(i) }
+    }
+
+    /// The held-out scores of the response `model(i)` of each good pixel `i`, its means
+    /// less `common` (a curve's fit starts from the pixel's even-level line).
+    pub fn score_with(&self, common: Option<&dyn Common>, model: &(dyn Fn(usize) -> Response + Sync)) -> Scores {
+        Scores::collect(self.good.len(), self.n_adc, self.levels, &|j| self.cell(j), &|j| {
+            let i = self.good[j];
+            let (ev, od) = self.px.halves(i, common);
+            let m = model(i);
+            let start = match m {
+                Response::Curve(..) => self.fits[i].line[0].map_or(vec![0.0; 2], |l| l.to_vec()),
+                _ => vec![0.0; m.params()],
+            };
+            fit_and_score(m, &start, &ev, &od)
+        })
+    }
+
+    /// [`Scoring::score_with`] the level term found.
+    pub fn score(&self, model: &(dyn Fn(usize) -> Response + Sync)) -> Scores {
+        self.score_with(self.common, model)
+    }
+
+    /// The shared curve of the good pixels of even rows that `sel` takes, from their
+    /// even levels, each at its own quartic's gain or, given `at_gain`, all at that gain
+    /// (an additive common term).
+    pub fn shared_of(&self, sel: &dyn Fn(usize) -> bool, at_gain: Option<f64>) -> [f64; 3] {
+        let chosen: Vec<(usize, f64)> = self.good.iter().copied().filter(|&i| self.px.estimating(i) && sel(i)).filter_map(|i| Some((i, at_gain.unwrap_or(self.fits[i].quartic[0]?.gain)))).collect();
+        shared_curve(self.px, self.common, &chosen, self.top)
+    }
+
+    /// [`Scoring::shared_of`] each pixel at its own gain.
+    pub fn curve_of(&self, sel: &dyn Fn(usize) -> bool) -> [f64; 3] {
+        self.shared_of(sel, None)
+    }
+}
