@@ -55,6 +55,11 @@ pub fn check(path: &Path, what: &str, bytes: u64) -> Result<(), HostError> {
     Ok(())
 }
 
+/// Whether `bytes` fit the budget.
+pub fn fits(bytes: u64) -> bool {
+    bytes <= limit()
+}
+
 /// `count` items of `size` bytes each, saturating (a size read from a file may be absurd).
 pub fn bytes_of(count: u64, size: u64) -> u64 {
     count.saturating_mul(size)

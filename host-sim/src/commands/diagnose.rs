@@ -185,39 +185,42 @@ pub struct DiagnoseSummary {
 /// cubes cannot be read directly (a compressed file, scaled cubes) is held.
 fn diagnose_linearity_file(read_from: &Path, input: &Path, block_rows: Option<usize>) -> Result<(Diagnosis, crate::camera::CameraConfig), HostError> {
     use crate::budget::{bytes_of, check};
-    // The per-pixel state beyond the input: 388 bytes measured on 2048 x 2048
+    // The per-pixel state beyond the input: 383-388 bytes measured on 2048 x 2048
     // (docs/diagnose.md).
     const STATE: &str = "diagnosing each pixel (about 400 bytes per pixel beyond the set)";
-    let spin = |w: usize, h: usize, l: usize, how: &str| crate::commands::progress::spinner(&format!("diagnosing {} (linearity set, {w} x {h} pixels, {l} levels{how})", input.display()));
+    let spin = |[w, h, l]: [usize; 3], how: &str| crate::commands::progress::spinner(&format!("diagnosing {} (linearity set, {w} x {h} pixels, {l} levels{how})", input.display()));
     let failed = |source| HostError::Diagnose { path: input.into(), source };
-    let Some(rows) = open_linearity_rows::<f32>(read_from)? else {
+    // Decided from the header: held (read and checked in one pass) where the set and the
+    // state fit the budget, else read by rows (the state alone must fit).
+    let opened = open_linearity_rows(read_from)?;
+    let by_rows = opened.filter(|o| {
+        let [w, h, l] = o.shape();
+        let np = (w * h) as u64;
+        block_rows.is_some() || !crate::budget::fits(bytes_of(np, 400).saturating_add(bytes_of(np * l as u64, 8)))
+    });
+    let Some(opened) = by_rows else {
         let set = read_linearity_as::<f32>(read_from)?;
         check(read_from, STATE, bytes_of((set.width * set.height) as u64, 400))?;
-        let s = spin(set.width, set.height, set.levels, "");
+        let s = spin([set.width, set.height, set.levels], "");
         let d = diagnose_linearity(&set, 0.01).map_err(failed);
         s.finish_and_clear();
         let d = d?;
         let model = linearity_model(&set, &d);
         return Ok((d, model));
     };
-    let (w, h, l) = (rows.width, rows.height, rows.levels);
-    let np = (w * h) as u64;
+    let shape = opened.shape();
+    let np = (shape[0] * shape[1]) as u64;
     check(read_from, STATE, bytes_of(np, 400))?;
-    let held = bytes_of(np, 400).saturating_add(bytes_of(np * l as u64, 8));
-    let d = if block_rows.is_some() || check(read_from, "", held).is_err() {
-        let s = spin(w, h, l, ", read by blocks of rows");
-        let d = diagnose_linearity_rows(&rows, block_rows, 0.01);
-        s.finish_and_clear();
-        d
-    } else {
-        let set = rows.read_all::<f32>()?;
-        let s = spin(w, h, l, "");
-        let d = diagnose_linearity(&set, 0.01);
-        s.finish_and_clear();
-        d
-    }
-    .map_err(failed)?;
-    let model = linearity_model(&rows, &d);
+    // Blocks of 8 MiB, or what the budget leaves after the state.
+    let room = crate::budget::limit().saturating_sub(bytes_of(np, 400));
+    let (rows, blocks) = crate::diagnose::blocks_of::<f32>(shape, block_rows, room);
+    check(read_from, &format!("{STATE} and the blocks of {rows} rows of its threads"), bytes_of(np, 400).saturating_add(blocks))?;
+    let set = opened.check::<f32>()?;
+    let s = spin(shape, &format!(", read by blocks of {rows} rows"));
+    let d = diagnose_linearity_rows(&set, Some(rows), 0.01);
+    s.finish_and_clear();
+    let d = d.map_err(failed)?;
+    let model = linearity_model(&set, &d);
     Ok((d, model))
 }
 
@@ -350,7 +353,6 @@ pub fn diagnose_as(read_from: &Path, input: &Path, params: &DiagnoseParams, mut 
         let hist = match read_histograms_for_analysis(read_from) {
             Ok(h) => h,
             Err(e) => {
-                // Not a histogram set: a linearity set, or the histogram reader's error.
                 // Not a histogram set: a linearity set, or the histogram reader's error.
                 let (d, model) = match diagnose_linearity_file(read_from, input, params.block_rows) {
                     Ok(r) => r,

@@ -21,6 +21,18 @@ use crate::fits::{LinearityRows, LinearitySet, Sample};
 /// pixels are fitted and small beside any budget.
 const BLOCK_BYTES: usize = 8 << 20;
 
+/// Rows a block holds for a set of `[width, height, levels]` read as `T` (`asked`, or
+/// as many as fit [`BLOCK_BYTES`] and, all threads' blocks together, `room` bytes; at
+/// least 1, at most the height), and the bytes of the blocks every thread may hold at
+/// once (one per thread of the pool and one more).
+pub fn blocks_of<T>([width, height, levels]: [usize; 3], asked: Option<usize>, room: u64) -> (usize, u64) {
+    let row_bytes = (2 * levels * width * std::mem::size_of::<T>()).max(1);
+    let slots = (rayon::current_num_threads() + 1) as u64;
+    let fitting = (room / slots / row_bytes as u64).min(usize::MAX as u64) as usize;
+    let rows = asked.unwrap_or((BLOCK_BYTES / row_bytes).min(fitting)).clamp(1, height.max(1));
+    (rows, slots.saturating_mul((rows * row_bytes) as u64))
+}
+
 /// A linearity set as the diagnosis reads it: its keys and reference, and its cubes,
 /// held or in the file.
 pub(super) struct SetView<'a, T: Sample> {
@@ -121,10 +133,9 @@ impl<'a, T: Sample> SetView<'a, T> {
     }
 
     /// A set read from its file `rows` rows at a time (`None`: as many as fit
-    /// [`BLOCK_BYTES`]).
+    /// [`BLOCK_BYTES`]; see [`blocks_of`]).
     pub fn rows(file: &'a LinearityRows, rows: Option<usize>) -> Self {
-        let row_bytes = 2 * file.levels * file.width * std::mem::size_of::<T>();
-        let rows = rows.unwrap_or(BLOCK_BYTES / row_bytes.max(1)).clamp(1, file.height.max(1));
+        let (rows, _) = blocks_of::<T>([file.width, file.height, file.levels], rows, u64::MAX);
         let empty = || Mutex::new(Block { first: usize::MAX, rows: 0, mean: Vec::new(), std: Vec::new(), bytes: Vec::new() });
         SetView {
             bit_depth: file.bit_depth,
@@ -180,19 +191,26 @@ impl<'a, T: Sample> SetView<'a, T> {
             let first = row - row % rows;
             let span = first..(first + rows).min(self.height);
             let b = &mut *block;
+            // Marked empty while it is read: a panic in between leaves no block that
+            // claims rows it does not hold.
+            (b.first, b.rows) = (usize::MAX, 0);
+            self.read_block(file, failed, span.clone(), b);
             (b.first, b.rows) = (span.start, span.len());
-            if let Err(e) = file.read_rows(span.clone(), &mut b.mean, &mut b.std, &mut b.bytes) {
-                Self::fail(failed, b, self.levels * self.width, format!("reading rows {} to {} of the set: {e}", span.start, span.end - 1));
-            }
         }
         Some(f(&block))
     }
 
-    /// Records the first failed read and fills `block` with NaN (`per_row` values a row
-    /// and cube), which every fit leaves out.
-    fn fail(failed: &Mutex<Option<String>>, block: &mut Block<T>, per_row: usize, message: String) {
+    /// Rows `span` of both cubes into `block`'s buffers; where the read fails, NaN
+    /// (which every fit leaves out) and the first failure recorded.
+    fn read_block(&self, file: &LinearityRows, failed: &Mutex<Option<String>>, span: Range<usize>, block: &mut Block<T>) {
+        if let Err(e) = file.read_rows(span.clone(), &mut block.mean, &mut block.std, &mut block.bytes) {
+            Self::fail(failed, block, self.levels * self.width * span.len(), format!("reading rows {} to {} of the set: {e}", span.start, span.end - 1));
+        }
+    }
+
+    /// Records the first failed read and fills `block` with `n` NaN a cube.
+    fn fail(failed: &Mutex<Option<String>>, block: &mut Block<T>, n: usize, message: String) {
         failed.lock().unwrap_or_else(|e| e.into_inner()).get_or_insert(message);
-        let n = per_row * block.rows;
         block.mean = vec![T::from_f64(f64::NAN); n];
         block.std = vec![T::from_f64(f64::NAN); n];
     }
@@ -215,9 +233,7 @@ impl<'a, T: Sample> SetView<'a, T> {
                     // blocks); where the thread's slot is in use, a block of its own.
                     Cubes::Rows { file, failed, .. } => self.with_block(span.start, of).unwrap_or_else(|| {
                         let mut own = Block { first: span.start, rows: span.len(), mean: Vec::new(), std: Vec::new(), bytes: Vec::new() };
-                        if let Err(e) = file.read_rows(span.clone(), &mut own.mean, &mut own.std, &mut own.bytes) {
-                            Self::fail(failed, &mut own, self.levels * self.width, format!("reading rows {} to {} of the set: {e}", span.start, span.end - 1));
-                        }
+                        self.read_block(file, failed, span.clone(), &mut own);
                         of(&own)
                     }),
                 }
@@ -257,7 +273,7 @@ mod tests {
         let path = dir.path().join("set.fits");
         write_linearity(&path, &set).unwrap();
         let held_set = read_linearity_as::<f32>(&path).unwrap();
-        let rows = open_linearity_rows::<f32>(&path).unwrap().unwrap();
+        let rows = open_linearity_rows(&path).unwrap().unwrap().check::<f32>().unwrap();
         let (held, by_rows) = (SetView::held(&held_set), SetView::<f32>::rows(&rows, Some(3)));
         let all = |v: &SetView<f32>, p: usize| v.with_pixel(p, |a| (0..11).map(|l| (a.mean(l), a.std(l))).collect::<Vec<_>>());
         for p in [0, 23, 24, 100, 239] {

@@ -17,6 +17,7 @@ mod ptc;
 mod scores;
 
 pub use codes::{diagnose_code_density, CodeDensity};
+pub use cubes::blocks_of;
 pub use defects::{diagnose_defects, DefectOutcome};
 pub use histograms::diagnose_histograms;
 pub use linearity::{diagnose_linearity, diagnose_linearity_rows};

@@ -135,16 +135,20 @@ pub(super) fn read_values<S: BigEndianFloat, T: Copy + Default + Send + Sync>(fi
     Ok((values, sum))
 }
 
+/// The first value (in file order) that each of two tests flags: its index and value.
+pub(super) type Flagged<T> = [Option<(usize, T)>; 2];
+
 /// A pass over the `n` values stored as `S` at `offset` of `file` that holds none of
-/// them: each converted by `convert`, the first in file order that `bad` flags (its index
-/// and value), and the checksum of their bytes. What a set read by blocks of rows checks
-/// once before its passes ([`super::linearity::LinearityRows`]).
-pub(super) fn scan_values<S: BigEndianFloat, T: Copy + Send>(file: &File, offset: u64, n: usize, convert: impl Fn(S) -> T + Sync, bad: impl Fn(T) -> bool + Sync) -> io::Result<(Option<(usize, T)>, u32)> {
+/// them: each converted by `convert`, the first in file order that each of `bad` flags,
+/// and the checksum of their bytes. What a set read by blocks of rows checks once before
+/// its passes ([`super::linearity::LinearityRows`]).
+pub(super) fn scan_values<S: BigEndianFloat, T: Copy + Send>(file: &File, offset: u64, n: usize, convert: impl Fn(S) -> T + Sync, bad: [&(dyn Fn(T) -> bool + Sync); 2]) -> io::Result<(Flagged<T>, u32)> {
     let per_chunk = CHUNK / S::SIZE;
-    let first = |a: Option<(usize, T)>, b: Option<(usize, T)>| match (a, b) {
+    let earlier = |a: Option<(usize, T)>, b: Option<(usize, T)>| match (a, b) {
         (Some(a), Some(b)) => Some(if a.0 <= b.0 { a } else { b }),
         (a, b) => a.or(b),
     };
+    let first = |a: Flagged<T>, b: Flagged<T>| [earlier(a[0], b[0]), earlier(a[1], b[1])];
     (0..n.div_ceil(per_chunk))
         .into_par_iter()
         .map_init(
@@ -153,11 +157,18 @@ pub(super) fn scan_values<S: BigEndianFloat, T: Copy + Send>(file: &File, offset
                 let count = (n - k * per_chunk).min(per_chunk);
                 let bytes = &mut buf[..count * S::SIZE];
                 file.read_exact_at(bytes, offset + (k * per_chunk * S::SIZE) as u64)?;
-                let flagged = bytes.chunks_exact(S::SIZE).map(|b| convert(S::from_be(b))).enumerate().find(|(_, v)| bad(*v)).map(|(i, v)| (k * per_chunk + i, v));
+                let mut flagged = [None, None];
+                for (i, v) in bytes.chunks_exact(S::SIZE).map(|b| convert(S::from_be(b))).enumerate() {
+                    for (f, bad) in flagged.iter_mut().zip(bad) {
+                        if f.is_none() && bad(v) {
+                            *f = Some((k * per_chunk + i, v));
+                        }
+                    }
+                }
                 Ok::<_, io::Error>((flagged, checksum(bytes)))
             },
         )
-        .try_reduce(|| (None, 0), |a, b| Ok((first(a.0, b.0), add(a.1, b.1))))
+        .try_reduce(|| ([None, None], 0), |a, b| Ok((first(a.0, b.0), add(a.1, b.1))))
 }
 
 /// The `out.len()` values stored as `S` at `offset` of `file`, converted by `convert`,

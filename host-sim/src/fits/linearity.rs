@@ -262,39 +262,58 @@ impl LinearityKeys for LinearityRows {
     }
 }
 
-impl LinearityRows {
-    /// The whole set held as `T` (checked when it was opened), its cubes read in
-    /// parallel; the caller has checked its memory budget.
-    pub fn read_all<T: Sample>(&self) -> Result<LinearitySet<T>, HostError> {
-        let n = self.levels * self.width * self.height;
-        let mut cubes = self.cubes.iter().map(|c| c.read_all::<T>(n).map_err(|e| HostError::io(&self.path, e)));
-        let (mean, std) = (cubes.next().unwrap_or_else(|| Ok(Vec::new()))?, cubes.next().unwrap_or_else(|| Ok(Vec::new()))?);
-        let LinearityRows { bit_depth, n_adc, n_frames, width, height, levels, .. } = *self;
-        Ok(LinearitySet { bit_depth, n_adc, n_frames, width, height, levels, mean, std, voltage: self.voltage.clone(), mask: self.mask.clone() })
+/// A linearity set opened to be read by blocks of rows: its header read, its values not
+/// yet ([`RowsToCheck::check`] reads and checks them, and gives the [`LinearityRows`]).
+pub struct RowsToCheck<'a> {
+    r: FitsReader<'a>,
+    h: Header,
+    at: [StoredFloats; 2],
+}
+
+impl RowsToCheck<'_> {
+    /// Columns, rows, levels.
+    pub fn shape(&self) -> [usize; 3] {
+        [self.h.width, self.h.height, self.h.levels]
+    }
+
+    /// Reads every value once, holding none, and refuses the set as
+    /// [`read_linearity_as`] would (the same faults in the same order, word for word):
+    /// the cubes' checksums, the reference and mask, the keys, the values as `T` (a
+    /// mean not finite, a deviation not finite, a deviation negative), the reference's
+    /// values.
+    pub fn check<T: Sample>(self) -> Result<LinearityRows, HostError> {
+        let RowsToCheck { mut r, h, at } = self;
+        let not_finite = |v: T| !v.into().is_finite();
+        let negative = |v: T| (v.into() as f32) < 0.0;
+        let never = |_: T| false;
+        let [mean_bad, _] = r.scan_floats::<T>(&h.cubes[0], &at[0], [&not_finite, &never])?;
+        let [std_bad, std_negative] = r.scan_floats::<T>(&h.cubes[1], &at[1], [&not_finite, &negative])?;
+        let (voltage, mask) = read_reference(&mut r, &h)?;
+        let (frame, _) = check_shape(&h).map_err(|m| r.error(m))?;
+        if let Some(m) = value_fault(mean_bad, std_bad, std_negative, frame, h.width) {
+            return Err(r.error(m));
+        }
+        check_reference(&voltage, h.levels, mask.as_deref(), frame, h.width).map_err(|m| r.error(m))?;
+        let path = r.path().to_path_buf();
+        r.finish()?;
+        let Header { bit_depth, n_adc, n_frames, width, height, levels, .. } = h;
+        Ok(LinearityRows { bit_depth, n_adc, n_frames, width, height, levels, voltage, mask, path, cubes: at })
     }
 }
 
-/// Opens a linearity set to be read by blocks of rows, its values checked as `T`
-/// ([`LinearityRows`]); `None` where its cubes cannot be read directly (a compressed
-/// file, scaled or integer cubes): [`read_linearity_as`] reads those whole.
-pub fn open_linearity_rows<T: Sample>(path: &Path) -> Result<Option<LinearityRows>, HostError> {
+/// Opens a linearity set to be read by blocks of rows ([`RowsToCheck`]); `None` where
+/// its cubes cannot be read directly (a compressed file, scaled or integer cubes):
+/// [`read_linearity_as`] reads those whole.
+pub fn open_linearity_rows(path: &Path) -> Result<Option<RowsToCheck<'_>>, HostError> {
+    if is_compressed(path)? {
+        return Ok(None);
+    }
     let mut r = FitsReader::open_deferring(path)?;
     let h = read_header(&mut r)?;
     let (Some(mean_at), Some(std_at)) = (r.stored_floats(&h.cubes[0])?, r.stored_floats(&h.cubes[1])?) else {
         return Ok(None);
     };
-    let (frame, _) = check_shape(&h).map_err(|m| r.error(m))?;
-    for (name, image, at) in [("mean", &h.cubes[0], &mean_at), ("std", &h.cubes[1], &std_at)] {
-        let bad = |v: T| !v.into().is_finite() || (name == "std" && (v.into() as f32) < 0.0);
-        if let Some((i, v)) = r.scan_floats::<T>(image, at, bad)? {
-            return Err(r.error(value_error(name, v, i, frame, h.width)));
-        }
-    }
-    let (voltage, mask) = read_reference(&mut r, &h)?;
-    check_reference(&voltage, h.levels, mask.as_deref(), frame, h.width).map_err(|m| r.error(m))?;
-    r.finish()?;
-    let Header { bit_depth, n_adc, n_frames, width, height, levels, .. } = h;
-    Ok(Some(LinearityRows { bit_depth, n_adc, n_frames, width, height, levels, voltage, mask, path: path.to_path_buf(), cubes: [mean_at, std_at] }))
+    Ok(Some(RowsToCheck { r, h, at: [mean_at, std_at] }))
 }
 
 /// What a linearity set's file says before its data: its keys and the headers of its two
@@ -376,15 +395,15 @@ pub(super) fn check_linearity<T: Sample>(s: &LinearitySet<T>) -> Result<(), Stri
                 s.levels
             ));
         }
-        if let Some(i) = values.iter().position(|&v| !v.into().is_finite()) {
-            return Err(value_error(name, values[i], i, frame, s.width));
-        }
     }
+    let first = |values: &[T], bad: &dyn Fn(T) -> bool| values.iter().position(|&v| bad(v)).map(|i| (i, values[i]));
+    let not_finite = |v: T| !v.into().is_finite();
     // Negative at single precision: a negative subnormal below f32's smallest (a zero
     // written with a rounding error) reads as -0.0 in the f32 reader, which must not
     // accept what this one refuses (found by the `fits_linearity` fuzz target: -8e-322).
-    if let Some(i) = s.std.iter().position(|&v| (v.into() as f32) < 0.0) {
-        return Err(format!("std is negative ({}) at {}", s.std[i], at(i, frame, s.width)));
+    let negative = |v: T| (v.into() as f32) < 0.0;
+    if let Some(m) = value_fault(first(&s.mean, &not_finite), first(&s.std, &not_finite), first(&s.std, &negative), frame, s.width) {
+        return Err(m);
     }
     check_reference(&s.voltage, s.levels, s.mask.as_deref(), frame, s.width)
 }
@@ -415,13 +434,17 @@ fn at(i: usize, frame: usize, width: usize) -> String {
     format!("level {}, row {}, column {}", i / frame, i % frame / width, i % width)
 }
 
-/// Value `v` at `i` of cube `name` is not finite, or (`std`) negative.
-fn value_error<T: Sample>(name: &str, v: T, i: usize, frame: usize, width: usize) -> String {
-    if v.into().is_finite() {
-        format!("{name} is negative ({v}) at {}", at(i, frame, width))
-    } else {
-        format!("{name} is {v} at {}", at(i, frame, width))
+/// The first of a set's value faults in the order they are named: a mean not finite,
+/// a deviation not finite, a deviation negative (each the first of its kind, as index
+/// and value, where there is one).
+fn value_fault<T: Sample>(mean_not_finite: Option<(usize, T)>, std_not_finite: Option<(usize, T)>, std_negative: Option<(usize, T)>, frame: usize, width: usize) -> Option<String> {
+    if let Some((i, v)) = mean_not_finite {
+        return Some(format!("mean is {v} at {}", at(i, frame, width)));
     }
+    if let Some((i, v)) = std_not_finite {
+        return Some(format!("std is {v} at {}", at(i, frame, width)));
+    }
+    std_negative.map(|(i, v)| format!("std is negative ({v}) at {}", at(i, frame, width)))
 }
 
 /// The reference voltages (one per level, finite) and the mask (a frame of 0 and 1).

@@ -143,6 +143,19 @@ pub(super) struct FitsReader<'a> {
     pub(super) deferred: Vec<Deferred>,
 }
 
+/// Whether a file starting with `start` is compressed, by the magic numbers cfitsio
+/// recognizes (gzip, compress, pack, LZH, zip).
+fn compressed_magic(start: &[u8]) -> bool {
+    matches!(start.get(..2), Some([0x1f, 0x8b | 0x9d | 0x1e | 0xa0] | [b'P', b'K']))
+}
+
+/// Whether the file at `path` is compressed (a file cfitsio inflates into memory at open).
+pub(super) fn is_compressed(path: &Path) -> Result<bool, HostError> {
+    let mut start = [0u8; 2];
+    let mut file = crate::input::open_regular(path)?;
+    Ok(std::io::Read::read_exact(&mut file, &mut start).is_ok() && compressed_magic(&start))
+}
+
 /// A float image's values in an uncompressed file: `bytes` (4 or 8) each, big-endian,
 /// unscaled, from `offset`; the file opened once more (its own handle).
 #[derive(Debug)]
@@ -153,14 +166,6 @@ pub(super) struct StoredFloats {
 }
 
 impl StoredFloats {
-    /// The first `n` values of the image, converted to `T`, read in parallel.
-    pub(super) fn read_all<T: BigEndianFloat>(&self, n: usize) -> std::io::Result<Vec<T>> {
-        Ok(match self.bytes {
-            4 => super::direct::read_values::<f32, T>(&self.file, self.offset, n, T::from_f32)?.0,
-            _ => super::direct::read_values::<f64, T>(&self.file, self.offset, n, T::from_f64)?.0,
-        })
-    }
-
     /// Values `first..first + out.len()` of the image, converted to `T` as cfitsio
     /// converts (`bytes`: a buffer the caller reuses).
     pub(super) fn read<T: BigEndianFloat>(&self, first: usize, out: &mut [T], bytes: &mut Vec<u8>) -> std::io::Result<()> {
@@ -213,7 +218,7 @@ impl<'a> FitsReader<'a> {
         // let a file with `SIMPLE   =`, which cfitsio reads, skip the table check: found by
         // `fits_linearity`.)
         let read = std::io::Read::read_exact(&mut plain_file, &mut start).is_ok();
-        let compressed = read && matches!(start[..2], [0x1f, 0x8b | 0x9d | 0x1e | 0xa0] | [b'P', b'K']);
+        let compressed = read && compressed_magic(&start);
         let plain = !compressed;
         let len = if plain { size } else { size.saturating_mul(1100) };
         if let Some(declared) = declared_uncompressed_size(&mut plain_file, size).map_err(|e| HostError::io(path, e))? {
@@ -399,6 +404,11 @@ impl<'a> FitsReader<'a> {
             }
         }
         Ok(())
+    }
+
+    /// The file read.
+    pub(super) fn path(&self) -> &'a Path {
+        self.path
     }
 
     pub(super) fn error(&self, message: impl Into<String>) -> HostError {
@@ -630,9 +640,9 @@ impl<'a> FitsReader<'a> {
     }
 
     /// One pass over a float image read directly ([`FitsReader::stored_floats`]), holding
-    /// none of it: its values converted to `T`, the first that `bad` flags, and its
-    /// checksum verified where it was deferred (else cfitsio verified it at open).
-    pub(super) fn scan_floats<T: BigEndianFloat>(&mut self, image: &ImageHeader, at: &StoredFloats, bad: impl Fn(T) -> bool + Sync) -> Result<Option<(usize, T)>, HostError> {
+    /// none of it: its values converted to `T`, the first that each of `bad` flags, and
+    /// its checksum verified where it was deferred (else cfitsio verified it at open).
+    pub(super) fn scan_floats<T: BigEndianFloat>(&mut self, image: &ImageHeader, at: &StoredFloats, bad: [&(dyn Fn(T) -> bool + Sync); 2]) -> Result<super::direct::Flagged<T>, HostError> {
         let io = |e| HostError::io(self.path, e);
         let (flagged, sum) = match at.bytes {
             4 => super::direct::scan_values::<f32, T>(&at.file, at.offset, image.elements, T::from_f32, bad),

@@ -339,7 +339,23 @@ fn linearity_reader_rejects_bad_files() {
         assert_rejects(read_linearity(&path), &path, expected);
         // A set opened to be read by rows (`diagnose` beyond its memory budget) is
         // refused with the words of the whole read, as f32.
-        assert_eq!(open_linearity_rows::<f32>(&path).unwrap_err().to_string(), read_linearity_as::<f32>(&path).unwrap_err().to_string());
+        assert_eq!(by_rows(&path), read_linearity_as::<f32>(&path).unwrap_err().to_string());
+    }
+    // With two faults, the one the whole read names: a negative deviation before one
+    // that is not finite, a bad mean and a missing REFERENCE, a bad mean and a mask of
+    // the wrong shape, a bad deviation and a bad mask value.
+    let two: [(Edit, &str); 4] = [
+        (|p| (p.std.as_mut().unwrap().1[1], p.std.as_mut().unwrap().1[40]) = (-1.0, f64::NAN), "std is NaN at level 2, row 2, column 0"),
+        (|p| (p.mean[3], p.reference) = (f64::NAN, None), "missing extension REFERENCE"),
+        (|p| (p.mean[3], p.mask) = (f64::INFINITY, Some((vec![5, 3], vec![0; 15]))), "extension MASK is 3 x 5"),
+        (|p| (p.std.as_mut().unwrap().1[2], p.mask.as_mut().unwrap().1[7]) = (-2.0, 3), "std is negative (-2) at level 0, row 0, column 2"),
+    ];
+    for (edit, expected) in two {
+        let mut p = parts();
+        edit(&mut p);
+        write_parts(&path, &p);
+        assert_rejects(read_linearity_as::<f32>(&path), &path, expected);
+        assert_eq!(by_rows(&path), read_linearity_as::<f32>(&path).unwrap_err().to_string());
     }
     // Past f32's range: infinite as f32, as cfitsio converts it.
     let mut p = parts();
@@ -347,7 +363,16 @@ fn linearity_reader_rejects_bad_files() {
     write_parts(&path, &p);
     read_linearity(&path).unwrap();
     assert_rejects(read_linearity_as::<f32>(&path), &path, "mean is inf at level 1, row 1, column 3");
-    assert_eq!(open_linearity_rows::<f32>(&path).unwrap_err().to_string(), read_linearity_as::<f32>(&path).unwrap_err().to_string());
+    assert_eq!(by_rows(&path), read_linearity_as::<f32>(&path).unwrap_err().to_string());
+}
+
+/// The refusal of a set opened by rows (at open or when its values are checked), as f32.
+fn by_rows(path: &Path) -> String {
+    match open_linearity_rows(path) {
+        Err(e) => e.to_string(),
+        Ok(None) => panic!("{}: an uncompressed float set is read by rows", path.display()),
+        Ok(Some(o)) => o.check::<f32>().map(|_| ()).unwrap_err().to_string(),
+    }
 }
 
 #[test]

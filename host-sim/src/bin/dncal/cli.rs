@@ -321,7 +321,7 @@ pub(crate) enum Cmd {
         seed: u64,
         /// Read a linearity set from its file this many rows at a time instead of holding
         /// it (the same diagnosis in less memory; automatic where the set held whole would
-        /// not fit --max-memory).
+        /// not fit --max-memory). A compressed set, or one with scaled cubes, is held.
         #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
         block_rows: Option<u64>,
         /// Report folder (one subfolder per input when several).

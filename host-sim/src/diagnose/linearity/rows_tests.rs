@@ -26,15 +26,13 @@ fn blocks_of_rows_give_the_diagnosis_of_the_held_set_number_for_number() {
     let held = diagnose_linearity(&read_linearity_as::<f32>(&path).unwrap(), 0.01).unwrap();
     assert!(!held.findings.is_empty(), "nothing found: a comparison of two empty reports");
     let want = serde_json::to_string(&held).unwrap();
-    let rows = open_linearity_rows::<f32>(&path).unwrap().expect("an uncompressed float set is read by rows");
+    let rows = open_linearity_rows(&path).unwrap().expect("an uncompressed float set is read by rows").check::<f32>().unwrap();
     for (block, used) in [(Some(1), 1), (Some(7), 7), (Some(64), 64), (Some(1000), 256), (None, 99)] {
         let mut got = diagnose_linearity_rows(&rows, block, 0.01).unwrap();
         // (Blocks of 8 MiB by default: 256 columns x 41 levels x 2 cubes x 4 bytes a row.)
         assert_eq!(got.block_rows.take(), Some(used), "blocks of {block:?} rows");
         assert_eq!(serde_json::to_string(&got).unwrap(), want, "blocks of {block:?} rows");
     }
-    // And the rows read whole are the set read whole.
-    assert_eq!(rows.read_all::<f32>().unwrap(), read_linearity_as::<f32>(&path).unwrap());
 }
 
 /// A file cut after it was opened (and checked) fails the diagnosis with the read's
@@ -42,11 +40,26 @@ fn blocks_of_rows_give_the_diagnosis_of_the_held_set_number_for_number() {
 #[test]
 fn a_file_cut_while_it_is_diagnosed_is_an_error() {
     let (_dir, path) = written(6);
-    let rows = open_linearity_rows::<f32>(&path).unwrap().unwrap();
+    let rows = open_linearity_rows(&path).unwrap().unwrap().check::<f32>().unwrap();
     let len = std::fs::metadata(&path).unwrap().len();
     std::fs::OpenOptions::new().write(true).open(&path).unwrap().set_len(len / 2).unwrap();
     match diagnose_linearity_rows(&rows, Some(16), 0.01) {
         Err(DiagnoseError::Read { message }) => assert!(message.starts_with("reading rows ") && message.contains("of the set"), "{message}"),
         other => panic!("{other:?}"),
     }
+}
+
+/// A cube large enough that its checksum is verified as it is read (16 MiB and more)
+/// and damaged in its data: refused by rows as by the whole read, word for word.
+#[test]
+fn a_damaged_large_cube_fails_its_checksum_by_rows_too() {
+    let (_dir, path) = written(7);
+    let mut bytes = std::fs::read(&path).unwrap();
+    let at = bytes.len() / 3;
+    bytes[at] ^= 0x10;
+    std::fs::write(&path, &bytes).unwrap();
+    let whole = read_linearity_as::<f32>(&path).unwrap_err().to_string();
+    assert!(whole.contains("fails its checksum"), "{whole}");
+    let by_rows = open_linearity_rows(&path).unwrap().expect("read by rows").check::<f32>().unwrap_err().to_string();
+    assert_eq!(by_rows, whole);
 }
