@@ -264,6 +264,21 @@ mod tests {
     use crate::fits::{open_linearity_rows, read_linearity_as, write_linearity};
     use crate::hidden::{linearity_set, Plant};
 
+    /// Blocks of 8 MiB, fewer rows where the budget left is smaller (all threads' blocks
+    /// within it), at least one row and at most the frame; the bytes they take.
+    #[test]
+    fn blocks_fill_8_mib_or_the_room_left() {
+        let slots = (rayon::current_num_threads() + 1) as u64;
+        // 2048 x 41 levels as f32, two cubes: 671,744 bytes a row, 12 rows in 8 MiB.
+        let row = 2 * 41 * 2048 * 4;
+        assert_eq!(blocks_of::<f32>([2048, 2048, 41], None, u64::MAX), (12, slots * 12 * row));
+        assert_eq!(blocks_of::<f64>([2048, 2048, 41], None, u64::MAX).0, 6);
+        assert_eq!(blocks_of::<f32>([2048, 2048, 41], None, slots * 5 * row + 1).0, 5);
+        assert_eq!(blocks_of::<f32>([2048, 2048, 41], None, 0).0, 1, "at least a row");
+        assert_eq!(blocks_of::<f32>([64, 10, 41], None, u64::MAX).0, 10, "at most the frame");
+        assert_eq!(blocks_of::<f32>([2048, 2048, 41], Some(100), 0), (100, slots * 100 * row), "asked: taken, and counted");
+    }
+
     /// Every value read by rows is the held set's: through a thread's block, through the
     /// one-pixel read a nested call falls back to, and through `blocks`.
     #[test]
