@@ -68,14 +68,42 @@ pub fn fits_linearity(bytes: &[u8]) -> bool {
     let dir = scratch();
     let path = write_input(dir.path(), "linearity.fits", bytes);
     let read = fits::read_linearity(&path);
-    if fits::read_linearity_as::<f32>(&path).is_ok() {
+    let narrow = fits::read_linearity_as::<f32>(&path);
+    if narrow.is_ok() {
         assert!(read.is_ok(), "the f32 reader accepted what the f64 one refused: {:?}", read.err());
     }
+    by_rows_agrees(&path, &narrow);
     let Ok(set) = read else { return false };
     let out = dir.path().join("written.fits");
     fits::write_linearity(&out, &set).expect("a set that was read can be written");
     assert_eq!(fits::read_linearity(&out).expect("a written set reads back"), set);
     true
+}
+
+/// A set opened to be read by rows (`diagnose` beyond its budget) is refused as the f32
+/// whole read refuses it, word for word, or accepted with the same values row by row.
+fn by_rows_agrees(path: &Path, narrow: &Result<fits::LinearitySet<f32>, crate::HostError>) {
+    let rows = match fits::open_linearity_rows(path) {
+        Ok(None) => return,
+        Ok(Some(o)) => o.check::<f32>(),
+        Err(e) => Err(e),
+    };
+    match (&rows, narrow) {
+        (Err(a), Err(b)) => assert_eq!(a.to_string(), b.to_string(), "the readers refuse differently"),
+        (Ok(r), Ok(set)) => {
+            let (mut mean, mut std, mut bytes) = (Vec::new(), Vec::new(), Vec::new());
+            let plane = set.width * set.height;
+            for row in 0..set.height {
+                r.read_rows(row..row + 1, &mut mean, &mut std, &mut bytes).expect("rows of a checked set read");
+                for l in 0..set.levels {
+                    let at = l * plane + row * set.width;
+                    let same = |a: &[f32], b: &[f32]| a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits());
+                    assert!(same(&mean[l * set.width..][..set.width], &set.mean[at..][..set.width]) && same(&std[l * set.width..][..set.width], &set.std[at..][..set.width]), "row {row}, level {l} read by rows differs");
+                }
+            }
+        }
+        (a, b) => panic!("one reader accepts, the other refuses: by rows {:?}, whole {:?}", a.as_ref().err(), b.as_ref().err()),
+    }
 }
 
 /// The `fits_lut` target.
