@@ -24,6 +24,12 @@ pub(super) struct Score {
 }
 
 impl Score {
+    /// No score (a pixel its model could not fit): `n` past any count of held-out levels
+    /// (levels are at most `u16::MAX`, half of them held out). A marker rather than an
+    /// `Option`: 24 bytes a pixel and model instead of 32, and up to five models are held
+    /// at once.
+    const NONE: Score = Score { sum_sq: f64::NAN, tr: f32::NAN, tr2: f32::NAN, last_z: f32::NAN, n: u16::MAX };
+
     fn of(s: &Scored) -> Score {
         Score { sum_sq: s.sum_sq(), tr: s.tr as f32, tr2: s.tr2 as f32, last_z: s.z.last().map_or(f32::NAN, |z| z.z() as f32), n: s.z.len() as u16 }
     }
@@ -63,7 +69,8 @@ impl Sums {
 /// One model's scores: per pixel (by the caller's index) and per [`Cell`].
 #[derive(Debug, Clone)]
 pub(super) struct Scores {
-    pub per: Vec<Option<Score>>,
+    /// Per pixel, its score or [`Score::NONE`].
+    per: Vec<Score>,
     cells: Vec<Sums>,
 }
 
@@ -73,7 +80,7 @@ impl Scores {
     /// it is summed; levels below `levels`, ADCs below `n_adc`.
     pub fn collect(n: usize, n_adc: usize, levels: usize, cell: &(dyn Fn(usize) -> Cell + Sync), score: &(dyn Fn(usize) -> Option<Scored> + Sync)) -> Scores {
         let n_adc = n_adc.max(1);
-        let mut per = vec![None; n];
+        let mut per = vec![Score::NONE; n];
         let empty = || vec![Sums::new(levels); 2 * n_adc];
         // A fixed number of tasks, each with its own sums (one set per task, not per few
         // pixels: they are 2 x ADCs x levels), added in task order: the same sums
@@ -96,7 +103,7 @@ impl Scores {
                             b.1 += 1;
                         }
                     }
-                    *slot = Some(Score::of(&s));
+                    *slot = Score::of(&s);
                 }
                 sums
             })
@@ -106,6 +113,16 @@ impl Scores {
             a
         });
         Scores { per, cells }
+    }
+
+    /// The score of pixel `j`, where it has one.
+    pub fn get(&self, j: usize) -> Option<Score> {
+        self.per.get(j).copied().filter(|s| s.n != Score::NONE.n)
+    }
+
+    /// Every pixel's score, in the caller's order.
+    pub fn iter(&self) -> impl Iterator<Item = Option<Score>> + '_ {
+        (0..self.per.len()).map(|j| self.get(j))
     }
 
     fn key(c: Cell, n_adc: usize) -> usize {
@@ -131,7 +148,7 @@ impl Scores {
     /// Per ADC the scores of `choose(adc)`: pixel `j` read by ADC `adc_of(j)`.
     pub fn per_adc<'a>(choose: &dyn Fn(usize) -> &'a Scores, adc_of: &dyn Fn(usize) -> usize, n: usize, n_adc: usize) -> Scores {
         let n_adc = n_adc.max(1);
-        let per = (0..n).map(|j| choose(adc_of(j)).per.get(j).copied().flatten()).collect();
+        let per = (0..n).map(|j| choose(adc_of(j)).get(j).unwrap_or(Score::NONE)).collect();
         let cells = (0..2 * n_adc).map(|k| choose(k / 2).cells.get(k).cloned().unwrap_or_default()).collect();
         Scores { per, cells }
     }

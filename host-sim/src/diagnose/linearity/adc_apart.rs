@@ -25,7 +25,7 @@ use crate::stats::{robust, upper_median};
 /// test cannot see it (a 2e-4 level error gave false `adc-mismatch` findings), so it is
 /// measured and taken out first ([`super::levels`]).
 pub(super) fn paired(a: &Scores, b: &Scores, sel: impl Fn(usize) -> bool) -> f64 {
-    let d: Vec<f64> = a.per.iter().zip(&b.per).enumerate().filter(|(j, _)| sel(*j)).filter_map(|(_, (a, b))| Some(a.as_ref()?.sum_sq - b.as_ref()?.sum_sq)).collect();
+    let d: Vec<f64> = a.iter().zip(b.iter()).enumerate().filter(|(j, _)| sel(*j)).filter_map(|(_, (a, b))| Some(a?.sum_sq - b?.sum_sq)).collect();
     paired_sum(&d)
 }
 
@@ -155,7 +155,7 @@ pub(super) fn adc_maps<T: Sample>(s: &Scoring<'_, T>, curve_for: &(dyn Fn(usize)
         .par_iter()
         .map(|&i| {
             let all = px.all(i, common);
-            let start = fits[i].line[0].map_or(vec![0.0; 2], |l| l.to_vec());
+            let start = fits[i].line(0).map_or(vec![0.0; 2], |l| l.to_vec());
             fit_and_score(curve_for(i), &start, &all, &[]).map(|s| [s.params[0], s.params[1]])
         })
         .collect();

@@ -272,7 +272,7 @@ fn diagnose_set<T: Sample>(set: &SetView<'_, T>, accuracy_dn: f64) -> Result<Dia
     // Where level errors were found, the shared curve stays in the model either way: it
     // takes their smooth part (named `global-nonlinearity` only when it stands out).
     let absorb = level_accepted && !global_accepted;
-    let g0 = upper_median(good.iter().filter(|&&i| estimating(i) && !adc_own[adc_of(i)]).filter_map(|&i| Some(stage.fits[i].quartic[0]?.gain)));
+    let g0 = upper_median(good.iter().filter(|&&i| estimating(i) && !adc_own[adc_of(i)]).filter_map(|&i| Some(stage.fits[i].quartic(0)?.gain)));
     let smooth = if absorb { s.shared_of(&|i| !adc_own[adc_of(i)], Some(g0)) } else { [0.0; 3] };
     let follower_model = if global_accepted {
         Response::Curve(global, top)

@@ -46,7 +46,7 @@ impl<'a, T: Sample> Scoring<'a, T> {
             let (ev, od) = self.px.halves(i, common);
             let m = model(i);
             let start = match m {
-                Response::Curve(..) => self.fits[i].line[0].map_or(vec![0.0; 2], |l| l.to_vec()),
+                Response::Curve(..) => self.fits[i].line(0).map_or(vec![0.0; 2], |l| l.to_vec()),
                 _ => vec![0.0; m.params()],
             };
             fit_and_score(m, &start, &ev, &od)
@@ -62,7 +62,7 @@ impl<'a, T: Sample> Scoring<'a, T> {
     /// even levels, each at its own quartic's gain or, given `at_gain`, all at that gain
     /// (an additive common term).
     pub fn shared_of(&self, sel: &dyn Fn(usize) -> bool, at_gain: Option<f64>) -> [f64; 3] {
-        let chosen: Vec<(usize, f64)> = self.good.iter().copied().filter(|&i| self.px.estimating(i) && sel(i)).filter_map(|i| Some((i, at_gain.unwrap_or(self.fits[i].quartic[0]?.gain)))).collect();
+        let chosen: Vec<(usize, f64)> = self.good.iter().copied().filter(|&i| self.px.estimating(i) && sel(i)).filter_map(|i| Some((i, at_gain.unwrap_or(self.fits[i].quartic(0)?.gain)))).collect();
         shared_curve(self.px, self.common, &chosen, self.top)
     }
 
