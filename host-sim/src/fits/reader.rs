@@ -620,10 +620,10 @@ impl<'a> FitsReader<'a> {
     }
 
     /// Where a float image's values can be read directly, as [`super::direct`] reads
-    /// them: an uncompressed file, unscaled IEEE floats, all of them in the file. `None`
-    /// for any other image (a file that ends inside the values is left to cfitsio, whose
-    /// error names the HDU: found by the `fits_linearity` target's comparison of the two
-    /// readers).
+    /// them: an uncompressed file, unscaled IEEE floats, all of them inside their data
+    /// unit and the file. `None` for any other image: one whose values the file or its
+    /// unit cuts short is left to cfitsio, whose error names the HDU (both found by the
+    /// `fits_linearity` target's comparison of the two readers).
     pub(super) fn stored_floats(&mut self, image: &ImageHeader) -> Result<Option<StoredFloats>, HostError> {
         let bytes = match image.bitpix {
             -32 => 4,
@@ -637,10 +637,7 @@ impl<'a> FitsReader<'a> {
         let file = raw.try_clone().map_err(|e| HostError::io(self.path, e))?;
         let (_, start, end) = self.offsets(image.hdu)?;
         let values_end = start + (image.elements * bytes) as u64;
-        if values_end > end {
-            return Err(self.error(format!("the {} declares more data than its unit holds", image.label)));
-        }
-        if values_end > self.len {
+        if values_end > end || values_end > self.len {
             return Ok(None);
         }
         Ok(Some(StoredFloats { file, offset: start, bytes }))
