@@ -780,6 +780,14 @@ fn diagnose_reads_a_set_by_rows_beyond_its_budget_with_the_same_numbers() {
     assert!(String::from_utf8_lossy(&text.stdout).contains("the set read from its file 5 rows at a time"), "{}", String::from_utf8_lossy(&text.stdout));
     let zero = dncal(&["diagnose", "lin.fits", "--block-rows", "0"], d);
     assert_eq!(zero.status.code(), Some(2), "{}", String::from_utf8_lossy(&zero.stderr));
+    // A linearity set with a fault is refused with the linearity reader's words (it said
+    // "not a histogram set"): a cube cut short, left to cfitsio, which names the HDU.
+    let bytes = std::fs::read(d.join("lin.fits")).unwrap();
+    std::fs::write(d.join("cut.fits"), &bytes[..bytes.len() / 2]).unwrap();
+    let cut = dncal(&["diagnose", "cut.fits"], d);
+    let stderr = String::from_utf8_lossy(&cut.stderr);
+    assert_eq!(cut.status.code(), Some(1), "{stderr}");
+    assert!(stderr.starts_with("dncal: error: cut.fits: ") && !stderr.contains("histogram"), "{stderr}");
 }
 
 /// The default camera's pipelined ADCs have their own DN error: in a linearity set it

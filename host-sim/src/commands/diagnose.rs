@@ -353,10 +353,13 @@ pub fn diagnose_as(read_from: &Path, input: &Path, params: &DiagnoseParams, mut 
         let hist = match read_histograms_for_analysis(read_from) {
             Ok(h) => h,
             Err(e) => {
-                // Not a histogram set: a linearity set, or the histogram reader's error.
+                // Not a histogram set: a linearity set, or the histogram reader's error (the
+                // linearity reader's where the file says it is a linearity set: its fault,
+                // not "not a histogram set").
                 let (d, model) = match diagnose_linearity_file(read_from, input, params.block_rows) {
                     Ok(r) => r,
                     Err(kept @ (HostError::OverBudget { .. } | HostError::Diagnose { .. })) => return Err(kept),
+                    Err(le) if crate::fits::is_linearity_set(read_from) => return Err(le),
                     Err(_) => return Err(e),
                 };
                 return report(input, d, Some(model), out, ("level", "baseline (linear pixels): RMS over pixels"));

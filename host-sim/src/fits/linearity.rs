@@ -228,6 +228,12 @@ impl LinearityRows {
     }
 }
 
+/// Whether the file at `path` says it is a linearity set (its primary HDU has
+/// `NFRAMES`), whatever else is wrong with it: which reader's refusal to show.
+pub fn is_linearity_set(path: &Path) -> bool {
+    FitsReader::open(path).is_ok_and(|mut r| r.is_kind(FileKind::Linearity))
+}
+
 /// What a linearity set's keys say, held or read by rows.
 pub trait LinearityKeys {
     /// Bits per code.
