@@ -308,3 +308,25 @@ fn a_nonstandard_simple_card_does_not_skip_the_table_check() {
     let e = dncal_host::fits::read_linearity(&crash).unwrap_err().to_string();
     assert!(e.contains("the table header at byte 11520 has \"NAXIS2  =               ?    4 / length of dimension 2\""), "{e}");
 }
+
+/// Found by `fits_linearity` comparing the set opened by rows (`diagnose` beyond its
+/// budget) with the whole read: an IMAGE extension with `PCOUNT = 2` (garbled) that cfitsio
+/// read two values late, and cubes cut short by the file or by their own data unit that
+/// the rows opener refused in its own words. All three are refused alike now; the first
+/// by name.
+#[test]
+fn the_rows_opener_and_the_whole_read_agree_where_they_disagreed() {
+    let at = |name: &str| fuzz_dir().join("regressions/fits_linearity").join(name);
+    let e = dncal_host::fits::read_linearity(&at("image-with-pcount-read-shifted-by-cfitsio")).unwrap_err().to_string();
+    assert!(e.ends_with("the extension STD has PCOUNT = 2 and GCOUNT = 1; an image has 0 and 1 (random groups are not read)"), "{e}");
+    for name in ["image-with-pcount-read-shifted-by-cfitsio", "std-cut-short-read-by-rows", "std-longer-than-its-unit-read-by-rows"] {
+        let whole = dncal_host::fits::read_linearity_as::<f32>(&at(name)).unwrap_err().to_string();
+        let by_rows = match dncal_host::fits::open_linearity_rows(&at(name)) {
+            Ok(Some(o)) => o.check::<f32>().map(|_| ()).unwrap_err().to_string(),
+            Ok(None) => whole.clone(),
+            Err(e) => e.to_string(),
+        };
+        assert_eq!(by_rows, whole, "{name}");
+        assert!(!whole.contains("failed to fill whole buffer") && !whole.contains("declares more data than its unit holds"), "{name}: {whole}");
+    }
+}
