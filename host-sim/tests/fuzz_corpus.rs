@@ -330,3 +330,13 @@ fn the_rows_opener_and_the_whole_read_agree_where_they_disagreed() {
         assert!(!whole.contains("failed to fill whole buffer") && !whole.contains("declares more data than its unit holds"), "{name}: {whole}");
     }
 }
+
+/// Found by `fits_linearity` (2026-11-26): a REFERENCE header whose `XTENSION` key reads
+/// 'BINTABLE' but which cfitsio takes for another kind of HDU; fitsio's column reader
+/// panicked ("Unknown error occurred") on cfitsio's answer. Refused by name now.
+#[test]
+fn a_table_cfitsio_reads_as_another_kind_is_refused_not_a_panic() {
+    let crash = fuzz_dir().join("regressions/fits_linearity/table-that-cfitsio-reads-as-another-kind");
+    let e = dncal_host::fits::read_linearity(&crash).unwrap_err().to_string();
+    assert!(e.ends_with("the extension REFERENCE says XTENSION = 'BINTABLE' but its header does not read as a binary table (damaged)"), "{e}");
+}

@@ -732,6 +732,17 @@ impl<'a> FitsReader<'a> {
                 "column {column} of the {label} has TFORM '{tform}'; it must hold one number per row (e.g. 'D')"
             )));
         }
+        // fitsio panics where cfitsio takes the HDU for another kind than its XTENSION
+        // key says (a header damaged past what the key reader sees; found by
+        // `fits_linearity`): cfitsio's own verdict first.
+        let (mut status, mut kind) = (0, 0);
+        // SAFETY: `self.file` is open and `hdu` below its HDU count; ffmahd writes the
+        // HDU's type.
+        unsafe { fitsio::sys::ffmahd(self.file.as_raw(), hdu as i32 + 1, &mut kind, &mut status) };
+        fitsio::errors::check_status(status).map_err(|e| fits_error(self.path, &format!("reading the header of the {label}"), &e))?;
+        if kind != fitsio::sys::BINARY_TBL as i32 {
+            return Err(self.error(format!("the {label} says XTENSION = 'BINTABLE' but its header does not read as a binary table (damaged)")));
+        }
         let handle = FitsHdu { info: HduInfo::AnyInfo, number: hdu };
         handle
             .read_col::<f64>(&mut self.file, &name)
