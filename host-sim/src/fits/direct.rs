@@ -121,14 +121,10 @@ pub(super) fn read_values<S: BigEndianFloat, T: Copy + Default + Send + Sync>(fi
         .map_init(
             || vec![0u8; CHUNK],
             |buf, (k, out)| {
-                let bytes = &mut buf[..out.len() * S::SIZE];
-                file.read_exact_at(bytes, offset + (k * per_chunk * S::SIZE) as u64)?;
-                for (v, b) in out.iter_mut().zip(bytes.chunks_exact(S::SIZE)) {
-                    *v = convert(S::from_be(b));
-                }
+                read_into(file, offset + (k * per_chunk * S::SIZE) as u64, out, &convert, buf)?;
                 // Every chunk starts on a word: the unit does (a 2880-byte block), and
                 // each chunk is a whole number of 4- or 8-byte values.
-                Ok::<_, io::Error>(checksum(bytes))
+                Ok::<_, io::Error>(checksum(buf))
             },
         )
         .try_reduce(|| 0, |a, b| Ok(add(a, b)))?;

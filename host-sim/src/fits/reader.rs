@@ -143,6 +143,17 @@ pub(super) struct FitsReader<'a> {
     pub(super) deferred: Vec<Deferred>,
 }
 
+/// Bytes per value of a float image whose stored values are its values (IEEE floats,
+/// unscaled), which [`super::direct`] reads; `None` for any other image.
+fn stored_width(image: &ImageHeader) -> Option<usize> {
+    let bytes = match image.bitpix {
+        -32 => 4,
+        -64 => 8,
+        _ => return None,
+    };
+    (image.bscale == 1.0 && image.bzero == 0.0).then_some(bytes)
+}
+
 /// Whether a file starting with `start` is compressed, by the magic numbers cfitsio
 /// recognizes (gzip, compress, pack, LZH, zip).
 fn compressed_magic(start: &[u8]) -> bool {
@@ -343,6 +354,13 @@ impl<'a> FitsReader<'a> {
             return Ok(());
         }
         Err(self.checksum_failure(d.hdu, !data_ok))
+    }
+
+    /// The verdict on a deferred HDU whose values, up to `values_end` in `file`, summed to
+    /// `sum` as they were read: the unit's padding after them added, as ffvcks sums it.
+    fn check_read(&self, d: &Deferred, file: &std::fs::File, values_end: u64, sum: u32) -> Result<(), HostError> {
+        let padding = super::direct::checksum_at(file, values_end, d.data.1 - values_end).map_err(|e| HostError::io(self.path, e))?;
+        self.check_deferred(d, super::direct::add(sum, padding))
     }
 
     /// HDU `hdu` (0 = primary) fails its checksum: its data (`data`) or else its header.
@@ -602,14 +620,8 @@ impl<'a> FitsReader<'a> {
     where
         Vec<T>: ReadImage,
     {
-        let stored = match image.bitpix {
-            -32 => 4,
-            -64 => 8,
-            _ => 0,
-        };
-        let direct = stored > 0 && image.bscale == 1.0 && image.bzero == 0.0;
         let i = self.deferred.iter().position(|d| d.hdu == image.hdu);
-        let (Some(i), Some(raw), true) = (i, &self.raw, direct) else {
+        let (Some(i), Some(raw), Some(stored)) = (i, &self.raw, stored_width(image)) else {
             self.verify_deferred(image.hdu)?;
             return self.pixels(image);
         };
@@ -626,8 +638,7 @@ impl<'a> FitsReader<'a> {
             _ => super::direct::read_values::<f64, T>(raw, d.data.0, image.elements, T::from_f64),
         }
         .map_err(io)?;
-        let padding = super::direct::checksum_at(raw, values_end, d.data.1 - values_end).map_err(io)?;
-        self.check_deferred(&d, super::direct::add(sum, padding))?;
+        self.check_read(&d, raw, values_end, sum)?;
         Ok(values)
     }
 
@@ -637,15 +648,7 @@ impl<'a> FitsReader<'a> {
     /// unit cuts short is left to cfitsio, whose error names the HDU (both found by the
     /// `fits_linearity` target's comparison of the two readers).
     pub(super) fn stored_floats(&mut self, image: &ImageHeader) -> Result<Option<StoredFloats>, HostError> {
-        let bytes = match image.bitpix {
-            -32 => 4,
-            -64 => 8,
-            _ => return Ok(None),
-        };
-        let Some(raw) = &self.raw else { return Ok(None) };
-        if image.bscale != 1.0 || image.bzero != 0.0 {
-            return Ok(None);
-        }
+        let (Some(bytes), Some(raw)) = (stored_width(image), &self.raw) else { return Ok(None) };
         let file = raw.try_clone().map_err(|e| HostError::io(self.path, e))?;
         let (_, start, end) = self.offsets(image.hdu)?;
         let values_end = start + (image.elements * bytes) as u64;
@@ -667,9 +670,7 @@ impl<'a> FitsReader<'a> {
         .map_err(io)?;
         if let Some(i) = self.deferred.iter().position(|d| d.hdu == image.hdu) {
             let d = self.deferred.remove(i);
-            let values_end = at.offset + (image.elements * at.bytes) as u64;
-            let padding = super::direct::checksum_at(&at.file, values_end, d.data.1 - values_end).map_err(io)?;
-            self.check_deferred(&d, super::direct::add(sum, padding))?;
+            self.check_read(&d, &at.file, at.offset + (image.elements * at.bytes) as u64, sum)?;
         }
         Ok(flagged)
     }
