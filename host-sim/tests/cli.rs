@@ -776,8 +776,17 @@ fn diagnose_reads_a_set_by_rows_beyond_its_budget_with_the_same_numbers() {
         assert!(rows.is_some_and(|r| (1..64).contains(&r)) && (args[0] == "--max-memory" || rows == Some(5)), "{args:?}: {rows:?}");
         assert_eq!(by_rows.to_string(), held.to_string(), "{args:?}");
     }
-    let text = dncal(&["diagnose", "lin.fits", "--block-rows", "5"], d);
+    // `--spill`: the per-pixel records in temporary files, the set held or by rows.
+    for args in [&["--spill"][..], &["--spill", "--block-rows", "5"][..]] {
+        let mut spilled = stdout_json(&dncal(&[&["diagnose", "lin.fits", "--json"][..], args].concat(), d));
+        let o = spilled.as_object_mut().unwrap();
+        assert_eq!(o.remove("records_spilled"), Some(serde_json::Value::Bool(true)), "{args:?}");
+        assert_eq!(o.remove("block_rows").and_then(|r| r.as_u64()), (args.len() > 1).then_some(5), "{args:?}");
+        assert_eq!(spilled.to_string(), held.to_string(), "{args:?}");
+    }
+    let text = dncal(&["diagnose", "lin.fits", "--block-rows", "5", "--spill"], d);
     assert!(String::from_utf8_lossy(&text.stdout).contains("the set read from its file 5 rows at a time"), "{}", String::from_utf8_lossy(&text.stdout));
+    assert!(String::from_utf8_lossy(&text.stdout).contains("the per-pixel records kept in temporary files"), "{}", String::from_utf8_lossy(&text.stdout));
     let zero = dncal(&["diagnose", "lin.fits", "--block-rows", "0"], d);
     assert_eq!(zero.status.code(), Some(2), "{}", String::from_utf8_lossy(&zero.stderr));
     // A linearity set with a fault is refused with the linearity reader's words (it said

@@ -340,3 +340,29 @@ fn a_table_cfitsio_reads_as_another_kind_is_refused_not_a_panic() {
     let e = dncal_host::fits::read_linearity(&crash).unwrap_err().to_string();
     assert!(e.ends_with("the extension REFERENCE says XTENSION = 'BINTABLE' but its header does not read as a binary table (damaged)"), "{e}");
 }
+
+/// Found by `fits_linearity` (round 15, 2026-11-26) under AddressSanitizer: the REFERENCE
+/// table's `NAXIS1` card holds a form feed (0x0C) before its value. The table check read
+/// past it (Rust's `trim` drops it), cfitsio's `ffc2jj` does not, `ffgttb` passed the
+/// failure on unnoticed and `ffbinit` sized its column descriptors from a `TFIELDS` it
+/// never read. Values are now read around spaces only, as cfitsio reads them.
+#[test]
+fn a_form_feed_in_a_mandatory_table_value_is_refused_before_cfitsio() {
+    let crash = fuzz_dir().join("regressions/fits_linearity/table-with-a-form-feed-before-naxis1");
+    let e = dncal_host::fits::read_linearity(&crash).unwrap_err().to_string();
+    assert!(e.contains("the table header at byte 11520 has \"NAXIS1  =      ?             8 / width of table in bytes\""), "{e}");
+    // Every reader refuses it alike (the target's comparisons run, nothing accepted).
+    assert!(!dncal_host::fuzzing::fits_linearity(&std::fs::read(&crash).unwrap()));
+}
+
+/// Found by `fits_linearity` (round 16, 2026-11-26) under AddressSanitizer, the same
+/// allocation in `ffbinit`: the STD image's header ends with `END    q`, which cfitsio
+/// reads as END (a keyword's name runs to its first blank), and the table check, which
+/// took the first 8 columns for the name, walked past the table header after it with its
+/// garbled `NAXIS2`. Names are now read as cfitsio reads them.
+#[test]
+fn an_end_card_with_trailing_text_does_not_hide_the_table_after_it() {
+    let crash = fuzz_dir().join("regressions/fits_linearity/table-after-an-end-card-with-trailing-text");
+    let e = dncal_host::fits::read_linearity(&crash).unwrap_err().to_string();
+    assert!(e.contains("the table header at byte 11520 has \"NAXIS2  =                 ?????z??   3"), "{e}");
+}

@@ -178,7 +178,7 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
     let hist_path = at("histograms.fits");
     let hist_staged = staged(&files, &hist_path)?;
     let (diagnose_dir, diagnose_lin_dir) = (at("diagnose"), at("diagnose-linearity"));
-    let params = crate::commands::diagnose::DiagnoseParams { flatten: flatten.clone(), seed: 1, block_rows: None };
+    let params = crate::commands::diagnose::DiagnoseParams { flatten: flatten.clone(), seed: 1, block_rows: None, spill: false };
     let diagnose = crate::commands::diagnose::diagnose_as(&hist_staged, &hist_path, &params, Some(OutDir::new(&mut files, &diagnose_dir)))?;
     let diagnose_linearity = crate::commands::diagnose::diagnose_as(&lin_staged, &lin_path, &params, Some(OutDir::new(&mut files, &diagnose_lin_dir)))?;
 

@@ -182,27 +182,45 @@ pub struct DiagnoseSummary {
 /// model. The set is held as f32 (half the memory of f64; see [`crate::fits::Sample`]),
 /// or, where it would not fit the memory budget held or `block_rows` is given, read from
 /// its file by blocks of rows: the same diagnosis in a block per thread. A set whose
-/// cubes cannot be read directly (a compressed file, scaled cubes) is held.
-fn diagnose_linearity_file(read_from: &Path, input: &Path, block_rows: Option<usize>) -> Result<(Diagnosis, crate::camera::CameraConfig), HostError> {
-    use crate::budget::{bytes_of, check};
-    // The per-pixel state beyond the input: 383-388 bytes measured on 2048 x 2048
-    // (docs/diagnose.md).
-    const STATE: &str = "diagnosing each pixel (about 400 bytes per pixel beyond the set)";
+/// cubes cannot be read directly (a compressed file, scaled cubes) is held. The per-pixel
+/// records go to temporary files where they would not fit beside the rest, or `spill`
+/// says so: the same diagnosis again.
+fn diagnose_linearity_file(read_from: &Path, input: &Path, block_rows: Option<usize>, spill: bool) -> Result<(Diagnosis, crate::camera::CameraConfig), HostError> {
+    use crate::budget::{bytes_of, check, fits};
+    use crate::diagnose::{spilled_blocks, RECORD_BYTES, RESIDENT_BYTES};
+    // Per pixel beyond the set: the records that may be spilled and what stays (measured
+    // on 2048 x 2048, docs/diagnose.md), and with the records spilled, a block of each
+    // kind per thread.
+    let state = |np: u64, spilled: bool| if spilled { bytes_of(np, RESIDENT_BYTES).saturating_add(spilled_blocks(np)) } else { bytes_of(np, RESIDENT_BYTES + RECORD_BYTES) };
+    // Spilled where asked, or where held does not fit and spilling takes less (a small
+    // set's blocks may be more than its records).
+    let spill_if = |np: u64, beside: u64| spill || (!fits(state(np, false).saturating_add(beside)) && state(np, true) < state(np, false));
+    let what = |spilled: bool| {
+        if spilled {
+            format!("diagnosing each pixel (about {RESIDENT_BYTES} bytes per pixel beyond the set, its records spilled to temporary files)")
+        } else {
+            format!("diagnosing each pixel (about {} bytes per pixel beyond the set)", RESIDENT_BYTES + RECORD_BYTES)
+        }
+    };
     let spin = |[w, h, l]: [usize; 3], how: &str| crate::commands::progress::spinner(&format!("diagnosing {} (linearity set, {w} x {h} pixels, {l} levels{how})", input.display()));
     let failed = |source| HostError::Diagnose { path: input.into(), source };
+    let spilling = |spilled: bool| if spilled { ", its records spilled" } else { "" };
     // Decided from the header: held (read and checked in one pass) where the set and the
-    // state fit the budget, else read by rows (the state alone must fit).
+    // state fit the budget, else read by rows; the records spilled where the state held
+    // does not fit beside the set or its blocks.
     let opened = open_linearity_rows(read_from)?;
     let by_rows = opened.filter(|o| {
         let [w, h, l] = o.shape();
         let np = (w * h) as u64;
-        block_rows.is_some() || !crate::budget::fits(bytes_of(np, 400).saturating_add(bytes_of(np * l as u64, 8)))
+        block_rows.is_some() || !fits(state(np, spill).saturating_add(bytes_of(np * l as u64, 8)))
     });
     let Some(opened) = by_rows else {
         let set = read_linearity_as::<f32>(read_from)?;
-        check(read_from, STATE, bytes_of((set.width * set.height) as u64, 400))?;
-        let s = spin([set.width, set.height, set.levels], "");
-        let d = diagnose_linearity(&set, 0.01).map_err(failed);
+        let np = (set.width * set.height) as u64;
+        let spill = spill_if(np, bytes_of(np * set.levels as u64, 8));
+        check(read_from, &what(spill), state(np, spill))?;
+        let s = spin([set.width, set.height, set.levels], spilling(spill));
+        let d = if spill { crate::diagnose::diagnose_linearity_spilled(&set, 0.01) } else { diagnose_linearity(&set, 0.01) }.map_err(failed);
         s.finish_and_clear();
         let d = d?;
         let model = linearity_model(&set, &d);
@@ -210,14 +228,15 @@ fn diagnose_linearity_file(read_from: &Path, input: &Path, block_rows: Option<us
     };
     let shape = opened.shape();
     let np = (shape[0] * shape[1]) as u64;
-    check(read_from, STATE, bytes_of(np, 400))?;
     // Blocks of 8 MiB, or what the budget leaves after the state.
-    let room = crate::budget::limit().saturating_sub(bytes_of(np, 400));
-    let (rows, blocks) = crate::diagnose::blocks_of::<f32>(shape, block_rows, room);
-    check(read_from, &format!("{STATE} and the blocks of {rows} rows of its threads"), bytes_of(np, 400).saturating_add(blocks))?;
+    let blocks = |spilled: bool| crate::diagnose::blocks_of::<f32>(shape, block_rows, crate::budget::limit().saturating_sub(state(np, spilled)));
+    let spill = spill_if(np, blocks(false).1);
+    check(read_from, &what(spill), state(np, spill))?;
+    let (rows, blocks) = blocks(spill);
+    check(read_from, &format!("{} and the blocks of {rows} rows of its threads", what(spill)), state(np, spill).saturating_add(blocks))?;
     let set = opened.check::<f32>()?;
-    let s = spin(shape, &format!(", read by blocks of {rows} rows"));
-    let d = diagnose_linearity_rows(&set, Some(rows), 0.01);
+    let s = spin(shape, &format!(", read by blocks of {rows} rows{}", spilling(spill)));
+    let d = diagnose_linearity_rows(&set, Some(rows), spill, 0.01);
     s.finish_and_clear();
     let d = d.map_err(failed)?;
     let model = linearity_model(&set, &d);
@@ -258,6 +277,10 @@ pub struct DiagnoseParams {
     /// ([`crate::diagnose::diagnose_linearity_rows`]); without it, so read only where the
     /// set held whole would not fit the memory budget.
     pub block_rows: Option<usize>,
+    /// A linearity set's per-pixel records kept in temporary files
+    /// ([`crate::diagnose::diagnose_linearity_spilled`]); without it, so kept only where
+    /// they would not fit the memory budget.
+    pub spill: bool,
 }
 
 /// [`diagnose`] of each of `inputs`; with `out`, the reports in `out` (one input) or in
@@ -356,7 +379,7 @@ pub fn diagnose_as(read_from: &Path, input: &Path, params: &DiagnoseParams, mut 
                 // Not a histogram set: a linearity set, or the histogram reader's error (the
                 // linearity reader's where the file says it is a linearity set: its fault,
                 // not "not a histogram set").
-                let (d, model) = match diagnose_linearity_file(read_from, input, params.block_rows) {
+                let (d, model) = match diagnose_linearity_file(read_from, input, params.block_rows, params.spill) {
                     Ok(r) => r,
                     Err(kept @ (HostError::OverBudget { .. } | HostError::Diagnose { .. })) => return Err(kept),
                     Err(le) if crate::fits::is_linearity_set(read_from) => return Err(le),
@@ -395,6 +418,9 @@ impl Report for DiagnoseSummary {
         }
         if let Some(rows) = d.block_rows {
             t += &format!("  (the set read from its file {rows} rows at a time: the numbers of the set held whole, in less memory)\n");
+        }
+        if d.records_spilled {
+            t += "  (the per-pixel records kept in temporary files: the numbers of records held, in less memory)\n";
         }
         t += &format!("  all data: RMS {:.3} unexplained (baseline {:.3})\n", d.unexplained_rms, d.baseline.rms);
         t

@@ -135,6 +135,7 @@ pub fn diagnose_histograms(h: &AdcHistograms, flatten: &FlattenParams, seed: u64
         unexplained_rms: mean_sq(&all_final).sqrt(),
         residuals,
         block_rows: None,
+        records_spilled: false,
     })
 }
 

@@ -36,6 +36,7 @@ use statrs::distribution::ContinuousCDF;
 
 use super::pixel_fit::{fit_and_score, Point, Response};
 use super::points::{Common, Pixels};
+use super::records::{Put, Record, Records, Take};
 use crate::fits::Sample;
 use crate::stats::upper_median;
 use super::AdcResiduals;
@@ -68,7 +69,7 @@ fn agreement(pairs: &[(f64, f64)]) -> f64 {
 const MIN_PIXELS: usize = 10;
 
 /// The common per-level term of a set.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub(super) struct LevelTerm {
     /// Per level, the common residual of the estimating (even-row) pixels, DN, and its
     /// variance, DN^2 (NaN where a level has too few pixels).
@@ -95,13 +96,13 @@ pub(super) struct LevelTerm {
     pub light_rel: f64,
     pub black_dn: f64,
     tau_cov: [[f64; 2]; 2],
-    /// Each pixel's quartic over all its levels (index into the caller's pixels; `None`
-    /// where it has none), the reference per level, and per level the median over pixels
+    /// Each pixel's quartic and line over all its levels (index into the caller's pixels;
+    /// held or spilled), the reference per level, and per level the median over pixels
     /// of their slopes there, DN per reference unit: a level's error moves a pixel's mean
     /// by its local slope (the light's part) or its ADC's (the black level's), and an ADC
     /// that bends changes its slope along the range (one gain per pixel left a 1% bend
     /// beside large level errors reading as `adc-dnl` in 8 of 12 sets).
-    quartic: Vec<Option<[f64; 5]>>,
+    fits: Records<LevelFit>,
     x: Vec<f64>,
     slope_median: Vec<f64>,
     /// Per ADC and level, the median of its pixels' slope ratios ([`LevelTerm::slope_ratio`]).
@@ -110,9 +111,6 @@ pub(super) struct LevelTerm {
     pub shape: Shape,
     /// Mean signal per level, DN above dark.
     pub signal: Vec<f64>,
-    /// Per pixel (index into the caller's pixels), its straight line through its levels
-    /// (dark DN, DN per reference unit): [`wald`] tests what the lines leave.
-    line: Vec<Option<[f64; 2]>>,
 }
 
 /// The shape of the common term over the levels, ordered by signal: level errors are
@@ -144,8 +142,8 @@ impl LevelTerm {
     /// Pixel `i`'s slope at `level` over the median pixel's there (1 where either is
     /// unknown).
     pub fn slope_ratio(&self, i: usize, level: usize) -> f64 {
-        let (Some(q), Some(&x), Some(&m)) = (self.quartic.get(i), self.x.get(level), self.slope_median.get(level)) else { return 1.0 };
-        slope_over(q.as_ref(), x, m)
+        let (Some(&x), Some(&m)) = (self.x.get(level), self.slope_median.get(level)) else { return 1.0 };
+        slope_over(self.fits.at(i).quartic.as_ref(), x, m)
     }
 
     /// Only the levels `on` keep their term (a departure at the lowest signals accepted
@@ -216,10 +214,29 @@ struct Clipped {
     count: usize,
 }
 
-/// A pixel's quartic `sum_k q_k x^k` through its levels, where it has one.
-type QuarticFit = Option<[f64; 5]>;
-/// A pixel's straight line (dark DN, DN per reference unit), where it has one.
-type LineFit = Option<[f64; 2]>;
+/// A pixel's fits through its levels, where it has them: its quartic `sum_k q_k x^k`
+/// (whose slopes scale the light's part of the term) and its straight line (dark DN, DN
+/// per reference unit; [`wald`] tests what the lines leave). Both or neither.
+#[derive(Debug, Clone, Copy)]
+struct LevelFit {
+    quartic: Option<[f64; 5]>,
+    line: Option<[f64; 2]>,
+}
+
+impl Record for LevelFit {
+    const BYTES: usize = 1 + 7 * 8;
+    const LOST: LevelFit = LevelFit { quartic: None, line: None };
+    fn put(&self, out: &mut Put<'_>) {
+        out.u8(u8::from(self.quartic.is_some()) | u8::from(self.line.is_some()) << 1);
+        self.quartic.unwrap_or([f64::NAN; 5]).into_iter().chain(self.line.unwrap_or([f64::NAN; 2])).for_each(|v| out.f64(v));
+    }
+    fn take(from: &mut Take<'_>) -> Self {
+        let fitted = from.u8();
+        let quartic = [(); 5].map(|_| from.f64());
+        let line = [from.f64(), from.f64()];
+        LevelFit { quartic: (fitted & 1 == 1).then_some(quartic), line: (fitted & 2 == 2).then_some(line) }
+    }
+}
 
 /// Visits the residuals of pixel `i`: calls `f(cell, r, sigma)` for each.
 type Visit<'a> = dyn Fn(usize, &mut dyn FnMut(usize, f64, f64)) + Sync + 'a;
@@ -280,20 +297,16 @@ fn clipped_means(n: usize, cells: usize, visit: &Visit) -> Vec<Clipped> {
 }
 
 /// Per pixel: its quartic and its straight line through its levels not skipped (`skip`).
-fn pixel_fits<T: Sample>(px: &Pixels<T>, skip: &[bool]) -> (Vec<QuarticFit>, Vec<LineFit>) {
+fn pixel_fits<T: Sample>(px: &Pixels<T>, skip: &[bool]) -> Records<LevelFit> {
     let skipped = |l: usize| skip.get(l).copied().unwrap_or(false);
     let (quartic, line) = (Response::Poly(4), Response::Poly(1));
-    let fits: Vec<(QuarticFit, LineFit)> = (0..px.len())
-        .into_par_iter()
-        .map(|i| {
-            let used: Vec<Point> = px.all(i, None).into_iter().filter(|p| !skipped(p.level)).collect();
-            match (fit_and_score(quartic, &[0.0; 5], &used, &[]), fit_and_score(line, &[0.0; 2], &used, &[])) {
-                (Some(q), Some(l)) => (q.params.get(..5).and_then(|p| p.try_into().ok()), Some([l.params[0], l.params[1]])),
-                _ => (None, None),
-            }
-        })
-        .collect();
-    fits.into_iter().unzip()
+    Records::from_fn(px.keep(), px.len(), |i| {
+        let used: Vec<Point> = px.all(i, None).into_iter().filter(|p| !skipped(p.level)).collect();
+        match (fit_and_score(quartic, &[0.0; 5], &used, &[]), fit_and_score(line, &[0.0; 2], &used, &[])) {
+            (Some(q), Some(l)) => LevelFit { quartic: q.params.get(..5).and_then(|p| p.try_into().ok()), line: Some([l.params[0], l.params[1]]) },
+            _ => LevelFit::LOST,
+        }
+    })
 }
 
 /// `tau^2 = black^2 + light^2 S^2`, the variance of the level errors, from the halves'
@@ -417,14 +430,14 @@ pub(super) fn level_term<T: Sample>(px: &Pixels<T>, skip: &[bool]) -> LevelTerm 
     let (n, n_adc, x) = (px.len(), px.n_adc(), &px.x);
     let skipped = |l: usize| skip.get(l).copied().unwrap_or(false);
     let quartic = Response::Poly(4);
-    let (quartics, lines) = pixel_fits(px, skip);
+    let fits = pixel_fits(px, skip);
     // The pixels' local slopes at each level.
-    let slope_median: Vec<f64> = x.iter().map(|&xl| upper_median(quartics.par_iter().filter_map(|q| Some(slope(q.as_ref()?, xl))).filter(|s| s.is_finite()).collect::<Vec<f64>>())).collect();
+    let slope_median: Vec<f64> = x.iter().map(|&xl| upper_median((0..n).into_par_iter().filter_map(|i| Some(slope(fits.at(i).quartic.as_ref()?, xl))).filter(|s| s.is_finite()).collect::<Vec<f64>>())).collect();
     // Per level, each ADC's median slope ratio (its pixels grouped in one pass).
     let by_level: Vec<Vec<f64>> = (0..levels)
         .map(|l| {
             let mut by = vec![Vec::new(); n_adc];
-            (0..n).for_each(|i| by[px.adc(i)].push(slope_over(quartics[i].as_ref(), x[l], slope_median[l])));
+            (0..n).for_each(|i| by[px.adc(i)].push(slope_over(fits.at(i).quartic.as_ref(), x[l], slope_median[l])));
             by.into_iter().map(upper_median).map(|r| if r.is_finite() { r } else { 1.0 }).collect()
         })
         .collect();
@@ -432,7 +445,7 @@ pub(super) fn level_term<T: Sample>(px: &Pixels<T>, skip: &[bool]) -> LevelTerm 
     // Each pixel's quartic residuals on all its levels, recomputed per pass: (level,
     // residual DN, sigma DN, the quartic's signal there above its dark).
     let quartic_residuals = |i: usize, f: &mut dyn FnMut(usize, f64, f64, f64)| {
-        let Some(q) = &quartics[i] else { return };
+        let Some(q) = &fits.at(i).quartic else { return };
         let mut grad = [0.0; 5];
         let at0 = quartic.eval(q, 0.0, &mut grad);
         for p in px.all(i, None).iter().filter(|p| p.level < levels) {
@@ -491,13 +504,12 @@ pub(super) fn level_term<T: Sample>(px: &Pixels<T>, skip: &[bool]) -> LevelTerm 
         light_rel: light2.sqrt(),
         black_dn: black2.sqrt(),
         tau_cov,
-        quartic: quartics,
+        fits,
         x: x.to_vec(),
         slope_median,
         adc_ratio,
         shape,
         signal,
-        line: lines,
     }
 }
 
@@ -532,7 +544,7 @@ pub(super) fn wald<T: Sample>(term: &LevelTerm, px: &Pixels<T>, sel: &(dyn Fn(us
     let group = |i: usize| if pooled { 0 } else { px.adc(i) };
     let line = Response::Poly(1);
     let per = clipped_means(px.len(), n_adc * levels, &|i, f| {
-        let Some(p) = term.line.get(i).copied().flatten().filter(|_| sel(i)) else { return };
+        let Some(p) = term.fits.at(i).line.filter(|_| sel(i)) else { return };
         let mut grad = [0.0; 2];
         for q in px.all(i, None).iter().filter(|q| q.level < levels) {
             f(group(i) * levels + q.level, q.y - line.eval(&p, q.x, &mut grad), q.sigma);
@@ -602,6 +614,18 @@ pub(super) fn wald<T: Sample>(term: &LevelTerm, px: &Pixels<T>, sel: &(dyn Fn(us
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A pixel's level fits spilled and read back: both, neither, or a line alone, the
+    /// values bit for bit.
+    #[test]
+    fn level_fits_read_back_as_written() {
+        let q = [1.0, -0.0, 2.5e-300, -7.0, f64::MAX];
+        for f in [LevelFit { quartic: Some(q), line: Some([3.0, -4.0]) }, LevelFit::LOST, LevelFit { quartic: None, line: Some([0.5, 0.25]) }] {
+            let back = super::super::records::round_trip(f);
+            let bits = |f: LevelFit| (f.quartic.map(|q| q.map(f64::to_bits)), f.line.map(|l| l.map(f64::to_bits)));
+            assert_eq!(bits(back), bits(f));
+        }
+    }
 
     #[test]
     fn the_variance_of_tau2_is_the_quadratic_form_by_hand() {

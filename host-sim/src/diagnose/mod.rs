@@ -12,6 +12,7 @@ mod histograms;
 mod levels;
 mod linearity;
 mod pixel_fit;
+mod records;
 mod points;
 mod ptc;
 mod scores;
@@ -20,8 +21,9 @@ pub use codes::{diagnose_code_density, CodeDensity};
 pub use cubes::blocks_of;
 pub use defects::{diagnose_defects, DefectOutcome};
 pub use histograms::diagnose_histograms;
-pub use linearity::{diagnose_linearity, diagnose_linearity_rows};
+pub use linearity::{diagnose_linearity, diagnose_linearity_rows, diagnose_linearity_spilled};
 pub use ptc::diagnose_ptc;
+pub use records::{spilled_blocks, RECORD_BYTES, RESIDENT_BYTES};
 
 use serde::Serialize;
 
@@ -276,6 +278,10 @@ pub struct Diagnosis {
     /// whole ([`diagnose_linearity_rows`]): the same numbers either way.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub block_rows: Option<usize>,
+    /// The per-pixel records (fits, scores) kept in temporary files, a block per thread
+    /// in memory, instead of held ([`diagnose_linearity_spilled`]): the same numbers.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub records_spilled: bool,
 }
 
 /// Camera parameters a diagnosis measured on the way, each `None` when the data do not

@@ -5,6 +5,7 @@
 
 use super::cubes::{Levels, SetView};
 use super::pixel_fit::Point;
+use super::records::Keep;
 use crate::fits::Sample;
 
 /// A per-level term common to pixels, taken out of their means: `(c, var)` in DN and
@@ -27,11 +28,18 @@ pub(super) struct Pixels<'a, T: Sample> {
     valid: Vec<u16>,
     /// Index into the set's pixels of each pixel fitted.
     pub index: Vec<usize>,
+    /// Where the records kept per pixel go ([`super::records`]).
+    keep: Keep,
 }
 
 impl<'a, T: Sample> Pixels<'a, T> {
-    pub fn new(set: &'a SetView<'a, T>, x: Vec<f64>, kappa: f64, bias2: Vec<f64>, valid: Vec<u16>, index: Vec<usize>) -> Self {
-        Pixels { set, x, kappa, bias2, valid, index }
+    pub fn new(set: &'a SetView<'a, T>, x: Vec<f64>, kappa: f64, bias2: Vec<f64>, valid: Vec<u16>, index: Vec<usize>, keep: Keep) -> Self {
+        Pixels { set, x, kappa, bias2, valid, index, keep }
+    }
+
+    /// Where the records kept per pixel go.
+    pub fn keep(&self) -> &Keep {
+        &self.keep
     }
 
     /// Pixels fitted.

@@ -345,6 +345,7 @@ pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Res
         unexplained_rms: mcur.sqrt(),
         residuals: vec![AdcResiduals { baseline: z0, extended: zcur }],
         block_rows: None,
+        records_spilled: false,
     })
 }
 

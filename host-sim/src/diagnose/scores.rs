@@ -4,10 +4,10 @@
 //! rows the sums the rest reads ([`Totals`], the RMS by level of the figures). Every
 //! selection the catalogue scores is a union of those cells. Each model held every
 //! pixel's residuals before (about 300 bytes per pixel and model, six models at once).
-
-use rayon::prelude::*;
+//! The per-pixel scores are [`Records`]: held, or spilled where the budget says.
 
 use super::pixel_fit::{Scored, Totals};
+use super::records::{Keep, Put, Record, Records, Take};
 
 /// A pixel's held-out score under one model.
 #[derive(Debug, Clone, Copy)]
@@ -39,6 +39,21 @@ impl Score {
     }
 }
 
+impl Record for Score {
+    const BYTES: usize = 22;
+    const LOST: Score = Score::NONE;
+    fn put(&self, out: &mut Put<'_>) {
+        out.f64(self.sum_sq);
+        out.f32(self.tr);
+        out.f32(self.tr2);
+        out.f32(self.last_z);
+        out.u16(self.n);
+    }
+    fn take(from: &mut Take<'_>) -> Self {
+        Score { sum_sq: from.f64(), tr: from.f32(), tr2: from.f32(), last_z: from.f32(), n: from.u16() }
+    }
+}
+
 /// Where a pixel's score is summed: its ADC, and whether it lies on an odd row (those
 /// score what the even rows estimate).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -67,10 +82,10 @@ impl Sums {
 }
 
 /// One model's scores: per pixel (by the caller's index) and per [`Cell`].
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub(super) struct Scores {
     /// Per pixel, its score or [`Score::NONE`].
-    per: Vec<Score>,
+    per: Records<Score>,
     cells: Vec<Sums>,
 }
 
@@ -78,36 +93,24 @@ pub(super) struct Scores {
 impl Scores {
     /// Scores of `n` pixels: `score(j)` fits pixel `j` and scores it, `cell(j)` says where
     /// it is summed; levels below `levels`, ADCs below `n_adc`.
-    pub fn collect(n: usize, n_adc: usize, levels: usize, cell: &(dyn Fn(usize) -> Cell + Sync), score: &(dyn Fn(usize) -> Option<Scored> + Sync)) -> Scores {
+    pub fn collect(keep: &Keep, n: usize, n_adc: usize, levels: usize, cell: &(dyn Fn(usize) -> Cell + Sync), score: &(dyn Fn(usize) -> Option<Scored> + Sync)) -> Scores {
         let n_adc = n_adc.max(1);
-        let mut per = vec![Score::NONE; n];
         let empty = || vec![Sums::new(levels); 2 * n_adc];
         // A fixed number of tasks, each with its own sums (one set per task, not per few
         // pixels: they are 2 x ADCs x levels), added in task order: the same sums
         // whichever thread did which task, on any machine ([`super::TASKS`]).
-        let chunk = n.div_ceil(super::TASKS).max(1);
-        let parts: Vec<Vec<Sums>> = per
-            .par_chunks_mut(chunk)
-            .enumerate()
-            .map(|(c, out)| {
-                let mut sums = empty();
-                for (k, slot) in out.iter_mut().enumerate() {
-                    let j = c * chunk + k;
-                    let Some(s) = score(j) else { continue };
-                    let cl = cell(j);
-                    let into = &mut sums[Self::key(cl, n_adc)];
-                    into.totals = into.totals.plus(&Score::of(&s).totals());
-                    for z in &s.z {
-                        if let Some(b) = into.by_level.get_mut(z.level()) {
-                            b.0 += z.z() * z.z();
-                            b.1 += 1;
-                        }
-                    }
-                    *slot = Score::of(&s);
+        let (per, parts) = Records::build(keep, n, empty, |j, sums| {
+            let Some(s) = score(j) else { return Score::NONE };
+            let into = &mut sums[Self::key(cell(j), n_adc)];
+            into.totals = into.totals.plus(&Score::of(&s).totals());
+            for z in &s.z {
+                if let Some(b) = into.by_level.get_mut(z.level()) {
+                    b.0 += z.z() * z.z();
+                    b.1 += 1;
                 }
-                sums
-            })
-            .collect();
+            }
+            Score::of(&s)
+        });
         let cells = parts.into_iter().fold(empty(), |mut a, b| {
             a.iter_mut().zip(&b).for_each(|(x, y)| x.add(y));
             a
@@ -117,12 +120,12 @@ impl Scores {
 
     /// The score of pixel `j`, where it has one.
     pub fn get(&self, j: usize) -> Option<Score> {
-        self.per.get(j).copied().filter(|s| s.n != Score::NONE.n)
+        Some(self.per.at(j)).filter(|s| s.n != Score::NONE.n)
     }
 
     /// Every pixel's score, in the caller's order.
     pub fn iter(&self) -> impl Iterator<Item = Option<Score>> + '_ {
-        (0..self.per.len()).map(|j| self.get(j))
+        self.per.iter().map(|s| Some(s).filter(|s| s.n != Score::NONE.n))
     }
 
     fn key(c: Cell, n_adc: usize) -> usize {
@@ -146,10 +149,24 @@ impl Scores {
     }
 
     /// Per ADC the scores of `choose(adc)`: pixel `j` read by ADC `adc_of(j)`.
-    pub fn per_adc<'a>(choose: &dyn Fn(usize) -> &'a Scores, adc_of: &dyn Fn(usize) -> usize, n: usize, n_adc: usize) -> Scores {
+    pub fn per_adc<'a>(choose: &(dyn Fn(usize) -> &'a Scores + Sync), adc_of: &(dyn Fn(usize) -> usize + Sync), n: usize, n_adc: usize) -> Scores {
         let n_adc = n_adc.max(1);
-        let per = (0..n).map(|j| choose(adc_of(j)).get(j).unwrap_or(Score::NONE)).collect();
+        let per = Records::from_fn(choose(0).per.keep(), n, |j| choose(adc_of(j)).per.at(j));
         let cells = (0..2 * n_adc).map(|k| choose(k / 2).cells.get(k).cloned().unwrap_or_default()).collect();
         Scores { per, cells }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A score spilled and read back is the same, bit for bit, and none stays none.
+    #[test]
+    fn a_score_reads_back_as_written() {
+        let s = Score { sum_sq: 12.5, tr: -0.0, tr2: f32::MIN_POSITIVE, last_z: -2.25, n: 20 };
+        let back = super::super::records::round_trip(s);
+        assert_eq!((back.sum_sq.to_bits(), back.tr.to_bits(), back.tr2.to_bits(), back.last_z.to_bits(), back.n), (s.sum_sq.to_bits(), s.tr.to_bits(), s.tr2.to_bits(), s.last_z.to_bits(), s.n));
+        assert_eq!(super::super::records::round_trip(Score::NONE).n, Score::NONE.n);
     }
 }

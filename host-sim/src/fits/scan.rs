@@ -92,10 +92,21 @@ pub(super) fn malformed_table(file: &mut std::fs::File, size: u64) -> std::io::R
     // The value before the comment, as cfitsio reads it: bytes outside ASCII in the comment
     // do not hide the value (found by `fits_linearity`: an image's `NAXIS2` with a byte
     // 0xDF in its comment sent the walk to the wrong block, past the table after it).
+    // Only spaces around the digits, as cfitsio's `ffc2jj` skips: Rust's `trim` also drops
+    // a form feed, which cfitsio cannot read past (found by `fits_linearity`: `NAXIS1` with
+    // a 0x0C before its value passed here, failed in `ffgttb` unnoticed, and `ffbinit`
+    // allocated descriptors for a `TFIELDS` it never read).
     let integer = |card: &[u8]| -> Option<i64> {
         let value = card[10..].split(|&b| b == b'/').next()?;
-        std::str::from_utf8(value).ok()?.trim().parse::<i64>().ok()
+        std::str::from_utf8(value).ok()?.trim_matches(' ').parse::<i64>().ok()
     };
+    // The keyword's name as cfitsio's `ffgknm` reads it: up to the first blank, `=` or NUL
+    // (found by `fits_linearity`: an image's `END    q` ends its header for cfitsio, and a
+    // walk that did not see it missed the table after it).
+    fn keyword(card: &[u8]) -> &str {
+        let end = card.iter().position(|&b| b == b' ' || b == b'=' || b == 0).unwrap_or(card.len());
+        std::str::from_utf8(&card[..end]).unwrap_or("")
+    }
     let (mut start, mut lost) = (0u64, false);
     let mut block = [0u8; BLOCK as usize];
     // A last block cut short is read too (the rest as zeros): cfitsio parses what a
@@ -143,7 +154,7 @@ pub(super) fn malformed_table(file: &mut std::fs::File, size: u64) -> std::io::R
         let mut at = start + BLOCK;
         let ended = 'header: loop {
             for card in block.chunks_exact(80) {
-                let key = std::str::from_utf8(&card[..8]).unwrap_or("").trim_end();
+                let key = keyword(card);
                 if key == "END" {
                     break 'header true;
                 }

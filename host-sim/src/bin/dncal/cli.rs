@@ -324,6 +324,11 @@ pub(crate) enum Cmd {
         /// not fit --max-memory). A compressed set, or one with scaled cubes, is held.
         #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
         block_rows: Option<u64>,
+        /// Keep a linearity set's per-pixel records (each pixel's fits and scores, about
+        /// 300 bytes a pixel) in temporary files, a block per thread in memory (the same
+        /// diagnosis; automatic where they would not fit --max-memory). TMPDIR says where.
+        #[arg(long)]
+        spill: bool,
         /// Report folder (one subfolder per input when several).
         #[arg(short, long)]
         out: Option<PathBuf>,

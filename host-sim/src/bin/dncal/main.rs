@@ -75,7 +75,7 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
             print(json, &s?)?;
         }
         Cmd::Linearity { file, order, flat_level, out, json } => print(json, &staged(out.as_deref(), |o| linearity::linearity(&file, order, flat_level, o))?)?,
-        Cmd::Diagnose { files, flatten, seed, block_rows, out, json } => match &diagnose::diagnose_files(&files, &diagnose::DiagnoseParams { flatten: flatten.params(), seed, block_rows: block_rows.map(|r| usize::try_from(r).unwrap_or(usize::MAX)) }, out.as_deref())?[..] {
+        Cmd::Diagnose { files, flatten, seed, block_rows, spill, out, json } => match &diagnose::diagnose_files(&files, &diagnose::DiagnoseParams { flatten: flatten.params(), seed, block_rows: block_rows.map(|r| usize::try_from(r).unwrap_or(usize::MAX)), spill }, out.as_deref())?[..] {
             [one] => print(json, one)?,
             several => print(json, several)?,
         },

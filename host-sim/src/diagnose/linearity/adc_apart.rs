@@ -155,7 +155,7 @@ pub(super) fn adc_maps<T: Sample>(s: &Scoring<'_, T>, curve_for: &(dyn Fn(usize)
         .par_iter()
         .map(|&i| {
             let all = px.all(i, common);
-            let start = fits[i].line(0).map_or(vec![0.0; 2], |l| l.to_vec());
+            let start = fits.at(i).line(0).map_or(vec![0.0; 2], |l| l.to_vec());
             fit_and_score(curve_for(i), &start, &all, &[]).map(|s| [s.params[0], s.params[1]])
         })
         .collect();

@@ -128,7 +128,7 @@ pub(super) fn measure_camera<T: Sample>(scoring: &Scoring<'_, T>, n_frames: u32,
     let b2: Vec<(f64, f64)> = good
         .iter()
         .filter_map(|&i| {
-            let (a, b) = (fits[i].quartic(0)?, fits[i].quartic(1)?);
+            let (a, b) = { let f = fits.at(i); (f.quartic(0)?, f.quartic(1)?) };
             Some((a.b2 / a.gain.powi(2), b.b2 / b.gain.powi(2)))
         })
         .filter(|(a, b)| a.is_finite() && b.is_finite())

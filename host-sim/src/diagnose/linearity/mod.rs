@@ -84,6 +84,7 @@ mod scoring;
 
 use super::levels::{wald, Block};
 use super::pixel_fit::{Response, Totals};
+use super::records::Keep;
 use super::points::{Common, Pixels};
 use super::scores::{Cell, Scores};
 use super::*;
@@ -110,7 +111,7 @@ fn finding(effect: Effect, adc: Option<usize>, significance: f64, before: f64, a
 /// The set checked (enough levels and frames, positive reference, noise known, at most
 /// [`MAX_ADCS`] ADCs) and its pixels as the diagnosis reads them: the masked ones left
 /// out, each mean's noise with the quantization floor; and the number of ADCs.
-fn prepare<'a, T: Sample>(set: &'a SetView<'a, T>) -> Result<(Pixels<'a, T>, usize), DiagnoseError> {
+fn prepare<'a, T: Sample>(set: &'a SetView<'a, T>, keep: Keep) -> Result<(Pixels<'a, T>, usize), DiagnoseError> {
     let (nl, np) = (set.levels, set.frame());
     if nl < 11 {
         return Err(DiagnoseError::TooFewLevels { levels: nl });
@@ -166,7 +167,7 @@ fn prepare<'a, T: Sample>(set: &'a SetView<'a, T>) -> Result<(Pixels<'a, T>, usi
     }
     let pixels: Vec<usize> = (0..np).filter(|&p| !known_bad(p)).collect();
     let bias2 = quantization_floor(set, &pixels);
-    Ok((Pixels::new(set, x, kappa, bias2, valid, pixels), n_adc))
+    Ok((Pixels::new(set, x, kappa, bias2, valid, pixels, keep), n_adc))
 }
 
 /// The baseline on all the data (`base`: the linear model's held-out scores), overall
@@ -189,18 +190,36 @@ fn baseline(base: &Scores, n_adc: usize) -> Baseline {
 /// Diagnoses a linearity set held in memory; `accuracy_dn` is the averaging accuracy the
 /// `insufficient-noise` check asks for.
 pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) -> Result<Diagnosis, DiagnoseError> {
-    diagnose_set(&SetView::held(set), accuracy_dn)
+    diagnose_kept(&SetView::held(set), Keep::held(), accuracy_dn)
+}
+
+/// [`diagnose_linearity`] with the per-pixel records (each pixel's fits, its scores
+/// under each model: about 300 bytes a pixel) in temporary files, a block of each per
+/// thread in memory ([`super::records`]). The same diagnosis, number for number.
+pub fn diagnose_linearity_spilled<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) -> Result<Diagnosis, DiagnoseError> {
+    diagnose_kept(&SetView::held(set), Keep::spilled(), accuracy_dn)
 }
 
 /// [`diagnose_linearity`] of a set read from its file by blocks of `rows` rows (`None`:
-/// blocks of a few MiB): the memory of the values is a block per thread, the file is read
-/// once a pass. The same diagnosis, number for number, as of the set held as `f32`.
-pub fn diagnose_linearity_rows(file: &LinearityRows, rows: Option<usize>, accuracy_dn: f64) -> Result<Diagnosis, DiagnoseError> {
+/// blocks of a few MiB), the records spilled where `spill` says: the memory of the
+/// values is a block per thread, the file is read once a pass. The same diagnosis,
+/// number for number, as of the set held as `f32`.
+pub fn diagnose_linearity_rows(file: &LinearityRows, rows: Option<usize>, spill: bool, accuracy_dn: f64) -> Result<Diagnosis, DiagnoseError> {
     let set = SetView::<f32>::rows(file, rows);
-    let d = diagnose_set(&set, accuracy_dn);
+    let d = diagnose_kept(&set, if spill { Keep::spilled() } else { Keep::held() }, accuracy_dn);
     match set.failed() {
         Some(message) => Err(DiagnoseError::Read { message }),
         None => d.map(|d| Diagnosis { block_rows: set.block_rows(), ..d }),
+    }
+}
+
+/// [`diagnose_set`] with its records kept as `keep` says; a failed spill file ends it
+/// with that failure.
+fn diagnose_kept<T: Sample>(set: &SetView<'_, T>, keep: Keep, accuracy_dn: f64) -> Result<Diagnosis, DiagnoseError> {
+    let d = diagnose_set(set, keep.clone(), accuracy_dn);
+    match keep.failed() {
+        Some(message) => Err(DiagnoseError::Read { message }),
+        None => d.map(|d| Diagnosis { records_spilled: keep.spills(), ..d }),
     }
 }
 
@@ -211,8 +230,8 @@ pub fn diagnose_linearity_rows(file: &LinearityRows, rows: Option<usize>, accura
 /// stays here is the shared response (ADC curvature, `global-nonlinearity`), whose steps
 /// hand each other their held-out scores (each accepted model is the next one's
 /// baseline), and the assembly of the report.
-fn diagnose_set<T: Sample>(set: &SetView<'_, T>, accuracy_dn: f64) -> Result<Diagnosis, DiagnoseError> {
-    let (px, n_adc) = prepare(set)?;
+fn diagnose_set<T: Sample>(set: &SetView<'_, T>, keep: Keep, accuracy_dn: f64) -> Result<Diagnosis, DiagnoseError> {
+    let (px, n_adc) = prepare(set, keep)?;
     let (nl, top) = (set.levels, ((1u64 << set.bit_depth) - 1) as f64);
     let adc_of = |i: usize| px.adc(i);
     // Shared parameters (curves, population medians) are estimated on the pixels of even
@@ -272,7 +291,7 @@ fn diagnose_set<T: Sample>(set: &SetView<'_, T>, accuracy_dn: f64) -> Result<Dia
     // Where level errors were found, the shared curve stays in the model either way: it
     // takes their smooth part (named `global-nonlinearity` only when it stands out).
     let absorb = level_accepted && !global_accepted;
-    let g0 = upper_median(good.iter().filter(|&&i| estimating(i) && !adc_own[adc_of(i)]).filter_map(|&i| Some(stage.fits[i].quartic(0)?.gain)));
+    let g0 = upper_median(good.iter().filter(|&&i| estimating(i) && !adc_own[adc_of(i)]).filter_map(|&i| Some(stage.fits.at(i).quartic(0)?.gain)));
     let smooth = if absorb { s.shared_of(&|i| !adc_own[adc_of(i)], Some(g0)) } else { [0.0; 3] };
     let follower_model = if global_accepted {
         Response::Curve(global, top)
@@ -365,6 +384,7 @@ fn diagnose_set<T: Sample>(set: &SetView<'_, T>, accuracy_dn: f64) -> Result<Dia
         unexplained_rms: tcur.rms(),
         residuals: vec![AdcResiduals { baseline: baseline_by_level, extended: current.by_level(&all) }],
         block_rows: None,
+        records_spilled: false,
     })
 }
 

@@ -8,6 +8,7 @@ use super::super::pixel_fit::{fit_and_score, Point, Response};
 use super::super::pixel_fit::Totals;
 use super::scoring::Scoring;
 use super::super::points::{Common, Pixels};
+use super::super::records::{Put, Record, Records, Take};
 use super::super::scores::{Cell, Scores};
 use super::super::{AdcResiduals, Effect, Finding, SIGNIFICANCE};
 use super::adc_apart::population;
@@ -57,6 +58,31 @@ impl PixelFits {
     }
 }
 
+impl Record for PixelFits {
+    const BYTES: usize = 2 * (4 * 8 + 2) + 4 * 8 + 2 * 2 + 1;
+    const LOST: PixelFits = PixelFits {
+        quartic: [Quartic { gain: f64::NAN, b2: f64::NAN, chi2_fit: f64::NAN, held_sq: f64::NAN, held_n: 0 }; 2],
+        line: [[f64::NAN; 2]; 2],
+        points: [0; 2],
+        fitted: 0,
+    };
+    fn put(&self, out: &mut Put<'_>) {
+        for q in &self.quartic {
+            [q.gain, q.b2, q.chi2_fit, q.held_sq].into_iter().for_each(|v| out.f64(v));
+            out.u16(q.held_n);
+        }
+        self.line.iter().flatten().for_each(|&v| out.f64(v));
+        self.points.iter().for_each(|&p| out.u16(p));
+        out.u8(self.fitted);
+    }
+    fn take(from: &mut Take<'_>) -> Self {
+        let quartic = [(); 2].map(|_| Quartic { gain: from.f64(), b2: from.f64(), chi2_fit: from.f64(), held_sq: from.f64(), held_n: from.u16() });
+        let line = [(); 2].map(|_| [from.f64(), from.f64()]);
+        let points = [from.u16(), from.u16()];
+        PixelFits { quartic, line, points, fitted: from.u8() }
+    }
+}
+
 /// Why a pixel is flagged bad.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) enum BadPixel {
@@ -78,8 +104,8 @@ pub(super) const LINEAR: Response = Response::Poly(1);
 /// Every pixel's fits on either half of its levels, the population of dark and gain
 /// they give (per ADC and about each pixel's own ADC) and the bad-pixel flags.
 pub(super) struct PixelStage {
-    /// Per pixel (index into [`Pixels`]).
-    pub(super) fits: Vec<PixelFits>,
+    /// Per pixel (index into [`Pixels`]), held or spilled.
+    pub(super) fits: Records<PixelFits>,
     /// Dark (DN): the median of the ADCs' medians and the robust scatter about each
     /// pixel's own ADC median, from the even-level lines of even-row pixels.
     dark_pop: (f64, f64),
@@ -102,20 +128,17 @@ impl PixelStage {
         // bad-pixel test of the pixel's own response) and its straight line (dark and gain
         // for the maps: their parameters only).
         let zero5 = [0.0; 5];
-        let fits: Vec<PixelFits> = (0..n)
-            .into_par_iter()
-            .map(|i| {
+        let fits = Records::from_fn(px.keep(), n, |i| {
                 let (ev, od) = px.halves(i, common);
                 let q = |a: &[Point], b: &[Point]| {
                     fit_and_score(QUARTIC, &zero5, a, b).map(|s| Quartic { gain: s.params[1], b2: s.params[2], chi2_fit: s.chi2_fit, held_sq: s.sum_sq(), held_n: s.z.len() as u16 })
                 };
                 let l = |a: &[Point]| fit_and_score(LINEAR, &[0.0; 2], a, &[]).map(|s| [s.params[0], s.params[1]]);
                 PixelFits::new([q(&ev, &od), q(&od, &ev)], [l(&ev), l(&od)], [ev.len() as u16, od.len() as u16])
-            })
-            .collect();
+            });
         // The population of dark (k = 0) and gain (k = 1) from the even-level fits, for the
         // bad-pixel flags.
-        let pop_of = |k: usize| population((0..n).filter(|&i| px.estimating(i)).filter_map(|i| Some((px.adc(i), fits[i].line(0)?[k]))), n_adc);
+        let pop_of = |k: usize| population((0..n).filter(|&i| px.estimating(i)).filter_map(|i| Some((px.adc(i), fits.at(i).line(0)?[k]))), n_adc);
         let (dark_pop, gain_pop) = ((pop_of(0).1, pop_of(0).2), (pop_of(1).1, pop_of(1).2));
         // Each pixel is flagged against its own ADC's medians (an ADC offset is an
         // `adc-mismatch`, not a quarter of the sensor gone bad; a review found 1018 such
@@ -135,7 +158,7 @@ impl PixelStage {
 
     /// Not flagged, and fitted on the even levels.
     pub(super) fn is_good(&self, i: usize) -> bool {
-        self.bad[i].is_none() && self.fits[i].quartic(0).is_some() && self.fits[i].line(0).is_some()
+        self.bad[i].is_none() && { let f = self.fits.at(i); f.quartic(0).is_some() && f.line(0).is_some() }
     }
 
     /// Pixels flagged bad.
@@ -152,7 +175,7 @@ impl PixelStage {
     /// Why pixel `i` (of ADC `adc`) is bad on one half of its levels (0 even, 1 odd).
     fn bad_in(&self, adc: usize, i: usize, half: usize) -> Option<BadPixel> {
         let tail = |chi2: f64, dof: usize| dof > 0 && ChiSquared::new(dof as f64).map(|c| c.sf(chi2) < 1e-6).unwrap_or(false);
-        let f = &self.fits[i];
+        let f = self.fits.at(i);
         let (Some(q), Some(l)) = (f.quartic(half), f.line(half)) else { return Some(BadPixel::Stuck) };
         let points = usize::from(f.points[half]);
         if points < 3 {
@@ -182,7 +205,8 @@ impl PixelStage {
         // A pixel's sum of squares and count of scores.
         let map_z = |i: usize| -> (f64, usize) {
             let (dark_own, gain_own) = self.own(px.adc(i));
-            match (&fits[i].line(1), &fits[i].quartic(0)) {
+            let f = fits.at(i);
+            match (&f.line(1), &f.quartic(0)) {
                 (Some(l), Some(q)) => {
                     let z = [(l[0] - dark_own) / dark_pop.1.max(1e-9), (l[1] - gain_own) / gain_pop.1.max(1e-9)];
                     (z[0] * z[0] + z[1] * z[1] + q.held_sq, 2 + usize::from(q.held_n))
@@ -245,7 +269,7 @@ pub(super) fn pixel_nonlinearity<T: Sample>(s: &Scoring<'_, T>, (current, tcur):
                 let (a, b) = (last(own.get(j))?, last(current.get(j))?);
                 let i = good[j];
                 let q = *px.halves(i, common).1.last()?;
-                let d = fits[i].line(0)?[0];
+                let d = fits.at(i).line(0)?[0];
                 Some(((b - a) * q.sigma / (q.y - d)).abs())
             })
             .collect();
@@ -280,5 +304,10 @@ mod tests {
         assert_eq!((f.quartic(1).map(|q| (q.gain, q.b2, q.chi2_fit, q.held_sq, q.held_n)), f.line(0)), (Some((2.0, -0.5, 3.0, 4.0, 7)), Some([1.0, 2.0])));
         // A fitted line of NaN is still a fitted line (the marker is the bit, not a value).
         assert_eq!(PixelFits::new([None, None], [None, Some([f64::NAN; 2])], [0, 0]).line(1).map(|l| l[0].is_nan()), Some(true));
+        // Spilled and read back, every field and fit bit as it was (a negative zero too).
+        let g = PixelFits::new([Some(Quartic { held_n: 65_535, ..q }), None], [Some([-0.0, f64::MIN_POSITIVE]), Some([1e300, -3.5])], [7, 65_535]);
+        for f in [f, g, PixelFits::LOST] {
+            assert_eq!(format!("{:?}", super::super::super::records::round_trip(f)), format!("{f:?}"));
+        }
     }
 }

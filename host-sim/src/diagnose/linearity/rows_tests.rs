@@ -28,9 +28,30 @@ fn blocks_of_rows_give_the_diagnosis_of_the_held_set_number_for_number() {
     let want = serde_json::to_string(&held).unwrap();
     let rows = open_linearity_rows(&path).unwrap().expect("an uncompressed float set is read by rows").check::<f32>().unwrap();
     for (block, used) in [(Some(1), 1), (Some(7), 7), (Some(64), 64), (Some(1000), 256), (None, 99)] {
-        let mut got = diagnose_linearity_rows(&rows, block, 0.01).unwrap();
+        let mut got = diagnose_linearity_rows(&rows, block, false, 0.01).unwrap();
         // (Blocks of 8 MiB by default: 256 columns x 41 levels x 2 cubes x 4 bytes a row.)
         assert_eq!(got.block_rows.take(), Some(used), "blocks of {block:?} rows");
+        assert_eq!(serde_json::to_string(&got).unwrap(), want, "blocks of {block:?} rows");
+    }
+}
+
+/// The per-pixel records spilled to temporary files give the same report, byte for
+/// byte, with the set held and with the set read by rows (blocks smaller than a block of
+/// records and larger).
+#[test]
+fn spilled_records_give_the_diagnosis_of_held_ones_number_for_number() {
+    let (_dir, path) = written(5);
+    let set = read_linearity_as::<f32>(&path).unwrap();
+    let held = diagnose_linearity(&set, 0.01).unwrap();
+    assert!(!held.findings.is_empty(), "nothing found: a comparison of two empty reports");
+    let want = serde_json::to_string(&held).unwrap();
+    let mut spilled = diagnose_linearity_spilled(&set, 0.01).unwrap();
+    assert!(std::mem::take(&mut spilled.records_spilled));
+    assert_eq!(serde_json::to_string(&spilled).unwrap(), want);
+    let rows = open_linearity_rows(&path).unwrap().unwrap().check::<f32>().unwrap();
+    for block in [Some(3), None] {
+        let mut got = diagnose_linearity_rows(&rows, block, true, 0.01).unwrap();
+        assert!(got.block_rows.take().is_some() && std::mem::take(&mut got.records_spilled));
         assert_eq!(serde_json::to_string(&got).unwrap(), want, "blocks of {block:?} rows");
     }
 }
@@ -43,7 +64,7 @@ fn a_file_cut_while_it_is_diagnosed_is_an_error() {
     let rows = open_linearity_rows(&path).unwrap().unwrap().check::<f32>().unwrap();
     let len = std::fs::metadata(&path).unwrap().len();
     std::fs::OpenOptions::new().write(true).open(&path).unwrap().set_len(len / 2).unwrap();
-    match diagnose_linearity_rows(&rows, Some(16), 0.01) {
+    match diagnose_linearity_rows(&rows, Some(16), false, 0.01) {
         Err(DiagnoseError::Read { message }) => assert!(message.starts_with("reading rows ") && message.contains("of the set"), "{message}"),
         other => panic!("{other:?}"),
     }

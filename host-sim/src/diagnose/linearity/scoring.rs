@@ -6,6 +6,7 @@ use super::super::pixel_fit::{fit_and_score, Response};
 use super::super::points::{Common, Pixels};
 use super::super::scores::{Cell, Scores};
 use super::curves::shared_curve;
+use super::super::records::Records;
 use super::pixel_fits::{PixelFits, PixelStage};
 use crate::fits::Sample;
 
@@ -15,7 +16,7 @@ pub(super) struct Scoring<'a, T: Sample> {
     /// The level term, taken out of every pixel's means; `None` where none was found.
     pub common: Option<&'a dyn Common>,
     /// Each pixel's own fits (by index into `px`).
-    pub fits: &'a [PixelFits],
+    pub fits: &'a Records<PixelFits>,
     /// The good pixels, by index into `px`: score `j` of a [`Scores`] is pixel `good[j]`.
     pub good: Vec<usize>,
     /// ADCs of the camera.
@@ -41,12 +42,12 @@ impl<'a, T: Sample> Scoring<'a, T> {
     /// The held-out scores of the response `model(i)` of each good pixel `i`, its means
     /// less `common` (a curve's fit starts from the pixel's even-level line).
     pub fn score_with(&self, common: Option<&dyn Common>, model: &(dyn Fn(usize) -> Response + Sync)) -> Scores {
-        Scores::collect(self.good.len(), self.n_adc, self.levels, &|j| self.cell(j), &|j| {
+        Scores::collect(self.px.keep(), self.good.len(), self.n_adc, self.levels, &|j| self.cell(j), &|j| {
             let i = self.good[j];
             let (ev, od) = self.px.halves(i, common);
             let m = model(i);
             let start = match m {
-                Response::Curve(..) => self.fits[i].line(0).map_or(vec![0.0; 2], |l| l.to_vec()),
+                Response::Curve(..) => self.fits.at(i).line(0).map_or(vec![0.0; 2], |l| l.to_vec()),
                 _ => vec![0.0; m.params()],
             };
             fit_and_score(m, &start, &ev, &od)
@@ -62,7 +63,7 @@ impl<'a, T: Sample> Scoring<'a, T> {
     /// even levels, each at its own quartic's gain or, given `at_gain`, all at that gain
     /// (an additive common term).
     pub fn shared_of(&self, sel: &dyn Fn(usize) -> bool, at_gain: Option<f64>) -> [f64; 3] {
-        let chosen: Vec<(usize, f64)> = self.good.iter().copied().filter(|&i| self.px.estimating(i) && sel(i)).filter_map(|i| Some((i, at_gain.unwrap_or(self.fits[i].quartic(0)?.gain)))).collect();
+        let chosen: Vec<(usize, f64)> = self.good.iter().copied().filter(|&i| self.px.estimating(i) && sel(i)).filter_map(|i| Some((i, at_gain.unwrap_or(self.fits.at(i).quartic(0)?.gain)))).collect();
         shared_curve(self.px, self.common, &chosen, self.top)
     }
 
