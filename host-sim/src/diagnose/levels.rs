@@ -38,7 +38,6 @@ use super::pixel_fit::{fit_and_score, Point, Response};
 use super::points::{Common, Pixels};
 use super::records::{Put, Record, Records, Take};
 use crate::fits::Sample;
-use crate::stats::upper_median;
 use super::AdcResiduals;
 
 /// Held out by level, over the levels `on`: the odd rows' estimate in its noise, and its
@@ -432,16 +431,18 @@ pub(super) fn level_term<T: Sample>(px: &Pixels<T>, skip: &[bool]) -> LevelTerm 
     let quartic = Response::Poly(4);
     let fits = pixel_fits(px, skip);
     // The pixels' local slopes at each level.
-    let slope_median: Vec<f64> = x.iter().map(|&xl| upper_median((0..n).into_par_iter().filter_map(|i| Some(slope(fits.at(i).quartic.as_ref()?, xl))).filter(|s| s.is_finite()).collect::<Vec<f64>>())).collect();
-    // Per level, each ADC's median slope ratio (its pixels grouped in one pass).
-    let by_level: Vec<Vec<f64>> = (0..levels)
-        .map(|l| {
-            let mut by = vec![Vec::new(); n_adc];
-            (0..n).for_each(|i| by[px.adc(i)].push(slope_over(fits.at(i).quartic.as_ref(), x[l], slope_median[l])));
-            by.into_iter().map(upper_median).map(|r| if r.is_finite() { r } else { 1.0 }).collect()
-        })
-        .collect();
-    let adc_ratio: Vec<Vec<f64>> = (0..n_adc).map(|a| by_level.iter().map(|r| r[a]).collect()).collect();
+    // (Medians by exact selection in passes over the pixels' fits: [`crate::select`].)
+    let slope_median = crate::select::upper_medians(n, x.len(), &|i, f| {
+        if let Some(q) = fits.at(i).quartic {
+            x.iter().enumerate().for_each(|(l, &xl)| f(l, slope(&q, xl)));
+        }
+    });
+    // Per level, each ADC's median slope ratio.
+    let ratios = crate::select::upper_medians(n, levels * n_adc, &|i, f| {
+        let (q, a) = (fits.at(i).quartic, px.adc(i));
+        (0..levels).for_each(|l| f(l * n_adc + a, slope_over(q.as_ref(), x[l], slope_median[l])));
+    });
+    let adc_ratio: Vec<Vec<f64>> = (0..n_adc).map(|a| (0..levels).map(|l| Some(ratios[l * n_adc + a]).filter(|r| r.is_finite()).unwrap_or(1.0)).collect()).collect();
     // Each pixel's quartic residuals on all its levels, recomputed per pass: (level,
     // residual DN, sigma DN, the quartic's signal there above its dark).
     let quartic_residuals = |i: usize, f: &mut dyn FnMut(usize, f64, f64, f64)| {

@@ -25,14 +25,17 @@ const BLOCK_BYTES: usize = 256 << 10;
 const KINDS_AT_ONCE: u64 = 8;
 
 /// Bytes a pixel's records take held: its fits on either half of its levels (120), the
-/// level term's fits through its levels (72), and its scores under up to five models at
-/// once (24 each). Spilled, they go to the disk (at [`Record::BYTES`] each).
-pub const RECORD_BYTES: u64 = 120 + 72 + 5 * 24;
+/// level term's fits through its levels (72), its scores under up to five models at once
+/// (24 each) and a pair of values for the population medians (16). Spilled, they go to
+/// the disk (at [`Record::BYTES`] each).
+pub const RECORD_BYTES: u64 = 120 + 72 + 5 * 24 + 16;
 
-/// Bytes a pixel that stay in memory however its records are kept: the diagnosis's
-/// indices and flags, and the transient values of its population medians (89 bytes a
-/// pixel measured with the records spilled on 2048 x 2048, the set held).
-pub const RESIDENT_BYTES: u64 = 88;
+/// Bytes a pixel that stay in memory however its records are kept: the pixels' and the
+/// good pixels' indices (16), each pixel's unsaturated levels and bad-pixel flags (4),
+/// and the gains of the pixels a shared curve is fitted on (16 for half of them), with
+/// room (2048 x 2048 by rows, records spilled: 187 MB resident in all, 35 bytes a pixel
+/// beyond the blocks and the program).
+pub const RESIDENT_BYTES: u64 = 40;
 
 /// Bytes the blocks of spilled records of `pixels` pixels take at once: a block of
 /// each kind per thread of the pool and one more (no larger than the records).
@@ -94,6 +97,33 @@ impl Take<'_> {
     }
     pub fn u8(&mut self) -> u8 {
         self.bytes::<1>()[0]
+    }
+}
+
+/// A pair of values a pixel (NaN where it has none).
+impl Record for [f64; 2] {
+    const BYTES: usize = 16;
+    const LOST: [f64; 2] = [f64::NAN; 2];
+    fn put(&self, out: &mut Put<'_>) {
+        self.iter().for_each(|&v| out.f64(v));
+    }
+    fn take(from: &mut Take<'_>) -> Self {
+        [from.f64(), from.f64()]
+    }
+}
+
+/// A value a pixel, where it has one.
+impl Record for Option<f64> {
+    const BYTES: usize = 9;
+    const LOST: Option<f64> = None;
+    fn put(&self, out: &mut Put<'_>) {
+        out.u8(u8::from(self.is_some()));
+        out.f64(self.unwrap_or(f64::NAN));
+    }
+    fn take(from: &mut Take<'_>) -> Self {
+        let some = from.u8() == 1;
+        let v = from.f64();
+        some.then_some(v)
     }
 }
 

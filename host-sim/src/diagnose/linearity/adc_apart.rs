@@ -2,15 +2,14 @@
 //! population of a per-pixel parameter, and the search that sets ADCs apart one at a time
 //! (`adc-mismatch` of offset, gain or curvature).
 
-use rayon::prelude::*;
-
 use super::super::pixel_fit::{fit_and_score, Response};
+use super::super::records::Records;
 use super::scoring::Scoring;
 use super::super::scores::{Cell, Scores};
 use super::super::{AdcResiduals, Effect, Finding, SIGNIFICANCE};
 use super::{finding, with_residuals};
 use crate::fits::Sample;
-use crate::stats::{robust, upper_median};
+use crate::select::Visit;
 
 /// The paired test of a shared-parameter step over independent held-out pixels:
 /// `D_p` is a pixel's drop of held-out `z^2` from model A to B, and the significance is
@@ -25,34 +24,36 @@ use crate::stats::{robust, upper_median};
 /// test cannot see it (a 2e-4 level error gave false `adc-mismatch` findings), so it is
 /// measured and taken out first ([`super::levels`]).
 pub(super) fn paired(a: &Scores, b: &Scores, sel: impl Fn(usize) -> bool) -> f64 {
-    let d: Vec<f64> = a.iter().zip(b.iter()).enumerate().filter(|(j, _)| sel(*j)).filter_map(|(_, (a, b))| Some(a?.sum_sq - b?.sum_sq)).collect();
-    paired_sum(&d)
+    paired_sum(|| a.iter().zip(b.iter()).enumerate().filter(|(j, _)| sel(*j)).filter_map(|(_, (a, b))| Some(a?.sum_sq - b?.sum_sq)))
 }
 
-/// `sum d / sqrt(n var d)` of the paired differences `d`.
-pub(super) fn paired_sum(d: &[f64]) -> f64 {
-    let n = d.len() as f64;
+/// `sum d / sqrt(n var d)` of the paired differences `d()` gives (the same on every call:
+/// counted, summed, then summed about their mean, in their order; none held).
+pub(super) fn paired_sum<I: Iterator<Item = f64>>(d: impl Fn() -> I) -> f64 {
+    let n = d().count() as f64;
     if n < 3.0 {
         return 0.0;
     }
-    let mean = d.iter().sum::<f64>() / n;
-    let var = d.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0);
+    let mean = d().sum::<f64>() / n;
+    let var = d().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0);
     mean * n / (n * var).sqrt().max(1e-300)
 }
 
-/// Per-ADC medians of `(adc, value)`, their median as the centre (one odd ADC does not
-/// move it), and the robust scatter about each value's own ADC median (the
-/// pixel-to-pixel spread alone).
-pub(super) fn population(values: impl Iterator<Item = (usize, f64)>, n_adc: usize) -> (Vec<f64>, f64, f64) {
-    let v: Vec<(usize, f64)> = values.collect();
-    let mut by_adc = vec![Vec::new(); n_adc];
-    v.iter().filter(|(a, _)| *a < n_adc).for_each(|&(a, x)| by_adc[a].push(x));
-    let per: Vec<f64> = by_adc.into_iter().map(upper_median).collect();
+/// Per-ADC medians of the values `visit` gives (its cell is the value's ADC, below
+/// `n_adc`) over items `0..n`, their median as the centre (one odd ADC does not move it),
+/// and the robust scatter about each value's own ADC median (the pixel-to-pixel spread
+/// alone). Exact, in passes over the items ([`crate::select`]): no value is held (they
+/// were 16 bytes a pixel at a time, and a diagnosis's peak).
+pub(super) fn population(n: usize, n_adc: usize, visit: &Visit) -> (Vec<f64>, f64, f64) {
+    let per = crate::select::upper_medians(n, n_adc, &|i, f| visit(i, &mut |a, x| if a < n_adc { f(a, x) }));
     // The textbook median here (four ADCs: the mean of the middle two), not the upper one.
     let centre = crate::stats::median(per.iter().copied());
-    let dev: Vec<f64> = v.iter().map(|(a, x)| x - per[*a]).collect();
-    (per.clone(), centre, robust(&dev).1)
+    let scatter = crate::select::robust(n, 1, &|i, f| visit(i, &mut |a, x| if a < n_adc { f(0, x - per[a]) }))[0].1;
+    (per, centre, scatter)
 }
+
+/// Visits the value of item `j`: `f(adc, odd row, value)`.
+pub(super) type Values<'a> = dyn Fn(usize, &mut dyn FnMut(usize, bool, f64)) + Sync + 'a;
 
 /// The most ADCs a linearity set's diagnosis takes apart (several passes over the pixels
 /// per ADC: a column-parallel sensor's thousands would multiply the run by thousands).
@@ -91,8 +92,8 @@ pub(super) struct Apart {
 /// `sqrt(n) ((m_a - c) + 2 (mean(v) - m_a)) / (2 sd(v))`, so a skewed spread (the odd rows'
 /// mean off the even rows' median) passed it for any offset once `n` was large: on a
 /// 2048 x 2048 set an ADC was set apart for +0.001 DN at 7 standard deviations.
-pub(super) fn adcs_apart(values: &[(usize, bool, f64)], n_adc: usize) -> Vec<Apart> {
-    let (per_adc, _, ps) = population(values.iter().filter(|v| !v.1).map(|v| (v.0, v.2)), n_adc);
+pub(super) fn adcs_apart(n: usize, values: &Values, n_adc: usize) -> Vec<Apart> {
+    let (per_adc, _, ps) = population(n, n_adc, &|j, f| values(j, &mut |a, odd, v| if !odd { f(a, v) }));
     let mut out = Vec::new();
     if n_adc < 3 || ps.is_nan() || ps <= 0.0 {
         return out;
@@ -101,13 +102,16 @@ pub(super) fn adcs_apart(values: &[(usize, bool, f64)], n_adc: usize) -> Vec<Apa
     // squares about its own median (every score below is a function of these: one pass
     // over the pixels, whatever the number of ADCs and rounds).
     let (mut even_count, mut odd) = (vec![0usize; n_adc], vec![(0usize, 0.0, 0.0); n_adc]);
-    for &(a, is_odd, v) in values.iter().filter(|v| v.0 < n_adc && v.2.is_finite()) {
-        if is_odd {
-            let d = v - per_adc[a];
-            odd[a] = (odd[a].0 + 1, odd[a].1 + d, odd[a].2 + d * d);
-        } else {
-            even_count[a] += 1;
-        }
+    for j in 0..n {
+        values(j, &mut |a, is_odd, v| {
+            if a >= n_adc || !v.is_finite() {
+            } else if is_odd {
+                let d = v - per_adc[a];
+                odd[a] = (odd[a].0 + 1, odd[a].1 + d, odd[a].2 + d * d);
+            } else {
+                even_count[a] += 1;
+            }
+        });
     }
     let mut apart = vec![false; n_adc];
     while apart.iter().filter(|&&o| !o).count() * 2 > n_adc + 1 {
@@ -151,17 +155,17 @@ pub(super) fn adcs_apart(values: &[(usize, bool, f64)], n_adc: usize) -> Vec<Apa
 pub(super) fn adc_maps<T: Sample>(s: &Scoring<'_, T>, curve_for: &(dyn Fn(usize) -> Response + Sync), adc_findings: &mut [Option<Finding>]) {
     let (px, common, fits, good) = (s.px, s.common, s.fits, &s.good);
     let n_adc = adc_findings.len();
-    let dg: Vec<Option<[f64; 2]>> = good
-        .par_iter()
-        .map(|&i| {
-            let all = px.all(i, common);
-            let start = fits.at(i).line(0).map_or(vec![0.0; 2], |l| l.to_vec());
-            fit_and_score(curve_for(i), &start, &all, &[]).map(|s| [s.params[0], s.params[1]])
-        })
-        .collect();
+    // Each good pixel's dark and gain (NaN where it has no fit: left out as every
+    // non-finite value is), kept as records: the selections read them in passes.
+    let dg = Records::from_fn(px.keep(), good.len(), |j| {
+        let i = good[j];
+        let all = px.all(i, common);
+        let start = fits.at(i).line(0).map_or(vec![0.0; 2], |l| l.to_vec());
+        fit_and_score(curve_for(i), &start, &all, &[]).map_or([f64::NAN; 2], |s| [s.params[0], s.params[1]])
+    });
     for (k, what) in [(0usize, "offset"), (1, "gain")] {
-        let values: Vec<(usize, bool, f64)> = good.iter().zip(&dg).filter_map(|(&i, v)| Some((px.adc(i), !px.estimating(i), v.as_ref()?[k]))).collect();
-        for Apart { adc: a, significance: sig, before: b, after: af, centre: pm, median, scatter: ps } in adcs_apart(&values, n_adc) {
+        let values = |j: usize, f: &mut dyn FnMut(usize, bool, f64)| f(px.adc(good[j]), !px.estimating(good[j]), dg.at(j)[k]);
+        for Apart { adc: a, significance: sig, before: b, after: af, centre: pm, median, scatter: ps } in adcs_apart(good.len(), &values, n_adc) {
             let unit = if k == 0 { "DN" } else { "DN at full reference" };
             let part = format!("{what}: ADC {a}'s pixels sit {:+.3} {unit} ({:+.2}%) from the other ADCs' median (pixel scatter {:.3}), pixels of odd rows scored against even rows", median - pm, 100.0 * (median - pm) / pm.abs().max(1e-12), ps);
             match &mut adc_findings[a] {
@@ -252,15 +256,16 @@ mod tests {
         let draw = |rng: &mut rand::rngs::StdRng, shift: f64| -> Vec<(usize, bool, f64)> {
             (0..4_000_000).map(|p: usize| (p % 4, (p / 4) % 2 == 1, 100.0 + exp.sample(rng) + if p % 4 == 2 { shift } else { 0.0 })).collect()
         };
-        let none = adcs_apart(&draw(&mut rng, 0.0), 4);
+        let apart = |v: &[(usize, bool, f64)], n_adc| adcs_apart(v.len(), &|j, f| f(v[j].0, v[j].1, v[j].2), n_adc);
+        let none = apart(&draw(&mut rng, 0.0), 4);
         assert!(none.is_empty(), "{none:?}");
-        let one = adcs_apart(&draw(&mut rng, 0.05), 4);
+        let one = apart(&draw(&mut rng, 0.05), 4);
         assert_eq!(one.iter().map(|a| a.adc).collect::<Vec<_>>(), vec![2], "{one:?}");
         assert!((one[0].median - one[0].centre - 0.05).abs() < 0.015, "{one:?}");
         // A fifth ADC with no finite value: not tested, and not in the way of ADC 2.
         let mut five = draw(&mut rng, 0.05);
         five.extend((0..1000).map(|p| (4, p % 2 == 1, if p % 2 == 1 { 101.0 } else { f64::NAN })));
-        let found = adcs_apart(&five, 5);
+        let found = apart(&five, 5);
         assert_eq!(found.iter().map(|a| a.adc).collect::<Vec<_>>(), vec![2], "{found:?}");
     }
 }

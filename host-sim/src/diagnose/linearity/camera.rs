@@ -4,6 +4,7 @@
 use rayon::prelude::*;
 
 use super::super::cubes::SetView;
+use super::super::records::Records;
 use super::scoring::Scoring;
 use super::super::Measured;
 use super::adc_apart::population;
@@ -71,10 +72,6 @@ pub(super) fn measure_camera<T: Sample>(scoring: &Scoring<'_, T>, n_frames: u32,
     let n_adc = px.n_adc();
     // Pixel-to-pixel spreads about each pixel's own ADC's median: an ADC offset or gain is
     // an `adc-mismatch`, not DSNU or PRNU.
-    let about_own_adc = |v: &[(usize, f64)]| -> (f64, f64) {
-        let (_, centre, scatter) = population(v.iter().copied(), n_adc);
-        (centre, scatter)
-    };
     // The medians over the good pixels, exact, in passes over them ([`crate::select`]):
     // cell 0 the dark level, 1 the dark frames' variance of a mean, 2 the signal at the
     // last unsaturated level, then per level from 1 the signal and the frames' variance.
@@ -120,22 +117,31 @@ pub(super) fn measure_camera<T: Sample>(scoring: &Scoring<'_, T>, n_frames: u32,
     // DSNU from the dark frames themselves, less their own noise; PRNU from the signal at
     // the level nearest half scale (fitted intercepts and slopes would absorb part of each
     // pixel's own curvature: they read 2.1 DN of DSNU where the camera had 0.9).
-    let (_, d_scatter) = about_own_adc(&good.iter().map(|&i| (px.adc(i), px.mean(0, i))).collect::<Vec<_>>());
     let d_noise = medians[noise_cell] / median_chi2;
     let half = s.iter().enumerate().min_by(|a, b| (a.1 - 0.5 * s.last().copied().unwrap_or(0.0) / 0.7).abs().total_cmp(&(b.1 - 0.5 * s.last().copied().unwrap_or(0.0) / 0.7).abs())).map_or(1, |(j, _)| j + 1);
-    let sig_half: Vec<(usize, f64)> = good.iter().copied().filter(|&i| half < px.valid(i)).map(|i| (px.adc(i), px.mean(half, i) - px.mean(0, i))).collect();
-    let (gm, gs) = about_own_adc(&sig_half);
-    let b2: Vec<(f64, f64)> = good
-        .iter()
-        .filter_map(|&i| {
-            let (a, b) = { let f = fits.at(i); (f.quartic(0)?, f.quartic(1)?) };
-            Some((a.b2 / a.gain.powi(2), b.b2 / b.gain.powi(2)))
-        })
-        .filter(|(a, b)| a.is_finite() && b.is_finite())
-        .collect();
-    let n = b2.len() as f64;
-    let (ma, mb) = (b2.iter().map(|v| v.0).sum::<f64>() / n, b2.iter().map(|v| v.1).sum::<f64>() / n);
-    let cov = b2.iter().map(|v| (v.0 - ma) * (v.1 - mb)).sum::<f64>() / (n - 1.0);
+    // Per good pixel its dark mean and its signal at `half` (NaN past its unsaturated
+    // levels: left out), kept as records for the passes of the selections.
+    let own = Records::from_fn(px.keep(), good.len(), |j| {
+        let i = good[j];
+        px.with_levels(i, |at| [at.mean(0), if half < px.valid(i) { at.mean(half) - at.mean(0) } else { f64::NAN }])
+    });
+    let about_own_adc = |k: usize| -> (f64, f64) {
+        let (_, centre, scatter) = population(good.len(), n_adc, &|j, f| f(px.adc(good[j]), own.at(j)[k]));
+        (centre, scatter)
+    };
+    let ((_, d_scatter), (gm, gs)) = (about_own_adc(0), about_own_adc(1));
+    drop(own);
+    // The pixels' quadratic terms on either half, `b2 / gain^2`, where both are finite;
+    // their means, then their covariance (two passes in pixel order).
+    let b2 = |j: usize| -> Option<(f64, f64)> {
+        let f = fits.at(good[j]);
+        let (a, b) = (f.quartic(0)?, f.quartic(1)?);
+        Some((a.b2 / a.gain.powi(2), b.b2 / b.gain.powi(2))).filter(|(a, b)| a.is_finite() && b.is_finite())
+    };
+    let pairs = || (0..good.len()).filter_map(b2);
+    let n = pairs().count() as f64;
+    let (ma, mb) = (pairs().map(|v| v.0).sum::<f64>() / n, pairs().map(|v| v.1).sum::<f64>() / n);
+    let cov = pairs().map(|v| (v.0 - ma) * (v.1 - mb)).sum::<f64>() / (n - 1.0);
     Measured {
         gain_e_per_dn: gain,
         read_noise_dn: read,

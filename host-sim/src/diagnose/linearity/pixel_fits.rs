@@ -1,7 +1,6 @@
 //! Each pixel's own fits on either half of its levels (a quartic and a straight line),
 //! the bad-pixel flags they give, and the `bad-pixels` finding.
 
-use rayon::prelude::*;
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 
 use super::super::pixel_fit::{fit_and_score, Point, Response};
@@ -129,21 +128,27 @@ impl PixelStage {
         // for the maps: their parameters only).
         let zero5 = [0.0; 5];
         let fits = Records::from_fn(px.keep(), n, |i| {
-                let (ev, od) = px.halves(i, common);
-                let q = |a: &[Point], b: &[Point]| {
-                    fit_and_score(QUARTIC, &zero5, a, b).map(|s| Quartic { gain: s.params[1], b2: s.params[2], chi2_fit: s.chi2_fit, held_sq: s.sum_sq(), held_n: s.z.len() as u16 })
-                };
-                let l = |a: &[Point]| fit_and_score(LINEAR, &[0.0; 2], a, &[]).map(|s| [s.params[0], s.params[1]]);
-                PixelFits::new([q(&ev, &od), q(&od, &ev)], [l(&ev), l(&od)], [ev.len() as u16, od.len() as u16])
-            });
+            let (ev, od) = px.halves(i, common);
+            let q = |a: &[Point], b: &[Point]| {
+                fit_and_score(QUARTIC, &zero5, a, b).map(|s| Quartic { gain: s.params[1], b2: s.params[2], chi2_fit: s.chi2_fit, held_sq: s.sum_sq(), held_n: s.z.len() as u16 })
+            };
+            let l = |a: &[Point]| fit_and_score(LINEAR, &[0.0; 2], a, &[]).map(|s| [s.params[0], s.params[1]]);
+            PixelFits::new([q(&ev, &od), q(&od, &ev)], [l(&ev), l(&od)], [ev.len() as u16, od.len() as u16])
+        });
         // The population of dark (k = 0) and gain (k = 1) from the even-level fits, for the
         // bad-pixel flags.
-        let pop_of = |k: usize| population((0..n).filter(|&i| px.estimating(i)).filter_map(|i| Some((px.adc(i), fits.at(i).line(0)?[k]))), n_adc);
-        let (dark_pop, gain_pop) = ((pop_of(0).1, pop_of(0).2), (pop_of(1).1, pop_of(1).2));
+        let pop_of = |k: usize| {
+            population(n, n_adc, &|i, f| {
+                if let Some(l) = fits.at(i).line(0).filter(|_| px.estimating(i)) {
+                    f(px.adc(i), l[k]);
+                }
+            })
+        };
+        let ((dark_adc, dark_c, dark_s), (gain_adc, gain_c, gain_s)) = (pop_of(0), pop_of(1));
+        let (dark_pop, gain_pop) = ((dark_c, dark_s), (gain_c, gain_s));
         // Each pixel is flagged against its own ADC's medians (an ADC offset is an
         // `adc-mismatch`, not a quarter of the sensor gone bad; a review found 1018 such
         // "bad pixels" with a 3 DN ADC offset and 0.2 DN of DSNU).
-        let (dark_adc, gain_adc) = (pop_of(0).0, pop_of(1).0);
         let mut stage = PixelStage { fits, dark_pop, gain_pop, dark_adc, gain_adc, flagged_even: Vec::new(), bad: Vec::new() };
         // The flags on the even levels (for the held-out bad-pixel score) and on both.
         stage.flagged_even = (0..n).map(|i| stage.bad_in(px.adc(i), i, 0)).collect();
@@ -263,17 +268,15 @@ pub(super) fn pixel_nonlinearity<T: Sample>(s: &Scoring<'_, T>, (current, tcur):
         // How far each pixel's quartic departs from the shared model at its highest
         // held-out level, relative to its signal there.
         let last = |s: Option<super::super::scores::Score>| s.filter(|s| s.n > 0).map(|s| f64::from(s.last_z));
-        let spread: Vec<f64> = (0..good.len())
-            .into_par_iter()
-            .filter_map(|j| {
-                let (a, b) = (last(own.get(j))?, last(current.get(j))?);
-                let i = good[j];
-                let q = *px.halves(i, common).1.last()?;
-                let d = fits.at(i).line(0)?[0];
-                Some(((b - a) * q.sigma / (q.y - d)).abs())
-            })
-            .collect();
-        let rms_spread = (spread.iter().map(|v| v * v).sum::<f64>() / spread.len().max(1) as f64).sqrt();
+        let spread = Records::from_fn(px.keep(), good.len(), |j| -> Option<f64> {
+            let (a, b) = (last(own.get(j))?, last(current.get(j))?);
+            let i = good[j];
+            let q = *px.halves(i, common).1.last()?;
+            let d = fits.at(i).line(0)?[0];
+            Some(((b - a) * q.sigma / (q.y - d)).abs())
+        });
+        let count = spread.iter().flatten().count();
+        let rms_spread = (spread.iter().flatten().map(|v| v * v).sum::<f64>() / count.max(1) as f64).sqrt();
         let steps = AdcResiduals { baseline: current.by_level(&all), extended: own.by_level(&all) };
         return Some(with_residuals(steps, finding(
             Effect::PixelNonlinearity,
@@ -292,7 +295,7 @@ mod tests {
     use super::*;
 
     /// What the diagnosis holds per pixel for its fits and per pixel and model for its
-    /// scores (the budget's 400 bytes a pixel counts them), and the fits read back as
+    /// scores (the budget's `RECORD_BYTES` counts them held), and the fits read back as
     /// they were given.
     #[test]
     fn the_per_pixel_records_are_their_stated_size_and_read_back() {
