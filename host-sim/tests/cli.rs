@@ -784,6 +784,18 @@ fn diagnose_reads_a_set_by_rows_beyond_its_budget_with_the_same_numbers() {
         assert_eq!(o.remove("block_rows").and_then(|r| r.as_u64()), (args.len() > 1).then_some(5), "{args:?}");
         assert_eq!(spilled.to_string(), held.to_string(), "{args:?}");
     }
+    // Nowhere to spill to: the diagnosis ends with the error, naming the directory, and
+    // writes no report.
+    let nowhere = std::process::Command::new(env!("CARGO_BIN_EXE_dncal"))
+        .args(["diagnose", "lin.fits", "--spill", "-o", "rep-nowhere"])
+        .current_dir(d)
+        .env("TMPDIR", d.join("no-such-dir"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&nowhere.stderr);
+    assert_eq!(nowhere.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("creating a temporary file for the per-pixel records in ") && stderr.contains("no-such-dir"), "{stderr}");
+    assert!(!d.join("rep-nowhere/report.html").exists());
     let text = dncal(&["diagnose", "lin.fits", "--block-rows", "5", "--spill"], d);
     assert!(String::from_utf8_lossy(&text.stdout).contains("the set read from its file 5 rows at a time"), "{}", String::from_utf8_lossy(&text.stdout));
     assert!(String::from_utf8_lossy(&text.stdout).contains("the per-pixel records kept in temporary files"), "{}", String::from_utf8_lossy(&text.stdout));

@@ -353,6 +353,21 @@ fn a_form_feed_in_a_mandatory_table_value_is_refused_before_cfitsio() {
     assert!(e.contains("the table header at byte 11520 has \"NAXIS1  =      ?             8 / width of table in bytes\""), "{e}");
     // Every reader refuses it alike (the target's comparisons run, nothing accepted).
     assert!(!dncal_host::fuzzing::fits_linearity(&std::fs::read(&crash).unwrap()));
+    // A tab or a form feed right before the digits, which cfitsio's `strtoll` skips, is
+    // read as cfitsio reads it: the set is accepted.
+    let dir = tempfile::tempdir().unwrap();
+    let seed = std::fs::read(fuzz_dir().join("corpus/fits_linearity/seed-no-mask.fits")).unwrap();
+    let table = seed.windows(19).position(|w| w == b"XTENSION= 'BINTABLE").unwrap();
+    for ws in ["\t", "\x0c"] {
+        let mut file = seed.clone();
+        let card = &mut file[table + 3 * 80..table + 4 * 80];
+        assert!(card.starts_with(b"NAXIS1  ="));
+        let value = card[10..30].iter().position(|&b| b != b' ').unwrap() + 10;
+        card[value - 1] = ws.as_bytes()[0];
+        let path = dir.path().join("ws.fits");
+        std::fs::write(&path, &file).unwrap();
+        assert!(dncal_host::fits::read_linearity(&path).is_ok(), "{ws:?}: {:?}", dncal_host::fits::read_linearity(&path).err());
+    }
 }
 
 /// Found by `fits_linearity` (round 16, 2026-11-26) under AddressSanitizer, the same

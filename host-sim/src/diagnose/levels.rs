@@ -138,11 +138,11 @@ fn slope_over(q: Option<&[f64; 5]>, x: f64, m: f64) -> f64 {
 }
 
 impl LevelTerm {
-    /// Pixel `i`'s slope at `level` over the median pixel's there (1 where either is
-    /// unknown).
-    pub fn slope_ratio(&self, i: usize, level: usize) -> f64 {
+    /// The slope at `level` of a pixel's own quartic `q` over the median pixel's there (1
+    /// where either is unknown).
+    pub fn slope_ratio(&self, q: Option<&[f64; 5]>, level: usize) -> f64 {
         let (Some(&x), Some(&m)) = (self.x.get(level), self.slope_median.get(level)) else { return 1.0 };
-        slope_over(self.fits.at(i).quartic.as_ref(), x, m)
+        slope_over(q, x, m)
     }
 
     /// Only the levels `on` keep their term (a departure at the lowest signals accepted
@@ -180,12 +180,17 @@ fn quadratic_form(v: [f64; 2], c: &[[f64; 2]; 2]) -> f64 {
 }
 
 impl Common for LevelTerm {
-    /// `(c, var)` at `level` for pixel `i` on `adc`, from the estimating pixels, when
-    /// there is one: the ADC's own where the ADCs differ; the light's share scaled by the
-    /// pixel's slope there against the pixels the term came from (a fixed DN amount left
-    /// an ADC with 3% more gain a residual that read as `adc-dnl`).
-    fn at(&self, level: usize, adc: usize, i: usize) -> Option<(f64, f64)> {
-        let ratio = self.slope_ratio(i, level);
+    /// The pixel's quartic through all its levels (its slopes scale the light's part).
+    fn shape(&self, i: usize) -> Option<[f64; 5]> {
+        self.fits.at(i).quartic
+    }
+
+    /// `(c, var)` at `level` for a pixel on `adc` of quartic `shape`, from the estimating
+    /// pixels, when there is one: the ADC's own where the ADCs differ; the light's share
+    /// scaled by the pixel's slope there against the pixels the term came from (a fixed
+    /// DN amount left an ADC with 3% more gain a residual that read as `adc-dnl`).
+    fn at(&self, level: usize, adc: usize, shape: Option<&[f64; 5]>) -> Option<(f64, f64)> {
+        let ratio = self.slope_ratio(shape, level);
         let adc_ratio = self.adc_ratio.get(adc).and_then(|r| r.get(level)).copied().unwrap_or(1.0);
         // The black level's part goes through the ADC's gain (an analog offset ahead of
         // it), the light's through the pixel's; a per-ADC term already carries its ADC's.

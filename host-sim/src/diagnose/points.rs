@@ -9,10 +9,12 @@ use super::records::Keep;
 use crate::fits::Sample;
 
 /// A per-level term common to pixels, taken out of their means: `(c, var)` in DN and
-/// DN^2 at `level` for pixel `i` (an index into [`Pixels`]) read by `adc`, where there is
-/// one. ([`super::levels::LevelTerm`] is the one there is.)
+/// DN^2 at `level` for a pixel read by `adc` whose own response is `shape` (read once a
+/// pixel: `shape(i)` for pixel `i`, an index into [`Pixels`]), where there is one.
+/// ([`super::levels::LevelTerm`] is the one there is.)
 pub(super) trait Common: Sync {
-    fn at(&self, level: usize, adc: usize, i: usize) -> Option<(f64, f64)>;
+    fn shape(&self, i: usize) -> Option<[f64; 5]>;
+    fn at(&self, level: usize, adc: usize, shape: Option<&[f64; 5]>) -> Option<(f64, f64)>;
 }
 
 /// The pixels of a set a diagnosis fits (those not masked) and what their points need.
@@ -77,11 +79,12 @@ impl<'a, T: Sample> Pixels<'a, T> {
         let n = f64::from(set.n_frames.max(1));
         let floor = 1.0 / (12.0 * n);
         let adc = self.adc(i);
+        let shape = common.and_then(|t| t.shape(i));
         let mut halves = (Vec::with_capacity(valid.div_ceil(2)), Vec::with_capacity(valid / 2));
         set.with_pixel(p, |at| {
             let pts = (0..valid)
                 .map(|l| {
-                    let (c, v) = common.and_then(|t| t.at(l, adc, i)).unwrap_or((0.0, 0.0));
+                    let (c, v) = common.and_then(|t| t.at(l, adc, shape.as_ref())).unwrap_or((0.0, 0.0));
                     let (m, s) = (at.mean(l), at.std(l));
                     Point { level: l, x: self.x[l], y: m - c, sigma: ((self.kappa * s * s / n).max(floor) + self.bias2[l] + v + T::rounding_var(m)).sqrt() }
                 })

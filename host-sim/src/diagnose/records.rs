@@ -1,15 +1,19 @@
 //! Per-pixel records a diagnosis keeps from one pass to the next (each pixel's fits,
-//! its held-out score under each model, its quartic through all its levels), held in
-//! memory or spilled to a temporary file and read back a block per thread.
+//! its held-out score under each model, its quartic through all its levels, the values
+//! its population medians select from), held in memory or spilled to a temporary file
+//! and read back a block per thread.
 //!
 //! Held, they were about 300 of the 342 bytes a pixel `diagnose` needed beyond the set
 //! (2048 x 2048: 1.4 GB), so a sensor's size set the memory whatever the budget. Spilled,
-//! the memory is a block of each record kind per thread (256 KiB), and the records go to
-//! the disk (about 300 bytes a pixel there, in the page cache where it has room). Every
-//! pass reads them in runs of consecutive pixels, as it reads the set
-//! ([`super::cubes`]), so a thread reads a block about once a pass. The records are
-//! written and read bit for bit (floats by their bits), so the diagnosis is the same
-//! number for number either way (tested).
+//! the memory is a 256 KiB block of each kind per thread (its bytes, decoded as they are
+//! read) and one per thread being written, and the records go to the disk (about 300
+//! bytes a pixel there, in the page cache where it has room; a `TMPDIR` on tmpfs keeps
+//! them in memory, outside the budget). The parallel passes read them in runs of
+//! consecutive pixels, as they read the set ([`super::cubes`]), so a thread reads a
+//! block about once a pass; the sequential ones (the paired tests, the shared curves'
+//! choice of pixels, the bad-pixel count) read the file once each on one thread. The
+//! records are written and read bit for bit (floats by their bits), so the diagnosis is
+//! the same number for number either way (tested).
 
 use std::fs::File;
 use std::os::unix::fs::FileExt;
@@ -30,7 +34,7 @@ const KINDS_AT_ONCE: u64 = 8;
 /// the disk (at [`Record::BYTES`] each).
 pub const RECORD_BYTES: u64 = 120 + 72 + 5 * 24 + 16;
 
-/// Bytes a pixel that stay in memory however its records are kept: the pixels' and the
+/// Bytes per pixel that stay in memory however its records are kept: the pixels' and the
 /// good pixels' indices (16), each pixel's unsaturated levels and bad-pixel flags (4),
 /// and the gains of the pixels a shared curve is fitted on (16 for half of them), with
 /// room (2048 x 2048 by rows, records spilled: 187 MB resident in all, 35 bytes a pixel
@@ -38,10 +42,12 @@ pub const RECORD_BYTES: u64 = 120 + 72 + 5 * 24 + 16;
 pub const RESIDENT_BYTES: u64 = 40;
 
 /// Bytes the blocks of spilled records of `pixels` pixels take at once: a block of
-/// each kind per thread of the pool and one more (no larger than the records).
+/// each kind per thread of the pool and one more, and a block per thread being written
+/// (no larger than the records).
 pub fn spilled_blocks(pixels: u64) -> u64 {
     let block = (BLOCK_BYTES as u64).min(pixels.saturating_mul(120));
-    KINDS_AT_ONCE * (rayon::current_num_threads() as u64 + 1) * block
+    let threads = rayon::current_num_threads() as u64;
+    (KINDS_AT_ONCE * (threads + 1) + threads) * block
 }
 
 /// A record as its bytes in a spill file: exactly [`Record::BYTES`] of them.
@@ -174,15 +180,29 @@ enum Store<R> {
         /// `None` where the file could not be made (every record reads as lost).
         file: Option<File>,
         /// One block per thread of the pool, and one for any other thread.
-        slots: Vec<Mutex<Cached<R>>>,
+        slots: Vec<Mutex<Cached>>,
+        kind: std::marker::PhantomData<R>,
     },
 }
 
-/// Records `first..first + records.len()` of a spilled store.
-struct Cached<R> {
+/// The bytes of records `first..first + count` of a spilled store, decoded as they are
+/// read (a decoded copy beside them doubled a block's memory); `lost` where the read
+/// failed.
+struct Cached {
     first: usize,
-    records: Vec<R>,
+    count: usize,
     bytes: Vec<u8>,
+    lost: bool,
+}
+
+impl Cached {
+    /// Record `j`, one of these.
+    fn record<R: Record>(&self, j: usize) -> R {
+        match self.bytes.get((j - self.first) * R::BYTES..) {
+            Some(b) if !self.lost => R::take(&mut Take(b)),
+            _ => R::LOST,
+        }
+    }
 }
 
 impl<R: Record> std::fmt::Debug for Records<R> {
@@ -217,7 +237,17 @@ impl<R: Record> Records<R> {
                 .collect();
             return (Records { len: n, keep, store: Store::Held(all) }, states);
         }
-        let file = tempfile::tempfile().map_err(|e| keep.fail(format!("creating a temporary file for the per-pixel records: {e}"))).ok();
+        let empty = || Mutex::new(Cached { first: 0, count: 0, bytes: Vec::new(), lost: false });
+        let slots = (0..=rayon::current_num_threads()).map(|_| empty()).collect();
+        // After a failure nothing more is computed: the diagnosis ends with it.
+        let file = match keep.failed() {
+            Some(_) => None,
+            None => tempfile::tempfile().map_err(|e| keep.fail(format!("creating a temporary file for the per-pixel records in {}: {e}", std::env::temp_dir().display()))).ok(),
+        };
+        let Some(file) = file else {
+            let states = (0..n.div_ceil(chunk)).map(|_| init()).collect();
+            return (Records { len: n, keep, store: Store::Spilled { file: None, slots, kind: std::marker::PhantomData } }, states);
+        };
         let per_block = Self::per_block();
         let states = (0..n.div_ceil(chunk))
             .into_par_iter()
@@ -233,21 +263,20 @@ impl<R: Record> Records<R> {
                         bytes.resize((j + 1 - first) * R::BYTES, 0);
                     }
                     if bytes.len() >= per_block * R::BYTES || j + 1 == ((c + 1) * chunk).min(n) {
-                        if let Some(f) = &file {
-                            if let Err(e) = f.write_all_at(&bytes, (first * R::BYTES) as u64) {
-                                keep.fail(format!("writing the per-pixel records to a temporary file: {e}"));
-                            }
+                        if let Err(e) = file.write_all_at(&bytes, (first * R::BYTES) as u64) {
+                            keep.fail(format!("writing the per-pixel records to a temporary file in {}: {e}", std::env::temp_dir().display()));
                         }
                         bytes.clear();
                         first = j + 1;
+                        if keep.failed().is_some() {
+                            break;
+                        }
                     }
                 }
                 state
             })
             .collect();
-        let empty = || Mutex::new(Cached { first: usize::MAX, records: Vec::new(), bytes: Vec::new() });
-        let slots = (0..=rayon::current_num_threads()).map(|_| empty()).collect();
-        (Records { len: n, keep, store: Store::Spilled { file, slots } }, states)
+        (Records { len: n, keep, store: Store::Spilled { file: Some(file), slots, kind: std::marker::PhantomData } }, states)
     }
 
     /// `n` records, record `j` being `f(j)` ([`Records::build`] without a state).
@@ -267,7 +296,7 @@ impl<R: Record> Records<R> {
         }
         let (file, slots) = match &self.store {
             Store::Held(all) => return all[j],
-            Store::Spilled { file: Some(file), slots } => (file, slots),
+            Store::Spilled { file: Some(file), slots, .. } => (file, slots),
             Store::Spilled { file: None, .. } => return R::LOST,
         };
         let slot = rayon::current_thread_index().unwrap_or(slots.len() - 1) % slots.len();
@@ -276,31 +305,29 @@ impl<R: Record> Records<R> {
             Err(std::sync::TryLockError::Poisoned(e)) => e.into_inner(),
             // A thread outside the pool while another holds the spare slot: the record alone.
             Err(std::sync::TryLockError::WouldBlock) => {
-                let mut one = Cached { first: j, records: Vec::new(), bytes: Vec::new() };
+                let mut one = Cached { first: 0, count: 0, bytes: Vec::new(), lost: false };
                 self.read(file, j..j + 1, &mut one);
-                return one.records[0];
+                return one.record(j);
             }
         };
-        if !(cached.first..cached.first.saturating_add(cached.records.len())).contains(&j) {
+        if !(cached.first..cached.first + cached.count).contains(&j) {
             let first = j - j % Self::per_block();
-            let span = first..(first + Self::per_block()).min(self.len);
-            cached.first = span.start;
-            self.read(file, span, &mut cached);
+            self.read(file, first..(first + Self::per_block()).min(self.len), &mut cached);
         }
-        cached.records[j - cached.first]
+        cached.record(j)
     }
 
     /// Records `span` into `into` (lost, and the failure recorded, where the read fails).
-    fn read(&self, file: &File, span: std::ops::Range<usize>, into: &mut Cached<R>) {
+    fn read(&self, file: &File, span: std::ops::Range<usize>, into: &mut Cached) {
         into.bytes.resize(span.len() * R::BYTES, 0);
-        into.records.clear();
-        match file.read_exact_at(&mut into.bytes, (span.start * R::BYTES) as u64) {
-            Ok(()) => into.records.extend(into.bytes.chunks_exact(R::BYTES).map(|b| R::take(&mut Take(b)))),
+        (into.first, into.count) = (span.start, span.len());
+        into.lost = match file.read_exact_at(&mut into.bytes, (span.start * R::BYTES) as u64) {
+            Ok(()) => false,
             Err(e) => {
                 self.keep.fail(format!("reading the per-pixel records back from their temporary file: {e}"));
-                into.records.resize(span.len(), R::LOST);
+                true
             }
-        }
+        };
     }
 
     /// Every record, in order.

@@ -89,16 +89,21 @@ pub(super) fn check_gzip_inflates_within(file: &mut std::fs::File, path: &Path, 
 pub(super) fn malformed_table(file: &mut std::fs::File, size: u64) -> std::io::Result<Option<(u64, String)>> {
     use std::io::{Read, Seek, SeekFrom};
     const BLOCK: u64 = 2880;
-    // The value before the comment, as cfitsio reads it: bytes outside ASCII in the comment
-    // do not hide the value (found by `fits_linearity`: an image's `NAXIS2` with a byte
-    // 0xDF in its comment sent the walk to the wrong block, past the table after it).
-    // Only spaces around the digits, as cfitsio's `ffc2jj` skips: Rust's `trim` also drops
-    // a form feed, which cfitsio cannot read past (found by `fits_linearity`: `NAXIS1` with
-    // a 0x0C before its value passed here, failed in `ffgttb` unnoticed, and `ffbinit`
-    // allocated descriptors for a `TFIELDS` it never read).
+    // The value as cfitsio reads it, before the comment (found by `fits_linearity`: an
+    // image's `NAXIS2` with a byte 0xDF in its comment had sent the walk to the wrong
+    // block, past the table after it; `ffpsvc`, then `ffc2jj`): the token from the first
+    // non-blank after the `= ` up to the next blank or `/`, its leading whitespace skipped
+    // by `strtoll` (a tab or a form feed), then digits to the token's end. Rust's `trim`
+    // had dropped the form feed of `NAXIS1 =      \x0c             8` and read 8 where
+    // cfitsio reads an empty token and fails (found by `fits_linearity`: `ffgttb` passed
+    // that failure on unnoticed, and `ffbinit` allocated descriptors for a `TFIELDS` it
+    // never read).
     let integer = |card: &[u8]| -> Option<i64> {
-        let value = card[10..].split(|&b| b == b'/').next()?;
-        std::str::from_utf8(value).ok()?.trim_matches(' ').parse::<i64>().ok()
+        let value = &card[10..];
+        let token = &value[value.iter().position(|&b| b != b' ')?..];
+        let token = &token[..token.iter().position(|&b| b == b' ' || b == b'/').unwrap_or(token.len())];
+        let digits = &token[token.iter().position(|b| !b"\t\n\x0b\x0c\r".contains(b)).unwrap_or(token.len())..];
+        std::str::from_utf8(digits).ok()?.parse::<i64>().ok()
     };
     // The keyword's name as cfitsio's `ffgknm` reads it: up to the first blank, `=` or NUL
     // (found by `fits_linearity`: an image's `END    q` ends its header for cfitsio, and a

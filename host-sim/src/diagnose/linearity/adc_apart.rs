@@ -28,13 +28,15 @@ pub(super) fn paired(a: &Scores, b: &Scores, sel: impl Fn(usize) -> bool) -> f64
 }
 
 /// `sum d / sqrt(n var d)` of the paired differences `d()` gives (the same on every call:
-/// counted, summed, then summed about their mean, in their order; none held).
+/// counted and summed, then summed about their mean, in their order; none held).
 pub(super) fn paired_sum<I: Iterator<Item = f64>>(d: impl Fn() -> I) -> f64 {
-    let n = d().count() as f64;
+    let mut count = 0usize;
+    let sum = d().inspect(|_| count += 1).sum::<f64>();
+    let n = count as f64;
     if n < 3.0 {
         return 0.0;
     }
-    let mean = d().sum::<f64>() / n;
+    let mean = sum / n;
     let var = d().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0);
     mean * n / (n * var).sqrt().max(1e-300)
 }
@@ -45,11 +47,25 @@ pub(super) fn paired_sum<I: Iterator<Item = f64>>(d: impl Fn() -> I) -> f64 {
 /// alone). Exact, in passes over the items ([`crate::select`]): no value is held (they
 /// were 16 bytes a pixel at a time, and a diagnosis's peak).
 pub(super) fn population(n: usize, n_adc: usize, visit: &Visit) -> (Vec<f64>, f64, f64) {
-    let per = crate::select::upper_medians(n, n_adc, &|i, f| visit(i, &mut |a, x| if a < n_adc { f(a, x) }));
-    // The textbook median here (four ADCs: the mean of the middle two), not the upper one.
-    let centre = crate::stats::median(per.iter().copied());
-    let scatter = crate::select::robust(n, 1, &|i, f| visit(i, &mut |a, x| if a < n_adc { f(0, x - per[a]) }))[0].1;
-    (per, centre, scatter)
+    populations(n, n_adc, 1, &|i, f| visit(i, &mut |a, x| f(0, a, x))).remove(0)
+}
+
+/// Visits the values of item `i`: `f(kind, adc, value)`.
+pub(super) type Kinds<'a> = dyn Fn(usize, &mut dyn FnMut(usize, usize, f64)) + Sync + 'a;
+
+/// [`population`] of `kinds` quantities at once (each pass over the items serves all).
+pub(super) fn populations(n: usize, n_adc: usize, kinds: usize, visit: &Kinds) -> Vec<(Vec<f64>, f64, f64)> {
+    let on = |k: usize, a: usize| k < kinds && a < n_adc;
+    let per = crate::select::upper_medians(n, kinds * n_adc, &|i, f| visit(i, &mut |k, a, x| if on(k, a) { f(k * n_adc + a, x) }));
+    let scatter = crate::select::robust(n, kinds, &|i, f| visit(i, &mut |k, a, x| if on(k, a) { f(k, x - per[k * n_adc + a]) }));
+    per.chunks(n_adc.max(1))
+        .zip(scatter)
+        .map(|(per, (_, scatter))| {
+            // The textbook median here (four ADCs: the mean of the middle two), not the
+            // upper one.
+            (per.to_vec(), crate::stats::median(per.iter().copied()), scatter)
+        })
+        .collect()
 }
 
 /// Visits the value of item `j`: `f(adc, odd row, value)`.
@@ -104,12 +120,13 @@ pub(super) fn adcs_apart(n: usize, values: &Values, n_adc: usize) -> Vec<Apart> 
     let (mut even_count, mut odd) = (vec![0usize; n_adc], vec![(0usize, 0.0, 0.0); n_adc]);
     for j in 0..n {
         values(j, &mut |a, is_odd, v| {
-            if a >= n_adc || !v.is_finite() {
-            } else if is_odd {
-                let d = v - per_adc[a];
-                odd[a] = (odd[a].0 + 1, odd[a].1 + d, odd[a].2 + d * d);
-            } else {
-                even_count[a] += 1;
+            if a < n_adc && v.is_finite() {
+                if is_odd {
+                    let d = v - per_adc[a];
+                    odd[a] = (odd[a].0 + 1, odd[a].1 + d, odd[a].2 + d * d);
+                } else {
+                    even_count[a] += 1;
+                }
             }
         });
     }

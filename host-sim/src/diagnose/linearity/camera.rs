@@ -7,7 +7,7 @@ use super::super::cubes::SetView;
 use super::super::records::Records;
 use super::scoring::Scoring;
 use super::super::Measured;
-use super::adc_apart::population;
+use super::adc_apart::populations;
 use crate::fits::Sample;
 
 /// Per level, the mean square error a mean of quantized frames carries beyond what their
@@ -125,11 +125,13 @@ pub(super) fn measure_camera<T: Sample>(scoring: &Scoring<'_, T>, n_frames: u32,
         let i = good[j];
         px.with_levels(i, |at| [at.mean(0), if half < px.valid(i) { at.mean(half) - at.mean(0) } else { f64::NAN }])
     });
-    let about_own_adc = |k: usize| -> (f64, f64) {
-        let (_, centre, scatter) = population(good.len(), n_adc, &|j, f| f(px.adc(good[j]), own.at(j)[k]));
-        (centre, scatter)
-    };
-    let ((_, d_scatter), (gm, gs)) = (about_own_adc(0), about_own_adc(1));
+    let about_own_adc = populations(good.len(), n_adc, 2, &|j, f| {
+        let v = own.at(j);
+        f(0, px.adc(good[j]), v[0]);
+        f(1, px.adc(good[j]), v[1]);
+    });
+    let ((_, _, d_scatter), (_, gm, gs)) = (&about_own_adc[0], &about_own_adc[1]);
+    let (d_scatter, gm, gs) = (*d_scatter, *gm, *gs);
     drop(own);
     // The pixels' quadratic terms on either half, `b2 / gain^2`, where both are finite;
     // their means, then their covariance (two passes in pixel order).
