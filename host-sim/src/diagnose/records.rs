@@ -37,7 +37,7 @@ pub const RECORD_BYTES: u64 = 120 + 72 + 5 * 24 + 16;
 /// Bytes per pixel that stay in memory however its records are kept: the pixels' and the
 /// good pixels' indices (16), each pixel's unsaturated levels and bad-pixel flags (4),
 /// and the gains of the pixels a shared curve is fitted on (16 for half of them), with
-/// room (2048 x 2048 by rows, records spilled: 187 MB resident in all, 35 bytes a pixel
+/// room (2048 x 2048 by rows, records spilled: 183 MB resident in all, 34 bytes a pixel
 /// beyond the blocks and the program).
 pub const RESIDENT_BYTES: u64 = 40;
 
