@@ -403,6 +403,18 @@ mod tests {
         assert_eq!(Records::<Pair>::from_fn(&Keep::spilled(), 0, pair).iter().count(), 0);
     }
 
+    /// The blocks' size and what the budget counts for them, against their closed form: a
+    /// block of each of 8 kinds per thread and one more, and one per writing thread, each
+    /// 256 KiB or the records of a small set (120 bytes a pixel at most).
+    #[test]
+    fn the_spilled_blocks_are_counted_as_they_are_held() {
+        assert_eq!(Records::<Pair>::per_block(), (256 << 10) / 10);
+        let t = rayon::current_num_threads() as u64;
+        assert_eq!(spilled_blocks(1 << 20), (8 * (t + 1) + t) * (256 << 10));
+        assert_eq!(spilled_blocks(100), (8 * (t + 1) + t) * 12_000);
+        assert_eq!(spilled_blocks(0), 0);
+    }
+
     /// A nested read from inside the pool while the thread's slot is held (an `at` in
     /// the closure of another record's use) cannot happen with copies; a thread outside
     /// the pool whose spare slot is busy reads the record alone.

@@ -300,6 +300,11 @@ mod tests {
     fn the_per_pixel_records_are_their_stated_size_and_read_back() {
         assert_eq!(std::mem::size_of::<PixelFits>(), 120);
         assert_eq!(std::mem::size_of::<super::super::super::scores::Score>(), 24);
+        // The budget's records held: these fits, the level term's (a quartic and a line,
+        // each an `Option`), five models' scores and a pair of values.
+        let level = std::mem::size_of::<(Option<[f64; 5]>, Option<[f64; 2]>)>();
+        assert_eq!(level, 72);
+        assert_eq!(super::super::super::records::RECORD_BYTES as usize, 120 + level + 5 * 24 + std::mem::size_of::<[f64; 2]>());
         let q = Quartic { gain: 2.0, b2: -0.5, chi2_fit: 3.0, held_sq: 4.0, held_n: 7 };
         let f = PixelFits::new([None, Some(q)], [Some([1.0, 2.0]), None], [5, 6]);
         assert!(f.quartic(0).is_none() && f.line(1).is_none());
