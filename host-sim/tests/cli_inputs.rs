@@ -197,10 +197,10 @@ fn sizes_over_the_memory_budget_are_refused_before_allocating() {
     support::small_linearity(d, "lin.fits");
     let out = dncal(&["linearity", "lin.fits", "--max-memory", "64K"], d);
     assert_error(&out, "lin.fits: the pixel-wise analysis (the corrected cube and the fits) needs about 68.0 KiB, more than the memory budget of 64.0 KiB (--max-memory)");
-    // diagnose: 368 bytes per pixel beyond the set, 46 KiB (spilling its records would
+    // diagnose: 341 bytes per pixel beyond the set, 42.6 KiB (spilling its records would
     // take more here: a block of each kind per thread).
     let out = dncal(&["diagnose", "lin.fits", "--max-memory", "40K"], d);
-    assert_error(&out, "lin.fits: diagnosing each pixel (about 368 bytes per pixel beyond the set) needs about 46.0 KiB, more than the memory budget of 40.0 KiB (--max-memory)");
+    assert_error(&out, "lin.fits: diagnosing each pixel (about 341 bytes per pixel beyond the set) needs about 42.6 KiB, more than the memory budget of 40.0 KiB (--max-memory)");
 
     // A camera config: 4096 x 4096 pixels of 17 bytes or more (gain, dark, state and the
     // nonlinearity terms) is more than 256 MiB.

@@ -16,6 +16,24 @@ fn fuzz_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../fuzz")
 }
 
+/// The `fits_linearity` regression input `name`.
+fn linearity_regression(name: &str) -> PathBuf {
+    fuzz_dir().join("regressions/fits_linearity").join(name)
+}
+
+/// The linearity reader's refusal of the `fits_linearity` regression input `name`.
+fn linearity_refusal(name: &str) -> String {
+    dncal_host::fits::read_linearity(&linearity_regression(name)).unwrap_err().to_string()
+}
+
+/// The committed linearity seed without a mask, and the byte where its REFERENCE table's
+/// header starts (the tests change one of its cards).
+fn seed_and_table() -> (Vec<u8>, usize) {
+    let seed = std::fs::read(fuzz_dir().join("corpus/fits_linearity/seed-no-mask.fits")).unwrap();
+    let table = seed.windows(19).position(|w| w == b"XTENSION= 'BINTABLE").unwrap();
+    (seed, table)
+}
+
 /// Runs `entry` on every input of `target`; returns how many there were.
 fn replay(target: &str, entry: Entry) -> usize {
     let mut inputs = Vec::new();
@@ -220,24 +238,19 @@ fn compressed_files_declaring_more_than_they_can_hold_are_refused_before_cfitsio
 #[test]
 fn table_headers_cfitsio_would_mistake_for_valid_are_refused_before_it() {
     for crash in ["table-with-huge-tfields", "table-after-unreadable-naxis"] {
-        let crash = fuzz_dir().join("regressions/fits_linearity").join(crash);
-        let e = dncal_host::fits::read_linearity(&crash).unwrap_err().to_string();
+        let e = linearity_refusal(crash);
         assert!(e.contains("the table header at byte 11520 has \"NAXIS2  =          SIMPLE"), "{e}");
     }
     // XTENSION = 'BINTABLE' followed by text before its comment.
-    let crash = fuzz_dir().join("regressions/fits_linearity/table-xtension-with-trailing-text");
-    let e = dncal_host::fits::read_linearity(&crash).unwrap_err().to_string();
+    let e = linearity_refusal("table-xtension-with-trailing-text");
     assert!(e.contains("the table header at byte 11520 has \"NAXIS1  ="), "{e}");
-    let crash = fuzz_dir().join("regressions/fits_linearity/table-with-garbled-gcount");
-    let e = dncal_host::fits::read_linearity(&crash).unwrap_err().to_string();
+    let e = linearity_refusal("table-with-garbled-gcount");
     // Bytes outside ASCII in the PCOUNT card's comment (its value, 0, is fine: cfitsio
     // reads the value before the comment), then no GCOUNT card where it must be.
     assert!(e.contains("the table header at byte 11520 has \"") && e.ends_with("GCOUNT  =\"; a table header opens with BITPIX, NAXIS, NAXIS1, NAXIS2, PCOUNT, GCOUNT and TFIELDS (0 to 999), integers in range (cfitsio would take it for valid)"), "{e}");
     // The same file with TFIELDS = 1000000 and a valid NAXIS2.
     let dir = tempfile::tempdir().unwrap();
-    let seed = std::fs::read(fuzz_dir().join("corpus/fits_linearity/seed-no-mask.fits")).unwrap();
-    let table = seed.windows(19).position(|w| w == b"XTENSION= 'BINTABLE").unwrap();
-    let mut huge = seed.clone();
+    let (mut huge, table) = seed_and_table();
     huge[table + 7 * 80..table + 8 * 80].copy_from_slice(format!("{:<80}", "TFIELDS =              1000000").as_bytes());
     let path = dir.path().join("huge.fits");
     std::fs::write(&path, &huge).unwrap();
@@ -251,7 +264,7 @@ fn table_headers_cfitsio_would_mistake_for_valid_are_refused_before_it() {
 /// was and allocated 2^54 bytes. The header walk now reads a last block cut short.
 #[test]
 fn a_table_header_cut_by_the_end_of_the_file_is_refused_before_cfitsio() {
-    let crash = fuzz_dir().join("regressions/fits_linearity/table-header-cut-by-the-end-of-file");
+    let crash = linearity_regression("table-header-cut-by-the-end-of-file");
     assert_eq!(std::fs::metadata(&crash).unwrap().len(), 12791);
     let e = dncal_host::fits::read_linearity(&crash).unwrap_err().to_string();
     // The PCOUNT card's value is read before its garbled comment; the card after it is
@@ -276,7 +289,7 @@ fn an_unquoted_string_filling_the_card_is_refused_without_a_read_past_the_buffer
 /// as a zero.
 #[test]
 fn a_negative_subnormal_std_is_read_alike_at_both_precisions() {
-    let crash = fuzz_dir().join("regressions/fits_linearity/std-negative-subnormal");
+    let crash = linearity_regression("std-negative-subnormal");
     let wide = dncal_host::fits::read_linearity(&crash);
     let narrow = dncal_host::fits::read_linearity_as::<f32>(&crash);
     assert_eq!(wide.is_ok(), narrow.is_ok(), "{:?} / {:?}", wide.as_ref().err(), narrow.as_ref().err());
@@ -293,8 +306,7 @@ fn a_negative_subnormal_std_is_read_alike_at_both_precisions() {
 /// and a walk that lands on anything but an extension checks every block after.
 #[test]
 fn a_comment_outside_ascii_does_not_hide_the_table_after_it() {
-    let crash = fuzz_dir().join("regressions/fits_linearity/table-after-a-comment-outside-ascii");
-    let e = dncal_host::fits::read_linearity(&crash).unwrap_err().to_string();
+    let e = linearity_refusal("table-after-a-comment-outside-ascii");
     assert!(e.contains("the table header at byte 11520 has \"NAXIS2  ="), "{e}");
 }
 
@@ -304,8 +316,7 @@ fn a_comment_outside_ascii_does_not_hide_the_table_after_it() {
 /// now compressed only by their magic numbers.
 #[test]
 fn a_nonstandard_simple_card_does_not_skip_the_table_check() {
-    let crash = fuzz_dir().join("regressions/fits_linearity/table-behind-a-nonstandard-simple-card");
-    let e = dncal_host::fits::read_linearity(&crash).unwrap_err().to_string();
+    let e = linearity_refusal("table-behind-a-nonstandard-simple-card");
     assert!(e.contains("the table header at byte 11520 has \"NAXIS2  =               ?    4 / length of dimension 2\""), "{e}");
 }
 
@@ -316,7 +327,7 @@ fn a_nonstandard_simple_card_does_not_skip_the_table_check() {
 /// by name.
 #[test]
 fn the_rows_opener_and_the_whole_read_agree_where_they_disagreed() {
-    let at = |name: &str| fuzz_dir().join("regressions/fits_linearity").join(name);
+    let at = linearity_regression;
     let e = dncal_host::fits::read_linearity(&at("image-with-pcount-read-shifted-by-cfitsio")).unwrap_err().to_string();
     assert!(e.ends_with("the extension STD has PCOUNT = 2 and GCOUNT = 1; an image has 0 and 1 (random groups are not read)"), "{e}");
     for name in ["image-with-pcount-read-shifted-by-cfitsio", "std-cut-short-read-by-rows", "std-longer-than-its-unit-read-by-rows"] {
@@ -336,8 +347,7 @@ fn the_rows_opener_and_the_whole_read_agree_where_they_disagreed() {
 /// panicked ("Unknown error occurred") on cfitsio's answer. Refused by name now.
 #[test]
 fn a_table_cfitsio_reads_as_another_kind_is_refused_not_a_panic() {
-    let crash = fuzz_dir().join("regressions/fits_linearity/table-that-cfitsio-reads-as-another-kind");
-    let e = dncal_host::fits::read_linearity(&crash).unwrap_err().to_string();
+    let e = linearity_refusal("table-that-cfitsio-reads-as-another-kind");
     assert!(e.ends_with("the extension REFERENCE says XTENSION = 'BINTABLE' but its header does not read as a binary table (damaged)"), "{e}");
 }
 
@@ -345,19 +355,17 @@ fn a_table_cfitsio_reads_as_another_kind_is_refused_not_a_panic() {
 /// table's `NAXIS1` card holds a form feed (0x0C) before its value. The table check read
 /// past it (Rust's `trim` drops it), cfitsio's `ffc2jj` does not, `ffgttb` passed the
 /// failure on unnoticed and `ffbinit` sized its column descriptors from a `TFIELDS` it
-/// never read. Values are now read around spaces only, as cfitsio reads them.
+/// never read. Values are now read as cfitsio reads them (`ffpsvc`, `ffc2jj`).
 #[test]
 fn a_form_feed_in_a_mandatory_table_value_is_refused_before_cfitsio() {
-    let crash = fuzz_dir().join("regressions/fits_linearity/table-with-a-form-feed-before-naxis1");
-    let e = dncal_host::fits::read_linearity(&crash).unwrap_err().to_string();
+    let e = linearity_refusal("table-with-a-form-feed-before-naxis1");
     assert!(e.contains("the table header at byte 11520 has \"NAXIS1  =      ?             8 / width of table in bytes\""), "{e}");
     // Every reader refuses it alike (the target's comparisons run, nothing accepted).
-    assert!(!dncal_host::fuzzing::fits_linearity(&std::fs::read(&crash).unwrap()));
+    assert!(!dncal_host::fuzzing::fits_linearity(&std::fs::read(linearity_regression("table-with-a-form-feed-before-naxis1")).unwrap()));
     // A tab or a form feed right before the digits, which cfitsio's `strtoll` skips, is
     // read as cfitsio reads it: the set is accepted.
     let dir = tempfile::tempdir().unwrap();
-    let seed = std::fs::read(fuzz_dir().join("corpus/fits_linearity/seed-no-mask.fits")).unwrap();
-    let table = seed.windows(19).position(|w| w == b"XTENSION= 'BINTABLE").unwrap();
+    let (seed, table) = seed_and_table();
     for ws in ["\t", "\x0c"] {
         let mut file = seed.clone();
         let card = &mut file[table + 3 * 80..table + 4 * 80];
@@ -377,7 +385,6 @@ fn a_form_feed_in_a_mandatory_table_value_is_refused_before_cfitsio() {
 /// garbled `NAXIS2`. Names are now read as cfitsio reads them.
 #[test]
 fn an_end_card_with_trailing_text_does_not_hide_the_table_after_it() {
-    let crash = fuzz_dir().join("regressions/fits_linearity/table-after-an-end-card-with-trailing-text");
-    let e = dncal_host::fits::read_linearity(&crash).unwrap_err().to_string();
+    let e = linearity_refusal("table-after-an-end-card-with-trailing-text");
     assert!(e.contains("the table header at byte 11520 has \"NAXIS2  =                 ?????z??   3"), "{e}");
 }

@@ -197,7 +197,7 @@ fn diagnose_linearity_file(read_from: &Path, input: &Path, block_rows: Option<us
     let spill_if = |np: u64, beside: u64| spill || (!fits(state(np, false).saturating_add(beside)) && state(np, true) < state(np, false));
     let what = |spilled: bool| {
         if spilled {
-            format!("diagnosing each pixel (about {RESIDENT_BYTES} bytes per pixel beyond the set, its records spilled to temporary files)")
+            format!("diagnosing each pixel (its records spilled to temporary files, a block of each kind per thread in memory, and {RESIDENT_BYTES} byte per pixel of mask)")
         } else {
             format!("diagnosing each pixel (about {} bytes per pixel beyond the set)", RESIDENT_BYTES + RECORD_BYTES)
         }

@@ -16,6 +16,7 @@ mod records;
 mod points;
 mod ptc;
 mod scores;
+mod tasks;
 
 pub use codes::{diagnose_code_density, CodeDensity};
 pub use cubes::blocks_of;
@@ -186,6 +187,9 @@ pub enum DiagnoseError {
     /// More ADCs than the per-ADC tests handle.
     #[error("NADC = {n_adc}: the per-ADC tests are for at most {max} pipelined ADCs (their work grows with the ADCs times the pixels); a set with NADC = 1 is diagnosed pixel by pixel")]
     TooManyAdcs { n_adc: usize, max: usize },
+    /// More pixels than a diagnosis indexes.
+    #[error("{pixels} pixels: a diagnosis indexes at most {max} pixels (32-bit indices)")]
+    TooManyPixels { pixels: usize, max: usize },
     /// No pixel has enough unsaturated levels.
     #[error("no pixel has enough unsaturated levels to fit")]
     NoPixelFits,

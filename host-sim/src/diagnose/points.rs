@@ -5,7 +5,7 @@
 
 use super::cubes::{Levels, SetView};
 use super::pixel_fit::Point;
-use super::records::Keep;
+use super::records::{Keep, Records};
 use crate::fits::Sample;
 
 /// A per-level term common to pixels, taken out of their means: `(c, var)` in DN and
@@ -15,6 +15,31 @@ use crate::fits::Sample;
 pub(super) trait Common: Sync {
     fn shape(&self, i: usize) -> Option<[f64; 5]>;
     fn at(&self, level: usize, adc: usize, shape: Option<&[f64; 5]>) -> Option<(f64, f64)>;
+}
+
+/// Which of a set's pixels a diagnosis fits: all, or those a mask leaves (their indices,
+/// held or spilled as the records are).
+pub(super) enum Fitted {
+    All(usize),
+    Listed(Records<u32>),
+}
+
+impl Fitted {
+    /// The set's pixel that pixel `i` is.
+    pub fn index(&self, i: usize) -> usize {
+        match self {
+            Fitted::All(_) => i,
+            Fitted::Listed(list) => list.index(i),
+        }
+    }
+
+    /// Pixels fitted.
+    pub fn len(&self) -> usize {
+        match self {
+            Fitted::All(n) => *n,
+            Fitted::Listed(list) => list.len(),
+        }
+    }
 }
 
 /// The pixels of a set a diagnosis fits (those not masked) and what their points need.
@@ -27,16 +52,21 @@ pub(super) struct Pixels<'a, T: Sample> {
     /// Per level, the quantization's mean square error of a mean, DN^2.
     bias2: Vec<f64>,
     /// Per pixel of the set, its levels below saturation.
-    valid: Vec<u16>,
-    /// Index into the set's pixels of each pixel fitted.
-    pub index: Vec<usize>,
+    valid: Records<u16>,
+    /// The set's pixels fitted.
+    fitted: Fitted,
     /// Where the records kept per pixel go ([`super::records`]).
     keep: Keep,
 }
 
 impl<'a, T: Sample> Pixels<'a, T> {
-    pub fn new(set: &'a SetView<'a, T>, x: Vec<f64>, kappa: f64, bias2: Vec<f64>, valid: Vec<u16>, index: Vec<usize>, keep: Keep) -> Self {
-        Pixels { set, x, kappa, bias2, valid, index, keep }
+    pub fn new(set: &'a SetView<'a, T>, x: Vec<f64>, kappa: f64, bias2: Vec<f64>, valid: Records<u16>, fitted: Fitted, keep: Keep) -> Self {
+        Pixels { set, x, kappa, bias2, valid, fitted, keep }
+    }
+
+    /// The index into the set's pixels of pixel `i`.
+    pub fn index(&self, i: usize) -> usize {
+        self.fitted.index(i)
     }
 
     /// Where the records kept per pixel go.
@@ -46,7 +76,7 @@ impl<'a, T: Sample> Pixels<'a, T> {
 
     /// Pixels fitted.
     pub fn len(&self) -> usize {
-        self.index.len()
+        self.fitted.len()
     }
 
     /// ADCs of the camera.
@@ -56,18 +86,18 @@ impl<'a, T: Sample> Pixels<'a, T> {
 
     /// The ADC of pixel `i`: column `c` is read by ADC `c mod n_adc`.
     pub fn adc(&self, i: usize) -> usize {
-        dncal_core::adc_of_column(self.index[i] % self.set.width, self.n_adc())
+        dncal_core::adc_of_column(self.index(i) % self.set.width, self.n_adc())
     }
 
     /// Whether pixel `i` lies on an even row: those estimate shared parameters, the odd
     /// rows score them.
     pub fn estimating(&self, i: usize) -> bool {
-        (self.index[i] / self.set.width) % 2 == 0
+        (self.index(i) / self.set.width) % 2 == 0
     }
 
     /// Levels of pixel `i` below saturation.
     pub fn valid(&self, i: usize) -> usize {
-        usize::from(self.valid[self.index[i]])
+        usize::from(self.valid.at(self.index(i)))
     }
 
     /// The levels of pixel `i`, split: (even levels, odd levels); less the `common` term
@@ -75,7 +105,7 @@ impl<'a, T: Sample> Pixels<'a, T> {
     /// mean's value type: [`Sample::rounding_var`]).
     pub fn halves(&self, i: usize, common: Option<&dyn Common>) -> (Vec<Point>, Vec<Point>) {
         let set = self.set;
-        let (p, valid) = (self.index[i], self.valid(i));
+        let (p, valid) = (self.index(i), self.valid(i));
         let n = f64::from(set.n_frames.max(1));
         let floor = 1.0 / (12.0 * n);
         let adc = self.adc(i);
@@ -105,7 +135,7 @@ impl<'a, T: Sample> Pixels<'a, T> {
 
     /// `f` of the levels of pixel `i` ([`SetView::with_pixel`]).
     pub fn with_levels<R>(&self, i: usize, f: impl FnOnce(Levels<'_, T>) -> R) -> R {
-        self.set.with_pixel(self.index[i], f)
+        self.set.with_pixel(self.index(i), f)
     }
 
     /// The raw mean of pixel `i` at `level`, DN.

@@ -17,6 +17,8 @@
 
 use std::fs::File;
 use std::os::unix::fs::FileExt;
+use std::cell::RefCell;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 use rayon::prelude::*;
@@ -24,22 +26,26 @@ use rayon::prelude::*;
 /// Bytes of records a thread holds of one kind while they are spilled.
 const BLOCK_BYTES: usize = 256 << 10;
 
-/// Kinds of records alive at once at most: a pixel's fits, the level term's fits, and
-/// the scores of up to five models (and one being built).
-const KINDS_AT_ONCE: u64 = 8;
+/// Kinds of records alive at once at most: a pixel's fits, the level term's fits, the
+/// scores of up to five models (and one being built), a pair of values for the
+/// population medians, and the pixels' unsaturated levels, indices, good pixels' indices
+/// and bad-pixel flags.
+const KINDS_AT_ONCE: u64 = 13;
 
 /// Bytes a pixel's records take held: its fits on either half of its levels (120), the
 /// level term's fits through its levels (72), its scores under up to five models at once
-/// (24 each) and a pair of values for the population medians (16). Spilled, they go to
-/// the disk (at [`Record::BYTES`] each).
-pub const RECORD_BYTES: u64 = 120 + 72 + 5 * 24 + 16;
+/// (24 each), a pair of values for the population medians (16), its unsaturated levels
+/// (2), its index and its index among the good pixels (4 each) and its bad-pixel flags
+/// (2). Spilled, they go to the disk (at [`Record::BYTES`] each).
+pub const RECORD_BYTES: u64 = 120 + 72 + 5 * 24 + 16 + 2 + 4 + 4 + 2;
 
-/// Bytes per pixel that stay in memory however its records are kept: the pixels' and the
-/// good pixels' indices (16), each pixel's unsaturated levels and bad-pixel flags (4),
-/// and the gains of the pixels a shared curve is fitted on (16 for half of them), with
-/// room (2048 x 2048 by rows, records spilled: 183 MB resident in all, 34 bytes a pixel
-/// beyond the blocks and the program).
-pub const RESIDENT_BYTES: u64 = 40;
+/// Bytes per pixel that stay in memory however its records are kept: the set's
+/// bad-pixel mask where it has one (held beside the blocks when the set is read by rows).
+/// Nothing else a diagnosis keeps grows with the sensor once its records are spilled
+/// (2048 x 2048 by rows, records spilled: 89 MB resident in all, against 183 MB when
+/// the indices, the levels below saturation, the flags and a shared curve's list of
+/// pixels stayed, 34 bytes a pixel).
+pub const RESIDENT_BYTES: u64 = 1;
 
 /// Bytes the blocks of spilled records of `pixels` pixels take at once: a block of
 /// each kind per thread of the pool and one more, and a block per thread being written
@@ -76,6 +82,9 @@ impl Put<'_> {
     pub fn u16(&mut self, v: u16) {
         self.0.extend_from_slice(&v.to_le_bytes());
     }
+    pub fn u32(&mut self, v: u32) {
+        self.0.extend_from_slice(&v.to_le_bytes());
+    }
     pub fn u8(&mut self, v: u8) {
         self.0.push(v);
     }
@@ -97,6 +106,9 @@ impl Take<'_> {
     }
     pub fn f32(&mut self) -> f32 {
         f32::from_le_bytes(self.bytes())
+    }
+    pub fn u32(&mut self) -> u32 {
+        u32::from_le_bytes(self.bytes())
     }
     pub fn u16(&mut self) -> u16 {
         u16::from_le_bytes(self.bytes())
@@ -130,6 +142,32 @@ impl Record for Option<f64> {
         let some = from.u8() == 1;
         let v = from.f64();
         some.then_some(v)
+    }
+}
+
+/// A count a pixel (its levels below saturation); lost, none.
+impl Record for u16 {
+    const BYTES: usize = 2;
+    const LOST: u16 = 0;
+    fn put(&self, out: &mut Put<'_>) {
+        out.u16(*self);
+    }
+    fn take(from: &mut Take<'_>) -> Self {
+        from.u16()
+    }
+}
+
+/// An index of a pixel (sets of up to `u32::MAX` pixels, checked where they are read);
+/// lost, pixel 0 (a valid index, so that nothing reads out of bounds before the
+/// diagnosis ends with the failure).
+impl Record for u32 {
+    const BYTES: usize = 4;
+    const LOST: u32 = 0;
+    fn put(&self, out: &mut Put<'_>) {
+        out.u32(*self);
+    }
+    fn take(from: &mut Take<'_>) -> Self {
+        from.u32()
     }
 }
 
@@ -179,16 +217,28 @@ enum Store<R> {
     Spilled {
         /// `None` where the file could not be made (every record reads as lost).
         file: Option<File>,
-        /// One block per thread of the pool, and one for any other thread.
-        slots: Vec<Mutex<Cached>>,
+        /// This store's key in the threads' caches ([`BLOCKS`]).
+        id: u64,
         kind: std::marker::PhantomData<R>,
     },
 }
 
-/// The bytes of records `first..first + count` of a spilled store, decoded as they are
-/// read (a decoded copy beside them doubled a block's memory); `lost` where the read
+/// Keys of spilled stores, never reused.
+static NEXT_STORE: AtomicU64 = AtomicU64::new(0);
+
+thread_local! {
+    /// This thread's blocks of spilled records: a block per store at most, and at most
+    /// [`KINDS_AT_ONCE`] in all, the one read longest ago first (it makes room for a
+    /// new store's). A thread reads its own without a lock (the mutex a store kept per
+    /// thread cost 8% of a diagnosis's time at 512 x 512).
+    static BLOCKS: RefCell<Vec<Cached>> = const { RefCell::new(Vec::new()) };
+}
+
+/// The bytes of records `first..first + count` of spilled store `id`, decoded as they
+/// are read (a decoded copy beside them doubled a block's memory); `lost` where the read
 /// failed.
 struct Cached {
+    id: u64,
     first: usize,
     count: usize,
     bytes: Vec<u8>,
@@ -196,11 +246,30 @@ struct Cached {
 }
 
 impl Cached {
+    fn empty(id: u64) -> Self {
+        Cached { id, first: 0, count: 0, bytes: Vec::new(), lost: false }
+    }
+
+    /// Whether record `j` of store `id` is one of these.
+    fn holds(&self, id: u64, j: usize) -> bool {
+        self.id == id && (self.first..self.first + self.count).contains(&j)
+    }
+
     /// Record `j`, one of these.
     fn record<R: Record>(&self, j: usize) -> R {
         match self.bytes.get((j - self.first) * R::BYTES..) {
             Some(b) if !self.lost => R::take(&mut Take(b)),
             _ => R::LOST,
+        }
+    }
+}
+
+/// A spilled store's block on this thread goes with it (other threads' make room for
+/// the next stores they read).
+impl<R: Record> Drop for Records<R> {
+    fn drop(&mut self) {
+        if let Store::Spilled { id, .. } = self.store {
+            let _ = BLOCKS.try_with(|blocks| blocks.try_borrow_mut().map(|mut b| b.retain(|c| c.id != id)));
         }
     }
 }
@@ -223,52 +292,26 @@ impl<R: Record> Records<R> {
     /// thread ran which task, and whether the records are held or spilled).
     pub fn build<S: Send>(keep: &Keep, n: usize, init: impl Fn() -> S + Sync, each: impl Fn(usize, &mut S) -> R + Sync) -> (Self, Vec<S>) {
         let chunk = n.div_ceil(super::TASKS).max(1);
-        let keep = keep.clone();
-        if !keep.spill {
-            let mut all = vec![R::LOST; n];
-            let states = all
-                .par_chunks_mut(chunk)
-                .enumerate()
-                .map(|(c, out)| {
-                    let mut state = init();
-                    out.iter_mut().enumerate().for_each(|(k, slot)| *slot = each(c * chunk + k, &mut state));
-                    state
-                })
-                .collect();
-            return (Records { len: n, keep, store: Store::Held(all) }, states);
-        }
-        let empty = || Mutex::new(Cached { first: 0, count: 0, bytes: Vec::new(), lost: false });
-        let slots = (0..=rayon::current_num_threads()).map(|_| empty()).collect();
-        // After a failure nothing more is computed: the diagnosis ends with it.
-        let file = match keep.failed() {
-            Some(_) => None,
-            None => tempfile::tempfile().map_err(|e| keep.fail(format!("creating a temporary file for the per-pixel records in {}: {e}", std::env::temp_dir().display()))).ok(),
-        };
-        let Some(file) = file else {
-            let states = (0..n.div_ceil(chunk)).map(|_| init()).collect();
-            return (Records { len: n, keep, store: Store::Spilled { file: None, slots, kind: std::marker::PhantomData } }, states);
-        };
+        let out = Writer::new(keep, n);
         let per_block = Self::per_block();
         let states = (0..n.div_ceil(chunk))
             .into_par_iter()
             .map(|c| {
                 let mut state = init();
-                let mut bytes = Vec::with_capacity(per_block * R::BYTES);
-                let mut first = c * chunk;
-                for j in c * chunk..((c + 1) * chunk).min(n) {
-                    each(j, &mut state).put(&mut Put(&mut bytes));
-                    if bytes.len() != (j + 1 - first) * R::BYTES {
-                        // A `put` that disagrees with `BYTES` would shift every record after.
-                        keep.fail(format!("a per-pixel record wrote {} bytes, not {}", bytes.len() - (j - first) * R::BYTES, R::BYTES));
-                        bytes.resize((j + 1 - first) * R::BYTES, 0);
-                    }
-                    if bytes.len() >= per_block * R::BYTES || j + 1 == ((c + 1) * chunk).min(n) {
-                        if let Err(e) = file.write_all_at(&bytes, (first * R::BYTES) as u64) {
-                            keep.fail(format!("writing the per-pixel records to a temporary file in {}: {e}", std::env::temp_dir().display()));
-                        }
-                        bytes.clear();
+                let span = c * chunk..((c + 1) * chunk).min(n);
+                let mut block = Vec::with_capacity(per_block.min(span.len()));
+                let mut first = span.start;
+                // After a failure nothing more is computed: the diagnosis ends with it.
+                if out.failed() {
+                    return state;
+                }
+                for j in span.clone() {
+                    block.push(each(j, &mut state));
+                    if block.len() == per_block || j + 1 == span.end {
+                        out.put(first, &block);
+                        block.clear();
                         first = j + 1;
-                        if keep.failed().is_some() {
+                        if out.failed() {
                             break;
                         }
                     }
@@ -276,12 +319,38 @@ impl<R: Record> Records<R> {
                 state
             })
             .collect();
-        (Records { len: n, keep, store: Store::Spilled { file: Some(file), slots, kind: std::marker::PhantomData } }, states)
+        (out.finish(), states)
+    }
+
+    /// The records of `items` in order, written as they come (on this thread): for
+    /// lists whose length is known only at their end, such as the good pixels.
+    pub fn collect(keep: &Keep, items: impl Iterator<Item = R>) -> Self {
+        if !keep.spill {
+            let all: Vec<R> = items.collect();
+            return Records { len: all.len(), keep: keep.clone(), store: Store::Held(all) };
+        }
+        let out = Writer::new(keep, 0);
+        let (mut block, mut first) = (Vec::with_capacity(Self::per_block()), 0);
+        for r in items {
+            block.push(r);
+            if block.len() == Self::per_block() {
+                out.put(first, &block);
+                first += block.len();
+                block.clear();
+            }
+        }
+        out.put(first, &block);
+        out.into_records(first + block.len())
     }
 
     /// `n` records, record `j` being `f(j)` ([`Records::build`] without a state).
     pub fn from_fn(keep: &Keep, n: usize, f: impl Fn(usize) -> R + Sync) -> Self {
         Self::build(keep, n, || (), |j, _| f(j)).0
+    }
+
+    /// Records kept.
+    pub fn len(&self) -> usize {
+        self.len
     }
 
     /// How these records are kept.
@@ -294,27 +363,34 @@ impl<R: Record> Records<R> {
         if j >= self.len {
             return R::LOST;
         }
-        let (file, slots) = match &self.store {
+        let (file, id) = match &self.store {
             Store::Held(all) => return all[j],
-            Store::Spilled { file: Some(file), slots, .. } => (file, slots),
+            Store::Spilled { file: Some(file), id, .. } => (file, *id),
             Store::Spilled { file: None, .. } => return R::LOST,
         };
-        let slot = rayon::current_thread_index().unwrap_or(slots.len() - 1) % slots.len();
-        let mut cached = match slots[slot].try_lock() {
-            Ok(c) => c,
-            Err(std::sync::TryLockError::Poisoned(e)) => e.into_inner(),
-            // A thread outside the pool while another holds the spare slot: the record alone.
-            Err(std::sync::TryLockError::WouldBlock) => {
-                let mut one = Cached { first: 0, count: 0, bytes: Vec::new(), lost: false };
-                self.read(file, j..j + 1, &mut one);
-                return one.record(j);
+        let block = |first: usize| first..(first + Self::per_block()).min(self.len);
+        let cached = BLOCKS.try_with(|blocks| {
+            // (Never borrowed already: nothing reads a record while this one is read.)
+            let mut blocks = blocks.try_borrow_mut().ok()?;
+            if let Some(c) = blocks.iter().rev().find(|c| c.holds(id, j)) {
+                return Some(c.record(j));
             }
-        };
-        if !(cached.first..cached.first + cached.count).contains(&j) {
-            let first = j - j % Self::per_block();
-            self.read(file, first..(first + Self::per_block()).min(self.len), &mut cached);
-        }
-        cached.record(j)
+            // This store's block, else the one read longest ago where there are as many
+            // as kinds, else a new one; it goes last (read most recently).
+            let k = blocks.iter().position(|c| c.id == id).or((blocks.len() >= KINDS_AT_ONCE as usize).then_some(0));
+            let mut c = k.map_or_else(|| Cached::empty(id), |k| blocks.remove(k));
+            c.id = id;
+            self.read(file, block(j - j % Self::per_block()), &mut c);
+            let r = c.record(j);
+            blocks.push(c);
+            Some(r)
+        });
+        // A thread whose cache is gone (it is ending): the record alone.
+        cached.ok().flatten().unwrap_or_else(|| {
+            let mut one = Cached::empty(id);
+            self.read(file, j..j + 1, &mut one);
+            one.record(j)
+        })
     }
 
     /// Records `span` into `into` (lost, and the failure recorded, where the read fails).
@@ -333,6 +409,87 @@ impl<R: Record> Records<R> {
     /// Every record, in order.
     pub fn iter(&self) -> impl Iterator<Item = R> + '_ {
         (0..self.len).map(|j| self.at(j))
+    }
+}
+
+impl Records<u32> {
+    /// Index `j` of a list of indices.
+    pub fn index(&self, j: usize) -> usize {
+        self.at(j) as usize
+    }
+}
+
+/// Records written by spans, from any thread, then read as [`Records`].
+pub(super) struct Writer<R: Record> {
+    len: usize,
+    keep: Keep,
+    sink: Sink<R>,
+}
+
+enum Sink<R> {
+    Held(Mutex<Vec<R>>),
+    /// `None` where the file could not be made.
+    Spilled(Option<File>),
+}
+
+impl<R: Record> Writer<R> {
+    /// `len` records to come, kept as `keep` says (each [`Record::LOST`] until written).
+    pub fn new(keep: &Keep, len: usize) -> Self {
+        let keep = keep.clone();
+        let sink = if !keep.spill {
+            Sink::Held(Mutex::new(vec![R::LOST; len]))
+        } else if keep.failed().is_some() {
+            Sink::Spilled(None)
+        } else {
+            Sink::Spilled(tempfile::tempfile().map_err(|e| keep.fail(format!("creating a temporary file for the per-pixel records in {}: {e}", std::env::temp_dir().display()))).ok())
+        };
+        Writer { len, keep, sink }
+    }
+
+    /// Whether a spill file has failed (what is computed after is in vain).
+    pub fn failed(&self) -> bool {
+        self.keep.failed().is_some()
+    }
+
+    /// Writes records `first..first + records.len()`.
+    pub fn put(&self, first: usize, records: &[R]) {
+        match &self.sink {
+            Sink::Held(all) => match all.lock().unwrap_or_else(|e| e.into_inner()).get_mut(first..first + records.len()) {
+                Some(to) => to.copy_from_slice(records),
+                None => self.keep.fail(format!("per-pixel records {first}..{} written past their {}", first + records.len(), self.len)),
+            },
+            Sink::Spilled(None) => {}
+            Sink::Spilled(Some(file)) => {
+                let mut bytes = Vec::with_capacity(records.len() * R::BYTES);
+                for (k, r) in records.iter().enumerate() {
+                    r.put(&mut Put(&mut bytes));
+                    if bytes.len() != (k + 1) * R::BYTES {
+                        // A `put` that disagrees with `BYTES` would shift every record after.
+                        self.keep.fail(format!("a per-pixel record wrote {} bytes, not {}", bytes.len() - k * R::BYTES, R::BYTES));
+                        bytes.resize((k + 1) * R::BYTES, 0);
+                    }
+                }
+                if let Err(e) = file.write_all_at(&bytes, (first * R::BYTES) as u64) {
+                    self.keep.fail(format!("writing the per-pixel records to a temporary file in {}: {e}", std::env::temp_dir().display()));
+                }
+            }
+        }
+    }
+
+    /// The records written (those never written read as lost).
+    pub fn finish(self) -> Records<R> {
+        let len = self.len;
+        self.into_records(len)
+    }
+
+    fn into_records(self, len: usize) -> Records<R> {
+        let store = match self.sink {
+            Sink::Held(all) => Store::Held(all.into_inner().unwrap_or_else(|e| e.into_inner())),
+            Sink::Spilled(file) => {
+                Store::Spilled { file, id: NEXT_STORE.fetch_add(1, Ordering::Relaxed), kind: std::marker::PhantomData }
+            }
+        };
+        Records { len, keep: self.keep, store }
     }
 }
 
@@ -404,26 +561,41 @@ mod tests {
     }
 
     /// The blocks' size and what the budget counts for them, against their closed form: a
-    /// block of each of 8 kinds per thread and one more, and one per writing thread, each
+    /// block of each of 13 kinds per thread and one more, and one per writing thread, each
     /// 256 KiB or the records of a small set (120 bytes a pixel at most).
     #[test]
     fn the_spilled_blocks_are_counted_as_they_are_held() {
         assert_eq!(Records::<Pair>::per_block(), (256 << 10) / 10);
         let t = rayon::current_num_threads() as u64;
-        assert_eq!(spilled_blocks(1 << 20), (8 * (t + 1) + t) * (256 << 10));
-        assert_eq!(spilled_blocks(100), (8 * (t + 1) + t) * 12_000);
+        assert_eq!(spilled_blocks(1 << 20), (13 * (t + 1) + t) * (256 << 10));
+        assert_eq!(spilled_blocks(100), (13 * (t + 1) + t) * 12_000);
         assert_eq!(spilled_blocks(0), 0);
     }
 
-    /// A nested read from inside the pool while the thread's slot is held (an `at` in
-    /// the closure of another record's use) cannot happen with copies; a thread outside
-    /// the pool whose spare slot is busy reads the record alone.
+    /// More stores than a thread keeps blocks of, read in turn on one thread (each read
+    /// evicts another's block): every record right, and at most a block per kind held;
+    /// a dropped store's block goes with it.
     #[test]
-    fn a_busy_spare_slot_reads_the_record_alone() {
-        let n = 2 * Records::<Pair>::per_block();
-        let spilled = Records::from_fn(&Keep::spilled(), n, pair);
-        let Store::Spilled { slots, .. } = &spilled.store else { panic!("not spilled") };
-        let _busy = slots.last().unwrap().lock().unwrap();
-        assert!(std::thread::scope(|s| s.spawn(|| (0..n).all(|j| spilled.at(j).0.to_bits() == pair(j).0.to_bits())).join().unwrap()));
+    fn more_stores_than_kinds_read_back_in_turn() {
+        let n = 2 * Records::<Pair>::per_block() + 3;
+        let stores: Vec<Records<Pair>> = (0..KINDS_AT_ONCE as usize + 3).map(|_| Records::from_fn(&Keep::spilled(), n, pair)).collect();
+        let held = || BLOCKS.with(|b| b.borrow().len());
+        std::thread::scope(|s| {
+            s.spawn(|| {
+                for j in (0..n).step_by(97).chain([n - 1]) {
+                    for st in &stores {
+                        assert_eq!(st.at(j).0.to_bits(), pair(j).0.to_bits());
+                    }
+                }
+                assert_eq!(held(), KINDS_AT_ONCE as usize);
+                let one = Records::from_fn(&Keep::spilled(), n, pair);
+                assert_eq!(one.at(5).1, 5);
+                assert_eq!(held(), KINDS_AT_ONCE as usize);
+                drop(one);
+                assert_eq!(held(), KINDS_AT_ONCE as usize - 1);
+            })
+            .join()
+            .unwrap()
+        });
     }
 }

@@ -47,25 +47,25 @@ pub(super) fn paired_sum<I: Iterator<Item = f64>>(d: impl Fn() -> I) -> f64 {
 /// alone). Exact, in passes over the items ([`crate::select`]): no value is held (they
 /// were 16 bytes a pixel at a time, and a diagnosis's peak).
 pub(super) fn population(n: usize, n_adc: usize, visit: &Visit) -> (Vec<f64>, f64, f64) {
-    populations(n, n_adc, 1, &|i, f| visit(i, &mut |a, x| f(0, a, x))).remove(0)
+    let [one] = populations(n, n_adc, &|i, f| visit(i, &mut |a, x| f(0, a, x)));
+    one
 }
 
 /// Visits the values of item `i`: `f(kind, adc, value)`.
 pub(super) type Kinds<'a> = dyn Fn(usize, &mut dyn FnMut(usize, usize, f64)) + Sync + 'a;
 
-/// [`population`] of `kinds` quantities at once (each pass over the items serves all).
-pub(super) fn populations(n: usize, n_adc: usize, kinds: usize, visit: &Kinds) -> Vec<(Vec<f64>, f64, f64)> {
-    let on = |k: usize, a: usize| k < kinds && a < n_adc;
-    let per = crate::select::upper_medians(n, kinds * n_adc, &|i, f| visit(i, &mut |k, a, x| if on(k, a) { f(k * n_adc + a, x) }));
-    let scatter = crate::select::robust(n, kinds, &|i, f| visit(i, &mut |k, a, x| if on(k, a) { f(k, x - per[k * n_adc + a]) }));
-    per.chunks(n_adc.max(1))
-        .zip(scatter)
-        .map(|(per, (_, scatter))| {
-            // The textbook median here (four ADCs: the mean of the middle two), not the
-            // upper one.
-            (per.to_vec(), crate::stats::median(per.iter().copied()), scatter)
-        })
-        .collect()
+/// [`population`] of `K` quantities at once (each pass over the items serves all).
+pub(super) fn populations<const K: usize>(n: usize, n_adc: usize, visit: &Kinds) -> [(Vec<f64>, f64, f64); K] {
+    let on = |k: usize, a: usize| k < K && a < n_adc;
+    let per = crate::select::upper_medians(n, K * n_adc, &|i, f| visit(i, &mut |k, a, x| if on(k, a) { f(k * n_adc + a, x) }));
+    let scatter = crate::select::robust(n, K, &|i, f| visit(i, &mut |k, a, x| if on(k, a) { f(k, x - per[k * n_adc + a]) }));
+    std::array::from_fn(|k| {
+        let per = per[k * n_adc..(k + 1) * n_adc].to_vec();
+        // The textbook median here (four ADCs: the mean of the middle two), not the upper
+        // one.
+        let centre = crate::stats::median(per.iter().copied());
+        (per, centre, scatter[k].1)
+    })
 }
 
 /// Visits the value of item `j`: `f(adc, odd row, value)`.
@@ -175,13 +175,13 @@ pub(super) fn adc_maps<T: Sample>(s: &Scoring<'_, T>, curve_for: &(dyn Fn(usize)
     // Each good pixel's dark and gain (NaN where it has no fit: left out as every
     // non-finite value is), kept as records: the selections read them in passes.
     let dg = Records::from_fn(px.keep(), good.len(), |j| {
-        let i = good[j];
+        let i = good.index(j);
         let all = px.all(i, common);
         let start = fits.at(i).line(0).map_or(vec![0.0; 2], |l| l.to_vec());
         fit_and_score(curve_for(i), &start, &all, &[]).map_or([f64::NAN; 2], |s| [s.params[0], s.params[1]])
     });
     for (k, what) in [(0usize, "offset"), (1, "gain")] {
-        let values = |j: usize, f: &mut dyn FnMut(usize, bool, f64)| f(px.adc(good[j]), !px.estimating(good[j]), dg.at(j)[k]);
+        let values = |j: usize, f: &mut dyn FnMut(usize, bool, f64)| f(px.adc(good.index(j)), !px.estimating(good.index(j)), dg.at(j)[k]);
         for Apart { adc: a, significance: sig, before: b, after: af, centre: pm, median, scatter: ps } in adcs_apart(good.len(), &values, n_adc) {
             let unit = if k == 0 { "DN" } else { "DN at full reference" };
             let part = format!("{what}: ADC {a}'s pixels sit {:+.3} {unit} ({:+.2}%) from the other ADCs' median (pixel scatter {:.3}), pixels of odd rows scored against even rows", median - pm, 100.0 * (median - pm) / pm.abs().max(1e-12), ps);

@@ -17,17 +17,17 @@ use crate::fits::Sample;
 /// it a set with 0.1 DN of noise gave `bad-pixels` at 950 sigma and `unexplained` at 800
 /// (its means were taken to be good to 1/sqrt(12 N) of a code); with the median frame
 /// deviation taken for the analog noise (0.3 DN read for 0.17), `unexplained` at 98.
-pub(super) fn quantization_floor<T: Sample>(set: &SetView<'_, T>, pixels: &[usize]) -> Vec<f64> {
+/// Over the `n` pixels fitted, `pixel(i)` being the set's pixel that pixel `i` is.
+pub(super) fn quantization_floor<T: Sample>(set: &SetView<'_, T>, n: usize, pixel: &(dyn Fn(usize) -> usize + Sync)) -> Vec<f64> {
     let nl = set.levels;
     // Per level, the finite deviations; their upper median (exact, in passes over the
     // pixels: [`crate::select`]) sets the cut.
     let finite = |i: usize, f: &mut dyn FnMut(usize, f64)| {
-        set.with_pixel(pixels[i], |at| (0..nl).map(|l| (l, at.std(l))).filter(|(_, v)| v.is_finite()).for_each(|(l, v)| f(l, v)))
+        set.with_pixel(pixel(i), |at| (0..nl).map(|l| (l, at.std(l))).filter(|(_, v)| v.is_finite()).for_each(|(l, v)| f(l, v)))
     };
     // Noisy or hot pixels out: they are not the level's noise.
-    let cut: Vec<f64> = crate::select::upper_medians(pixels.len(), nl, &finite).into_iter().map(|m| 5.0 * m.max(0.0) + 1.0).collect();
+    let cut: Vec<f64> = crate::select::upper_medians(n, nl, &finite).into_iter().map(|m| 5.0 * m.max(0.0) + 1.0).collect();
     // Their mean square below the cut, summed in a fixed order ([`super::super::TASKS`]).
-    let n = pixels.len();
     let chunk = n.div_ceil(super::super::TASKS).max(1);
     let parts: Vec<Vec<(f64, usize)>> = (0..n.div_ceil(chunk))
         .into_par_iter()
@@ -70,15 +70,13 @@ pub(super) fn measure_camera<T: Sample>(scoring: &Scoring<'_, T>, n_frames: u32,
     let dof = f64::from(n_frames.max(2)) - 1.0;
     let median_chi2 = (1.0 - 2.0 / (9.0 * dof)).powi(3);
     let n_adc = px.n_adc();
-    // Pixel-to-pixel spreads about each pixel's own ADC's median: an ADC offset or gain is
-    // an `adc-mismatch`, not DSNU or PRNU.
     // The medians over the good pixels, exact, in passes over them ([`crate::select`]):
     // cell 0 the dark level, 1 the dark frames' variance of a mean, 2 the signal at the
     // last unsaturated level, then per level from 1 the signal and the frames' variance.
     let (dark_cell, noise_cell, full_cell, signal_cell, var_cell) = (0, 1, 2, |l: usize| 1 + 2 * l, |l: usize| 2 + 2 * l);
     let nf = f64::from(n_frames.max(1));
     let medians = crate::select::upper_medians(good.len(), 2 * levels + 1, &|j, f| {
-        let i = good[j];
+        let i = good.index(j);
         let valid = px.valid(i);
         px.with_levels(i, |at| {
             let dark = at.mean(0);
@@ -96,7 +94,7 @@ pub(super) fn measure_camera<T: Sample>(scoring: &Scoring<'_, T>, n_frames: u32,
     let (mut s, mut v) = (Vec::new(), Vec::new());
     let dark = medians[dark_cell];
     let mut on = vec![0usize; levels];
-    good.iter().for_each(|&i| on[..px.valid(i).min(levels)].iter_mut().for_each(|n| *n += 1));
+    good.iter().for_each(|i| on[..px.valid(i as usize).min(levels)].iter_mut().for_each(|n| *n += 1));
     for l in 1..levels {
         if on[l] * 2 < good.len() {
             break;
@@ -122,21 +120,21 @@ pub(super) fn measure_camera<T: Sample>(scoring: &Scoring<'_, T>, n_frames: u32,
     // Per good pixel its dark mean and its signal at `half` (NaN past its unsaturated
     // levels: left out), kept as records for the passes of the selections.
     let own = Records::from_fn(px.keep(), good.len(), |j| {
-        let i = good[j];
+        let i = good.index(j);
         px.with_levels(i, |at| [at.mean(0), if half < px.valid(i) { at.mean(half) - at.mean(0) } else { f64::NAN }])
     });
-    let about_own_adc = populations(good.len(), n_adc, 2, &|j, f| {
+    // Pixel-to-pixel spreads about each pixel's own ADC's median: an ADC offset or gain is
+    // an `adc-mismatch`, not DSNU or PRNU.
+    let [(_, _, d_scatter), (_, gm, gs)] = populations(good.len(), n_adc, &|j, f| {
         let v = own.at(j);
-        f(0, px.adc(good[j]), v[0]);
-        f(1, px.adc(good[j]), v[1]);
+        f(0, px.adc(good.index(j)), v[0]);
+        f(1, px.adc(good.index(j)), v[1]);
     });
-    let ((_, _, d_scatter), (_, gm, gs)) = (&about_own_adc[0], &about_own_adc[1]);
-    let (d_scatter, gm, gs) = (*d_scatter, *gm, *gs);
     drop(own);
     // The pixels' quadratic terms on either half, `b2 / gain^2`, where both are finite;
     // their means, then their covariance (two passes in pixel order).
     let b2 = |j: usize| -> Option<(f64, f64)> {
-        let f = fits.at(good[j]);
+        let f = fits.at(good.index(j));
         let (a, b) = (f.quartic(0)?, f.quartic(1)?);
         Some((a.b2 / a.gain.powi(2), b.b2 / b.gain.powi(2))).filter(|(a, b)| a.is_finite() && b.is_finite())
     };
@@ -149,7 +147,7 @@ pub(super) fn measure_camera<T: Sample>(scoring: &Scoring<'_, T>, n_frames: u32,
         read_noise_dn: read,
         offset_dn: Some(dark),
         full_scale_dn: Some(medians[full_cell]),
-        saturated: good.iter().filter(|&&i| px.valid(i) < levels).count() * 2 > good.len(),
+        saturated: good.iter().filter(|&i| px.valid(i as usize) < levels).count() * 2 > good.len(),
         prnu_rms: Some(gs / gm),
         dsnu_dn: Some((d_scatter.powi(2) - d_noise).max(0.0).sqrt()),
         pixel_b2_rms_per_dn: (n > 10.0).then(|| cov.max(0.0).sqrt()),

@@ -2,12 +2,13 @@
 //! ADC's own curve for `adc-mismatch`).
 
 use nalgebra::{DMatrix, DVector};
-use rayon::prelude::*;
 
 use super::super::points::{Common, Pixels};
+use super::super::tasks::picked_tasks;
 use crate::fits::Sample;
 
-/// The shared signal-domain curve `c` of the pixels `(even levels, gain)`: the least-squares
+/// The shared signal-domain curve `c` of the pixels `(pixel, gain)` that `pixels(j)` takes
+/// of `0..n`, from their even levels: the least-squares
 /// fit of `m = d_p + b_p x + sum_k c_k S^(k+2) / T^(k+1)`, `S = g_p x`, with every pixel's
 /// own dark and slope free (projected out per pixel, then one 3 x 3 system).
 ///
@@ -18,13 +19,13 @@ use crate::fits::Sample;
 /// standard deviations (errors in variables). And not the medians of the quartics'
 /// coefficients either: those are nearly collinear and too noisy (0.5-1 DN of shared error
 /// per level on a 64 x 64 set, an 'unexplained' excess of 13 standard deviations).
-pub(super) fn shared_curve<T: Sample>(px: &Pixels<T>, common: Option<&dyn Common>, pixels: &[(usize, f64)], top: f64) -> [f64; 3] {
+pub(super) fn shared_curve<T: Sample>(px: &Pixels<T>, common: Option<&dyn Common>, n: usize, pixels: &(dyn Fn(usize) -> Option<(usize, f64)> + Sync), top: f64) -> [f64; 3] {
     let zero = || (DMatrix::zeros(3, 3), DVector::zeros(3));
     let add = |a: (DMatrix<f64>, DVector<f64>), b: (DMatrix<f64>, DVector<f64>)| (a.0 + b.0, a.1 + b.1);
-    // Summed in pixel order within a task and in task order across them (`TASKS`).
-    let parts: Vec<(DMatrix<f64>, DVector<f64>)> = pixels
-        .par_chunks(pixels.len().div_ceil(super::super::TASKS).max(1))
-        .map(|chunk| chunk.iter().filter(|(_, g)| g.is_finite()).map(|&(i, g)| {
+    // Summed in pixel order within a task and in task order across them (`TASKS` runs
+    // of the pixels taken).
+    let parts: Vec<(DMatrix<f64>, DVector<f64>)> = picked_tasks(n, pixels, |chunk| {
+        chunk.filter(|(_, g)| g.is_finite()).map(|(i, g)| {
             let pts = px.halves(i, common).0;
             let k = pts.len();
             if k <= 3 {
@@ -38,8 +39,8 @@ pub(super) fn shared_curve<T: Sample>(px: &Pixels<T>, common: Option<&dyn Common
             let q = DMatrix::identity(k, k) - &x * inv * x.transpose();
             let qu = &q * &u;
             (qu.transpose() * &qu, qu.transpose() * (&q * y))
-        }).fold(zero(), add))
-        .collect();
+        }).fold(zero(), add)
+    });
     let (n, r) = parts.into_iter().fold(zero(), add);
     match n.try_inverse() {
         Some(inv) => {

@@ -84,14 +84,13 @@ mod scoring;
 
 use super::levels::{wald, Block};
 use super::pixel_fit::{Response, Totals};
-use super::records::Keep;
-use super::points::{Common, Pixels};
+use super::records::{Keep, Records, Writer};
+use super::points::{Common, Fitted, Pixels};
 use super::scores::{Cell, Scores};
 use super::*;
 use super::cubes::SetView;
 use crate::fits::{LinearityRows, LinearitySet, Sample};
 use crate::linearity::saturated_at;
-use crate::stats::upper_median;
 use adc_apart::{adc_curvature, adc_maps, bend, paired, Curvature, MAX_ADCS};
 use camera::{measure_camera, quantization_floor};
 use scoring::Scoring;
@@ -135,12 +134,17 @@ fn prepare<'a, T: Sample>(set: &'a SetView<'a, T>, keep: Keep) -> Result<(Pixels
     // deviations are zero: the upper median of them is at most 0 when more than half are
     // (counted: a sorted copy of the cube was 4 bytes per value more at its peak).
     let top = ((1u64 << set.bit_depth) - 1) as f64;
-    let blocks = set.blocks(|b| {
+    // (Indices of pixels are kept as `u32`.)
+    if u32::try_from(np).is_err() {
+        return Err(DiagnoseError::TooManyPixels { pixels: np, max: u32::MAX as usize });
+    }
+    let valid = Writer::<u16>::new(&keep, np);
+    let counts = set.blocks(|b| {
         let pixels = b.rows.start * set.width..b.rows.end * set.width;
-        let mut valid = vec![nl as u16; pixels.len()];
+        let mut v = vec![nl as u16; pixels.len()];
         let (mut zero, mut finite) = (0usize, 0usize);
         for l in 0..nl {
-            for (v, p) in valid.iter_mut().zip(pixels.clone()) {
+            for (v, p) in v.iter_mut().zip(pixels.clone()) {
                 let at = b.pixel(p);
                 let s = at.std(l);
                 if s.is_finite() {
@@ -152,22 +156,26 @@ fn prepare<'a, T: Sample>(set: &'a SetView<'a, T>, keep: Keep) -> Result<(Pixels
                 }
             }
         }
-        (valid, zero, finite)
+        valid.put(pixels.start, &v);
+        (zero, finite)
     });
-    let (zero, finite) = blocks.iter().fold((0, 0), |(z, n), b| (z + b.1, n + b.2));
+    let valid = valid.finish();
+    let (zero, finite) = counts.iter().fold((0, 0), |(z, n), b| (z + b.0, n + b.1));
     if finite > 0 && zero > finite / 2 {
         return Err(DiagnoseError::NoNoise);
     }
-    let valid: Vec<u16> = blocks.into_iter().flat_map(|b| b.0).collect();
     let known_bad = |p: usize| set.mask.is_some_and(|m| m[p] != 0);
     // (More ADCs than columns read as one per column: column `c` is ADC `c` either way.)
     let n_adc = set.n_adc.clamp(1, set.width.max(1));
     if n_adc > MAX_ADCS {
         return Err(DiagnoseError::TooManyAdcs { n_adc: set.n_adc, max: MAX_ADCS });
     }
-    let pixels: Vec<usize> = (0..np).filter(|&p| !known_bad(p)).collect();
-    let bias2 = quantization_floor(set, &pixels);
-    Ok((Pixels::new(set, x, kappa, bias2, valid, pixels, keep), n_adc))
+    let fitted = match set.mask {
+        None => Fitted::All(np),
+        Some(_) => Fitted::Listed(Records::collect(&keep, (0..np).filter(|&p| !known_bad(p)).map(|p| p as u32))),
+    };
+    let bias2 = quantization_floor(set, fitted.len(), &|i| fitted.index(i));
+    Ok((Pixels::new(set, x, kappa, bias2, valid, fitted, keep), n_adc))
 }
 
 /// The baseline on all the data (`base`: the linear model's held-out scores), overall
@@ -291,7 +299,12 @@ fn diagnose_set<T: Sample>(set: &SetView<'_, T>, keep: Keep, accuracy_dn: f64) -
     // Where level errors were found, the shared curve stays in the model either way: it
     // takes their smooth part (named `global-nonlinearity` only when it stands out).
     let absorb = level_accepted && !global_accepted;
-    let g0 = upper_median(good.iter().filter(|&&i| estimating(i) && !adc_own[adc_of(i)]).filter_map(|&i| Some(stage.fits.at(i).quartic(0)?.gain)));
+    let g0 = crate::select::upper_medians(good.len(), 1, &|j, f| {
+        let i = good.index(j);
+        if let Some(q) = stage.fits.at(i).quartic(0).filter(|_| estimating(i) && !adc_own[adc_of(i)]) {
+            f(0, q.gain);
+        }
+    })[0];
     let smooth = if absorb { s.shared_of(&|i| !adc_own[adc_of(i)], Some(g0)) } else { [0.0; 3] };
     let follower_model = if global_accepted {
         Response::Curve(global, top)
@@ -320,7 +333,7 @@ fn diagnose_set<T: Sample>(set: &SetView<'_, T>, keep: Keep, accuracy_dn: f64) -
         (Response::Common(..), Some(f)) => f,
         _ => &base,
     };
-    let mut current = Scores::per_adc(&|a| if adc_own[a] { own_curve.as_ref().unwrap_or(follower) } else { follower }, &|j| adc_of(good[j]), good.len(), n_adc);
+    let mut current = Scores::per_adc(&|a| if adc_own[a] { own_curve.as_ref().unwrap_or(follower) } else { follower }, &|j| adc_of(good.index(j)), good.len(), n_adc);
     let mut tcur = current.totals(&all);
     // The all-data scale of the steps so far, in the order of the model: the level term
     // (with the smooth part a shared curve takes of it where no bend is named), each ADC
@@ -369,7 +382,7 @@ fn diagnose_set<T: Sample>(set: &SetView<'_, T>, keep: Keep, accuracy_dn: f64) -
     findings.extend(adc_findings.into_iter().flatten());
     findings.extend(stage.finding(&px));
     // Noise: the dark level's temporal noise against the quantization bias.
-    let dark_noise = upper_median(good.iter().map(|&i| px.std(0, i)));
+    let dark_noise = crate::select::upper_medians(good.len(), 1, &|j, f| f(0, px.std(0, good.index(j))))[0];
     let measured = measure_camera(&s, set.n_frames, stage.bad_count());
     findings.extend(insufficient_noise("median dark noise", dark_noise, accuracy_dn));
     findings.extend(remainder(&s, &current, tcur));

@@ -7,7 +7,7 @@ use super::super::pixel_fit::{fit_and_score, Point, Response};
 use super::super::pixel_fit::Totals;
 use super::scoring::Scoring;
 use super::super::points::{Common, Pixels};
-use super::super::records::{Put, Record, Records, Take};
+use super::super::records::{Keep, Put, Record, Records, Take};
 use super::super::scores::{Cell, Scores};
 use super::super::{AdcResiduals, Effect, Finding, SIGNIFICANCE};
 use super::adc_apart::populations;
@@ -41,9 +41,10 @@ pub(super) struct PixelFits {
 
 impl PixelFits {
     fn new(quartic: [Option<Quartic>; 2], line: [Option<[f64; 2]>; 2], points: [u16; 2]) -> Self {
-        let none = Quartic { gain: f64::NAN, b2: f64::NAN, chi2_fit: f64::NAN, held_sq: f64::NAN, held_n: 0 };
+        // A fit that does not exist holds what a lost record holds.
+        let none = Self::LOST;
         let fitted = (0..2).map(|h| u8::from(quartic[h].is_some()) << h | u8::from(line[h].is_some()) << (2 + h)).sum();
-        PixelFits { quartic: quartic.map(|q| q.unwrap_or(none)), line: line.map(|l| l.unwrap_or([f64::NAN; 2])), points, fitted }
+        PixelFits { quartic: quartic.map(|q| q.unwrap_or(none.quartic[0])), line: line.map(|l| l.unwrap_or(none.line[0])), points, fitted }
     }
 
     /// The quartic of half `h` (0 even levels, 1 odd), where it was fitted.
@@ -95,6 +96,33 @@ pub(super) enum BadPixel {
     Dark,
 }
 
+impl BadPixel {
+    const ALL: [BadPixel; 4] = [BadPixel::Stuck, BadPixel::Shape, BadPixel::Gain, BadPixel::Dark];
+}
+
+/// A pixel's bad-pixel flags: on its even levels alone (for the held-out bad-pixel
+/// score), and on both halves (the bad pixels: the kind found on the even levels).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Flags {
+    even: Option<BadPixel>,
+    both: Option<BadPixel>,
+}
+
+/// A byte each: 0 not flagged, else 1 + the kind's place in [`BadPixel::ALL`].
+impl Record for Flags {
+    const BYTES: usize = 2;
+    const LOST: Flags = Flags { even: None, both: None };
+    fn put(&self, out: &mut Put<'_>) {
+        let code = |b: Option<BadPixel>| b.map_or(0, |b| 1 + BadPixel::ALL.iter().position(|&k| k == b).unwrap_or(0) as u8);
+        out.u8(code(self.even));
+        out.u8(code(self.both));
+    }
+    fn take(from: &mut Take<'_>) -> Self {
+        let kind = |c: u8| usize::from(c).checked_sub(1).and_then(|k| BadPixel::ALL.get(k).copied());
+        Flags { even: kind(from.u8()), both: kind(from.u8()) }
+    }
+}
+
 /// The response every pixel's own quartic is (the paper's correction).
 pub(super) const QUARTIC: Response = Response::Poly(crate::linearity::PIXEL_ORDER);
 /// A straight line: dark and gain.
@@ -113,10 +141,8 @@ pub(super) struct PixelStage {
     /// Per ADC, the median dark and gain.
     dark_adc: Vec<f64>,
     gain_adc: Vec<f64>,
-    /// Flagged on the even levels alone (for the held-out bad-pixel score).
-    flagged_even: Vec<Option<BadPixel>>,
-    /// Flagged on both halves: the bad pixels.
-    pub(super) bad: Vec<Option<BadPixel>>,
+    /// Per pixel, its flags on the even levels and on both halves.
+    flags: Records<Flags>,
 }
 
 impl PixelStage {
@@ -137,37 +163,42 @@ impl PixelStage {
         });
         // The population of dark (k = 0) and gain (k = 1) from the even-level fits, for the
         // bad-pixel flags.
-        let mut pops = populations(n, n_adc, 2, &|i, f| {
+        let [(dark_adc, dark_c, dark_s), (gain_adc, gain_c, gain_s)] = populations(n, n_adc, &|i, f| {
             if let Some(l) = fits.at(i).line(0).filter(|_| px.estimating(i)) {
                 f(0, px.adc(i), l[0]);
                 f(1, px.adc(i), l[1]);
             }
         });
-        let ((gain_adc, gain_c, gain_s), (dark_adc, dark_c, dark_s)) = (pops.remove(1), pops.remove(0));
         let (dark_pop, gain_pop) = ((dark_c, dark_s), (gain_c, gain_s));
         // Each pixel is flagged against its own ADC's medians (an ADC offset is an
         // `adc-mismatch`, not a quarter of the sensor gone bad; a review found 1018 such
         // "bad pixels" with a 3 DN ADC offset and 0.2 DN of DSNU).
-        let mut stage = PixelStage { fits, dark_pop, gain_pop, dark_adc, gain_adc, flagged_even: Vec::new(), bad: Vec::new() };
+        let mut stage = PixelStage { fits, dark_pop, gain_pop, dark_adc, gain_adc, flags: Records::collect(&Keep::held(), std::iter::empty()) };
         // The flags on the even levels (for the held-out bad-pixel score) and on both.
-        stage.flagged_even = (0..n).map(|i| stage.bad_in(px.adc(i), i, 0)).collect();
-        stage.bad = (0..n)
-            .map(|i| match (stage.flagged_even[i], stage.bad_in(px.adc(i), i, 1)) {
-                (Some(a), Some(_)) => Some(a),
-                _ => None,
-            })
-            .collect();
+        stage.flags = Records::from_fn(px.keep(), n, |i| {
+            let even = stage.bad_in(px.adc(i), i, 0);
+            Flags { even, both: even.filter(|_| stage.bad_in(px.adc(i), i, 1).is_some()) }
+        });
         stage
     }
 
     /// Not flagged, and fitted on the even levels.
     pub(super) fn is_good(&self, i: usize) -> bool {
-        self.bad[i].is_none() && { let f = self.fits.at(i); f.quartic(0).is_some() && f.line(0).is_some() }
+        self.flags.at(i).both.is_none() && { let f = self.fits.at(i); f.quartic(0).is_some() && f.line(0).is_some() }
+    }
+
+    /// Pixels flagged bad, of each kind (in [`BadPixel::ALL`]'s order).
+    fn bad_counts(&self) -> [usize; 4] {
+        let mut n = [0; 4];
+        for b in self.flags.iter().filter_map(|f| f.both) {
+            n[BadPixel::ALL.iter().position(|&k| k == b).unwrap_or(0)] += 1;
+        }
+        n
     }
 
     /// Pixels flagged bad.
     pub(super) fn bad_count(&self) -> usize {
-        self.bad.iter().filter(|b| b.is_some()).count()
+        self.bad_counts().iter().sum()
     }
 
     /// ADC `adc`'s median dark and gain, the population's where it has none.
@@ -201,9 +232,10 @@ impl PixelStage {
     /// `bad-pixels`: the flagged pixels scored on the odd levels' dark and gain against the
     /// population, plus the held-out level residuals of the pixel's own quartic.
     pub(super) fn finding<T: Sample>(&self, px: &Pixels<T>) -> Option<Finding> {
-        let (fits, bad, (dark_pop, gain_pop)) = (&self.fits, &self.bad, (self.dark_pop, self.gain_pop));
-        let flagged: Vec<usize> = (0..px.len()).filter(|&i| bad[i].is_some()).collect();
-        if flagged.is_empty() {
+        let (fits, (dark_pop, gain_pop)) = (&self.fits, (self.dark_pop, self.gain_pop));
+        let kinds = self.bad_counts();
+        let flagged: usize = kinds.iter().sum();
+        if flagged == 0 {
             return None;
         }
         // A pixel's sum of squares and count of scores.
@@ -223,17 +255,16 @@ impl PixelStage {
         // and every score is of the odd levels (the odd-level fit's dark and gain, the
         // even-level quartic's residuals there); the count needs both halves.
         let (mut s_all, mut n_all, mut s_ok, mut n_ok) = (0.0, 0usize, 0.0, 0usize);
-        for (i, even) in self.flagged_even.iter().enumerate() {
+        for (i, flags) in self.flags.iter().enumerate() {
             let (s, len) = map_z(i);
             s_all += s;
             n_all += len;
-            if even.is_none() {
+            if flags.even.is_none() {
                 s_ok += s;
                 n_ok += len;
             }
         }
         let (before, after) = ((s_all / n_all.max(1) as f64).sqrt(), (s_ok / n_ok.max(1) as f64).sqrt());
-        let kinds = |k: BadPixel| flagged.iter().filter(|&&i| bad[i] == Some(k)).count();
         // The significance is that of the set-apart pixels' odd-level excess over what
         // noise leaves in them (one per residual).
         let removed = (n_all - n_ok) as f64;
@@ -247,10 +278,10 @@ impl PixelStage {
                 after,
                 format!(
                     "{} pixels the model cannot follow, flagged independently on even and odd levels: {} stuck or hot at saturation, {} whose own quartic fails its levels, {} with a gain outside 0.5-1.5 of the median, {} with a dark level beyond 10 robust sigma",
-                    flagged.len(), kinds(BadPixel::Stuck), kinds(BadPixel::Shape), kinds(BadPixel::Gain), kinds(BadPixel::Dark)
+                    flagged, kinds[0], kinds[1], kinds[2], kinds[3]
                 ),
             );
-            f.count = Some(flagged.len());
+            f.count = Some(flagged);
             f
         })
     }
@@ -269,13 +300,14 @@ pub(super) fn pixel_nonlinearity<T: Sample>(s: &Scoring<'_, T>, (current, tcur):
         let last = |s: Option<super::super::scores::Score>| s.filter(|s| s.n > 0).map(|s| f64::from(s.last_z));
         let spread = Records::from_fn(px.keep(), good.len(), |j| -> Option<f64> {
             let (a, b) = (last(own.get(j))?, last(current.get(j))?);
-            let i = good[j];
+            let i = good.index(j);
             let q = *px.halves(i, common).1.last()?;
             let d = fits.at(i).line(0)?[0];
             Some(((b - a) * q.sigma / (q.y - d)).abs())
         });
-        let count = spread.iter().flatten().count();
-        let rms_spread = (spread.iter().flatten().map(|v| v * v).sum::<f64>() / count.max(1) as f64).sqrt();
+        let mut count = 0usize;
+        let sum_sq = spread.iter().flatten().inspect(|_| count += 1).map(|v| v * v).sum::<f64>();
+        let rms_spread = (sum_sq / count.max(1) as f64).sqrt();
         let steps = AdcResiduals { baseline: current.by_level(&all), extended: own.by_level(&all) };
         return Some(with_residuals(steps, finding(
             Effect::PixelNonlinearity,
@@ -301,14 +333,25 @@ mod tests {
         assert_eq!(std::mem::size_of::<PixelFits>(), 120);
         assert_eq!(std::mem::size_of::<super::super::super::scores::Score>(), 24);
         // The budget's records held: these fits, the level term's (a quartic and a line,
-        // each an `Option`), five models' scores and a pair of values.
+        // each an `Option`), five models' scores and a pair of values; the unsaturated
+        // levels, the pixel's and the good pixel's indices and the flags.
         let level = std::mem::size_of::<(Option<[f64; 5]>, Option<[f64; 2]>)>();
         assert_eq!(level, 72);
-        assert_eq!(super::super::super::records::RECORD_BYTES as usize, 120 + level + 5 * 24 + std::mem::size_of::<[f64; 2]>());
+        assert_eq!(std::mem::size_of::<Flags>(), 2);
+        let small = std::mem::size_of::<u16>() + 2 * std::mem::size_of::<u32>() + std::mem::size_of::<Flags>();
+        assert_eq!(super::super::super::records::RECORD_BYTES as usize, 120 + level + 5 * 24 + std::mem::size_of::<[f64; 2]>() + small);
         let q = Quartic { gain: 2.0, b2: -0.5, chi2_fit: 3.0, held_sq: 4.0, held_n: 7 };
         let f = PixelFits::new([None, Some(q)], [Some([1.0, 2.0]), None], [5, 6]);
         assert!(f.quartic(0).is_none() && f.line(1).is_none());
         assert_eq!((f.quartic(1).map(|q| (q.gain, q.b2, q.chi2_fit, q.held_sq, q.held_n)), f.line(0)), (Some((2.0, -0.5, 3.0, 4.0, 7)), Some([1.0, 2.0])));
+        // Every flag reads back as written.
+        let kinds = [None, Some(BadPixel::Stuck), Some(BadPixel::Shape), Some(BadPixel::Gain), Some(BadPixel::Dark)];
+        for even in kinds {
+            for both in kinds {
+                let f = Flags { even, both };
+                assert_eq!(super::super::super::records::round_trip(f), f);
+            }
+        }
         // A fitted line of NaN is still a fitted line (the marker is the bit, not a value).
         assert_eq!(PixelFits::new([None, None], [None, Some([f64::NAN; 2])], [0, 0]).line(1).map(|l| l[0].is_nan()), Some(true));
         // Spilled and read back, every field and fit bit as it was (a negative zero too).

@@ -28,7 +28,7 @@ pub(super) fn remainder<T: Sample>(s: &Scoring<'_, T>, current: &Scores, tcur: T
     // some pixels (subtle bad pixels) overdisperses it. `(X - G) / sqrt(c G)` over the
     // `G` pixels, `c = 2 + 12 / n` the variance of one term for `n` held-out levels.
     let (mut x_sum, mut g, mut n_sum) = (0.0, 0.0, 0.0);
-    for (s, _) in current.iter().zip(good).filter(|(_, &i)| !px.estimating(i)) {
+    for (s, _) in current.iter().zip(good.iter()).filter(|&(_, i)| !px.estimating(i as usize)) {
         if let Some(s) = s {
             let (tr, tr2) = (f64::from(s.tr), f64::from(s.tr2));
             x_sum += (s.sum_sq - k2 * tr).powi(2) / (k2 * k2 * 2.0 * tr2).max(1e-300);
@@ -69,7 +69,8 @@ pub(super) fn remainder<T: Sample>(s: &Scoring<'_, T>, current: &Scores, tcur: T
                 // DN over the pixels scored there: every held-out point has its z), and
                 // per ADC.
                 let mut dn = vec![(0.0, 0usize); nl];
-                for (s, &i) in current.iter().zip(good) {
+                for (s, i) in current.iter().zip(good.iter()) {
+                    let i = i as usize;
                     if s.is_some() {
                         for q in px.halves(i, common).1 {
                             dn[q.level].0 += px.mean(q.level, i);

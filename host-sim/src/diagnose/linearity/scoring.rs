@@ -17,8 +17,9 @@ pub(super) struct Scoring<'a, T: Sample> {
     pub common: Option<&'a dyn Common>,
     /// Each pixel's own fits (by index into `px`).
     pub fits: &'a Records<PixelFits>,
-    /// The good pixels, by index into `px`: score `j` of a [`Scores`] is pixel `good[j]`.
-    pub good: Vec<usize>,
+    /// The good pixels, by index into `px`: score `j` of a [`Scores`] is pixel
+    /// `good.index(j)` (held or spilled as `px`'s records are).
+    pub good: Records<u32>,
     /// ADCs of the camera.
     pub n_adc: usize,
     /// Levels of the set.
@@ -29,13 +30,13 @@ pub(super) struct Scoring<'a, T: Sample> {
 
 impl<'a, T: Sample> Scoring<'a, T> {
     pub fn new(px: &'a Pixels<'a, T>, common: Option<&'a dyn Common>, stage: &'a PixelStage, n_adc: usize, levels: usize, top: f64) -> Self {
-        let good = (0..px.len()).filter(|&i| stage.is_good(i)).collect();
+        let good = Records::collect(px.keep(), (0..px.len()).filter(|&i| stage.is_good(i)).map(|i| i as u32));
         Scoring { px, common, fits: &stage.fits, good, n_adc, levels, top }
     }
 
     /// Where score `j` (pixel `good[j]`) is summed.
     pub fn cell(&self, j: usize) -> Cell {
-        let i = self.good[j];
+        let i = self.good.index(j);
         Cell { adc: self.px.adc(i), odd: !self.px.estimating(i) }
     }
 
@@ -43,7 +44,7 @@ impl<'a, T: Sample> Scoring<'a, T> {
     /// less `common` (a curve's fit starts from the pixel's even-level line).
     pub fn score_with(&self, common: Option<&dyn Common>, model: &(dyn Fn(usize) -> Response + Sync)) -> Scores {
         Scores::collect(self.px.keep(), self.good.len(), self.n_adc, self.levels, &|j| self.cell(j), &|j| {
-            let i = self.good[j];
+            let i = self.good.index(j);
             let (ev, od) = self.px.halves(i, common);
             let m = model(i);
             let start = match m {
@@ -62,13 +63,17 @@ impl<'a, T: Sample> Scoring<'a, T> {
     /// The shared curve of the good pixels of even rows that `sel` takes, from their
     /// even levels, each at its own quartic's gain or, given `at_gain`, all at that gain
     /// (an additive common term).
-    pub fn shared_of(&self, sel: &dyn Fn(usize) -> bool, at_gain: Option<f64>) -> [f64; 3] {
-        let chosen: Vec<(usize, f64)> = self.good.iter().copied().filter(|&i| self.px.estimating(i) && sel(i)).filter_map(|i| Some((i, at_gain.unwrap_or(self.fits.at(i).quartic(0)?.gain)))).collect();
-        shared_curve(self.px, self.common, &chosen, self.top)
+    pub fn shared_of(&self, sel: &(dyn Fn(usize) -> bool + Sync), at_gain: Option<f64>) -> [f64; 3] {
+        let chosen = |j: usize| {
+            let i = self.good.index(j);
+            (self.px.estimating(i) && sel(i)).then_some(())?;
+            Some((i, at_gain.unwrap_or(self.fits.at(i).quartic(0)?.gain)))
+        };
+        shared_curve(self.px, self.common, self.good.len(), &chosen, self.top)
     }
 
     /// [`Scoring::shared_of`] each pixel at its own gain.
-    pub fn curve_of(&self, sel: &dyn Fn(usize) -> bool) -> [f64; 3] {
+    pub fn curve_of(&self, sel: &(dyn Fn(usize) -> bool + Sync)) -> [f64; 3] {
         self.shared_of(sel, None)
     }
 }
