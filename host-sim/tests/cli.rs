@@ -767,7 +767,7 @@ fn diagnose_reads_a_set_by_rows_beyond_its_budget_with_the_same_numbers() {
     let held = stdout_json(&dncal(&["diagnose", "lin.fits", "--json"], d));
     assert!(held.get("block_rows").is_none(), "{held}");
     assert!(!held["findings"].as_array().unwrap().is_empty(), "{held}");
-    // 64 x 64 pixels: 368 bytes each of state (1.5 MB) fit 2 MiB, with the set as f32
+    // 64 x 64 pixels: 341 bytes each of state (1.4 MB) fit 2 MiB, with the set as f32
     // (41 levels x 2 cubes x 4 bytes, 1.3 MB more) they do not; the blocks take what is
     // left (a few rows each, by the threads there are).
     for args in [&["--max-memory", "2M"][..], &["--block-rows", "5"][..]] {

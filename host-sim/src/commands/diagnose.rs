@@ -178,6 +178,31 @@ pub struct DiagnoseSummary {
     pub outputs: Vec<PathBuf>,
 }
 
+/// Bytes a linearity diagnosis of `np` pixels keeps beyond the set: its records held
+/// (measured sizes, docs/diagnose.md), or spilled (then a block of each kind per thread),
+/// and the set's mask.
+fn state(np: u64, spilled: bool) -> u64 {
+    use crate::budget::bytes_of;
+    use crate::diagnose::{spilled_blocks, RECORD_BYTES, RESIDENT_BYTES};
+    if spilled { bytes_of(np, RESIDENT_BYTES).saturating_add(spilled_blocks(np)) } else { bytes_of(np, RESIDENT_BYTES + RECORD_BYTES) }
+}
+
+/// Whether the records of `np` pixels go to temporary files, with `beside` bytes (the
+/// set held, or its blocks) in a budget of `limit`: where `asked`, or where held they
+/// would not fit and spilled they take less (a small set's blocks may be more than its
+/// records).
+fn spill_records(np: u64, beside: u64, asked: bool, limit: u64) -> bool {
+    asked || (state(np, false).saturating_add(beside) > limit && state(np, true) < state(np, false))
+}
+
+/// Whether a set of `np` pixels and `levels` levels that can be read by rows is, rather
+/// than held: where rows are asked for, or where the set held (as `f32`) does not fit
+/// beside the records, spilled if that is what makes it fit.
+fn read_by_rows(np: u64, levels: u64, rows_asked: bool, spill_asked: bool, limit: u64) -> bool {
+    let set = crate::budget::bytes_of(np.saturating_mul(levels), 8);
+    rows_asked || state(np, spill_records(np, set, spill_asked, limit)).saturating_add(set) > limit
+}
+
 /// The diagnosis of the linearity set at `read_from` (named `input`) and its camera
 /// model. The set is held as f32 (half the memory of f64; see [`crate::fits::Sample`]),
 /// or, where it would not fit the memory budget held or `block_rows` is given, read from
@@ -186,18 +211,12 @@ pub struct DiagnoseSummary {
 /// records go to temporary files where they would not fit beside the rest, or `spill`
 /// says so: the same diagnosis again.
 fn diagnose_linearity_file(read_from: &Path, input: &Path, block_rows: Option<usize>, spill: bool) -> Result<(Diagnosis, crate::camera::CameraConfig), HostError> {
-    use crate::budget::{bytes_of, check, fits};
-    use crate::diagnose::{spilled_blocks, RECORD_BYTES, RESIDENT_BYTES};
-    // Per pixel beyond the set: the records that may be spilled and what stays (measured
-    // on 2048 x 2048, docs/diagnose.md), and with the records spilled, a block of each
-    // kind per thread.
-    let state = |np: u64, spilled: bool| if spilled { bytes_of(np, RESIDENT_BYTES).saturating_add(spilled_blocks(np)) } else { bytes_of(np, RESIDENT_BYTES + RECORD_BYTES) };
-    // Spilled where asked, or where held does not fit and spilling takes less (a small
-    // set's blocks may be more than its records).
-    let spill_if = |np: u64, beside: u64| spill || (!fits(state(np, false).saturating_add(beside)) && state(np, true) < state(np, false));
+    use crate::budget::{bytes_of, check, limit};
+    use crate::diagnose::{RECORD_BYTES, RESIDENT_BYTES};
+    let spill_if = |np: u64, beside: u64| spill_records(np, beside, spill, limit());
     let what = |spilled: bool| {
         if spilled {
-            format!("diagnosing each pixel (its records spilled to temporary files, a block of each kind per thread in memory, and {RESIDENT_BYTES} byte per pixel of mask)")
+            format!("diagnosing each pixel (its records spilled to temporary files, a block of each kind per thread in memory, and the mask's {RESIDENT_BYTES} byte per pixel where the set has one)")
         } else {
             format!("diagnosing each pixel (about {} bytes per pixel beyond the set)", RESIDENT_BYTES + RECORD_BYTES)
         }
@@ -206,13 +225,12 @@ fn diagnose_linearity_file(read_from: &Path, input: &Path, block_rows: Option<us
     let failed = |source| HostError::Diagnose { path: input.into(), source };
     let spilling = |spilled: bool| if spilled { ", its records spilled" } else { "" };
     // Decided from the header: held (read and checked in one pass) where the set and the
-    // state fit the budget, else read by rows; the records spilled where the state held
-    // does not fit beside the set or its blocks.
+    // state fit the budget, its records spilled if that makes them fit, else read by
+    // rows; the records spilled where held they do not fit beside the set or its blocks.
     let opened = open_linearity_rows(read_from)?;
     let by_rows = opened.filter(|o| {
         let [w, h, l] = o.shape();
-        let np = (w * h) as u64;
-        block_rows.is_some() || !fits(state(np, spill).saturating_add(bytes_of(np * l as u64, 8)))
+        read_by_rows((w * h) as u64, l as u64, block_rows.is_some(), spill, limit())
     });
     let Some(opened) = by_rows else {
         let set = read_linearity_as::<f32>(read_from)?;
@@ -229,7 +247,7 @@ fn diagnose_linearity_file(read_from: &Path, input: &Path, block_rows: Option<us
     let shape = opened.shape();
     let np = (shape[0] * shape[1]) as u64;
     // Blocks of 8 MiB, or what the budget leaves after the state.
-    let blocks = |spilled: bool| crate::diagnose::blocks_of::<f32>(shape, block_rows, crate::budget::limit().saturating_sub(state(np, spilled)));
+    let blocks = |spilled: bool| crate::diagnose::blocks_of::<f32>(shape, block_rows, limit().saturating_sub(state(np, spilled)));
     let spill = spill_if(np, blocks(false).1);
     check(read_from, &what(spill), state(np, spill))?;
     let (rows, blocks) = blocks(spill);
@@ -537,4 +555,39 @@ fn report(input: &Path, mut diagnosis: Diagnosis, model: Option<crate::camera::C
         }
     }
     Ok(DiagnoseSummary { input: input.into(), diagnosis, outputs })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Where the set and the records go, against sizes worked by hand: 341 bytes a pixel
+    /// of records held, 8 bytes a value of the set held (mean and deviation as `f32`),
+    /// and spilled, 13 blocks read and one written by each thread and one more, of at
+    /// most 256 KiB (120 bytes a pixel for a small set).
+    #[test]
+    fn the_set_and_records_go_where_they_fit() {
+        let (gib, t) = (1u64 << 30, rayon::current_num_threads() as u64);
+        let blocks = |per: u64| 14 * (t + 1) * per;
+        let np = 2048 * 2048;
+        assert_eq!(state(np, false), np * 341);
+        assert_eq!(state(np, true), np + blocks(256 << 10));
+        assert_eq!(state(64, true), 64 + blocks(64 * 120));
+        // 2048 x 2048 x 41: the set held is 1.31 GiB, its records held 1.33 GiB.
+        // 2 GiB: the set is held and its records spilled.
+        assert!(spill_records(np, np * 41 * 8, false, 2 * gib));
+        assert!(!read_by_rows(np, 41, false, false, 2 * gib));
+        // 3 GiB: both held.
+        assert!(!spill_records(np, np * 41 * 8, false, 3 * gib));
+        assert!(!read_by_rows(np, 41, false, false, 3 * gib));
+        // 1 GiB: the set alone does not fit; by rows.
+        assert!(read_by_rows(np, 41, false, false, gib));
+        // Asked for, whatever fits.
+        assert!(read_by_rows(np, 41, true, false, 3 * gib) && spill_records(np, 0, true, 3 * gib));
+        // 64 pixels in 40 KiB: beside 16 KiB, their records held (21.3 KiB) fit; beside
+        // 30 KiB they do not, but spilled they would take more (the blocks): held (and
+        // refused by the budget).
+        assert!(!spill_records(64, 16 << 10, false, 40 << 10));
+        assert!(!spill_records(64, 30 << 10, false, 40 << 10));
+    }
 }

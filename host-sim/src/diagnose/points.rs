@@ -86,7 +86,12 @@ impl<'a, T: Sample> Pixels<'a, T> {
 
     /// The ADC of pixel `i`: column `c` is read by ADC `c mod n_adc`.
     pub fn adc(&self, i: usize) -> usize {
-        dncal_core::adc_of_column(self.index(i) % self.set.width, self.n_adc())
+        self.adc_of(self.index(i))
+    }
+
+    /// The ADC of the set's pixel `p`.
+    fn adc_of(&self, p: usize) -> usize {
+        dncal_core::adc_of_column(p % self.set.width, self.n_adc())
     }
 
     /// Whether pixel `i` lies on an even row: those estimate shared parameters, the odd
@@ -105,10 +110,11 @@ impl<'a, T: Sample> Pixels<'a, T> {
     /// mean's value type: [`Sample::rounding_var`]).
     pub fn halves(&self, i: usize, common: Option<&dyn Common>) -> (Vec<Point>, Vec<Point>) {
         let set = self.set;
-        let (p, valid) = (self.index(i), self.valid(i));
+        let p = self.index(i);
+        let valid = usize::from(self.valid.at(p));
         let n = f64::from(set.n_frames.max(1));
         let floor = 1.0 / (12.0 * n);
-        let adc = self.adc(i);
+        let adc = self.adc_of(p);
         let shape = common.and_then(|t| t.shape(i));
         let mut halves = (Vec::with_capacity(valid.div_ceil(2)), Vec::with_capacity(valid / 2));
         set.with_pixel(p, |at| {
@@ -141,10 +147,5 @@ impl<'a, T: Sample> Pixels<'a, T> {
     /// The raw mean of pixel `i` at `level`, DN.
     pub fn mean(&self, level: usize, i: usize) -> f64 {
         self.with_levels(i, |at| at.mean(level))
-    }
-
-    /// The frames' standard deviation of pixel `i` at `level`, DN.
-    pub fn std(&self, level: usize, i: usize) -> f64 {
-        self.with_levels(i, |at| at.std(level))
     }
 }

@@ -10,8 +10,8 @@
 //! bytes a pixel there, in the page cache where it has room; a `TMPDIR` on tmpfs keeps
 //! them in memory, outside the budget). The parallel passes read them in runs of
 //! consecutive pixels, as they read the set ([`super::cubes`]), so a thread reads a
-//! block about once a pass; the sequential ones (the paired tests, the shared curves'
-//! choice of pixels, the bad-pixel count) read the file once each on one thread. The
+//! block about once a pass; the sequential ones (the paired tests, the list of good
+//! pixels, the bad-pixel count) read the file once each on one thread. The
 //! records are written and read bit for bit (floats by their bits), so the diagnosis is
 //! the same number for number either way (tested).
 
@@ -48,12 +48,12 @@ pub const RECORD_BYTES: u64 = 120 + 72 + 5 * 24 + 16 + 2 + 4 + 4 + 2;
 pub const RESIDENT_BYTES: u64 = 1;
 
 /// Bytes the blocks of spilled records of `pixels` pixels take at once: a block of
-/// each kind per thread of the pool and one more, and a block per thread being written
-/// (no larger than the records).
+/// each kind per thread of the pool and one more (a thread outside it), and a block
+/// being written per thread of the pool and one more (no larger than the records).
 pub fn spilled_blocks(pixels: u64) -> u64 {
     let block = (BLOCK_BYTES as u64).min(pixels.saturating_mul(120));
     let threads = rayon::current_num_threads() as u64;
-    (KINDS_AT_ONCE * (threads + 1) + threads) * block
+    (KINDS_AT_ONCE + 1) * (threads + 1) * block
 }
 
 /// A record as its bytes in a spill file: exactly [`Record::BYTES`] of them.
@@ -157,7 +157,8 @@ impl Record for u16 {
     }
 }
 
-/// An index of a pixel (sets of up to `u32::MAX` pixels, checked where they are read);
+/// An index of a pixel (sets of up to `u32::MAX` pixels, checked by the diagnosis's
+/// `prepare`);
 /// lost, pixel 0 (a valid index, so that nothing reads out of bounds before the
 /// diagnosis ends with the failure).
 impl Record for u32 {
@@ -219,6 +220,9 @@ enum Store<R> {
         file: Option<File>,
         /// This store's key in the threads' caches ([`BLOCKS`]).
         id: u64,
+        /// Whether the store is still there, for the caches (a block of a dropped store
+        /// is the first to make room).
+        alive: Arc<()>,
         kind: std::marker::PhantomData<R>,
     },
 }
@@ -228,9 +232,10 @@ static NEXT_STORE: AtomicU64 = AtomicU64::new(0);
 
 thread_local! {
     /// This thread's blocks of spilled records: a block per store at most, and at most
-    /// [`KINDS_AT_ONCE`] in all, the one read longest ago first (it makes room for a
-    /// new store's). A thread reads its own without a lock (the mutex a store kept per
-    /// thread cost 8% of a diagnosis's time at 512 x 512).
+    /// [`KINDS_AT_ONCE`] in all, in the order they were loaded. A new store's block takes
+    /// the place of a dropped store's, else of the one loaded longest ago. A thread
+    /// reads its own without a lock (the mutex a store kept per thread cost 8% of a
+    /// diagnosis's time at 512 x 512).
     static BLOCKS: RefCell<Vec<Cached>> = const { RefCell::new(Vec::new()) };
 }
 
@@ -239,6 +244,7 @@ thread_local! {
 /// failed.
 struct Cached {
     id: u64,
+    alive: std::sync::Weak<()>,
     first: usize,
     count: usize,
     bytes: Vec<u8>,
@@ -247,7 +253,7 @@ struct Cached {
 
 impl Cached {
     fn empty(id: u64) -> Self {
-        Cached { id, first: 0, count: 0, bytes: Vec::new(), lost: false }
+        Cached { id, alive: std::sync::Weak::new(), first: 0, count: 0, bytes: Vec::new(), lost: false }
     }
 
     /// Whether record `j` of store `id` is one of these.
@@ -274,6 +280,16 @@ impl<R: Record> Drop for Records<R> {
     }
 }
 
+/// Frees every thread's blocks of dropped stores (at the end of a spilled diagnosis:
+/// else they stay until a thread reads another store).
+pub(super) fn release() {
+    let free = || {
+        let _ = BLOCKS.try_with(|blocks| blocks.try_borrow_mut().map(|mut b| b.retain(|c| c.alive.strong_count() > 0)));
+    };
+    rayon::broadcast(|_| free());
+    free();
+}
+
 impl<R: Record> std::fmt::Debug for Records<R> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Records").field("len", &self.len).field("spilled", &self.keep.spill).finish()
@@ -286,6 +302,12 @@ impl<R: Record> Records<R> {
         (BLOCK_BYTES / R::BYTES.max(1)).max(1)
     }
 
+    /// Records a writer gathers before it writes them: a block with their bytes
+    /// ([`Writer::put`] encodes them into a buffer of its own).
+    fn per_write() -> usize {
+        (BLOCK_BYTES / (R::BYTES + std::mem::size_of::<R>()).max(1)).max(1)
+    }
+
     /// `n` records kept as `keep` says: record `j` is `each(j, state)`, in a fixed
     /// [`super::TASKS`] tasks of consecutive records, each with its own `state` from
     /// `init`, returned in task order (sums added in that order are the same whichever
@@ -293,7 +315,7 @@ impl<R: Record> Records<R> {
     pub fn build<S: Send>(keep: &Keep, n: usize, init: impl Fn() -> S + Sync, each: impl Fn(usize, &mut S) -> R + Sync) -> (Self, Vec<S>) {
         let chunk = n.div_ceil(super::TASKS).max(1);
         let out = Writer::new(keep, n);
-        let per_block = Self::per_block();
+        let per_block = Self::per_write();
         let states = (0..n.div_ceil(chunk))
             .into_par_iter()
             .map(|c| {
@@ -329,11 +351,12 @@ impl<R: Record> Records<R> {
             let all: Vec<R> = items.collect();
             return Records { len: all.len(), keep: keep.clone(), store: Store::Held(all) };
         }
-        let out = Writer::new(keep, 0);
-        let (mut block, mut first) = (Vec::with_capacity(Self::per_block()), 0);
+        // (As many as come: the length is checked against none.)
+        let out = Writer { len: usize::MAX, ..Writer::new(keep, 0) };
+        let (mut block, mut first) = (Vec::new(), 0);
         for r in items {
             block.push(r);
-            if block.len() == Self::per_block() {
+            if block.len() == Self::per_write() {
                 out.put(first, &block);
                 first += block.len();
                 block.clear();
@@ -363,9 +386,9 @@ impl<R: Record> Records<R> {
         if j >= self.len {
             return R::LOST;
         }
-        let (file, id) = match &self.store {
+        let (file, id, alive) = match &self.store {
             Store::Held(all) => return all[j],
-            Store::Spilled { file: Some(file), id, .. } => (file, *id),
+            Store::Spilled { file: Some(file), id, alive, .. } => (file, *id, alive),
             Store::Spilled { file: None, .. } => return R::LOST,
         };
         let block = |first: usize| first..(first + Self::per_block()).min(self.len);
@@ -375,11 +398,12 @@ impl<R: Record> Records<R> {
             if let Some(c) = blocks.iter().rev().find(|c| c.holds(id, j)) {
                 return Some(c.record(j));
             }
-            // This store's block, else the one read longest ago where there are as many
-            // as kinds, else a new one; it goes last (read most recently).
-            let k = blocks.iter().position(|c| c.id == id).or((blocks.len() >= KINDS_AT_ONCE as usize).then_some(0));
+            // This store's block, else a dropped store's, else (as many as kinds) the one
+            // loaded longest ago, else a new one; it goes last.
+            let dead = || blocks.iter().position(|c| c.alive.strong_count() == 0);
+            let k = blocks.iter().position(|c| c.id == id).or_else(dead).or((blocks.len() >= KINDS_AT_ONCE as usize).then_some(0));
             let mut c = k.map_or_else(|| Cached::empty(id), |k| blocks.remove(k));
-            c.id = id;
+            (c.id, c.alive) = (id, Arc::downgrade(alive));
             self.read(file, block(j - j % Self::per_block()), &mut c);
             let r = c.record(j);
             blocks.push(c);
@@ -451,12 +475,17 @@ impl<R: Record> Writer<R> {
         self.keep.failed().is_some()
     }
 
-    /// Writes records `first..first + records.len()`.
+    /// Writes records `first..first + records.len()` (past the writer's length, none:
+    /// the failure is recorded).
     pub fn put(&self, first: usize, records: &[R]) {
+        if first.checked_add(records.len()).is_none_or(|end| end > self.len) {
+            self.keep.fail(format!("per-pixel records {first}.. ({}) written past their {}", records.len(), self.len));
+            return;
+        }
         match &self.sink {
             Sink::Held(all) => match all.lock().unwrap_or_else(|e| e.into_inner()).get_mut(first..first + records.len()) {
                 Some(to) => to.copy_from_slice(records),
-                None => self.keep.fail(format!("per-pixel records {first}..{} written past their {}", first + records.len(), self.len)),
+                None => self.keep.fail(format!("per-pixel records {first}.. ({}) written past their {}", records.len(), self.len)),
             },
             Sink::Spilled(None) => {}
             Sink::Spilled(Some(file)) => {
@@ -476,18 +505,20 @@ impl<R: Record> Writer<R> {
         }
     }
 
-    /// The records written (those never written read as lost).
+    /// The records written. Each must have been: held, one never written reads as
+    /// lost; spilled, as zero bytes decoded, or a failed read past the file's end.
     pub fn finish(self) -> Records<R> {
         let len = self.len;
         self.into_records(len)
     }
 
     fn into_records(self, len: usize) -> Records<R> {
-        let store = match self.sink {
-            Sink::Held(all) => Store::Held(all.into_inner().unwrap_or_else(|e| e.into_inner())),
-            Sink::Spilled(file) => {
-                Store::Spilled { file, id: NEXT_STORE.fetch_add(1, Ordering::Relaxed), kind: std::marker::PhantomData }
+        let (len, store) = match self.sink {
+            Sink::Held(all) => {
+                let all = all.into_inner().unwrap_or_else(|e| e.into_inner());
+                (all.len(), Store::Held(all))
             }
+            Sink::Spilled(file) => (len, Store::Spilled { file, id: NEXT_STORE.fetch_add(1, Ordering::Relaxed), alive: Arc::new(()), kind: std::marker::PhantomData }),
         };
         Records { len, keep: self.keep, store }
     }
@@ -561,15 +592,51 @@ mod tests {
     }
 
     /// The blocks' size and what the budget counts for them, against their closed form: a
-    /// block of each of 13 kinds per thread and one more, and one per writing thread, each
+    /// block of each of 13 kinds per thread and one more, and one being written by each, each
     /// 256 KiB or the records of a small set (120 bytes a pixel at most).
     #[test]
     fn the_spilled_blocks_are_counted_as_they_are_held() {
         assert_eq!(Records::<Pair>::per_block(), (256 << 10) / 10);
         let t = rayon::current_num_threads() as u64;
-        assert_eq!(spilled_blocks(1 << 20), (13 * (t + 1) + t) * (256 << 10));
-        assert_eq!(spilled_blocks(100), (13 * (t + 1) + t) * 12_000);
+        assert_eq!(spilled_blocks(1 << 20), 14 * (t + 1) * (256 << 10));
+        assert_eq!(spilled_blocks(100), 14 * (t + 1) * 12_000);
         assert_eq!(spilled_blocks(0), 0);
+    }
+
+    /// A list of indices collected as they come, across blocks: the same held and
+    /// spilled; a writer's spans put out of order from the pool read back in place, and
+    /// a span past its end is refused (the failure recorded, nothing written).
+    #[test]
+    fn collected_lists_and_spans_read_back_in_place() {
+        let n = 2 * Records::<u32>::per_block() + 5;
+        let items = || (0..3 * n as u32).filter(|v| v % 3 != 1);
+        let held = Records::collect(&Keep::held(), items());
+        let spilled = Records::collect(&Keep::spilled(), items());
+        assert_eq!((held.len(), spilled.len()), (2 * n, 2 * n));
+        assert!(held.iter().eq(items()) && spilled.iter().eq(items()));
+        assert_eq!(spilled.index(2 * n - 1), 3 * n - 1);
+        for keep in [Keep::held(), Keep::spilled()] {
+            let out = Writer::<Pair>::new(&keep, n);
+            let spans: Vec<usize> = (0..n).step_by(1000).collect();
+            spans.par_iter().rev().for_each(|&a| out.put(a, &(a..(a + 1000).min(n)).map(pair).collect::<Vec<_>>()));
+            assert!(!out.failed());
+            out.put(n - 1, &[pair(0), pair(1)]);
+            assert!(out.failed());
+            let r = out.finish();
+            assert!(r.iter().map(|p| (p.0.to_bits(), p.1)).eq((0..n).map(|j| (pair(j).0.to_bits(), pair(j).1))));
+        }
+    }
+
+    /// A read while the thread's cache is taken (it cannot be, as records are copies;
+    /// and a thread whose cache is gone) reads the record alone.
+    #[test]
+    fn a_read_without_the_cache_reads_the_record_alone() {
+        let n = 2 * Records::<Pair>::per_block();
+        let spilled = Records::from_fn(&Keep::spilled(), n, pair);
+        BLOCKS.with(|b| {
+            let _taken = b.borrow_mut();
+            assert!((0..n).step_by(331).all(|j| spilled.at(j).0.to_bits() == pair(j).0.to_bits()));
+        });
     }
 
     /// More stores than a thread keeps blocks of, read in turn on one thread (each read

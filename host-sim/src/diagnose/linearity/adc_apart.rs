@@ -181,7 +181,10 @@ pub(super) fn adc_maps<T: Sample>(s: &Scoring<'_, T>, curve_for: &(dyn Fn(usize)
         fit_and_score(curve_for(i), &start, &all, &[]).map_or([f64::NAN; 2], |s| [s.params[0], s.params[1]])
     });
     for (k, what) in [(0usize, "offset"), (1, "gain")] {
-        let values = |j: usize, f: &mut dyn FnMut(usize, bool, f64)| f(px.adc(good.index(j)), !px.estimating(good.index(j)), dg.at(j)[k]);
+        let values = |j: usize, f: &mut dyn FnMut(usize, bool, f64)| {
+            let c = s.cell(j);
+            f(c.adc, c.odd, dg.at(j)[k])
+        };
         for Apart { adc: a, significance: sig, before: b, after: af, centre: pm, median, scatter: ps } in adcs_apart(good.len(), &values, n_adc) {
             let unit = if k == 0 { "DN" } else { "DN at full reference" };
             let part = format!("{what}: ADC {a}'s pixels sit {:+.3} {unit} ({:+.2}%) from the other ADCs' median (pixel scatter {:.3}), pixels of odd rows scored against even rows", median - pm, 100.0 * (median - pm) / pm.abs().max(1e-12), ps);

@@ -17,6 +17,7 @@ use crate::fits::Sample;
 /// it a set with 0.1 DN of noise gave `bad-pixels` at 950 sigma and `unexplained` at 800
 /// (its means were taken to be good to 1/sqrt(12 N) of a code); with the median frame
 /// deviation taken for the analog noise (0.3 DN read for 0.17), `unexplained` at 98.
+///
 /// Over the `n` pixels fitted, `pixel(i)` being the set's pixel that pixel `i` is.
 pub(super) fn quantization_floor<T: Sample>(set: &SetView<'_, T>, n: usize, pixel: &(dyn Fn(usize) -> usize + Sync)) -> Vec<f64> {
     let nl = set.levels;
@@ -61,7 +62,9 @@ pub(super) fn quantization_floor<T: Sample>(set: &SetView<'_, T>, n: usize, pixe
 /// pixel-to-pixel rms of the quadratic response term from the *covariance* of the
 /// pixels' even-level and odd-level quartics (their noises are independent, so the
 /// covariance over pixels is the spread of the true terms alone).
-pub(super) fn measure_camera<T: Sample>(scoring: &Scoring<'_, T>, n_frames: u32, bad: usize) -> Measured {
+///
+/// Also the median dark noise, DN (the good pixels' temporal deviation at level 0).
+pub(super) fn measure_camera<T: Sample>(scoring: &Scoring<'_, T>, n_frames: u32, bad: usize) -> (Measured, f64) {
     let (px, good, fits, top) = (scoring.px, &scoring.good, scoring.fits, scoring.top);
     let levels = px.x.len();
     // The median of `s^2` is `sigma^2` times the median of `chi^2_(N-1) / (N-1)`,
@@ -72,16 +75,19 @@ pub(super) fn measure_camera<T: Sample>(scoring: &Scoring<'_, T>, n_frames: u32,
     let n_adc = px.n_adc();
     // The medians over the good pixels, exact, in passes over them ([`crate::select`]):
     // cell 0 the dark level, 1 the dark frames' variance of a mean, 2 the signal at the
-    // last unsaturated level, then per level from 1 the signal and the frames' variance.
+    // last unsaturated level, then per level from 1 the signal and the frames' variance,
+    // and last the dark frames' deviation.
     let (dark_cell, noise_cell, full_cell, signal_cell, var_cell) = (0, 1, 2, |l: usize| 1 + 2 * l, |l: usize| 2 + 2 * l);
+    let dark_std_cell = 2 * levels + 1;
     let nf = f64::from(n_frames.max(1));
-    let medians = crate::select::upper_medians(good.len(), 2 * levels + 1, &|j, f| {
+    let medians = crate::select::upper_medians(good.len(), 2 * levels + 2, &|j, f| {
         let i = good.index(j);
         let valid = px.valid(i);
         px.with_levels(i, |at| {
             let dark = at.mean(0);
             f(dark_cell, dark);
             f(noise_cell, at.std(0).powi(2) / nf);
+            f(dark_std_cell, at.std(0));
             if valid > 1 {
                 f(full_cell, at.mean(valid - 1) - dark);
             }
@@ -126,9 +132,9 @@ pub(super) fn measure_camera<T: Sample>(scoring: &Scoring<'_, T>, n_frames: u32,
     // Pixel-to-pixel spreads about each pixel's own ADC's median: an ADC offset or gain is
     // an `adc-mismatch`, not DSNU or PRNU.
     let [(_, _, d_scatter), (_, gm, gs)] = populations(good.len(), n_adc, &|j, f| {
-        let v = own.at(j);
-        f(0, px.adc(good.index(j)), v[0]);
-        f(1, px.adc(good.index(j)), v[1]);
+        let (v, adc) = (own.at(j), px.adc(good.index(j)));
+        f(0, adc, v[0]);
+        f(1, adc, v[1]);
     });
     drop(own);
     // The pixels' quadratic terms on either half, `b2 / gain^2`, where both are finite;
@@ -142,7 +148,7 @@ pub(super) fn measure_camera<T: Sample>(scoring: &Scoring<'_, T>, n_frames: u32,
     let n = pairs().count() as f64;
     let (ma, mb) = (pairs().map(|v| v.0).sum::<f64>() / n, pairs().map(|v| v.1).sum::<f64>() / n);
     let cov = pairs().map(|v| (v.0 - ma) * (v.1 - mb)).sum::<f64>() / (n - 1.0);
-    Measured {
+    let measured = Measured {
         gain_e_per_dn: gain,
         read_noise_dn: read,
         offset_dn: Some(dark),
@@ -152,5 +158,6 @@ pub(super) fn measure_camera<T: Sample>(scoring: &Scoring<'_, T>, n_frames: u32,
         dsnu_dn: Some((d_scatter.powi(2) - d_noise).max(0.0).sqrt()),
         pixel_b2_rms_per_dn: (n > 10.0).then(|| cov.max(0.0).sqrt()),
         bad_fraction: Some(bad as f64 / px.len().max(1) as f64),
-    }
+    };
+    (measured, medians[dark_std_cell])
 }

@@ -7,10 +7,10 @@ use super::super::points::{Common, Pixels};
 use super::super::tasks::picked_tasks;
 use crate::fits::Sample;
 
-/// The shared signal-domain curve `c` of the pixels `(pixel, gain)` that `pixels(j)` takes
-/// of `0..n`, from their even levels: the least-squares
-/// fit of `m = d_p + b_p x + sum_k c_k S^(k+2) / T^(k+1)`, `S = g_p x`, with every pixel's
-/// own dark and slope free (projected out per pixel, then one 3 x 3 system).
+/// The shared signal-domain curve `c` of the pixels `(pixel, gain)` that `pixels(j)`
+/// takes of `0..n`, from their even levels: the least-squares fit of
+/// `m = d_p + b_p x + sum_k c_k S^(k+2) / T^(k+1)`, `S = g_p x`, with every pixel's own
+/// dark and slope free (projected out per pixel, then one 3 x 3 system).
 ///
 /// The gains `g_p` must not carry the pixel's own curvature: they are the linear
 /// coefficients of the pixels' quartics (a bend goes into the quadratic term there). With

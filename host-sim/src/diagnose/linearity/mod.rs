@@ -171,8 +171,8 @@ fn prepare<'a, T: Sample>(set: &'a SetView<'a, T>, keep: Keep) -> Result<(Pixels
         return Err(DiagnoseError::TooManyAdcs { n_adc: set.n_adc, max: MAX_ADCS });
     }
     let fitted = match set.mask {
-        None => Fitted::All(np),
-        Some(_) => Fitted::Listed(Records::collect(&keep, (0..np).filter(|&p| !known_bad(p)).map(|p| p as u32))),
+        Some(m) if m.iter().any(|&b| b != 0) => Fitted::Listed(Records::collect(&keep, (0..np).filter(|&p| !known_bad(p)).map(|p| p as u32))),
+        _ => Fitted::All(np),
     };
     let bias2 = quantization_floor(set, fitted.len(), &|i| fitted.index(i));
     Ok((Pixels::new(set, x, kappa, bias2, valid, fitted, keep), n_adc))
@@ -202,7 +202,7 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
 }
 
 /// [`diagnose_linearity`] with the per-pixel records (each pixel's fits, its scores
-/// under each model: about 300 bytes a pixel) in temporary files, a block of each per
+/// under each model and the rest: about 340 bytes a pixel) in temporary files, a block of each per
 /// thread in memory ([`super::records`]). The same diagnosis, number for number.
 pub fn diagnose_linearity_spilled<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) -> Result<Diagnosis, DiagnoseError> {
     diagnose_kept(&SetView::held(set), Keep::spilled(), accuracy_dn)
@@ -225,6 +225,9 @@ pub fn diagnose_linearity_rows(file: &LinearityRows, rows: Option<usize>, spill:
 /// with that failure.
 fn diagnose_kept<T: Sample>(set: &SetView<'_, T>, keep: Keep, accuracy_dn: f64) -> Result<Diagnosis, DiagnoseError> {
     let d = diagnose_set(set, keep.clone(), accuracy_dn);
+    if keep.spills() {
+        super::records::release();
+    }
     match keep.failed() {
         Some(message) => Err(DiagnoseError::Read { message }),
         None => d.map(|d| Diagnosis { records_spilled: keep.spills(), ..d }),
@@ -382,8 +385,7 @@ fn diagnose_set<T: Sample>(set: &SetView<'_, T>, keep: Keep, accuracy_dn: f64) -
     findings.extend(adc_findings.into_iter().flatten());
     findings.extend(stage.finding(&px));
     // Noise: the dark level's temporal noise against the quantization bias.
-    let dark_noise = crate::select::upper_medians(good.len(), 1, &|j, f| f(0, px.std(0, good.index(j))))[0];
-    let measured = measure_camera(&s, set.n_frames, stage.bad_count());
+    let (measured, dark_noise) = measure_camera(&s, set.n_frames, stage.bad_count());
     findings.extend(insufficient_noise("median dark noise", dark_noise, accuracy_dn));
     findings.extend(remainder(&s, &current, tcur));
     Ok(Diagnosis {
@@ -526,10 +528,18 @@ mod bad_input_tests {
             "zero noise" => Some(DiagnoseError::NoNoise),
             "zero voltages" | "nan voltages" => Some(DiagnoseError::Reference),
             "eight levels" => Some(DiagnoseError::TooFewLevels { levels: 8 }),
+            "all masked" => Some(DiagnoseError::NoPixelFits),
             _ => None,
         };
         for (what, set) in cases {
-            match (diagnose_linearity(&set, 0.01), expected(what)) {
+            // Spilled, the same outcome (the records' flag aside), and no panic either.
+            let json = |d: &Result<Diagnosis, DiagnoseError>| match d {
+                Ok(d) => serde_json::to_value(Diagnosis { records_spilled: false, ..d.clone() }).unwrap().to_string(),
+                Err(e) => e.to_string(),
+            };
+            let held = diagnose_linearity(&set, 0.01);
+            assert_eq!(json(&diagnose_linearity_spilled(&set, 0.01)), json(&held), "{what}");
+            match (held, expected(what)) {
                 (Ok(d), None) => {
                     for f in &d.findings {
                         assert!(f.significance.is_finite() && f.rms_before.is_finite() && f.rms_after.is_finite(), "{what}: {f:?}");

@@ -98,6 +98,16 @@ pub(super) enum BadPixel {
 
 impl BadPixel {
     const ALL: [BadPixel; 4] = [BadPixel::Stuck, BadPixel::Shape, BadPixel::Gain, BadPixel::Dark];
+
+    /// The kind's place in [`BadPixel::ALL`].
+    fn place(self) -> usize {
+        match self {
+            BadPixel::Stuck => 0,
+            BadPixel::Shape => 1,
+            BadPixel::Gain => 2,
+            BadPixel::Dark => 3,
+        }
+    }
 }
 
 /// A pixel's bad-pixel flags: on its even levels alone (for the held-out bad-pixel
@@ -113,7 +123,7 @@ impl Record for Flags {
     const BYTES: usize = 2;
     const LOST: Flags = Flags { even: None, both: None };
     fn put(&self, out: &mut Put<'_>) {
-        let code = |b: Option<BadPixel>| b.map_or(0, |b| 1 + BadPixel::ALL.iter().position(|&k| k == b).unwrap_or(0) as u8);
+        let code = |b: Option<BadPixel>| b.map_or(0, |b| 1 + b.place() as u8);
         out.u8(code(self.even));
         out.u8(code(self.both));
     }
@@ -191,7 +201,7 @@ impl PixelStage {
     fn bad_counts(&self) -> [usize; 4] {
         let mut n = [0; 4];
         for b in self.flags.iter().filter_map(|f| f.both) {
-            n[BadPixel::ALL.iter().position(|&k| k == b).unwrap_or(0)] += 1;
+            n[b.place()] += 1;
         }
         n
     }

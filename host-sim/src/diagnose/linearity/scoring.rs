@@ -34,7 +34,7 @@ impl<'a, T: Sample> Scoring<'a, T> {
         Scoring { px, common, fits: &stage.fits, good, n_adc, levels, top }
     }
 
-    /// Where score `j` (pixel `good[j]`) is summed.
+    /// Where score `j` (pixel `good.index(j)`) is summed.
     pub fn cell(&self, j: usize) -> Cell {
         let i = self.good.index(j);
         Cell { adc: self.px.adc(i), odd: !self.px.estimating(i) }
