@@ -18,8 +18,7 @@
 use std::fs::File;
 use std::os::unix::fs::FileExt;
 use std::cell::RefCell;
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, Weak};
 
 use rayon::prelude::*;
 
@@ -218,17 +217,13 @@ enum Store<R> {
     Spilled {
         /// `None` where the file could not be made (every record reads as lost).
         file: Option<File>,
-        /// This store's key in the threads' caches ([`BLOCKS`]).
-        id: u64,
-        /// Whether the store is still there, for the caches (a block of a dropped store
-        /// is the first to make room).
+        /// The store's identity in the threads' caches ([`BLOCKS`]), which keep a `Weak`
+        /// of it: whether the store is still there (a block of a dropped store is the
+        /// first to make room), and while one is kept, no other store's address.
         alive: Arc<()>,
         kind: std::marker::PhantomData<R>,
     },
 }
-
-/// Keys of spilled stores, never reused.
-static NEXT_STORE: AtomicU64 = AtomicU64::new(0);
 
 thread_local! {
     /// This thread's blocks of spilled records: a block per store at most, and at most
@@ -239,12 +234,11 @@ thread_local! {
     static BLOCKS: RefCell<Vec<Cached>> = const { RefCell::new(Vec::new()) };
 }
 
-/// The bytes of records `first..first + count` of spilled store `id`, decoded as they
-/// are read (a decoded copy beside them doubled a block's memory); `lost` where the read
-/// failed.
+/// The bytes of records `first..first + count` of the spilled store `store` is of,
+/// decoded as they are read (a decoded copy beside them doubled a block's memory); `lost`
+/// where the read failed.
 struct Cached {
-    id: u64,
-    alive: std::sync::Weak<()>,
+    store: Weak<()>,
     first: usize,
     count: usize,
     bytes: Vec<u8>,
@@ -252,13 +246,18 @@ struct Cached {
 }
 
 impl Cached {
-    fn empty(id: u64) -> Self {
-        Cached { id, alive: std::sync::Weak::new(), first: 0, count: 0, bytes: Vec::new(), lost: false }
+    fn empty() -> Self {
+        Cached { store: Weak::new(), first: 0, count: 0, bytes: Vec::new(), lost: false }
     }
 
-    /// Whether record `j` of store `id` is one of these.
-    fn holds(&self, id: u64, j: usize) -> bool {
-        self.id == id && (self.first..self.first + self.count).contains(&j)
+    /// Whether these are of the store `alive` identifies.
+    fn of(&self, alive: &Arc<()>) -> bool {
+        std::ptr::eq(self.store.as_ptr(), Arc::as_ptr(alive))
+    }
+
+    /// Whether record `j` of that store is one of these.
+    fn holds(&self, alive: &Arc<()>, j: usize) -> bool {
+        self.of(alive) && (self.first..self.first + self.count).contains(&j)
     }
 
     /// Record `j`, one of these.
@@ -274,8 +273,8 @@ impl Cached {
 /// the next stores they read).
 impl<R: Record> Drop for Records<R> {
     fn drop(&mut self) {
-        if let Store::Spilled { id, .. } = self.store {
-            let _ = BLOCKS.try_with(|blocks| blocks.try_borrow_mut().map(|mut b| b.retain(|c| c.id != id)));
+        if let Store::Spilled { alive, .. } = &self.store {
+            let _ = BLOCKS.try_with(|blocks| blocks.try_borrow_mut().map(|mut b| b.retain(|c| !c.of(alive))));
         }
     }
 }
@@ -284,7 +283,7 @@ impl<R: Record> Drop for Records<R> {
 /// else they stay until a thread reads another store).
 pub(super) fn release() {
     let free = || {
-        let _ = BLOCKS.try_with(|blocks| blocks.try_borrow_mut().map(|mut b| b.retain(|c| c.alive.strong_count() > 0)));
+        let _ = BLOCKS.try_with(|blocks| blocks.try_borrow_mut().map(|mut b| b.retain(|c| c.store.strong_count() > 0)));
     };
     rayon::broadcast(|_| free());
     free();
@@ -302,12 +301,6 @@ impl<R: Record> Records<R> {
         (BLOCK_BYTES / R::BYTES.max(1)).max(1)
     }
 
-    /// Records a writer gathers before it writes them: a block with their bytes
-    /// ([`Writer::put`] encodes them into a buffer of its own).
-    fn per_write() -> usize {
-        (BLOCK_BYTES / (R::BYTES + std::mem::size_of::<R>()).max(1)).max(1)
-    }
-
     /// `n` records kept as `keep` says: record `j` is `each(j, state)`, in a fixed
     /// [`super::TASKS`] tasks of consecutive records, each with its own `state` from
     /// `init`, returned in task order (sums added in that order are the same whichever
@@ -315,29 +308,12 @@ impl<R: Record> Records<R> {
     pub fn build<S: Send>(keep: &Keep, n: usize, init: impl Fn() -> S + Sync, each: impl Fn(usize, &mut S) -> R + Sync) -> (Self, Vec<S>) {
         let chunk = n.div_ceil(super::TASKS).max(1);
         let out = Writer::new(keep, n);
-        let per_block = Self::per_write();
         let states = (0..n.div_ceil(chunk))
             .into_par_iter()
             .map(|c| {
                 let mut state = init();
                 let span = c * chunk..((c + 1) * chunk).min(n);
-                let mut block = Vec::with_capacity(per_block.min(span.len()));
-                let mut first = span.start;
-                // After a failure nothing more is computed: the diagnosis ends with it.
-                if out.failed() {
-                    return state;
-                }
-                for j in span.clone() {
-                    block.push(each(j, &mut state));
-                    if block.len() == per_block || j + 1 == span.end {
-                        out.put(first, &block);
-                        block.clear();
-                        first = j + 1;
-                        if out.failed() {
-                            break;
-                        }
-                    }
-                }
+                out.gather(span.start, span.map(|j| each(j, &mut state)));
                 state
             })
             .collect();
@@ -353,17 +329,8 @@ impl<R: Record> Records<R> {
         }
         // (As many as come: the length is checked against none.)
         let out = Writer { len: usize::MAX, ..Writer::new(keep, 0) };
-        let (mut block, mut first) = (Vec::new(), 0);
-        for r in items {
-            block.push(r);
-            if block.len() == Self::per_write() {
-                out.put(first, &block);
-                first += block.len();
-                block.clear();
-            }
-        }
-        out.put(first, &block);
-        out.into_records(first + block.len())
+        let n = out.gather(0, items);
+        out.into_records(n)
     }
 
     /// `n` records, record `j` being `f(j)` ([`Records::build`] without a state).
@@ -386,24 +353,24 @@ impl<R: Record> Records<R> {
         if j >= self.len {
             return R::LOST;
         }
-        let (file, id, alive) = match &self.store {
+        let (file, alive) = match &self.store {
             Store::Held(all) => return all[j],
-            Store::Spilled { file: Some(file), id, alive, .. } => (file, *id, alive),
+            Store::Spilled { file: Some(file), alive, .. } => (file, alive),
             Store::Spilled { file: None, .. } => return R::LOST,
         };
         let block = |first: usize| first..(first + Self::per_block()).min(self.len);
         let cached = BLOCKS.try_with(|blocks| {
             // (Never borrowed already: nothing reads a record while this one is read.)
             let mut blocks = blocks.try_borrow_mut().ok()?;
-            if let Some(c) = blocks.iter().rev().find(|c| c.holds(id, j)) {
+            if let Some(c) = blocks.iter().rev().find(|c| c.holds(alive, j)) {
                 return Some(c.record(j));
             }
             // This store's block, else a dropped store's, else (as many as kinds) the one
             // loaded longest ago, else a new one; it goes last.
-            let dead = || blocks.iter().position(|c| c.alive.strong_count() == 0);
-            let k = blocks.iter().position(|c| c.id == id).or_else(dead).or((blocks.len() >= KINDS_AT_ONCE as usize).then_some(0));
-            let mut c = k.map_or_else(|| Cached::empty(id), |k| blocks.remove(k));
-            (c.id, c.alive) = (id, Arc::downgrade(alive));
+            let dead = || blocks.iter().position(|c| c.store.strong_count() == 0);
+            let k = blocks.iter().position(|c| c.of(alive)).or_else(dead).or((blocks.len() >= KINDS_AT_ONCE as usize).then_some(0));
+            let mut c = k.map_or_else(Cached::empty, |k| blocks.remove(k));
+            c.store = Arc::downgrade(alive);
             self.read(file, block(j - j % Self::per_block()), &mut c);
             let r = c.record(j);
             blocks.push(c);
@@ -411,7 +378,7 @@ impl<R: Record> Records<R> {
         });
         // A thread whose cache is gone (it is ending): the record alone.
         cached.ok().flatten().unwrap_or_else(|| {
-            let mut one = Cached::empty(id);
+            let mut one = Cached::empty();
             self.read(file, j..j + 1, &mut one);
             one.record(j)
         })
@@ -475,6 +442,30 @@ impl<R: Record> Writer<R> {
         self.keep.failed().is_some()
     }
 
+    /// Records [`Writer::gather`] takes before it writes them: a block with their bytes
+    /// ([`Writer::put`] encodes them into a buffer of its own).
+    fn per_write() -> usize {
+        (BLOCK_BYTES / (R::BYTES + std::mem::size_of::<R>()).max(1)).max(1)
+    }
+
+    /// Writes `items` as records `first..`, a block at a time, and says how many there
+    /// were. After a failure it stops taking them: nothing more is computed, the
+    /// diagnosis ends with it.
+    pub fn gather(&self, first: usize, mut items: impl Iterator<Item = R>) -> usize {
+        let mut block = Vec::with_capacity(Self::per_write().min(items.size_hint().1.unwrap_or(usize::MAX)));
+        let mut at = first;
+        while !self.failed() {
+            block.extend(items.by_ref().take(Self::per_write()));
+            if block.is_empty() {
+                break;
+            }
+            self.put(at, &block);
+            at += block.len();
+            block.clear();
+        }
+        at - first
+    }
+
     /// Writes records `first..first + records.len()` (past the writer's length, none:
     /// the failure is recorded).
     pub fn put(&self, first: usize, records: &[R]) {
@@ -483,10 +474,11 @@ impl<R: Record> Writer<R> {
             return;
         }
         match &self.sink {
-            Sink::Held(all) => match all.lock().unwrap_or_else(|e| e.into_inner()).get_mut(first..first + records.len()) {
-                Some(to) => to.copy_from_slice(records),
-                None => self.keep.fail(format!("per-pixel records {first}.. ({}) written past their {}", records.len(), self.len)),
-            },
+            Sink::Held(all) => {
+                if let Some(to) = all.lock().unwrap_or_else(|e| e.into_inner()).get_mut(first..first + records.len()) {
+                    to.copy_from_slice(records);
+                }
+            }
             Sink::Spilled(None) => {}
             Sink::Spilled(Some(file)) => {
                 let mut bytes = Vec::with_capacity(records.len() * R::BYTES);
@@ -518,7 +510,7 @@ impl<R: Record> Writer<R> {
                 let all = all.into_inner().unwrap_or_else(|e| e.into_inner());
                 (all.len(), Store::Held(all))
             }
-            Sink::Spilled(file) => (len, Store::Spilled { file, id: NEXT_STORE.fetch_add(1, Ordering::Relaxed), alive: Arc::new(()), kind: std::marker::PhantomData }),
+            Sink::Spilled(file) => (len, Store::Spilled { file, alive: Arc::new(()), kind: std::marker::PhantomData }),
         };
         Records { len, keep: self.keep, store }
     }

@@ -30,6 +30,11 @@ impl Score {
     /// at once.
     const NONE: Score = Score { sum_sq: f64::NAN, tr: f32::NAN, tr2: f32::NAN, last_z: f32::NAN, n: u16::MAX };
 
+    /// The score, unless it is [`Score::NONE`].
+    fn scored(self) -> Option<Score> {
+        Some(self).filter(|s| s.n != Score::NONE.n)
+    }
+
     fn of(s: &Scored) -> Score {
         Score { sum_sq: s.sum_sq(), tr: s.tr as f32, tr2: s.tr2 as f32, last_z: s.z.last().map_or(f32::NAN, |z| z.z() as f32), n: s.z.len() as u16 }
     }
@@ -120,12 +125,12 @@ impl Scores {
 
     /// The score of pixel `j`, where it has one.
     pub fn get(&self, j: usize) -> Option<Score> {
-        Some(self.per.at(j)).filter(|s| s.n != Score::NONE.n)
+        self.per.at(j).scored()
     }
 
     /// Every pixel's score, in the caller's order.
     pub fn iter(&self) -> impl Iterator<Item = Option<Score>> + '_ {
-        self.per.iter().map(|s| Some(s).filter(|s| s.n != Score::NONE.n))
+        self.per.iter().map(Score::scored)
     }
 
     fn key(c: Cell, n_adc: usize) -> usize {

@@ -145,15 +145,18 @@ pub(super) fn measure_camera<T: Sample>(scoring: &Scoring<'_, T>, n_frames: u32,
         Some((a.b2 / a.gain.powi(2), b.b2 / b.gain.powi(2))).filter(|(a, b)| a.is_finite() && b.is_finite())
     };
     let pairs = || (0..good.len()).filter_map(b2);
-    let n = pairs().count() as f64;
-    let (ma, mb) = (pairs().map(|v| v.0).sum::<f64>() / n, pairs().map(|v| v.1).sum::<f64>() / n);
+    // (Each sum from -0.0, as `Sum` takes them.)
+    let (count, sa, sb) = pairs().fold((0usize, -0.0, -0.0), |(k, a, b), v| (k + 1, a + v.0, b + v.1));
+    let n = count as f64;
+    let (ma, mb) = (sa / n, sb / n);
     let cov = pairs().map(|v| (v.0 - ma) * (v.1 - mb)).sum::<f64>() / (n - 1.0);
     let measured = Measured {
         gain_e_per_dn: gain,
         read_noise_dn: read,
         offset_dn: Some(dark),
         full_scale_dn: Some(medians[full_cell]),
-        saturated: good.iter().filter(|&i| px.valid(i as usize) < levels).count() * 2 > good.len(),
+        // (Those unsaturated at the last level are all but the saturated.)
+        saturated: (good.len() - on.last().copied().unwrap_or(good.len())) * 2 > good.len(),
         prnu_rms: Some(gs / gm),
         dsnu_dn: Some((d_scatter.powi(2) - d_noise).max(0.0).sqrt()),
         pixel_b2_rms_per_dn: (n > 10.0).then(|| cov.max(0.0).sqrt()),

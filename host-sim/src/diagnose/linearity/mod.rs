@@ -202,8 +202,9 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
 }
 
 /// [`diagnose_linearity`] with the per-pixel records (each pixel's fits, its scores
-/// under each model and the rest: about 340 bytes a pixel) in temporary files, a block of each per
-/// thread in memory ([`super::records`]). The same diagnosis, number for number.
+/// under each model and the rest: about 340 bytes a pixel) in temporary files, a block
+/// of each per thread in memory ([`super::records`]). The same diagnosis, number for
+/// number.
 pub fn diagnose_linearity_spilled<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) -> Result<Diagnosis, DiagnoseError> {
     diagnose_kept(&SetView::held(set), Keep::spilled(), accuracy_dn)
 }

@@ -7,7 +7,7 @@ use super::super::pixel_fit::{fit_and_score, Point, Response};
 use super::super::pixel_fit::Totals;
 use super::scoring::Scoring;
 use super::super::points::{Common, Pixels};
-use super::super::records::{Keep, Put, Record, Records, Take};
+use super::super::records::{Put, Record, Records, Take};
 use super::super::scores::{Cell, Scores};
 use super::super::{AdcResiduals, Effect, Finding, SIGNIFICANCE};
 use super::adc_apart::populations;
@@ -143,16 +143,52 @@ pub(super) const LINEAR: Response = Response::Poly(1);
 pub(super) struct PixelStage {
     /// Per pixel (index into [`Pixels`]), held or spilled.
     pub(super) fits: Records<PixelFits>,
+    /// The population the flags are set against.
+    pop: Population,
+    /// Per pixel, its flags on the even levels and on both halves.
+    flags: Records<Flags>,
+}
+
+/// The population of dark and gain, from the even-level lines of even-row pixels.
+struct Population {
     /// Dark (DN): the median of the ADCs' medians and the robust scatter about each
-    /// pixel's own ADC median, from the even-level lines of even-row pixels.
+    /// pixel's own ADC median.
     dark_pop: (f64, f64),
     /// Gain (DN per reference unit), as `dark_pop`.
     gain_pop: (f64, f64),
     /// Per ADC, the median dark and gain.
     dark_adc: Vec<f64>,
     gain_adc: Vec<f64>,
-    /// Per pixel, its flags on the even levels and on both halves.
-    flags: Records<Flags>,
+}
+
+impl Population {
+    /// ADC `adc`'s median dark and gain, the population's where it has none.
+    fn own(&self, adc: usize) -> (f64, f64) {
+        let own = |v: &[f64], fallback: f64| v.get(adc).copied().filter(|x| x.is_finite()).unwrap_or(fallback);
+        (own(&self.dark_adc, self.dark_pop.0), own(&self.gain_adc, self.gain_pop.0))
+    }
+
+    /// Why a pixel of fits `f` (of ADC `adc`) is bad on one half of its levels (0 even,
+    /// 1 odd).
+    fn bad_in(&self, f: &PixelFits, adc: usize, half: usize) -> Option<BadPixel> {
+        let tail = |chi2: f64, dof: usize| dof > 0 && ChiSquared::new(dof as f64).map(|c| c.sf(chi2) < 1e-6).unwrap_or(false);
+        let (Some(q), Some(l)) = (f.quartic(half), f.line(half)) else { return Some(BadPixel::Stuck) };
+        let points = usize::from(f.points[half]);
+        if points < 3 {
+            return Some(BadPixel::Stuck);
+        }
+        if tail(q.chi2_fit, points.saturating_sub(QUARTIC.params())) {
+            return Some(BadPixel::Shape);
+        }
+        let (dark_own, g_own) = self.own(adc);
+        if !(l[1] > 0.5 * g_own && l[1] < 1.5 * g_own) {
+            return Some(BadPixel::Gain);
+        }
+        if (l[0] - dark_own).abs() > 10.0 * self.dark_pop.1.max(1e-9) {
+            return Some(BadPixel::Dark);
+        }
+        None
+    }
 }
 
 impl PixelStage {
@@ -179,17 +215,17 @@ impl PixelStage {
                 f(1, px.adc(i), l[1]);
             }
         });
-        let (dark_pop, gain_pop) = ((dark_c, dark_s), (gain_c, gain_s));
+        let pop = Population { dark_pop: (dark_c, dark_s), gain_pop: (gain_c, gain_s), dark_adc, gain_adc };
         // Each pixel is flagged against its own ADC's medians (an ADC offset is an
         // `adc-mismatch`, not a quarter of the sensor gone bad; a review found 1018 such
-        // "bad pixels" with a 3 DN ADC offset and 0.2 DN of DSNU).
-        let mut stage = PixelStage { fits, dark_pop, gain_pop, dark_adc, gain_adc, flags: Records::collect(&Keep::held(), std::iter::empty()) };
-        // The flags on the even levels (for the held-out bad-pixel score) and on both.
-        stage.flags = Records::from_fn(px.keep(), n, |i| {
-            let even = stage.bad_in(px.adc(i), i, 0);
-            Flags { even, both: even.filter(|_| stage.bad_in(px.adc(i), i, 1).is_some()) }
+        // "bad pixels" with a 3 DN ADC offset and 0.2 DN of DSNU): on the even levels (for
+        // the held-out bad-pixel score) and on both.
+        let flags = Records::from_fn(px.keep(), n, |i| {
+            let (f, adc) = (fits.at(i), px.adc(i));
+            let even = pop.bad_in(&f, adc, 0);
+            Flags { even, both: even.filter(|_| pop.bad_in(&f, adc, 1).is_some()) }
         });
-        stage
+        PixelStage { fits, pop, flags }
     }
 
     /// Not flagged, and fitted on the even levels.
@@ -211,38 +247,10 @@ impl PixelStage {
         self.bad_counts().iter().sum()
     }
 
-    /// ADC `adc`'s median dark and gain, the population's where it has none.
-    fn own(&self, adc: usize) -> (f64, f64) {
-        let own = |v: &[f64], fallback: f64| v.get(adc).copied().filter(|x| x.is_finite()).unwrap_or(fallback);
-        (own(&self.dark_adc, self.dark_pop.0), own(&self.gain_adc, self.gain_pop.0))
-    }
-
-    /// Why pixel `i` (of ADC `adc`) is bad on one half of its levels (0 even, 1 odd).
-    fn bad_in(&self, adc: usize, i: usize, half: usize) -> Option<BadPixel> {
-        let tail = |chi2: f64, dof: usize| dof > 0 && ChiSquared::new(dof as f64).map(|c| c.sf(chi2) < 1e-6).unwrap_or(false);
-        let f = self.fits.at(i);
-        let (Some(q), Some(l)) = (f.quartic(half), f.line(half)) else { return Some(BadPixel::Stuck) };
-        let points = usize::from(f.points[half]);
-        if points < 3 {
-            return Some(BadPixel::Stuck);
-        }
-        if tail(q.chi2_fit, points.saturating_sub(QUARTIC.params())) {
-            return Some(BadPixel::Shape);
-        }
-        let (dark_own, g_own) = self.own(adc);
-        if !(l[1] > 0.5 * g_own && l[1] < 1.5 * g_own) {
-            return Some(BadPixel::Gain);
-        }
-        if (l[0] - dark_own).abs() > 10.0 * self.dark_pop.1.max(1e-9) {
-            return Some(BadPixel::Dark);
-        }
-        None
-    }
-
     /// `bad-pixels`: the flagged pixels scored on the odd levels' dark and gain against the
     /// population, plus the held-out level residuals of the pixel's own quartic.
     pub(super) fn finding<T: Sample>(&self, px: &Pixels<T>) -> Option<Finding> {
-        let (fits, (dark_pop, gain_pop)) = (&self.fits, (self.dark_pop, self.gain_pop));
+        let (fits, (dark_pop, gain_pop)) = (&self.fits, (self.pop.dark_pop, self.pop.gain_pop));
         let kinds = self.bad_counts();
         let flagged: usize = kinds.iter().sum();
         if flagged == 0 {
@@ -250,7 +258,7 @@ impl PixelStage {
         }
         // A pixel's sum of squares and count of scores.
         let map_z = |i: usize| -> (f64, usize) {
-            let (dark_own, gain_own) = self.own(px.adc(i));
+            let (dark_own, gain_own) = self.pop.own(px.adc(i));
             let f = fits.at(i);
             match (&f.line(1), &f.quartic(0)) {
                 (Some(l), Some(q)) => {
