@@ -4,21 +4,21 @@
 //! sums are the rows of the whole frame's sums (a sum depends only on its own pixel), so
 //! the bands put back together are bit for bit what one corrector gives (tested).
 
-use dncal_core::{Corrector, CoreError, Geometry, LutBanks, Mvd1024eLuts};
+use dncal_core::{Corrector, CoreError, FrameCount, Geometry, LineReport, LutBanks, LutSet, Status};
 use rayon::prelude::*;
 
 /// One band: rows `first_row..first_row + geometry.height()` of the frame.
-struct Band {
+struct Band<const N: usize, const CODES: usize> {
     first_row: usize,
     geometry: Geometry,
-    banks: Box<LutBanks<4, 4096>>,
+    banks: Box<LutBanks<N, CODES>>,
     sums: Vec<u32>,
 }
 
-/// The frame in bands (see the module documentation).
-pub struct Bands {
+/// The frame in bands (see the module documentation): the bands' LUT banks and sums.
+pub struct Bands<const N: usize = 4, const CODES: usize = 4096> {
     geometry: Geometry,
-    bands: Vec<Band>,
+    bands: Vec<Band<N, CODES>>,
 }
 
 /// What a run of frames did, summed over the bands.
@@ -30,17 +30,24 @@ pub struct BandsReport {
     pub saturated_additions: u64,
 }
 
-impl Bands {
+impl BandsReport {
+    fn add(&mut self, line: LineReport) {
+        self.out_of_range_codes += line.out_of_range_codes as u64;
+        self.saturated_additions += line.saturated_additions as u64;
+    }
+}
+
+impl<const N: usize, const CODES: usize> Bands<N, CODES> {
     /// `count` bands (at least 1, at most one per row) of nearly equal height over
     /// `geometry`, each with `luts`.
-    pub fn new(luts: &Mvd1024eLuts, geometry: Geometry, count: usize) -> Result<Self, CoreError> {
+    pub fn new(luts: &LutSet<N, CODES>, geometry: Geometry, count: usize) -> Result<Self, CoreError> {
         let height = geometry.height() as usize;
         let count = count.clamp(1, height);
         let mut bands = Vec::with_capacity(count);
         for b in 0..count {
             let (first_row, end) = (b * height / count, (b + 1) * height / count);
             let g = Geometry::new(geometry.width(), (end - first_row) as u16, geometry.states(), geometry.first_column())?;
-            bands.push(Band { first_row, geometry: g, banks: Box::new(LutBanks::new(luts.clone())), sums: vec![0; g.sum_len()] });
+            bands.push(Band { first_row, geometry: g, banks: Box::new(LutBanks::new(luts.clone())), sums: Vec::new() });
         }
         Ok(Bands { geometry, bands })
     }
@@ -50,32 +57,83 @@ impl Bands {
         self.bands.len()
     }
 
+    /// A corrector on every band, its sums cleared (each band on its own thread, so that
+    /// the first touch of a fresh buffer's pages is shared out too): frames are then
+    /// added through them.
+    pub fn correctors(&mut self) -> Result<BandCorrectors<'_, N, CODES>, CoreError> {
+        let parts = self
+            .bands
+            .par_iter_mut()
+            .map(|band| {
+                band.sums.resize(band.geometry.sum_len(), 0);
+                Ok(Part { first_row: band.first_row, corrector: Corrector::new(&mut band.banks, band.geometry, &mut band.sums)? })
+            })
+            .collect::<Result<Vec<_>, CoreError>>()?;
+        Ok(BandCorrectors { geometry: self.geometry, parts })
+    }
+
     /// Clears the sums and adds `frames` (state, codes of the whole frame, row-major),
-    /// each band on its own thread; the first error any band meets is returned.
+    /// each band on its own thread through all the frames; the first error any band
+    /// meets is returned.
     pub fn run(&mut self, frames: &[(u8, &[u16])]) -> Result<BandsReport, CoreError> {
-        let width = self.geometry.width() as usize;
+        self.correctors()?.add_frames(frames)
+    }
+
+    /// The whole frame's sums, state-major as [`dncal_core::SumImages`] lays them out.
+    pub fn sums(&self) -> Vec<u32> {
+        let mut out = vec![0u32; self.geometry.sum_len()];
+        for band in &self.bands {
+            for (at, from) in spans(self.geometry, band.first_row, band.geometry, &band.sums) {
+                out[at..at + from.len()].copy_from_slice(from);
+            }
+        }
+        out
+    }
+}
+
+/// A band's sums of each state with where they sit in the whole frame's state-major
+/// sums: (offset there, the band's rows of that state).
+fn spans(whole: Geometry, first_row: usize, band: Geometry, sums: &[u32]) -> impl Iterator<Item = (usize, &[u32])> {
+    let width = whole.width() as usize;
+    let rows = band.height() as usize;
+    let height = whole.height() as usize;
+    sums.chunks_exact(rows * width).enumerate().map(move |(s, from)| ((s * height + first_row) * width, from))
+}
+
+/// A band's corrector.
+struct Part<'a, const N: usize, const CODES: usize> {
+    first_row: usize,
+    corrector: Corrector<'a, N, CODES>,
+}
+
+/// The bands' correctors over their sums, from [`Bands::correctors`].
+pub struct BandCorrectors<'a, const N: usize, const CODES: usize> {
+    geometry: Geometry,
+    parts: Vec<Part<'a, N, CODES>>,
+}
+
+impl<const N: usize, const CODES: usize> BandCorrectors<'_, N, CODES> {
+    /// Adds `frames` (state, codes of the whole frame, row-major), each band on its own
+    /// thread through all of them (one hand-over for the lot). A frame of the wrong size
+    /// is refused before any band runs; otherwise the first error any band meets is
+    /// returned.
+    pub fn add_frames(&mut self, frames: &[(u8, &[u16])]) -> Result<BandsReport, CoreError> {
         let pixels = self.geometry.pixels();
         if let Some(&(_, bad)) = frames.iter().find(|(_, codes)| codes.len() != pixels) {
             return Err(CoreError::Length { what: dncal_core::error::Quantity::BlockPixels, expected: pixels as u32, got: bad.len() as u32 });
         }
-        let reports: Vec<Result<BandsReport, CoreError>> = self
-            .bands
+        let width = self.geometry.width() as usize;
+        let reports = self
+            .parts
             .par_iter_mut()
-            .map(|band| {
-                let rows = band.geometry.height() as usize;
-                let span = band.first_row * width..(band.first_row + rows) * width;
-                let mut c = Corrector::new(&mut band.banks, band.geometry, &mut band.sums)?;
+            .map(|part| {
                 let mut r = BandsReport::default();
                 for &(state, codes) in frames {
-                    c.begin_frame(state)?;
-                    let line = c.accumulate_lines(0, &codes[span.clone()])?;
-                    c.end_frame()?;
-                    r.out_of_range_codes += line.out_of_range_codes as u64;
-                    r.saturated_additions += line.saturated_additions as u64;
+                    r.add(part.add_frame(width, state, codes)?);
                 }
                 Ok(r)
             })
-            .collect();
+            .collect::<Vec<Result<BandsReport, CoreError>>>();
         let mut total = BandsReport::default();
         for r in reports {
             let r = r?;
@@ -85,20 +143,49 @@ impl Bands {
         Ok(total)
     }
 
-    /// The whole frame's sums, state-major as [`dncal_core::SumImages`] lays them out.
-    pub fn sums(&self) -> Vec<u32> {
-        let width = self.geometry.width() as usize;
-        let height = self.geometry.height() as usize;
-        let mut out = vec![0u32; self.geometry.sum_len()];
-        for band in &self.bands {
-            let rows = band.geometry.height() as usize;
-            for s in 0..self.geometry.states() as usize {
-                let from = &band.sums[s * rows * width..(s + 1) * rows * width];
-                let at = (s * height + band.first_row) * width;
-                out[at..at + rows * width].copy_from_slice(from);
-            }
+    /// Adds one frame: [`add_frames`](Self::add_frames) of one.
+    pub fn add_frame(&mut self, state: u8, codes: &[u16]) -> Result<BandsReport, CoreError> {
+        self.add_frames(&[(state, codes)])
+    }
+
+    /// The counters of the whole frame: the pixels' (out-of-range codes, clipped
+    /// additions) summed over the bands; the frames' (frames, incomplete frames, LUT
+    /// swaps, rejected lines) from the first band, which every other band repeats (each
+    /// sees every frame, and a frame refused is refused before any band sees it).
+    pub fn status(&self) -> Status {
+        let mut status = self.parts.first().map(|p| p.corrector.status()).unwrap_or_default();
+        for p in self.parts.iter().skip(1) {
+            let s = p.corrector.status();
+            status.out_of_range_codes = status.out_of_range_codes.saturating_add(s.out_of_range_codes);
+            status.saturated_additions = status.saturated_additions.saturating_add(s.saturated_additions);
         }
-        out
+        status
+    }
+
+    /// Frames completed in `state` (every band's count).
+    pub fn frames(&self, state: u8) -> FrameCount {
+        self.parts.first().map(|p| p.corrector.sums().frames(state)).unwrap_or_default()
+    }
+
+    /// The sums, band by band and state by state: (offset in the whole frame's
+    /// state-major sums, those rows' sums). Together they cover the whole frame once.
+    pub fn spans(&self) -> Vec<(usize, &[u32])> {
+        self.parts.iter().flat_map(|p| {
+            let sums = p.corrector.sums();
+            spans(self.geometry, p.first_row, sums.geometry(), sums.as_slice())
+        }).collect()
+    }
+}
+
+impl<const N: usize, const CODES: usize> Part<'_, N, CODES> {
+    /// This band's rows of a whole frame `codes` (`width` pixels a row).
+    fn add_frame(&mut self, width: usize, state: u8, codes: &[u16]) -> Result<LineReport, CoreError> {
+        let rows = self.corrector.sums().geometry().height() as usize;
+        let c = &mut self.corrector;
+        c.begin_frame(state)?;
+        let line = c.accumulate_lines(0, &codes[self.first_row * width..(self.first_row + rows) * width])?;
+        c.end_frame()?;
+        Ok(line)
     }
 }
 
@@ -136,7 +223,8 @@ mod tests {
             }
             c.end_frame().unwrap();
         }
-        let oor = c.status().out_of_range_codes as u64;
+        let one = c.status();
+        let oor = one.out_of_range_codes as u64;
         assert!(oor > 0);
         let input: Vec<(u8, &[u16])> = frames.iter().enumerate().map(|(f, c)| ((f % 2) as u8, c.as_slice())).collect();
         for count in [1, 2, 3, 7] {
@@ -145,6 +233,21 @@ mod tests {
             let r = bands.run(&input).unwrap();
             assert_eq!(r.out_of_range_codes, oor, "{count} bands");
             assert!(bands.sums() == want, "{count} bands");
+            // Frame by frame through the correctors: the same sums, laid out by spans
+            // that cover the frame once; the counters as one corrector's.
+            let mut core = bands.correctors().unwrap();
+            for &(state, codes) in &input {
+                core.add_frame(state, codes).unwrap();
+            }
+            assert_eq!(core.status(), one, "{count} bands");
+            assert_eq!((core.frames(0).get(), core.frames(1).get()), (3, 3));
+            let mut rebuilt = vec![None; g.sum_len()];
+            for (at, sums) in core.spans() {
+                for (k, &s) in sums.iter().enumerate() {
+                    assert!(rebuilt[at + k].replace(s).is_none(), "{count} bands: sum {} twice", at + k);
+                }
+            }
+            assert!(rebuilt.iter().zip(&want).all(|(r, &w)| *r == Some(w)), "{count} bands");
         }
         // A frame of the wrong size is refused before any band runs.
         let mut bands = Bands::new(&luts, g, 2).unwrap();

@@ -11,11 +11,12 @@
 use std::time::Instant;
 
 use dncal_core::driver::Datapath;
-use dncal_core::{encode_image, image_len, Corrector, Geometry, LutBanks, LutSet, Status, Weight};
+use dncal_core::{encode_image, image_len, Geometry, LutSet, Status, Weight};
 use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::camera::Camera;
+use crate::parallel::Bands;
 use crate::reference::ReferenceLut;
 use crate::HostError;
 
@@ -97,7 +98,8 @@ pub struct StreamReport {
     pub bound_dn: f64,
     /// Sums outside the bound.
     pub out_of_bound: u64,
-    /// Core throughput: pixels / time spent in `accumulate_line`.
+    /// Core throughput: pixels / time spent in the core (its bands of rows on every
+    /// thread).
     pub pixels_per_s: f64,
     /// Wall time of the whole run, s (sampling included).
     pub wall_s: f64,
@@ -274,11 +276,13 @@ fn run_typed<const N: usize, const CODES: usize>(
     }
     let quantized = reference.quantized();
 
-    let mut banks = Box::new(LutBanks::new((*luts).clone()));
-    let mut sums = vec![0u32; geometry.sum_len()];
-    let mut ref_q = vec![0u64; geometry.sum_len()];
-    let mut ref_f = vec![0f64; geometry.sum_len()];
-    let mut corrector = Corrector::new(&mut banks, geometry, &mut sums).map_err(|e| HostError::core(ctx("corrector"), e))?;
+    // The core in bands of rows, one per thread; the references written first on every
+    // thread (a fresh page read before its first write costs a copy-on-write fault and a
+    // TLB shootdown across the threads: that was a third of a replay's time).
+    let mut bands = Bands::new(&luts, geometry, rayon::current_num_threads()).map_err(|e| HostError::core(ctx("bands"), e))?;
+    let mut ref_q: Vec<u64> = (0..geometry.sum_len()).into_par_iter().map(|_| 0).collect();
+    let mut ref_f: Vec<f64> = (0..geometry.sum_len()).into_par_iter().map(|_| 0.0).collect();
+    let mut core = bands.correctors().map_err(|e| HostError::core(ctx("corrector"), e))?;
     let mut fpga = match &p.engine {
         Engine::Core => None,
         Engine::Fpga(config) => Some(fpga_datapath(config, geometry, &luts)?),
@@ -322,9 +326,7 @@ fn run_typed<const N: usize, const CODES: usize>(
             }
         };
         let t = Instant::now();
-        corrector.begin_frame(state).map_err(|e| HostError::core(ctx("begin frame"), e))?;
-        corrector.accumulate_lines(0, codes).map_err(|e| HostError::core(ctx("frame"), e))?;
-        corrector.end_frame().map_err(|e| HostError::core(ctx("end frame"), e))?;
+        core.add_frame(state, codes).map_err(|e| HostError::core(ctx("frame"), e))?;
         core_s += t.elapsed().as_secs_f64();
         if let Some(dp) = fpga.as_mut() {
             let lines: Vec<&[u16]> = codes.chunks_exact(w).collect();
@@ -332,29 +334,55 @@ fn run_typed<const N: usize, const CODES: usize>(
         }
         progress(frame as u64 + 1);
     }
-    let status = corrector.status();
-    let frames_max = (0..p.states).map(|s| corrector.sums().frames(s).get()).max().unwrap_or(0);
+    let status = core.status();
+    let frames_max = (0..p.states).map(|s| core.frames(s).get()).max().unwrap_or(0);
     let bound_dn = frames_max as f64 * 2f64.powi(-12);
-    let mismatches = sums.iter().zip(&ref_q).filter(|(&s, &q)| s as u64 != q).count() as u64;
-    let errors: Vec<f64> = sums.iter().zip(&ref_f).map(|(&s, &f)| (dncal_core::units_to_dn(s.into()) - f).abs()).collect();
-    let max_abs_err_dn = errors.iter().cloned().fold(0.0, f64::max);
-    let out_of_bound = errors.iter().filter(|&&e| e > bound_dn).count() as u64;
+    let check = core
+        .spans()
+        .into_par_iter()
+        .flat_map(|(at, sums)| sums.par_iter().zip(&ref_q[at..at + sums.len()]).zip(&ref_f[at..at + sums.len()]))
+        .fold(Check::default, |c, ((&s, &q), &f)| c.with(s, q, (dncal_core::units_to_dn(s.into()) - f).abs(), bound_dn))
+        .reduce(Check::default, Check::merge);
+    drop(core);
     let pixels = p.frames as u64 * (w * h) as u64;
-    let fpga = fpga.map(|mut dp| fpga_report(dp.device_mut(), p.states, &sums, &ref_q));
+    let fpga = fpga.map(|mut dp| fpga_report(dp.device_mut(), p.states, &bands.sums(), &ref_q));
     Ok(StreamReport {
         engine: if fpga.is_some() { "fpga" } else { "core" }.into(),
         fpga,
         frames: p.frames,
         pixels,
-        sum_pixels: sums.len() as u64,
-        mismatches,
-        max_abs_err_dn,
+        sum_pixels: geometry.sum_len() as u64,
+        mismatches: check.mismatches,
+        max_abs_err_dn: check.max_abs_err_dn,
         bound_dn,
-        out_of_bound,
+        out_of_bound: check.out_of_bound,
         pixels_per_s: if core_s > 0.0 { pixels as f64 / core_s } else { 0.0 },
         wall_s: start.elapsed().as_secs_f64(),
         status: status.into(),
     })
+}
+
+/// The comparison of the core's sums with the references, summed over sum pixels.
+#[derive(Debug, Clone, Copy, Default)]
+struct Check {
+    mismatches: u64,
+    max_abs_err_dn: f64,
+    out_of_bound: u64,
+}
+
+impl Check {
+    /// With one more sum: the core's `sum`, the quantized reference `q`, the error
+    /// against the float reference `err_dn` and its bound.
+    fn with(self, sum: u32, q: u64, err_dn: f64, bound_dn: f64) -> Self {
+        Check {
+            mismatches: self.mismatches + (sum as u64 != q) as u64,
+            max_abs_err_dn: self.max_abs_err_dn.max(err_dn),
+            out_of_bound: self.out_of_bound + (err_dn > bound_dn) as u64,
+        }
+    }
+    fn merge(a: Self, b: Self) -> Self {
+        Check { mismatches: a.mismatches + b.mismatches, max_abs_err_dn: a.max_abs_err_dn.max(b.max_abs_err_dn), out_of_bound: a.out_of_bound + b.out_of_bound }
+    }
 }
 
 #[cfg(test)]

@@ -109,6 +109,22 @@ fn plain_lut_frame(tables: &[[u32; 4096]; 4], codes: &[u16], sums: &mut [u32]) {
     }
 }
 
+/// The plain LUT loop on a frame cut into `sums.len()` bands of rows, each band on its
+/// own thread and clearing its own sums first, as the core's bands do
+/// ([`crate::parallel`]): what the parallel path's speed-up can reach on this machine.
+fn plain_lut_bands(tables: &[[u32; 4096]; 4], codes: &[u16], frames: usize, sums: &mut [Vec<u32>]) {
+    use rayon::prelude::*;
+    let count = sums.len();
+    sums.par_iter_mut().enumerate().for_each(|(b, band)| {
+        let (first, end) = (b * HEIGHT / count * WIDTH, (b + 1) * HEIGHT / count * WIDTH);
+        let n = end - first;
+        band.fill(0);
+        for f in 0..frames {
+            plain_lut_frame(tables, black_box(&codes[first..end]), &mut band[f % STATES * n..][..n]);
+        }
+    });
+}
+
 /// The byte bound (see the module documentation).
 fn bytes_frame(codes: &[u16], sums: &mut [u32]) {
     for (s, &c) in sums.iter_mut().zip(codes) {
@@ -240,7 +256,11 @@ pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, Ho
         ratio("core, frame as a block", &core.by_block, "byte bound (no LUT)", &core.bytes, "Mpx/s", Some(0.4)),
     ];
     match &core.banded {
-        Some((threads, n, one)) => ratios.push(ratio(&format!("core, {threads} bands, {threads} threads"), n, "core, 1 band, 1 thread", one, "Mpx/s", Some(1.8))),
+        Some(b) => {
+            let t = b.threads;
+            ratios.push(ratio(&format!("core, {t} bands, {t} threads"), &b.core_n, "core, 1 band, 1 thread", &b.core_1, "Mpx/s", Some(1.8)));
+            ratios.push(ratio(&format!("plain loop, {t} bands, {t} threads"), &b.plain_n, "plain loop, 1 band, 1 thread", &b.plain_1, "Mpx/s", None));
+        }
         None => notes.push("one core: the parallel path was not measured".into()),
     }
     let camera = crate::camera::Camera::new(crate::camera::CameraConfig::default()).map_err(|source| HostError::Config { path: "default camera".into(), source })?;
@@ -265,9 +285,18 @@ struct CoreRates {
     plain: Vec<f64>,
     bytes: Vec<f64>,
     numpy: Vec<f64>,
-    /// With more than one thread: the thread count, the banded rates on that many
-    /// threads and on one.
-    banded: Option<(usize, Vec<f64>, Vec<f64>)>,
+    /// With more than one thread: the bands' rates.
+    banded: Option<Banded>,
+}
+
+/// The frame in bands of rows, as many as threads and one, the core's and the plain
+/// loop's, Mpx/s per run.
+struct Banded {
+    threads: usize,
+    core_n: Vec<f64>,
+    core_1: Vec<f64>,
+    plain_n: Vec<f64>,
+    plain_1: Vec<f64>,
 }
 
 /// Times the core (line by line, a frame as a block, in bands on every thread and on one)
@@ -290,7 +319,9 @@ fn core_runs(p: &BenchParams, progress: &impl Fn(&str), notes: &mut Vec<String>)
     let mut one_band = Bands::new(&luts, geometry, 1).map_err(core_err)?;
     let mut many_bands = Bands::new(&luts, geometry, threads).map_err(core_err)?;
     let frame_list: Vec<(u8, &[u16])> = (0..frames).map(|f| ((f % STATES) as u8, codes.as_slice())).collect();
-    let (mut banded_1, mut banded_n) = (Vec::new(), Vec::new());
+    let (mut banded_1, mut banded_n, mut plain_1, mut plain_n) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let band_sums = |count: usize| (0..count).map(|b| vec![0u32; STATES * ((b + 1) * HEIGHT / count - b * HEIGHT / count) * WIDTH]).collect::<Vec<_>>();
+    let (mut plain_sums_1, mut plain_sums_n) = (band_sums(1), band_sums(threads));
     let mut c_line = Corrector::new(&mut banks_line, geometry, &mut line_sums).map_err(core_err)?;
     let mut c_block = Corrector::new(&mut banks_block, geometry, &mut block_sums).map_err(core_err)?;
     // Run 0 warms up (first touches of the sum buffers fault their pages in) and is not
@@ -327,6 +358,14 @@ fn core_runs(p: &BenchParams, progress: &impl Fn(&str), notes: &mut Vec<String>)
         })?;
         timed(&mut banded_1, &mut || one_band.run(&frame_list).map(|_| ()).map_err(core_err))?;
         timed(&mut banded_n, &mut || many_bands.run(&frame_list).map(|_| ()).map_err(core_err))?;
+        timed(&mut plain_1, &mut || {
+            plain_lut_bands(&bits, &codes, frames, &mut plain_sums_1);
+            Ok(())
+        })?;
+        timed(&mut plain_n, &mut || {
+            plain_lut_bands(&bits, &codes, frames, &mut plain_sums_n);
+            Ok(())
+        })?;
         timed(&mut r.plain, &mut || {
             (0..frames).for_each(|f| plain_lut_frame(&bits, black_box(&codes), &mut plain_sums[f % STATES * n..][..n]));
             Ok(())
@@ -350,7 +389,12 @@ fn core_runs(p: &BenchParams, progress: &impl Fn(&str), notes: &mut Vec<String>)
     if many_bands.sums() != one_band.sums() {
         return Err(HostError::Format { path: "bench".into(), message: "the bands' sums differ from one band's".into() });
     }
-    r.banded = (threads > 1).then_some((threads, banded_n, banded_1));
+    // The plain bands put together must be the core's bands' sums of the last run.
+    let plain_whole: Vec<u32> = (0..STATES).flat_map(|st| plain_sums_n.iter().flat_map(move |b| b[st * b.len() / STATES..(st + 1) * b.len() / STATES].iter().copied())).collect();
+    if plain_whole != many_bands.sums() || plain_sums_1[0] != one_band.sums() {
+        return Err(HostError::Format { path: "bench".into(), message: "the plain loop's bands differ from the core's".into() });
+    }
+    r.banded = (threads > 1).then_some(Banded { threads, core_n: banded_n, core_1: banded_1, plain_n, plain_1 });
     Ok(r)
 }
 
