@@ -452,16 +452,19 @@ fn add_line<A: Add, const N: usize, const CODES: usize>(
 
 /// The bitwise OR of `codes`. Pairs of codes are joined into 32-bit words, which the
 /// compiler turns into one word load per two codes (half the loads and ORs of a plain
-/// fold on a Cortex-M4, whose loop this is most of the cost of on a clean line).
+/// fold on a Cortex-M4, whose loop this is most of the cost of on a clean line). Each
+/// run of 32 codes is folded on its own: on the Cortex-M4 that is 16 word loads and ORs
+/// unrolled, on x86 four vector loads and ORs with one reduction a run. (A running OR
+/// across the runs, 8 codes at a time, had x86 reduce every 8 codes: 6-9% of the core's
+/// time on a 1024-pixel line against 3-5% now, measured beside a loop without the pass.)
 #[inline(always)]
 fn or_of(codes: &[u16]) -> u16 {
-    let mut words = codes.chunks_exact(8);
+    let mut runs = codes.chunks_exact(32);
     let mut acc = 0u32;
-    for c in &mut words {
-        let pair = |i: usize| c[i] as u32 | (c[i + 1] as u32) << 16;
-        acc |= pair(0) | pair(2) | pair(4) | pair(6);
+    for run in &mut runs {
+        acc |= run.chunks_exact(2).fold(0u32, |a, pair| a | pair[0] as u32 | (pair[1] as u32) << 16);
     }
-    let rest = words.remainder().iter().fold(0u16, |a, &c| a | c);
+    let rest = runs.remainder().iter().fold(0u16, |a, &c| a | c);
     (acc as u16) | ((acc >> 16) as u16) | rest
 }
 
@@ -510,11 +513,12 @@ mod tests {
 
     #[test]
     fn the_or_of_a_line_is_the_plain_fold() {
-        // Every length around the 8-code chunks, one bit set at each position in turn.
-        for len in 0..40usize {
+        // Every length around the 32-code runs (two of them and a remainder), one bit set
+        // at each position in turn, odd and even, either half of a joined word.
+        for len in 0..100usize {
             for at in 0..len {
                 for bit in [0u16, 5, 12, 15] {
-                    let mut codes = [0u16; 40];
+                    let mut codes = [0u16; 100];
                     codes[at] = 1 << bit;
                     codes[(at * 7) % len] |= 3;
                     let want = codes[..len].iter().fold(0, |a, &c| a | c);
