@@ -848,6 +848,10 @@ fn bench_reports_ratios_against_in_process_references() {
     }
     let numpy_ran = baselines.iter().any(|b| b.starts_with("numpy"));
     let notes = s["notes"].as_array().unwrap();
+    // The parallel path and its ceiling, the plain loop in the same bands, where there
+    // is more than one core.
+    let one_core = notes.iter().any(|n| n.as_str().unwrap().starts_with("one core"));
+    assert!(one_core || (baselines.contains(&"core, 1 band, 1 thread") && baselines.contains(&"plain loop, 1 band, 1 thread")), "{s}");
     assert!(numpy_ran || notes.iter().any(|n| n.as_str().unwrap().starts_with("numpy skipped")), "numpy neither ran nor was reported skipped: {s}");
     for r in ratios {
         let (rate, base, ratio) = (r["rate"].as_f64().unwrap(), r["baseline_rate"].as_f64().unwrap(), r["ratio_median"].as_f64().unwrap());
