@@ -61,22 +61,18 @@ impl<const N: usize, const CODES: usize> Bands<N, CODES> {
     /// the first touch of a fresh buffer's pages is shared out too): frames are then
     /// added through them.
     pub fn correctors(&mut self) -> Result<BandCorrectors<'_, N, CODES>, CoreError> {
-        let parts = self
-            .bands
-            .par_iter_mut()
-            .map(|band| {
-                band.sums.resize(band.geometry.sum_len(), 0);
-                Ok(Part { first_row: band.first_row, corrector: Corrector::new(&mut band.banks, band.geometry, &mut band.sums)? })
-            })
-            .collect::<Result<Vec<_>, CoreError>>()?;
+        let parts = self.bands.par_iter_mut().map(Band::part).collect::<Result<Vec<_>, CoreError>>()?;
         Ok(BandCorrectors { geometry: self.geometry, parts })
     }
 
     /// Clears the sums and adds `frames` (state, codes of the whole frame, row-major),
-    /// each band on its own thread through all the frames; the first error any band
-    /// meets is returned.
+    /// each band on its own thread through all the frames, its sums cleared there too
+    /// (one hand-over to the threads for the lot, as a readout's frames would be); the
+    /// first error any band meets is returned.
     pub fn run(&mut self, frames: &[(u8, &[u16])]) -> Result<BandsReport, CoreError> {
-        self.correctors()?.add_frames(frames)
+        check_frames(self.geometry, frames)?;
+        let width = self.geometry.width() as usize;
+        total(self.bands.par_iter_mut().map(|band| band.part()?.add_frames(width, frames)).collect())
     }
 
     /// The whole frame's sums, state-major as [`dncal_core::SumImages`] lays them out.
@@ -89,6 +85,34 @@ impl<const N: usize, const CODES: usize> Bands<N, CODES> {
         }
         out
     }
+}
+
+impl<const N: usize, const CODES: usize> Band<N, CODES> {
+    /// A corrector over this band's sums, cleared.
+    fn part(&mut self) -> Result<Part<'_, N, CODES>, CoreError> {
+        self.sums.resize(self.geometry.sum_len(), 0);
+        Ok(Part { first_row: self.first_row, corrector: Corrector::new(&mut self.banks, self.geometry, &mut self.sums)? })
+    }
+}
+
+/// A frame of the wrong size is refused before any band runs.
+fn check_frames(geometry: Geometry, frames: &[(u8, &[u16])]) -> Result<(), CoreError> {
+    let pixels = geometry.pixels();
+    match frames.iter().find(|(_, codes)| codes.len() != pixels) {
+        Some(&(_, bad)) => Err(CoreError::Length { what: dncal_core::error::Quantity::BlockPixels, expected: pixels as u32, got: bad.len() as u32 }),
+        None => Ok(()),
+    }
+}
+
+/// The bands' reports summed, or the first band's error.
+fn total(reports: Vec<Result<BandsReport, CoreError>>) -> Result<BandsReport, CoreError> {
+    let mut total = BandsReport::default();
+    for r in reports {
+        let r = r?;
+        total.out_of_range_codes += r.out_of_range_codes;
+        total.saturated_additions += r.saturated_additions;
+    }
+    Ok(total)
 }
 
 /// A band's sums of each state with where they sit in the whole frame's state-major
@@ -118,29 +142,9 @@ impl<const N: usize, const CODES: usize> BandCorrectors<'_, N, CODES> {
     /// is refused before any band runs; otherwise the first error any band meets is
     /// returned.
     pub fn add_frames(&mut self, frames: &[(u8, &[u16])]) -> Result<BandsReport, CoreError> {
-        let pixels = self.geometry.pixels();
-        if let Some(&(_, bad)) = frames.iter().find(|(_, codes)| codes.len() != pixels) {
-            return Err(CoreError::Length { what: dncal_core::error::Quantity::BlockPixels, expected: pixels as u32, got: bad.len() as u32 });
-        }
+        check_frames(self.geometry, frames)?;
         let width = self.geometry.width() as usize;
-        let reports = self
-            .parts
-            .par_iter_mut()
-            .map(|part| {
-                let mut r = BandsReport::default();
-                for &(state, codes) in frames {
-                    r.add(part.add_frame(width, state, codes)?);
-                }
-                Ok(r)
-            })
-            .collect::<Vec<Result<BandsReport, CoreError>>>();
-        let mut total = BandsReport::default();
-        for r in reports {
-            let r = r?;
-            total.out_of_range_codes += r.out_of_range_codes;
-            total.saturated_additions += r.saturated_additions;
-        }
-        Ok(total)
+        total(self.parts.par_iter_mut().map(|part| part.add_frames(width, frames)).collect())
     }
 
     /// Adds one frame: [`add_frames`](Self::add_frames) of one.
@@ -178,6 +182,15 @@ impl<const N: usize, const CODES: usize> BandCorrectors<'_, N, CODES> {
 }
 
 impl<const N: usize, const CODES: usize> Part<'_, N, CODES> {
+    /// This band's rows of whole frames (`width` pixels a row), one after the other.
+    fn add_frames(&mut self, width: usize, frames: &[(u8, &[u16])]) -> Result<BandsReport, CoreError> {
+        let mut r = BandsReport::default();
+        for &(state, codes) in frames {
+            r.add(self.add_frame(width, state, codes)?);
+        }
+        Ok(r)
+    }
+
     /// This band's rows of a whole frame `codes` (`width` pixels a row).
     fn add_frame(&mut self, width: usize, state: u8, codes: &[u16]) -> Result<LineReport, CoreError> {
         let rows = self.corrector.sums().geometry().height() as usize;

@@ -9,7 +9,7 @@ use serde::Serialize;
 use crate::commands::progress::{spinner, stage};
 use crate::commands::{wrote, Report};
 use crate::fits::{read_linearity, stage_cube, stage_pixel_correction, PixelCorrection};
-use crate::linearity::{analyze_unsaturated, check_flat_level, example_row, unsaturated_levels, LinearityReport, MAX_ORDER};
+use crate::linearity::{analyze_unsaturated, check_flat_level, example_row, unsaturated_levels, Cube, LinearityReport, MAX_ORDER};
 use crate::plots::{level_lines_plot, line_plot_paired, map_plot, Map, Series};
 use crate::outputs::OutDir;
 use crate::HostError;
@@ -76,17 +76,19 @@ pub fn linearity_as(read_from: &Path, input: &Path, order: usize, flat: Option<u
         check_flat_level(&valid, set.levels, l).map_err(|e| HostError::Argument { flag: "--flat-level".into(), message: format!("{e} ({})", input.display()) })?;
     }
     let spin = spinner(&format!("fitting {} pixels ({} levels): standard and pixel-wise corrections", set.width * set.height, set.levels));
-    let analysis = analyze_unsaturated(&set, order, flat, valid);
+    // The corrected cube only for the outputs: without them the report needs its
+    // statistics alone.
+    let analysis = analyze_unsaturated(&set, order, flat, valid, if out.is_some() { Cube::Keep } else { Cube::Skip });
     spin.finish_and_clear();
     let (report, px) = analysis.map_err(|source| HostError::Linearity { path: input.into(), source })?;
     let analysis_s = start.elapsed().as_secs_f64();
     let mut outputs = Vec::new();
-    if let Some(OutDir { files, dir }) = out {
+    if let (Some(OutDir { files, dir }), Some(corrected)) = (out, px.corrected.as_deref()) {
         let c = dir.join("coefficients.fits");
         let pc = PixelCorrection { coeffs: &px.coeffs, mask: &px.mask, width: set.width, height: set.height, order, bit_depth: set.bit_depth, n_adc: set.n_adc };
         stage_pixel_correction(files, &c, &pc)?;
         let k = dir.join("corrected.fits");
-        stage_cube(files, &k, &px.corrected, set.levels, set.width, set.height, ("", "dimensionless: intensity normalized to the reference"))?;
+        stage_cube(files, &k, corrected, set.levels, set.width, set.height, ("", "dimensionless: intensity normalized to the reference"))?;
         let fig = dir.join("linearity_rms.png");
         let series = |label: &str, v: &[f64]| Series {
             label: label.into(),
@@ -137,7 +139,7 @@ pub fn linearity_as(read_from: &Path, input: &Path, order: usize, flat: Option<u
             },
         )?;
         // Fig. 7: 100 pixels of the middle row at every level, three corrections.
-        let ex = example_row(&set, &report, &px, 100);
+        let ex = example_row(&set, &report, &px, corrected, 100);
         let lines = |v: &[Vec<f64>]| -> Vec<Vec<(f64, f64)>> { v.iter().map(|l| l.iter().enumerate().map(|(i, &y)| ((ex.first_column + i) as f64, y)).collect()).collect() };
         let levels_png = dir.join("pixels_levels.png");
         level_lines_plot(

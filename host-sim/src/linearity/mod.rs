@@ -128,8 +128,21 @@ pub struct PixelResults {
     /// Mask reasons per pixel (0 = good).
     pub mask: Vec<u8>,
     /// Pixel-wise corrected normalized intensity per level, masked pixels filled from
-    /// their good neighbours, laid out as the set's mean cube.
-    pub corrected: Vec<f64>,
+    /// their good neighbours, laid out as the set's mean cube: where it was asked for
+    /// ([`Cube::Keep`]).
+    pub corrected: Option<Vec<f64>>,
+}
+
+/// Whether an analysis keeps the corrected cube (for the FITS outputs and the example
+/// row) or only its statistics: without the cube, the pixel-levels no statistic counts
+/// (masked pixels, saturated levels) are not inverted, and the cube's 8 bytes a pixel and
+/// level are never allocated.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Cube {
+    /// Keep it.
+    Keep,
+    /// Statistics only.
+    Skip,
 }
 
 /// Least-squares pseudo-inverse `(A^T A)^-1 A^T` of the Vandermonde matrix of `x` up to
@@ -251,8 +264,8 @@ pub struct ExampleRow {
     pub pixelwise: Vec<Vec<f64>>,
 }
 
-/// See [`ExampleRow`]; `report` and `px` are [`analyze`]'s of `set`.
-pub fn example_row(set: &LinearitySet, report: &LinearityReport, px: &PixelResults, n: usize) -> ExampleRow {
+/// See [`ExampleRow`]; `report`, `px` and its `corrected` cube are [`analyze`]'s of `set`.
+pub fn example_row(set: &LinearitySet, report: &LinearityReport, px: &PixelResults, corrected: &[f64], n: usize) -> ExampleRow {
     let (nl, w, h) = (set.levels, set.width, set.height);
     let np = w * h;
     let n = n.min(w);
@@ -272,7 +285,7 @@ pub fn example_row(set: &LinearitySet, report: &LinearityReport, px: &PixelResul
         first_column,
         raw: per_level(&|l, p| m(l, p) / report.level_mean_dn[l]),
         standard: per_level(&|l, p| (f(m(l, p)) - f(m(0, p))) / (f(m(g, p)) - f(m(0, p))) / e[l]),
-        pixelwise: per_level(&|l, p| px.corrected[l * np + p] / e[l]),
+        pixelwise: per_level(&|l, p| corrected[l * np + p] / e[l]),
     }
 }
 
@@ -329,9 +342,11 @@ impl Inversion<'_> {
     }
 
     /// Level `l` into `row`, each pixel's `x^` then turned into `row[p] = put(p, x^)`, in
-    /// pixel order.
-    fn level_into(&self, l: usize, x_l: f64, row: &mut [f64], mut put: impl FnMut(usize, f64) -> f64) {
-        self.run(l, x_l, 0, row);
+    /// pixel order; pixels where `skip(p)` (besides the masked ones) are not inverted
+    /// (NaN).
+    fn level_into(&self, l: usize, x_l: f64, row: &mut [f64], skip: impl Fn(usize) -> bool, mut put: impl FnMut(usize, f64) -> f64) {
+        let (mean, mask) = (&self.mean[l * self.np..], self.mask);
+        invert_all(row, self.k1, x_l, |j, k| self.coef[j * self.k1 + k], |j| mean[j], |j| mask[j] != 0 || skip(j));
         for (p, v) in row.iter_mut().enumerate() {
             *v = put(p, *v);
         }
@@ -357,7 +372,7 @@ pub fn analyze(set: &LinearitySet, order: usize) -> Result<(LinearityReport, Pix
 /// the maximum (the paper's text: "approximately half saturation"; its Figs. 6-7 use a
 /// flat near 57%).
 pub fn analyze_with_flat(set: &LinearitySet, order: usize, flat: Option<usize>) -> Result<(LinearityReport, PixelResults), LinearityError> {
-    analyze_unsaturated(set, order, flat, unsaturated_levels(set))
+    analyze_unsaturated(set, order, flat, unsaturated_levels(set), Cube::Keep)
 }
 
 /// Why a linearity set cannot be corrected as asked.
@@ -439,19 +454,19 @@ fn pixel_mask(set: &LinearitySet, resid: &[f64], g: usize) -> Vec<u8> {
             }
         }
     }
-    let signal: Vec<f64> = (0..np).map(|p| set.mean[g * np + p] - set.mean[p]).collect();
-    let med_signal = median(signal.clone());
-    let med_resid = median(resid.iter().copied());
-    for p in 0..np {
-        if signal[p].is_nan() || signal[p] < 0.5 * med_signal {
-            mask[p] |= reason::LOW;
+    let signal = |p: usize| set.mean[g * np + p] - set.mean[p];
+    let (med_signal, med_resid) = rayon::join(|| median((0..np).map(signal)), || median(resid.iter().copied()));
+    mask.par_iter_mut().enumerate().for_each(|(p, m)| {
+        let s = signal(p);
+        if s.is_nan() || s < 0.5 * med_signal {
+            *m |= reason::LOW;
         }
         if resid[p].is_nan() {
-            mask[p] |= reason::UNFIT;
+            *m |= reason::UNFIT;
         } else if resid[p] > 10.0 * med_resid.max(1e-12) {
-            mask[p] |= reason::TREND;
+            *m |= reason::TREND;
         }
-    }
+    });
     mask
 }
 
@@ -460,12 +475,14 @@ fn pixel_mask(set: &LinearitySet, resid: &[f64], g: usize) -> Vec<u8> {
 fn global_correction(set: &LinearitySet, x: &[f64], good: &[usize], valid: &[usize], top: f64) -> Result<Vec<f64>, LinearityError> {
     let np = set.width * set.height;
     let reached = |l: usize| good.iter().filter(move |&&p| l < valid[p]);
-    let med_levels: Vec<f64> = (0..set.levels).map(|l| median(reached(l).map(|&p| set.mean[l * np + p]))).collect();
-    let usable: Vec<usize> = (0..set.levels).filter(|&l| med_levels[l].is_finite() && reached(l).count() * 2 > good.len()).collect();
+    // A level's median is a selection over up to every pixel: the levels on every thread,
+    // each with the count of pixels that reach it.
+    let med_levels: Vec<(f64, usize)> = (0..set.levels).into_par_iter().map(|l| (median(reached(l).map(|&p| set.mean[l * np + p])), reached(l).count())).collect();
+    let usable: Vec<usize> = (0..set.levels).filter(|&l| med_levels[l].0.is_finite() && med_levels[l].1 * 2 > good.len()).collect();
     if usable.len() <= GLOBAL_ORDER {
         return Err(LinearityError::TooFewLevels { levels: usable.len() });
     }
-    let gpinv = pseudo_inverse(&usable.iter().map(|&l| med_levels[l] / top).collect::<Vec<_>>(), GLOBAL_ORDER);
+    let gpinv = pseudo_inverse(&usable.iter().map(|&l| med_levels[l].0 / top).collect::<Vec<_>>(), GLOBAL_ORDER);
     Ok((&gpinv * DVector::from_iterator(usable.len(), usable.iter().map(|&l| x[l]))).iter().copied().collect())
 }
 
@@ -475,7 +492,7 @@ fn global_correction(set: &LinearitySet, x: &[f64], good: &[usize], valid: &[usi
 /// About 125 lines: the per-pixel fits, the masks and the global cubic are functions of
 /// their own; what stays is the one pass per level that shares the corrections' ends,
 /// the inversion and the statistics' accumulators (split, it would pass them all).
-pub fn analyze_unsaturated(set: &LinearitySet, order: usize, flat: Option<usize>, valid: Vec<usize>) -> Result<(LinearityReport, PixelResults), LinearityError> {
+pub fn analyze_unsaturated(set: &LinearitySet, order: usize, flat: Option<usize>, valid: Vec<usize>, cube: Cube) -> Result<(LinearityReport, PixelResults), LinearityError> {
     let order = order.clamp(1, MAX_ORDER);
     let (nl, w, h) = (set.levels, set.width, set.height);
     let np = w * h;
@@ -520,60 +537,65 @@ pub fn analyze_unsaturated(set: &LinearitySet, order: usize, flat: Option<usize>
     // the corrected images show them all), the level's statistics over the good,
     // unsaturated pixels in pixel order, and the masked pixels filled. The cube is
     // allocated zeroed (untouched pages) and first written here, by the worker threads.
+    // Without the cube ([`Cube::Skip`]) only the counted pixels are inverted (the same
+    // values: each pixel's inversion is its own, [`invert_all`]) and nothing is filled.
     let nan_unless = |cond: bool, v: f64| if cond { v } else { f64::NAN };
-    let mut corrected = vec![0.0; nl * np];
-    let level_stats: Vec<[f64; 9]> = corrected
-        .par_chunks_mut(np)
-        .enumerate()
-        .map(|(l, row)| {
-            let counted = |p: usize| mask[p] == 0 && l < valid[p];
-            let (sum, n) = (0..np).filter(|&p| counted(p)).fold((0.0, 0usize), |(s, n), p| (s + m(l, p), n + 1));
-            let mean_l = sum / n.max(1) as f64;
-            let inv_mean = 1.0 / mean_l;
-            let mut acc = [RmsSum::default(); 8];
-            inversion.level_into(l, x[l], row, |p, xh| {
-                let c = dark_and_gain(xh, xh0[p], xhg[p]);
-                if counted(p) {
-                    let (ml, sl) = (m(l, p), sd(l, p) * inv_nf);
-                    let [id, st, pw] = &ends[p];
-                    let (yst, dst) = standard(l, p, xh);
-                    acc[0].add(ml * inv_mean - 1.0);
-                    acc[1].add(st.corrected(yst) - e[l]);
-                    acc[2].add(c - e[l]);
-                    acc[3].add(id.noise(ml, sl));
-                    acc[4].add(st.noise(yst, dst * sl));
-                    acc[5].add(pw.noise(xh, sl / poly_slope(fit(p), xh)));
-                    acc[6].add(sl * inv_mean);
-                    acc[7].add(sl * id.inv_span);
-                }
-                c
-            });
+    let level = |l: usize, row: &mut [f64], keep: bool| -> [f64; 9] {
+        let counted = |p: usize| mask[p] == 0 && l < valid[p];
+        let (sum, n) = (0..np).filter(|&p| counted(p)).fold((0.0, 0usize), |(s, n), p| (s + m(l, p), n + 1));
+        let mean_l = sum / n.max(1) as f64;
+        let inv_mean = 1.0 / mean_l;
+        let mut acc = [RmsSum::default(); 8];
+        inversion.level_into(l, x[l], row, |p| !keep && !counted(p), |p, xh| {
+            let c = dark_and_gain(xh, xh0[p], xhg[p]);
+            if counted(p) {
+                let (ml, sl) = (m(l, p), sd(l, p) * inv_nf);
+                let [id, st, pw] = &ends[p];
+                let (yst, dst) = standard(l, p, xh);
+                acc[0].add(ml * inv_mean - 1.0);
+                acc[1].add(st.corrected(yst) - e[l]);
+                acc[2].add(c - e[l]);
+                acc[3].add(id.noise(ml, sl));
+                acc[4].add(st.noise(yst, dst * sl));
+                acc[5].add(pw.noise(xh, sl / poly_slope(fit(p), xh)));
+                acc[6].add(sl * inv_mean);
+                acc[7].add(sl * id.inv_span);
+            }
+            c
+        });
+        if keep {
             fill.fill(row);
-            let calibrated = l != 0 && l != g;
-            let [raw, std, pw, random, random_standard, random_pixelwise, random_raw, random_level_only] = acc.map(RmsSum::rms);
-            [
-                nan_unless(l != 0, raw),
-                nan_unless(calibrated, std),
-                nan_unless(calibrated, pw),
-                nan_unless(calibrated, random),
-                nan_unless(l != 0, random_raw),
-                nan_unless(calibrated, random_standard),
-                nan_unless(calibrated, random_pixelwise),
-                nan_unless(l != 0, random_level_only),
-                mean_l,
-            ]
-        })
-        .collect();
+        }
+        let calibrated = l != 0 && l != g;
+        let [raw, std, pw, random, random_standard, random_pixelwise, random_raw, random_level_only] = acc.map(RmsSum::rms);
+        [
+            nan_unless(l != 0, raw),
+            nan_unless(calibrated, std),
+            nan_unless(calibrated, pw),
+            nan_unless(calibrated, random),
+            nan_unless(l != 0, random_raw),
+            nan_unless(calibrated, random_standard),
+            nan_unless(calibrated, random_pixelwise),
+            nan_unless(l != 0, random_level_only),
+            mean_l,
+        ]
+    };
+    // With the cube, each level is its row of it; without, a thread's one row of scratch.
+    let (level_stats, corrected): (Vec<[f64; 9]>, Option<Vec<f64>>) = match cube {
+        Cube::Keep => {
+            let mut corrected = vec![0.0; nl * np];
+            let stats = corrected.par_chunks_mut(np).enumerate().map(|(l, row)| level(l, row, true)).collect();
+            (stats, Some(corrected))
+        }
+        Cube::Skip => ((0..nl).into_par_iter().map_init(|| vec![0.0; np], |row, l| level(l, row, false)).collect(), None),
+    };
     let col = |i: usize| -> Vec<f64> { level_stats.iter().map(|s| s[i]).collect() };
     let maxf = |v: &[f64]| v.iter().filter(|x| x.is_finite()).fold(0.0f64, |a, &b| a.max(b));
     let (rms_raw, rms_standard, rms_pixelwise, rms_random) = (col(0), col(1), col(2), col(3));
     let (rms_random_raw, rms_random_standard, rms_random_pixelwise, rms_random_level_only) = (col(4), col(5), col(6), col(7));
     let level_mean_dn = col(8);
     // The coefficients k-major for the FITS cube.
-    let mut coeffs = vec![f64::NAN; k1 * np];
-    for (p, a) in coef.chunks_exact(k1).enumerate() {
-        a.iter().enumerate().for_each(|(k, &ak)| coeffs[k * np + p] = ak);
-    }
+    let coeffs: Vec<f64> = (0..k1 * np).into_par_iter().map(|i| coef[i % np * k1 + i / np]).collect();
     let report = LinearityReport {
         levels: nl,
         pixels: np,
@@ -630,7 +652,7 @@ mod tests {
         // closed form with the fitted global cubic.
         let set = planted(12, 4, 41, coefficients);
         let (r, px) = analyze(&set, PIXEL_ORDER).unwrap();
-        let ex = example_row(&set, &r, &px, 6);
+        let ex = example_row(&set, &r, &px, px.corrected.as_ref().unwrap(), 6);
         assert_eq!((ex.row, ex.first_column), (2, 3));
         assert_eq!(ex.raw.len(), 40);
         let np = 48;
@@ -699,6 +721,42 @@ mod tests {
     }
 
     #[test]
+    fn the_statistics_without_the_cube_are_those_with_it_bit_for_bit() {
+        // Pixels that vary, one dead, one with a kink, two clipping at the top from
+        // levels 30 and 36, one flagged in the input: the statistics only count good,
+        // unsaturated pixel-levels, so leaving the others uninverted changes no bit.
+        let mut set = planted(6, 5, 41, |p| [100.0 + p as f64, 3000.0 - 7.0 * p as f64, -150.0, 40.0 + p as f64, -12.0]);
+        let np = 30;
+        for l in 0..41 {
+            set.mean[l * np + 7] = 100.0;
+            if l > 20 {
+                set.mean[l * np + 12] += 300.0;
+            }
+            if l >= 30 {
+                set.mean[l * np + 3] = 4095.0;
+            }
+            if l >= 36 {
+                set.mean[l * np + 20] = 4095.0;
+            }
+            for p in 0..np {
+                set.std[l * np + p] = 1.0 + 0.01 * ((l * 7 + p * 3) % 11) as f64;
+            }
+        }
+        set.mask = Some((0..np).map(|p| (p == 25) as u8).collect());
+        let valid = unsaturated_levels(&set);
+        assert!(valid[3] == 30 && valid[20] == 36, "{valid:?}");
+        let (kept, px_kept) = analyze_unsaturated(&set, PIXEL_ORDER, None, valid.clone(), Cube::Keep).unwrap();
+        let (skipped, px_skipped) = analyze_unsaturated(&set, PIXEL_ORDER, None, valid, Cube::Skip).unwrap();
+        assert!(kept.masked_pixels >= 3, "{}", kept.masked_pixels);
+        let json = |r: &LinearityReport| serde_json::to_string(r).unwrap();
+        assert_eq!(json(&kept), json(&skipped));
+        assert_eq!(px_kept.mask, px_skipped.mask);
+        assert!(px_kept.coeffs.iter().zip(&px_skipped.coeffs).all(|(a, b)| a.to_bits() == b.to_bits()));
+        assert_eq!(px_kept.corrected.map(|c| c.len()), Some(41 * np));
+        assert!(px_skipped.corrected.is_none());
+    }
+
+    #[test]
     fn dead_and_anomalous_pixels_are_masked_and_filled() {
         let mut set = planted(5, 5, 41, |_| [100.0, 3000.0, -150.0, 40.0, -12.0]);
         let np = 25;
@@ -716,7 +774,7 @@ mod tests {
         // The filled value is the mean of the good neighbours: here every good pixel reads
         // the same corrected intensity, so the filled one must equal it.
         for l in [5, 20, 35] {
-            let row = &px.corrected[l * np..(l + 1) * np];
+            let row = &px.corrected.as_ref().unwrap()[l * np..(l + 1) * np];
             assert!((row[12] - row[0]).abs() < 1e-12 && (row[7] - row[0]).abs() < 1e-12, "level {l}: {row:?}");
         }
     }
