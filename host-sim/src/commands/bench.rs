@@ -278,6 +278,17 @@ pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, Ho
     Ok(BenchReport { machine: machine(), runs, ratios, notes })
 }
 
+/// Times `work` (`frames` frames) and, unless `run` is the warm-up (0), adds its rate in
+/// Mpx/s to `into`.
+fn timed(run: usize, frames: usize, into: &mut Vec<f64>, work: &mut dyn FnMut() -> Result<(), HostError>) -> Result<(), HostError> {
+    let t = Instant::now();
+    work()?;
+    if run > 0 {
+        into.push(mpx_per_s(frames, t.elapsed().as_secs_f64()));
+    }
+    Ok(())
+}
+
 /// The core's rates per run, Mpx/s, and its baselines' in the same runs.
 struct CoreRates {
     by_line: Vec<f64>,
@@ -330,14 +341,7 @@ fn core_runs(p: &BenchParams, progress: &impl Fn(&str), notes: &mut Vec<String>)
         if run > 0 {
             progress(&format!("run {run}/{runs}"));
         }
-        let timed = |into: &mut Vec<f64>, work: &mut dyn FnMut() -> Result<(), HostError>| -> Result<(), HostError> {
-            let t = Instant::now();
-            work()?;
-            if run > 0 {
-                into.push(mpx_per_s(frames, t.elapsed().as_secs_f64()));
-            }
-            Ok(())
-        };
+        let timed = |into: &mut Vec<f64>, work: &mut dyn FnMut() -> Result<(), HostError>| timed(run, frames, into, work);
         timed(&mut r.by_line, &mut || {
             for f in 0..frames {
                 c_line.begin_frame((f % STATES) as u8).map_err(core_err)?;
@@ -378,14 +382,7 @@ fn core_runs(p: &BenchParams, progress: &impl Fn(&str), notes: &mut Vec<String>)
     // at 2.0x (a standalone test on this machine kind, 2026-11-26); a DAQ keeps its
     // threads busy frame after frame.
     for run in 0..=runs {
-        let timed = |into: &mut Vec<f64>, work: &mut dyn FnMut() -> Result<(), HostError>| -> Result<(), HostError> {
-            let t = Instant::now();
-            work()?;
-            if run > 0 {
-                into.push(mpx_per_s(frames, t.elapsed().as_secs_f64()));
-            }
-            Ok(())
-        };
+        let timed = |into: &mut Vec<f64>, work: &mut dyn FnMut() -> Result<(), HostError>| timed(run, frames, into, work);
         timed(&mut banded_1, &mut || one_band.run(&frame_list).map(|_| ()).map_err(core_err))?;
         timed(&mut banded_n, &mut || many_bands.run(&frame_list).map(|_| ()).map_err(core_err))?;
         timed(&mut plain_1, &mut || {
