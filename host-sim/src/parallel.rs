@@ -72,7 +72,7 @@ impl<const N: usize, const CODES: usize> Bands<N, CODES> {
     pub fn run(&mut self, frames: &[(u8, &[u16])]) -> Result<BandsReport, CoreError> {
         check_frames(self.geometry, frames)?;
         let width = self.geometry.width() as usize;
-        total(self.bands.par_iter_mut().map(|band| band.part()?.add_frames(width, frames)).collect())
+        total(on_threads(&mut self.bands, |band| band.part()?.add_frames(width, frames)))
     }
 
     /// The whole frame's sums, state-major as [`dncal_core::SumImages`] lays them out.
@@ -101,6 +101,16 @@ fn check_frames(geometry: Geometry, frames: &[(u8, &[u16])]) -> Result<(), CoreE
     match frames.iter().find(|(_, codes)| codes.len() != pixels) {
         Some(&(_, bad)) => Err(CoreError::Length { what: dncal_core::error::Quantity::BlockPixels, expected: pixels as u32, got: bad.len() as u32 }),
         None => Ok(()),
+    }
+}
+
+/// `work` on every item, each on its own thread; a single item on the calling thread
+/// (a hand-over to the pool and back costs tens of microseconds, as much as a band of
+/// 64 K pixels takes).
+fn on_threads<T: Send, R: Send>(items: &mut [T], work: impl Fn(&mut T) -> R + Sync + Send) -> Vec<R> {
+    match items {
+        [one] => vec![work(one)],
+        _ => items.par_iter_mut().map(work).collect(),
     }
 }
 
@@ -144,7 +154,7 @@ impl<const N: usize, const CODES: usize> BandCorrectors<'_, N, CODES> {
     pub fn add_frames(&mut self, frames: &[(u8, &[u16])]) -> Result<BandsReport, CoreError> {
         check_frames(self.geometry, frames)?;
         let width = self.geometry.width() as usize;
-        total(self.parts.par_iter_mut().map(|part| part.add_frames(width, frames)).collect())
+        total(on_threads(&mut self.parts, |part| part.add_frames(width, frames)))
     }
 
     /// Adds one frame: [`add_frames`](Self::add_frames) of one.

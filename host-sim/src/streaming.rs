@@ -1,6 +1,8 @@
 //! The streaming check: frames from the camera model, sampled line by line with cycling
-//! modulation states, pushed through the core's `Corrector` exactly as the datapath
-//! would, and compared with the independent float reference ([`crate::reference`]).
+//! modulation states (or replayed from a recording), pushed through the core's
+//! `Corrector` exactly as the datapath would (a frame in bands of rows on every thread,
+//! [`crate::parallel`], bit for bit one corrector's), and compared with the independent
+//! float reference ([`crate::reference`]).
 //!
 //! Two comparisons per sum pixel:
 //! - the core's `u32` sum equals the sum of the reference entries quantized by the
@@ -209,6 +211,12 @@ pub fn run_stream_against(
     crate::dispatch_lut_dims!(camera.config.n_adc, camera.config.codes(), "camera config", run_typed(camera, weights, reference_weights, p, progress))
 }
 
+/// The fewest pixels a band of the core takes in `stream`: a smaller frame (an ROI) is
+/// one band on the calling thread, since handing a band to another thread and waiting
+/// for it costs about what the core takes for 64 K pixels (512 frames of a 256 x 256
+/// ROI in two bands took 1.7x the time per pixel of full frames).
+const MIN_BAND_PIXELS: usize = 1 << 18;
+
 /// The run asked for fits the sensor, and recorded frames are the run's size and count.
 fn check_params(camera: &Camera, p: &StreamParams) -> Result<(), HostError> {
     if p.first_column as usize + p.width as usize > camera.config.width || p.first_row as usize + p.height as usize > camera.config.height {
@@ -279,7 +287,8 @@ fn run_typed<const N: usize, const CODES: usize>(
     // The core in bands of rows, one per thread; the references written first on every
     // thread (a fresh page read before its first write costs a copy-on-write fault and a
     // TLB shootdown across the threads: that was a third of a replay's time).
-    let mut bands = Bands::new(&luts, geometry, rayon::current_num_threads()).map_err(|e| HostError::core(ctx("bands"), e))?;
+    let bands_count = rayon::current_num_threads().min(geometry.pixels() / MIN_BAND_PIXELS).max(1);
+    let mut bands = Bands::new(&luts, geometry, bands_count).map_err(|e| HostError::core(ctx("bands"), e))?;
     let mut ref_q: Vec<u64> = (0..geometry.sum_len()).into_par_iter().map(|_| 0).collect();
     let mut ref_f: Vec<f64> = (0..geometry.sum_len()).into_par_iter().map(|_| 0.0).collect();
     let mut core = bands.correctors().map_err(|e| HostError::core(ctx("corrector"), e))?;

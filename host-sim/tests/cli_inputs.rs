@@ -193,10 +193,15 @@ fn sizes_over_the_memory_budget_are_refused_before_allocating() {
     assert_error(&out, "wide.fits: the primary HDU (4096 x 4000 pixels as 8-byte values) needs about 125.0 MiB, more than the memory budget of 64.0 MiB (--max-memory)");
 
     // A linearity set's analysis: 16 x 8 pixels x 12 levels need 24 x 12 + 256 = 544
-    // bytes per pixel, 68 KiB.
+    // bytes per pixel with the corrected cube the outputs write, 68 KiB; without
+    // outputs no cube, 16 x 12 + 256 = 448 bytes per pixel, 56 KiB.
     support::small_linearity(d, "lin.fits");
-    let out = dncal(&["linearity", "lin.fits", "--max-memory", "64K"], d);
+    let out = dncal(&["linearity", "lin.fits", "--max-memory", "64K", "-o", "lin_out"], d);
     assert_error(&out, "lin.fits: the pixel-wise analysis (the corrected cube and the fits) needs about 68.0 KiB, more than the memory budget of 64.0 KiB (--max-memory)");
+    let out = dncal(&["linearity", "lin.fits", "--max-memory", "48K"], d);
+    assert_error(&out, "lin.fits: the pixel-wise analysis (the fits) needs about 56.0 KiB, more than the memory budget of 48.0 KiB (--max-memory)");
+    let out = dncal(&["linearity", "lin.fits", "--max-memory", "64K", "--json"], d);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     // diagnose: 341 bytes per pixel beyond the set, 42.6 KiB (spilling its records would
     // take more here: a block of each kind per thread).
     let out = dncal(&["diagnose", "lin.fits", "--max-memory", "40K"], d);

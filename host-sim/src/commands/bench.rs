@@ -326,7 +326,8 @@ fn core_runs(p: &BenchParams, progress: &impl Fn(&str), notes: &mut Vec<String>)
     let (mut line_sums, mut block_sums, mut plain_sums, mut byte_sums) = (vec![0u32; STATES * n], vec![0u32; STATES * n], vec![0u32; STATES * n], vec![0u32; STATES * n]);
     let mut r = CoreRates { by_line: Vec::new(), by_block: Vec::new(), plain: Vec::new(), bytes: Vec::new(), numpy: Vec::new(), banded: None };
     // The parallel path against itself on one band: both clear their sums once per run.
-    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    // The bands run on rayon's pool: as many as it has threads.
+    let threads = rayon::current_num_threads();
     let mut one_band = Bands::new(&luts, geometry, 1).map_err(core_err)?;
     let mut many_bands = Bands::new(&luts, geometry, threads).map_err(core_err)?;
     let frame_list: Vec<(u8, &[u16])> = (0..frames).map(|f| ((f % STATES) as u8, codes.as_slice())).collect();
@@ -380,8 +381,11 @@ fn core_runs(p: &BenchParams, progress: &impl Fn(&str), notes: &mut Vec<String>)
     // core idles for some 80 ms, and a 20 ms timing on two threads right after that ran
     // at 1.2-1.6x where the same loop timed back to back with its one-thread twin ran
     // at 2.0x (a standalone test on this machine kind, 2026-11-26); a DAQ keeps its
-    // threads busy frame after frame.
-    for run in 0..=runs {
+    // threads busy frame after frame. (Not on one core: nothing to compare.)
+    for run in (0..=runs).filter(|_| threads > 1) {
+        if run > 0 {
+            progress(&format!("bands, run {run}/{runs}"));
+        }
         let timed = |into: &mut Vec<f64>, work: &mut dyn FnMut() -> Result<(), HostError>| timed(run, frames, into, work);
         timed(&mut banded_1, &mut || one_band.run(&frame_list).map(|_| ()).map_err(core_err))?;
         timed(&mut banded_n, &mut || many_bands.run(&frame_list).map(|_| ()).map_err(core_err))?;

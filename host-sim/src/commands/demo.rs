@@ -77,7 +77,7 @@ impl Report for DemoSummary {
         let s = &self.stream;
         let mut t = format!("dncal demo on {}: {} ramp levels, {:.1} s\n", self.camera, self.ramp_levels, self.seconds);
         t += &format!(
-            "stream: {} frames, {} pixels, {} mismatches, max |error| {:.3e} DN (bound {:.3e}), core {:.3e} pixels/s\n",
+            "stream: {} frames, {} pixels, {} mismatches, max |error| {:.3e} DN (bound {:.3e}), core {:.3e} pixels/s on every thread\n",
             s.frames, s.pixels, s.mismatches, s.max_abs_err_dn, s.bound_dn, s.pixels_per_s
         );
         if let Some(f) = &self.stream_fpga.fpga {
@@ -288,7 +288,7 @@ fn stream_sections(s: &DemoSummary) -> String {
     let _ = write!(
         h,
         "<h2>Streaming through the core</h2><p>{} frames, {} pixels through the core in {} modulation states: <b>{} mismatches</b> against the float \
-         reference quantized by the core's rule; largest deviation from the f64 sums {:.3e} DN (bound {:.3e} DN); core throughput {:.3e} pixels/s.</p>",
+         reference quantized by the core's rule; largest deviation from the f64 sums {:.3e} DN (bound {:.3e} DN); core throughput {:.3e} pixels/s (its bands of rows on every thread).</p>",
         st.frames, st.pixels, 4, st.mismatches, st.max_abs_err_dn, st.bound_dn, st.pixels_per_s
     );
     if let Some(f) = &s.stream_fpga.fpga {

@@ -61,9 +61,16 @@ pub fn linearity_as(read_from: &Path, input: &Path, order: usize, flat: Option<u
     }
     stage(&format!("reading {}", input.display()));
     let set = read_linearity(read_from)?;
-    // The corrected cube (f64 per pixel and level), the fits and their work space.
-    let per_pixel = 24 * set.levels as u64 + 256;
-    crate::budget::check(read_from, "the pixel-wise analysis (the corrected cube and the fits)", crate::budget::bytes_of((set.width * set.height) as u64, per_pixel))?;
+    // The corrected cube only for the outputs: without them the report needs its
+    // statistics alone.
+    let cube = if out.is_some() { Cube::Keep } else { Cube::Skip };
+    // The fits and their work space, and the corrected cube (f64 per pixel and level)
+    // where it is kept.
+    let (per_pixel, what) = match cube {
+        Cube::Keep => (24 * set.levels as u64 + 256, "the pixel-wise analysis (the corrected cube and the fits)"),
+        Cube::Skip => (16 * set.levels as u64 + 256, "the pixel-wise analysis (the fits)"),
+    };
+    crate::budget::check(read_from, what, crate::budget::bytes_of((set.width * set.height) as u64, per_pixel))?;
     if set.levels < order + 3 {
         return Err(HostError::Format { path: input.into(), message: format!("{} levels; an order-{order} fit needs at least {}", set.levels, order + 3) });
     }
@@ -76,14 +83,14 @@ pub fn linearity_as(read_from: &Path, input: &Path, order: usize, flat: Option<u
         check_flat_level(&valid, set.levels, l).map_err(|e| HostError::Argument { flag: "--flat-level".into(), message: format!("{e} ({})", input.display()) })?;
     }
     let spin = spinner(&format!("fitting {} pixels ({} levels): standard and pixel-wise corrections", set.width * set.height, set.levels));
-    // The corrected cube only for the outputs: without them the report needs its
-    // statistics alone.
-    let analysis = analyze_unsaturated(&set, order, flat, valid, if out.is_some() { Cube::Keep } else { Cube::Skip });
+    let analysis = analyze_unsaturated(&set, order, flat, valid, cube);
     spin.finish_and_clear();
     let (report, px) = analysis.map_err(|source| HostError::Linearity { path: input.into(), source })?;
     let analysis_s = start.elapsed().as_secs_f64();
     let mut outputs = Vec::new();
-    if let (Some(OutDir { files, dir }), Some(corrected)) = (out, px.corrected.as_deref()) {
+    if let Some(OutDir { files, dir }) = out {
+        // Kept above for the outputs; an error rather than outputs left out if not.
+        let corrected = px.corrected.as_deref().ok_or_else(|| HostError::Format { path: input.into(), message: "the analysis kept no corrected cube for the outputs".into() })?;
         let c = dir.join("coefficients.fits");
         let pc = PixelCorrection { coeffs: &px.coeffs, mask: &px.mask, width: set.width, height: set.height, order, bit_depth: set.bit_depth, n_adc: set.n_adc };
         stage_pixel_correction(files, &c, &pc)?;
