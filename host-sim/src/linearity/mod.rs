@@ -337,7 +337,7 @@ impl Inversion<'_> {
     fn level(&self, l: usize, x_l: f64) -> Vec<f64> {
         const BLOCK: usize = 4096;
         let mut out = vec![0.0; self.np];
-        out.par_chunks_mut(BLOCK).enumerate().for_each(|(b, chunk)| self.run(l, x_l, b * BLOCK, chunk));
+        out.par_chunks_mut(BLOCK).enumerate().for_each(|(b, chunk)| self.run(l, x_l, b * BLOCK, chunk, |_| false));
         out
     }
 
@@ -345,19 +345,19 @@ impl Inversion<'_> {
     /// pixel order; pixels where `skip(p)` (besides the masked ones) are not inverted
     /// (NaN).
     fn level_into(&self, l: usize, x_l: f64, row: &mut [f64], skip: impl Fn(usize) -> bool, mut put: impl FnMut(usize, f64) -> f64) {
-        let (mean, mask) = (&self.mean[l * self.np..], self.mask);
-        invert_all(row, self.k1, x_l, |j, k| self.coef[j * self.k1 + k], |j| mean[j], |j| mask[j] != 0 || skip(j));
+        self.run(l, x_l, 0, row, skip);
         for (p, v) in row.iter_mut().enumerate() {
             *v = put(p, *v);
         }
     }
 
-    /// `x^` of pixels `first..first + out.len()` of level `l` into `out`.
-    fn run(&self, l: usize, x_l: f64, first: usize, out: &mut [f64]) {
+    /// `x^` of pixels `first..first + out.len()` of level `l` into `out`; NaN for the
+    /// masked ones and those where `skip(j)` (`j` counted from `first`).
+    fn run(&self, l: usize, x_l: f64, first: usize, out: &mut [f64], skip: impl Fn(usize) -> bool) {
         let mean = &self.mean[l * self.np + first..];
         let coef = &self.coef[first * self.k1..];
         let mask = &self.mask[first..];
-        invert_all(out, self.k1, x_l, |j, k| coef[j * self.k1 + k], |j| mean[j], |j| mask[j] != 0);
+        invert_all(out, self.k1, x_l, |j, k| coef[j * self.k1 + k], |j| mean[j], |j| mask[j] != 0 || skip(j));
     }
 }
 
@@ -531,7 +531,9 @@ pub fn analyze_unsaturated(set: &LinearitySet, order: usize, flat: Option<usize>
             [at(&identity), at(&standard), at(&pixelwise)]
         })
         .collect();
-    let fill = GoodNeighbours::of(&mask, w, h);
+    // Masked pixels' good neighbours, for the cube only.
+    let keep = cube == Cube::Keep;
+    let fill = keep.then(|| GoodNeighbours::of(&mask, w, h));
     // Level by level, in one pass over its pixels: the pixel-wise correction `x^ =
     // P^-1(m)` then dark and gain into the output cube (every level, saturated or not:
     // the corrected images show them all), the level's statistics over the good,
@@ -540,7 +542,7 @@ pub fn analyze_unsaturated(set: &LinearitySet, order: usize, flat: Option<usize>
     // Without the cube ([`Cube::Skip`]) only the counted pixels are inverted (the same
     // values: each pixel's inversion is its own, [`invert_all`]) and nothing is filled.
     let nan_unless = |cond: bool, v: f64| if cond { v } else { f64::NAN };
-    let level = |l: usize, row: &mut [f64], keep: bool| -> [f64; 9] {
+    let level = |l: usize, row: &mut [f64]| -> [f64; 9] {
         let counted = |p: usize| mask[p] == 0 && l < valid[p];
         let (sum, n) = (0..np).filter(|&p| counted(p)).fold((0.0, 0usize), |(s, n), p| (s + m(l, p), n + 1));
         let mean_l = sum / n.max(1) as f64;
@@ -563,7 +565,7 @@ pub fn analyze_unsaturated(set: &LinearitySet, order: usize, flat: Option<usize>
             }
             c
         });
-        if keep {
+        if let Some(fill) = &fill {
             fill.fill(row);
         }
         let calibrated = l != 0 && l != g;
@@ -584,10 +586,10 @@ pub fn analyze_unsaturated(set: &LinearitySet, order: usize, flat: Option<usize>
     let (level_stats, corrected): (Vec<[f64; 9]>, Option<Vec<f64>>) = match cube {
         Cube::Keep => {
             let mut corrected = vec![0.0; nl * np];
-            let stats = corrected.par_chunks_mut(np).enumerate().map(|(l, row)| level(l, row, true)).collect();
+            let stats = corrected.par_chunks_mut(np).enumerate().map(|(l, row)| level(l, row)).collect();
             (stats, Some(corrected))
         }
-        Cube::Skip => ((0..nl).into_par_iter().map_init(|| vec![0.0; np], |row, l| level(l, row, false)).collect(), None),
+        Cube::Skip => ((0..nl).into_par_iter().map_init(|| vec![0.0; np], |row, l| level(l, row)).collect(), None),
     };
     let col = |i: usize| -> Vec<f64> { level_stats.iter().map(|s| s[i]).collect() };
     let maxf = |v: &[f64]| v.iter().filter(|x| x.is_finite()).fold(0.0f64, |a, &b| a.max(b));
