@@ -45,9 +45,9 @@ impl<const N: usize, const CODES: usize> Bands<N, CODES> {
         let count = count.clamp(1, height);
         let mut bands = Vec::with_capacity(count);
         for b in 0..count {
-            let (first_row, end) = (b * height / count, (b + 1) * height / count);
-            let g = Geometry::new(geometry.width(), (end - first_row) as u16, geometry.states(), geometry.first_column())?;
-            bands.push(Band { first_row, geometry: g, banks: Box::new(LutBanks::new(luts.clone())), sums: Vec::new() });
+            let rows = band_rows(height, count, b);
+            let g = Geometry::new(geometry.width(), rows.len() as u16, geometry.states(), geometry.first_column())?;
+            bands.push(Band { first_row: rows.start, geometry: g, banks: Box::new(LutBanks::new(luts.clone())), sums: Vec::new() });
         }
         Ok(Bands { geometry, bands })
     }
@@ -85,6 +85,11 @@ impl<const N: usize, const CODES: usize> Bands<N, CODES> {
         }
         out
     }
+}
+
+/// The rows of band `b` of `count` over `height` rows: nearly equal heights, in order.
+pub fn band_rows(height: usize, count: usize, b: usize) -> std::ops::Range<usize> {
+    b * height / count..(b + 1) * height / count
 }
 
 impl<const N: usize, const CODES: usize> Band<N, CODES> {

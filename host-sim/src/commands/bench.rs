@@ -19,7 +19,7 @@ use rand::{rngs::StdRng, Rng, SeedableRng};
 use serde::Serialize;
 
 use crate::commands::Report;
-use crate::parallel::Bands;
+use crate::parallel::{band_rows, Bands};
 use crate::stats::median;
 use crate::HostError;
 
@@ -116,11 +116,11 @@ fn plain_lut_bands(tables: &[[u32; 4096]; 4], codes: &[u16], frames: usize, sums
     use rayon::prelude::*;
     let count = sums.len();
     sums.par_iter_mut().enumerate().for_each(|(b, band)| {
-        let (first, end) = (b * HEIGHT / count * WIDTH, (b + 1) * HEIGHT / count * WIDTH);
-        let n = end - first;
+        let rows = band_rows(HEIGHT, count, b);
+        let (first, n) = (rows.start * WIDTH, rows.len() * WIDTH);
         band.fill(0);
         for f in 0..frames {
-            plain_lut_frame(tables, black_box(&codes[first..end]), &mut band[f % STATES * n..][..n]);
+            plain_lut_frame(tables, black_box(&codes[first..first + n]), &mut band[f % STATES * n..][..n]);
         }
     });
 }
@@ -332,7 +332,7 @@ fn core_runs(p: &BenchParams, progress: &impl Fn(&str), notes: &mut Vec<String>)
     let mut many_bands = Bands::new(&luts, geometry, threads).map_err(core_err)?;
     let frame_list: Vec<(u8, &[u16])> = (0..frames).map(|f| ((f % STATES) as u8, codes.as_slice())).collect();
     let (mut banded_1, mut banded_n, mut plain_1, mut plain_n) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
-    let band_sums = |count: usize| (0..count).map(|b| vec![0u32; STATES * ((b + 1) * HEIGHT / count - b * HEIGHT / count) * WIDTH]).collect::<Vec<_>>();
+    let band_sums = |count: usize| (0..count).map(|b| vec![0u32; STATES * band_rows(HEIGHT, count, b).len() * WIDTH]).collect::<Vec<_>>();
     let (mut plain_sums_1, mut plain_sums_n) = (band_sums(1), band_sums(threads));
     let mut c_line = Corrector::new(&mut banks_line, geometry, &mut line_sums).map_err(core_err)?;
     let mut c_block = Corrector::new(&mut banks_block, geometry, &mut block_sums).map_err(core_err)?;
