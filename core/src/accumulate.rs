@@ -436,10 +436,11 @@ pub fn lookup<const CODES: usize>(table: &[LutEntry; CODES], raw: u16) -> (LutEn
 /// on a code in range. Whether every code was in range is learnt from the bitwise OR of
 /// the line, which no code exceeds.
 /// - Exact mode (wrapping addition, which can be taken back exactly): the OR is taken in
-///   the loop itself, of the codes it loads anyway (one instruction a pixel, and no
-///   pass over the line before the loop). A line whose OR is above the top code then has the entries
-///   of its out-of-range codes taken back and the top code's added in their place
-///   ([`lookup`]'s rule), and those codes counted.
+///   the loop itself, of the code words it loads anyway (two codes a word: half an
+///   instruction a pixel on a Cortex-M4, and no pass over the line before the loop). A
+///   line whose OR is above the top code then has the entries of its out-of-range codes
+///   taken back and the top code's added in their place ([`lookup`]'s rule), and those
+///   codes counted.
 /// - Saturating mode (a clipped addition cannot be taken back): the OR is a pass of its
 ///   own before the loop ([`or_of`]). A line that may hold codes above the top goes
 ///   through the same loop with the index clamped to the top and its out-of-range codes
@@ -448,7 +449,8 @@ pub fn lookup<const CODES: usize>(table: &[LutEntry; CODES], raw: u16) -> (LutEn
 /// Measured 2026-11-26 (x86, `dncal bench`, nine alternating invocations each): the
 /// frame as a block at 0.94-1.02 of the plain LUT loop (median 0.99) with the OR in the
 /// loop, against 0.85-0.94 (median 0.90) with the pass before it. On the Cortex-M4 the
-/// OR in the loop is 7.8 instructions a pixel against 8.0 for the pass and the loop.
+/// exact loop is 7.25 instructions a pixel, against 7.0 plus 1.0 for the pass before
+/// (README, firmware).
 fn add_line<A: Add, const N: usize, const CODES: usize>(
     luts: &LutSet<N, CODES>,
     first_column: u32,
@@ -459,19 +461,16 @@ fn add_line<A: Add, const N: usize, const CODES: usize>(
     // `top` is `CODES - 1`, all ones: the mask is the identity on codes in range.
     let masked = |raw: u16| raw as usize & top;
     if A::UNDOABLE {
-        let mut or = 0u16;
-        let mut report = add_indexed::<A, N, CODES>(luts, first_column, codes, sums, |raw| {
-            or |= raw;
-            masked(raw)
-        });
-        if or as usize > top {
+        let mut or = 0u32;
+        let mut report = add_indexed::<A, N, CODES>(luts, first_column, codes, sums, |word| or |= word, masked);
+        if ((or as u16 | (or >> 16) as u16) as usize) > top {
             report.out_of_range_codes = retake_out_of_range(luts, first_column, codes, sums);
         }
         report
     } else if (or_of(codes) as usize) <= top {
-        add_indexed::<A, N, CODES>(luts, first_column, codes, sums, masked)
+        add_indexed::<A, N, CODES>(luts, first_column, codes, sums, |_| (), masked)
     } else {
-        let mut report = add_indexed::<A, N, CODES>(luts, first_column, codes, sums, |raw| (raw as usize).min(top));
+        let mut report = add_indexed::<A, N, CODES>(luts, first_column, codes, sums, |_| (), |raw| (raw as usize).min(top));
         report.out_of_range_codes = codes.iter().filter(|&&c| c as usize > top).count() as u32;
         report
     }
@@ -514,17 +513,24 @@ fn or_of(codes: &[u16]) -> u16 {
     (acc as u16) | ((acc >> 16) as u16) | rest
 }
 
-/// The loop of [`add_line`] with its index rule `index` (a value below `CODES`), which
-/// sees every code once, in order. The line is split into a head up to the next multiple
-/// of N columns, whole groups of N in ADC order 0..N (no index arithmetic per pixel),
-/// and a tail.
+/// The loop of [`add_line`] with its index rule `index` (a value below `CODES`). Every
+/// code also passes through `see` once, as part of a 32-bit word: two codes joined (low
+/// half the first) inside a group of N columns when N is even, else one code alone. The
+/// line is split into a head up to the next multiple of N columns, whole groups of N in
+/// ADC order 0..N (no index arithmetic per pixel), and a tail.
+///
+/// A group's codes and sums are copied into arrays and its sums written back whole:
+/// LLVM then loads the codes as words (two per word on a Cortex-M4, where the halves
+/// come out with the mask folded in: `bfc` and `ubfx`, and `see` takes the word as it
+/// was loaded) and pairs the sums' loads and stores (`ldrd`, `strd`).
 #[inline(always)]
 fn add_indexed<A: Add, const N: usize, const CODES: usize>(
     luts: &LutSet<N, CODES>,
     first_column: u32,
     codes: &[u16],
     sums: &mut [u32],
-    mut index: impl FnMut(u16) -> usize,
+    mut see: impl FnMut(u32),
+    index: impl Fn(u16) -> usize,
 ) -> LineReport {
     let tables = luts.tables();
     let mut report = LineReport::default();
@@ -533,17 +539,29 @@ fn add_indexed<A: Add, const N: usize, const CODES: usize>(
     let (head_codes, body_codes) = codes.split_at(head);
     let (head_sums, body_sums) = sums.split_at_mut(head);
     for (i, (&raw, sum)) in head_codes.iter().zip(head_sums).enumerate() {
+        see(raw as u32);
         add(&tables[AdcMap::<N>::adc(first_column + i as u32)], raw, sum);
     }
     let whole = body_codes.len() / N * N;
     let (body_codes, tail_codes) = body_codes.split_at(whole);
     let (body_sums, tail_sums) = body_sums.split_at_mut(whole);
     for (cs, ss) in body_codes.chunks_exact(N).zip(body_sums.chunks_exact_mut(N)) {
+        let mut c = [0u16; N];
+        c.copy_from_slice(cs);
+        let mut s = [0u32; N];
+        s.copy_from_slice(ss);
         for j in 0..N {
-            add(&tables[j], cs[j], &mut ss[j]);
+            if N % 2 == 1 {
+                see(c[j] as u32);
+            } else if j % 2 == 0 {
+                see(c[j] as u32 | (c[j + 1] as u32) << 16);
+            }
+            add(&tables[j], c[j], &mut s[j]);
         }
+        ss.copy_from_slice(&s);
     }
     for ((table, &raw), sum) in tables.iter().zip(tail_codes).zip(tail_sums) {
+        see(raw as u32);
         add(table, raw, sum);
     }
     report

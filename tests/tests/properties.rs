@@ -181,6 +181,71 @@ proptest! {
     }
 
     #[test]
+    fn four_adcs_sum_as_the_naive_reference_in_both_modes_with_codes_far_above_the_top(
+        width in 1u16..40,
+        height in 1u16..3,
+        first_column in 0u16..1000,
+        frames in prop_oneof![1u32..6, (EXACT_FRAMES - 2)..(EXACT_FRAMES + 6)],
+        seed in any::<u64>(),
+    ) {
+        // Four ADCs (the camera's count: codes go through the loop two to a word) and
+        // entries near 2^23, so the frames past 512 clip; the codes mix the range, just
+        // above the top and the 16-bit extreme, and some lines hold none above the top.
+        let g = Geometry::new(width, height, 1, first_column).unwrap();
+        let mut rng = dncal_host::synth::Rng::new(seed);
+        let tables: [[u32; 64]; 4] = core::array::from_fn(|_| {
+            // Every entry above 2^32 / 513: frame 513 clips whatever the codes.
+            let mut acc = LUT_ENTRY_LIMIT - 64 * 200;
+            core::array::from_fn(|_| { acc += (rng.next_u64() % 200) as u32; acc })
+        });
+        let luts = LutSet::<4, 64>::from_bits(&tables).unwrap();
+        let frame_codes: Vec<Vec<u16>> = (0..frames)
+            .map(|_| {
+                let wild = rng.next_u64().is_multiple_of(2);
+                (0..g.pixels())
+                    .map(|_| match rng.next_u64() % 16 {
+                        0 if wild => 65535,
+                        1 if wild => 64 + (rng.next_u64() % 200) as u16,
+                        _ => (rng.next_u64() % 64) as u16,
+                    })
+                    .collect()
+            })
+            .collect();
+        let mut banks = LutBanks::new(luts.clone());
+        let mut sums = vec![0u32; g.sum_len()];
+        let mut c = Corrector::new(&mut banks, g, &mut sums).unwrap();
+        let mut out_of_range = 0;
+        for frame in &frame_codes {
+            c.begin_frame(0).unwrap();
+            for (row, line) in frame.chunks_exact(width as usize).enumerate() {
+                out_of_range += c.accumulate_line(row as u16, line).unwrap().out_of_range_codes;
+            }
+            c.end_frame().unwrap();
+        }
+        let status = c.status();
+        drop(c);
+        prop_assert_eq!(out_of_range as usize, frame_codes.iter().flatten().filter(|&&x| x > 63).count());
+        // Saturating addition of non-negative entries: the u64 sum clipped once at the end,
+        // and a clip counted for every addition that starts from or crosses the limit.
+        let bits = lut_bits(&luts);
+        let mut clips = 0u32;
+        let mut running = vec![0u64; g.pixels()];
+        for frame in &frame_codes {
+            for (i, (&code, r)) in frame.iter().zip(&mut running).enumerate() {
+                let entry = bits[(first_column as usize + i % width as usize) % 4][(code as usize).min(63)] as u64;
+                clips += (*r + entry > u32::MAX as u64 && entry > 0) as u32;
+                *r += entry;
+            }
+        }
+        let naive = naive_sums(&bits, g, &frame_codes);
+        prop_assert_eq!(&running, &naive);
+        prop_assert_eq!(sums.iter().map(|&s| s as u64).collect::<Vec<_>>(), naive.iter().map(|&s| s.min(u32::MAX as u64)).collect::<Vec<_>>());
+        prop_assert_eq!(status.saturated_additions, clips);
+        prop_assert!(frames <= EXACT_FRAMES || clips > 0, "entries near 2^23 must clip past 512 frames");
+        prop_assert_eq!(status.out_of_range_codes, out_of_range);
+    }
+
+    #[test]
     fn sums_never_wrap_in_saturating_mode(extra_frames in 1u32..200, entry in (LUT_ENTRY_LIMIT - 4096)..LUT_ENTRY_LIMIT, low in 0u32..1_000_000) {
         // Two columns: one near the top of the range (must clip), one low (must not).
         let luts = LutSet::<1, 2>::from_bits(&[[low.min(entry), entry]]).unwrap();
