@@ -1,7 +1,8 @@
 //! The K-Coronagraph's deployed tables (../shared/data/kcor-luts, read in place, never
 //! copied): `lut import --kcor` and `lut export --format kcor` round-trip every shared
 //! file byte for byte, the imported LUT loads in the core (`lut inspect` of its FITS and
-//! device image), and damaged tables are refused with the file named and nothing written.
+//! device image), damaged tables are refused with the file named and nothing written, and
+//! the core's sums with a camera's tables are numpy's indexing of them.
 
 mod support;
 
@@ -298,4 +299,81 @@ fn the_lut_figure_with_real_adcs_is_set_by_the_random_walk_of_its_noise() {
     let (wide, _, _) = run(3, 0.1);
     let growth = wide / small[3].0;
     assert!((growth / 10f64.sqrt() - 1.0).abs() < 0.1, "ten times the Q range: the floor grows {growth}x, sqrt(10) for a random walk");
+}
+
+/// A deployed camera's four 23-bit tables loaded into the core as they are, frames of
+/// codes (the camera's range, a few codes above its top, an ROI whose first column is not
+/// a multiple of four) summed per modulation state, and every sum equal to numpy's
+/// `lut[adc, codes]` summed over the state's frames: an oracle we did not write, on the
+/// tables a real instrument used.
+#[test]
+fn the_core_sums_a_deployed_camera_as_numpy_indexes_it() {
+    use dncal_core::{Corrector, Geometry, LutBanks, LutSet};
+    let Some(dir) = luts_dir() else { return };
+    let spec = dir.join("Photonfocus_MV-D1024E_13889_adc{adc}_20131203.bin").to_string_lossy().into_owned();
+    let tables: Vec<[u32; 4096]> = (0..4)
+        .map(|a| {
+            let bytes = std::fs::read(spec.replace("{adc}", &a.to_string())).unwrap();
+            let words: Vec<u32> = bytes.chunks_exact(4).map(|w| u32::from_le_bytes([w[0], w[1], w[2], w[3]])).collect();
+            words.try_into().unwrap()
+        })
+        .collect();
+    let luts = LutSet::<4, 4096>::from_bits(&[tables[0], tables[1], tables[2], tables[3]]).unwrap();
+    let (width, height, states, first_column, frames) = (1021u16, 6u16, 2u8, 3u16, 10usize);
+    let g = Geometry::new(width, height, states, first_column).unwrap();
+    let mut x = 0x9E37_79B9_7F4A_7C15u64;
+    let codes: Vec<u16> = (0..frames * g.pixels())
+        .map(|_| {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            match x % 1000 {
+                0 => 4096 + (x >> 20) as u16 % 60000,
+                _ => (x >> 40) as u16 % 4096,
+            }
+        })
+        .collect();
+    let mut banks = Box::new(LutBanks::new(luts));
+    let mut sums = vec![0u32; g.sum_len()];
+    let mut c = Corrector::new(&mut banks, g, &mut sums).unwrap();
+    for (f, frame) in codes.chunks_exact(g.pixels()).enumerate() {
+        c.begin_frame((f % states as usize) as u8).unwrap();
+        c.accumulate_lines(0, frame).unwrap();
+        c.end_frame().unwrap();
+    }
+    let above = codes.iter().filter(|&&k| k > 4095).count() as u32;
+    assert!(above > 0);
+    assert_eq!(c.status().out_of_range_codes, above);
+    drop(c);
+
+    let tmp = tempfile::tempdir().unwrap();
+    let codes_path = tmp.path().join("codes.u16");
+    std::fs::write(&codes_path, codes.iter().flat_map(|k| k.to_le_bytes()).collect::<Vec<u8>>()).unwrap();
+    let sums_path = tmp.path().join("sums.u8");
+    let script = r#"
+import sys, numpy as np
+spec, codes_path, out, w, h, s, c0, n = sys.argv[1:9]
+w, h, s, c0, n = int(w), int(h), int(s), int(c0), int(n)
+lut = np.stack([np.fromfile(spec.replace("{adc}", str(a)), dtype="<u4") for a in range(4)]).astype(np.uint64)
+codes = np.minimum(np.fromfile(codes_path, dtype="<u2").reshape(n, h, w), 4095)
+adc = (c0 + np.arange(w)) % 4
+sums = np.zeros((s, h, w), dtype=np.uint64)
+for f in range(n):
+    sums[f % s] += lut[adc[None, :], codes[f]]
+sums.astype("<u8").tofile(out)
+"#;
+    let py = Command::new("python3")
+        .arg("-c")
+        .arg(script)
+        .arg(&spec)
+        .arg(&codes_path)
+        .arg(&sums_path)
+        .args([width.to_string(), height.to_string(), states.to_string(), first_column.to_string(), frames.to_string()])
+        .output()
+        .unwrap();
+    assert!(py.status.success(), "numpy oracle: {}", String::from_utf8_lossy(&py.stderr));
+    let theirs: Vec<u64> = std::fs::read(&sums_path).unwrap().chunks_exact(8).map(|b| u64::from_le_bytes(b.try_into().unwrap())).collect();
+    assert_eq!(theirs.len(), sums.len());
+    let differing = sums.iter().zip(&theirs).filter(|(&a, &b)| a as u64 != b).count();
+    assert_eq!(differing, 0, "{differing} of {} sums differ from numpy", sums.len());
 }
