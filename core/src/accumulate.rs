@@ -436,8 +436,9 @@ pub fn lookup<const CODES: usize>(table: &[LutEntry; CODES], raw: u16) -> (LutEn
 /// on a code in range. Whether every code was in range is learnt from the bitwise OR of
 /// the line, which no code exceeds.
 /// - Exact mode (wrapping addition, which can be taken back exactly): the OR is taken in
-///   the loop itself, of the code words it loads anyway (two codes a word: half an
-///   instruction a pixel on a Cortex-M4, and no pass over the line before the loop). A
+///   the loop itself, of the code words it loads anyway (two codes a word where N is
+///   even: half an instruction a pixel on a Cortex-M4; one a code where N is odd; and
+///   no pass over the line before the loop). A
 ///   line whose OR is above the top code then has the entries of its out-of-range codes
 ///   taken back and the top code's added in their place ([`lookup`]'s rule), and those
 ///   codes counted.
@@ -640,6 +641,22 @@ mod tests {
         c.end_frame().unwrap();
         assert!(c.sums().state(0).unwrap().iter().all(|&s| s == u32::MAX));
         assert_eq!(c.status().saturated_additions, 8);
+    }
+
+    #[test]
+    fn out_of_range_codes_that_would_cancel_under_xor_are_all_read_as_the_top() {
+        // Equal codes above the top in one word of two codes, and in two words: an OR
+        // that cancelled them (an XOR) would skip the take-back and the count.
+        let g = Geometry::new(4, 2, 1, 0).unwrap();
+        let mut buf = [0u32; 8];
+        let mut banks = LutBanks::new(LutSet::<4, 4096>::ideal());
+        let mut c = Corrector::new(&mut banks, g, &mut buf).unwrap();
+        c.begin_frame(0).unwrap();
+        assert_eq!(c.accumulate_line(0, &[4096, 4096, 0, 0]).unwrap().out_of_range_codes, 2);
+        assert_eq!(c.accumulate_line(1, &[4096, 0, 4096, 0]).unwrap().out_of_range_codes, 2);
+        c.end_frame().unwrap();
+        let (top, zero) = (LutEntry::ideal(4095).to_bits(), LutEntry::ideal(0).to_bits());
+        assert_eq!(c.sums().state(0).unwrap(), [top, top, zero, zero, top, zero, top, zero]);
     }
 
     #[test]

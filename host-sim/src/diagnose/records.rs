@@ -556,6 +556,34 @@ mod tests {
         assert_eq!((take.u32(), take.u8()), (0, 0));
     }
 
+    #[test]
+    fn the_small_records_take_their_stated_bytes_and_read_back_bit_for_bit() {
+        let nan = f64::from_bits(0x7ff8_0000_0bad_f00d);
+        let [a, b] = round_trip([-0.0, nan]);
+        assert_eq!((a.to_bits(), b.to_bits()), ((-0.0f64).to_bits(), nan.to_bits()));
+        assert_eq!(round_trip([1.25e300, -3.5]), [1.25e300, -3.5]);
+        assert_eq!(round_trip(Some(2.5f64)), Some(2.5));
+        assert_eq!(round_trip(Some(-0.0f64)).map(f64::to_bits), Some((-0.0f64).to_bits()));
+        assert_eq!(round_trip(Some(nan)).map(f64::to_bits), Some(nan.to_bits()));
+        assert_eq!(round_trip(None::<f64>), None);
+        assert_eq!(round_trip(0xbeefu16), 0xbeef);
+        assert_eq!(round_trip(0xdead_beefu32), 0xdead_beef);
+    }
+
+    /// A spilled store whose file ends before its length: the read past the end fails,
+    /// every record of that block reads as lost (not as the zeros the buffer was filled
+    /// with), and the failure is kept for the diagnosis to end with.
+    #[test]
+    fn a_read_past_the_spill_file_reads_as_lost_and_is_a_failure() {
+        let w = Writer::<Pair>::new(&Keep::spilled(), 10);
+        w.put(0, &(0..4).map(pair).collect::<Vec<_>>());
+        let r = w.finish();
+        let bits = |p: Pair| (p.0.to_bits(), p.1);
+        assert_eq!(bits(r.at(7)), bits(Pair::LOST));
+        assert_eq!(bits(r.at(2)), bits(Pair::LOST));
+        assert!(r.keep().failed().is_some_and(|m| m.contains("reading the per-pixel records back")), "{:?}", r.keep().failed());
+    }
+
     #[derive(Debug, Clone, Copy, PartialEq)]
     struct Pair(f64, u16);
 
@@ -606,6 +634,8 @@ mod tests {
         assert!((0..n).rev().all(|j| bits(spilled.at(j)) == bits(pair(j))));
         assert_eq!(bits(spilled.at(n)), bits(Pair::LOST));
         assert_eq!(spilled.keep().failed(), None);
+        // What the diagnosis reports as `records_spilled`.
+        assert!(spilled.keep().spills() && !held.keep().spills());
         assert_eq!(Records::<Pair>::from_fn(&Keep::spilled(), 0, pair).iter().count(), 0);
     }
 
@@ -655,6 +685,36 @@ mod tests {
             let _taken = b.borrow_mut();
             assert!((0..n).step_by(331).all(|j| spilled.at(j).0.to_bits() == pair(j).0.to_bits()));
         });
+    }
+
+    /// A store read on every thread of the pool and dropped: `release` leaves no thread a
+    /// block of it (the dropping thread's goes with the drop, the others' only here), and
+    /// keeps the blocks of a store still alive.
+    #[test]
+    fn release_frees_every_threads_blocks_of_dropped_stores_only() {
+        let n = 4 * Records::<Pair>::per_block();
+        let (gone, kept) = (Records::from_fn(&Keep::spilled(), n, pair), Records::from_fn(&Keep::spilled(), n, pair));
+        let id = |r: &Records<Pair>| match &r.store {
+            Store::Spilled { alive, .. } => Arc::downgrade(alive),
+            Store::Held(_) => unreachable!("spilled"),
+        };
+        let (gone_id, kept_id) = (id(&gone), id(&kept));
+        // Every pool thread reads a record of each (the blocks they load stay theirs).
+        rayon::broadcast(|_| {
+            gone.at(1);
+            kept.at(1);
+        });
+        let held_of = |w: &std::sync::Weak<()>| {
+            let w = w.clone();
+            let count = move || BLOCKS.with(|b| b.borrow().iter().filter(|c| c.store.ptr_eq(&w)).count());
+            rayon::broadcast(|_| count()).into_iter().sum::<usize>() + count()
+        };
+        assert!(held_of(&gone_id) >= 1, "the pool's threads hold blocks of the store");
+        drop(gone);
+        release();
+        assert_eq!(held_of(&gone_id), 0, "blocks of a dropped store left after release");
+        assert!(held_of(&kept_id) >= 1, "release freed a live store's blocks");
+        drop(kept);
     }
 
     /// More stores than a thread keeps blocks of, read in turn on one thread (each read
