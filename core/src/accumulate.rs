@@ -438,10 +438,9 @@ pub fn lookup<const CODES: usize>(table: &[LutEntry; CODES], raw: u16) -> (LutEn
 /// - Exact mode (wrapping addition, which can be taken back exactly): the OR is taken in
 ///   the loop itself, of the code words it loads anyway (two codes a word where N is
 ///   even: half an instruction a pixel on a Cortex-M4; one a code where N is odd; and
-///   no pass over the line before the loop). A
-///   line whose OR is above the top code then has the entries of its out-of-range codes
-///   taken back and the top code's added in their place ([`lookup`]'s rule), and those
-///   codes counted.
+///   no pass over the line before the loop). A line whose OR is above the top code then
+///   has the entries of its out-of-range codes taken back and the top code's added in
+///   their place ([`lookup`]'s rule), and those codes counted.
 /// - Saturating mode (a clipped addition cannot be taken back): the OR is a pass of its
 ///   own before the loop ([`or_of`]). A line that may hold codes above the top goes
 ///   through the same loop with the index clamped to the top and its out-of-range codes
@@ -477,8 +476,8 @@ fn add_line<A: Add, const N: usize, const CODES: usize>(
     }
 }
 
-/// Takes back the masked entry each out-of-range code of a line added and adds the top
-/// code's in its place; the count of such codes. Exact only after wrapping additions
+/// Takes back the masked entry each out-of-range code of a line added and adds the one
+/// [`lookup`] gives it (the top code's) in its place; the count of such codes. Exact only after wrapping additions
 /// (the exact mode), where `sum - a + b` is the sum that `b` alone would have made.
 /// Out of line: a camera's lines never come here.
 #[inline(never)]
@@ -487,9 +486,9 @@ fn retake_out_of_range<const N: usize, const CODES: usize>(luts: &LutSet<N, CODE
     let tables = luts.tables();
     let mut count = 0;
     for (i, (&raw, sum)) in codes.iter().zip(sums).enumerate() {
-        if raw as usize > top {
-            let table = &tables[AdcMap::<N>::adc(first_column + i as u32)];
-            *sum = sum.wrapping_sub(table[raw as usize & top].to_bits()).wrapping_add(table[top].to_bits());
+        let table = &tables[AdcMap::<N>::adc(first_column + i as u32)];
+        if let (entry, true) = lookup(table, raw) {
+            *sum = sum.wrapping_sub(table[raw as usize & top].to_bits()).wrapping_add(entry.to_bits());
             count += 1;
         }
     }

@@ -309,16 +309,11 @@ fn the_lut_figure_with_real_adcs_is_set_by_the_random_walk_of_its_noise() {
 #[test]
 fn the_core_sums_a_deployed_camera_as_numpy_indexes_it() {
     use dncal_core::{Corrector, Geometry, LutBanks, LutSet};
+    use dncal_host::kcor_tables::{expand, KcorTable};
     let Some(dir) = luts_dir() else { return };
     let spec = dir.join("Photonfocus_MV-D1024E_13889_adc{adc}_20131203.bin").to_string_lossy().into_owned();
-    let tables: Vec<[u32; 4096]> = (0..4)
-        .map(|a| {
-            let bytes = std::fs::read(spec.replace("{adc}", &a.to_string())).unwrap();
-            let words: Vec<u32> = bytes.chunks_exact(4).map(|w| u32::from_le_bytes([w[0], w[1], w[2], w[3]])).collect();
-            words.try_into().unwrap()
-        })
-        .collect();
-    let luts = LutSet::<4, 4096>::from_bits(&[tables[0], tables[1], tables[2], tables[3]]).unwrap();
+    let tables: [[u32; 4096]; 4] = expand(&spec).unwrap().map(|path| KcorTable::read(&path).unwrap().entries.try_into().unwrap());
+    let luts = LutSet::<4, 4096>::from_bits(&tables).unwrap();
     // First column 2: a head of 2 codes, 254 groups of four, a tail of 3.
     let (width, height, states, first_column, frames) = (1021u16, 6u16, 2u8, 2u16, 10usize);
     let g = Geometry::new(width, height, states, first_column).unwrap();
