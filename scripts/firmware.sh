@@ -2,6 +2,7 @@
 # Builds (and optionally runs) the firmware for thumbv7em-none-eabihf with Debian's
 # rustc-web toolchain; installs the cross toolchain and QEMU when missing.
 #   scripts/firmware.sh install        install the cross toolchain if missing
+#   scripts/firmware.sh have           exit 0 if the cross toolchain is there (installs nothing)
 #   scripts/firmware.sh build          build; prints the ELF path on the last line
 #   scripts/firmware.sh run DIR        run in QEMU with DIR as the semihosting directory
 #   scripts/firmware.sh size           flash and RAM use of the release ELF
@@ -37,6 +38,7 @@ build() {
 
 case "${1:-build}" in
   install) install ;;
+  have) have_toolchain ;;
   build) build ;;
   run)
     dir=${2:?usage: firmware.sh run DIR}
@@ -47,7 +49,9 @@ case "${1:-build}" in
     ;;
   size)
     build >/dev/null
-    /usr/lib/llvm-22/bin/llvm-size -A "$elf"
+    size=$(command -v llvm-size-22 || command -v llvm-size || command -v size) \
+      || { echo "firmware.sh: no llvm-size or size on PATH" >&2; exit 1; }
+    "$size" -A "$elf"
     ;;
-  *) echo "usage: $0 install|build|run DIR|size" >&2; exit 2 ;;
+  *) echo "usage: $0 install|have|build|run DIR|size" >&2; exit 2 ;;
 esac

@@ -14,7 +14,7 @@
 //! From frame 513 on the addition saturates at `u32::MAX` and every clipped addition is
 //! counted: a sum never wraps silently.
 
-use crate::adc::{AdcMap, Code};
+use crate::adc::{count_above_top, AdcMap, Code};
 use crate::error::Quantity;
 use crate::lut::LutEntry;
 use crate::{CoreError, LutBanks, LutSet};
@@ -449,8 +449,8 @@ pub fn lookup<const CODES: usize>(table: &[LutEntry; CODES], raw: u16) -> (LutEn
 /// Measured 2026-11-26 (x86, `dncal bench`, nine alternating invocations each): the
 /// frame as a block at 0.94-1.02 of the plain LUT loop (median 0.99) with the OR in the
 /// loop, against 0.85-0.94 (median 0.90) with the pass before it. On the Cortex-M4 the
-/// exact loop is 7.25 instructions a pixel, against 7.0 plus 1.0 for the pass before
-/// (README, firmware).
+/// exact loop is 6.25 instructions a pixel (7.25 while LLVM unrolled it four groups
+/// deep), against 7.0 plus 1.0 for the pass before (README, firmware).
 fn add_line<A: Add, const N: usize, const CODES: usize>(
     luts: &LutSet<N, CODES>,
     first_column: u32,
@@ -470,8 +470,8 @@ fn add_line<A: Add, const N: usize, const CODES: usize>(
     } else if (or_of(codes) as usize) <= top {
         add_indexed::<A, N, CODES>(luts, first_column, codes, sums, |_| (), masked)
     } else {
-        let mut report = add_indexed::<A, N, CODES>(luts, first_column, codes, sums, |_| (), |raw| (raw as usize).min(top));
-        report.out_of_range_codes = codes.iter().filter(|&&c| c as usize > top).count() as u32;
+        let mut report = add_indexed::<A, N, CODES>(luts, first_column, codes, sums, |_| (), |raw| Code::<CODES>::clamped(raw).0.index());
+        report.out_of_range_codes = count_above_top::<CODES>(codes);
         report
     }
 }
@@ -503,7 +503,7 @@ fn retake_out_of_range<const N: usize, const CODES: usize>(luts: &LutSet<N, CODE
 /// every 8 codes: 6-9% of the core's time on a 1024-pixel line against 3-5% now,
 /// measured beside a loop without the pass.)
 #[inline(always)]
-fn or_of(codes: &[u16]) -> u16 {
+pub(crate) fn or_of(codes: &[u16]) -> u16 {
     let mut runs = codes.chunks_exact(32);
     let mut acc = 0u32;
     for run in &mut runs {
@@ -535,7 +535,7 @@ fn add_indexed<A: Add, const N: usize, const CODES: usize>(
     let tables = luts.tables();
     let mut report = LineReport::default();
     let mut add = |table: &[LutEntry; CODES], raw: u16, sum: &mut u32| A::add(sum, table[index(raw)], &mut report.saturated_additions);
-    let head = ((N - AdcMap::<N>::adc(first_column)) % N).min(codes.len());
+    let head = AdcMap::<N>::head(first_column, codes.len());
     let (head_codes, body_codes) = codes.split_at(head);
     let (head_sums, body_sums) = sums.split_at_mut(head);
     for (i, (&raw, sum)) in head_codes.iter().zip(head_sums).enumerate() {

@@ -95,11 +95,44 @@ impl<const N: usize> AdcMap<N> {
         let () = Self::VALID;
         adc_of_column(column as usize, N)
     }
+
+    /// How many of `len` columns starting at sensor column `first_column` come before
+    /// the first column of ADC 0: the head a loop takes one by one before it walks whole
+    /// groups of N columns in ADC order.
+    #[inline]
+    pub const fn head(first_column: u32, len: usize) -> usize {
+        let head = (N - Self::adc(first_column)) % N;
+        if head < len {
+            head
+        } else {
+            len
+        }
+    }
+}
+
+/// How many of `codes` lie above the top code of a `CODES`-code ADC (the ones the
+/// datapath reads as the top code and counts).
+#[inline]
+pub fn count_above_top<const CODES: usize>(codes: &[u16]) -> u32 {
+    codes.iter().filter(|&&raw| Code::<CODES>::clamped(raw).1).count() as u32
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_head_runs_to_the_first_column_of_adc_zero_or_the_end() {
+        assert_eq!(AdcMap::<4>::head(130, 64), 2, "130 is ADC 2: columns 130, 131, then 132 is ADC 0");
+        assert_eq!(AdcMap::<4>::head(128, 64), 0);
+        assert_eq!(AdcMap::<4>::head(129, 2), 2, "a line shorter than its head is all head");
+        assert_eq!(AdcMap::<3>::head(7, 10), 2);
+        assert_eq!(AdcMap::<1>::head(5, 10), 0);
+        for first in 0..12u32 {
+            let head = AdcMap::<4>::head(first, 100) as u32;
+            assert!(head < 4 && AdcMap::<4>::adc(first + head) == 0 && (0..head).all(|i| AdcMap::<4>::adc(first + i) != 0));
+        }
+    }
 
     #[test]
     fn code_rejects_above_top_and_clamps() {
@@ -108,6 +141,8 @@ mod tests {
         assert_eq!(Code::<4096>::clamped(65535), (Code::<4096>::MAX, true));
         assert_eq!(Code::<256>::clamped(255).0.get(), 255);
         assert_eq!(Code::<4096>::bits(), 12);
+        assert_eq!(count_above_top::<4096>(&[0, 4095, 4096, 65535, 7]), 2);
+        assert_eq!(count_above_top::<16>(&[]), 0);
         assert_eq!(Code::<65536>::MAX.get(), 65535);
     }
 

@@ -3,7 +3,8 @@
 //! an area near the center of the sensor", summed over illumination ramps). The host
 //! flattens them into per-code weights and builds the LUTs.
 
-use crate::adc::{AdcMap, Code};
+use crate::accumulate::or_of;
+use crate::adc::{count_above_top, AdcMap, Code};
 use crate::{CoreError, Geometry};
 
 /// A rectangle of sensor lines and columns, half-open: `rows.0 <= row < rows.1`,
@@ -60,6 +61,13 @@ impl<const N: usize, const CODES: usize> HistogramSet<N, CODES> {
     /// Counts the codes of line `row` that fall in `roi`; the line's first pixel is
     /// sensor column `first_column`. Codes above the top code count as the top code and
     /// in [`out_of_range`](Self::out_of_range). Returns the pixels counted.
+    ///
+    /// Written like the correction's loop (`accumulate`): the span's OR says whether
+    /// every code is in range, so a camera's line takes the code masked to `CODES - 1`
+    /// (no clamp, no bounds check, no count a pixel), and the span is walked as a head,
+    /// whole groups of N columns in ADC order (no column arithmetic a pixel) and a tail.
+    /// On the Cortex-M4 that took the pass from 15.8 instructions a pixel (20 once the
+    /// firmware stopped unrolling loops of unknown count) to 8.6 (README).
     pub fn capture_line(&mut self, roi: &Roi, row: u16, first_column: u16, codes: &[u16]) -> u32 {
         if row < roi.rows.0 || row >= roi.rows.1 {
             return 0;
@@ -68,15 +76,42 @@ impl<const N: usize, const CODES: usize> HistogramSet<N, CODES> {
         let start = (roi.columns.0 as u32).saturating_sub(first) as usize;
         let end = ((roi.columns.1 as u32).saturating_sub(first) as usize).min(codes.len());
         let Some(span) = codes.get(start..end) else { return 0 };
-        for (i, &raw) in span.iter().enumerate() {
-            let (code, clipped) = Code::<CODES>::clamped(raw);
-            self.out_of_range = self.out_of_range.saturating_add(clipped as u32);
-            let adc = AdcMap::<N>::adc(first + (start + i) as u32);
-            if let Some(c) = self.counts.get_mut(adc).and_then(|t| t.get_mut(code.index())) {
-                *c = c.saturating_add(1);
-            }
+        let first = first + start as u32;
+        let top = Code::<CODES>::MAX.index();
+        if (or_of(span) as usize) <= top {
+            self.count_indexed(first, span, |raw| raw as usize & top);
+        } else {
+            self.count_indexed(first, span, |raw| Code::<CODES>::clamped(raw).0.index());
+            self.out_of_range = self.out_of_range.saturating_add(count_above_top::<CODES>(span));
         }
         span.len() as u32
+    }
+
+    /// Adds one to `counts[adc][index(raw)]` for each code of `span`, whose first pixel
+    /// is sensor column `first_column`; `index` gives a value below `CODES`.
+    #[inline(always)]
+    fn count_indexed(&mut self, first_column: u32, span: &[u16], index: impl Fn(u16) -> usize) {
+        let bump = |table: &mut [u32; CODES], raw: u16| {
+            if let Some(c) = table.get_mut(index(raw)) {
+                *c = c.saturating_add(1);
+            }
+        };
+        let head = AdcMap::<N>::head(first_column, span.len());
+        let (head, body) = span.split_at(head);
+        for (i, &raw) in head.iter().enumerate() {
+            if let Some(table) = self.counts.get_mut(AdcMap::<N>::adc(first_column + i as u32)) {
+                bump(table, raw);
+            }
+        }
+        let mut groups = body.chunks_exact(N);
+        for group in &mut groups {
+            for (table, &raw) in self.counts.iter_mut().zip(group) {
+                bump(table, raw);
+            }
+        }
+        for (table, &raw) in self.counts.iter_mut().zip(groups.remainder()) {
+            bump(table, raw);
+        }
     }
 
     /// The counts of ADC `adc`.

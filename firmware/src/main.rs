@@ -95,7 +95,6 @@ fn run() -> Result<bool, FirmwareError> {
     corrector.request_activation()?;
     defmt::info!("LUT bank {=usize} active; {=u16}x{=u16} lines, {=u8} states, {=u32} frames", corrector.banks().active_index(), g.width(), g.height(), g.states(), header.frames);
 
-    let mut raw = [0u8; 2 * MAX_WIDTH];
     let mut line = [0u16; MAX_WIDTH];
     let mut noise = NoiseEstimator::new(4095);
     // Histogram capture is a pass of its own over each line, run only when the stream
@@ -103,11 +102,10 @@ fn run() -> Result<bool, FirmwareError> {
     defmt::info!("histogram capture {=bool}", header.capture_histograms);
     let sinks = StreamSinks { histograms: header.capture_histograms.then_some(&mut *hist), noise: &mut noise, first_frame };
     run_stream(&mut corrector, sinks, header.frames, &mut line, |line: &mut [u16]| -> Result<(), FirmwareError> {
-        let raw = &mut raw[..2 * line.len()];
-        lines.read_exact(raw)?;
-        for (c, b) in line.iter_mut().zip(raw.chunks_exact(2)) {
-            *c = u16::from_le_bytes([b[0], b[1]]);
-        }
+        // The line's bytes land in place, as a frame grabber's DMA writes them: no copy.
+        // The stream is little-endian; `from_le` is no instruction on this core.
+        lines.read_exact(bytemuck::cast_slice_mut(line))?;
+        line.iter_mut().for_each(|c| *c = u16::from_le(*c));
         Ok(())
     })?;
     match noise.check(KCOR_ACCURACY_DN) {

@@ -853,6 +853,8 @@ fn bench_reports_ratios_against_in_process_references() {
     let one_core = notes.iter().any(|n| n.as_str().unwrap().starts_with("one core"));
     assert!(one_core || (baselines.contains(&"core, 1 band, 1 thread") && baselines.contains(&"plain loop, 1 band, 1 thread")), "{s}");
     assert!(numpy_ran || notes.iter().any(|n| n.as_str().unwrap().starts_with("numpy skipped")), "numpy neither ran nor was reported skipped: {s}");
+    let firmware_ran = baselines.contains(&"issue 17: 7 instructions a pixel");
+    assert!(firmware_ran || notes.iter().any(|n| n.as_str().unwrap().starts_with("firmware skipped")), "the firmware row neither ran nor was reported skipped: {s}");
     for r in ratios {
         let (rate, base, ratio) = (r["rate"].as_f64().unwrap(), r["baseline_rate"].as_f64().unwrap(), r["ratio_median"].as_f64().unwrap());
         assert!(rate > 0.0 && base > 0.0, "{r}");

@@ -301,6 +301,41 @@ proptest! {
         prop_assert_eq!(got, naive_histograms(g, std::slice::from_ref(&frame), 4, 16));
         prop_assert_eq!(h.out_of_range() as usize, frame.iter().filter(|&&c| c > 15).count());
     }
+
+    /// A ROI inside the lines, with some lines wholly in range (the masked path) and some
+    /// with codes up to 65535 (the clamped one), against a count written out here.
+    #[test]
+    fn histograms_of_a_roi_equal_a_naive_count_in_and_out_of_range(
+        width in 1u16..40, first_column in 0u16..50, roi_start in 0u16..40, roi_len in 1u16..40,
+        wild_rows in proptest::collection::vec(any::<bool>(), 4), seed in any::<u64>(),
+    ) {
+        let g = Geometry::new(width, 4, 1, first_column).unwrap();
+        let start = first_column + roi_start % width;
+        let end = (start + roi_len).min(first_column + width);
+        let roi = Roi::new((1, 4), (start, end), g).unwrap();
+        let mut rng = dncal_host::synth::Rng::new(seed);
+        let frame: Vec<u16> = (0..g.pixels())
+            .map(|i| if wild_rows[i / width as usize] { [rng.next_u64() as u16, 16, 17, 65535][i % 4] } else { (rng.next_u64() % 16) as u16 })
+            .collect();
+        let mut h = HistogramSet::<4, 16>::new();
+        let mut counted = 0;
+        for (row, line) in frame.chunks_exact(width as usize).enumerate() {
+            counted += h.capture_line(&roi, row as u16, first_column, line);
+        }
+        let mut expected = vec![0u32; 4 * 16];
+        let mut out = 0;
+        for row in 1..4usize {
+            for column in start..end {
+                let code = frame[row * width as usize + (column - first_column) as usize];
+                out += (code > 15) as u32;
+                expected[(column % 4) as usize * 16 + code.min(15) as usize] += 1;
+            }
+        }
+        let got: Vec<u32> = (0..4).flat_map(|a| h.counts(a).unwrap().to_vec()).collect();
+        prop_assert_eq!(counted, 3 * (end - start) as u32);
+        prop_assert_eq!(got, expected);
+        prop_assert_eq!(h.out_of_range(), out);
+    }
 }
 
 #[test]

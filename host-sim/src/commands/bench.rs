@@ -83,9 +83,18 @@ impl Report for BenchReport {
         let mut t = format!("{}; {} runs; ratios are per run (median, min-max)\n", self.machine, self.runs);
         for x in &self.ratios {
             let target = x.target.map_or(String::new(), |g| format!("  target >= {g}: {}", if x.holds == Some(true) { "holds" } else { "NOT MET" }));
+            // Rates below 10 (pixels an instruction) keep three decimals.
+            let rate = |r: f64| if r < 10.0 { format!("{r:>8.3}") } else { format!("{r:>8.1}") };
             t += &format!(
-                "{:<22} {:>8.1} {}  vs {:<24} {:>8.1}: {:.2}x ({:.2}-{:.2}){target}\n",
-                x.name, x.rate, x.unit, x.baseline, x.baseline_rate, x.ratio_median, x.ratio_min, x.ratio_max
+                "{:<22} {} {}  vs {:<24} {}: {:.2}x ({:.2}-{:.2}){target}\n",
+                x.name,
+                rate(x.rate),
+                x.unit,
+                x.baseline,
+                rate(x.baseline_rate),
+                x.ratio_median,
+                x.ratio_min,
+                x.ratio_max
             );
         }
         for n in &self.notes {
@@ -159,6 +168,23 @@ fn quartic_per_pixel(set: &crate::fits::LinearitySet) -> f64 {
             a.svd(true, true).solve(&b, 1e-12).map_or(0.0, |c| c.sum())
         })
         .sum()
+}
+
+/// The firmware's exact-mode correction, instructions a pixel counted by QEMU
+/// ([`crate::firmware::instructions::correction_cost`]), against issue 17's limit of 7, as
+/// pixels an instruction (so that more is better, as in every other row). A count, not a
+/// timing: one run. Skipped with a note where the cross toolchain is missing (the bench
+/// does not install it: `scripts/firmware.sh install`) or the count fails.
+fn firmware_ratio() -> Result<(Ratio, String), String> {
+    let script = crate::firmware::repo_root().join("scripts/firmware.sh");
+    let have = std::process::Command::new(&script).arg("have").status().map(|s| s.success()).unwrap_or(false);
+    if !have {
+        return Err("firmware skipped: no cross toolchain (scripts/firmware.sh install)".into());
+    }
+    let cost = crate::firmware::build_firmware().and_then(|elf| crate::firmware::instructions::correction_cost(&elf)).map_err(|e| format!("firmware skipped: {e}"))?;
+    let limit = 7.0;
+    let r = ratio("firmware correction, QEMU count", &[1.0 / cost.per_pixel], "issue 17: 7 instructions a pixel", &[1.0 / limit], "px/instr", Some(1.0));
+    Ok((r, format!("firmware: the exact-mode correction executes {:.3} instructions a pixel plus {:.1} a line (Cortex-M4 under QEMU)", cost.per_pixel, cost.per_line)))
 }
 
 /// Mpx/s of `frames` frames of 1024 x 1024 pixels taking `seconds`.
@@ -270,6 +296,13 @@ pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, Ho
         ratios.extend(linearity_ratio(&camera, runs, &mut notes)?);
     }
     ratios.push(diagnose_ratio(&camera, runs)?);
+    match firmware_ratio() {
+        Ok((r, note)) => {
+            ratios.push(r);
+            notes.push(note);
+        }
+        Err(note) => notes.push(note),
+    }
     if core.numpy.len() == runs {
         ratios.push(ratio("core, frame as a block", &core.by_block, "numpy lut[adc, codes]", &core.numpy, "Mpx/s", Some(8.0)));
     } else if p.numpy && notes.is_empty() {

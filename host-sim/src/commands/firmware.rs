@@ -7,7 +7,8 @@ use dncal_core::{Geometry, Mvd1024eLuts};
 use serde::Serialize;
 
 use crate::commands::Report;
-use crate::firmware::{build_firmware, run_firmware, run_on_host, RunInputs};
+use crate::firmware::instructions::{attribute, InstructionCounts};
+use crate::firmware::{build_firmware, repo_root, run_firmware, run_on_host, RunInputs};
 use crate::synth::{dn_error_weights, synthetic_frames, Rng};
 use crate::HostError;
 
@@ -22,6 +23,9 @@ pub struct CheckParams {
     pub size: u16,
     /// Seed of the LUTs' DN error and the frames.
     pub seed: u64,
+    /// Also count the instructions the firmware executes, by place in the source (a
+    /// second QEMU run, one instruction a block).
+    pub count_instructions: bool,
 }
 
 /// The comparison.
@@ -41,6 +45,8 @@ pub struct CheckReport {
     pub noise_sigma_dn: Option<f32>,
     /// The firmware's decoded defmt log.
     pub firmware_log: Vec<String>,
+    /// Instructions the firmware executed, by place in the source, when asked for.
+    pub instructions: Option<InstructionCounts>,
     /// All three agree.
     pub ok: bool,
     /// What the firmware printed over semihosting.
@@ -60,13 +66,17 @@ impl Report for CheckReport {
         for line in &self.firmware_log {
             t += &format!("firmware log: {line}\n");
         }
+        if let Some(counts) = &self.instructions {
+            t += &counts.table(0.01);
+        }
         t
     }
 }
 
 /// Builds the firmware (`scripts/firmware.sh build`), runs `p`'s synthetic frames with
 /// LUTs of random DN error through it under QEMU and through the core here, histogram
-/// capture on, and compares the outputs.
+/// capture on, and compares the outputs. With `count_instructions`, runs them again with
+/// QEMU counting the instructions executed and places them in the source.
 pub fn firmware_check(p: CheckParams) -> Result<CheckReport, HostError> {
     let geometry = Geometry::new(p.size, p.size, p.states, 130).map_err(|e| HostError::core("geometry from --size/--states", e))?;
     let mut rng = Rng::new(p.seed);
@@ -76,7 +86,14 @@ pub fn firmware_check(p: CheckParams) -> Result<CheckReport, HostError> {
     let inputs = RunInputs { luts, geometry, frames, capture_histograms: true };
     let host = run_on_host(&inputs)?;
     let elf = build_firmware()?;
-    let fw = run_firmware(&elf, &inputs, &host.outputs.sums, Duration::from_secs(600))?;
+    let fw = run_firmware(&elf, &inputs, &host.outputs.sums, Duration::from_secs(600), false)?;
+    let instructions = if p.count_instructions {
+        let traced = run_firmware(&elf, &inputs, &host.outputs.sums, Duration::from_secs(1200), true)?;
+        let pixels = (inputs.frames.len() * geometry.pixels()) as u64;
+        Some(attribute(&elf, &traced.executed.unwrap_or_default(), &repo_root(), pixels)?)
+    } else {
+        None
+    };
     let (ours, theirs) = (&host.outputs, &fw.outputs);
     let mismatches = theirs.sums.iter().zip(&ours.sums).filter(|(a, b)| a != b).count() + theirs.sums.len().abs_diff(ours.sums.len());
     let status_equal = theirs.status == ours.status && theirs.frames_per_state == ours.frames_per_state;
@@ -89,6 +106,7 @@ pub fn firmware_check(p: CheckParams) -> Result<CheckReport, HostError> {
         histograms_equal,
         noise_sigma_dn: host.noise.as_ref().ok().map(|r| r.sigma_dn),
         firmware_log: fw.log,
+        instructions,
         ok: mismatches == 0 && status_equal && histograms_equal,
         firmware_stdout: fw.stdout,
         params: p,

@@ -101,8 +101,8 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
             let system = dncal_fpga_model::sizing::System { cameras, width: size, height: size, frame_rate_hz: frame_rate, ..Default::default() };
             print(json, &fpga::fpga_size(&system, states, &config, lut.as_deref(), out.as_deref())?)?;
         }
-        Cmd::FirmwareCheck { frames_per_state, states, size, seed, json } => {
-            let r = firmware_check(CheckParams { frames_per_state, states, size, seed })?;
+        Cmd::FirmwareCheck { frames_per_state, states, size, seed, count_instructions, json } => {
+            let r = firmware_check(CheckParams { frames_per_state, states, size, seed, count_instructions })?;
             print(json, &r)?;
             return Ok(passed(r.ok));
         }

@@ -1,6 +1,9 @@
 //! The firmware-versus-host run: the same LUT image and line stream through the core on
 //! the host and on the Cortex-M4 firmware under QEMU, with the firmware's files and
-//! defmt log read back for comparison.
+//! defmt log read back for comparison; on request, the instructions it executed
+//! ([`instructions`]).
+
+pub mod instructions;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -57,6 +60,8 @@ pub struct FirmwareRun {
     pub stdout: String,
     /// The decoded defmt log, one message per entry.
     pub log: Vec<String>,
+    /// Instructions executed per guest address, when the run counted them.
+    pub executed: Option<instructions::Executed>,
 }
 
 /// Runs `inputs` through the core on the host exactly as the firmware does.
@@ -144,8 +149,10 @@ pub fn decode_defmt(elf: &Path, log: &[u8]) -> Result<Vec<String>, HostError> {
 }
 
 /// Runs the firmware `elf` in QEMU on `inputs`, with `expected` (the host's sums) for
-/// its own comparison, in a fresh temporary directory; gives up after `timeout`.
-pub fn run_firmware(elf: &Path, inputs: &RunInputs, expected: &[u32], timeout: Duration) -> Result<FirmwareRun, HostError> {
+/// its own comparison, in a fresh temporary directory; gives up after `timeout`. With
+/// `count_instructions` QEMU runs one instruction a block and logs each one executed
+/// (about 20x slower), and the run returns the counts per address.
+pub fn run_firmware(elf: &Path, inputs: &RunInputs, expected: &[u32], timeout: Duration, count_instructions: bool) -> Result<FirmwareRun, HostError> {
     let g = inputs.geometry;
     let dir = tempfile::tempdir().map_err(|e| HostError::io(std::env::temp_dir(), e))?;
     let at = |name: &str| dir.path().join(name);
@@ -162,12 +169,15 @@ pub fn run_firmware(elf: &Path, inputs: &RunInputs, expected: &[u32], timeout: D
     let mut child = Command::new(qemu)
         .args(["-cpu", "cortex-m4", "-machine", "mps2-an386", "-nographic", "-semihosting-config", "enable=on,target=native", "-kernel"])
         .arg(elf)
+        .args(if count_instructions { instructions::trace_args(instructions::qemu_version(qemu)?) } else { &[] })
         .current_dir(dir.path())
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
         .map_err(|e| tool(e.to_string()))?;
+    // QEMU's stderr is read as it comes: with the trace it is millions of lines.
+    let stderr = child.stderr.take().map(|e| std::thread::spawn(move || instructions::read_trace(std::io::BufReader::new(e))));
     let start = Instant::now();
     while child.try_wait().map_err(|e| tool(e.to_string()))?.is_none() {
         if start.elapsed() > timeout {
@@ -177,13 +187,19 @@ pub fn run_firmware(elf: &Path, inputs: &RunInputs, expected: &[u32], timeout: D
         std::thread::sleep(Duration::from_millis(20));
     }
     let out = child.wait_with_output().map_err(|e| tool(e.to_string()))?;
-    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
-    let log = match std::fs::read(at("defmt.bin")) {
-        Ok(bytes) => decode_defmt(elf, &bytes)?,
-        Err(e) => return Err(HostError::io(at("defmt.bin"), e)),
+    let (executed, stderr) = match stderr {
+        Some(reader) => reader.join().map_err(|_| tool("the reader of QEMU's stderr failed".into()))?,
+        None => Default::default(),
     };
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+    let log = std::fs::read(at("defmt.bin")).map_err(|e| HostError::io(at("defmt.bin"), e)).and_then(|bytes| decode_defmt(elf, &bytes));
     if !out.status.success() && !stdout.contains("firmware bit-exact") {
-        return Err(tool(format!("firmware failed ({}): {}{}; log: {}", out.status, stdout, String::from_utf8_lossy(&out.stderr), log.join(" | "))));
+        let log = log.map_or_else(|e| format!("none ({e})"), |l| l.join(" | "));
+        return Err(tool(format!("firmware failed ({}): {}{}; log: {}", out.status, stdout, stderr, log)));
+    }
+    let log = log?;
+    if count_instructions && executed.is_empty() {
+        return Err(tool(format!("QEMU logged no executed instruction (has its `-d exec` log format changed?); its stderr: {stderr}")));
     }
     let sums = read_words(at("sums.bin"))?;
     let words = read_words(at("status.bin"))?;
@@ -193,5 +209,5 @@ pub fn run_firmware(elf: &Path, inputs: &RunInputs, expected: &[u32], timeout: D
     let mut status = [0u32; STATUS_WORDS];
     status.copy_from_slice(&words[..STATUS_WORDS]);
     let outputs = RunOutputs { sums, status: Status::from_words(status), frames_per_state: words[STATUS_WORDS..].to_vec(), histograms: read_words(at("hist.bin"))? };
-    Ok(FirmwareRun { outputs, stdout, log })
+    Ok(FirmwareRun { outputs, stdout, log, executed: count_instructions.then_some(executed) })
 }
