@@ -599,6 +599,46 @@ mod tests {
         }
     }
 
+    /// A record whose `put` writes one byte short when its value is odd: a faulty
+    /// `Record` impl.
+    #[derive(Clone, Copy, Debug, PartialEq)]
+    struct Short(u32);
+    impl Record for Short {
+        const BYTES: usize = 4;
+        const LOST: Short = Short(u32::MAX);
+        fn put(&self, out: &mut Put<'_>) {
+            out.u16(self.0 as u16);
+            out.u8((self.0 >> 16) as u8);
+            if self.0 % 2 == 0 {
+                out.u8((self.0 >> 24) as u8);
+            }
+        }
+        fn take(from: &mut Take<'_>) -> Self {
+            Short(from.u16() as u32 | (from.u8() as u32) << 16 | (from.u8() as u32) << 24)
+        }
+    }
+
+    /// A record that writes fewer bytes than it states fails the spill, and is padded to
+    /// its size, so that the records after it stay where they are; gather says how many it
+    /// took from any first index.
+    #[test]
+    fn a_record_short_of_its_bytes_fails_the_spill_and_shifts_nothing() {
+        let out = Writer::<Short>::new(&Keep::spilled(), 9);
+        let written: Vec<Short> = (0..9u32).map(|j| Short(0x0403_0200 + 2 * j + (j == 3) as u32)).collect();
+        out.put(0, &written);
+        assert!(out.failed(), "the odd record wrote 3 bytes of 4");
+        assert_eq!(out.gather(5, [Short(0x1000_0002), Short(0x2000_0004)].into_iter()), 0, "nothing is taken after a failure");
+        let r = out.finish();
+        assert_eq!(r.at(3), Short(0x0003_0207), "padded with a zero byte");
+        assert!((0..9).filter(|&j| j != 3).all(|j| r.at(j) == written[j]), "the records around the short one in their places");
+        let good = Writer::<Short>::new(&Keep::spilled(), 9);
+        assert_eq!(good.gather(0, (0..5).map(|j| Short(2 * j)).collect::<Vec<_>>().into_iter()), 5);
+        assert_eq!(good.gather(5, [Short(0x1000_0002), Short(0x2000_0004), Short(6), Short(8)].into_iter()), 4);
+        assert!(!good.failed());
+        let r = good.finish();
+        assert_eq!((r.at(5), r.at(6), r.at(7)), (Short(0x1000_0002), Short(0x2000_0004), Short(6)));
+    }
+
     fn pair(j: usize) -> Pair {
         // Values whose bits matter: negative zero, subnormals, NaN payloads.
         let v = match j % 5 {
