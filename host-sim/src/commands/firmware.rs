@@ -23,8 +23,8 @@ pub struct CheckParams {
     pub size: u16,
     /// Seed of the LUTs' DN error and the frames.
     pub seed: u64,
-    /// Also count the instructions the firmware executes, by place in the source (a
-    /// second QEMU run, one instruction a block).
+    /// Also count the instructions the firmware executes, by place in the source (QEMU
+    /// runs one instruction a block: seconds instead of a fraction of one).
     pub count_instructions: bool,
 }
 
@@ -75,8 +75,8 @@ impl Report for CheckReport {
 
 /// Builds the firmware (`scripts/firmware.sh build`), runs `p`'s synthetic frames with
 /// LUTs of random DN error through it under QEMU and through the core here, histogram
-/// capture on, and compares the outputs. With `count_instructions`, runs them again with
-/// QEMU counting the instructions executed and places them in the source.
+/// capture on, and compares the outputs. With `count_instructions`, QEMU also counts the
+/// instructions the run executes, and they are placed in the source.
 pub fn firmware_check(p: CheckParams) -> Result<CheckReport, HostError> {
     let geometry = Geometry::new(p.size, p.size, p.states, 130).map_err(|e| HostError::core("geometry from --size/--states", e))?;
     let mut rng = Rng::new(p.seed);
@@ -86,14 +86,9 @@ pub fn firmware_check(p: CheckParams) -> Result<CheckReport, HostError> {
     let inputs = RunInputs { luts, geometry, frames, capture_histograms: true };
     let host = run_on_host(&inputs)?;
     let elf = build_firmware()?;
-    let fw = run_firmware(&elf, &inputs, &host.outputs.sums, Duration::from_secs(600), false)?;
-    let instructions = if p.count_instructions {
-        let traced = run_firmware(&elf, &inputs, &host.outputs.sums, Duration::from_secs(1200), true)?;
-        let pixels = (inputs.frames.len() * geometry.pixels()) as u64;
-        Some(attribute(&elf, &traced.executed.unwrap_or_default(), &repo_root(), pixels)?)
-    } else {
-        None
-    };
+    let fw = run_firmware(&elf, &inputs, &host.outputs.sums, Duration::from_secs(if p.count_instructions { 1200 } else { 600 }), p.count_instructions)?;
+    let pixels = (inputs.frames.len() * geometry.pixels()) as u64;
+    let instructions = fw.executed.as_ref().map(|executed| attribute(&elf, executed, &repo_root(), pixels)).transpose()?;
     let (ours, theirs) = (&host.outputs, &fw.outputs);
     let mismatches = theirs.sums.iter().zip(&ours.sums).filter(|(a, b)| a != b).count() + theirs.sums.len().abs_diff(ours.sums.len());
     let status_equal = theirs.status == ours.status && theirs.frames_per_state == ours.frames_per_state;

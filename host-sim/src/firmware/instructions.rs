@@ -117,9 +117,14 @@ pub struct InstructionCounts {
 }
 
 impl InstructionCounts {
-    /// Instructions per pixel executed at places whose function is `function`.
+    /// Instructions executed at places whose function is `function`.
+    pub fn instructions_in(&self, function: &str) -> u64 {
+        self.places.iter().filter(|p| p.function == function).map(|p| p.instructions).sum()
+    }
+
+    /// The same per pixel.
     pub fn per_pixel_in(&self, function: &str) -> f64 {
-        self.places.iter().filter(|p| p.function == function).map(|p| p.per_pixel).sum()
+        self.instructions_in(function) as f64 / self.pixels.max(1) as f64
     }
 
     /// The places above `min_per_pixel` as a table.
@@ -222,7 +227,7 @@ pub fn correction_cost(elf: &Path) -> Result<CorrectionCost, HostError> {
         }
         let pixels = (frames as usize * geometry.pixels()) as u64;
         let counts = attribute(elf, run.executed.as_ref().unwrap_or(&Executed::new()), &repo_root(), pixels)?;
-        Ok(counts.per_pixel_in("accumulate_line") * pixels as f64)
+        Ok(counts.instructions_in("accumulate_line") as f64)
     };
     let (a16, a32, a64) = (count(16)?, count(32)?, count(64)?);
     let per_line_pixel = |a: f64, w: f64| a / (frames as f64 * w);

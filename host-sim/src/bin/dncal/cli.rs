@@ -438,8 +438,8 @@ pub(crate) enum Cmd {
         /// Seed of the synthetic LUTs and lines.
         #[arg(long, default_value_t = 2018)]
         seed: u64,
-        /// Run the firmware a second time with QEMU counting every instruction it executes,
-        /// and print them per pixel by place in the source (core, firmware, library).
+        /// Have QEMU count every instruction the firmware executes (seconds instead of a
+        /// fraction of one), and print them per pixel by place in the source.
         #[arg(long)]
         count_instructions: bool,
         /// Print a JSON summary on stdout.
