@@ -27,9 +27,14 @@ pub fn default_limit() -> u64 {
 }
 
 fn physical_memory() -> Option<u64> {
-    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
-    let line = text.lines().find(|l| l.starts_with("MemTotal:"))?;
-    let kib: u64 = line.trim_start_matches("MemTotal:").trim().trim_end_matches("kB").trim().parse().ok()?;
+    kib_field(&std::fs::read_to_string("/proc/meminfo").ok()?, "MemTotal:")
+}
+
+/// The value of a `KEY: N kB` line of a `/proc` file (`/proc/meminfo`,
+/// `/proc/PID/status`), in bytes.
+pub(crate) fn kib_field(text: &str, key: &str) -> Option<u64> {
+    let line = text.lines().find(|l| l.starts_with(key))?;
+    let kib: u64 = line[key.len()..].trim().trim_end_matches("kB").trim().parse().ok()?;
     kib.checked_mul(1024)
 }
 
@@ -147,5 +152,14 @@ mod tests {
             }
             Err(_) => assert_eq!(default_limit(), FALLBACK),
         }
+    }
+
+    #[test]
+    fn a_proc_field_is_read_in_bytes() {
+        let status = "Name:\tdncal\nVmPeak:\t  900 kB\nVmHWM:\t   12345 kB\nVmRSS:\t 100 kB\n";
+        assert_eq!(kib_field(status, "VmHWM:"), Some(12345 * 1024));
+        assert_eq!(kib_field(status, "VmSwap:"), None);
+        assert_eq!(kib_field("VmHWM: lots kB", "VmHWM:"), None);
+        assert_eq!(kib_field(&format!("VmHWM: {} kB", u64::MAX / 1000), "VmHWM:"), None);
     }
 }

@@ -834,11 +834,14 @@ fn diagnose_names_the_simulated_adcs_dn_error_in_a_linearity_set() {
 
 /// `dncal bench` reports each measurement as a ratio against its reference in the same
 /// run (speed itself is never asserted here: the machines are shared); the core's sums
-/// were checked against the plain loop's inside the bench, or it would have failed.
+/// were checked against the plain loop's inside the bench, or it would have failed. With
+/// `--whole` (here on small sets) it runs `linearity`, `diagnose` and the demo as
+/// processes and reports their costs against issue 17's limits, which it checks only at
+/// the issue's sizes (the demo's always).
 #[test]
 fn bench_reports_ratios_against_in_process_references() {
     let dir = tempfile::tempdir().unwrap();
-    let s = stdout_json(&dncal(&["bench", "--runs", "2", "--frames", "1", "--json"], dir.path()));
+    let s = stdout_json(&dncal(&["bench", "--runs", "2", "--frames", "1", "--whole", "--linearity-side", "32", "--diagnose-side", "40", "--json"], dir.path()));
     assert_eq!(s["runs"], 2);
     assert!(s["machine"].as_str().unwrap().contains("logical cores"));
     let ratios = s["ratios"].as_array().unwrap();
@@ -863,7 +866,30 @@ fn bench_reports_ratios_against_in_process_references() {
             assert_eq!(r["holds"].as_bool().unwrap(), ratio >= t, "{r}");
         }
     }
+    let row = |name: &str| ratios.iter().find(|r| r["name"] == name).unwrap_or_else(|| panic!("no row {name}: {s}"));
+    for (name, unit, limit) in [
+        ("linearity 32 x 32 x 41, wall", "s", 2.0),
+        ("linearity 32 x 32 x 41, beyond input", "B/px", 1024.0),
+        ("diagnose 40 x 40 x 41, wall", "s", 300.0),
+        ("diagnose 40 x 40 x 41, peak RSS", "GB", 4.0),
+        ("diagnose 40 x 40 x 41, RSS a pixel", "B/px", 1024.0),
+        ("demo, defaults, wall", "s", 60.0),
+    ] {
+        let r = row(name);
+        assert_eq!((r["unit"].as_str(), r["better"].as_str(), r["baseline_rate"].as_f64()), (Some(unit), Some("lower"), Some(limit)), "{r}");
+        assert_eq!(r["target"].is_null(), !name.starts_with("demo"), "{r}");
+        // The limit over the median cost lies among the per-run ratios.
+        let over = limit / r["rate"].as_f64().unwrap();
+        assert!(r["ratio_min"].as_f64().unwrap() <= over * (1.0 + 1e-9) && over <= r["ratio_max"].as_f64().unwrap() * (1.0 + 1e-9), "{r}");
+    }
+    // A diagnosis holds some megabytes at least, and the GB and per-pixel rows are one
+    // measure.
+    let (gb, per_pixel) = (row("diagnose 40 x 40 x 41, peak RSS")["rate"].as_f64().unwrap(), row("diagnose 40 x 40 x 41, RSS a pixel")["rate"].as_f64().unwrap());
+    assert!(gb > 0.005 && (gb * 1e9 / 1600.0 - per_pixel).abs() < 1e-6 * per_pixel, "{gb} GB, {per_pixel} B/px");
+    assert!(!numpy_ran || baselines.contains(&"numpy/astropy, same steps, 1 run"), "{s}");
     assert_usage_failure(&dncal(&["bench", "--runs", "0"], dir.path()), "--runs", "need at least 1 run and 1 frame");
+    assert_usage_failure(&dncal(&["bench", "--linearity-side", "64"], dir.path()), "--whole", "not provided");
+    assert_usage_failure(&dncal(&["bench", "--whole", "--diagnose-side", "4"], dir.path()), "--diagnose-side", "at least 8 pixels");
     assert_usage_failure(&dncal(&["bench", "--runs", "9", "--frames", "300"], dir.path()), "--frames", "300 frames x 10 runs (one to warm up) exceed 512 frames per state");
 }
 

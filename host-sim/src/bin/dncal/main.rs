@@ -106,11 +106,25 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
             print(json, &r)?;
             return Ok(passed(r.ok));
         }
-        Cmd::Bench { runs, frames, no_numpy, json } => {
-            let pb = progress::bar(runs as u64, "bench");
+        Cmd::Bench { runs, frames, no_numpy, whole, linearity_side, diagnose_side, json } => {
+            let whole = match whole {
+                true => Some(bench::whole::WholeParams::new(std::env::current_exe().map_err(|e| HostError::io("the dncal binary", e))?, linearity_side, diagnose_side)?),
+                false => None,
+            };
+            // The whole commands first, while this process is small: its memory is not
+            // theirs, but a child's `ru_maxrss` starts from it (`bench::whole`).
+            let mut whole_notes = Vec::new();
+            let whole_rows = match &whole {
+                Some(w) => bench::whole::rows(w, runs, !no_numpy, &mut whole_notes)?,
+                None => Vec::new(),
+            };
+            let pb = progress::bar(bench::progress_steps(runs), "bench");
             let r = bench::bench(&bench::BenchParams { runs, frames, numpy: !no_numpy }, |_| pb.inc(1));
             pb.finish_and_clear();
-            print(json, &r?)?;
+            let mut r = r?;
+            r.ratios.extend(whole_rows);
+            r.notes.extend(whole_notes);
+            print(json, &r)?;
         }
     }
     Ok(ExitCode::SUCCESS)

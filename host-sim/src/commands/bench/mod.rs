@@ -9,6 +9,12 @@
 //! - **byte bound**: `sums[i] += code` (the same memory traffic without the table);
 //! - **numpy**: `sums[s] += lut[column mod 4, codes]` in python3 with numpy, timed in its
 //!   own process around the same work (skipped, with a note, where numpy is missing).
+//!
+//! With `--whole` ([`whole`]) the bench also runs the commands whose targets are whole
+//! processes on inputs of gigabytes (`linearity`, `diagnose`, the demo) against the
+//! issue's limits.
+
+pub mod whole;
 
 use std::hint::black_box;
 use std::process::Command;
@@ -40,6 +46,17 @@ impl Default for BenchParams {
     }
 }
 
+/// Which way a row's measure improves.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Better {
+    /// A rate: the ratio is the rate over the baseline's.
+    Higher,
+    /// A cost (seconds, bytes) against a limit: the ratio is the limit over the cost, so
+    /// that here too a ratio of 1 or more is within the baseline.
+    Lower,
+}
+
 /// One ratio: a measured thing against its baseline, run by run.
 #[derive(Debug, Clone, Serialize)]
 pub struct Ratio {
@@ -53,7 +70,10 @@ pub struct Ratio {
     pub baseline_rate: f64,
     /// Unit of the rates.
     pub unit: &'static str,
-    /// Rate over baseline rate, per run: median, min, max.
+    /// Whether `rate` is a rate (higher is better) or a cost (lower is better).
+    pub better: Better,
+    /// Rate over baseline rate (a cost: the baseline over the cost), per run: median,
+    /// min, max.
     pub ratio_median: f64,
     /// Smallest per-run ratio.
     pub ratio_min: f64,
@@ -80,13 +100,15 @@ pub struct BenchReport {
 
 impl Report for BenchReport {
     fn text(&self) -> String {
-        let mut t = format!("{}; {} runs; ratios are per run (median, min-max)\n", self.machine, self.runs);
+        let mut t = format!("{}; {} runs; ratios are per run (median, min-max); a cost's ratio is its limit over it\n", self.machine, self.runs);
+        let name_width = self.ratios.iter().map(|x| x.name.len()).max().unwrap_or(0);
+        let baseline_width = self.ratios.iter().map(|x| x.baseline.len()).max().unwrap_or(0);
         for x in &self.ratios {
             let target = x.target.map_or(String::new(), |g| format!("  target >= {g}: {}", if x.holds == Some(true) { "holds" } else { "NOT MET" }));
             // Rates below 10 (pixels an instruction) keep three decimals.
             let rate = |r: f64| if r < 10.0 { format!("{r:>8.3}") } else { format!("{r:>8.1}") };
             t += &format!(
-                "{:<22} {} {}  vs {:<24} {}: {:.2}x ({:.2}-{:.2}){target}\n",
+                "{:<name_width$} {} {:<8} vs {:<baseline_width$} {}: {:.2}x ({:.2}-{:.2}){target}\n",
                 x.name,
                 rate(x.rate),
                 x.unit,
@@ -145,11 +167,18 @@ fn bytes_frame(codes: &[u16], sums: &mut [u32]) {
 /// centre, in a temporary directory kept alive by the returned handle.
 fn simulated_linearity(camera: &crate::camera::Camera, side: usize) -> Result<(tempfile::TempDir, std::path::PathBuf), HostError> {
     let dir = tempfile::tempdir().map_err(|e| HostError::io(std::env::temp_dir(), e))?;
-    let path = dir.path().join("linearity.fits");
     let corner = (WIDTH - side) / 2;
-    let lp = crate::camera::calibration::LinearityParams { frames: 16, roi: (corner, corner, side, side), ..crate::camera::calibration::LinearityParams::paper(camera) };
-    crate::commands::simulate::simulate_linearity(camera, &lp, path.clone())?;
+    let path = simulate_set(dir.path(), "linearity.fits", camera, (corner, corner, side, side), 16)?;
     Ok((dir, path))
+}
+
+/// A simulated 41-level linearity set of `camera`'s `roi` (first column, first row,
+/// width, height), `frames` frames a level, written to `dir/name`.
+fn simulate_set(dir: &std::path::Path, name: &str, camera: &crate::camera::Camera, roi: (usize, usize, usize, usize), frames: u32) -> Result<std::path::PathBuf, HostError> {
+    let path = dir.join(name);
+    let lp = crate::camera::calibration::LinearityParams { frames, roi, ..crate::camera::calibration::LinearityParams::paper(camera) };
+    crate::commands::simulate::simulate_linearity(camera, &lp, path.clone())?;
+    Ok(path)
 }
 
 /// The bench's floor for `diagnose`: every pixel's weighted least-squares quartic through
@@ -193,7 +222,17 @@ fn mpx_per_s(frames: usize, seconds: f64) -> f64 {
 }
 
 fn ratio(name: &str, rates: &[f64], baseline: &str, base: &[f64], unit: &'static str, target: Option<f64>) -> Ratio {
-    let per_run: Vec<f64> = rates.iter().zip(base).map(|(a, b)| a / b).collect();
+    compared(name, rates, baseline, base, unit, Better::Higher, target)
+}
+
+/// A cost per run (seconds, bytes) against a fixed limit: the ratio is the limit over
+/// the cost.
+fn cost(name: &str, costs: &[f64], baseline: &str, limit: f64, unit: &'static str, target: Option<f64>) -> Ratio {
+    compared(name, costs, baseline, &vec![limit; costs.len()], unit, Better::Lower, target)
+}
+
+fn compared(name: &str, rates: &[f64], baseline: &str, base: &[f64], unit: &'static str, better: Better, target: Option<f64>) -> Ratio {
+    let per_run: Vec<f64> = rates.iter().zip(base).map(|(a, b)| if better == Better::Higher { a / b } else { b / a }).collect();
     let ratio_median = median(per_run.clone());
     Ratio {
         name: name.into(),
@@ -201,6 +240,7 @@ fn ratio(name: &str, rates: &[f64], baseline: &str, base: &[f64], unit: &'static
         baseline: baseline.into(),
         baseline_rate: median(base.to_vec()),
         unit,
+        better,
         ratio_median,
         ratio_min: per_run.iter().copied().fold(f64::INFINITY, f64::min),
         ratio_max: per_run.iter().copied().fold(f64::NEG_INFINITY, f64::max),
@@ -236,7 +276,7 @@ print((frames * 1024 * 1024) / (time.perf_counter() - t) / 1e6)
 
 /// The steps of `dncal linearity` in numpy and astropy (`scripts/linearity_numpy.py`),
 /// the baseline of the linearity row; its results are checked against ours there.
-const LINEARITY_NUMPY: &str = include_str!("../../../scripts/linearity_numpy.py");
+const LINEARITY_NUMPY: &str = include_str!("../../../../scripts/linearity_numpy.py");
 
 /// Seconds the numpy version of `linearity` takes on `set` (its own clock, from after its
 /// imports: reading the file and every step), and its largest pixel-wise RMS.
@@ -263,7 +303,7 @@ fn python(script: &str, arg: &std::ffi::OsStr) -> Result<Vec<u8>, String> {
     Ok(out.stdout)
 }
 
-/// Runs the bench: the core against its baselines, then the whole-command rows.
+/// Runs the bench: the core against its baselines, then the end-to-end rows (stream, linearity, diagnose on small sets, the firmware).
 pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, HostError> {
     let (runs, frames) = (p.runs, p.frames);
     if runs == 0 || frames == 0 {
@@ -309,6 +349,13 @@ pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, Ho
         notes.push("numpy: not every run measured".into());
     }
     Ok(BenchReport { machine: machine(), runs, ratios, notes })
+}
+
+/// How many times [`bench`] calls its `progress`: each run of the core, and each of the
+/// bands where there is more than one thread.
+pub fn progress_steps(runs: usize) -> u64 {
+    let passes = if rayon::current_num_threads() > 1 { 2 } else { 1 };
+    (runs * passes) as u64
 }
 
 /// Times `work` (`frames` frames) and, unless `run` is the warm-up (0), adds its rate in
