@@ -889,7 +889,9 @@ fn bench_reports_ratios_against_in_process_references() {
     assert!(!numpy_ran || baselines.contains(&"numpy/astropy, same steps, 1 run"), "{s}");
     assert_usage_failure(&dncal(&["bench", "--runs", "0"], dir.path()), "--runs", "need at least 1 run and 1 frame");
     assert_usage_failure(&dncal(&["bench", "--linearity-side", "64"], dir.path()), "--whole", "not provided");
-    assert_usage_failure(&dncal(&["bench", "--whole", "--diagnose-side", "4"], dir.path()), "--diagnose-side", "at least 8 pixels");
+    assert_usage_failure(&dncal(&["bench", "--whole", "--diagnose-side", "4"], dir.path()), "--diagnose-side", "8 to 4096 pixels");
+    // Runs the bench cannot time are refused before the whole commands run.
+    assert_usage_failure(&dncal(&["bench", "--whole", "--runs", "9", "--frames", "300"], dir.path()), "--frames", "exceed 512 frames per state");
     assert_usage_failure(&dncal(&["bench", "--runs", "9", "--frames", "300"], dir.path()), "--frames", "300 frames x 10 runs (one to warm up) exceed 512 frames per state");
 }
 

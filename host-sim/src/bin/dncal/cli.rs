@@ -423,14 +423,14 @@ pub(crate) enum Cmd {
         /// Also run the whole commands against issue 17's limits: `linearity` on a 1024 x
         /// 1024 x 41-level set, `diagnose` on 2048 x 2048 x 41 (3.4 GB of FITS simulated in
         /// TMPDIR first) and the demo, each its own process, wall time and peak memory
-        /// (about 15 minutes at these sizes).
+        /// (about 8 minutes at these sizes on 2 cores).
         #[arg(long)]
         whole: bool,
         /// Side of the `linearity` set of --whole, pixels (limits checked at 1024 only).
-        #[arg(long, default_value_t = 1024, requires = "whole")]
+        #[arg(long, default_value_t = dncal_host::commands::bench::whole::LINEARITY_SIDE, requires = "whole")]
         linearity_side: usize,
         /// Side of the `diagnose` set of --whole, pixels (limits checked at 2048 only).
-        #[arg(long, default_value_t = 2048, requires = "whole")]
+        #[arg(long, default_value_t = dncal_host::commands::bench::whole::DIAGNOSE_SIDE, requires = "whole")]
         diagnose_side: usize,
         /// Print a JSON summary on stdout.
         #[arg(long)]

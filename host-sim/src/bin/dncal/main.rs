@@ -107,19 +107,21 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
             return Ok(passed(r.ok));
         }
         Cmd::Bench { runs, frames, no_numpy, whole, linearity_side, diagnose_side, json } => {
+            let params = bench::BenchParams { runs, frames, numpy: !no_numpy };
+            params.check()?;
             let whole = match whole {
                 true => Some(bench::whole::WholeParams::new(std::env::current_exe().map_err(|e| HostError::io("the dncal binary", e))?, linearity_side, diagnose_side)?),
                 false => None,
             };
-            // The whole commands first, while this process is small: its memory is not
-            // theirs, but a child's `ru_maxrss` starts from it (`bench::whole`).
+            // The whole commands first, while this process is small: a child's
+            // `ru_maxrss` starts from its parent's high-water mark (`bench::child`).
             let mut whole_notes = Vec::new();
             let whole_rows = match &whole {
                 Some(w) => bench::whole::rows(w, runs, !no_numpy, &mut whole_notes)?,
                 None => Vec::new(),
             };
             let pb = progress::bar(bench::progress_steps(runs), "bench");
-            let r = bench::bench(&bench::BenchParams { runs, frames, numpy: !no_numpy }, |_| pb.inc(1));
+            let r = bench::bench(&params, |_| pb.inc(1));
             pb.finish_and_clear();
             let mut r = r?;
             r.ratios.extend(whole_rows);

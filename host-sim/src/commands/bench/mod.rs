@@ -14,6 +14,7 @@
 //! processes on inputs of gigabytes (`linearity`, `diagnose`, the demo) against the
 //! issue's limits.
 
+pub mod child;
 pub mod whole;
 
 use std::hint::black_box;
@@ -62,11 +63,11 @@ pub enum Better {
 pub struct Ratio {
     /// What is measured.
     pub name: String,
-    /// Its rate (median over runs), in `unit`.
+    /// Its rate, or its cost (see `better`): the median over runs, in `unit`.
     pub rate: f64,
     /// The baseline.
     pub baseline: String,
-    /// The baseline's rate (median over runs).
+    /// The baseline's rate or limit (median over runs).
     pub baseline_rate: f64,
     /// Unit of the rates.
     pub unit: &'static str,
@@ -167,18 +168,11 @@ fn bytes_frame(codes: &[u16], sums: &mut [u32]) {
 /// centre, in a temporary directory kept alive by the returned handle.
 fn simulated_linearity(camera: &crate::camera::Camera, side: usize) -> Result<(tempfile::TempDir, std::path::PathBuf), HostError> {
     let dir = tempfile::tempdir().map_err(|e| HostError::io(std::env::temp_dir(), e))?;
+    let path = dir.path().join("linearity.fits");
     let corner = (WIDTH - side) / 2;
-    let path = simulate_set(dir.path(), "linearity.fits", camera, (corner, corner, side, side), 16)?;
-    Ok((dir, path))
-}
-
-/// A simulated 41-level linearity set of `camera`'s `roi` (first column, first row,
-/// width, height), `frames` frames a level, written to `dir/name`.
-fn simulate_set(dir: &std::path::Path, name: &str, camera: &crate::camera::Camera, roi: (usize, usize, usize, usize), frames: u32) -> Result<std::path::PathBuf, HostError> {
-    let path = dir.join(name);
-    let lp = crate::camera::calibration::LinearityParams { frames, roi, ..crate::camera::calibration::LinearityParams::paper(camera) };
+    let lp = crate::camera::calibration::LinearityParams { frames: 16, roi: (corner, corner, side, side), ..crate::camera::calibration::LinearityParams::paper(camera) };
     crate::commands::simulate::simulate_linearity(camera, &lp, path.clone())?;
-    Ok(path)
+    Ok((dir, path))
 }
 
 /// The bench's floor for `diagnose`: every pixel's weighted least-squares quartic through
@@ -231,6 +225,8 @@ fn cost(name: &str, costs: &[f64], baseline: &str, limit: f64, unit: &'static st
     compared(name, costs, baseline, &vec![limit; costs.len()], unit, Better::Lower, target)
 }
 
+/// A row: per run, `rates` against `base` (rate over baseline, or for a cost the
+/// baseline over the cost); the target read on the median of the per-run ratios.
 fn compared(name: &str, rates: &[f64], baseline: &str, base: &[f64], unit: &'static str, better: Better, target: Option<f64>) -> Ratio {
     let per_run: Vec<f64> = rates.iter().zip(base).map(|(a, b)| if better == Better::Higher { a / b } else { b / a }).collect();
     let ratio_median = median(per_run.clone());
@@ -298,22 +294,38 @@ fn numpy_rate(frames: usize) -> Result<f64, String> {
 fn python(script: &str, arg: &std::ffi::OsStr) -> Result<Vec<u8>, String> {
     let out = Command::new("python3").arg("-c").arg(script).arg(arg).output().map_err(|e| format!("python3: {e}"))?;
     if !out.status.success() {
-        return Err(String::from_utf8_lossy(&out.stderr).lines().last().unwrap_or("python3 failed").to_string());
+        return Err(child::last_line(&out.stderr).unwrap_or_else(|| "python3 failed".into()));
     }
     Ok(out.stdout)
 }
 
-/// Runs the bench: the core against its baselines, then the end-to-end rows (stream, linearity, diagnose on small sets, the firmware).
+/// Whether our largest pixel-wise RMS and numpy's are the same number (to 1e-9 of ours;
+/// neither may be NaN or infinite).
+fn same_rms(ours: f64, numpys: f64) -> bool {
+    ours.is_finite() && numpys.is_finite() && (ours - numpys).abs() <= 1e-9 * ours.abs()
+}
+
+impl BenchParams {
+    /// Refuses runs and frames the bench cannot time (before anything runs).
+    pub fn check(&self) -> Result<(), HostError> {
+        let (runs, frames) = (self.runs, self.frames);
+        if runs == 0 || frames == 0 {
+            return Err(HostError::Argument { flag: "--runs / --frames".into(), message: "need at least 1 run and 1 frame".into() });
+        }
+        // The core's exact mode holds 512 frames per state; the bench compares its sums
+        // with the plain loop's wrapping ones, so it stays inside (warm-up run included).
+        if frames.saturating_mul(runs + 1) > 512 * STATES {
+            return Err(HostError::Argument { flag: "--frames".into(), message: format!("{frames} frames x {} runs (one to warm up) exceed 512 frames per state in 4 states", runs + 1) });
+        }
+        Ok(())
+    }
+}
+
+/// Runs the bench: the core against its baselines, then the end-to-end rows (stream,
+/// linearity and diagnose on small sets, the firmware).
 pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, HostError> {
-    let (runs, frames) = (p.runs, p.frames);
-    if runs == 0 || frames == 0 {
-        return Err(HostError::Argument { flag: "--runs / --frames".into(), message: "need at least 1 run and 1 frame".into() });
-    }
-    // The core's exact mode holds 512 frames per state; the bench compares its sums with
-    // the plain loop's wrapping ones, so it stays inside (warm-up run included).
-    if frames * (runs + 1) > 512 * STATES {
-        return Err(HostError::Argument { flag: "--frames".into(), message: format!("{frames} frames x {} runs (one to warm up) exceed 512 frames per state in 4 states", runs + 1) });
-    }
+    p.check()?;
+    let runs = p.runs;
     let mut notes = Vec::new();
     let core = core_runs(p, &progress, &mut notes)?;
     let mut ratios = vec![
@@ -559,7 +571,7 @@ fn linearity_ratio(camera: &crate::camera::Camera, runs: usize, notes: &mut Vec<
         match numpy_linearity(&set) {
             Ok((s, pw)) => {
                 let want = r.report.rms_pixelwise_max;
-                if (pw - want).abs() > 1e-9 * want.abs() {
+                if !same_rms(want, pw) {
                     return Err(HostError::Format { path: "bench".into(), message: format!("linearity: numpy's largest pixel-wise RMS {pw} differs from ours {want}") });
                 }
                 ours.push(1.0 / seconds);
