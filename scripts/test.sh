@@ -9,6 +9,10 @@ python3 -c "import astropy, numpy" 2>/dev/null || python3 -m pip install --quiet
 # The EMVA 1288 reference implementation (emva1288 1.0.2, numpy<2) in a venv of its own,
 # the oracle of host-sim/tests/emva_reference.rs (the test also makes it when missing).
 scripts/emva-venv.sh >/dev/null
+# The IEEE 1241 histogram-test oracles (our numpy implementation of the standard's
+# definitions, and the MIT-licensed `adctoolbox`) in a venv of their own under target/,
+# the oracles of host-sim/tests/ieee1241_oracle.rs (the test also makes it when missing).
+scripts/adctoolbox-venv.sh >/dev/null
 # The browser test opens every HTML page the commands write in Debian's headless Chromium
 # (host-sim/tests/browser.rs); here a missing browser fails it instead of skipping.
 scripts/browser/install.sh

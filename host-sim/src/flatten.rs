@@ -75,9 +75,12 @@ pub struct FlattenParams {
     /// weight to 1 (the paper does). When false the last code is fitted like the others,
     /// for data that never reach saturation.
     pub set_last_to_one: bool,
-    /// Least mean number of counts per fitted code. Below 100 the Poisson noise of a code
-    /// (10 %) exceeds the few-percent DN error being measured; the paper's sums of 130 to
-    /// 139 ramps hold far more.
+    /// Least mean number of counts per fitted code: 1 by default
+    /// ([`crate::ieee1241::MIN_COUNTS_PER_CODE`]), below which a code's width is not
+    /// measured to better than its own size. Every count above it is analysed, and the
+    /// resolution it gives is stated (`1/sqrt(counts)` of a code at 1 sigma: 10% at 100
+    /// counts, more than the few-percent DN error of a pipelined ADC, but a 9-LSB-wide or
+    /// a missing code stands out at 50; the paper's sums of 130 to 139 ramps hold ~10^6).
     pub min_mean_count: f64,
     /// Narrow the fit to the codes whose count reaches this fraction of the median count
     /// of the candidate codes (from the first to the last such code); codes left out get
@@ -98,7 +101,7 @@ impl Default for FlattenParams {
             median_window: 21,
             fixed_low_codes: 150,
             set_last_to_one: true,
-            min_mean_count: 100.0,
+            min_mean_count: crate::ieee1241::MIN_COUNTS_PER_CODE,
             trim_below_fraction: 0.0,
             max_top_offset_dn: 1e-6,
         }
@@ -129,6 +132,10 @@ pub struct Flattened {
     pub weights: Vec<f64>,
     /// The spline fitted to the histogram, counts; NaN outside `fit_codes`.
     pub spline: Vec<f64>,
+    /// The running median of histogram / spline (dimensionless, near 1); NaN outside
+    /// `fit_codes`. `spline * median` is the smooth density: the counts a code of the
+    /// mean width collects there.
+    pub median: Vec<f64>,
     /// Histogram / spline / running median, before fixing and normalizing (dimensionless,
     /// near 1); NaN outside `fit_codes`.
     pub normalized: Vec<f64>,
@@ -192,7 +199,7 @@ pub enum FlattenError {
         end: usize,
     },
     /// Too few counts per fitted code for a meaningful width.
-    #[error("{mean} counts per fitted code on average; at least {minimum} needed")]
+    #[error("{mean:.3} counts per fitted code on average; at least {minimum} needed (a code's width is measured to 1/sqrt(counts) of itself)")]
     TooFewCounts {
         /// Mean counts per fitted code.
         mean: f64,
@@ -328,7 +335,28 @@ pub fn flatten_histogram(counts: &[u64], p: &FlattenParams) -> Result<Flattened,
     spline_full[fit.clone()].copy_from_slice(&spline);
     let mut normalized = vec![f64::NAN; n];
     normalized[fit.clone()].copy_from_slice(&normalized_fit);
-    Ok(Flattened { weights, spline: spline_full, normalized, top_offset_before_dn, top_offset_dn, fit_codes: fit })
+    let mut median_full = vec![f64::NAN; n];
+    median_full[fit.clone()].copy_from_slice(&median);
+    Ok(Flattened { weights, spline: spline_full, median: median_full, normalized, top_offset_before_dn, top_offset_dn, fit_codes: fit })
+}
+
+/// [`flatten_histogram`] for an analysis rather than a LUT: where the spline (or the
+/// running median) is not positive, the fit is narrowed to the codes holding a larger
+/// share of the median count (`trim_below_fraction` 0.2, 0.4, 0.8) and tried again.
+/// A ramp whose ends fall off over a few codes (an illumination blurred by noise) at a
+/// few tens of counts a code has codes of 3 counts far into its tail, where the 10% trim
+/// ends; the spline then undershoots to zero at the edge. Gaps and missing codes inside
+/// the range stay. Returns the flattening and the parameters it took.
+pub fn flatten_narrowing(counts: &[u64], p: &FlattenParams) -> Result<(Flattened, FlattenParams), FlattenError> {
+    let mut p = p.clone();
+    loop {
+        match flatten_histogram(counts, &p) {
+            Err(FlattenError::SplineNotPositive { .. } | FlattenError::MedianNotPositive { .. }) if p.trim_below_fraction < 0.8 => {
+                p.trim_below_fraction = (2.0 * p.trim_below_fraction).max(0.2);
+            }
+            r => return r.map(|f| (f, p)),
+        }
+    }
 }
 
 /// Quantizes weights to the core's [`Weight`] (`U8F24`): each to the nearest multiple of
@@ -689,7 +717,10 @@ mod tests {
         assert!(matches!(flatten_histogram(&good[..1], &p), Err(FlattenError::Length { .. })));
         assert!(matches!(flatten_histogram(&[], &p), Err(FlattenError::Length { .. })));
         assert!(matches!(flatten_histogram(&vec![0; CODES], &p), Err(FlattenError::NoCounts { .. })));
-        assert!(matches!(flatten_histogram(&vec![50; CODES], &p), Err(FlattenError::TooFewCounts { .. })));
+        let sparse: Vec<u64> = (0..CODES).map(|k| u64::from(k % 3 == 0)).collect();
+        assert!(matches!(flatten_histogram(&sparse, &p), Err(FlattenError::TooFewCounts { .. })));
+        assert!(matches!(flatten_histogram(&vec![50; CODES], &FlattenParams { min_mean_count: 100.0, ..p.clone() }), Err(FlattenError::TooFewCounts { .. })));
+        assert!(flatten_histogram(&vec![50; CODES], &p).is_ok());
         assert!(matches!(flatten_histogram(&good[..256], &p), Err(FlattenError::FitRange { .. })));
         for window in [0, 20] {
             let q = FlattenParams { median_window: window, ..p.clone() };

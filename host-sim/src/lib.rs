@@ -17,6 +17,7 @@ pub mod fits;
 #[doc(hidden)]
 pub mod fuzzing;
 pub mod hidden;
+pub mod ieee1241;
 pub mod input;
 pub mod flatten;
 pub mod kcor;

@@ -435,6 +435,96 @@ pub fn map_plot(out: &mut Outputs, path: &Path, map: &Map) -> Result<(), HostErr
     write_png(out, path, &rgb, width, height)
 }
 
+/// Marked codes of a [`dnl_inl_plot`]: (code, value, label) per kind.
+pub struct MarkedCodes {
+    /// Named wide or narrow codes: red circles with their number.
+    pub named: Vec<(f64, f64, String)>,
+    /// Missing codes: black crosses at DNL -1 with their number.
+    pub missing: Vec<(f64, f64, String)>,
+}
+
+/// The IEEE 1241 figure of one ADC: DNL per code (top, with its 3-sigma noise band
+/// dashed) and end-point and best-fit INL per transition (bottom), the named codes circled
+/// in red and the missing ones crossed in black, each with its number (up to 12 labels a
+/// kind), staged in `out` as a PNG at `path`.
+#[allow(clippy::too_many_arguments)] // a figure's title, its data and where it goes
+pub fn dnl_inl_plot(out: &mut Outputs, path: &Path, title: &str, dnl: &Series, noise: &[Series; 2], inl: &[Series; 2], inl_noise: &[Series; 2], marks: &MarkedCodes) -> Result<(), HostError> {
+    ensure_font();
+    let (width, height) = (1000u32 + LEGEND_WIDTH, 2 * 300 + 60);
+    let mut rgb = vec![0u8; (width * height * 3) as usize];
+    let finite = |s: &Series| s.points.iter().copied().filter(|(x, y)| x.is_finite() && y.is_finite()).collect::<Vec<_>>();
+    {
+        let root = BitMapBackend::with_buffer(&mut rgb, (width, height)).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| plot_err(path, e))?;
+        let root = root.titled(title, ("sans-serif", 22)).map_err(|e| plot_err(path, e))?;
+        let panels = root.split_evenly((2, 1));
+        let range = |sets: &[&[(f64, f64)]]| {
+            let (mut x0, mut x1, mut y0, mut y1) = (f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY);
+            for &(x, y) in sets.iter().flat_map(|s| s.iter()) {
+                x0 = x0.min(x);
+                x1 = x1.max(x);
+                y0 = y0.min(y);
+                y1 = y1.max(y);
+            }
+            if !x0.is_finite() {
+                return (0.0..1.0, -1.0..1.0);
+            }
+            let pad = ((y1 - y0) * 0.08).max(1e-3);
+            (x0..x1.max(x0 + 1.0), (y0 - pad)..(y1 + pad))
+        };
+        let marked = |v: &[(f64, f64, String)]| v.iter().map(|(x, y, _)| (*x, *y)).collect::<Vec<_>>();
+        // Top: DNL, its noise band, the marks.
+        let (d, lo, hi) = (finite(dnl), finite(&noise[0]), finite(&noise[1]));
+        let (named, missing) = (marked(&marks.named), marked(&marks.missing));
+        let (xr, yr) = range(&[&d, &lo, &hi, &named, &missing]);
+        let (area, legend) = panels[0].split_horizontally(1000);
+        let mut chart = ChartBuilder::on(&area).margin(8).x_label_area_size(36).y_label_area_size(70).build_cartesian_2d(xr.clone(), yr.clone()).map_err(|e| plot_err(path, e))?;
+        draw_axes(&mut chart, ("code", xr), ("DNL (LSB)", yr), 14, true, path)?;
+        for band in [&lo, &hi] {
+            chart.draw_series(DashedLineSeries::new(band.iter().copied(), 6, 4, COLORS[7].stroke_width(1))).map_err(|e| plot_err(path, e))?;
+        }
+        chart.draw_series(LineSeries::new(d.iter().copied(), COLORS[0].stroke_width(1))).map_err(|e| plot_err(path, e))?;
+        let red = RGBColor(214, 39, 40);
+        let label_font = ("sans-serif", 13).into_font();
+        for (x, y, _) in &marks.named {
+            chart.draw_series(std::iter::once(Circle::new((*x, *y), 6, red.stroke_width(2)))).map_err(|e| plot_err(path, e))?;
+        }
+        // Labels beside their marks, not on them.
+        let label_at = |x: f64, y: f64, text: &str, color: RGBColor| EmptyElement::at((x, y)) + Text::new(text.to_string(), (9, -6), label_font.clone().color(&color));
+        for (x, y, label) in marks.named.iter().take(12) {
+            chart.draw_series(std::iter::once(label_at(*x, *y, label, red))).map_err(|e| plot_err(path, e))?;
+        }
+        for (x, y, _) in &marks.missing {
+            chart.draw_series(std::iter::once(Cross::new((*x, *y), 7, BLACK.stroke_width(2)))).map_err(|e| plot_err(path, e))?;
+        }
+        for (x, y, label) in marks.missing.iter().take(12) {
+            chart.draw_series(std::iter::once(label_at(*x, *y, label, BLACK))).map_err(|e| plot_err(path, e))?;
+        }
+        let entries = vec![
+            (dnl.label.clone(), COLORS[0], false),
+            (noise[0].label.clone(), COLORS[7], true),
+            (format!("named codes ({})", marks.named.len()), red, false),
+            (format!("missing codes ({}), crossed", marks.missing.len()), BLACK, false),
+        ];
+        draw_legend(&legend, &entries, path)?;
+        // Bottom: INL end-point and best-fit.
+        let (a, b) = (finite(&inl[0]), finite(&inl[1]));
+        let (na, nb) = (finite(&inl_noise[0]), finite(&inl_noise[1]));
+        let (xr, yr) = range(&[&a, &b, &na, &nb]);
+        let (area, legend) = panels[1].split_horizontally(1000);
+        let mut chart = ChartBuilder::on(&area).margin(8).x_label_area_size(36).y_label_area_size(70).build_cartesian_2d(xr.clone(), yr.clone()).map_err(|e| plot_err(path, e))?;
+        draw_axes(&mut chart, ("transition into code", xr), ("INL (LSB)", yr), 14, true, path)?;
+        for band in [&na, &nb] {
+            chart.draw_series(DashedLineSeries::new(band.iter().copied(), 6, 4, COLORS[7].stroke_width(1))).map_err(|e| plot_err(path, e))?;
+        }
+        chart.draw_series(LineSeries::new(a.iter().copied(), COLORS[1].stroke_width(1))).map_err(|e| plot_err(path, e))?;
+        chart.draw_series(LineSeries::new(b.iter().copied(), COLORS[2].stroke_width(1))).map_err(|e| plot_err(path, e))?;
+        draw_legend(&legend, &[(inl[0].label.clone(), COLORS[1], false), (inl[1].label.clone(), COLORS[2], false), (inl_noise[0].label.clone(), COLORS[7], true)], path)?;
+        root.present().map_err(|e| plot_err(path, e))?;
+    }
+    write_png(out, path, &rgb, width, height)
+}
+
 /// Encodes 8-bit RGB pixels as a PNG at `path`, staged in `out`.
 pub fn write_png(out: &mut Outputs, path: &Path, rgb: &[u8], width: u32, height: u32) -> Result<(), HostError> {
     let mut bytes = Vec::new();

@@ -18,7 +18,8 @@
 //! is `sum_s e_{s, d_s(k+1)}` plus a constant: one offset per stage and digit. It is fitted
 //! by least squares (beside a cubic, so the trend can move) for several stage layouts, on
 //! a random half of the codes and scored on the other half (held-out explained fraction),
-//! and on all codes for the per-stage sizes.
+//! and on all codes for the per-stage sizes; three of the models add an inter-stage gain
+//! per sub-range of the first stage ([`STAGE_MODELS`]).
 
 use serde::Serialize;
 
@@ -28,18 +29,25 @@ use crate::kcor_tables::{KcorTable, KCOR_CODES};
 pub const FIRST_CALIBRATED: usize = 150;
 /// The last calibrated code (the recipe sets the last histogram value).
 pub const LAST_CALIBRATED: usize = KCOR_CODES - 2;
-/// The stage layouts tried, most significant stage first (12 bits each).
-/// The last, `[4, 8]`, is any pattern of period 256 codes plus an offset per 256-code
-/// block: the real tables' DN error repeats with a period of 128 or 256 codes (their
-/// periodograms peak at 128 and its harmonics 64, 42.7, 32, 25.6, 21.3), with several
-/// narrow codes per period at positions no binary stage boundary explains.
-pub const STAGE_LAYOUTS: [&[u32]; 5] = [&[1; 12], &[2; 6], &[3; 4], &[4; 3], &[4, 8]];
+/// The stage models tried: the layout, most significant stage first (12 bits each), and
+/// whether each sub-range of the first stage has its own **inter-stage gain** (a slope
+/// of the offsets over the lower stages' value within the sub-range: the residue passed
+/// on is amplified by a gain that is off, differently in each sub-range, so the
+/// transitions below it drift linearly and snap back at the next sub-range: the ramp
+/// between the real tables' narrow codes). `[4, 8]` is any pattern of period 256 codes
+/// plus an offset per 256-code block: the real tables' DN error repeats with a period of
+/// 128 or 256 codes (their periodograms peak at 128 and its harmonics 64, 42.7, 32, 25.6,
+/// 21.3), with several narrow codes per period at positions no binary stage boundary
+/// explains.
+pub const STAGE_MODELS: [(&[u32], bool); 8] = [(&[1; 12], false), (&[2; 6], false), (&[3; 4], false), (&[4; 3], false), (&[4, 8], false), (&[4; 3], true), (&[4, 8], true), (&[5, 7], true)];
 
 /// One stage layout's fit to the cumulative offsets.
 #[derive(Debug, Clone, Serialize)]
 pub struct StageFit {
     /// Bits per stage, most significant first.
     pub stages: Vec<u32>,
+    /// With a gain per sub-range of the first stage ([`STAGE_MODELS`]).
+    pub segment_gains: bool,
     /// Parameters fitted (a constant, three trend terms, one offset per stage and non-zero digit).
     pub parameters: usize,
     /// Share of the offsets' variance the model explains on all codes.
@@ -115,14 +123,24 @@ fn variance(v: &[f64]) -> f64 {
 }
 
 /// The design row of the stage model for the transition into `code`: a constant, a cubic
-/// in x, and one indicator per stage and non-zero digit.
-fn stage_row(stages: &[u32], code: usize, x: f64) -> Vec<f64> {
+/// in x, one indicator per stage and non-zero digit and, with `segment_gains`, per digit
+/// of the first stage the lower stages' value (as a fraction of the sub-range) where the
+/// code is in that digit's sub-range.
+fn stage_row(stages: &[u32], segment_gains: bool, code: usize, x: f64) -> Vec<f64> {
     let mut row = vec![1.0, x, x * x, x * x * x];
-    let mut shift: u32 = stages.iter().sum();
+    let bits: u32 = stages.iter().sum();
+    let mut shift = bits;
     for &b in stages {
         shift -= b;
         let digit = (code >> shift) & ((1 << b) - 1);
         row.extend((1..1usize << b).map(|d| f64::from(u8::from(digit == d))));
+    }
+    if let (true, Some(&top)) = (segment_gains, stages.first()) {
+        let low = bits - top;
+        let (digit, below) = ((code >> low) & ((1 << top) - 1), (code & ((1 << low) - 1)) as f64 / (1u64 << low) as f64);
+        // Digit 0's slope is left out: the slopes of all digits sum to the lower stages'
+        // value, which their offsets already span; the others are relative to it.
+        row.extend((1..1usize << top).map(|d| if digit == d { below } else { 0.0 }));
     }
     row
 }
@@ -197,11 +215,11 @@ pub fn characterize(table: &KcorTable, camera: &str, adc: usize) -> RealAdc {
         })
         .collect();
     let var_o = variance(&offsets);
-    let stage_fits = STAGE_LAYOUTS
+    let stage_fits = STAGE_MODELS
         .iter()
-        .map(|stages| {
+        .map(|&(stages, segment_gains)| {
             // The offset o_k is the transition into code k + 1.
-            let design: Vec<Vec<f64>> = cal.iter().map(|&k| stage_row(stages, (k + 1) % KCOR_CODES, x(k))).collect();
+            let design: Vec<Vec<f64>> = cal.iter().map(|&k| stage_row(stages, segment_gains, (k + 1) % KCOR_CODES, x(k))).collect();
             let pick = |want: bool| -> (Vec<Vec<f64>>, Vec<f64>) {
                 design.iter().zip(&offsets).zip(&fit_half).filter(|(_, h)| **h == want).map(|((d, o), _)| (d.clone(), *o)).unzip()
             };
@@ -227,6 +245,7 @@ pub fn characterize(table: &KcorTable, camera: &str, adc: usize) -> RealAdc {
                 .collect();
             StageFit {
                 stages: stages.to_vec(),
+                segment_gains,
                 parameters: design[0].len(),
                 explained: 1.0 - variance(&res) / var_o,
                 held_out_explained,
@@ -310,7 +329,7 @@ mod tests {
             variance(&r).sqrt() * 100.0
         };
         assert!((a.dn_error_rms_pct / planted_rms - 1.0).abs() < 0.05, "{} vs {planted_rms}", a.dn_error_rms_pct);
-        let fit = a.stage_fits.iter().find(|f| f.stages == stages).unwrap();
+        let fit = a.stage_fits.iter().find(|f| f.stages == stages && !f.segment_gains).unwrap();
         assert!(fit.held_out_explained > 0.95, "{fit:?}");
         for (got, want) in fit.stage_rms_dn.iter().zip(&e) {
             let want = (want.iter().map(|v| v * v).sum::<f64>() / 16.0).sqrt();
@@ -319,5 +338,33 @@ mod tests {
         // The trend's bow: 0.08 v^2 / 4095 departs from its chord by 0.08 * 4095 / 4 DN,
         // and the table rescales the response's top (1.08 x 4095 DN) to 4095 DN.
         assert!((a.trend_bow_dn - 0.08 * 4095.0 / 4.0 / 1.08).abs() < 0.5, "{}", a.trend_bow_dn);
+    }
+
+    /// A sub-ranging ADC whose 16 sub-ranges each pass the residue on with their own gain
+    /// error (0.1-0.4 DN of drift across a sub-range, then a snap back: a ramp between
+    /// narrow codes), plus small stage offsets: the model with a gain per sub-range explains
+    /// it held out; offsets per digit alone explain less.
+    #[test]
+    fn a_ramp_within_each_sub_range_is_an_inter_stage_gain() {
+        let mut s = 777u64;
+        let mut next = || {
+            s = s.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let gains: Vec<f64> = (0..16).map(|_| 0.1 + 0.3 * next()).collect();
+        let e: Vec<f64> = (0..16).map(|d| if d == 0 { 0.0 } else { 0.02 * (next() - 0.5) }).collect();
+        let offset = |code: usize| -> f64 { -gains[code >> 8] * (code & 255) as f64 / 256.0 + e[code >> 8] };
+        let widths: Vec<f64> = (0..KCOR_CODES)
+            .map(|k| {
+                let lo = if k == 0 { 0.0 } else { k as f64 - 0.5 + offset(k) };
+                let hi = if k == KCOR_CODES - 1 { 4095.0 } else { k as f64 + 0.5 + offset(k + 1) };
+                (hi - lo).max(0.0)
+            })
+            .collect();
+        let weights: Vec<Weight> = widths.iter().map(|&w| Weight::from_num(w)).collect();
+        let a = characterize(&KcorTable::from_weights(&weights, 23).unwrap(), "planted", 0);
+        let held = |stages: &[u32], g: bool| a.stage_fits.iter().find(|f| f.stages == stages && f.segment_gains == g).unwrap().held_out_explained;
+        assert!(held(&[4, 4, 4], true) > 0.95, "{:?}", a.stage_fits);
+        assert!(held(&[4, 4, 4], false) < held(&[4, 4, 4], true) - 0.05, "{:?}", a.stage_fits);
     }
 }

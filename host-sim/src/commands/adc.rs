@@ -15,6 +15,7 @@ use crate::commands::progress::{bar, stage};
 use crate::commands::Report;
 use crate::fits::{read_histograms_for_analysis, stage_histograms, stage_lut, AdcHistograms};
 use crate::flatten::{cumulative_offsets, FlattenParams};
+use crate::ieee1241::{analyse_set, AdcLinearity, Density};
 use crate::plots::{line_plot, line_plot_paired, Series};
 use crate::outputs::OutDir;
 use crate::HostError;
@@ -76,6 +77,8 @@ pub struct AdcReport {
     pub histograms: PathBuf,
     /// Per ADC.
     pub adcs: Vec<AdcStats>,
+    /// The IEEE 1241 histogram test of each ADC.
+    pub linearity: Vec<AdcLinearity>,
     /// The figures written.
     pub figures: Vec<PathBuf>,
 }
@@ -90,6 +93,9 @@ impl AdcReport {
                 "ADC {}: DN error {:.2}% rms per code, cumulative offset {:.3} DN peak to peak (max |offset| {:.3} DN, largest step {:.3} DN)\n",
                 a.adc, a.width_rms_pct, a.offset_p2p_dn, a.lut.max_abs_offset_dn, a.max_offset_step_dn
             );
+            if let Some(l) = self.linearity.get(a.adc) {
+                t += &l.text("  ");
+            }
             if let Some(c) = &a.truth {
                 t += &format!(
                     "  vs the true ADC: widths {:.4} DN rms; code centers rms {:.4} DN raw -> {:.4} DN with LUT (max {:.3} -> {:.3})\n",
@@ -135,11 +141,12 @@ pub fn correction_errors(truth: &[PipelinedAdc], tables: &[Vec<u32>], codes: std
         .collect()
 }
 
-/// Statistics and figures for `luts` built from histograms at `source`; with `truth`
-/// (the simulated ADCs) also the comparison. Figures are staged in `out`'s directory:
-/// `histograms.png`, `histograms_zoom.png`, `offsets.png` and, with the truth,
+/// Statistics and figures for `luts` built from the histograms `hist` at `source`, with
+/// the IEEE 1241 histogram test of each ADC under `density`; with `truth` (the simulated
+/// ADCs) also the comparison. Figures are staged in `out`'s directory: `histograms.png`,
+/// `histograms_zoom.png`, `offsets.png`, `dnl_inl_adcN.png` per ADC and, with the truth,
 /// `correction_error.png`.
-pub fn characterize(source: &Path, luts: &BuiltLuts, flatten: &FlattenParams, truth: Option<&[PipelinedAdc]>, out: OutDir<'_>) -> Result<AdcReport, HostError> {
+pub fn characterize(source: &Path, hist: &AdcHistograms, density: Density, luts: &BuiltLuts, flatten: &FlattenParams, truth: Option<&[PipelinedAdc]>, out: OutDir<'_>) -> Result<AdcReport, HostError> {
     let OutDir { files, dir: out_dir } = out;
     let n_adc = luts.tables.len();
     let codes = luts.tables.first().map_or(0, Vec::len);
@@ -226,7 +233,13 @@ pub fn characterize(source: &Path, luts: &BuiltLuts, flatten: &FlattenParams, tr
         line_plot(files, &at("correction_error.png"), "Error against the true code centers (offset and gain removed)", "code (DN)", "error (DN)", &err_series, n_adc)?;
         figures.push(at("correction_error.png"));
     }
-    Ok(AdcReport { histograms: source.into(), adcs, figures })
+    let linearity = analyse_set(hist, density, flatten, source)?;
+    for (a, l) in linearity.iter().enumerate() {
+        let path = at(&format!("dnl_inl_adc{a}.png"));
+        l.figure(files, &path, &format!("ADC {a}: IEEE 1241 histogram test ({} density), {:.1} counts a code", density.name(), l.resolution.counts_per_code))?;
+        figures.push(path);
+    }
+    Ok(AdcReport { histograms: source.into(), adcs, linearity, figures })
 }
 
 /// The files [`run`] writes, simulating the histograms or not.
@@ -239,7 +252,7 @@ fn run_files(simulated: bool) -> impl Iterator<Item = &'static str> {
 /// Simulated ramps (or `hist` when given), LUTs staged in `out`'s directory (`lut.fits`,
 /// `lut.bin`, and `histograms.fits` when simulated), the characterization and figures;
 /// the caller publishes them.
-pub fn run(camera: &Camera, hist: Option<&Path>, ramp: &RampParams, flatten: &FlattenParams, out: OutDir<'_>) -> Result<(AdcReport, BuiltLuts), HostError> {
+pub fn run(camera: &Camera, hist: Option<&Path>, ramp: &RampParams, flatten: &FlattenParams, density: Density, out: OutDir<'_>) -> Result<(AdcReport, BuiltLuts), HostError> {
     let OutDir { files, dir: out_dir } = out;
     files.create_dir(out_dir)?;
     files.expect(run_files(hist.is_none()).map(|n| out_dir.join(n)))?;
@@ -257,11 +270,12 @@ pub fn run(camera: &Camera, hist: Option<&Path>, ramp: &RampParams, flatten: &Fl
             (h, path, Some(camera.adcs.as_slice()))
         }
     };
+    files.expect((0..histograms.n_adc()).map(|a| out_dir.join(format!("dnl_inl_adc{a}.png"))))?;
     stage("building the LUTs and characterizing the ADCs");
     let luts = build_luts(&histograms, flatten, &source)?;
     stage_lut(files, &out_dir.join("lut.fits"), &luts.lut_tables())?;
     files.write_bytes(&out_dir.join("lut.bin"), &luts.image)?;
-    let report = characterize(&source, &luts, flatten, truth, OutDir::new(files, out_dir))?;
+    let report = characterize(&source, &histograms, density, &luts, flatten, truth, OutDir::new(files, out_dir))?;
     Ok((report, luts))
 }
 
@@ -343,7 +357,7 @@ pub struct RealAdcsReport {
 
 impl Report for RealAdcsReport {
     fn text(&self) -> String {
-        let mut t = String::from("camera                               ADC  DN error  max |offset|  trend bow  period  stage fit (held out): 1x12 2x6 3x4 4x3 4+8\n");
+        let mut t = String::from("camera                               ADC  DN error  max |offset|  trend bow  period  stage fit (held out): 1x12 2x6 3x4 4x3 4+8, with a gain per first-stage sub-range: 4x3 4+8 5+7\n");
         for a in &self.adcs {
             let fits: Vec<String> = a.stage_fits.iter().map(|f| format!("{:.2}", f.held_out_explained)).collect();
             let period = a.period_codes.map_or("-".to_string(), |p| p.to_string());

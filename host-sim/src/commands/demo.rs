@@ -133,7 +133,7 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
 
     // 1-2. Calibration histograms, LUTs, characterization and its figures.
     stage("1/8 calibration ramps, LUTs and the ADC characterization");
-    let (adc, luts) = crate::commands::adc::run(camera, None, ramp, flatten, OutDir::new(&mut files, out_dir))?;
+    let (adc, luts) = crate::commands::adc::run(camera, None, ramp, flatten, crate::ieee1241::Density::Smooth, OutDir::new(&mut files, out_dir))?;
     let levels: usize = ramp.ramp_levels.iter().sum();
 
     // 3. Streaming check.

@@ -24,7 +24,7 @@ pub fn extended_model(hist: &crate::fits::AdcHistograms, d: &Diagnosis, flatten:
     let mut widths = Vec::new();
     for (adc, counts) in hist.counts.iter().enumerate() {
         if d.findings.iter().any(|f| f.effect == Effect::AdcDnl && f.adc == Some(adc)) {
-            let f = crate::flatten::flatten_histogram(counts, &trimmed).map_err(|source| DiagnoseError::Flatten { adc, source })?;
+            let (f, _) = crate::flatten::flatten_narrowing(counts, &trimmed).map_err(|source| DiagnoseError::Flatten { adc, source })?;
             widths.push(f.weights.iter().map(|w| w.max(1e-6)).collect());
         } else {
             widths.push(vec![1.0; codes]);
@@ -525,6 +525,17 @@ fn report(input: &Path, mut diagnosis: Diagnosis, model: Option<crate::camera::C
             line_plot(files, &codes_fig, "Code density of the frames: held-out residuals / expected noise", "code (DN)", "normalized residual", &series, 1)?;
             h = h.replace("</body></html>", &format!("<h2>Code density of the frames</h2>{}</body></html>", html_figure("codes.png", 1000, "Code density of the frames", None)));
             outputs.push(codes_fig);
+        }
+        if let Some(tests) = &diagnosis.adc_linearity {
+            // The IEEE 1241 histogram test of each ADC on all its counts.
+            let mut section = String::from("<h2>ADC histogram test (IEEE 1241)</h2><p>Each ADC on all its counts (smooth density: the paper's spline and running median): DNL and INL, missing, wide and narrow codes by number, the resolution the counts allow, and the structure (periods, bit boundaries, a binary-weighted SAR); docs/adc-histogram-test.md.</p>");
+            for (a, t) in tests.iter().enumerate().filter_map(|(a, t)| t.as_ref().map(|t| (a, t))) {
+                let name = format!("dnl_inl_adc{a}.png");
+                t.figure(files, &dir.join(&name), &format!("ADC {a}: IEEE 1241 histogram test, {:.1} counts a code", t.resolution.counts_per_code))?;
+                let _ = write!(section, "<h3>ADC {a}</h3><pre>{}</pre>{}", crate::outputs::html_escape(&t.text("")), html_figure(&name, 1000, &format!("ADC {a}: DNL and INL"), None));
+                outputs.push(dir.join(name));
+            }
+            h = h.replace("</body></html>", &format!("{section}</body></html>"));
         }
         files.write_bytes(&html_path, &h)?;
         outputs.extend([fig, html_path]);

@@ -46,6 +46,9 @@ pub struct BuildSummary {
     pub device_image: PathBuf,
     /// Per ADC.
     pub adcs: Vec<AdcLutSummary>,
+    /// The IEEE 1241 histogram test of each ADC (smooth density, the flattening's
+    /// parameters): DNL, INL, missing and worst codes, the resolution of the counts.
+    pub linearity: Vec<crate::ieee1241::AdcLinearity>,
 }
 
 impl Report for BuildSummary {
@@ -57,6 +60,18 @@ impl Report for BuildSummary {
                 "ADC {}: code widths {:.4}..{:.4} DN, max |cumulative offset| {:.3} DN, top offset {:+.4} DN before normalization, {:+.2e} DN after, top entry {}\n",
                 a.adc, a.weight_range.0, a.weight_range.1, a.max_abs_offset_dn, a.top_offset_before_dn, a.top_offset_dn, a.top_entry
             );
+            if let Some(l) = self.linearity.get(a.adc) {
+                t += &l.text("  ");
+                // A LUT corrects widths to the counts' own precision; the paper's ramps hold
+                // about 10^6 counts a code (0.1%) against a DN error of a few percent.
+                if l.resolution.dnl_sigma_lsb > 0.01 {
+                    t += &format!(
+                        "  note: at {:.0} counts a code each width in this LUT carries {:.1}% of count noise (1 sigma), which the LUT adds to every pixel it corrects; a few-percent DN error needs 10^4 counts a code or more\n",
+                        l.resolution.counts_per_code,
+                        100.0 * l.resolution.dnl_sigma_lsb
+                    );
+                }
+            }
         }
         t
     }
@@ -184,11 +199,12 @@ pub fn build(input: &Path, output: &Path, params: &FlattenParams) -> Result<Buil
     let mut files = out.expect()?;
     let hist = read_histograms_for_analysis(input)?;
     let built = build_luts(&hist, params, input)?;
+    let linearity = crate::ieee1241::analyse_set(&hist, crate::ieee1241::Density::Smooth, params, input)?;
     stage_lut(&mut files, &out.fits, &built.lut_tables())?;
     files.write_bytes(&out.image, &built.image)?;
     files.publish()?;
     let adcs = built.flattened.iter().zip(&built.tables).enumerate().map(|(a, (f, t))| summarize(a, f, t)).collect();
-    Ok(BuildSummary { input: input.into(), lut_fits: out.fits, device_image: out.image, adcs })
+    Ok(BuildSummary { input: input.into(), lut_fits: out.fits, device_image: out.image, adcs, linearity })
 }
 
 /// One ADC's table as `lut inspect` shows it.

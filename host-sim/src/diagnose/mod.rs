@@ -261,6 +261,10 @@ pub struct Diagnosis {
     /// The code-density test of the frames, for photon-transfer sets.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub code_density: Option<codes::CodeDensity>,
+    /// The IEEE 1241 histogram test of each ADC on all its counts, for histogram sets
+    /// (null for an ADC it could not analyse; `not_tested` says why).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub adc_linearity: Option<Vec<Option<crate::ieee1241::AdcLinearity>>>,
     /// Its held-out residuals by code (for the figures).
     #[serde(skip)]
     pub code_residuals: Option<AdcResiduals>,

@@ -334,6 +334,7 @@ pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Res
         measured: Measured::default(),
         code_density: None,
         code_residuals: None,
+        adc_linearity: None,
         curve_per_dn,
         baseline: Baseline {
             kind: "photon-transfer".into(),

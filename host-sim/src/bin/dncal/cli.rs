@@ -34,6 +34,29 @@ pub(crate) enum ExportFormat {
     Kcor,
 }
 
+/// How the input spread its samples over the ADC's range, for the IEEE 1241 histogram test.
+#[derive(clap::ValueEnum, Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum DensityArg {
+    /// An illumination ramp smooth over tens of codes: the paper's flattening (spline and
+    /// running median); INL only on scales below the median window.
+    Smooth,
+    /// The standard's linear ramp, overdriving both ends: the same counts a code everywhere.
+    Ramp,
+    /// The standard's sine-wave histogram test: the arcsine density.
+    Sine,
+}
+
+impl DensityArg {
+    pub(crate) fn density(self) -> dncal_host::ieee1241::Density {
+        use dncal_host::ieee1241::Density;
+        match self {
+            DensityArg::Smooth => Density::Smooth,
+            DensityArg::Ramp => Density::Ramp,
+            DensityArg::Sine => Density::Sine,
+        }
+    }
+}
+
 /// The datapaths `stream` can drive.
 #[derive(clap::ValueEnum, Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) enum EngineKind {
@@ -247,6 +270,10 @@ pub(crate) enum Cmd {
         /// Output folder for the figures and the LUT files.
         #[arg(short, long, default_value = "dncal-adc")]
         out: PathBuf,
+        /// The input's density over the codes, for the IEEE 1241 histogram test (DNL,
+        /// INL, missing and worst codes); the LUTs always use the paper's flattening.
+        #[arg(long, value_enum, default_value_t = DensityArg::Smooth)]
+        density: DensityArg,
         #[command(flatten)]
         ramp: RampArgs,
         #[command(flatten)]

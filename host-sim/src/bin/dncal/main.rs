@@ -62,9 +62,9 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
             return Ok(passed(r.passed()));
         }
         Cmd::Adc { from_luts, out, json, .. } if !from_luts.is_empty() => print(json, &staged_in(&out, |o| adc::from_luts(&from_luts, o))?)?,
-        Cmd::Adc { camera, hist, out, ramp, flatten, json, .. } => {
+        Cmd::Adc { camera, hist, out, ramp, flatten, density, json, .. } => {
             let (cam, ramp) = (camera.camera()?, ramp.params()?);
-            print(json, &staged_in(&out, |o| adc::run(&cam, hist.as_deref(), &ramp, &flatten.params(), o))?.0)?;
+            print(json, &staged_in(&out, |o| adc::run(&cam, hist.as_deref(), &ramp, &flatten.params(), density.density(), o))?.0)?;
         }
         Cmd::KcorModel { camera, adc, exposure_ms, steps, lut_noise, lut, q_fraction, seed, realizations, out, json } => {
             let cam = camera.camera()?;
