@@ -14,40 +14,5 @@
 set -euo pipefail
 
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-VENV="$ROOT/target/adctoolbox-venv"
-PY="$VENV/bin/python"
-MARKER="$VENV/.adctoolbox-0.9.1-ok"
-PACKAGES=("adctoolbox==0.9.1" "numpy" "astropy")
-
-import_ok() {
-    "$PY" -c 'import adctoolbox, numpy, astropy.io.fits' >/dev/null 2>&1
-}
-
-if [[ -f "$MARKER" && -x "$PY" ]] && "$PY" -c 'import sys' >/dev/null 2>&1; then
-    echo "$PY"
-    exit 0
-fi
-
-{
-    if [[ -x "$PY" ]] && import_ok; then
-        echo "adctoolbox-venv: existing venv at $VENV works"
-    else
-        if [[ -e "$VENV" ]]; then
-            echo "adctoolbox-venv: venv at $VENV is broken or incomplete; recreating it"
-            rm -rf -- "$VENV"
-        fi
-        mkdir -p "$ROOT/target"
-        echo "adctoolbox-venv: creating $VENV"
-        python3 -m venv "$VENV"
-        "$PY" -m pip install --quiet --disable-pip-version-check "${PACKAGES[@]}"
-    fi
-    if ! import_ok; then
-        echo "adctoolbox-venv: import adctoolbox, numpy, astropy fails in $VENV:"
-        "$PY" -c 'import adctoolbox, numpy, astropy.io.fits' || true
-        exit 1
-    fi
-    "$PY" -c 'import numpy, astropy; from importlib.metadata import version; print("adctoolbox-venv: adctoolbox", version("adctoolbox"), "numpy", numpy.__version__, "astropy", astropy.__version__)'
-    touch "$MARKER"
-} 1>&2
-
-echo "$PY"
+source "$ROOT/scripts/venv.sh"
+make_venv adctoolbox-venv 'import adctoolbox, numpy, astropy.io.fits' "adctoolbox==0.9.1" numpy astropy
