@@ -69,20 +69,12 @@ fn named_codes_held_out(a: &[u64], b: &[u64], f: &Flattened, s: f64, median_var:
 /// The named codes and structure of an ADC's test on all its counts, for a finding's
 /// detail.
 fn named_detail(t: &AdcLinearity) -> String {
-    let list = |v: &[&crate::ieee1241::CodeWidth]| {
-        let mut s = v.iter().take(8).map(|c| format!("{} ({:.2} ± {:.2} LSB)", c.code, 1.0 + c.dnl_lsb, c.sigma_lsb)).collect::<Vec<_>>().join(", ");
-        if v.len() > 8 {
-            s += &format!(" and {} more", v.len() - 8);
-        }
-        if s.is_empty() { "none".into() } else { s }
-    };
-    let of = |kind| t.named.iter().filter(|c| c.kind == Some(kind)).collect::<Vec<_>>();
     use crate::ieee1241::CodeKind;
     let mut d = format!(
         "; IEEE 1241 on all the counts: missing codes {}; wide codes {}; narrow codes {}; max |DNL| {:.3} LSB",
-        list(&of(CodeKind::Missing)),
-        list(&of(CodeKind::Wide)),
-        list(&of(CodeKind::Narrow)),
+        t.named_list(CodeKind::Missing, 8),
+        t.named_list(CodeKind::Wide, 8),
+        t.named_list(CodeKind::Narrow, 8),
         t.max_abs_dnl_lsb
     );
     if let Some(h) = t.structure.headline() {

@@ -274,14 +274,12 @@ impl AdcLinearity {
             }
         );
         t += &format!("{indent}  {}\n", self.resolution.sentence());
-        t += &format!("{indent}  missing codes: {}\n", list_codes(&self.missing, |c| format!("{} (width < {:.3} LSB at {:.1}%)", c.code, missing_bound(c.expected), 100.0 * MISSING_BOUND)));
+        t += &format!("{indent}  missing codes: {}\n", list_codes(&self.missing, 12, |c| format!("{} (width < {:.3} LSB at {:.1}%)", c.code, missing_bound(c.expected), 100.0 * MISSING_BOUND)));
         if !self.empty_inconclusive.is_empty() {
-            t += &format!("{indent}  empty but not resolved as missing: {}\n", list_codes(&self.empty_inconclusive, |c| format!("{} (p = {:.2e} for an ideal code)", c.code, c.p_ideal)));
+            t += &format!("{indent}  empty but not resolved as missing: {}\n", list_codes(&self.empty_inconclusive, 12, |c| format!("{} (p = {:.2e} for an ideal code)", c.code, c.p_ideal)));
         }
-        let wide: Vec<CodeWidth> = self.named.iter().filter(|c| c.kind == Some(CodeKind::Wide)).cloned().collect();
-        let narrow: Vec<CodeWidth> = self.named.iter().filter(|c| c.kind == Some(CodeKind::Narrow)).cloned().collect();
-        t += &format!("{indent}  wide codes: {}\n", list_codes(&wide, width_text));
-        t += &format!("{indent}  narrow codes: {}\n", list_codes(&narrow, width_text));
+        t += &format!("{indent}  wide codes: {}\n", self.named_list(CodeKind::Wide, 12));
+        t += &format!("{indent}  narrow codes: {}\n", self.named_list(CodeKind::Narrow, 12));
         t += &format!("{indent}  worst codes: {}\n", self.worst.iter().map(width_text).collect::<Vec<_>>().join(", "));
         for line in self.structure.lines() {
             t += &format!("{indent}  {line}\n");
@@ -331,19 +329,28 @@ pub fn analyse_set(h: &AdcHistograms, density: Density, flatten: &FlattenParams,
         .collect()
 }
 
+impl AdcLinearity {
+    /// The named codes of `kind`, each with its width, up to `most` and then how many
+    /// more: "511 (9.06 ± 0.31 LSB), 1535 (...)"; "none".
+    pub fn named_list(&self, kind: CodeKind, most: usize) -> String {
+        let v: Vec<CodeWidth> = self.named.iter().filter(|c| c.kind == Some(kind)).cloned().collect();
+        list_codes(&v, most, width_text)
+    }
+}
+
 /// "2047 (0.02 ± 0.10 LSB)": a code and its width.
 fn width_text(c: &CodeWidth) -> String {
     format!("{} ({:.2} ± {:.2} LSB)", c.code, 1.0 + c.dnl_lsb, c.sigma_lsb)
 }
 
-/// Up to 12 codes, then how many more; "none" when empty.
-fn list_codes(v: &[CodeWidth], f: impl Fn(&CodeWidth) -> String) -> String {
+/// Up to `most` codes, then how many more; "none" when empty.
+fn list_codes(v: &[CodeWidth], most: usize, f: impl Fn(&CodeWidth) -> String) -> String {
     if v.is_empty() {
         return "none".into();
     }
-    let mut s = v.iter().take(12).map(f).collect::<Vec<_>>().join(", ");
-    if v.len() > 12 {
-        s += &format!(" and {} more", v.len() - 12);
+    let mut s = v.iter().take(most).map(f).collect::<Vec<_>>().join(", ");
+    if v.len() > most {
+        s += &format!(" and {} more", v.len() - most);
     }
     s
 }

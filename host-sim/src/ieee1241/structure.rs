@@ -68,11 +68,37 @@ pub const SIGNIFICANCE: f64 = 5.0;
 /// significant at high counts but not a structure of its own.
 pub const PERIOD_EXPLAINS: f64 = 0.1;
 
+/// Which named codes a recurrence is of.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub enum Side {
+    /// Wide codes.
+    #[serde(rename = "wide")]
+    Wide,
+    /// Narrow and missing codes.
+    #[serde(rename = "narrow or missing")]
+    Narrow,
+}
+
+impl Side {
+    /// The name in the text and JSON.
+    pub fn name(self) -> &'static str {
+        match self {
+            Side::Wide => "wide",
+            Side::Narrow => "narrow or missing",
+        }
+    }
+
+    /// Whether a code named `kind` is on this side.
+    pub fn holds(self, kind: CodeKind) -> bool {
+        (kind == CodeKind::Wide) == (self == Side::Wide)
+    }
+}
+
 /// Named codes that recur at a period.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Recurrence {
-    /// "wide" or "narrow or missing".
-    pub kind: &'static str,
+    /// Wide, or narrow and missing.
+    pub kind: Side,
     /// The period, codes.
     pub period: usize,
     /// The class, `code mod period`.
@@ -90,7 +116,7 @@ impl Recurrence {
     pub fn sentence(&self) -> String {
         let codes = self.codes.iter().map(usize::to_string).collect::<Vec<_>>().join(", ");
         let carry = self.below_carry_into_bit.map_or(String::new(), |b| format!(": the code below each carry into bit {b}"));
-        format!("{} codes {codes} recur every {} codes ({} mod {}, {} of {}){carry}", self.kind, self.period, self.residue, self.period, self.codes.len(), self.repetitions)
+        format!("{} codes {codes} recur every {} codes ({} mod {}, {} of {}){carry}", self.kind.name(), self.period, self.residue, self.period, self.codes.len(), self.repetitions)
     }
 }
 
@@ -214,8 +240,8 @@ impl Structure {
         let n_codes = 1usize << bits;
         let last = first + dnl.len() - 1;
         let mut recurrences = Vec::new();
-        for (kind, pick) in [("wide", &(|k: CodeKind| k == CodeKind::Wide) as &dyn Fn(CodeKind) -> bool), ("narrow or missing", &|k: CodeKind| k != CodeKind::Wide)] {
-            let codes: Vec<usize> = named.iter().filter(|c| c.kind.is_some_and(pick)).map(|c| c.code).collect();
+        for kind in [Side::Wide, Side::Narrow] {
+            let codes: Vec<usize> = named.iter().filter(|c| c.kind.is_some_and(|k| kind.holds(k))).map(|c| c.code).collect();
             recurrences.extend(recurring(kind, &codes, first, last, n_codes));
         }
         let excluded: std::collections::HashSet<usize> = named.iter().map(|c| c.code).collect();
@@ -281,7 +307,7 @@ fn chance(members: usize, repetitions: usize, p: f64) -> f64 {
 }
 
 /// The recurring classes of `codes` (module documentation).
-fn recurring(kind: &'static str, codes: &[usize], first: usize, last: usize, n_codes: usize) -> Vec<Recurrence> {
+fn recurring(kind: Side, codes: &[usize], first: usize, last: usize, n_codes: usize) -> Vec<Recurrence> {
     if codes.len() < 2 {
         return Vec::new();
     }

@@ -91,7 +91,7 @@ fn planted_wide_and_missing_codes_are_named_by_number_at_50_to_100_counts() {
         let worst: Vec<usize> = codes_of(&t.worst[..5]);
         assert_eq!(&worst[4..], &[2047]);
         // Recurrence: the four wide codes at 511 mod 1024, below the bit-9 carry.
-        let r = t.structure.recurrences.iter().find(|r| r.kind == "wide").expect("a recurrence");
+        let r = t.structure.recurrences.iter().find(|r| r.kind == structure::Side::Wide).expect("a recurrence");
         assert_eq!((r.period, r.residue, r.codes.len(), r.repetitions, r.below_carry_into_bit), (1024, 511, 4, 4, Some(9)), "{r:?}");
     }
 }
