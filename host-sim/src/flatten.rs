@@ -359,6 +359,13 @@ pub fn flatten_narrowing(counts: &[u64], p: &FlattenParams) -> Result<(Flattened
     }
 }
 
+/// The variance of the running median of `window` samples, as a share of one sample's
+/// variance: `(pi / 2) / window` (the median's large-window limit). The smooth density
+/// `spline * median` carries it relative to the counts' own noise.
+pub fn median_variance(window: usize) -> f64 {
+    std::f64::consts::FRAC_PI_2 / window.max(1) as f64
+}
+
 /// Quantizes weights to the core's [`Weight`] (`U8F24`): each to the nearest multiple of
 /// 2^-24 DN, ties to even (the core's rounding rule for entries), so the error is at most
 /// 2^-25 DN per code and 2^-13 DN summed over 4096 codes, a quarter of a LUT unit.

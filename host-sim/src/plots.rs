@@ -147,6 +147,19 @@ fn wrap(text: &str, width: usize) -> Vec<String> {
     lines
 }
 
+/// The smallest and largest x and y of the finite `points`, `(x0, x1, y0, y1)`; None
+/// when no point is finite.
+fn extremes(points: impl Iterator<Item = (f64, f64)>) -> Option<(f64, f64, f64, f64)> {
+    let (mut x0, mut x1, mut y0, mut y1) = (f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY);
+    for (x, y) in points.filter(|(x, y)| x.is_finite() && y.is_finite()) {
+        x0 = x0.min(x);
+        x1 = x1.max(x);
+        y0 = y0.min(y);
+        y1 = y1.max(y);
+    }
+    x0.is_finite().then_some((x0, x1, y0, y1))
+}
+
 /// A line plot of `series` (stacked in `panels` vertically when given more than one
 /// panel: series `i` goes to panel `i % panels`), staged in `out` as a PNG at `path`.
 pub fn line_plot(out: &mut Outputs, path: &Path, title: &str, x_label: &str, y_label: &str, series: &[Series], panels: usize) -> Result<(), HostError> {
@@ -169,17 +182,9 @@ pub fn line_plot_paired(out: &mut Outputs, path: &Path, title: &str, x_label: &s
         for (p, panel) in root.split_evenly((panels, 1)).iter().enumerate() {
             let (area, legend) = panel.split_horizontally(1000);
             let mine: Vec<(usize, &Series)> = series.iter().enumerate().filter(|(i, _)| i % panels == p).collect();
-            let pts = || mine.iter().flat_map(|(_, s)| s.points.iter()).filter(|(x, y)| x.is_finite() && y.is_finite());
-            let (mut x0, mut x1, mut y0, mut y1) = (f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY);
-            for &(x, y) in pts() {
-                x0 = x0.min(x);
-                x1 = x1.max(x);
-                y0 = y0.min(y);
-                y1 = y1.max(y);
-            }
-            if !x0.is_finite() {
+            let Some((x0, x1, y0, y1)) = extremes(mine.iter().flat_map(|(_, s)| s.points.iter().copied())) else {
                 continue;
-            }
+            };
             let pad = ((y1 - y0) * 0.05).max(1e-12);
             let (xr, yr) = (x0..x1.max(x0 + 1e-12), (y0 - pad)..(y1 + pad));
             let mut chart = ChartBuilder::on(&area)
@@ -458,19 +463,12 @@ pub fn dnl_inl_plot(out: &mut Outputs, path: &Path, title: &str, dnl: &Series, n
         root.fill(&WHITE).map_err(|e| plot_err(path, e))?;
         let root = root.titled(title, ("sans-serif", 22)).map_err(|e| plot_err(path, e))?;
         let panels = root.split_evenly((2, 1));
-        let range = |sets: &[&[(f64, f64)]]| {
-            let (mut x0, mut x1, mut y0, mut y1) = (f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY);
-            for &(x, y) in sets.iter().flat_map(|s| s.iter()) {
-                x0 = x0.min(x);
-                x1 = x1.max(x);
-                y0 = y0.min(y);
-                y1 = y1.max(y);
+        let range = |sets: &[&[(f64, f64)]]| match extremes(sets.iter().flat_map(|s| s.iter().copied())) {
+            None => (0.0..1.0, -1.0..1.0),
+            Some((x0, x1, y0, y1)) => {
+                let pad = ((y1 - y0) * 0.08).max(1e-3);
+                (x0..x1.max(x0 + 1.0), (y0 - pad)..(y1 + pad))
             }
-            if !x0.is_finite() {
-                return (0.0..1.0, -1.0..1.0);
-            }
-            let pad = ((y1 - y0) * 0.08).max(1e-3);
-            (x0..x1.max(x0 + 1.0), (y0 - pad)..(y1 + pad))
         };
         let marked = |v: &[(f64, f64, String)]| v.iter().map(|(x, y, _)| (*x, *y)).collect::<Vec<_>>();
         // Top: DNL, its noise band, the marks.

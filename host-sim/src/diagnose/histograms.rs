@@ -122,9 +122,8 @@ pub fn diagnose_histograms(h: &AdcHistograms, flatten: &FlattenParams, seed: u64
         let sa: f64 = codes.iter().map(|&k| a[k] as f64).sum();
         let sb: f64 = codes.iter().map(|&k| b[k] as f64).sum();
         let s = sb / sa;
-        // The running median of A's noisy quotient carries noise of its own: the variance of
-        // the median of w samples is (pi / 2) / w of theirs (large-w limit).
-        let median_var = std::f64::consts::FRAC_PI_2 / trimmed.median_window.max(1) as f64;
+        // The running median of A's noisy quotient carries noise of its own.
+        let median_var = crate::flatten::median_variance(trimmed.median_window);
         let z0: Vec<f64> = codes
             .iter()
             .map(|&k| {

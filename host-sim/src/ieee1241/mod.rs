@@ -52,6 +52,7 @@ use crate::fits::AdcHistograms;
 use crate::flatten::{flatten_narrowing, FlattenError, FlattenParams};
 use crate::outputs::Outputs;
 use crate::plots::{dnl_inl_plot, MarkedCodes, Series};
+use crate::stats::{max_abs, rms};
 use crate::HostError;
 
 /// Family-wise probability that an ideal ADC has any code named, over all analysed codes.
@@ -306,18 +307,23 @@ impl AdcLinearity {
         dnl_inl_plot(out, path, title, &dnl, &[band(1.0), band(-1.0)], &inls, &[inl_band(1.0), inl_band(-1.0)], &marks)
     }
 
-    /// One-sigma noise of the end-point INL at each transition, LSB: the widths'
-    /// variances `1/E_k` summed, tied at both ends (a Brownian bridge).
+    /// One-sigma noise of the end-point INL at each transition, LSB ([`bridge_sigma`]).
     pub fn inl_sigma_lsb(&self) -> Vec<f64> {
-        let cum: Vec<f64> = std::iter::once(0.0)
-            .chain(self.expected.iter().scan(0.0, |s, e| {
-                *s += 1.0 / e;
-                Some(*s)
-            }))
-            .collect();
-        let total = cum.last().copied().unwrap_or(0.0).max(1e-300);
-        cum.iter().map(|a| (a * (total - a) / total).max(0.0).sqrt()).collect()
+        bridge_sigma(&self.expected)
     }
+}
+
+/// One-sigma noise of the end-point INL at each of the `expected.len() + 1` transitions,
+/// LSB: the widths' variances `1/E_k` summed, tied at both ends (a Brownian bridge).
+fn bridge_sigma(expected: &[f64]) -> Vec<f64> {
+    let cum: Vec<f64> = std::iter::once(0.0)
+        .chain(expected.iter().scan(0.0, |s, e| {
+            *s += 1.0 / e;
+            Some(*s)
+        }))
+        .collect();
+    let total = cum.last().copied().unwrap_or(0.0).max(1e-300);
+    cum.iter().map(|a| (a * (total - a) / total).max(0.0).sqrt()).collect()
 }
 
 /// Every ADC of a histogram set through [`analyse`]; `source` names the set in errors.
@@ -424,8 +430,8 @@ fn estimate(counts: &[u64], density: Density, flatten: &FlattenParams) -> Result
             enough(first, last)?;
             let expected: Vec<f64> = (first..=last).map(|k| f.spline[k] * f.median[k]).collect();
             let widths: Vec<f64> = (first..=last).zip(&expected).map(|(k, e)| counts[k] as f64 / e).collect();
-            let window = p.median_window.max(1) as f64;
-            let expected_var = expected.iter().map(|e| std::f64::consts::FRAC_PI_2 / (window * e.max(1e-300))).collect();
+            let median_var = crate::flatten::median_variance(p.median_window);
+            let expected_var = expected.iter().map(|e| median_var / e.max(1e-300)).collect();
             // A median window plus a knot interval of the spline, as `diagnose` scores
             // (an ideal ADC under a ramp blurred at its ends had codes 10 counts of 48
             // named narrow at the top edge before).
@@ -548,15 +554,17 @@ pub fn analyse_at(counts: &[u64], density: Density, flatten: &FlattenParams, alp
     let (c0, c1, _) = crate::stats::fit_line(&x, &t);
     let bestfit: Vec<f64> = t.iter().enumerate().map(|(j, tj)| tj - c0 - c1 * j as f64).collect();
     let (named_wide_from_lsb, named_narrow_below_lsb) = naming_widths(mean_e, threshold);
+    let inl_sigma = bridge_sigma(&expected);
+    let inl_noise = max_abs(&inl_sigma);
     let resolution = Resolution {
         counts_per_code: mean_e,
         dnl_sigma_lsb: 1.0 / mean_e.sqrt(),
         named_wide_from_lsb,
         named_narrow_below_lsb,
         missing_needs_counts: 2.0 * (1.0 / threshold).ln(),
-        inl_sigma_lsb: 0.0,
+        inl_sigma_lsb: inl_noise,
         inl_scale_codes: est.inl_scale,
-        inl_over_noise: None,
+        inl_over_noise: (est.inl_scale.is_none() && rms(&inl_sigma) > 0.0).then(|| rms(&endpoint) / rms(&inl_sigma)),
     };
     // The probability of each listed code's count for a code of the mean width.
     let with_p = |c: &CodeWidth| CodeWidth { p_ideal: if c.counts as f64 > c.expected { upper_tail(c.counts, c.expected) } else { lower_tail(c.counts, c.expected) }, ..c.clone() };
@@ -571,15 +579,14 @@ pub fn analyse_at(counts: &[u64], density: Density, flatten: &FlattenParams, alp
     // low (an ideal ADC's even codes read 0.012 LSB narrow at 5 sigma).
     let model_sigma: Vec<f64> = expected.iter().zip(&est.expected_var).map(|(e, v)| (1.0 / e + v).sqrt()).collect();
     let structure = structure::Structure::of(bits, first, &dnl, &model_sigma, &named);
-    let abs_max = |v: &[f64]| v.iter().fold(0.0f64, |a, b| a.max(b.abs()));
-    let mut t = AdcLinearity {
+    Ok(AdcLinearity {
         density,
         bits,
         first_code: first,
         last_code: last,
-        max_abs_dnl_lsb: abs_max(&dnl),
-        max_abs_inl_endpoint_lsb: abs_max(&endpoint),
-        max_abs_inl_bestfit_lsb: abs_max(&bestfit),
+        max_abs_dnl_lsb: max_abs(&dnl),
+        max_abs_inl_endpoint_lsb: max_abs(&endpoint),
+        max_abs_inl_bestfit_lsb: max_abs(&bestfit),
         dnl_lsb: dnl,
         dnl_sigma_lsb: all.iter().map(|c| c.sigma_lsb).collect(),
         inl_endpoint_lsb: endpoint,
@@ -592,14 +599,7 @@ pub fn analyse_at(counts: &[u64], density: Density, flatten: &FlattenParams, alp
         structure,
         expected,
         counts: counts[first..=last].to_vec(),
-    };
-    let inl_sigma = t.inl_sigma_lsb();
-    t.resolution.inl_sigma_lsb = inl_sigma.iter().copied().fold(0.0, f64::max);
-    if t.resolution.inl_scale_codes.is_none() {
-        let noise = crate::stats::rms(&inl_sigma);
-        t.resolution.inl_over_noise = (noise > 0.0).then(|| crate::stats::rms(&t.inl_endpoint_lsb) / noise);
-    }
-    Ok(t)
+    })
 }
 
 #[cfg(test)]
