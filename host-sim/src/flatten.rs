@@ -346,18 +346,29 @@ pub fn flatten_histogram(counts: &[u64], p: &FlattenParams) -> Result<Flattened,
 /// A ramp whose ends fall off over a few codes (an illumination blurred by noise) at a
 /// few tens of counts a code has codes of 3 counts far into its tail, where the 10% trim
 /// ends; the spline then undershoots to zero at the edge. Gaps and missing codes inside
-/// the range stay. Returns the flattening and the parameters it took.
+/// the range stay: where the running median is still zero (a run of missing codes half
+/// a window long, as below a SAR's MSB when the bits under it weigh more), the window is
+/// doubled, up to [`MAX_MEDIAN_WIDENING`] times its own. Returns the flattening and the
+/// parameters it took.
 pub fn flatten_narrowing(counts: &[u64], p: &FlattenParams) -> Result<(Flattened, FlattenParams), FlattenError> {
     let mut p = p.clone();
+    let widest = MAX_MEDIAN_WIDENING * p.median_window;
     loop {
         match flatten_histogram(counts, &p) {
             Err(FlattenError::SplineNotPositive { .. } | FlattenError::MedianNotPositive { .. }) if p.trim_below_fraction < 0.8 => {
                 p.trim_below_fraction = (2.0 * p.trim_below_fraction).max(0.2);
             }
+            Err(FlattenError::MedianNotPositive { .. }) if 2 * p.median_window < widest => {
+                p.median_window = 2 * p.median_window + 1;
+            }
             r => return r.map(|f| (f, p)),
         }
     }
 }
+
+/// How many times its own a median window [`flatten_narrowing`] may widen to: below 8,
+/// so the default 21 codes become 43 and at most 87 (runs of up to 43 missing codes).
+pub const MAX_MEDIAN_WIDENING: usize = 8;
 
 /// The variance of the running median of `window` samples, as a share of one sample's
 /// variance: `(pi / 2) / window` (the median's large-window limit). The smooth density
@@ -481,7 +492,7 @@ fn fit_uniform_cubic_spline(y: &[f64], points: usize) -> Result<Vec<f64>, Flatte
 /// Every median is then of the same number of samples, so its noise does not grow toward
 /// the ends, and no value is counted twice. Slides a sorted window (O(len window)).
 /// Needs `1 <= window <= values.len()`, `window` odd (checked by the caller).
-fn running_median(values: &[f64], window: usize) -> Vec<f64> {
+pub(crate) fn running_median(values: &[f64], window: usize) -> Vec<f64> {
     let half = window / 2;
     let starts = values.len() + 1 - window;
     let mut sorted = values[..window].to_vec();
@@ -751,6 +762,25 @@ mod tests {
             flatten_histogram(&half_empty, &p),
             Err(FlattenError::SplineNotPositive { .. } | FlattenError::MedianNotPositive { .. })
         ));
+    }
+
+    /// A run of 15 missing codes inside the range (below a SAR's MSB when the bits under
+    /// it weigh more): the 21-code median is zero there; the narrowing widens it to 43,
+    /// and the codes around the run keep their widths to 3% (the spline dips into the
+    /// hole and the median follows it only over its window). A run of 100 is still
+    /// refused.
+    #[test]
+    fn a_run_of_missing_codes_widens_the_median() {
+        let p = FlattenParams::default();
+        let mut counts: Vec<u64> = vec![10_000; CODES];
+        counts[2033..2048].fill(0);
+        assert!(matches!(flatten_histogram(&counts, &p), Err(FlattenError::MedianNotPositive { .. })));
+        let (f, q) = flatten_narrowing(&counts, &p).unwrap();
+        assert_eq!(q.median_window, 43);
+        assert!(f.weights[2033..2048].iter().all(|w| *w == 0.0));
+        assert!((f.weights[2032] - 1.0).abs() < 0.03 && (f.weights[2048] - 1.0).abs() < 0.03, "{} {}", f.weights[2032], f.weights[2048]);
+        counts[2000..2100].fill(0);
+        assert!(flatten_narrowing(&counts, &p).is_err());
     }
 
     #[test]

@@ -50,7 +50,7 @@ use rand_distr::{Distribution, Normal};
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::camera::{Camera, PipelinedAdc};
+use crate::camera::{Camera, AdcTransfer};
 
 /// Planck constant times the speed of light, J m.
 const HC: f64 = 6.626_070_15e-34 * 299_792_458.0;
@@ -200,7 +200,7 @@ pub struct KcorResult {
 
 /// The LUT of the paper's Fig. 5: the ADC's normalized code widths with `noise` relative
 /// Gaussian noise per code, renormalized to sum to the code count, in f64 weights.
-pub fn noisy_weights(adc: &PipelinedAdc, noise: f64, seed: u64) -> Vec<f64> {
+pub fn noisy_weights(adc: &AdcTransfer, noise: f64, seed: u64) -> Vec<f64> {
     let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
     let normal = Normal::new(0.0, noise.max(0.0)).unwrap_or_else(|_| Normal::new(0.0, 0.0).expect("zero is a valid sd"));
     let w = adc.normalized_widths();
@@ -212,14 +212,14 @@ pub fn noisy_weights(adc: &PipelinedAdc, noise: f64, seed: u64) -> Vec<f64> {
 
 /// Runs the model for `adc` of `camera` (its nonlinearity is ignored) with LUT values
 /// `lut` (DN per code, e.g. the core's entries / 2^11).
-pub fn run(camera: &Camera, adc: &PipelinedAdc, lut: &[f64], p: &KcorParams) -> KcorResult {
+pub fn run(camera: &Camera, adc: &AdcTransfer, lut: &[f64], p: &KcorParams) -> KcorResult {
     let mut all = run_luts(camera, adc, &[lut], p);
     all.swap_remove(0)
 }
 
 /// The electrons a state can add above the dark level before the ADC's top code or the
 /// full well, whichever comes first; 0 or less when the dark level fills the range.
-pub fn signal_room_e(camera: &Camera, adc: &PipelinedAdc) -> f64 {
+pub fn signal_room_e(camera: &Camera, adc: &AdcTransfer) -> f64 {
     let cfg = &camera.config;
     let top_dn = (adc.codes() - 1) as f64;
     let dark_dn = cfg.dark_e / cfg.gain_e_per_dn + cfg.offset_dn;
@@ -229,7 +229,7 @@ pub fn signal_room_e(camera: &Camera, adc: &PipelinedAdc) -> f64 {
 /// [`run`] for several LUTs at once (e.g. noise realizations): the code PMFs, which cost
 /// nearly all of a run, are computed once per grid cell and shared. One result per LUT,
 /// in order; the raw fields are the same in all.
-pub fn run_luts(camera: &Camera, adc: &PipelinedAdc, luts: &[&[f64]], p: &KcorParams) -> Vec<KcorResult> {
+pub fn run_luts(camera: &Camera, adc: &AdcTransfer, luts: &[&[f64]], p: &KcorParams) -> Vec<KcorResult> {
     let cfg = &camera.config;
     let phi = p.electrons_per_s_per_bsun();
     let per_bsun_e = phi * p.exposure_s; // e- per B_sun of unpolarized light, before the analyzer
@@ -357,7 +357,7 @@ mod tests {
         // No DN error, 4 DN of read noise (quantization bias ~1e-147 DN): the recovered
         // Stokes vector is exact to rounding.
         let cam = camera();
-        let adc = PipelinedAdc::ideal(12);
+        let adc = AdcTransfer::ideal(12);
         let lut: Vec<f64> = (0..4096).map(|k| k as f64).collect();
         let r = run(&cam, &adc, &lut, &KcorParams { steps: 20, ..Default::default() });
         assert!(r.max_abs_sys_err_bsun_raw < 1e-9 * r.bsun_per_dn, "{}", r.max_abs_sys_err_bsun_raw);
@@ -372,7 +372,7 @@ mod tests {
         // calibration then gives s_i = (O_i + delta - D) / (F + delta - D) s_F, so
         // dQ = -Q delta / (F - D + delta) exactly, wherever every state is well above 150.
         let cam = camera();
-        let adc = PipelinedAdc::ideal(12);
+        let adc = AdcTransfer::ideal(12);
         let delta = 0.4;
         let lut: Vec<f64> = (0..4096).map(|k| k as f64 + if k >= 150 { delta } else { 0.0 }).collect();
         let p = KcorParams { steps: 20, ..Default::default() };
@@ -408,7 +408,7 @@ mod tests {
         // s(v) = (u(v) - u(v_0)) / (u(v_F) - u(v_0)) s_F and dQ = s(v_0') - s(v_2') - Q.
         let a = 2e-5;
         let levels: Vec<f64> = (1..4096).map(|k| (k as f64 - 0.5) + a * (k as f64 - 0.5).powi(2)).collect();
-        let adc = PipelinedAdc::from_levels(&levels).unwrap();
+        let adc = AdcTransfer::from_levels(&levels).unwrap();
         let cam = camera();
         let lut: Vec<f64> = (0..4096).map(|k| k as f64).collect();
         let p = KcorParams { steps: 10, ..Default::default() };

@@ -58,6 +58,10 @@ pub struct StageFit {
     pub residual_rms_dn: f64,
     /// RMS over digits of each stage's offsets `e_{s,d}` (d = 0 is 0), DN.
     pub stage_rms_dn: Vec<f64>,
+    /// The fit on all codes as a camera model's ADC (`[[adc.architecture]]`): the offsets
+    /// and gains without the constant and the trend. Codes below [`FIRST_CALIBRATED`]
+    /// follow the same stages (the tables do not measure them).
+    pub architecture: crate::camera::Architecture,
 }
 
 /// How much of the DN error's variance the mean by code residue explains.
@@ -126,7 +130,7 @@ fn variance(v: &[f64]) -> f64 {
 /// in x, one indicator per stage and non-zero digit and, with `segment_gains`, per digit
 /// of the first stage the lower stages' value (as a fraction of the sub-range) where the
 /// code is in that digit's sub-range.
-fn stage_row(stages: &[u32], segment_gains: bool, code: usize, x: f64) -> Vec<f64> {
+pub(crate) fn stage_row(stages: &[u32], segment_gains: bool, code: usize, x: f64) -> Vec<f64> {
     let mut row = vec![1.0, x, x * x, x * x * x];
     let bits: u32 = stages.iter().sum();
     let mut shift = bits;
@@ -244,6 +248,7 @@ pub fn characterize(table: &KcorTable, camera: &str, adc: usize) -> RealAdc {
                 })
                 .collect();
             StageFit {
+                architecture: crate::ieee1241::architecture::pipelined_from(stages, segment_gains, &b, KCOR_CODES.trailing_zeros()),
                 stages: stages.to_vec(),
                 segment_gains,
                 parameters: design[0].len(),
@@ -269,6 +274,21 @@ pub fn characterize(table: &KcorTable, camera: &str, adc: usize) -> RealAdc {
         dn_error,
         offsets,
     }
+}
+
+/// A camera model of one camera's four tables (`dncal adc --from-luts` writes it as
+/// `CAMERA-architecture.toml`): 12 bits, four ADCs, each ADC the stage model that
+/// explains most of its table's offsets held out, as `[[adc.architecture]]`.
+pub fn architecture_model(camera: &str, adcs: &[RealAdc]) -> crate::camera::CameraConfig {
+    let mut c = crate::camera::CameraConfig { bits: KCOR_CODES.trailing_zeros(), n_adc: adcs.len(), ..Default::default() };
+    c.name = format!("{camera}: the stage models fitted to its K-Cor tables by dncal adc --from-luts");
+    c.adc.stage_bits = vec![c.bits];
+    c.adc.stage_error_lsb = vec![0.0];
+    c.adc.architecture = adcs
+        .iter()
+        .map(|a| a.stage_fits.iter().max_by(|x, y| x.held_out_explained.total_cmp(&y.held_out_explained)).map_or(crate::camera::Architecture::Ideal, |f| f.architecture.clone()))
+        .collect();
+    c
 }
 
 /// The Pearson correlation of two equally long series.

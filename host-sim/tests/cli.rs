@@ -661,6 +661,61 @@ fn diagnose_names_dnl_in_simulated_histograms_and_nothing_in_ideal_ones() {
     assert_clean_failure(&dncal(&["diagnose", "cut.fits"], d), "cut.fits", "truncated");
 }
 
+/// The model loop with architectures: a camera whose ADC 1 is a binary-weighted SAR
+/// (bit 9 eight LSB heavy, bit 10 1.5 LSB lighter: the codes below its carries missing)
+/// and ADC 2 a 4+4+4 pipeline with sub-range gain errors, ADCs 0 and 3 ideal, written as
+/// `[[adc.architecture]]`; `diagnose` names the SAR and the pipeline held out, writes them
+/// into model.toml with the SAR's weight errors back, and the histograms simulated from
+/// that model diagnose the same.
+#[test]
+fn diagnose_fits_the_adc_architectures_and_the_model_reproduces_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mut sar = ["0.0"; 12];
+    sar[9] = "8.0";
+    sar[10] = "6.5";
+    let offsets = |scale: f64| (0..16).map(|k| if k == 0 { "0.0".to_string() } else { format!("{:.3}", scale * ((k * 7 % 11) as f64 - 5.0) / 5.0) }).collect::<Vec<_>>().join(", ");
+    let gains = (0..16).map(|k| if k == 0 { "0.0".to_string() } else { format!("{:.4}", 0.004 * ((k * 5 % 7) as f64 - 3.0)) }).collect::<Vec<_>>().join(", ");
+    let toml = format!(
+        "[adc]\n[[adc.architecture]]\nkind = \"ideal\"\n[[adc.architecture]]\nkind = \"sar\"\nweight_error_lsb = [{}]\n[[adc.architecture]]\nkind = \"pipelined\"\nstage_bits = [4, 4, 4]\noffset_lsb = [[{}], [{}], [{}]]\nsubrange_gain_error = [{gains}]\n[[adc.architecture]]\nkind = \"ideal\"\n",
+        sar.join(", "),
+        offsets(0.6),
+        offsets(0.3),
+        offsets(0.15)
+    );
+    std::fs::write(d.join("cam.toml"), toml).unwrap();
+    let out = dncal(&["simulate", "histograms", "--config", "cam.toml", "-o", "arch.fits", "--first-ramp", "60", "--last-ramp", "61"], d);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let s = stdout_json(&dncal(&["diagnose", "arch.fits", "--json", "-o", "rep"], d));
+    let named: Vec<u64> = s["findings"].as_array().unwrap().iter().filter(|f| f["effect"] == "adc-dnl").map(|f| f["adc"].as_u64().unwrap()).collect();
+    assert_eq!(named, vec![1, 2], "{s}");
+    let arch = s["adc_architecture"].as_array().unwrap();
+    assert!(arch[0].is_null() && arch[3].is_null(), "{s}");
+    assert_eq!(arch[1]["name"], "binary-weighted SAR", "{}", arch[1]);
+    assert!(arch[2]["name"].as_str().unwrap().starts_with("pipelined 4+4+4"), "{}", arch[2]);
+    for a in [&arch[1], &arch[2]] {
+        assert_eq!(a["adopted"], true, "{a}");
+    }
+    let page = std::fs::read_to_string(d.join("rep/report.html")).unwrap();
+    assert!(page.contains("<h2>ADC architectures</h2>") && page.contains("<b>binary-weighted SAR</b> (in the model)"));
+    // The model file: the architectures, the SAR's two weight errors back.
+    let model: toml::Value = toml::from_str(&std::fs::read_to_string(d.join("rep/model.toml")).unwrap()).unwrap();
+    let kinds: Vec<&str> = model["adc"]["architecture"].as_array().unwrap().iter().map(|a| a["kind"].as_str().unwrap()).collect();
+    assert_eq!(kinds, ["ideal", "sar", "pipelined", "ideal"]);
+    let e: Vec<f64> = model["adc"]["architecture"][1]["weight_error_lsb"].as_array().unwrap().iter().map(|v| v.as_float().unwrap()).collect();
+    assert!((e[9] - 8.0).abs() < 0.2 && (e[10] - 6.5).abs() < 0.2, "{e:?}");
+    assert!(e.iter().enumerate().all(|(b, x)| b == 9 || b == 10 || x.abs() < 0.2), "{e:?}");
+    // Close the loop.
+    let again = dncal(&["simulate", "histograms", "--model", "rep/model.toml", "-o", "again.fits", "--first-ramp", "60", "--last-ramp", "61"], d);
+    assert!(again.status.success(), "{}", String::from_utf8_lossy(&again.stderr));
+    let s2 = stdout_json(&dncal(&["diagnose", "again.fits", "--json"], d));
+    let named2: Vec<u64> = s2["findings"].as_array().unwrap().iter().filter(|f| f["effect"] == "adc-dnl").map(|f| f["adc"].as_u64().unwrap()).collect();
+    assert_eq!(named2, named, "{s2}");
+    assert_eq!(s2["adc_architecture"][1]["name"], "binary-weighted SAR", "{s2}");
+    let missing = |s: &serde_json::Value| -> Vec<u64> { s["adc_linearity"][1]["missing"].as_array().unwrap().iter().map(|c| c["code"].as_u64().unwrap()).collect() };
+    assert!(!missing(&s).is_empty() && missing(&s) == missing(&s2), "{:?} vs {:?}", missing(&s), missing(&s2));
+}
+
 #[test]
 fn diagnose_finds_the_real_ccds_nonlinearity() {
     let Some(descriptor) = support::real_ccd_descriptor() else { return };

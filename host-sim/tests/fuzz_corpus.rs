@@ -192,10 +192,16 @@ fn write_seeds(corpus: &Path) {
         n_adc: 2,
         nonlinearity: vec![],
         pixel_nonlinearity_rms: vec![],
-        adc: dncal_host::camera::AdcConfig { stage_bits: vec![1, 1], stage_error_lsb: vec![0.0, 0.0], seed: 1, widths: vec![vec![1.0, 0.9, 1.1, 1.0]; 2], widths_from: None },
+        adc: dncal_host::camera::AdcConfig { stage_bits: vec![1, 1], stage_error_lsb: vec![0.0, 0.0], seed: 1, widths: vec![vec![1.0, 0.9, 1.1, 1.0]; 2], widths_from: None, architecture: vec![] },
         ..CameraConfig::default()
     };
     std::fs::write(c.join("seed-model-widths.toml"), toml::to_string(&widths).unwrap()).unwrap();
+    // Fitted architectures (a SAR with a missing code, a pipeline with sub-range gains).
+    std::fs::write(
+        c.join("seed-model-architecture.toml"),
+        "width = 8\nheight = 4\nbits = 4\nn_adc = 2\n\n[adc]\nstage_bits = [4]\nstage_error_lsb = [0.0]\n\n[[adc.architecture]]\nkind = \"sar\"\nweight_error_lsb = [0.0, 0.0, -1.5, 0.0]\n\n[[adc.architecture]]\nkind = \"pipelined\"\nstage_bits = [2, 2]\noffset_lsb = [[0.0, 0.1, -0.1, 0.2], [0.0, 0.05, 0.0, -0.05]]\nsubrange_gain_error = [0.0, 0.1, -0.1, 0.0]\n",
+    )
+    .unwrap();
 }
 
 /// A target's entry: whether the reader accepted the input.

@@ -174,6 +174,44 @@ print(json.dumps(out))
         assert!(matches!(period, Some(64 | 128 | 256)), "ADC {i}: period {period:?}");
     }
     assert!(report["mean_correlation_same_camera"].as_f64().unwrap().abs() < 0.05, "{}", report["mean_correlation_same_camera"]);
+    // Each camera's fitted stages as a camera model: its ADCs' transition levels follow
+    // the table's offsets as far as the best stage fit explains them on all codes (the
+    // model leaves out the fit's constant and cubic: a line and a cubic taken out of
+    // both again).
+    for (c, camera) in CAMERAS.iter().enumerate() {
+        let path = tmp.path().join(format!("out/Photonfocus_MV-D1024E_{camera}_20131203-architecture.toml"));
+        let config = dncal_host::camera::CameraConfig::from_toml_file(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        let model = dncal_host::camera::Camera::new(config).unwrap();
+        for adc in 0..4 {
+            let ours = &adcs[4 * c + adc];
+            let best = ours["stage_fits"].as_array().unwrap().iter().max_by(|a, b| a["held_out_explained"].as_f64().unwrap().total_cmp(&b["held_out_explained"].as_f64().unwrap())).unwrap();
+            let table = dncal_host::kcor_tables::KcorTable::read(Path::new(&specs[c].replace("{adc}", &adc.to_string()))).unwrap();
+            let real = dncal_host::real_adcs::characterize(&table, camera, adc);
+            let cal = dncal_host::real_adcs::FIRST_CALIBRATED..=dncal_host::real_adcs::LAST_CALIBRATED;
+            // o_k is the transition into code k + 1.
+            let modelled: Vec<f64> = cal.clone().map(|k| model.adcs[adc].level(k + 1) - (k as f64 + 0.5)).collect();
+            let explained = explained_beside_cubic(&real.offsets, &modelled);
+            let want = best["explained"].as_f64().unwrap();
+            assert!((explained - want).abs() < 0.02, "camera {camera} ADC {adc}: model explains {explained:.3} of the offsets, the fit {want:.3}");
+        }
+    }
+}
+
+/// The share of `var(y)` that `m` explains beside a cubic in the index (least squares of
+/// `y - m` on the cubic, then `1 - var(residual) / var(y)`).
+fn explained_beside_cubic(y: &[f64], m: &[f64]) -> f64 {
+    let n = y.len();
+    let x = |i: usize| i as f64 / (n - 1) as f64;
+    let a = nalgebra::DMatrix::from_fn(n, 4, |r, c| x(r).powi(c as i32));
+    let d = nalgebra::DVector::from_iterator(n, y.iter().zip(m).map(|(y, m)| y - m));
+    let b = a.clone().svd(true, true).solve(&d, 1e-12).unwrap();
+    let r = d - a * b;
+    let var = |v: &mut dyn Iterator<Item = f64>| {
+        let v: Vec<f64> = v.collect();
+        let mean = v.iter().sum::<f64>() / v.len() as f64;
+        v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / v.len() as f64
+    };
+    1.0 - var(&mut r.iter().copied()) / var(&mut y.iter().copied())
 }
 
 /// `adc.widths_from = "kcor:SPEC"`: the camera model's ADCs take a real camera's code

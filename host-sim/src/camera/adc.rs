@@ -25,12 +25,12 @@ use super::config::{AdcConfig, ConfigError};
 
 /// One ADC's transfer: its transition levels.
 #[derive(Debug, Clone, PartialEq)]
-pub struct PipelinedAdc {
+pub struct AdcTransfer {
     /// `levels[k]` = T_k for k = 1..codes-1; `levels[0]` is unused (-inf).
     levels: Vec<f64>,
 }
 
-impl PipelinedAdc {
+impl AdcTransfer {
     /// The ADC number `index` of a camera: stage errors drawn from `config` with seed
     /// `config.seed + index`. Fails if a code would have zero or negative width.
     pub fn from_config(config: &AdcConfig, bits: u32, index: usize) -> Result<Self, ConfigError> {
@@ -43,17 +43,8 @@ impl PipelinedAdc {
             stage_errors.push(e);
         }
         let codes = 1usize << bits;
-        let mut levels = vec![f64::NEG_INFINITY; codes];
-        for (k, level) in levels.iter_mut().enumerate().skip(1) {
-            let mut shift = bits;
-            let mut error = 0.0;
-            for (&b, e) in config.stage_bits.iter().zip(&stage_errors) {
-                shift -= b;
-                error += e[(k >> shift) & ((1 << b) - 1)];
-            }
-            *level = k as f64 - 0.5 + error;
-        }
-        let adc = PipelinedAdc { levels };
+        let levels = super::architecture::pipelined_levels(bits, &config.stage_bits, &stage_errors, &[]);
+        let adc = AdcTransfer { levels };
         if let Some(k) = (1..codes - 1).find(|&k| adc.levels[k + 1] <= adc.levels[k]) {
             return Err(ConfigError::NoWidth { adc: index, code: k, stage_error_lsb: config.stage_error_lsb.clone() });
         }
@@ -62,8 +53,7 @@ impl PipelinedAdc {
 
     /// An ideal ADC of `bits` bits: `T_k = k - 1/2`.
     pub fn ideal(bits: u32) -> Self {
-        let codes = 1usize << bits;
-        PipelinedAdc { levels: (0..codes).map(|k| if k == 0 { f64::NEG_INFINITY } else { k as f64 - 0.5 }).collect() }
+        AdcTransfer { levels: super::architecture::Architecture::Ideal.levels(bits) }
     }
 
     /// An ADC whose code k is `widths[k]` DN wide (codes 0 and top: open ends, their
@@ -79,12 +69,27 @@ impl PipelinedAdc {
 
     /// An ADC with the given transition levels `T_1..T_{codes-1}` (strictly increasing).
     pub fn from_levels(levels_from_1: &[f64]) -> Result<Self, ConfigError> {
-        if !(levels_from_1.len() + 1).is_power_of_two() || levels_from_1.windows(2).any(|p| p[1] <= p[0]) {
+        if levels_from_1.windows(2).any(|p| p[1] <= p[0]) {
+            return Err(ConfigError::Levels);
+        }
+        Self::from_monotone_levels(levels_from_1)
+    }
+
+    /// An ADC with the given transition levels `T_1..T_{codes-1}`, non-decreasing and
+    /// finite: equal neighbours `T_k = T_{k+1}` make code k a missing code (no input
+    /// reaches it), as a fitted architecture may ([`super::architecture`]).
+    pub fn from_monotone_levels(levels_from_1: &[f64]) -> Result<Self, ConfigError> {
+        if !(levels_from_1.len() + 1).is_power_of_two() || levels_from_1.iter().any(|t| !t.is_finite()) || levels_from_1.windows(2).any(|p| p[1] < p[0]) {
             return Err(ConfigError::Levels);
         }
         let mut levels = vec![f64::NEG_INFINITY];
         levels.extend_from_slice(levels_from_1);
-        Ok(PipelinedAdc { levels })
+        Ok(AdcTransfer { levels })
+    }
+
+    /// The ADC of a fitted `architecture` ([`super::architecture`]) of `bits` bits.
+    pub fn from_architecture(architecture: &super::architecture::Architecture, bits: u32) -> Result<Self, ConfigError> {
+        Self::from_monotone_levels(&architecture.levels(bits)[1..])
     }
 
     /// Number of codes.
@@ -167,14 +172,14 @@ mod widths_tests {
 
     #[test]
     fn unit_widths_are_the_ideal_adc_and_widths_round_trip() {
-        assert_eq!(PipelinedAdc::from_widths(&[1.0; 16]).unwrap(), PipelinedAdc::ideal(4));
+        assert_eq!(AdcTransfer::from_widths(&[1.0; 16]).unwrap(), AdcTransfer::ideal(4));
         let w: Vec<f64> = (0..16).map(|k| 1.0 + 0.05 * ((k * 7 % 5) as f64 - 2.0)).collect();
-        let adc = PipelinedAdc::from_widths(&w).unwrap();
+        let adc = AdcTransfer::from_widths(&w).unwrap();
         let back = adc.widths();
         for k in 1..15 {
             assert!((back[k] - w[k]).abs() < 1e-12, "code {k}");
         }
-        assert!(PipelinedAdc::from_widths(&[1.0, 1.0, -1.0, 1.0]).is_err());
+        assert!(AdcTransfer::from_widths(&[1.0, 1.0, -1.0, 1.0]).is_err());
     }
 }
 
@@ -184,7 +189,7 @@ mod tests {
 
     #[test]
     fn ideal_adc_rounds_to_nearest() {
-        let adc = PipelinedAdc::ideal(4);
+        let adc = AdcTransfer::ideal(4);
         assert_eq!(adc.code(-3.0), 0);
         assert_eq!(adc.code(0.49), 0);
         assert_eq!(adc.code(0.5), 1);
@@ -196,7 +201,7 @@ mod tests {
     #[test]
     fn stage_errors_shift_levels_by_digit() {
         let cfg = AdcConfig { stage_bits: vec![2, 2], stage_error_lsb: vec![0.1, 0.05], seed: 7, ..Default::default() };
-        let adc = PipelinedAdc::from_config(&cfg, 4, 0).unwrap();
+        let adc = AdcTransfer::from_config(&cfg, 4, 0).unwrap();
         // E(k) = e_hi[k / 4] + e_lo[k % 4] with e_hi[0] = e_lo[0] = 0, so every level
         // error is the sum of the errors of its high-digit-only and low-digit-only codes.
         let e = |k: usize| adc.level(k) - (k as f64 - 0.5);
@@ -214,7 +219,7 @@ mod tests {
 
     #[test]
     fn code_inverts_levels() {
-        let adc = PipelinedAdc::from_config(&AdcConfig::default(), 12, 3).unwrap();
+        let adc = AdcTransfer::from_config(&AdcConfig::default(), 12, 3).unwrap();
         for k in 1..4095 {
             assert_eq!(adc.code(adc.level(k)), k as u16);
             assert_eq!(adc.code(adc.level(k) - 1e-9), (k - 1) as u16);
@@ -224,6 +229,6 @@ mod tests {
     #[test]
     fn too_large_errors_are_rejected() {
         let cfg = AdcConfig { stage_bits: vec![2, 2], stage_error_lsb: vec![3.0, 3.0], seed: 1, ..Default::default() };
-        assert!(PipelinedAdc::from_config(&cfg, 4, 0).is_err());
+        assert!(AdcTransfer::from_config(&cfg, 4, 0).is_err());
     }
 }

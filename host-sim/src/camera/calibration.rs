@@ -28,7 +28,7 @@ use rand_distr::{Distribution, Poisson};
 use rayon::prelude::*;
 
 use super::exact::{phi, poisson_range};
-use super::{Camera, PipelinedAdc};
+use super::{Camera, AdcTransfer};
 
 /// How the ramps are recorded.
 #[derive(Debug, Clone)]
@@ -109,7 +109,7 @@ impl Camera {
     /// Expected fraction of samples in each code of `adc` when the photoelectrons follow
     /// `m` (any non-negative masses by electron count): the exact model, Gaussian read
     /// noise of `read_noise_e` around `v_n`, integrated over each code's interval.
-    pub fn codes_from_electrons(&self, adc: &PipelinedAdc, m: &[f64]) -> Vec<f64> {
+    pub fn codes_from_electrons(&self, adc: &AdcTransfer, m: &[f64]) -> Vec<f64> {
         let cfg = &self.config;
         let s = cfg.read_noise_e / cfg.gain_e_per_dn;
         let v: Vec<f64> = (0..m.len()).map(|n| self.response_e(n as f64, &cfg.nonlinearity) / cfg.gain_e_per_dn + cfg.offset_dn).collect();

@@ -26,11 +26,17 @@ pub struct AdcConfig {
     /// bits and 4 ADCs; not with `widths`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub widths_from: Option<String>,
+    /// Fitted architectures instead of the stage model: one per ADC
+    /// (`[[adc.architecture]]` tables, `kind = "ideal" | "sar" | "pipelined"`; see
+    /// [`super::architecture::Architecture`]), as `dncal diagnose` writes them. Not with
+    /// `widths` or `widths_from`.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub architecture: Vec<super::architecture::Architecture>,
 }
 
 impl Default for AdcConfig {
     fn default() -> Self {
-        AdcConfig { stage_bits: vec![3, 3, 3, 3], stage_error_lsb: vec![0.15, 0.06, 0.03, 0.015], seed: 13890, widths: Vec::new(), widths_from: None }
+        AdcConfig { stage_bits: vec![3, 3, 3, 3], stage_error_lsb: vec![0.15, 0.06, 0.03, 0.015], seed: 13890, widths: Vec::new(), widths_from: None, architecture: Vec::new() }
     }
 }
 
@@ -228,6 +234,17 @@ impl CameraConfig {
         {
             return Err(ConfigError::Widths { n_adc: self.n_adc, codes: self.codes() });
         }
+        if !self.adc.architecture.is_empty() {
+            if !self.adc.widths.is_empty() || self.adc.widths_from.is_some() {
+                return Err(ConfigError::ArchitectureAndWidths);
+            }
+            if self.adc.architecture.len() != self.n_adc {
+                return Err(ConfigError::Architectures { n_adc: self.n_adc, given: self.adc.architecture.len() });
+            }
+            for (adc, a) in self.adc.architecture.iter().enumerate() {
+                a.check(self.bits).map_err(|source| ConfigError::Architecture { adc, source })?;
+            }
+        }
         if self.adc.stage_error_lsb.len() != self.adc.stage_bits.len() || self.adc.stage_error_lsb.iter().any(|e| !(e.is_finite() && *e >= 0.0)) {
             return Err(ConfigError::StageErrors);
         }
@@ -281,6 +298,15 @@ pub enum ConfigError {
     /// Stage errors so large that a code has no width.
     #[error("ADC {adc}: code {code} has no width (stage errors {stage_error_lsb:?} LSB are too large)")]
     NoWidth { adc: usize, code: usize, stage_error_lsb: Vec<f64> },
+    /// Fitted architectures beside measured widths.
+    #[error("give adc.architecture or adc.widths (widths_from), not both")]
+    ArchitectureAndWidths,
+    /// Not one architecture per ADC.
+    #[error("adc.architecture needs one entry per ADC ({n_adc}), got {given}")]
+    Architectures { n_adc: usize, given: usize },
+    /// An architecture that is not one of a `bits`-bit ADC.
+    #[error("adc.architecture of ADC {adc}: {source}")]
+    Architecture { adc: usize, source: super::architecture::ArchitectureError },
     /// Transition levels that are not an ADC's.
     #[error("transition levels must be 2^B - 1 strictly increasing values")]
     Levels,

@@ -22,7 +22,7 @@
 
 use statrs::function::erf::erfc;
 
-use super::{Camera, PipelinedAdc};
+use super::{Camera, AdcTransfer};
 
 /// The distribution of codes: `p[j]` is the probability of code `first + j`.
 #[derive(Debug, Clone, PartialEq)]
@@ -98,7 +98,7 @@ fn poisson_nodes(mu: f64, read_noise_e: f64, full_well_e: f64) -> Vec<(f64, f64)
 impl Camera {
     /// The code distribution of a pixel with mean photoelectron signal `mu_e` (light and
     /// dark), nonlinearity coefficients `a`, read by `adc`.
-    pub fn code_pmf(&self, adc: &PipelinedAdc, mu_e: f64, a: &[f64]) -> CodePmf {
+    pub fn code_pmf(&self, adc: &AdcTransfer, mu_e: f64, a: &[f64]) -> CodePmf {
         let cfg = &self.config;
         let k_gain = cfg.gain_e_per_dn;
         let s = cfg.read_noise_e / k_gain;
@@ -131,7 +131,7 @@ impl Camera {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::camera::{CameraConfig, PipelinedAdc};
+    use crate::camera::{CameraConfig, AdcTransfer};
 
     fn camera(cfg: CameraConfig) -> Camera {
         let mut cfg = cfg;
@@ -144,7 +144,7 @@ mod tests {
     fn pure_poisson_through_an_ideal_adc_is_the_poisson_pmf() {
         // K = 1 e-/DN, no read noise, no offset, linear: code = n.
         let cam = camera(CameraConfig { gain_e_per_dn: 1.0, read_noise_e: 0.0, offset_dn: 0.0, nonlinearity: vec![], pixel_nonlinearity_rms: vec![], ..Default::default() });
-        let adc = PipelinedAdc::ideal(12);
+        let adc = AdcTransfer::ideal(12);
         let mu = 7.3f64;
         let pmf = cam.code_pmf(&adc, mu, &[]);
         for k in 0..30usize {
@@ -156,7 +156,7 @@ mod tests {
     #[test]
     fn read_noise_only_is_a_binned_gaussian() {
         let cam = camera(CameraConfig { read_noise_e: 88.0, offset_dn: 100.3, nonlinearity: vec![], pixel_nonlinearity_rms: vec![], ..Default::default() });
-        let adc = PipelinedAdc::ideal(12);
+        let adc = AdcTransfer::ideal(12);
         let pmf = cam.code_pmf(&adc, 0.0, &[]);
         let s = 2.0; // 88 e- / 44 e-/DN
         for k in 90..112usize {
@@ -205,7 +205,7 @@ mod tests {
         // Ideal ADC, linear: mean = mu/K + offset, variance = (mu + sigma_r^2)/K^2 + 1/12
         // (Sheppard's correction), valid when the noise spans many codes.
         let cam = camera(CameraConfig { nonlinearity: vec![], pixel_nonlinearity_rms: vec![], ..Default::default() });
-        let adc = PipelinedAdc::ideal(12);
+        let adc = AdcTransfer::ideal(12);
         for mu in [1_000.0, 50_000.0, 120_000.0] {
             let pmf = cam.code_pmf(&adc, mu, &[]);
             let mean = mu / 44.0 + cam.config.offset_dn;

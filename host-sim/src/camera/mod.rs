@@ -18,13 +18,15 @@
 //! free of sampling noise.
 
 pub mod adc;
+pub mod architecture;
 pub mod calibration;
 pub mod config;
 pub mod exact;
 pub mod pixels;
 pub mod sample;
 
-pub use adc::PipelinedAdc;
+pub use adc::AdcTransfer;
+pub use architecture::Architecture;
 pub use config::{AdcConfig, CameraConfig, ConfigError};
 pub use pixels::{PixelMaps, PixelState};
 
@@ -33,7 +35,7 @@ pub struct Camera {
     /// The parameters.
     pub config: CameraConfig,
     /// ADC `a` reads columns `c` with `c mod n_adc == a`.
-    pub adcs: Vec<PipelinedAdc>,
+    pub adcs: Vec<AdcTransfer>,
     /// Per-pixel gain, dark, nonlinearity and defects.
     pub pixels: PixelMaps,
 }
@@ -43,10 +45,12 @@ impl Camera {
     /// from the seed.
     pub fn new(config: CameraConfig) -> Result<Self, ConfigError> {
         config.validate()?;
-        let adcs = if config.adc.widths.is_empty() {
-            (0..config.n_adc).map(|a| PipelinedAdc::from_config(&config.adc, config.bits, a)).collect::<Result<Vec<_>, _>>()?
+        let adcs = if !config.adc.architecture.is_empty() {
+            config.adc.architecture.iter().map(|a| AdcTransfer::from_architecture(a, config.bits)).collect::<Result<Vec<_>, _>>()?
+        } else if config.adc.widths.is_empty() {
+            (0..config.n_adc).map(|a| AdcTransfer::from_config(&config.adc, config.bits, a)).collect::<Result<Vec<_>, _>>()?
         } else {
-            config.adc.widths.iter().map(|w| PipelinedAdc::from_widths(w)).collect::<Result<Vec<_>, _>>()?
+            config.adc.widths.iter().map(|w| AdcTransfer::from_widths(w)).collect::<Result<Vec<_>, _>>()?
         };
         let pixels = PixelMaps::generate(&config);
         Ok(Camera { config, adcs, pixels })
@@ -54,7 +58,7 @@ impl Camera {
 
     /// The ADC of column `column`.
     #[inline]
-    pub fn adc_of(&self, column: usize) -> &PipelinedAdc {
+    pub fn adc_of(&self, column: usize) -> &AdcTransfer {
         &self.adcs[dncal_core::adc_of_column(column, self.adcs.len())]
     }
 

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 
 use crate::camera::calibration::RampParams;
-use crate::camera::{Camera, PipelinedAdc};
+use crate::camera::{Camera, AdcTransfer};
 use crate::commands::lut::{build_luts, summarize, AdcLutSummary, BuiltLuts};
 use crate::commands::progress::{bar, stage};
 use crate::commands::Report;
@@ -125,7 +125,7 @@ pub fn calibrated_codes(codes: usize, flatten: &FlattenParams) -> std::ops::Rang
 
 /// Errors of the raw and the LUT code values against the true centers, detrended, over
 /// `codes`.
-pub fn correction_errors(truth: &[PipelinedAdc], tables: &[Vec<u32>], codes: std::ops::Range<usize>) -> Vec<(Vec<f64>, Vec<f64>)> {
+pub fn correction_errors(truth: &[AdcTransfer], tables: &[Vec<u32>], codes: std::ops::Range<usize>) -> Vec<(Vec<f64>, Vec<f64>)> {
     truth
         .iter()
         .zip(tables)
@@ -146,7 +146,7 @@ pub fn correction_errors(truth: &[PipelinedAdc], tables: &[Vec<u32>], codes: std
 /// ADCs) also the comparison. Figures are staged in `out`'s directory: `histograms.png`,
 /// `histograms_zoom.png`, `offsets.png`, `dnl_inl_adcN.png` per ADC and, with the truth,
 /// `correction_error.png`.
-pub fn characterize(source: &Path, hist: &AdcHistograms, density: Density, luts: &BuiltLuts, flatten: &FlattenParams, truth: Option<&[PipelinedAdc]>, out: OutDir<'_>) -> Result<AdcReport, HostError> {
+pub fn characterize(source: &Path, hist: &AdcHistograms, density: Density, luts: &BuiltLuts, flatten: &FlattenParams, truth: Option<&[AdcTransfer]>, out: OutDir<'_>) -> Result<AdcReport, HostError> {
     let OutDir { files, dir: out_dir } = out;
     let n_adc = luts.tables.len();
     let codes = luts.tables.first().map_or(0, Vec::len);
@@ -353,6 +353,8 @@ pub struct RealAdcsReport {
     pub mean_correlation_other_cameras: Option<f64>,
     /// Files written.
     pub figures: Vec<PathBuf>,
+    /// Camera models written, one per camera (`CAMERA-architecture.toml`).
+    pub models: Vec<PathBuf>,
 }
 
 impl Report for RealAdcsReport {
@@ -366,7 +368,7 @@ impl Report for RealAdcsReport {
         if let (Some(s), Some(o)) = (self.mean_correlation_same_camera, self.mean_correlation_other_cameras) {
             t += &format!("DN-error correlation: {s:.3} between ADCs of one camera, {o:.3} across cameras\n");
         }
-        t + &format!("figures: {}\n", figure_list(&self.figures))
+        t + &format!("figures: {}\ncamera models (simulate --config): {}\n", figure_list(&self.figures), figure_list(&self.models))
     }
 }
 
@@ -391,10 +393,10 @@ pub fn from_luts(specs: &[String], out: OutDir<'_>) -> Result<RealAdcsReport, Ho
         }))
         .collect::<Result<_, _>>()?;
     staged.create_dir(out_dir)?;
-    let per_camera = cameras.iter().flat_map(|(_, l)| [format!("{l}-dn-error.png"), format!("{l}-offsets.png")]);
+    let per_camera = cameras.iter().flat_map(|(_, l)| [format!("{l}-dn-error.png"), format!("{l}-offsets.png"), format!("{l}-architecture.toml")]);
     staged.expect(per_camera.chain(["trends.png".into(), "real_adcs.json".into()]).map(|n| out_dir.join(n)))?;
     let mut adcs = Vec::new();
-    let mut figures = Vec::new();
+    let (mut figures, mut models) = (Vec::new(), Vec::new());
     for (files, label) in &cameras {
         let label = label.clone();
         let mine: Vec<crate::real_adcs::RealAdc> = files.iter().enumerate().map(|(a, f)| KcorTable::read(f).map(|t| characterize(&t, &label, a))).collect::<Result<_, _>>()?;
@@ -412,6 +414,12 @@ pub fn from_luts(specs: &[String], out: OutDir<'_>) -> Result<RealAdcsReport, Ho
         let path = out_dir.join(format!("{label}-offsets.png"));
         line_plot(staged, &path, &format!("{label}: cumulative offsets (table minus its cubic trend)"), "code", "offset (DN)", &offsets, 1)?;
         figures.push(path);
+        // The camera model of the fitted stages, for `simulate --config`.
+        let model = crate::real_adcs::architecture_model(&label, &mine);
+        let path = out_dir.join(format!("{label}-architecture.toml"));
+        let text = toml::to_string(&model).map_err(|e| HostError::Format { path: path.clone(), message: e.to_string() })?;
+        staged.write_bytes(&path, format!("# {}; each ADC the stage model with the largest held-out share (docs/kcor-luts.md)\n{text}", model.name))?;
+        models.push(path);
         adcs.extend(mine);
     }
     // The trends of all ADCs: the global response correction built into the tables.
@@ -439,6 +447,7 @@ pub fn from_luts(specs: &[String], out: OutDir<'_>) -> Result<RealAdcsReport, Ho
         correlation: correlation_matrix,
         adcs,
         figures,
+        models,
     };
     let json = out_dir.join("real_adcs.json");
     staged.write_bytes(&json, serde_json::to_string_pretty(&report).map_err(|e| HostError::Format { path: json.clone(), message: e.to_string() })?)?;

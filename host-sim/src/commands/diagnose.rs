@@ -15,26 +15,45 @@ use crate::plots::{line_plot, Series};
 use crate::HostError;
 
 /// The camera model with the accepted findings of a histogram diagnosis: the default
-/// camera at the data's bit depth and ADC count, with every ADC that shows `adc-dnl`
-/// given the code widths flattened from all its counts (the others ideal). A missing code
-/// keeps a width of 1e-6 DN (the model needs increasing transition levels).
+/// camera at the data's bit depth and ADC count. When every ADC that shows `adc-dnl` has
+/// an adopted architecture ([`crate::diagnose::AdcArchitecture`]), `adc.architecture`:
+/// that architecture fitted again on all the ADC's counts, the others ideal. Otherwise
+/// `adc.widths`: the code widths flattened from all the counts of each `adc-dnl` ADC (the
+/// others ideal), a missing code kept at 1e-6 DN (measured widths need increasing
+/// transition levels).
 pub fn extended_model(hist: &crate::fits::AdcHistograms, d: &Diagnosis, flatten: &FlattenParams) -> Result<crate::camera::CameraConfig, DiagnoseError> {
     let codes = 1usize << hist.bit_depth;
     let trimmed = crate::diagnose::trimmed_params(flatten);
+    let dnl = |adc: usize| d.findings.iter().any(|f| f.effect == Effect::AdcDnl && f.adc == Some(adc));
+    let adopted = |adc: usize| d.adc_architecture.as_ref().and_then(|v| v.get(adc)).and_then(Option::as_ref).filter(|a| a.adopted);
+    let mut c = crate::camera::CameraConfig { bits: hist.bit_depth, n_adc: hist.counts.len(), ..Default::default() };
+    c.name = "model extended by dncal diagnose".into();
+    c.adc.stage_bits = vec![hist.bit_depth];
+    c.adc.stage_error_lsb = vec![0.0];
+    if (0..hist.counts.len()).any(dnl) && (0..hist.counts.len()).all(|a| !dnl(a) || adopted(a).is_some()) {
+        c.adc.architecture = (0..hist.counts.len())
+            .map(|adc| match adopted(adc) {
+                Some(arch) => {
+                    // The same layout, fitted on all the counts (A's fit if that fails).
+                    let all = crate::ieee1241::analyse(&hist.counts[adc], crate::ieee1241::Density::Smooth, &trimmed).ok();
+                    let refit = all.iter().flat_map(crate::ieee1241::architecture::candidates).find(|c| c.architecture.name() == arch.name);
+                    refit.map_or_else(|| arch.architecture.clone(), |c| c.architecture)
+                }
+                None => crate::camera::Architecture::Ideal,
+            })
+            .collect();
+        return Ok(c);
+    }
     let mut widths = Vec::new();
     for (adc, counts) in hist.counts.iter().enumerate() {
-        if d.findings.iter().any(|f| f.effect == Effect::AdcDnl && f.adc == Some(adc)) {
+        if dnl(adc) {
             let (f, _) = crate::flatten::flatten_narrowing(counts, &trimmed).map_err(|source| DiagnoseError::Flatten { adc, source })?;
             widths.push(f.weights.iter().map(|w| w.max(1e-6)).collect());
         } else {
             widths.push(vec![1.0; codes]);
         }
     }
-    let mut c = crate::camera::CameraConfig { bits: hist.bit_depth, n_adc: hist.counts.len(), ..Default::default() };
-    c.name = "model extended by dncal diagnose".into();
     c.adc.widths = widths;
-    c.adc.stage_bits = vec![hist.bit_depth];
-    c.adc.stage_error_lsb = vec![0.0];
     Ok(c)
 }
 
@@ -535,6 +554,23 @@ fn report(input: &Path, mut diagnosis: Diagnosis, model: Option<crate::camera::C
                 let _ = write!(section, "<h3>ADC {a}</h3><pre>{}</pre>{}", crate::outputs::html_escape(&t.text("")), html_figure(&name, 1000, &format!("ADC {a}: DNL and INL"), None));
                 outputs.push(dir.join(name));
             }
+            h = h.replace("</body></html>", &format!("{section}</body></html>"));
+        }
+        if let Some(archs) = diagnosis.adc_architecture.as_ref().filter(|v| v.iter().any(Option::is_some)) {
+            // The architectures of each adc-dnl ADC, held out.
+            let mut section = String::from(
+                "<h2>ADC architectures</h2><p>Each ADC with <code>adc-dnl</code>: every candidate architecture fitted on one half of the counts and scored on the other (held-out mean z<sup>2</sup>, 1 is noise), against the ideal ADC and the per-code widths. \
+                 The one kept is the fewest parameters within one sqrt(2/N) of the best; <b>in the model</b> when it is significant and scores within 5 sqrt(2/N) of the per-code widths (docs/diagnose.md).</p>\
+                 <table><tr><th>ADC</th><th>architecture</th><th>parameters</th><th>held-out mean z<sup>2</sup></th><th>significance</th></tr>",
+            );
+            for a in archs.iter().flatten() {
+                let _ = write!(section, "<tr><td>{}</td><td><i>ideal ADC</i></td><td>0</td><td>{:.3}</td><td>-</td></tr><tr><td>{}</td><td><i>per-code widths</i></td><td>-</td><td>{:.3}</td><td>-</td></tr>", a.adc, a.mean_z2_ideal, a.adc, a.mean_z2_widths);
+                for (i, c) in a.candidates.iter().enumerate() {
+                    let name = if i == 0 { format!("<b>{}</b>{}", crate::outputs::html_escape(&c.name), if a.adopted { " (in the model)" } else { " (kept; not in the model)" }) } else { crate::outputs::html_escape(&c.name) };
+                    let _ = write!(section, "<tr><td>{}</td><td>{name}</td><td>{}</td><td>{:.3}</td><td>{:.1}</td></tr>", a.adc, c.parameters, c.mean_z2, c.significance);
+                }
+            }
+            section += "</table>";
             h = h.replace("</body></html>", &format!("{section}</body></html>"));
         }
         files.write_bytes(&html_path, &h)?;

@@ -21,7 +21,7 @@ mod tasks;
 pub use codes::{diagnose_code_density, CodeDensity};
 pub use cubes::blocks_of;
 pub use defects::{diagnose_defects, DefectOutcome};
-pub use histograms::diagnose_histograms;
+pub use histograms::{diagnose_histograms, AdcArchitecture, ArchitectureScore};
 pub use linearity::{diagnose_linearity, diagnose_linearity_rows, diagnose_linearity_spilled};
 pub use ptc::diagnose_ptc;
 pub use records::{spilled_blocks, RECORD_BYTES, RESIDENT_BYTES};
@@ -265,6 +265,10 @@ pub struct Diagnosis {
     /// (null for an ADC it could not analyse; `not_tested` says why).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub adc_linearity: Option<Vec<Option<crate::ieee1241::AdcLinearity>>>,
+    /// The ADC architectures scored held out, per ADC with `adc-dnl` (null for the
+    /// others), for histogram sets ([`histograms`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub adc_architecture: Option<Vec<Option<AdcArchitecture>>>,
     /// Its held-out residuals by code (for the figures).
     #[serde(skip)]
     pub code_residuals: Option<AdcResiduals>,

@@ -335,6 +335,7 @@ pub fn diagnose_ptc(points: &[PtcPoint], pixels: usize, accuracy_dn: f64) -> Res
         code_density: None,
         code_residuals: None,
         adc_linearity: None,
+        adc_architecture: None,
         curve_per_dn,
         baseline: Baseline {
             kind: "photon-transfer".into(),

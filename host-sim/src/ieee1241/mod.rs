@@ -41,6 +41,7 @@
 //! as wide would have collected some (`exp(-E/2) < alpha / n`); otherwise it is listed as
 //! empty with the probability an ideal code had of being empty.
 
+pub mod architecture;
 pub mod structure;
 
 use serde::Serialize;

@@ -395,6 +395,7 @@ fn diagnose_set<T: Sample>(set: &SetView<'_, T>, keep: Keep, accuracy_dn: f64) -
         code_density: None,
         code_residuals: None,
         adc_linearity: None,
+        adc_architecture: None,
         curve_per_dn: global_accepted.then(|| vec![global[0] / top, global[1] / (top * top), global[2] / (top * top * top)]),
         baseline,
         findings,
