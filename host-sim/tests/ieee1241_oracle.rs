@@ -166,7 +166,8 @@ fn a_set_written_by_adctoolbox_is_read_as_adctoolbox_reads_it() {
     assert!(!codes(&ours[0]["missing"]).is_empty(), "the planted bit-10 error leaves missing codes");
     // `diagnose` of the same set: every ADC with missing codes is named `adc-dnl`, its
     // missing codes listed by number in the detail; the ideal ADC is not named.
-    let out = Command::new(env!("CARGO_BIN_EXE_dncal")).arg("diagnose").arg(&hist).arg("--json").output().unwrap();
+    let rep = dir.path().join("rep");
+    let out = Command::new(env!("CARGO_BIN_EXE_dncal")).arg("diagnose").arg(&hist).arg("--json").arg("-o").arg(&rep).output().unwrap();
     assert!(out.status.success(), "dncal diagnose: {}", String::from_utf8_lossy(&out.stderr));
     let d: Value = serde_json::from_slice(&out.stdout).unwrap();
     let findings = d["findings"].as_array().unwrap();
@@ -183,6 +184,38 @@ fn a_set_written_by_adctoolbox_is_read_as_adctoolbox_reads_it() {
                 assert!(detail.contains(&format!("{k} (")), "ADC {adc}: code {k} not in {detail}");
             }
         }
+    }
+    // The architecture: every named ADC is kept as a binary-weighted SAR and written so
+    // into model.toml, whose code widths are adctoolbox's converter's (its weights,
+    // through the conversion's regions), relative to the mean width: 0.02 rms over the
+    // codes, 0.3 at any code (Poisson counts of 200 a code and a half would leave 0.07
+    // LSB at the depths of one to four codes; this set's evenly spaced samples are
+    // sub-Poisson, and measured 0.0001-0.0024 rms, 0.002-0.033 at worst). The weights
+    // themselves are not compared: a high bit's is the sum of its depth and all below,
+    // uncertain by the INL's noise (about 1.6 LSB at bit 11 with Poisson counts).
+    let arch = d["adc_architecture"].as_array().unwrap();
+    let model = dncal_host::camera::CameraConfig::from_toml_file(&rep.join("model.toml")).unwrap();
+    assert_eq!(model.adc.architecture.len(), 4, "model.toml has no architectures: {arch:?}");
+    for adc in 0..4usize {
+        let named = findings.iter().any(|f| f["effect"] == "adc-dnl" && f["adc"] == adc as u64);
+        if !named {
+            assert_eq!(model.adc.architecture[adc], dncal_host::camera::Architecture::Ideal);
+            continue;
+        }
+        assert_eq!(arch[adc]["name"], "binary-weighted SAR", "ADC {adc}: {}", arch[adc]);
+        assert_eq!(arch[adc]["adopted"], true, "ADC {adc}: {}", arch[adc]);
+        let true_weights: Vec<f64> = truth["adcs"][adc]["weights_unit_caps"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+        let planted = dncal_host::camera::Architecture::Sar { weight_error_lsb: true_weights.iter().enumerate().map(|(b, w)| w - (1u64 << b) as f64).collect() };
+        let relative = |a: &dncal_host::camera::Architecture| {
+            let w = dncal_host::camera::AdcTransfer::from_architecture(a, 12).unwrap().widths();
+            let m = w[1..4095].iter().sum::<f64>() / 4094.0;
+            w.iter().map(|x| x / m).collect::<Vec<f64>>()
+        };
+        let (ours, theirs) = (relative(&model.adc.architecture[adc]), relative(&planted));
+        let diff: Vec<f64> = (1..4095).map(|k| ours[k] - theirs[k]).collect();
+        let rms = (diff.iter().map(|d| d * d).sum::<f64>() / diff.len() as f64).sqrt();
+        let worst = diff.iter().fold(0.0f64, |m, d| m.max(d.abs()));
+        assert!(rms < 0.02 && worst < 0.3, "ADC {adc}: widths {rms:.4} rms, {worst:.3} at worst off adctoolbox's");
     }
 }
 
