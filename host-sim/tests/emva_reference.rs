@@ -257,6 +257,75 @@ fn release_4_differences_are_the_standards_formulas() {
     assert!((k / k31 - 1.0).abs() > 0.005, "Release 4.0's K {k} should differ from 3.1's {k31} on this CCD");
 }
 
+/// A quantization-limited 8-bit set (dark noise about a third of a DN before the 0.24
+/// DN^2 floor): under Release 3.1 every quantity is the reference's to 1%; under 4.0
+/// (dncal's default for `v 4.x`) K, saturation capacity, SNR_max and dynamic range move
+/// by 0.4-2.7%, and each moved value is the 4.0 formula on the reference's own arrays:
+/// saturation the brightest level with at most 0.2% of its pixels at code 255 (counted
+/// here with numpy from the PNGs), K the free-offset line (eq. 50) over the levels up to
+/// 70% of it. So the departure is the reference's (it computes 3.1's saturation and
+/// gain), not a step of ours.
+#[test]
+fn a_quantization_limited_8_bit_set_differs_only_by_release_4_definitions() {
+    let py = venv_python();
+    let tmp = tempfile::tempdir().unwrap();
+    let descriptor = simulate(&py, &tmp.path().join("q"), &["--bits", "8", "--seed", "3", "--K", "0.1", "--sigma2-dark", "2.6", "--dsnu-e", "0.5"]);
+    let r = reference(&py, &descriptor);
+    let failures = compare("8-bit, dark noise 1/3 DN, Release 3.1", &dncal(&descriptor, &["--release", "3.1"]), &r);
+    assert!(failures.is_empty(), "{failures:#?}");
+    let ours = dncal(&descriptor, &["--release", "4.0"]);
+    // The share of each bright two-frame level's pixels at 255, in photon order.
+    let script = r#"
+import json, sys, numpy as np
+from PIL import Image
+from pathlib import Path
+d = Path(sys.argv[1]); lines = d.read_text().splitlines(); levels = []
+i = 0
+while i < len(lines):
+    f = lines[i].split()
+    if f and f[0] == 'b':
+        imgs = []
+        j = i + 1
+        while j < len(lines) and lines[j].startswith('i'):
+            imgs.append(lines[j].split(None, 1)[1].replace('\\', '/')); j += 1
+        if len(imgs) == 2:
+            a = np.concatenate([np.asarray(Image.open(d.parent / p)).ravel() for p in imgs])
+            levels.append((float(f[2]), float(f[1]), float((a == 255).mean())))
+        i = j
+    else:
+        i += 1
+levels.sort()
+print(json.dumps([t for _, _, t in levels]))
+"#;
+    let out = Command::new(&py).arg("-c").arg(script).arg(&descriptor).output().unwrap();
+    let top: Vec<f64> = floats(&json_of(out, "top-code counts"));
+    assert!(top.iter().any(|&t| t >= 0.001), "{top:?}");
+    let sat = (0..top.len()).rev().find(|&i| top[i] <= 0.002).unwrap();
+    assert_eq!(ours["saturation_index"].as_u64(), Some(sat as u64), "{top:?}");
+    assert_ne!(r["index_u_ysat"].as_u64(), Some(sat as u64), "the set should show the releases' difference");
+    let t = &r["temporal"];
+    let (u_p, u_y, u_ydark, s2_y, s2_ydark) = (floats(&t["u_p"]), floats(&t["u_y"]), floats(&t["u_ydark"]), floats(&t["s2_y"]), floats(&t["s2_ydark"]));
+    let y: Vec<f64> = (0..u_y.len()).map(|i| u_y[i] - u_ydark[i]).collect();
+    let end = (0..y.len()).rev().find(|&i| y[i] <= 0.7 * y[sat]).unwrap();
+    let x = &y[..=end];
+    let v: Vec<f64> = (0..=end).map(|i| s2_y[i] - s2_ydark[i]).collect();
+    let n = x.len() as f64;
+    let (mx, mv) = (x.iter().sum::<f64>() / n, v.iter().sum::<f64>() / n);
+    let k = x.iter().zip(&v).map(|(a, b)| (a - mx) * (b - mv)).sum::<f64>() / x.iter().map(|a| (a - mx).powi(2)).sum::<f64>();
+    let responsivity = (0..=end).map(|i| u_p[i] * y[i]).sum::<f64>() / (0..=end).map(|i| u_p[i] * u_p[i]).sum::<f64>();
+    let capacity = responsivity / k * u_p[sat];
+    for (key, expected) in [("gain_dn_per_e", k), ("saturation_capacity_e", capacity), ("snr_max", capacity.sqrt())] {
+        let got = ours[key].as_f64().unwrap();
+        let theirs = match key {
+            "gain_dn_per_e" => r["K"].as_f64().unwrap(),
+            "saturation_capacity_e" => r["u_e_sat"].as_f64().unwrap(),
+            _ => r["SNR_max"].as_f64().unwrap(),
+        };
+        eprintln!("{key:<24} dncal 4.0 {got:>12.6}  formula {expected:>12.6}  reference (3.1) {theirs:>12.6}  ({:+.2}%)", 100.0 * (got / theirs - 1.0));
+        assert!((got / expected - 1.0).abs() < 1e-9, "{key}: {got} vs {expected}");
+    }
+}
+
 /// Defect pixels planted by the reference's simulator (hot: the reference's own
 /// `bad_pixel`, 300 e- of dark signal; dead: PRNU factor 0) are counted exactly by
 /// dncal's criteria, at their positions, border pixels included. A clean set has none.
@@ -341,6 +410,94 @@ fn diagnose_names_effects_hidden_by_the_reference_simulator() {
     let bad: Vec<u64> = named.iter().filter(|f| f.0 == "bad-pixels").filter_map(|f| f.2).collect();
     assert_eq!(bad.len(), 1, "{named:?}");
     assert!((bad[0] as f64 - planted as f64).abs() <= 0.2 * planted as f64, "bad-pixels {} for {planted} planted", bad[0]);
+}
+
+/// `descriptor` without its `drop` brightest temporal levels (a bright level of two
+/// frames and the dark level after it of the same exposure), written beside it as
+/// `truncated.txt`: a series that stops before the variance turns over.
+fn truncated(descriptor: &Path, drop: usize) -> PathBuf {
+    let text = std::fs::read_to_string(descriptor).unwrap();
+    let lines: Vec<&str> = text.lines().collect();
+    // Blocks: a `b` or `d` line with its image lines.
+    let mut blocks: Vec<Vec<&str>> = Vec::new();
+    for l in &lines[2..] {
+        if l.starts_with('b') || l.starts_with('d') {
+            blocks.push(vec![l]);
+        } else {
+            blocks.last_mut().unwrap().push(l);
+        }
+    }
+    let temporal: Vec<usize> = (0..blocks.len()).filter(|&i| blocks[i][0].starts_with('b') && blocks[i].len() == 3).collect();
+    let mut gone = std::collections::BTreeSet::new();
+    for &i in &temporal[temporal.len() - drop..] {
+        gone.insert(i);
+        if blocks.get(i + 1).is_some_and(|b| b[0].starts_with('d') && b.len() == 3) {
+            gone.insert(i + 1);
+        }
+    }
+    let mut out: Vec<&str> = lines[..2].to_vec();
+    out.extend(blocks.iter().enumerate().filter(|(i, _)| !gone.contains(i)).flat_map(|(_, b)| b.iter().copied()));
+    let path = descriptor.with_file_name("truncated.txt");
+    std::fs::write(&path, out.join("\n") + "\n").unwrap();
+    path
+}
+
+/// A series that stops just below saturation (the reference simulator's, its two
+/// brightest levels dropped: the last at 96% of the top code, the variance still at its
+/// maximum there): the standard's saturation is the variance maximum, so dncal gives
+/// saturation capacity, SNR_max and dynamic range as the reference does, with a note
+/// that the variance has not turned over; a series stopped far below (at about half the
+/// range) still gives none.
+#[test]
+fn a_series_that_ends_at_saturation_gives_the_saturation_values() {
+    let py = venv_python();
+    let tmp = tempfile::tempdir().unwrap();
+    let full = simulate(&py, &tmp.path().join("s"), &["--bits", "12", "--seed", "7", "--u-esat", "30000"]);
+    let end = truncated(&full, 2);
+    let ours = dncal(&end, &["--release", "3.1"]);
+    assert_eq!(ours["saturation_reached"], false, "{ours}");
+    assert_eq!(ours["saturation_at_series_end"], true, "{ours}");
+    assert!(ours["why"]["saturation"].as_str().unwrap().contains("has not turned over"), "{}", ours["why"]);
+    let failures = compare("12-bit, ending at 96% of the top code", &ours, &reference(&py, &end));
+    assert!(failures.is_empty(), "{failures:#?}");
+    // Half the series: nothing near saturation was measured.
+    let half = truncated(&full, 25);
+    let ours = dncal(&half, &["--release", "3.1"]);
+    assert_eq!((ours["saturation_reached"].as_bool(), ours["saturation_at_series_end"].as_bool()), (Some(false), Some(false)), "{ours}");
+    assert!(ours["saturation_capacity_e"].is_null() && ours["why"]["saturation_capacity_e"].as_str().unwrap().contains("not reached"), "{ours}");
+}
+
+/// Sets whose only departure from the reference's camera is defect pixels (its own
+/// `bad_pixel` hot pixels, from 300 e- of dark signal to saturating ones, and dead
+/// pixels; 8, 10 and 12 bits; a dark-current series): `diagnose` names `bad-pixels`, the
+/// count within 20% of those planted, and nothing else (`insufficient-noise` aside). Hot
+/// pixels that saturate at the bright levels bent the level means into a false
+/// `global-nonlinearity` (75 sigma) before the confirmed defects were left out of the
+/// photon transfer.
+#[test]
+fn sets_whose_only_defect_is_pixels_name_bad_pixels_only() {
+    let py = venv_python();
+    let tmp = tempfile::tempdir().unwrap();
+    let draws: &[&[&str]] = &[
+        &["--bits", "12", "--seed", "45", "--hot", "40", "--hot-level", "0.5"],
+        &["--bits", "12", "--seed", "52", "--hot", "40", "--hot-level", "1.0"],
+        &["--bits", "12", "--seed", "53", "--hot", "100"],
+        &["--bits", "12", "--seed", "54", "--dead", "40"],
+        &["--bits", "12", "--seed", "55", "--hot", "20", "--dead", "20", "--hot-level", "0.5"],
+        &["--bits", "8", "--seed", "56", "--hot", "40", "--hot-level", "0.5"],
+        &["--bits", "10", "--seed", "57", "--hot", "30", "--dead", "10", "--hot-level", "0.3"],
+    ];
+    for (i, args) in draws.iter().enumerate() {
+        let dir = tmp.path().join(i.to_string());
+        let descriptor = simulate(&py, &dir, args);
+        let truth: Value = serde_json::from_slice(&std::fs::read(dir.join("truth.json")).unwrap()).unwrap();
+        let planted = truth["hot"]["positions_row_col"].as_array().unwrap().len() + truth["dead"]["positions_row_col"].as_array().unwrap().len();
+        let named: Vec<_> = diagnose(&descriptor).into_iter().filter(|f| f.0 != "insufficient-noise").collect();
+        assert_eq!(named.len(), 1, "{args:?}: {named:?}");
+        assert_eq!(named[0].0, "bad-pixels", "{args:?}: {named:?}");
+        let count = named[0].2.unwrap() as f64;
+        assert!((count - planted as f64).abs() <= 0.2 * planted as f64, "{args:?}: {count} for {planted} planted");
+    }
 }
 
 /// A compressive response `y (1 - a (y / y_max)^3)` planted at the reference simulator's

@@ -378,31 +378,40 @@ pub fn diagnose_as(read_from: &Path, input: &Path, params: &DiagnoseParams, mut 
             // counts in both halves: the ADC is then not tested, and the rest still is.
             Err(m) => not_tested.push(format!("adc-dnl (code density): {m}")),
         }
+        // The defect pixels first: once both halves of the spatial series confirm them,
+        // every later step is taken without them (a hot pixel that saturates at the bright
+        // levels moved the level means by 40 pixels' share and read as a 1.5 DN bend,
+        // `global-nonlinearity` at 75 sigma).
+        let (defect_finding, defects) = match crate::diagnose::diagnose_defects(&set)? {
+            crate::diagnose::DefectOutcome::Tested { finding, defects } => (finding, defects),
+            crate::diagnose::DefectOutcome::NotTested(why) => {
+                not_tested.push(why);
+                (None, Vec::new())
+            }
+        };
         // An ADC with named code widths has integral nonlinearity too (its cumulative code
         // offsets, about 2 DN at 3% rms DNL), which moves its level means: the photon
         // transfer is then diagnosed on the other ADCs' columns (with all columns, 3% on
         // one ADC of four read as `global-nonlinearity` at 107 sigma and `unexplained` at 80).
-        let (ptc_points, ptc_pixels) = if dnl_adcs.is_empty() {
-            (points.clone(), set.width * set.height)
-        } else {
-            let columns: Vec<bool> = (0..set.width).map(|c| !dnl_adcs.contains(&(c % INTERLEAVED_ADCS))).collect();
-            let kept = columns.iter().filter(|c| **c).count();
-            (crate::emva::photon_transfer_columns(&set, &columns)?, kept * set.height)
-        };
-        let mut d = diagnose_ptc(&ptc_points, ptc_pixels, 0.01).map_err(|source| HostError::Diagnose { path: input.into(), source })?;
+        let pixels = set.width * set.height;
+        let keep: Vec<bool> = (0..pixels).map(|i| !dnl_adcs.contains(&((i % set.width) % INTERLEAVED_ADCS)) && !defects.get(i).copied().unwrap_or(false)).collect();
+        let kept = keep.iter().filter(|k| **k).count();
+        let points = if kept == pixels { points } else { crate::emva::photon_transfer_selected(&set, &keep)? };
+        let mut d = diagnose_ptc(&points, kept, 0.01).map_err(|source| HostError::Diagnose { path: input.into(), source })?;
         if !dnl_adcs.is_empty() {
             let list: Vec<String> = dnl_adcs.iter().map(|a| a.to_string()).collect();
             d.baseline.model += &format!("; the columns of ADC {} left out (named code widths: their integral nonlinearity moves the level means)", list.join(", "));
         }
+        let n_defects = defects.iter().filter(|d| **d).count();
+        if n_defects > 0 {
+            d.baseline.model += &format!("; the {n_defects} defect pixels left out");
+        }
         d.findings.extend(code_findings);
+        d.findings.extend(defect_finding);
         d.not_tested.extend(not_tested);
         if let Some((density, residuals)) = code_density {
             d.code_density = Some(density);
             d.code_residuals = Some(residuals);
-        }
-        match crate::diagnose::diagnose_defects(&set)? {
-            crate::diagnose::DefectOutcome::Tested(found) => d.findings.extend(found),
-            crate::diagnose::DefectOutcome::NotTested(why) => d.not_tested.push(why),
         }
         let sheet = crate::emva::datasheet_of(&set, &points, None)?;
         let dark = points.first().map_or(0.0, |p| p.dark_mean_dn);

@@ -23,8 +23,15 @@ const MIN_FRAMES: usize = 6;
 /// What the defect test of a set gave.
 #[derive(Debug, Clone)]
 pub enum DefectOutcome {
-    /// Tested: the finding if defects reproduce, else `None`.
-    Tested(Option<Finding>),
+    /// Tested: the finding if defects reproduce (else `None`), and the pixels both halves
+    /// flagged alike (row-major; the photon transfer is then taken without them, as the
+    /// standard leaves defect pixels out of what it reports).
+    Tested {
+        /// The `bad-pixels` finding, when significant.
+        finding: Option<Finding>,
+        /// The confirmed defect pixels, row-major; empty when none.
+        defects: Vec<bool>,
+    },
     /// Not tested, and why.
     NotTested(String),
 }
@@ -51,7 +58,7 @@ pub fn diagnose_defects(set: &EmvaSet) -> Result<DefectOutcome, HostError> {
     let confirmed: Vec<u8> = a.kind.iter().zip(&b.kind).map(|(x, y)| x & y).collect();
     let count = confirmed.iter().filter(|&&k| k != 0).count();
     if count == 0 {
-        return Ok(DefectOutcome::Tested(None));
+        return Ok(DefectOutcome::Tested { finding: None, defects: Vec::new() });
     }
     let by = |bit: u8| confirmed.iter().filter(|&&k| k & bit != 0).count();
     let (na, nb) = (a.kind.iter().filter(|&&k| k != 0).count() as f64, b.kind.iter().filter(|&&k| k != 0).count() as f64);
@@ -64,9 +71,10 @@ pub fn diagnose_defects(set: &EmvaSet) -> Result<DefectOutcome, HostError> {
     let before = mean_sq(&|_| true);
     let after = mean_sq(&|i| a.kind[i] == 0);
     if significance <= SIGNIFICANCE {
-        return Ok(DefectOutcome::Tested(None));
+        return Ok(DefectOutcome::Tested { finding: None, defects: Vec::new() });
     }
-    Ok(DefectOutcome::Tested(Some(Finding {
+    let defects = confirmed.iter().map(|&k| k != 0).collect();
+    let finding = Some(Finding {
         effect: Effect::BadPixels,
         adc: None,
         count: Some(count),
@@ -84,7 +92,8 @@ pub fn diagnose_defects(set: &EmvaSet) -> Result<DefectOutcome, HostError> {
             (na + nb) as usize - 2 * count
         ),
         residuals: None,
-    })))
+    });
+    Ok(DefectOutcome::Tested { finding, defects })
 }
 
 /// `P(X >= count)` for `X` Poisson of mean `chance`, as a one-sided normal deviate

@@ -387,6 +387,7 @@ mod tests {
                     frame_diff_dn: a - b,
                     dark_frame_diff_dn: da - db,
                     top_fraction: 0.0,
+                    top_dn: 4095.0,
                 }
             })
             .collect()

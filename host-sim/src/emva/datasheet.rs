@@ -53,6 +53,11 @@ const OVERFLOW_MIN: f64 = 0.001;
 /// A level brighter than the variance maximum with less than this share of it shows that
 /// the variance turned over (saturation reached).
 const TURNOVER: f64 = 0.8;
+/// A series whose variance has not turned over but whose brightest level (dark included)
+/// is at this share of the top code or above **ends at saturation**: the standard's
+/// saturation, the variance maximum, is taken there (as the reference does) and noted.
+/// Below it nothing near saturation was measured and the values that need it are `None`.
+const AT_SERIES_END: f64 = 0.9;
 /// Fewest photon-transfer levels accepted. The standard asks for at least 50 equally
 /// spaced levels; with fewer the fits still work, so fewer than this many is refused and
 /// fewer than 50 is noted.
@@ -112,8 +117,13 @@ pub struct PtcSummary {
     pub levels: usize,
     /// Index (in photon order) of the saturation level.
     pub saturation_index: usize,
-    /// Whether the variance turned over below the brightest level.
+    /// Whether the variance turned over below the brightest level (or, Release 4.0,
+    /// pixels overflowed).
     pub saturation_reached: bool,
+    /// The variance did not turn over, but the series ends at 90% of the top code or
+    /// above: saturation is taken at the variance maximum, the standard's definition
+    /// (`why["saturation"]` says so), and the values that need it are given.
+    pub saturation_at_series_end: bool,
     /// Mean above dark at saturation, DN.
     pub saturation_dn: f64,
     /// Photons per pixel at saturation (`mu_p.sat`, when reached).
@@ -233,30 +243,64 @@ pub enum PtcError {
     Responsivity { responsivity: f64 },
 }
 
-/// The saturation level's index and whether the set reached saturation: Release 4.0's
-/// (the last level with at most OVERFLOW_MAX of its pixels at the top code, where some
-/// level has OVERFLOW_MIN there), else the variance maximum where the variance turned
-/// over, else the brightest level (not reached). `why` notes a Release 4.0 fallback.
-fn saturation(p: &[PtcPoint], release: Release, why: &mut BTreeMap<String, String>) -> (usize, bool) {
+/// How the saturation level was found.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Seen {
+    /// The variance turned over (or, Release 4.0, pixels overflowed).
+    Reached,
+    /// The series ends at saturation without the turnover ([`AT_SERIES_END`]).
+    AtSeriesEnd,
+    /// Nothing near saturation was measured.
+    NotReached,
+}
+
+/// The saturation level's index and how it was found: Release 4.0's (the last level with
+/// at most OVERFLOW_MAX of its pixels at the top code, where some level has OVERFLOW_MIN
+/// there), else the variance maximum where the variance turned over or where the series
+/// ends at saturation ([`AT_SERIES_END`]: the standard's variance maximum, the
+/// reference's search), else the brightest level (not reached). `why` notes a Release 4.0
+/// fallback and a series that ends at saturation.
+fn saturation(p: &[PtcPoint], release: Release, why: &mut BTreeMap<String, String>) -> (usize, Seen) {
     let variance: Vec<f64> = p.iter().map(|q| q.var_dn2).collect();
     let variance_sat = saturation_index(&variance);
     // The variance turned over when a brighter level lies well below the maximum (a
     // clipped pixel has almost none); noise alone moves the reference's search off the
     // brightest level of a set that never saturated.
     let turned_over = variance[variance_sat + 1..].iter().any(|&v| v < TURNOVER * variance[variance_sat]);
-    let by_variance = if turned_over { variance_sat } else { p.len() - 1 };
+    let last = &p[p.len() - 1];
+    let top = last.mean_dn + last.dark_mean_dn;
+    let by_variance = if turned_over {
+        (variance_sat, Seen::Reached)
+    } else if top >= AT_SERIES_END * last.top_dn {
+        why.insert(
+            "saturation".into(),
+            format!(
+                "the variance has not turned over, but the brightest level is at {top:.1} of {:.0} DN ({:.1}% of the top code): saturation is taken at the variance maximum, the standard's definition; a brighter level would show whether the variance still rises",
+                last.top_dn,
+                100.0 * top / last.top_dn
+            ),
+        );
+        (variance_sat, Seen::AtSeriesEnd)
+    } else {
+        (p.len() - 1, Seen::NotReached)
+    };
     let overflow_sat = (0..p.len()).rev().find(|&i| p[i].top_fraction <= OVERFLOW_MAX);
     let overflowed = p.iter().any(|q| q.top_fraction >= OVERFLOW_MIN);
     match (release, overflow_sat) {
-        (Release::R4, Some(i)) if overflowed => (i, true),
-        (Release::R4, _) => {
-            why.insert(
-                "saturation".into(),
-                format!("no level has {:.1}% of its pixels at the top code (Release 4.0's saturation); the variance maximum is used", 100.0 * OVERFLOW_MIN),
-            );
-            (by_variance, turned_over)
+        (Release::R4, Some(i)) if overflowed => {
+            why.remove("saturation");
+            (i, Seen::Reached)
         }
-        (Release::R3, _) => (by_variance, turned_over),
+        (Release::R4, _) => {
+            let note = format!("no level has {:.1}% of its pixels at the top code (Release 4.0's saturation); the variance maximum is used", 100.0 * OVERFLOW_MIN);
+            let note = match why.get("saturation") {
+                Some(end) => format!("{note}; {end}"),
+                None => note,
+            };
+            why.insert("saturation".into(), note);
+            by_variance
+        }
+        (Release::R3, _) => by_variance,
     }
 }
 
@@ -365,7 +409,9 @@ pub fn summarize_points(points: &[PtcPoint], release: Release) -> Result<PtcSumm
     if p.iter().all(|q| q.var_dn2 == 0.0 && q.dark_var_dn2 == 0.0) {
         return Err(PtcError::NoNoise);
     }
-    let (sat, saturation_reached) = saturation(&p, release, &mut why);
+    let (sat, seen) = saturation(&p, release, &mut why);
+    let (saturation_reached, saturation_at_series_end) = (seen == Seen::Reached, seen == Seen::AtSeriesEnd);
+    let saturation_known = seen != Seen::NotReached;
     let y_sat = y[sat];
     if y_sat.is_nan() || y_sat <= 0.0 {
         return Err(PtcError::NoSignal { mean_dn: y_sat });
@@ -406,9 +452,9 @@ pub fn summarize_points(points: &[PtcPoint], release: Release) -> Result<PtcSumm
     };
     let sensitivity_threshold_photons = checked(&mut why, "sensitivity_threshold_photons", threshold, || "no finite threshold".into());
     let not_reached = || format!("saturation not reached: the variance still rises at the brightest level ({:.1} DN above dark)", y_sat);
-    let saturation_photons = if saturation_reached { Some(photons[sat]) } else { None };
+    let saturation_photons = if saturation_known { Some(photons[sat]) } else { None };
     let mut need_sat = |key: &str, value: f64| -> Option<f64> {
-        if saturation_reached {
+        if saturation_known {
             checked(&mut why, key, value, || "not finite".into())
         } else {
             why.insert(key.to_string(), not_reached());
@@ -420,7 +466,7 @@ pub fn summarize_points(points: &[PtcPoint], release: Release) -> Result<PtcSumm
     let snr_max_db = need_sat("snr_max_db", 20.0 * (qe * photons[sat]).sqrt().log10());
     let dynamic_range = need_sat("dynamic_range", photons[sat] / threshold);
     let dynamic_range_db = need_sat("dynamic_range_db", 20.0 * (photons[sat] / threshold).log10());
-    if !saturation_reached {
+    if !saturation_known {
         why.insert("saturation_photons".into(), not_reached());
     }
 
@@ -440,6 +486,7 @@ pub fn summarize_points(points: &[PtcPoint], release: Release) -> Result<PtcSumm
         levels: p.len(),
         saturation_index: sat,
         saturation_reached,
+        saturation_at_series_end,
         saturation_dn: y_sat,
         saturation_photons,
         gain_fit_levels: range.len(),
@@ -493,6 +540,7 @@ mod tests {
                 frame_diff_dn: 0.0,
                 dark_frame_diff_dn: 0.0,
                 top_fraction: 0.0,
+                top_dn: 4095.0,
             })
             .collect();
         assert_eq!(summarize_points(&points, Release::R3).unwrap_err(), PtcError::OnePhotonCount);

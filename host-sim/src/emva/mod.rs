@@ -23,7 +23,7 @@ pub use datasheet::{summarize_points, PtcSummary, Release};
 pub use descriptor::{code_histogram_halves, code_histograms, load_image, read_descriptor, EmvaLevel, EmvaSet, LevelKind, Series, DESCRIPTOR_LIMIT};
 pub use fit::fit_line;
 pub use sheet::{datasheet, datasheet_of, Datasheet};
-pub use temporal::{photon_transfer, photon_transfer_columns, PtcPoint};
+pub use temporal::{photon_transfer, photon_transfer_selected, PtcPoint};
 
 /// The temporal datasheet of `points` with `release`'s definitions; an error names the
 /// descriptor `path`.

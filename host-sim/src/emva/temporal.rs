@@ -50,6 +50,8 @@ pub struct PtcPoint {
     /// Share of the illuminated frames' pixels at the top code `2^bits - 1`: Release 4.0
     /// defines saturation by this overflow (0.1-0.2% of the pixels).
     pub top_fraction: f64,
+    /// The top code, `2^bits - 1`, DN.
+    pub top_dn: f64,
 }
 
 /// The statistics of a frame pair.
@@ -68,8 +70,8 @@ struct PairStatistics {
 /// Mean and temporal variance of a frame pair; the difference of the frame means shows
 /// frame-to-frame (common-mode) changes that the variance of the difference removes.
 /// Sums are exact integers (i128), so the only rounding is the final division.
-/// `columns`, if given, selects the columns used (one flag per column of a row; the
-/// images are rows of `columns.len()` pixels).
+/// `columns`, if given, selects the pixels used: one flag per column of a row (the images
+/// are rows of `columns.len()` pixels), or one per pixel (its length the image's).
 fn pair_statistics(a: &[u16], b: &[u16], top: u16, columns: Option<&[bool]>) -> PairStatistics {
     let len = a.len().min(b.len());
     let used = |i: &usize| columns.is_none_or(|c| c[i % c.len()]);
@@ -118,14 +120,20 @@ pub fn photon_transfer(set: &EmvaSet) -> Result<Vec<PtcPoint>, HostError> {
     photon_transfer_of(set, None)
 }
 
-/// The photon-transfer curve of the columns `c` with `columns[c]` (one flag per column
-/// of the set): `diagnose` leaves out the columns of an ADC whose code widths it named,
-/// since that ADC's integral nonlinearity moves its level means.
-pub fn photon_transfer_columns(set: &EmvaSet, columns: &[bool]) -> Result<Vec<PtcPoint>, HostError> {
-    if columns.len() != set.width || !columns.contains(&true) {
-        return Err(HostError::Format { path: set.path.clone(), message: format!("a column selection of {} flags, {} set, for {} columns", columns.len(), columns.iter().filter(|c| **c).count(), set.width) });
+/// The photon-transfer curve of the pixels selected by `keep`: one flag per column of
+/// the set (the same in every row), or one per pixel (row-major). `diagnose` leaves out
+/// the columns of an ADC whose code widths it named (that ADC's integral nonlinearity
+/// moves its level means) and the defect pixels it confirmed (a hot pixel that
+/// saturates at the bright levels bent 40 pixels' share of the means into a false
+/// `global-nonlinearity`).
+pub fn photon_transfer_selected(set: &EmvaSet, keep: &[bool]) -> Result<Vec<PtcPoint>, HostError> {
+    if !(keep.len() == set.width || keep.len() == set.width * set.height) || !keep.contains(&true) {
+        return Err(HostError::Format {
+            path: set.path.clone(),
+            message: format!("a selection of {} flags, {} set, for {} columns of {} pixels", keep.len(), keep.iter().filter(|c| **c).count(), set.width, set.width * set.height),
+        });
     }
-    photon_transfer_of(set, Some(columns))
+    photon_transfer_of(set, Some(keep))
 }
 
 fn photon_transfer_of(set: &EmvaSet, columns: Option<&[bool]>) -> Result<Vec<PtcPoint>, HostError> {
@@ -190,6 +198,7 @@ fn photon_transfer_of(set: &EmvaSet, columns: Option<&[bool]>) -> Result<Vec<Ptc
                 frame_diff_dn: bright.diff,
                 dark_frame_diff_dn: dark.diff,
                 top_fraction: bright.top_fraction,
+                top_dn: ((1u32 << set.bits) - 1) as f64,
             }
         })
         .collect();
