@@ -17,6 +17,9 @@ scripts/adctoolbox-venv.sh >/dev/null
 # (host-sim/tests/browser.rs); here a missing browser fails it instead of skipping.
 scripts/browser/install.sh
 export DNCAL_REQUIRE_BROWSER=1
+# The architecture checks of docs/architecture.md: import cycles, string errors, labels in
+# path fields, the library reaching into the CLI; a count may fall, never rise.
+python3 scripts/arch_check.py --self-test --ratchet scripts/arch_baseline.json >/dev/null
 cargo test --workspace --locked
 cargo clippy --workspace --all-targets --locked -- -D warnings
 # The core must also build with defmt on (as the firmware uses it) and stay warning-free.

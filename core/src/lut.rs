@@ -51,6 +51,11 @@ pub fn units_to_dn(units: u64) -> f64 {
     units as f64 / UNITS_PER_DN
 }
 
+/// Half a LUT unit, DN (2^-12): the most an entry rounded to the nearest unit departs from
+/// its exact value, so a sum of N frames' entries departs from the exact (f64) sum by at
+/// most N times this. The host's bit-exactness checks take their bound from here.
+pub const HALF_UNIT_DN: f64 = 0.5 / UNITS_PER_DN;
+
 /// Every LUT entry is strictly below this: 2^23 raw units (12 integer + 11 fractional bits).
 pub const LUT_ENTRY_LIMIT: u32 = 1 << 23;
 
@@ -249,7 +254,7 @@ pub(crate) fn check_entry(adc: usize, code: usize, previous: u32, bits: u32) -> 
 
 #[cfg(test)]
 mod tests {
-    use super::{units_to_dn, LutEntry, UNITS_PER_DN};
+    use super::{units_to_dn, LutEntry, HALF_UNIT_DN, UNITS_PER_DN};
 
     #[test]
     fn entries_and_sums_read_in_dn_exactly() {
@@ -262,6 +267,8 @@ mod tests {
         assert_eq!(units_to_dn(512 * top.to_bits() as u64), 512.0 * top.to_dn());
         assert_eq!(units_to_dn(u32::MAX as u64) * UNITS_PER_DN, u32::MAX as f64);
         assert_eq!(top.to_dn(), ((1u32 << 23) - 1) as f64 / 2048.0);
+        // Half a unit: 2^-12 DN, exactly.
+        assert_eq!(HALF_UNIT_DN, 1.0 / 4096.0);
     }
 
     use super::*;

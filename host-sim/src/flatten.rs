@@ -52,6 +52,11 @@ const MIN_CODES_PER_INTERVAL: usize = 4;
 /// A weight must be below this to fit [`Weight`] (`U8F24`) after rounding to 2^-24.
 const WEIGHT_SCALE: f64 = (1u64 << 24) as f64;
 
+/// Fewest mean counts per code analysed (the IEEE 1241 test's and the analyses' default
+/// `min_mean_count`): below one count a code's width is not measured to better than its
+/// own size (`1 / sqrt(E)` LSB at 1 sigma).
+pub const MIN_COUNTS_PER_CODE: f64 = 1.0;
+
 /// Every number of the flattening, with the paper's values as defaults.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default)]
@@ -76,7 +81,7 @@ pub struct FlattenParams {
     /// for data that never reach saturation.
     pub set_last_to_one: bool,
     /// Least mean number of counts per fitted code: 1 by default
-    /// ([`crate::ieee1241::MIN_COUNTS_PER_CODE`]), below which a code's width is not
+    /// ([`MIN_COUNTS_PER_CODE`]), below which a code's width is not
     /// measured to better than its own size. Every count above it is analysed, and the
     /// resolution it gives is stated (`1/sqrt(counts)` of a code at 1 sigma: 10% at 100
     /// counts, more than the few-percent DN error of a pipelined ADC, but a 9-LSB-wide or
@@ -101,7 +106,7 @@ impl Default for FlattenParams {
             median_window: 21,
             fixed_low_codes: 150,
             set_last_to_one: true,
-            min_mean_count: crate::ieee1241::MIN_COUNTS_PER_CODE,
+            min_mean_count: MIN_COUNTS_PER_CODE,
             trim_below_fraction: 0.0,
             max_top_offset_dn: 1e-6,
         }

@@ -126,29 +126,6 @@ fn variance(v: &[f64]) -> f64 {
     v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / v.len() as f64
 }
 
-/// The design row of the stage model for the transition into `code`: a constant, a cubic
-/// in x, one indicator per stage and non-zero digit and, with `segment_gains`, per digit
-/// of the first stage the lower stages' value (as a fraction of the sub-range) where the
-/// code is in that digit's sub-range.
-pub(crate) fn stage_row(stages: &[u32], segment_gains: bool, code: usize, x: f64) -> Vec<f64> {
-    let mut row = vec![1.0, x, x * x, x * x * x];
-    let bits: u32 = stages.iter().sum();
-    let mut shift = bits;
-    for &b in stages {
-        shift -= b;
-        let digit = (code >> shift) & ((1 << b) - 1);
-        row.extend((1..1usize << b).map(|d| f64::from(u8::from(digit == d))));
-    }
-    if let (true, Some(&top)) = (segment_gains, stages.first()) {
-        let low = bits - top;
-        let (digit, below) = ((code >> low) & ((1 << top) - 1), (code & ((1 << low) - 1)) as f64 / (1u64 << low) as f64);
-        // Digit 0's slope is left out: the slopes of all digits sum to the lower stages'
-        // value, which their offsets already span; the others are relative to it.
-        row.extend((1..1usize << top).map(|d| if digit == d { below } else { 0.0 }));
-    }
-    row
-}
-
 /// `x = k / 4095` of code k.
 fn x(k: usize) -> f64 {
     k as f64 / (KCOR_CODES - 1) as f64
@@ -223,7 +200,7 @@ pub fn characterize(table: &KcorTable, camera: &str, adc: usize) -> RealAdc {
         .iter()
         .map(|&(stages, segment_gains)| {
             // The offset o_k is the transition into code k + 1.
-            let design: Vec<Vec<f64>> = cal.iter().map(|&k| stage_row(stages, segment_gains, (k + 1) % KCOR_CODES, x(k))).collect();
+            let design: Vec<Vec<f64>> = cal.iter().map(|&k| crate::ieee1241::architecture::stage_row(stages, segment_gains, (k + 1) % KCOR_CODES, x(k))).collect();
             let pick = |want: bool| -> (Vec<Vec<f64>>, Vec<f64>) {
                 design.iter().zip(&offsets).zip(&fit_half).filter(|(_, h)| **h == want).map(|((d, o), _)| (d.clone(), *o)).unzip()
             };
@@ -386,5 +363,15 @@ mod tests {
         let held = |stages: &[u32], g: bool| a.stage_fits.iter().find(|f| f.stages == stages && f.segment_gains == g).unwrap().held_out_explained;
         assert!(held(&[4, 4, 4], true) > 0.95, "{:?}", a.stage_fits);
         assert!(held(&[4, 4, 4], false) < held(&[4, 4, 4], true) - 0.05, "{:?}", a.stage_fits);
+    }
+
+    #[test]
+    fn the_twelve_bit_layouts_are_the_stage_models() {
+        let want: Vec<(Vec<u32>, bool)> = STAGE_MODELS.iter().map(|(s, g)| (s.to_vec(), *g)).collect();
+        let mut got = crate::ieee1241::architecture::layouts(12);
+        got.sort();
+        let mut want = want;
+        want.sort();
+        assert_eq!(got, want);
     }
 }

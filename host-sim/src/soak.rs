@@ -583,7 +583,7 @@ fn check_counters(corrector: &Corrector<'_, N, CODES>, seg: &Segment, refs: &Ref
 fn check_core_sums(sums: &[u32], refs: &References, shape: &str, report: &mut SoakReport) {
     for (s, &streamed) in refs.frames.iter().enumerate() {
         let range = refs.range(s);
-        let bound = streamed as f64 * 2f64.powi(-12) + 1e-9;
+        let bound = streamed as f64 * dncal_core::HALF_UNIT_DN + 1e-9;
         for ((&got, &q), &f) in sums[range.clone()].iter().zip(&refs.quantized[range.clone()]).zip(&refs.centers[range]) {
             let want = q.min(u32::MAX as u64);
             if got as u64 != want {

@@ -345,7 +345,7 @@ fn run_typed<const N: usize, const CODES: usize>(
     }
     let status = core.status();
     let frames_max = (0..p.states).map(|s| core.frames(s).get()).max().unwrap_or(0);
-    let bound_dn = frames_max as f64 * 2f64.powi(-12);
+    let bound_dn = frames_max as f64 * dncal_core::HALF_UNIT_DN;
     let check = core
         .spans()
         .into_par_iter()
@@ -412,7 +412,7 @@ mod tests {
         assert_eq!(r.pixels, 12 * 90 * 20);
         assert_eq!(r.mismatches, 0);
         assert_eq!(r.out_of_bound, 0);
-        assert!(r.max_abs_err_dn <= 3.0 * 2f64.powi(-12), "{}", r.max_abs_err_dn);
+        assert!(r.max_abs_err_dn <= 3.0 * dncal_core::HALF_UNIT_DN, "{}", r.max_abs_err_dn);
         assert!(r.max_abs_err_dn > 0.0, "entries are rounded, so some error must show");
     }
 

@@ -11,6 +11,7 @@ mod defects;
 mod histograms;
 mod levels;
 mod linearity;
+pub mod model;
 mod pixel_fit;
 mod records;
 mod points;
@@ -105,7 +106,29 @@ pub enum Effect {
     Unexplained,
 }
 
+/// Whether the camera model carries an effect ([`Effect::in_model`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum InModel {
+    /// `model.toml` carries it (or, for the noise, it is a property of the data the model
+    /// records).
+    Yes,
+    /// Of the camera, but not in the model yet: named in the file's header.
+    NotYet,
+    /// Of the measurement (the light source, the frames' independence), not of the
+    /// camera: named, never simulated.
+    OfTheMeasurement,
+}
+
 impl Effect {
+    /// Whether `model.toml` carries this effect.
+    pub fn in_model(self) -> InModel {
+        match self {
+            Effect::AdcDnl | Effect::GlobalNonlinearity | Effect::PixelNonlinearity | Effect::BadPixels | Effect::InsufficientNoise => InModel::Yes,
+            Effect::AdcMismatch | Effect::Unexplained | Effect::LowSignalNonlinearity => InModel::NotYet,
+            Effect::LevelErrors | Effect::ExcessNoise => InModel::OfTheMeasurement,
+        }
+    }
+
     /// Every effect, in the catalog's order.
     pub const ALL: [Effect; 10] = [
         Effect::AdcDnl,

@@ -62,9 +62,8 @@ pub const ALPHA: f64 = 1e-3;
 /// Below it, a significant departure is DNL, reported in the per-code arrays, but not a
 /// defect a datasheet lists (at 10^6 counts a code every code is significant at 1%).
 pub const GROSS_LSB: f64 = 0.5;
-/// Fewest mean counts per code analysed: below one count a code's width is not measured
-/// to better than its own size (`1 / sqrt(E)` LSB at 1 sigma).
-pub const MIN_COUNTS_PER_CODE: f64 = 1.0;
+/// Fewest mean counts per code analysed (the flattening's default, defined there).
+pub use crate::flatten::MIN_COUNTS_PER_CODE;
 /// Fewest analysed codes.
 pub const MIN_CODES: usize = 16;
 /// Codes listed as the worst.
