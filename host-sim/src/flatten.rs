@@ -351,15 +351,19 @@ pub fn flatten_histogram(counts: &[u64], p: &FlattenParams) -> Result<Flattened,
 /// A ramp whose ends fall off over a few codes (an illumination blurred by noise) at a
 /// few tens of counts a code has codes of 3 counts far into its tail, where the 10% trim
 /// ends; the spline then undershoots to zero at the edge. Gaps and missing codes inside
-/// the range stay: where the running median is still zero (a run of missing codes half
-/// a window long, as below a SAR's MSB when the bits under it weigh more), the window is
-/// doubled, up to [`MAX_MEDIAN_WIDENING`] times its own. Returns the flattening and the
-/// parameters it took.
+/// the range stay: where the running median is zero **inside** the range (a run of
+/// missing codes half a window long, as below a SAR's MSB when the bits under it weigh
+/// more; codes with counts on both sides), the window is doubled first, up to 87 codes
+/// ([`MAX_MEDIAN_WIDENING`]), and the fit range is left as it was. Returns the
+/// flattening and the parameters it took.
 pub fn flatten_narrowing(counts: &[u64], p: &FlattenParams) -> Result<(Flattened, FlattenParams), FlattenError> {
     let mut p = p.clone();
     let widest = MAX_MEDIAN_WIDENING * p.median_window;
     loop {
         match flatten_histogram(counts, &p) {
+            Err(FlattenError::MedianNotPositive { code }) if 2 * p.median_window < widest && inside(counts, code, p.median_window) => {
+                p.median_window = 2 * p.median_window + 1;
+            }
             Err(FlattenError::SplineNotPositive { .. } | FlattenError::MedianNotPositive { .. }) if p.trim_below_fraction < 0.8 => {
                 p.trim_below_fraction = (2.0 * p.trim_below_fraction).max(0.2);
             }
@@ -369,6 +373,21 @@ pub fn flatten_narrowing(counts: &[u64], p: &FlattenParams) -> Result<(Flattened
             r => return r.map(|f| (f, p)),
         }
     }
+}
+
+/// Whether `code` lies inside the counts rather than in a tail: within two windows on
+/// each side (but not the half window next to it) some code holds at least half the
+/// median count of the codes with counts.
+fn inside(counts: &[u64], code: usize, window: usize) -> bool {
+    let mut nonzero: Vec<u64> = counts.iter().copied().filter(|&c| c > 0).collect();
+    if nonzero.is_empty() {
+        return false;
+    }
+    let mid = nonzero.len() / 2;
+    let half_median = *nonzero.select_nth_unstable(mid).1 as f64 / 2.0;
+    let full = |r: std::ops::Range<usize>| counts.get(r).is_some_and(|s| s.iter().any(|&c| c as f64 >= half_median));
+    let (near, far) = (window / 2, 2 * window);
+    full(code.saturating_sub(far)..code.saturating_sub(near)) && full((code + near + 1).min(counts.len())..(code + far + 1).min(counts.len()))
 }
 
 /// How many times its own a median window [`flatten_narrowing`] may widen to: below 8,
@@ -782,6 +801,8 @@ mod tests {
         assert!(matches!(flatten_histogram(&counts, &p), Err(FlattenError::MedianNotPositive { .. })));
         let (f, q) = flatten_narrowing(&counts, &p).unwrap();
         assert_eq!(q.median_window, 43);
+        // The fit range is not narrowed for it (a run inside the counts, not a tail).
+        assert_eq!(q.trim_below_fraction, p.trim_below_fraction);
         assert!(f.weights[2033..2048].iter().all(|w| *w == 0.0));
         assert!((f.weights[2032] - 1.0).abs() < 0.03 && (f.weights[2048] - 1.0).abs() < 0.03, "{} {}", f.weights[2032], f.weights[2048]);
         counts[2000..2100].fill(0);

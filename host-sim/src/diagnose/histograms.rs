@@ -45,13 +45,14 @@
 //! E0_k) / sigma0_k` lowers `sum z^2` by `sum delta^2` when it is right and raises it by as
 //! much when it is not, with a noise of `2 sqrt(sum delta^2)` either way: its significance
 //! is `(sum z0^2 - sum z^2) / (2 sqrt(sum delta^2))`, which a model of a few gross codes
-//! reaches without being diluted by the thousands of codes it leaves alone. The best
-//! candidate (least `sum z^2`) is **adopted** into `model.toml` when it is significant
-//! (> 5) and its held-out `mean z^2` is within 5 `sqrt(2/N)` of the per-code widths': it
-//! explains what they explain, with a few parameters and missing codes as missing. The
-//! candidates nest (binary weights are also a pipeline's levels), so the one kept is
-//! the fewest parameters within one `sqrt(2/N)` of the best `mean z^2`; the others are
-//! listed after it, best first.
+//! reaches without being diluted by the thousands of codes it leaves alone. Some
+//! candidates nest (binary weights are also a pipeline's levels), so the one **kept** is
+//! the fewest parameters whose `sum z^2` exceeds the best's by at most one standard
+//! deviation of that excess, measured code by code on the same half B
+//! ([`crate::ieee1241::architecture::choose`]); the others are listed after it, best
+//! first. The kept one is **adopted** into `model.toml` when it is significant (> 5) and
+//! its held-out `mean z^2` is within 5 `sqrt(2/N)` of the per-code widths': it explains
+//! what they explain, with a few parameters and missing codes as missing.
 
 use rand::SeedableRng;
 use rand_distr::{Binomial, Distribution};
@@ -161,25 +162,29 @@ fn architectures_held_out(adc: usize, (a, b): (&[u64], &[u64]), f: &Flattened, p
     let n = codes.len() as f64;
     let sigma0: Vec<f64> = e0.iter().map(|e| (e * noise).sqrt()).collect();
     let z0_sq: f64 = codes.iter().zip(e0).zip(&sigma0).map(|((&k, e), s)| ((b[k] as f64 - e) / s).powi(2)).sum();
-    let mut scored: Vec<(Architecture, ArchitectureScore)> = crate::ieee1241::architecture::candidates(&t)
+    let scored: Vec<(Architecture, ArchitectureScore, Vec<f64>)> = crate::ieee1241::architecture::candidates(&t)
         .into_iter()
         .filter_map(|c| {
             let w = AdcTransfer::from_architecture(&c.architecture, t.bits).ok()?.widths();
             let expected = expected_through(a, f, &w, s, p.median_window);
-            let (mut z_sq, mut delta_sq) = (0.0, 0.0);
+            let mut delta_sq = 0.0;
+            let mut z2 = Vec::with_capacity(codes.len());
             for ((&k, e), sd) in codes.iter().zip(e0).zip(&sigma0) {
                 let e_a = expected[k];
-                z_sq += (b[k] as f64 - e_a).powi(2) / (e_a.max(1.0) * noise);
+                z2.push((b[k] as f64 - e_a).powi(2) / (e_a.max(1.0) * noise));
                 delta_sq += ((e_a - e) / sd).powi(2);
             }
+            let z_sq: f64 = z2.iter().sum();
             let significance = if delta_sq > 0.0 { (z0_sq - z_sq) / (2.0 * delta_sq.sqrt()) } else { 0.0 };
-            Some((c.architecture.clone(), ArchitectureScore { name: c.architecture.name(), parameters: c.parameters, mean_z2: z_sq / n, significance }))
+            Some((c.architecture.clone(), ArchitectureScore { name: c.architecture.name(), parameters: c.parameters, mean_z2: z_sq / n, significance }, z2))
         })
         .collect();
-    // The fewest parameters that score within one standard deviation of mean z^2 of the
-    // best (the models nest: a SAR is also a pipeline's levels).
+    // The fewest parameters that score as well as the best, compared code by code on the
+    // same half B (the models nest where binary weights are also a pipeline's levels).
+    let per_code: Vec<(usize, &[f64])> = scored.iter().map(|(_, s, z2)| (s.parameters, z2.as_slice())).collect();
+    let pick = crate::ieee1241::architecture::choose(&per_code)?;
+    let mut scored: Vec<(Architecture, ArchitectureScore)> = scored.into_iter().map(|(a, s, _)| (a, s)).collect();
     let sd = (2.0 / n).sqrt();
-    let pick = crate::ieee1241::architecture::choose(&scored.iter().map(|(_, s)| (s.parameters, s.mean_z2)).collect::<Vec<_>>(), sd)?;
     let chosen = scored.remove(pick);
     scored.sort_by(|x, y| x.1.mean_z2.total_cmp(&y.1.mean_z2));
     scored.insert(0, chosen);

@@ -209,14 +209,24 @@ pub fn candidates(t: &AdcLinearity) -> Vec<Candidate> {
     out
 }
 
-/// The index of the candidate to keep among scores `(parameters, held-out mean z^2)`:
-/// the fewest parameters whose score is within `tolerance` of the best (the first such
-/// on a tie, the SAR before a pipeline of as many).
-pub fn choose(scores: &[(usize, f64)], tolerance: f64) -> Option<usize> {
-    let best = scores.iter().map(|s| s.1).fold(f64::INFINITY, f64::min);
-    let fits = |s: &(usize, f64)| s.1 <= best + tolerance;
-    let fewest = scores.iter().filter(|s| fits(s)).map(|s| s.0).min()?;
-    scores.iter().position(|s| fits(s) && s.0 == fewest)
+/// The index of the candidate to keep among `(parameters, z^2 per code)`, every
+/// candidate scored on the same codes: the fewest parameters whose `sum z^2` exceeds the
+/// best's by at most one standard deviation of that excess, taken from the code-by-code
+/// differences (`sqrt(n) sd(d_k)`; two candidates scored on the same counts differ far
+/// less than either's noise, which one `sqrt(2/N)` of mean z^2 would have allowed). On
+/// a tie the first (the SAR before a pipeline of as many).
+pub fn choose(candidates: &[(usize, &[f64])]) -> Option<usize> {
+    let sums: Vec<f64> = candidates.iter().map(|(_, z2)| z2.iter().sum()).collect();
+    let best = (0..sums.len()).min_by(|&i, &j| sums[i].total_cmp(&sums[j]))?;
+    let fits = |i: usize| {
+        let d: Vec<f64> = candidates[i].1.iter().zip(candidates[best].1).map(|(a, b)| a - b).collect();
+        let n = d.len().max(2) as f64;
+        let mean = d.iter().sum::<f64>() / n;
+        let sd_sum = (d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0) * n).sqrt();
+        sums[i] - sums[best] <= sd_sum
+    };
+    let fewest = (0..candidates.len()).filter(|&i| fits(i)).map(|i| candidates[i].0).min()?;
+    (0..candidates.len()).find(|&i| fits(i) && candidates[i].0 == fewest)
 }
 
 #[cfg(test)]
@@ -238,7 +248,8 @@ mod tests {
         FlattenParams::default()
     }
 
-    /// A planted pipelined ADC (4+4+4, offsets 0.2/0.1/0.05 LSB rms, sub-range gains of
+    /// A planted pipelined ADC (4+4+4, offsets 0.7/0.1/0.05 LSB rms, up to 1.2 LSB in the
+    /// first stage so that a fit of zeros there fails the tolerance, sub-range gains of
     /// up to 2%) measured on a ramp at 20 000 counts a code: the 4+4+4 layout with gains
     /// returns the planted offsets and gains; its model's widths match the planted ones.
     /// The precisions: a gain from its sub-range's 255 widths, `sigma_g = 16 sigma / 256`
@@ -252,7 +263,7 @@ mod tests {
             s = s.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
             (s >> 11) as f64 / (1u64 << 53) as f64 - 0.5
         };
-        let offset_lsb: Vec<Vec<f64>> = [0.7, 0.35, 0.17].iter().map(|a| (0..16).map(|d| if d == 0 { 0.0 } else { a * next() }).collect()).collect();
+        let offset_lsb: Vec<Vec<f64>> = [2.4, 0.35, 0.17].iter().map(|a| (0..16).map(|d| if d == 0 { 0.0 } else { a * next() }).collect()).collect();
         let subrange_gain_error: Vec<f64> = (0..16).map(|d| if d == 0 { 0.0 } else { 0.04 * next() }).collect();
         let planted = Architecture::Pipelined { stage_bits: vec![4, 4, 4], offset_lsb: offset_lsb.clone(), subrange_gain_error: subrange_gain_error.clone() };
         let adc = AdcTransfer::from_architecture(&planted, 12).unwrap();
@@ -315,10 +326,17 @@ mod tests {
 
     #[test]
     fn the_fewest_parameters_that_fit_as_well_are_chosen() {
-        assert_eq!(choose(&[(12, 1.05), (45, 1.04), (60, 1.03)], 0.03), Some(0));
-        assert_eq!(choose(&[(12, 1.50), (45, 1.04), (60, 1.03)], 0.03), Some(1));
-        assert_eq!(choose(&[(12, 1.04), (12, 1.03)], 0.03), Some(0));
-        assert_eq!(choose(&[], 0.03), None);
+        // Per-code z^2 of three candidates on four codes. The 12-parameter one is worse by
+        // 0.2 in total with code-by-code differences of 0.05 +- 0.1: within one sd (0.23).
+        let best: &[f64] = &[1.0, 1.0, 1.0, 1.0];
+        let close: &[f64] = &[1.15, 0.95, 1.15, 0.95];
+        assert_eq!(choose(&[(12, close), (45, best)]), Some(0));
+        // The same excess with no scatter: the differences say it is real.
+        let worse: &[f64] = &[1.05, 1.05, 1.05, 1.05];
+        assert_eq!(choose(&[(12, worse), (45, best)]), Some(1));
+        // Ties go to the first of as many parameters; nothing to choose from, None.
+        assert_eq!(choose(&[(12, best), (12, best)]), Some(0));
+        assert_eq!(choose(&[]), None);
     }
 
 }
