@@ -25,9 +25,10 @@ pub fn extended_model(hist: &crate::fits::AdcHistograms, d: &Diagnosis, flatten:
         c.adc.architecture = (0..hist.counts.len())
             .map(|adc| match adopted(adc) {
                 Some(arch) => {
-                    // The same layout, fitted on all the counts (A's fit if that fails).
-                    let all = crate::ieee1241::analyse(&hist.counts[adc], crate::ieee1241::Density::Smooth, &trimmed).ok();
-                    let refit = all.iter().flat_map(crate::ieee1241::architecture::candidates).find(|c| c.architecture.name() == arch.name);
+                    // The same layout, fitted on the test of all the counts the diagnosis
+                    // already ran (A's fit if that test could not run).
+                    let all = d.adc_linearity.as_ref().and_then(|v| v.get(adc)).and_then(Option::as_ref);
+                    let refit = all.into_iter().flat_map(crate::ieee1241::architecture::candidates).find(|c| c.architecture.name() == arch.name);
                     refit.map_or_else(|| arch.architecture.clone(), |c| c.architecture)
                 }
                 None => crate::camera::Architecture::Ideal,
