@@ -90,20 +90,25 @@ impl Camera {
         let levels = self.ramp_levels(p);
         let done = std::sync::atomic::AtomicU64::new(0);
         let g = p.field_spread;
-        levels
-            .par_iter()
-            .fold(Vec::new, |mut m: Vec<f64>, &photons| {
+        // In fixed chunks (at most 32, each holding its own masses) merged in order, so
+        // that the masses (and every count drawn from them) are the same on every run.
+        crate::parallel::fold_in_order(
+            &levels,
+            levels.len().div_ceil(32),
+            Vec::new,
+            |mut m: Vec<f64>, &photons| {
                 add_poisson_gamma(&mut m, self.mean_signal_e(photons), g);
                 progress(done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1);
                 m
-            })
-            .reduce(Vec::new, |mut a, b| {
+            },
+            |mut a, b| {
                 if a.len() < b.len() {
                     a.resize(b.len(), 0.0);
                 }
                 a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
                 a
-            })
+            },
+        )
     }
 
     /// Expected fraction of samples in each code of `adc` when the photoelectrons follow

@@ -219,17 +219,16 @@ pub fn spectrogram(image: &[f64], rows: usize, cols: usize, vertical: bool) -> V
     let at = |line: usize, i: usize| if vertical { image[i * cols + line] } else { image[line * cols + i] };
     let mean = image.iter().sum::<f64>() / image.len() as f64;
     let fft = FftPlanner::<f64>::new().plan_fft_forward(len);
-    let power = (0..lines)
-        .into_par_iter()
-        .map(|line| {
-            let mut buf: Vec<Complex<f64>> = (0..len).map(|i| Complex::new(at(line, i) - mean, 0.0)).collect();
-            fft.process(&mut buf);
-            buf.iter().map(|c| c.norm_sqr() / len as f64).collect::<Vec<f64>>()
-        })
-        .reduce(|| vec![0.0; len], |mut a, b| {
-            a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
-            a
-        });
+    let add = |mut a: Vec<f64>, b: Vec<f64>| {
+        a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
+        a
+    };
+    let line_numbers: Vec<usize> = (0..lines).collect();
+    let power = crate::parallel::fold_in_order(&line_numbers, lines.div_ceil(64), || vec![0.0; len], |acc, &line| {
+        let mut buf: Vec<Complex<f64>> = (0..len).map(|i| Complex::new(at(line, i) - mean, 0.0)).collect();
+        fft.process(&mut buf);
+        add(acc, buf.iter().map(|c| c.norm_sqr() / len as f64).collect())
+    }, add);
     power[..len / 2 + 1].iter().map(|p| (p / lines as f64).sqrt()).collect()
 }
 
