@@ -15,6 +15,13 @@ Counts (each should reach 0; the ratchet keeps them from rising meanwhile):
                      (a string literal), not a file
   commands_imports   `commands::` paths in files outside src/commands and src/bin (the
                      library reaching up into the CLI)
+  command_calls      files of src/commands/ that use another command's module (the
+                     shared `progress`, `report` glue and `mod.rs` apart): a command's
+                     work belongs in the library, where both commands can call it
+  room_imports       references from a file in one room of src/ to a room above it
+                     (ROOMS, lowest first: infra, formats, model, analyses, checks, then
+                     the CLI in commands/ and bin/); a room may use itself and the rooms
+                     below it
 
 A file is its module path: src/a/b.rs and src/a/b/mod.rs are `a::b`. A reference to
 `crate::a::b::c` counts as one to the longest module prefix that exists (`a::b`).
@@ -28,6 +35,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 SRC = ROOT / "host-sim" / "src"
+# The rooms of src/, lowest first (docs/architecture.md).
+ROOMS = ["infra", "formats", "model", "analyses", "checks", "commands", "bin"]
 
 
 def module_of(path: Path) -> tuple:
@@ -124,6 +133,7 @@ def check() -> dict:
     modules = {module_of(f) for f in files}
     texts = {module_of(f): (f, strip_comments(f.read_text())) for f in files}
     graph = {m: references(m, t, modules) for m, (_, t) in texts.items()}
+    graph_all = graph
     # A parent module declares its children (`mod x;`) and re-exports them: that is
     # not an import back. Only edges between modules neither of which contains the
     # other count.
@@ -135,9 +145,18 @@ def check() -> dict:
     for _, (_, t) in texts.items():
         parsers.update(re.findall(r"value_parser\s*=\s*([A-Za-z_][A-Za-z0-9_:]*)", t))
     parsers = {p.split("::")[-1] for p in parsers}
-    string_results, label_paths, commands_imports = [], [], []
+    string_results, label_paths, commands_imports, room_imports, command_calls = [], [], [], [], []
     for m, (f, t) in texts.items():
         rel = f.relative_to(ROOT)
+        if m[:1] == ("commands",) and len(m) >= 2:
+            for r in sorted(graph_all[m]):
+                if r[:1] == ("commands",) and len(r) >= 2 and r[1] not in ("progress",) and r[:2] != m[:2]:
+                    command_calls.append(f"{rel} -> {'::'.join(r)}")
+        if m[:1] and m[0] in ROOMS:
+            rank = ROOMS.index(m[0])
+            for r in sorted(graph_all[m]):
+                if r[0] in ROOMS and ROOMS.index(r[0]) > rank and not (m[0] in ("commands", "bin") and r[0] in ("commands", "bin")):
+                    room_imports.append(f"{rel} -> {'::'.join(r)}")
         # The signature up to its body or where-clause: `;` may appear inside it (`[usize; 3]`).
         for fm in re.finditer(r"fn\s+([a-z_][a-z0-9_]*)\b(?:(?!\bfn\b)[^{])*?->\s*Result<(?:(?!\bfn\b)[^{])*?,\s*String\s*>\s*(?:\{|where)", t, flags=re.S):
             if fm.group(1) not in parsers:
@@ -147,13 +166,14 @@ def check() -> dict:
         if m[:1] not in (("commands",), ("bin",)):
             for cm in re.finditer(r"\bcommands::", t):
                 commands_imports.append(f"{rel}:{t[: cm.start()].count(chr(10)) + 1}")
-    where.update(string_results=string_results, label_paths=label_paths, commands_imports=commands_imports)
+    where.update(string_results=string_results, label_paths=label_paths, commands_imports=commands_imports, room_imports=room_imports, command_calls=command_calls)
     return where
 
 
 def self_test() -> None:
     """The checks on a planted tree: one cycle, one String result, one label path, one
-    library file reaching into the CLI; each found once, and nothing else."""
+    library file reaching into the CLI, one room reaching into a room above it (and one
+    reaching down, by `super::`, which is allowed); each found once, and nothing else."""
     import tempfile
     global SRC, ROOT
     saved = (SRC, ROOT)
@@ -161,11 +181,21 @@ def self_test() -> None:
         ROOT = Path(tmp)
         SRC = ROOT / "host-sim" / "src"
         (SRC / "commands").mkdir(parents=True)
-        (SRC / "lib.rs").write_text("pub mod a; pub mod b; pub mod c; pub mod commands;\n")
+        (SRC / "lib.rs").write_text("pub mod a; pub mod b; pub mod c; pub mod commands; pub mod formats; pub mod analyses;\n")
+        (SRC / "formats").mkdir()
+        (SRC / "analyses").mkdir()
+        (SRC / "formats" / "mod.rs").write_text("pub mod x;\n")
+        (SRC / "formats" / "x.rs").write_text("use crate::analyses::y;\nuse crate::formats::z;\n")
+        (SRC / "formats" / "z.rs").write_text("pub fn z() {}\n")
+        (SRC / "analyses" / "mod.rs").write_text("pub mod y;\n")
+        (SRC / "analyses" / "y.rs").write_text("use super::super::formats::z;\npub fn y() {}\n")
         (SRC / "a.rs").write_text("use crate::b::f;\npub fn g() -> Result<u8, String> { Ok(1) }\n// crate::c::h in a comment is no import\nfn h(x: [u8; 3]) -> Result<[u8; 3], String> { let u = \"http://x\"; Ok(x) }\n")
         (SRC / "b.rs").write_text("use crate::a::g;\npub fn f() { crate::commands::x(); let e = HostError::Format { path: \"label\".into(), message: String::new() }; }\n")
         (SRC / "c.rs").write_text("use super::a::g;\n#[arg(value_parser = parse_n)]\nfn parse_n(s: &str) -> Result<u8, String> { Ok(0) }\n#[arg(value_parser = Kind::parse)]\nfn parse(s: &str) -> Result<u8, String> { Ok(0) }\nfn e() { HostError::Config { path: \"default\".into(), source }; }\n")
-        (SRC / "commands" / "mod.rs").write_text("pub fn x() { crate::commands::y(); }\npub fn y() {}\n")
+        (SRC / "commands" / "mod.rs").write_text("pub mod p; pub mod q; pub mod progress;\npub fn x() { crate::commands::y(); }\npub fn y() {}\n")
+        (SRC / "commands" / "p.rs").write_text("use crate::commands::progress::bar;\nuse crate::commands::q::Q;\nuse super::y;\n")
+        (SRC / "commands" / "q.rs").write_text("pub struct Q;\n")
+        (SRC / "commands" / "progress.rs").write_text("pub fn bar() {}\n")
         w = check()
         SRC, ROOT = saved
     want = {
@@ -173,6 +203,8 @@ def self_test() -> None:
         "string_results": ["host-sim/src/a.rs:2 g", "host-sim/src/a.rs:4 h"],
         "label_paths": ['host-sim/src/b.rs:2 "label"', 'host-sim/src/c.rs:6 "default"'],
         "commands_imports": ["host-sim/src/b.rs:2"],
+        "room_imports": ["host-sim/src/formats/x.rs -> analyses::y"],
+        "command_calls": ["host-sim/src/commands/p.rs -> commands::q"],
     }
     assert w == want, f"self-test: {w} != {want}"
 

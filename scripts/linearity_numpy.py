@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""The steps of `dncal linearity` (host-sim/src/linearity.rs) in numpy and astropy, as a
+"""The steps of `dncal linearity` (host-sim/src/analyses/linearity/) in numpy and astropy, as a
 user would write them: the baseline `dncal bench` times the command against.
 
     python3 scripts/linearity_numpy.py SET.fits [ORDER]

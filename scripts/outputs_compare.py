@@ -81,13 +81,20 @@ def data_size(header: bytes) -> int:
         return 0
 
 
-def text_masked(data: bytes, root: Path) -> bytes:
-    data = data.replace(str(root.resolve()).encode(), b"<dir>")
+def snapshot_root(folder: Path) -> bytes:
+    """The absolute path the snapshot was written at (its .snapshot-root file)."""
+    mark = folder / ".snapshot-root"
+    path = mark.read_text().strip() if mark.is_file() else str(folder.resolve())
+    return path.encode()
+
+
+def text_masked(data: bytes, root: bytes) -> bytes:
+    data = data.replace(root, b"<dir>")
     data = TIME_JSON.sub(rb"\1<time>", data)
     return TIME_TEXT.sub(b"<time>", data)
 
 
-def masked(path: Path, root: Path) -> bytes:
+def masked(path: Path, root: bytes) -> bytes:
     data = path.read_bytes()
     if data.startswith(b"SIMPLE  ="):
         return fits_masked(data)
@@ -121,8 +128,9 @@ def main() -> int:
         if not d.is_dir():
             print(f"{d}: not a folder", file=sys.stderr)
             return 2
-    files_a = {p.relative_to(before) for p in before.rglob("*") if p.is_file()}
-    files_b = {p.relative_to(after) for p in after.rglob("*") if p.is_file()}
+    files_a = {p.relative_to(before) for p in before.rglob("*") if p.is_file() and p.name != ".snapshot-root"}
+    files_b = {p.relative_to(after) for p in after.rglob("*") if p.is_file() and p.name != ".snapshot-root"}
+    root_a, root_b = snapshot_root(before), snapshot_root(after)
     problems = []
     for rel in sorted(files_a - files_b):
         problems.append(f"only in {before}: {rel}")
@@ -130,7 +138,7 @@ def main() -> int:
         problems.append(f"only in {after}: {rel}")
     same = 0
     for rel in sorted(files_a & files_b):
-        a, b = masked(before / rel, before), masked(after / rel, after)
+        a, b = masked(before / rel, root_a), masked(after / rel, root_b)
         if a == b:
             same += 1
         else:

@@ -26,6 +26,8 @@ fi
 rm -rf "$out"
 mkdir -p "$out"
 cd "$out"
+# Where the outputs were written: outputs_compare.py reads this path in them as "<dir>".
+pwd >.snapshot-root
 
 # run NAME ARGS...: one command, its stdout, stderr and exit code kept.
 run() {

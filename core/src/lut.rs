@@ -63,8 +63,20 @@ pub const LUT_ENTRY_LIMIT: u32 = 1 << 23;
 /// with 24 fractional bits, 0 to just under 256.
 pub type Weight = U8F24;
 
-/// Fractional bits of a [`Weight`].
-const WEIGHT_FRAC_BITS: u32 = 24;
+/// Fractional bits of a [`Weight`]: the weights' grid is 2^-24 DN.
+pub const WEIGHT_FRAC_BITS: u32 = 24;
+
+/// The weight nearest `dn` (a code width, DN) on the 2^-24 DN grid, ties to even: the
+/// rounding rule of every weight the host computes in floating point. `None` for NaN,
+/// infinite or negative widths and for widths that round to 256 DN or more; never
+/// clamped. Below 256, `dn * 2^24` is exact in `f64`, so this is the only rounding.
+pub fn weight_nearest(dn: f64) -> Option<Weight> {
+    if dn.is_finite() && dn >= 0.0 {
+        Weight::checked_from_num(dn)
+    } else {
+        None
+    }
+}
 /// `n_k` is in units of 2^-24 and counts twice the interval's center; one entry unit is
 /// 2^-11 DN, so `entry = n_k / 2^(24 - 11 + 1)`.
 const ENTRY_SHIFT: u32 = WEIGHT_FRAC_BITS - FRAC_BITS + 1;

@@ -1,6 +1,6 @@
-//! Any bytes through the reader; see `dncal_host::fuzzing::camera_toml`.
+//! Any bytes through the reader; see `dncal_host::checks::fuzzing::camera_toml`.
 #![no_main]
 
 libfuzzer_sys::fuzz_target!(|data: &[u8]| {
-    dncal_host::fuzzing::camera_toml(data);
+    dncal_host::checks::fuzzing::camera_toml(data);
 });

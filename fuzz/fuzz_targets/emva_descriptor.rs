@@ -1,6 +1,6 @@
-//! Any bytes through the reader; see `dncal_host::fuzzing::emva_descriptor`.
+//! Any bytes through the reader; see `dncal_host::checks::fuzzing::emva_descriptor`.
 #![no_main]
 
 libfuzzer_sys::fuzz_target!(|data: &[u8]| {
-    dncal_host::fuzzing::emva_descriptor(data);
+    dncal_host::checks::fuzzing::emva_descriptor(data);
 });

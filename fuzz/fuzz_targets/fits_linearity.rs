@@ -1,6 +1,6 @@
-//! Any bytes through the reader; see `dncal_host::fuzzing::fits_linearity`.
+//! Any bytes through the reader; see `dncal_host::checks::fuzzing::fits_linearity`.
 #![no_main]
 
 libfuzzer_sys::fuzz_target!(|data: &[u8]| {
-    dncal_host::fuzzing::fits_linearity(data);
+    dncal_host::checks::fuzzing::fits_linearity(data);
 });

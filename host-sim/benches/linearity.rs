@@ -5,8 +5,8 @@
 //! `cargo bench -p dncal-host --bench linearity`
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use dncal_host::fits::LinearitySet;
-use dncal_host::linearity::analyze;
+use dncal_host::formats::fits::LinearitySet;
+use dncal_host::analyses::linearity::analyze;
 use nalgebra::{DMatrix, DVector};
 
 /// Quartic pixels with a little structure, 2 DN std, no saturation.

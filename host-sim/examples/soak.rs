@@ -1,9 +1,9 @@
 //! The soak (issue 18, `scripts/soak.sh`): at least 10^9 pixels through the core and the
-//! FPGA model, every sum checked against the float reference; see `dncal_host::soak`.
+//! FPGA model, every sum checked against the float reference; see `dncal_host::checks::soak`.
 //! Prints a summary (and the whole report with `--json`); exits 1 if any check failed.
 
 use clap::Parser;
-use dncal_host::soak::{run, SoakParams};
+use dncal_host::checks::soak::{run, SoakParams};
 
 #[derive(Parser)]
 #[command(about = "Stream frames through the core and the FPGA model, every sum checked against the float reference")]

@@ -33,7 +33,7 @@ pub enum HostError {
         message: String,
     },
     /// An input that is not a regular file (a device, FIFO, socket or directory): reading
-    /// it could block for ever or never end ([`crate::input`]).
+    /// it could block for ever or never end ([`crate::formats::input`]).
     #[error("{path}: is a {kind}, not a regular file")]
     NotRegular {
         /// The path given.
@@ -41,7 +41,7 @@ pub enum HostError {
         /// What it is instead ("character device", "FIFO", "directory", ...).
         kind: &'static str,
     },
-    /// An input larger than any file of its kind can be ([`crate::input::SizeLimit`]).
+    /// An input larger than any file of its kind can be ([`crate::formats::input::SizeLimit`]).
     #[error("{path}: {len} bytes; {what} files are at most {limit} bytes")]
     TooLarge {
         /// The file.
@@ -54,7 +54,7 @@ pub enum HostError {
         limit: u64,
     },
     /// An output path that names a directory, device or FIFO: an output file renamed over
-    /// it would fail or replace it ([`crate::outputs`]).
+    /// it would fail or replace it ([`crate::formats::outputs`]).
     #[error("{path}: is a {kind}; an output file cannot replace it")]
     OutputNotFile {
         /// The target.
@@ -62,8 +62,8 @@ pub enum HostError {
         /// What it is ("directory", "FIFO", ...).
         kind: &'static str,
     },
-    /// A step would need more memory than the budget ([`crate::budget`], `--max-memory`).
-    #[error("{path}: {what} needs about {}, more than the memory budget of {} (--max-memory)", crate::budget::human(*bytes), crate::budget::human(*limit))]
+    /// A step would need more memory than the budget ([`crate::infra::budget`], `--max-memory`).
+    #[error("{path}: {what} needs about {}, more than the memory budget of {} (--max-memory)", crate::infra::budget::human(*bytes), crate::infra::budget::human(*limit))]
     OverBudget {
         /// The file (or config) whose sizes ask for it.
         path: PathBuf,
@@ -98,7 +98,7 @@ pub enum HostError {
         path: PathBuf,
         /// The rule it breaks.
         #[source]
-        source: crate::camera::ConfigError,
+        source: crate::model::camera::ConfigError,
     },
     /// A data set that cannot be diagnosed (too little of it, or what a test needs is
     /// missing).
@@ -108,7 +108,7 @@ pub enum HostError {
         path: PathBuf,
         /// What is missing.
         #[source]
-        source: crate::diagnose::DiagnoseError,
+        source: crate::analyses::diagnose::DiagnoseError,
     },
     /// A linearity set that cannot be corrected as asked.
     #[error("{path}: {source}")]
@@ -117,7 +117,7 @@ pub enum HostError {
         path: PathBuf,
         /// Why.
         #[source]
-        source: crate::linearity::LinearityError,
+        source: crate::analyses::linearity::LinearityError,
     },
     /// A photon-transfer set that cannot be characterized.
     #[error("{path}: {source}")]
@@ -126,7 +126,7 @@ pub enum HostError {
         path: PathBuf,
         /// Why.
         #[source]
-        source: crate::emva::datasheet::PtcError,
+        source: crate::analyses::emva::datasheet::PtcError,
     },
     /// A file's contents are not what they must be.
     #[error("{path}: {message}")]

@@ -10,7 +10,7 @@ mod support;
 use std::path::Path;
 use std::process::Command;
 
-use dncal_host::fits::{read_histograms, read_lut};
+use dncal_host::formats::fits::{read_histograms, read_lut};
 use serde_json::Value;
 use support::{assert_clean_failure, assert_usage_failure, dncal, listing, stdout_json};
 
@@ -749,7 +749,7 @@ fn diagnose_finds_the_real_ccds_nonlinearity() {
 /// library's tests, `diagnose::linearity`.)
 #[test]
 fn diagnose_names_hidden_linearity_effects_blind() {
-    use dncal_host::hidden::{linearity_set, pick, Hidden, Plant};
+    use dncal_host::model::hidden::{linearity_set, pick, Hidden, Plant};
     use rand::SeedableRng;
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
@@ -757,7 +757,7 @@ fn diagnose_names_hidden_linearity_effects_blind() {
     for seed in 0..6u64 {
         let hidden: Vec<Hidden> = if seed == 0 { Vec::new() } else { pick(&mut gen, 4, 1 + (seed % 2) as usize) };
         let file = format!("set{seed}.fits");
-        dncal_host::fits::write_linearity(&d.join(&file), &linearity_set(&Plant::default(), &hidden, 500 + seed)).unwrap();
+        dncal_host::formats::fits::write_linearity(&d.join(&file), &linearity_set(&Plant::default(), &hidden, 500 + seed)).unwrap();
         let s = stdout_json(&dncal(&["diagnose", &file, "--json"], d));
         assert_eq!(s["baseline"]["kind"], "linearity-set");
         let mut got: Vec<(String, Option<u64>)> = s["findings"].as_array().unwrap().iter().map(|f| (f["effect"].as_str().unwrap().to_string(), f["adc"].as_u64())).collect();

@@ -12,7 +12,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use dncal_host::fits::{
+use dncal_host::formats::fits::{
     read_histograms, read_linearity, read_lut, write_histograms, write_linearity, write_lut, AdcHistograms,
     LinearitySet, LutTables,
 };

@@ -1,6 +1,6 @@
 //! The fuzz corpus, replayed without libFuzzer or nightly (issue 18): every file of
 //! `fuzz/corpus/<target>/` and `fuzz/regressions/<target>/` goes through the function the
-//! fuzz target calls (`dncal_host::fuzzing`), which panics if a reader panics or an
+//! fuzz target calls (`dncal_host::checks::fuzzing`), which panics if a reader panics or an
 //! invariant breaks. The regressions are the inputs that once crashed a target.
 //!
 //! The seeds are written by the project's own writers (checked by a test here;
@@ -8,9 +8,9 @@
 
 use std::path::{Path, PathBuf};
 
-use dncal_host::camera::CameraConfig;
-use dncal_host::fits::{write_histograms, write_linearity, write_lut, AdcHistograms, LinearitySet, LutTables};
-use dncal_host::fuzzing::{self, EMVA_FILE_SEPARATOR};
+use dncal_host::model::camera::CameraConfig;
+use dncal_host::formats::fits::{write_histograms, write_linearity, write_lut, AdcHistograms, LinearitySet, LutTables};
+use dncal_host::checks::fuzzing::{self, EMVA_FILE_SEPARATOR};
 
 fn fuzz_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../fuzz")
@@ -23,7 +23,7 @@ fn linearity_regression(name: &str) -> PathBuf {
 
 /// The linearity reader's refusal of the `fits_linearity` regression input `name`.
 fn linearity_refusal(name: &str) -> String {
-    dncal_host::fits::read_linearity(&linearity_regression(name)).unwrap_err().to_string()
+    dncal_host::formats::fits::read_linearity(&linearity_regression(name)).unwrap_err().to_string()
 }
 
 /// The committed linearity seed without a mask, and the byte where its REFERENCE table's
@@ -192,7 +192,7 @@ fn write_seeds(corpus: &Path) {
         n_adc: 2,
         nonlinearity: vec![],
         pixel_nonlinearity_rms: vec![],
-        adc: dncal_host::camera::AdcConfig { stage_bits: vec![1, 1], stage_error_lsb: vec![0.0, 0.0], seed: 1, widths: vec![vec![1.0, 0.9, 1.1, 1.0]; 2], widths_from: None, architecture: vec![] },
+        adc: dncal_host::model::camera::AdcConfig { stage_bits: vec![1, 1], stage_error_lsb: vec![0.0, 0.0], seed: 1, widths: vec![vec![1.0, 0.9, 1.1, 1.0]; 2], widths_from: None, architecture: vec![] },
         ..CameraConfig::default()
     };
     std::fs::write(c.join("seed-model-widths.toml"), toml::to_string(&widths).unwrap()).unwrap();
@@ -229,9 +229,9 @@ fn compressed_files_declaring_more_than_they_can_hold_are_refused_before_cfitsio
     for (path, size, declared) in [(zip, 11, 1u64 << 32), (gzip_path, 14, u32::MAX as u64)] {
         let want = format!("a compressed file of {size} bytes whose header declares {declared} bytes uncompressed");
         for e in [
-            dncal_host::fits::read_lut(&path).unwrap_err(),
-            dncal_host::fits::read_histograms(&path).unwrap_err(),
-            dncal_host::fits::read_linearity(&path).unwrap_err(),
+            dncal_host::formats::fits::read_lut(&path).unwrap_err(),
+            dncal_host::formats::fits::read_histograms(&path).unwrap_err(),
+            dncal_host::formats::fits::read_linearity(&path).unwrap_err(),
         ] {
             assert!(e.to_string().contains(&want), "{e}");
         }
@@ -260,9 +260,9 @@ fn table_headers_cfitsio_would_mistake_for_valid_are_refused_before_it() {
     huge[table + 7 * 80..table + 8 * 80].copy_from_slice(format!("{:<80}", "TFIELDS =              1000000").as_bytes());
     let path = dir.path().join("huge.fits");
     std::fs::write(&path, &huge).unwrap();
-    let e = dncal_host::fits::read_linearity(&path).unwrap_err().to_string();
+    let e = dncal_host::formats::fits::read_linearity(&path).unwrap_err().to_string();
     assert!(e.contains("has \"TFIELDS =              1000000\""), "{e}");
-    assert!(dncal_host::fits::read_linearity(&fuzz_dir().join("corpus/fits_linearity/seed-no-mask.fits")).is_ok());
+    assert!(dncal_host::formats::fits::read_linearity(&fuzz_dir().join("corpus/fits_linearity/seed-no-mask.fits")).is_ok());
 }
 
 /// Found by `fits_linearity` in its 10-minute run: the file ends 1271 bytes into the
@@ -272,7 +272,7 @@ fn table_headers_cfitsio_would_mistake_for_valid_are_refused_before_it() {
 fn a_table_header_cut_by_the_end_of_the_file_is_refused_before_cfitsio() {
     let crash = linearity_regression("table-header-cut-by-the-end-of-file");
     assert_eq!(std::fs::metadata(&crash).unwrap().len(), 12791);
-    let e = dncal_host::fits::read_linearity(&crash).unwrap_err().to_string();
+    let e = dncal_host::formats::fits::read_linearity(&crash).unwrap_err().to_string();
     // The PCOUNT card's value is read before its garbled comment; the card after it is
     // not GCOUNT.
     assert!(e.contains("the table header at byte 11520 has \"") && e.contains("GCOUNT  =\"; a table header opens"), "{e}");
@@ -285,7 +285,7 @@ fn a_table_header_cut_by_the_end_of_the_file_is_refused_before_cfitsio() {
 #[test]
 fn an_unquoted_string_filling_the_card_is_refused_without_a_read_past_the_buffer() {
     let crash = fuzz_dir().join("regressions/fits_lut/unquoted-string-value-from-column-10");
-    let e = dncal_host::fits::read_lut(&crash).unwrap_err().to_string();
+    let e = dncal_host::formats::fits::read_lut(&crash).unwrap_err().to_string();
     assert!(e.contains("key EXTNAME of the HDU 1 is not a quoted string: \"EXTNAME =YYYY"), "{e}");
 }
 
@@ -296,8 +296,8 @@ fn an_unquoted_string_filling_the_card_is_refused_without_a_read_past_the_buffer
 #[test]
 fn a_negative_subnormal_std_is_read_alike_at_both_precisions() {
     let crash = linearity_regression("std-negative-subnormal");
-    let wide = dncal_host::fits::read_linearity(&crash);
-    let narrow = dncal_host::fits::read_linearity_as::<f32>(&crash);
+    let wide = dncal_host::formats::fits::read_linearity(&crash);
+    let narrow = dncal_host::formats::fits::read_linearity_as::<f32>(&crash);
     assert_eq!(wide.is_ok(), narrow.is_ok(), "{:?} / {:?}", wide.as_ref().err(), narrow.as_ref().err());
     let wide = wide.unwrap();
     let tiny = wide.std.iter().copied().filter(|&v| v < 0.0).collect::<Vec<_>>();
@@ -334,11 +334,11 @@ fn a_nonstandard_simple_card_does_not_skip_the_table_check() {
 #[test]
 fn the_rows_opener_and_the_whole_read_agree_where_they_disagreed() {
     let at = linearity_regression;
-    let e = dncal_host::fits::read_linearity(&at("image-with-pcount-read-shifted-by-cfitsio")).unwrap_err().to_string();
+    let e = dncal_host::formats::fits::read_linearity(&at("image-with-pcount-read-shifted-by-cfitsio")).unwrap_err().to_string();
     assert!(e.ends_with("the extension STD has PCOUNT = 2 and GCOUNT = 1; an image has 0 and 1 (random groups are not read)"), "{e}");
     for name in ["image-with-pcount-read-shifted-by-cfitsio", "std-cut-short-read-by-rows", "std-longer-than-its-unit-read-by-rows"] {
-        let whole = dncal_host::fits::read_linearity_as::<f32>(&at(name)).unwrap_err().to_string();
-        let by_rows = match dncal_host::fits::open_linearity_rows(&at(name)) {
+        let whole = dncal_host::formats::fits::read_linearity_as::<f32>(&at(name)).unwrap_err().to_string();
+        let by_rows = match dncal_host::formats::fits::open_linearity_rows(&at(name)) {
             Ok(Some(o)) => o.check::<f32>().map(|_| ()).unwrap_err().to_string(),
             Ok(None) => whole.clone(),
             Err(e) => e.to_string(),
@@ -367,7 +367,7 @@ fn a_form_feed_in_a_mandatory_table_value_is_refused_before_cfitsio() {
     let e = linearity_refusal("table-with-a-form-feed-before-naxis1");
     assert!(e.contains("the table header at byte 11520 has \"NAXIS1  =      ?             8 / width of table in bytes\""), "{e}");
     // Every reader refuses it alike (the target's comparisons run, nothing accepted).
-    assert!(!dncal_host::fuzzing::fits_linearity(&std::fs::read(linearity_regression("table-with-a-form-feed-before-naxis1")).unwrap()));
+    assert!(!dncal_host::checks::fuzzing::fits_linearity(&std::fs::read(linearity_regression("table-with-a-form-feed-before-naxis1")).unwrap()));
     // A tab or a form feed right before the digits, which cfitsio's `strtoll` skips, is
     // read as cfitsio reads it: the set is accepted.
     let dir = tempfile::tempdir().unwrap();
@@ -380,7 +380,7 @@ fn a_form_feed_in_a_mandatory_table_value_is_refused_before_cfitsio() {
         card[value - 1] = ws.as_bytes()[0];
         let path = dir.path().join("ws.fits");
         std::fs::write(&path, &file).unwrap();
-        assert!(dncal_host::fits::read_linearity(&path).is_ok(), "{ws:?}: {:?}", dncal_host::fits::read_linearity(&path).err());
+        assert!(dncal_host::formats::fits::read_linearity(&path).is_ok(), "{ws:?}: {:?}", dncal_host::formats::fits::read_linearity(&path).err());
     }
 }
 

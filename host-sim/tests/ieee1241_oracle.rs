@@ -194,20 +194,20 @@ fn a_set_written_by_adctoolbox_is_read_as_adctoolbox_reads_it() {
     // themselves are not compared: a high bit's is the sum of its depth and all below,
     // uncertain by the INL's noise (about 1.6 LSB at bit 11 with Poisson counts).
     let arch = d["adc_architecture"].as_array().unwrap();
-    let model = dncal_host::camera::CameraConfig::from_toml_file(&rep.join("model.toml")).unwrap();
+    let model = dncal_host::model::camera::CameraConfig::from_toml_file(&rep.join("model.toml")).unwrap();
     assert_eq!(model.adc.architecture.len(), 4, "model.toml has no architectures: {arch:?}");
     for adc in 0..4usize {
         let named = findings.iter().any(|f| f["effect"] == "adc-dnl" && f["adc"] == adc as u64);
         if !named {
-            assert_eq!(model.adc.architecture[adc], dncal_host::camera::Architecture::Ideal);
+            assert_eq!(model.adc.architecture[adc], dncal_host::model::camera::Architecture::Ideal);
             continue;
         }
         assert_eq!(arch[adc]["name"], "binary-weighted SAR", "ADC {adc}: {}", arch[adc]);
         assert_eq!(arch[adc]["adopted"], true, "ADC {adc}: {}", arch[adc]);
         let true_weights: Vec<f64> = truth["adcs"][adc]["weights_unit_caps"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
-        let planted = dncal_host::camera::Architecture::Sar { weight_error_lsb: true_weights.iter().enumerate().map(|(b, w)| w - (1u64 << b) as f64).collect() };
-        let relative = |a: &dncal_host::camera::Architecture| {
-            let w = dncal_host::camera::AdcTransfer::from_architecture(a, 12).unwrap().widths();
+        let planted = dncal_host::model::camera::Architecture::Sar { weight_error_lsb: true_weights.iter().enumerate().map(|(b, w)| w - (1u64 << b) as f64).collect() };
+        let relative = |a: &dncal_host::model::camera::Architecture| {
+            let w = dncal_host::model::camera::AdcTransfer::from_architecture(a, 12).unwrap().widths();
             let m = w[1..4095].iter().sum::<f64>() / 4094.0;
             w.iter().map(|x| x / m).collect::<Vec<f64>>()
         };
@@ -230,7 +230,7 @@ fn arduino_set(dir: &Path) -> PathBuf {
         }
     }
     let path = dir.join("arduino.fits");
-    dncal_host::fits::write_histograms(&path, &dncal_host::fits::AdcHistograms { bit_depth: 10, counts }).unwrap();
+    dncal_host::formats::fits::write_histograms(&path, &dncal_host::formats::fits::AdcHistograms { bit_depth: 10, counts }).unwrap();
     path
 }
 

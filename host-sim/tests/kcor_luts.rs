@@ -68,6 +68,39 @@ fn every_shared_table_round_trips_byte_for_byte() {
     }
 }
 
+/// `lut convert` over the LUT home, from one deployed table file (its siblings found by
+/// name): K-Cor to our FITS to K-Cor is the deployed files byte for byte; K-Cor to the
+/// device image is the image `lut import` writes; a device image, which has no code
+/// widths, is refused as K-Cor tables with the reason and nothing written; `inspect`
+/// takes the K-Cor file as it is.
+#[test]
+fn convert_goes_between_every_format_through_one_home() {
+    let Some(dir) = luts_dir() else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let t = |name: &str| tmp.path().join(name).to_str().unwrap().to_string();
+    let one = dir.join("Photonfocus_MV-D1024E_11461_adc2_20131203.bin");
+    let one = one.to_str().unwrap();
+    let to_fits = json(dncal(&["lut", "convert", one, "--to", "fits", "-o", &t("c"), "--json"]), "convert to fits");
+    assert_eq!((to_fits["from"].as_str(), to_fits["to"].as_str()), (Some("kcor-tables"), Some("lut-fits")));
+    let back = json(dncal(&["lut", "convert", &t("c.fits"), "--to", "kcor", "-o", &t("k"), "--json"]), "convert to kcor");
+    assert_eq!(back["kcor_bits"], 23);
+    for adc in 0..4 {
+        let deployed = std::fs::read(dir.join(format!("Photonfocus_MV-D1024E_11461_adc{adc}_20131203.bin"))).unwrap();
+        assert!(deployed == std::fs::read(t(&format!("k_adc{adc}.bin"))).unwrap(), "ADC {adc}: the round trip differs from the deployed table");
+    }
+    json(dncal(&["lut", "convert", one, "--to", "image", "-o", &t("i"), "--json"]), "convert to image");
+    let spec = dir.join("Photonfocus_MV-D1024E_11461_adc{adc}_20131203.bin");
+    json(dncal(&["lut", "import", "--kcor", spec.to_str().unwrap(), "-o", &t("imp"), "--json"]), "import");
+    assert!(std::fs::read(t("i.bin")).unwrap() == std::fs::read(t("imp.bin")).unwrap(), "convert's device image differs from import's");
+    let refused = dncal(&["lut", "convert", &t("i.bin"), "--to", "kcor", "-o", &t("none")]);
+    let err = String::from_utf8_lossy(&refused.stderr);
+    assert_eq!(refused.status.code(), Some(1), "{err}");
+    assert!(err.contains("i.bin") && err.contains("code widths"), "{err}");
+    assert!(!tmp.path().join("none_adc0.bin").exists());
+    let inspected = json(dncal(&["lut", "inspect", one, "--json"]), "inspect a K-Cor table");
+    assert_eq!((inspected["kind"].as_str(), inspected["bit_depth"].as_u64()), (Some("kcor-tables"), Some(12)));
+}
+
 /// The same tables at the other scaling: the 2^22 and 2^23 files are two roundings of one
 /// table, so exporting the 23-bit import at 22 bits gives the 22-bit file to within one
 /// unit per entry (measured: not byte for byte).
@@ -180,14 +213,14 @@ print(json.dumps(out))
     // both again).
     for (c, camera) in CAMERAS.iter().enumerate() {
         let path = tmp.path().join(format!("out/Photonfocus_MV-D1024E_{camera}_20131203-architecture.toml"));
-        let config = dncal_host::camera::CameraConfig::from_toml_file(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-        let model = dncal_host::camera::Camera::new(config).unwrap();
+        let config = dncal_host::model::camera::CameraConfig::from_toml_file(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        let model = dncal_host::model::camera::Camera::new(config).unwrap();
         for adc in 0..4 {
             let ours = &adcs[4 * c + adc];
             let best = ours["stage_fits"].as_array().unwrap().iter().max_by(|a, b| a["held_out_explained"].as_f64().unwrap().total_cmp(&b["held_out_explained"].as_f64().unwrap())).unwrap();
-            let table = dncal_host::kcor_tables::KcorTable::read(Path::new(&specs[c].replace("{adc}", &adc.to_string()))).unwrap();
-            let real = dncal_host::real_adcs::characterize(&table, camera, adc);
-            let cal = dncal_host::real_adcs::FIRST_CALIBRATED..=dncal_host::real_adcs::LAST_CALIBRATED;
+            let table = dncal_host::formats::lut::kcor::KcorTable::read(Path::new(&specs[c].replace("{adc}", &adc.to_string()))).unwrap();
+            let real = dncal_host::analyses::real_adcs::characterize(&table, camera, adc);
+            let cal = dncal_host::formats::lut::kcor::FIRST_CALIBRATED..=dncal_host::formats::lut::kcor::LAST_CALIBRATED;
             // o_k is the transition into code k + 1.
             let modelled: Vec<f64> = cal.clone().map(|k| model.adcs[adc].level(k + 1) - (k as f64 + 0.5)).collect();
             let explained = explained_beside_cubic(&real.offsets, &modelled);
@@ -225,14 +258,14 @@ fn the_camera_model_takes_real_adcs() {
     let spec = dir.join("Photonfocus_MV-D1024E_13889_adc{adc}_20131203.bin");
     let toml = tmp.path().join("real.toml");
     std::fs::write(&toml, format!("[adc]\nwidths_from = \"kcor:{}\"\n", spec.display())).unwrap();
-    let config = dncal_host::camera::CameraConfig::from_toml_file(&toml).unwrap();
-    let camera = dncal_host::camera::Camera::new(config).unwrap();
+    let config = dncal_host::model::camera::CameraConfig::from_toml_file(&toml).unwrap();
+    let camera = dncal_host::model::camera::Camera::new(config).unwrap();
     for adc in 0..4 {
-        let table = dncal_host::kcor_tables::KcorTable::read(Path::new(&spec.to_string_lossy().replace("{adc}", &adc.to_string()))).unwrap();
-        let real = dncal_host::real_adcs::characterize(&table, "13889", adc);
+        let table = dncal_host::formats::lut::kcor::KcorTable::read(Path::new(&spec.to_string_lossy().replace("{adc}", &adc.to_string()))).unwrap();
+        let real = dncal_host::analyses::real_adcs::characterize(&table, "13889", adc);
         // The model ADC's widths over the calibrated codes, relative to their mean.
         let w = camera.adcs[adc].widths();
-        let inner = &w[dncal_host::real_adcs::FIRST_CALIBRATED + 1..=dncal_host::real_adcs::LAST_CALIBRATED];
+        let inner = &w[dncal_host::formats::lut::kcor::FIRST_CALIBRATED + 1..=dncal_host::formats::lut::kcor::LAST_CALIBRATED];
         let m = inner.iter().sum::<f64>() / inner.len() as f64;
         let rms = 100.0 * (inner.iter().map(|v| (v / m - 1.0).powi(2)).sum::<f64>() / inner.len() as f64).sqrt();
         assert!((rms - real.dn_error_rms_pct).abs() < 0.1, "ADC {adc}: model {rms}% vs table {}%", real.dn_error_rms_pct);
@@ -243,7 +276,7 @@ fn the_camera_model_takes_real_adcs() {
     for adc in 0..4 {
         std::fs::copy(spec.to_string_lossy().replace("{adc}", &adc.to_string()), tmp.path().join(format!("tables/cam_adc{adc}.bin"))).unwrap();
     }
-    assert!(dncal_host::camera::CameraConfig::from_toml_file(&tmp.path().join("rel.toml")).is_ok());
+    assert!(dncal_host::model::camera::CameraConfig::from_toml_file(&tmp.path().join("rel.toml")).is_ok());
     for (body, expected) in [
         (format!("bits = 10\n[adc]\nwidths_from = \"kcor:{}\"\n", spec.display()), "four 12-bit ADCs"),
         ("[adc]\nwidths_from = \"csv:x\"\n".to_string(), "the only source is kcor:SPEC"),
@@ -251,7 +284,7 @@ fn the_camera_model_takes_real_adcs() {
     ] {
         let bad = tmp.path().join("bad.toml");
         std::fs::write(&bad, body).unwrap();
-        let e = dncal_host::camera::CameraConfig::from_toml_file(&bad).unwrap_err().to_string();
+        let e = dncal_host::model::camera::CameraConfig::from_toml_file(&bad).unwrap_err().to_string();
         assert!(e.contains(expected), "{e}");
     }
 }
@@ -277,16 +310,16 @@ fn histograms_of_real_adcs_are_diagnosed_and_their_widths_recovered() {
     named.sort();
     assert_eq!(named, vec![0, 1, 2, 3], "{diagnosis}");
     json(run(&["lut", "build", "h.fits", "-o", "lut", "--json"]), "lut build");
-    let lut = dncal_host::fits::read_lut(&d.join("lut.fits")).unwrap();
-    let hist = dncal_host::fits::read_histograms(&d.join("h.fits")).unwrap();
-    let config = dncal_host::camera::CameraConfig::from_toml_file(&d.join("real.toml")).unwrap();
-    let camera = dncal_host::camera::Camera::new(config).unwrap();
+    let lut = dncal_host::formats::fits::read_lut(&d.join("lut.fits")).unwrap();
+    let hist = dncal_host::formats::fits::read_histograms(&d.join("h.fits")).unwrap();
+    let config = dncal_host::model::camera::CameraConfig::from_toml_file(&d.join("real.toml")).unwrap();
+    let camera = dncal_host::model::camera::Camera::new(config).unwrap();
     for adc in 0..4 {
         let truth = camera.adcs[adc].widths();
         let built: Vec<f64> = lut.weights.as_ref().unwrap()[adc].iter().map(|&b| b as f64 / (1u64 << 24) as f64).collect();
         let pairs = |w: &[f64]| -> Vec<f64> { (200..4000).map(|k| (w[k] + w[k + 1]) / 2.0).collect() };
         let (t, b) = (pairs(&truth), pairs(&built));
-        let r = dncal_host::real_adcs::correlation(&t, &b);
+        let r = dncal_host::analyses::real_adcs::correlation(&t, &b);
         let per_code = hist.counts[adc][200..4000].iter().sum::<u64>() as f64 / 3800.0;
         eprintln!("ADC {adc}: {per_code:.0} counts per code, correlation {r:.4}");
         assert!(r >= 0.98, "ADC {adc}: correlation {r} at {per_code:.0} counts per code");
@@ -303,13 +336,13 @@ fn histograms_of_real_adcs_are_diagnosed_and_their_widths_recovered() {
 #[test]
 fn the_lut_figure_with_real_adcs_is_set_by_the_random_walk_of_its_noise() {
     use dncal_host::commands::kcor::kcor_model;
-    use dncal_host::kcor::KcorParams;
+    use dncal_host::analyses::kcor::KcorParams;
     let Some(dir) = luts_dir() else { return };
     let tmp = tempfile::tempdir().unwrap();
     let spec = dir.join("Photonfocus_MV-D1024E_13889_adc{adc}_20131203.bin");
     let toml = tmp.path().join("real.toml");
     std::fs::write(&toml, format!("[adc]\nwidths_from = \"kcor:{}\"\n", spec.display())).unwrap();
-    let camera = dncal_host::camera::Camera::new(dncal_host::camera::CameraConfig::from_toml_file(&toml).unwrap()).unwrap();
+    let camera = dncal_host::model::camera::Camera::new(dncal_host::model::camera::CameraConfig::from_toml_file(&toml).unwrap()).unwrap();
     let median = |mut v: Vec<f64>| {
         v.sort_by(f64::total_cmp);
         (v[v.len() / 2 - 1] + v[v.len() / 2]) / 2.0
@@ -347,7 +380,7 @@ fn the_lut_figure_with_real_adcs_is_set_by_the_random_walk_of_its_noise() {
 #[test]
 fn the_core_sums_a_deployed_camera_as_numpy_indexes_it() {
     use dncal_core::{Corrector, Geometry, LutBanks, LutSet};
-    use dncal_host::kcor_tables::{expand, KcorTable};
+    use dncal_host::formats::lut::kcor::{expand, KcorTable};
     let Some(dir) = luts_dir() else { return };
     let spec = dir.join("Photonfocus_MV-D1024E_13889_adc{adc}_20131203.bin").to_string_lossy().into_owned();
     let tables: [[u32; 4096]; 4] = expand(&spec).unwrap().map(|path| KcorTable::read(&path).unwrap().entries.try_into().unwrap());

@@ -12,9 +12,9 @@
 use std::time::Duration;
 
 use dncal_core::{Geometry, LutSet, Mvd1024eLuts};
-use dncal_host::firmware::instructions::{attribute, correction_cost};
-use dncal_host::firmware::{build_firmware, repo_root, run_firmware, run_on_host, RunInputs};
-use dncal_host::synth::{dn_error_weights, synthetic_frames, Rng};
+use dncal_host::checks::firmware::instructions::{attribute, correction_cost};
+use dncal_host::checks::firmware::{build_firmware, repo_root, run_firmware, run_on_host, RunInputs};
+use dncal_host::model::synth::{dn_error_weights, synthetic_frames, Rng};
 use dncal_tests::{lut_bits, naive_histograms, naive_sums};
 
 const FRAMES: u32 = 32;
@@ -71,7 +71,7 @@ fn firmware_sums_are_bit_exact_with_the_host() {
     // Counted by QEMU, instruction by instruction: the capture pass runs on every pixel
     // when asked for and not one instruction of it runs otherwise.
     let pixels = (FRAMES as usize * g.pixels()) as u64;
-    let counted = |run: &dncal_host::firmware::FirmwareRun| attribute(&elf, run.executed.as_ref().unwrap(), &repo_root(), pixels).unwrap();
+    let counted = |run: &dncal_host::checks::firmware::FirmwareRun| attribute(&elf, run.executed.as_ref().unwrap(), &repo_root(), pixels).unwrap();
     let (with, without) = (counted(&fw), counted(&fw_science));
     println!("with capture:\n{}without:\n{}", with.table(0.5), without.table(0.5));
     assert!(with.per_pixel_in("capture_line") >= 3.0, "a count is at least a code load, a count load and a store:\n{}", with.table(0.0));

@@ -112,7 +112,7 @@ proptest! {
         seed in any::<u64>(),
     ) {
         let g = Geometry::new(width, height, states, first_column).unwrap();
-        let mut rng = dncal_host::synth::Rng::new(seed);
+        let mut rng = dncal_host::model::synth::Rng::new(seed);
         let tables: [[u32; 64]; 3] = core::array::from_fn(|_| {
             let mut acc = 0u32;
             core::array::from_fn(|_| { acc += (rng.next_u64() % 100_000) as u32; acc })
@@ -149,7 +149,7 @@ proptest! {
         // Frames delivered as blocks of whole lines of random sizes (a DMA engine's
         // transfers): the sums and out-of-range counts are the naive reference's.
         let g = Geometry::new(width, height, states, first_column).unwrap();
-        let mut rng = dncal_host::synth::Rng::new(seed);
+        let mut rng = dncal_host::model::synth::Rng::new(seed);
         let tables: [[u32; 64]; 3] = core::array::from_fn(|_| {
             let mut acc = 0u32;
             core::array::from_fn(|_| { acc += (rng.next_u64() % 100_000) as u32; acc })
@@ -192,7 +192,7 @@ proptest! {
         // entries near 2^23, so the frames past 512 clip; the codes mix the range, just
         // above the top and the 16-bit extreme, and some lines hold none above the top.
         let g = Geometry::new(width, height, 1, first_column).unwrap();
-        let mut rng = dncal_host::synth::Rng::new(seed);
+        let mut rng = dncal_host::model::synth::Rng::new(seed);
         let tables: [[u32; 64]; 4] = core::array::from_fn(|_| {
             // Every entry above 2^32 / 513: frame 513 clips whatever the codes.
             let mut acc = LUT_ENTRY_LIMIT - 64 * 200;
@@ -273,8 +273,8 @@ proptest! {
 
     #[test]
     fn a_random_bit_flip_of_a_full_size_image_is_rejected(bit in 0usize..image_len::<4, 4096>() * 8, seed in any::<u64>()) {
-        let mut rng = dncal_host::synth::Rng::new(seed);
-        let weights: Vec<Vec<Weight>> = (0..4).map(|_| dncal_host::synth::dn_error_weights(&mut rng, 4096)).collect();
+        let mut rng = dncal_host::model::synth::Rng::new(seed);
+        let weights: Vec<Vec<Weight>> = (0..4).map(|_| dncal_host::model::synth::dn_error_weights(&mut rng, 4096)).collect();
         let luts = LutSet::<4, 4096>::from_weights(&[&weights[0], &weights[1], &weights[2], &weights[3]]).unwrap();
         let mut image = vec![0u8; image_len::<4, 4096>()];
         encode_image(&luts, &mut image).unwrap();
@@ -290,7 +290,7 @@ proptest! {
     #[test]
     fn histograms_equal_a_naive_count(width in 1u16..30, first_column in 0u16..50, seed in any::<u64>()) {
         let g = Geometry::new(width, 3, 1, first_column).unwrap();
-        let mut rng = dncal_host::synth::Rng::new(seed);
+        let mut rng = dncal_host::model::synth::Rng::new(seed);
         let frame: Vec<u16> = (0..g.pixels()).map(|_| (rng.next_u64() % 20) as u16).collect();
         let roi = Roi::new((0, 3), (first_column, first_column + width), g).unwrap();
         let mut h = HistogramSet::<4, 16>::new();
@@ -313,7 +313,7 @@ proptest! {
         let start = first_column + roi_start % width;
         let end = (start + roi_len).min(first_column + width);
         let roi = Roi::new((1, 4), (start, end), g).unwrap();
-        let mut rng = dncal_host::synth::Rng::new(seed);
+        let mut rng = dncal_host::model::synth::Rng::new(seed);
         let frame: Vec<u16> = (0..g.pixels())
             .map(|i| if wild_rows[i / width as usize] { [rng.next_u64() as u16, 16, 17, 65535][i % 4] } else { (rng.next_u64() % 16) as u16 })
             .collect();

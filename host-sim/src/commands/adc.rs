@@ -8,22 +8,22 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::camera::calibration::RampParams;
-use crate::camera::{Camera, AdcTransfer};
-use crate::commands::lut::{build_luts, summarize, AdcLutSummary, BuiltLuts};
+use crate::model::camera::calibration::RampParams;
+use crate::model::camera::{Camera, AdcTransfer};
+use crate::analyses::lut_build::{build_luts, summarize, AdcLutSummary, BuiltLuts};
 use crate::commands::progress::{bar, stage};
 use crate::commands::Report;
-use crate::fits::{read_histograms_for_analysis, stage_histograms, stage_lut, AdcHistograms};
-use crate::flatten::{cumulative_offsets, FlattenParams};
-use crate::ieee1241::{analyse_set, AdcLinearity, Density};
-use crate::plots::{line_plot, line_plot_paired, Series};
-use crate::outputs::OutDir;
+use crate::formats::fits::{read_histograms_for_analysis, stage_histograms, AdcHistograms};
+use crate::analyses::flatten::{cumulative_offsets, FlattenParams};
+use crate::analyses::ieee1241::{analyse_set, AdcLinearity, Density};
+use crate::formats::plots::{line_plot, line_plot_paired, Series};
+use crate::formats::outputs::OutDir;
 use crate::HostError;
 
-/// The least-squares line `y = c0 + c1 x`, as `(c0, c1)`: [`crate::emva::fit_line`], with
+/// The least-squares line `y = c0 + c1 x`, as `(c0, c1)`: [`crate::analyses::emva::fit_line`], with
 /// a flat line through the mean when `x` does not vary.
 pub fn line_fit(x: &[f64], y: &[f64]) -> (f64, f64) {
-    let (c0, c1, _) = crate::emva::fit_line(x, y);
+    let (c0, c1, _) = crate::analyses::emva::fit_line(x, y);
     if c1.is_finite() { (c0, c1) } else { (y.iter().sum::<f64>() / y.len().max(1) as f64, 0.0) }
 }
 
@@ -33,7 +33,7 @@ pub fn detrend(x: &[f64], y: &[f64]) -> Vec<f64> {
     x.iter().zip(y).map(|(a, b)| b - c0 - c1 * a).collect()
 }
 
-pub use crate::stats::{max_abs, rms};
+pub use crate::infra::stats::{max_abs, rms};
 
 /// How well one ADC's LUT matches its known truth, over the calibrated codes (from
 /// `fixed_low_codes` to the code below the top) after removing the best straight line (an
@@ -273,7 +273,7 @@ pub fn run(camera: &Camera, hist: Option<&Path>, ramp: &RampParams, flatten: &Fl
     files.expect((0..histograms.n_adc()).map(|a| out_dir.join(format!("dnl_inl_adc{a}.png"))))?;
     stage("building the LUTs and characterizing the ADCs");
     let luts = build_luts(&histograms, flatten, &source)?;
-    stage_lut(files, &out_dir.join("lut.fits"), &luts.lut_tables())?;
+    crate::formats::lut::write(files, &luts.lut(), crate::formats::lut::LutFormat::Fits, &[out_dir.join("lut.fits")], None, &source)?;
     files.write_bytes(&out_dir.join("lut.bin"), &luts.image)?;
     let report = characterize(&source, &histograms, density, &luts, flatten, truth, OutDir::new(files, out_dir))?;
     Ok((report, luts))
@@ -309,7 +309,7 @@ mod tests {
     fn a_perfect_calibration_has_no_error_and_a_raw_adc_has_its_inl() {
         // The LUT built from the true widths is the truth up to the rounding of entries
         // (2^-12 DN); the raw code's error is the ADC's integral nonlinearity.
-        let cam = Camera::new(crate::camera::CameraConfig { width: 8, height: 2, ..Default::default() }).unwrap();
+        let cam = Camera::new(crate::model::camera::CameraConfig { width: 8, height: 2, ..Default::default() }).unwrap();
         let tables: Vec<Vec<u32>> = cam
             .adcs
             .iter()
@@ -343,7 +343,7 @@ mod tests {
 #[derive(Debug, Serialize)]
 pub struct RealAdcsReport {
     /// Per ADC, camera by camera.
-    pub adcs: Vec<crate::real_adcs::RealAdc>,
+    pub adcs: Vec<crate::analyses::real_adcs::RealAdc>,
     /// Correlation of the DN-error patterns of two ADCs, `[i][j]` in the order of `adcs`.
     pub correlation: Vec<Vec<f64>>,
     /// Mean correlation between two ADCs of one camera, and between ADCs of different
@@ -379,15 +379,16 @@ fn camera_label(path: &Path, adc: usize) -> String {
 }
 
 /// `adc --from-luts SPEC ...`: characterizes the real ADCs of K-Cor tables
-/// ([`crate::real_adcs`]), one SPEC per camera (a prefix or a path with `{adc}`), with
+/// ([`crate::analyses::real_adcs`]), one SPEC per camera (a prefix or a path with `{adc}`), with
 /// figures and `real_adcs.json` staged in `out`'s directory (published by the caller).
 pub fn from_luts(specs: &[String], out: OutDir<'_>) -> Result<RealAdcsReport, HostError> {
-    use crate::kcor_tables::KcorTable;
-    use crate::real_adcs::{characterize, correlation, FIRST_CALIBRATED};
+    use crate::formats::lut::kcor::KcorTable;
+    use crate::analyses::real_adcs::{characterize, correlation};
+    use crate::formats::lut::kcor::FIRST_CALIBRATED;
     let OutDir { files: staged, dir: out_dir } = out;
     let cameras: Vec<([PathBuf; 4], String)> = specs
         .iter()
-        .map(|spec| crate::commands::lut::kcor_files(std::slice::from_ref(spec)).map(|f| {
+        .map(|spec| crate::formats::lut::kcor::expand(spec).map(|f| {
             let label = camera_label(&f[0], 0);
             (f, label)
         }))
@@ -399,7 +400,7 @@ pub fn from_luts(specs: &[String], out: OutDir<'_>) -> Result<RealAdcsReport, Ho
     let (mut figures, mut models) = (Vec::new(), Vec::new());
     for (files, label) in &cameras {
         let label = label.clone();
-        let mine: Vec<crate::real_adcs::RealAdc> = files.iter().enumerate().map(|(a, f)| KcorTable::read(f).map(|t| characterize(&t, &label, a))).collect::<Result<_, _>>()?;
+        let mine: Vec<crate::analyses::real_adcs::RealAdc> = files.iter().enumerate().map(|(a, f)| KcorTable::read(f).map(|t| characterize(&t, &label, a))).collect::<Result<_, _>>()?;
         let dn_error: Vec<Series> = mine
             .iter()
             .map(|a| Series { label: format!("ADC {}: {:.2}% rms", a.adc, a.dn_error_rms_pct), points: a.dn_error.iter().enumerate().map(|(i, r)| ((i + FIRST_CALIBRATED + 1) as f64, 100.0 * r)).collect() })
@@ -415,7 +416,7 @@ pub fn from_luts(specs: &[String], out: OutDir<'_>) -> Result<RealAdcsReport, Ho
         line_plot(staged, &path, &format!("{label}: cumulative offsets (table minus its cubic trend)"), "code", "offset (DN)", &offsets, 1)?;
         figures.push(path);
         // The camera model of the fitted stages, for `simulate --config`.
-        let model = crate::real_adcs::architecture_model(&label, &mine);
+        let model = crate::analyses::real_adcs::architecture_model(&label, &mine);
         let path = out_dir.join(format!("{label}-architecture.toml"));
         let text = toml::to_string(&model).map_err(|e| HostError::Format { path: path.clone(), message: e.to_string() })?;
         staged.write_bytes(&path, format!("# {}; each ADC the stage model with the largest held-out share (docs/kcor-luts.md)\n{text}", model.name))?;

@@ -15,19 +15,19 @@ use std::time::Instant;
 
 use serde::Serialize;
 
-use crate::camera::calibration::{LinearityParams, RampParams};
+use crate::model::camera::calibration::{LinearityParams, RampParams};
 use crate::commands::kcor::KcorSummary;
 use crate::commands::linearity::LinearitySummary;
 use crate::commands::quantization::SigmaReport;
-use crate::kcor::KcorParams;
-use crate::paper_claims::{claims, finite_range, Claim, Measured, Verdict};
-use crate::camera::Camera;
+use crate::analyses::kcor::KcorParams;
+use crate::analyses::paper_claims::{claims, finite_range, Claim, Measured, Verdict};
+use crate::model::camera::Camera;
 use crate::commands::adc::AdcReport;
 use crate::commands::progress::{bar, stage};
 use crate::commands::Report;
-use crate::flatten::FlattenParams;
-use crate::streaming::{run_stream, StreamParams, StreamReport};
-use crate::outputs::{html_figure, OutDir, Outputs};
+use crate::analyses::flatten::FlattenParams;
+use crate::checks::streaming::{run_stream, StreamParams, StreamReport};
+use crate::formats::outputs::{html_figure, OutDir, Outputs};
 use crate::HostError;
 
 /// What the demo did and measured.
@@ -95,15 +95,15 @@ impl Report for DemoSummary {
     }
 }
 
-/// The table of [`crate::paper_claims`] from the demo's steps; `kcor_reductions` are
+/// The table of [`crate::analyses::paper_claims`] from the demo's steps; `kcor_reductions` are
 /// the K-Cor model's raw / LUT ratios by the LUT's noise per code, the paper's 1% first.
-fn paper_claims(adc: &AdcReport, q: &SigmaReport, kcor: &KcorSummary, kcor_reductions: Vec<(f64, f64)>, l: &crate::linearity::LinearityReport) -> Vec<Claim> {
+fn paper_claims(adc: &AdcReport, q: &SigmaReport, kcor: &KcorSummary, kcor_reductions: Vec<(f64, f64)>, l: &crate::analyses::linearity::LinearityReport) -> Vec<Claim> {
     // Over the calibrated levels: the corrections are exact at the dark and the flat (NaN).
     let calibrated = |v: &[f64]| -> Vec<f64> { v.iter().enumerate().filter(|&(k, _)| k != 0 && k != l.gain_level).map(|(_, &x)| x).collect() };
     let max = |v: &[f64]| finite_range(&calibrated(v)).1;
     let best_improvement = l.rms_standard.iter().zip(&l.rms_pixelwise).map(|(s, p)| s / p).filter(|r| r.is_finite()).fold(0.0, f64::max);
     claims(&Measured {
-        sigma_for_bias_001_dn: crate::quantization::sigma_for_bias(0.01).unwrap_or(f64::NAN),
+        sigma_for_bias_001_dn: crate::analyses::quantization::sigma_for_bias(0.01).unwrap_or(f64::NAN),
         camera_sigma_dn: q.sigma,
         camera_bias_dn: q.max_abs_bias_dn,
         max_abs_offset_dn: adc.adcs.iter().map(|a| a.lut.max_abs_offset_dn).collect(),
@@ -120,7 +120,7 @@ fn paper_claims(adc: &AdcReport, q: &SigmaReport, kcor: &KcorSummary, kcor_reduc
 }
 
 /// Runs the demo into `out_dir` with `frames` streamed frames. Every file is published at
-/// the end, together, or none is ([`crate::outputs`]); the steps that read an earlier
+/// the end, together, or none is ([`crate::formats::outputs`]); the steps that read an earlier
 /// step's file (the linearity analysis, the diagnoses) read it staged.
 pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &FlattenParams, frames: u32) -> Result<DemoSummary, HostError> {
     let start = Instant::now();
@@ -133,7 +133,7 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
 
     // 1-2. Calibration histograms, LUTs, characterization and its figures.
     stage("1/8 calibration ramps, LUTs and the ADC characterization");
-    let (adc, luts) = crate::commands::adc::run(camera, None, ramp, flatten, crate::ieee1241::Density::Smooth, OutDir::new(&mut files, out_dir))?;
+    let (adc, luts) = crate::commands::adc::run(camera, None, ramp, flatten, crate::analyses::ieee1241::Density::Smooth, OutDir::new(&mut files, out_dir))?;
     let levels: usize = ramp.ramp_levels.iter().sum();
 
     // 3. Streaming check.
@@ -144,7 +144,7 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
     pb.finish_and_clear();
     // The same LUTs through the FPGA model (4 taps) on a 256 x 256 region: compared with
     // the core and the reference sum by sum.
-    let fpga_params = StreamParams { width: 256.min(params.width), height: 256.min(params.height), engine: crate::streaming::Engine::Fpga(dncal_fpga_model::Config::default()), ..params.clone() };
+    let fpga_params = StreamParams { width: 256.min(params.width), height: 256.min(params.height), engine: crate::checks::streaming::Engine::Fpga(dncal_fpga_model::Config::default()), ..params.clone() };
     stage("3/8 the same LUTs through the FPGA model (256 x 256)");
     let pb = bar(frames as u64, "FPGA model frames");
     let stream_fpga = run_stream(camera, &luts.weights, &fpga_params, |n| pb.set_position(n))?;
@@ -172,7 +172,7 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
     crate::commands::simulate::simulate_linearity_staged(&mut files, camera, &LinearityParams::paper(camera), lin_path.clone())?;
     let lin_staged = staged(&files, &lin_path)?;
     let lin_dir = at("linearity");
-    let linearity = crate::commands::linearity::linearity_as(&lin_staged, &lin_path, crate::linearity::PIXEL_ORDER, None, Some(OutDir::new(&mut files, &lin_dir)))?;
+    let linearity = crate::commands::linearity::linearity_as(&lin_staged, &lin_path, crate::analyses::linearity::PIXEL_ORDER, None, Some(OutDir::new(&mut files, &lin_dir)))?;
     // 5. What a diagnosis of the calibration histograms finds (issue: diagnose).
     stage("7/8 diagnosing the calibration histograms and the linearity set");
     let hist_path = at("histograms.fits");
@@ -212,7 +212,7 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
 /// and where the run does not reproduce the paper, why (measured in the same run).
 fn claims_table(rows: &[Claim]) -> String {
     let mut h = String::from(
-        "<h2>The paper's claims, measured</h2><p>de Wijn 2018 against this run (the rules for \"agrees\" are in <code>host-sim/src/paper_claims.rs</code>; \
+        "<h2>The paper's claims, measured</h2><p>de Wijn 2018 against this run (the rules for \"agrees\" are in <code>host-sim/src/analyses/paper_claims.rs</code>; \
          every number with its command in <code>docs/paper.md</code>).</p><table class=\"claims\"><tr><th>section</th><th>the paper</th><th>this run</th><th>verdict</th></tr>",
     );
     for r in rows {
@@ -221,13 +221,13 @@ fn claims_table(rows: &[Claim]) -> String {
             Verdict::SameOrder => "order",
             Verdict::DoesNotReproduce => "differs",
         };
-        let why = r.cause.as_deref().map_or(String::new(), |c| format!("<br><i>Why: {}</i>", crate::outputs::html_escape(c)));
+        let why = r.cause.as_deref().map_or(String::new(), |c| format!("<br><i>Why: {}</i>", crate::formats::outputs::html_escape(c)));
         let _ = write!(
             h,
             "<tr><td>{}</td><td>{}</td><td>{}{why}</td><td class=\"{class}\">{}</td></tr>",
             r.section,
-            crate::outputs::html_escape(&r.paper),
-            crate::outputs::html_escape(&r.ours),
+            crate::formats::outputs::html_escape(&r.paper),
+            crate::formats::outputs::html_escape(&r.ours),
             r.verdict.text()
         );
     }
@@ -356,7 +356,7 @@ fn other_analyses(s: &DemoSummary) -> String {
          {fig_linearity_rms}",
         q.sigma,
         q.max_abs_bias_dn,
-        crate::quantization::sigma_for_bias(0.01).unwrap_or(f64::NAN),
+        crate::analyses::quantization::sigma_for_bias(0.01).unwrap_or(f64::NAN),
         k.params.adc,
         k.params.exposure_s * 1e3,
         k.electrons_per_s_per_bsun,

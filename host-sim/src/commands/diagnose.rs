@@ -1,18 +1,18 @@
 //! `dncal diagnose FILE`: the baseline simulation against measured data, findings from the
-//! catalog, held-out gains ([`crate::diagnose`]).
+//! catalog, held-out gains ([`crate::analyses::diagnose`]).
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::diagnose::model::{extended_model, linearity_model, ptc_model};
-use crate::diagnose::{diagnose_code_density, diagnose_histograms, diagnose_linearity, diagnose_linearity_rows, diagnose_ptc, Diagnosis, Effect, Finding};
-use crate::fits::{open_linearity_rows, read_histograms_for_analysis, read_linearity_as};
-use crate::outputs::{html_figure, OutDir, Outputs};
+use crate::analyses::diagnose::model::{extended_model, linearity_model, ptc_model};
+use crate::analyses::diagnose::{diagnose_code_density, diagnose_histograms, diagnose_linearity, diagnose_linearity_rows, diagnose_ptc, Diagnosis, Effect, Finding};
+use crate::formats::fits::{open_linearity_rows, read_histograms_for_analysis, read_linearity_as};
+use crate::formats::outputs::{html_figure, OutDir, Outputs};
 use crate::commands::Report;
-use crate::flatten::FlattenParams;
-use crate::plots::{line_plot, Series};
+use crate::analyses::flatten::FlattenParams;
+use crate::formats::plots::{line_plot, Series};
 use crate::HostError;
 
 /// The all-columns code-density `findings` of an EMVA set, or, where some of four
@@ -55,8 +55,8 @@ pub struct DiagnoseSummary {
 /// (measured sizes, docs/diagnose.md), or spilled (then a block of each kind per thread),
 /// and the set's mask.
 fn state(np: u64, spilled: bool) -> u64 {
-    use crate::budget::bytes_of;
-    use crate::diagnose::{spilled_blocks, RECORD_BYTES, RESIDENT_BYTES};
+    use crate::infra::budget::bytes_of;
+    use crate::analyses::diagnose::{spilled_blocks, RECORD_BYTES, RESIDENT_BYTES};
     if spilled { bytes_of(np, RESIDENT_BYTES).saturating_add(spilled_blocks(np)) } else { bytes_of(np, RESIDENT_BYTES + RECORD_BYTES) }
 }
 
@@ -72,20 +72,20 @@ fn spill_records(np: u64, beside: u64, asked: bool, limit: u64) -> bool {
 /// than held: where rows are asked for, or where the set held (as `f32`) does not fit
 /// beside the records, spilled if that is what makes it fit.
 fn read_by_rows(np: u64, levels: u64, rows_asked: bool, spill_asked: bool, limit: u64) -> bool {
-    let set = crate::budget::bytes_of(np.saturating_mul(levels), 8);
+    let set = crate::infra::budget::bytes_of(np.saturating_mul(levels), 8);
     rows_asked || state(np, spill_records(np, set, spill_asked, limit)).saturating_add(set) > limit
 }
 
 /// The diagnosis of the linearity set at `read_from` (named `input`) and its camera
-/// model. The set is held as f32 (half the memory of f64; see [`crate::fits::Sample`]),
+/// model. The set is held as f32 (half the memory of f64; see [`crate::formats::fits::Sample`]),
 /// or, where it would not fit the memory budget held or `block_rows` is given, read from
 /// its file by blocks of rows: the same diagnosis in a block per thread. A set whose
 /// cubes cannot be read directly (a compressed file, scaled cubes) is held. The per-pixel
 /// records go to temporary files where they would not fit beside the rest, or `spill`
 /// says so: the same diagnosis again.
-fn diagnose_linearity_file(read_from: &Path, input: &Path, block_rows: Option<usize>, spill: bool) -> Result<(Diagnosis, crate::camera::CameraConfig), HostError> {
-    use crate::budget::{bytes_of, check, limit};
-    use crate::diagnose::{RECORD_BYTES, RESIDENT_BYTES};
+fn diagnose_linearity_file(read_from: &Path, input: &Path, block_rows: Option<usize>, spill: bool) -> Result<(Diagnosis, crate::model::camera::CameraConfig), HostError> {
+    use crate::infra::budget::{bytes_of, check, limit};
+    use crate::analyses::diagnose::{RECORD_BYTES, RESIDENT_BYTES};
     let spill_if = |np: u64, beside: u64| spill_records(np, beside, spill, limit());
     let what = |spilled: bool| {
         if spilled {
@@ -111,7 +111,7 @@ fn diagnose_linearity_file(read_from: &Path, input: &Path, block_rows: Option<us
         let spill = spill_if(np, bytes_of(np * set.levels as u64, 8));
         check(read_from, &what(spill), state(np, spill))?;
         let s = spin([set.width, set.height, set.levels], spilling(spill));
-        let d = if spill { crate::diagnose::diagnose_linearity_spilled(&set, 0.01) } else { diagnose_linearity(&set, 0.01) }.map_err(failed);
+        let d = if spill { crate::analyses::diagnose::diagnose_linearity_spilled(&set, 0.01) } else { diagnose_linearity(&set, 0.01) }.map_err(failed);
         s.finish_and_clear();
         let d = d?;
         let model = linearity_model(&set, &d);
@@ -120,7 +120,7 @@ fn diagnose_linearity_file(read_from: &Path, input: &Path, block_rows: Option<us
     let shape = opened.shape();
     let np = (shape[0] * shape[1]) as u64;
     // Blocks of 8 MiB, or what the budget leaves after the state.
-    let blocks = |spilled: bool| crate::diagnose::blocks_of::<f32>(shape, block_rows, limit().saturating_sub(state(np, spilled)));
+    let blocks = |spilled: bool| crate::analyses::diagnose::blocks_of::<f32>(shape, block_rows, limit().saturating_sub(state(np, spilled)));
     let spill = spill_if(np, blocks(false).1);
     check(read_from, &what(spill), state(np, spill))?;
     let (rows, blocks) = blocks(spill);
@@ -138,11 +138,11 @@ fn diagnose_linearity_file(read_from: &Path, input: &Path, block_rows: Option<us
 /// starts with SIMPLE). Only a regular file is looked at, and only one small enough to be
 /// a descriptor is read whole; anything larger is left to the FITS readers.
 fn looks_like_descriptor(input: &Path) -> Result<bool, HostError> {
-    use crate::emva::DESCRIPTOR_LIMIT;
-    if crate::input::starts_with(input, b"SIMPLE")? {
+    use crate::analyses::emva::DESCRIPTOR_LIMIT;
+    if crate::formats::input::starts_with(input, b"SIMPLE")? {
         return Ok(false);
     }
-    Ok(match crate::input::read_text(input, DESCRIPTOR_LIMIT) {
+    Ok(match crate::formats::input::read_text(input, DESCRIPTOR_LIMIT) {
         Ok(text) => text.lines().any(|l| l.trim_start().starts_with("n ")),
         Err(HostError::TooLarge { .. } | HostError::Format { .. }) => false,
         Err(e) => return Err(e),
@@ -165,11 +165,11 @@ pub struct DiagnoseParams {
     /// Seed of a histogram set's held-out split.
     pub seed: u64,
     /// A linearity set read from its file this many rows at a time instead of held whole
-    /// ([`crate::diagnose::diagnose_linearity_rows`]); without it, so read only where the
+    /// ([`crate::analyses::diagnose::diagnose_linearity_rows`]); without it, so read only where the
     /// set held whole would not fit the memory budget.
     pub block_rows: Option<usize>,
     /// A linearity set's per-pixel records kept in temporary files
-    /// ([`crate::diagnose::diagnose_linearity_spilled`]); without it, so kept only where
+    /// ([`crate::analyses::diagnose::diagnose_linearity_spilled`]); without it, so kept only where
     /// they would not fit the memory budget.
     pub spill: bool,
 }
@@ -207,11 +207,11 @@ pub fn diagnose_as(read_from: &Path, input: &Path, params: &DiagnoseParams, mut 
         expect_report(o.files, o.dir)?;
     }
     let is_descriptor = looks_like_descriptor(read_from)?;
-    let model: Option<crate::camera::CameraConfig>;
+    let model: Option<crate::model::camera::CameraConfig>;
     let diagnosis = if is_descriptor {
-        let set = crate::emva::read_descriptor(read_from)?;
+        let set = crate::analyses::emva::read_descriptor(read_from)?;
         let spin = crate::commands::progress::spinner(&format!("diagnosing {} (EMVA 1288 set: photon transfer, code density)", input.display()));
-        let points = crate::emva::photon_transfer(&set)?;
+        let points = crate::analyses::emva::photon_transfer(&set)?;
         // The frames' code density: all columns as one ADC, then the columns of each of
         // four interleaved ADCs (column c read by ADC c mod 4, as the MV-D1024E's): where
         // some of them show a width pattern and others do not, it is named on those ADCs
@@ -219,7 +219,7 @@ pub fn diagnose_as(read_from: &Path, input: &Path, params: &DiagnoseParams, mut 
         // One pass over the frames: each half's histogram per column class, summed for
         // all columns.
         let classes = if set.width >= 2 * INTERLEAVED_ADCS { INTERLEAVED_ADCS } else { 1 };
-        let halves = crate::emva::code_histogram_halves(&set, classes)?;
+        let halves = crate::analyses::emva::code_histogram_halves(&set, classes)?;
         let pooled = |h: &[Vec<u64>]| -> Vec<u64> { (0..h[0].len()).map(|k| h.iter().map(|c| c[k]).sum()).collect() };
         let (a, b) = (pooled(&halves[0]), pooled(&halves[1]));
         let (mut code_findings, mut dnl_adcs, mut code_density, mut not_tested) = (Vec::new(), Vec::new(), None, Vec::new());
@@ -236,9 +236,9 @@ pub fn diagnose_as(read_from: &Path, input: &Path, params: &DiagnoseParams, mut 
         // every later step is taken without them (a hot pixel that saturates at the bright
         // levels moved the level means by 40 pixels' share and read as a 1.5 DN bend,
         // `global-nonlinearity` at 75 sigma).
-        let (defect_finding, defects) = match crate::diagnose::diagnose_defects(&set)? {
-            crate::diagnose::DefectOutcome::Tested { finding, defects } => (finding, defects),
-            crate::diagnose::DefectOutcome::NotTested(why) => {
+        let (defect_finding, defects) = match crate::analyses::diagnose::diagnose_defects(&set)? {
+            crate::analyses::diagnose::DefectOutcome::Tested { finding, defects } => (finding, defects),
+            crate::analyses::diagnose::DefectOutcome::NotTested(why) => {
                 not_tested.push(why);
                 (None, Vec::new())
             }
@@ -250,7 +250,7 @@ pub fn diagnose_as(read_from: &Path, input: &Path, params: &DiagnoseParams, mut 
         let pixels = set.width * set.height;
         let keep: Vec<bool> = (0..pixels).map(|i| !dnl_adcs.contains(&((i % set.width) % INTERLEAVED_ADCS)) && !defects.get(i).copied().unwrap_or(false)).collect();
         let kept = keep.iter().filter(|k| **k).count();
-        let points = if kept == pixels { points } else { crate::emva::photon_transfer_selected(&set, &keep)? };
+        let points = if kept == pixels { points } else { crate::analyses::emva::photon_transfer_selected(&set, &keep)? };
         let mut d = diagnose_ptc(&points, kept, 0.01).map_err(|source| HostError::Diagnose { path: input.into(), source })?;
         if !dnl_adcs.is_empty() {
             let list: Vec<String> = dnl_adcs.iter().map(|a| a.to_string()).collect();
@@ -267,7 +267,7 @@ pub fn diagnose_as(read_from: &Path, input: &Path, params: &DiagnoseParams, mut 
             d.code_density = Some(density);
             d.code_residuals = Some(residuals);
         }
-        let sheet = crate::emva::datasheet_of(&set, &points, None)?;
+        let sheet = crate::analyses::emva::datasheet_of(&set, &points, None)?;
         let dark = points.first().map_or(0.0, |p| p.dark_mean_dn);
         model = Some(ptc_model(&set, &sheet, dark, &mut d));
         spin.finish_and_clear();
@@ -282,7 +282,7 @@ pub fn diagnose_as(read_from: &Path, input: &Path, params: &DiagnoseParams, mut 
                 let (d, model) = match diagnose_linearity_file(read_from, input, params.block_rows, params.spill) {
                     Ok(r) => r,
                     Err(kept @ (HostError::OverBudget { .. } | HostError::Diagnose { .. })) => return Err(kept),
-                    Err(le) if crate::fits::is_linearity_set(read_from) => return Err(le),
+                    Err(le) if crate::formats::fits::is_linearity_set(read_from) => return Err(le),
                     Err(_) => return Err(e),
                 };
                 return report(input, d, Some(model), out, ("level", "baseline (linear pixels): RMS over pixels"));
@@ -328,7 +328,7 @@ impl Report for DiagnoseSummary {
 }
 
 /// Stages the report of `diagnosis` (and the extended `model`, if any) in `out`.
-fn report(input: &Path, mut diagnosis: Diagnosis, model: Option<crate::camera::CameraConfig>, out: Option<OutDir<'_>>, (x_label, base_label): (&str, &str)) -> Result<DiagnoseSummary, HostError> {
+fn report(input: &Path, mut diagnosis: Diagnosis, model: Option<crate::model::camera::CameraConfig>, out: Option<OutDir<'_>>, (x_label, base_label): (&str, &str)) -> Result<DiagnoseSummary, HostError> {
     // What the model leaves is listed after what it found (stable: the findings keep the
     // order they entered the model in; a level term named `unexplained` is a model step
     // and keeps its place).
@@ -353,9 +353,9 @@ fn report(input: &Path, mut diagnosis: Diagnosis, model: Option<crate::camera::C
              <table><tr><th rowspan=\"2\">effect</th><th rowspan=\"2\">ADC</th><th rowspan=\"2\">significance</th><th>all data</th><th colspan=\"3\">its test</th><th rowspan=\"2\">figure</th><th rowspan=\"2\">evidence</th></tr>\
              <tr><th>RMS after</th><th>RMS before</th><th>after</th><th>gain</th></tr>\
              <tr><td>baseline</td><td>-</td><td>-</td><td>{:.3}</td><td>-</td><td>-</td><td>-</td><td>-</td><td>{}</td></tr>",
-            crate::outputs::html_path(input),
+            crate::formats::outputs::html_path(input),
             diagnosis.baseline.rms,
-            crate::outputs::html_escape(&diagnosis.baseline.model),
+            crate::formats::outputs::html_escape(&diagnosis.baseline.model),
         );
         // Finding figures are numbered 1, 2, ... in the order of the table, which links them.
         let (mut figure_of, mut figures) = (Vec::with_capacity(diagnosis.findings.len()), 0);
@@ -367,7 +367,7 @@ fn report(input: &Path, mut diagnosis: Diagnosis, model: Option<crate::camera::C
             figure_of.push(number);
             let link = number.map_or("-".to_string(), |k| format!("<a href=\"#figure-{k}\">{k}</a>"));
             let all = f.all_data_rms_after.map_or("-".to_string(), |r| format!("{r:.3}"));
-            let _ = write!(h, "<tr><td>{}</td><td>{}</td><td>{:.1}</td><td>{all}</td><td>{:.3}</td><td>{:.3}</td><td>{:.2}</td><td>{link}</td><td>{}</td></tr>", f.effect, f.adc.map_or("-".into(), |a| a.to_string()), f.significance, f.rms_before, f.rms_after, f.gain, crate::outputs::html_escape(&f.detail));
+            let _ = write!(h, "<tr><td>{}</td><td>{}</td><td>{:.1}</td><td>{all}</td><td>{:.3}</td><td>{:.3}</td><td>{:.2}</td><td>{link}</td><td>{}</td></tr>", f.effect, f.adc.map_or("-".into(), |a| a.to_string()), f.significance, f.rms_before, f.rms_after, f.gain, crate::formats::outputs::html_escape(&f.detail));
         }
         if diagnosis.findings.is_empty() {
             h += "<tr><td colspan=\"9\">no finding: the baseline explains the data to within what the tests resolve</td></tr>";
@@ -385,14 +385,14 @@ fn report(input: &Path, mut diagnosis: Diagnosis, model: Option<crate::camera::C
             // An ADC's code widths are seen by code, except in a linearity set (by level).
             let axis = if f.effect == Effect::AdcDnl && diagnosis.baseline.kind != "linearity-set" { "code (DN)" } else { x_label };
             line_plot(files, &dir.join(&name), &format!("{what}: held-out residuals / noise, before and after (gain {:.2})", f.gain), axis, "normalized residual", &series, 1)?;
-            let _ = write!(h, "<h2 id=\"figure-{k}\">Figure {k}: {what}</h2><p>{}</p>{}", crate::outputs::html_escape(&f.detail), html_figure(&name, 1000, &format!("{what}: held-out residuals before and after"), None));
+            let _ = write!(h, "<h2 id=\"figure-{k}\">Figure {k}: {what}</h2><p>{}</p>{}", crate::formats::outputs::html_escape(&f.detail), html_figure(&name, 1000, &format!("{what}: held-out residuals before and after"), None));
             outputs.push(dir.join(name));
         }
         // The remainder last: what the baseline left, and what the findings leave unexplained.
         let _ = write!(
             h,
             "<h2>Remainder</h2><p>Baseline: {}. Held-out RMS of the normalized residual over all the data: {:.3} before the findings, <b>{:.3} unexplained</b> after all of them (1 is noise).</p>{}",
-            crate::outputs::html_escape(&diagnosis.baseline.model),
+            crate::formats::outputs::html_escape(&diagnosis.baseline.model),
             diagnosis.baseline.rms,
             diagnosis.unexplained_rms,
             html_figure("residuals.png", 1000, "Held-out residuals over noise, baseline and with the findings", None)
@@ -414,7 +414,7 @@ fn report(input: &Path, mut diagnosis: Diagnosis, model: Option<crate::camera::C
             for (a, t) in tests.iter().enumerate().filter_map(|(a, t)| t.as_ref().map(|t| (a, t))) {
                 let name = format!("dnl_inl_adc{a}.png");
                 t.figure(files, &dir.join(&name), &format!("ADC {a}: IEEE 1241 histogram test, {:.1} counts a code", t.resolution.counts_per_code))?;
-                let _ = write!(section, "<h3>ADC {a}</h3><pre>{}</pre>{}", crate::outputs::html_escape(&t.text("")), html_figure(&name, 1000, &format!("ADC {a}: DNL and INL"), None));
+                let _ = write!(section, "<h3>ADC {a}</h3><pre>{}</pre>{}", crate::formats::outputs::html_escape(&t.text("")), html_figure(&name, 1000, &format!("ADC {a}: DNL and INL"), None));
                 outputs.push(dir.join(name));
             }
             h = h.replace("</body></html>", &format!("{section}</body></html>"));
@@ -429,7 +429,7 @@ fn report(input: &Path, mut diagnosis: Diagnosis, model: Option<crate::camera::C
             for a in archs.iter().flatten() {
                 let _ = write!(section, "<tr><td>{}</td><td><i>ideal ADC</i></td><td>0</td><td>{:.3}</td><td>-</td></tr><tr><td>{}</td><td><i>per-code widths</i></td><td>-</td><td>{:.3}</td><td>-</td></tr>", a.adc, a.mean_z2_ideal, a.adc, a.mean_z2_widths);
                 for (i, c) in a.candidates.iter().enumerate() {
-                    let name = if i == 0 { format!("<b>{}</b>{}", crate::outputs::html_escape(&c.name), if a.adopted { " (in the model)" } else { " (kept; not in the model)" }) } else { crate::outputs::html_escape(&c.name) };
+                    let name = if i == 0 { format!("<b>{}</b>{}", crate::formats::outputs::html_escape(&c.name), if a.adopted { " (in the model)" } else { " (kept; not in the model)" }) } else { crate::formats::outputs::html_escape(&c.name) };
                     let _ = write!(section, "<tr><td>{}</td><td>{name}</td><td>{}</td><td>{:.3}</td><td>{:.1}</td></tr>", a.adc, c.parameters, c.mean_z2, c.significance);
                 }
             }
@@ -448,9 +448,9 @@ fn report(input: &Path, mut diagnosis: Diagnosis, model: Option<crate::camera::C
             let path = dir.join("model.toml");
             let text = toml::to_string(m).map_err(|e| HostError::Format { path: path.clone(), message: e.to_string() })?;
             let note = |f: &Finding| match f.effect.in_model() {
-                crate::diagnose::InModel::NotYet => Some(format!("# not in the camera model yet: {}\n", f.label())),
-                crate::diagnose::InModel::OfTheMeasurement => Some(format!("# of the measurement, not the camera (not simulated): {}\n", f.effect)),
-                crate::diagnose::InModel::Yes => None,
+                crate::analyses::diagnose::InModel::NotYet => Some(format!("# not in the camera model yet: {}\n", f.label())),
+                crate::analyses::diagnose::InModel::OfTheMeasurement => Some(format!("# of the measurement, not the camera (not simulated): {}\n", f.effect)),
+                crate::analyses::diagnose::InModel::Yes => None,
             };
             let mut not_simulated: Vec<String> = diagnosis.findings.iter().filter_map(note).collect();
             if let (false, Some(f)) = (diagnosis.measured.saturated, diagnosis.measured.full_scale_dn) {

@@ -1,4 +1,4 @@
-//! `dncal emva`: the EMVA 1288 datasheet of a photon-transfer set ([`crate::emva`]),
+//! `dncal emva`: the EMVA 1288 datasheet of a photon-transfer set ([`crate::analyses::emva`]),
 //! with its HTML page and figures.
 
 use std::path::{Path, PathBuf};
@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 
 use crate::commands::{wrote, Report};
-use crate::emva::{datasheet, html::write_datasheet, read_descriptor, Datasheet, Release};
+use crate::analyses::emva::{datasheet, html::write_datasheet, read_descriptor, Datasheet, Release};
 use crate::HostError;
 
 /// What the text's first line says of the set.

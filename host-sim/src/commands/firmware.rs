@@ -1,5 +1,5 @@
 //! `dncal firmware-check`: the same LUTs and frames through the core on the host and
-//! through the firmware under QEMU ([`crate::firmware`]), compared sum by sum.
+//! through the firmware under QEMU ([`crate::checks::firmware`]), compared sum by sum.
 
 use std::time::Duration;
 
@@ -7,9 +7,9 @@ use dncal_core::{Geometry, Mvd1024eLuts};
 use serde::Serialize;
 
 use crate::commands::Report;
-use crate::firmware::instructions::{attribute, InstructionCounts};
-use crate::firmware::{build_firmware, repo_root, run_firmware, run_on_host, RunInputs};
-use crate::synth::{dn_error_weights, synthetic_frames, Rng};
+use crate::checks::firmware::instructions::{attribute, InstructionCounts};
+use crate::checks::firmware::{build_firmware, repo_root, run_firmware, run_on_host, RunInputs};
+use crate::model::synth::{dn_error_weights, synthetic_frames, Rng};
 use crate::HostError;
 
 /// What `firmware-check` asks for.

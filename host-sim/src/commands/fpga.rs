@@ -10,8 +10,7 @@ use dncal_fpga_model::Config;
 use serde::Serialize;
 
 use crate::commands::{wrote, Report};
-use crate::fits::read_lut;
-use crate::outputs::Outputs;
+use crate::formats::outputs::Outputs;
 use crate::HostError;
 
 /// The report: the sizing and the files written.
@@ -105,9 +104,10 @@ pub fn fpga_size(system: &System, states: u8, config: &Config, lut: Option<&Path
     Ok(FpgaSizeReport { fifo_depth: config.fifo_depth, mem_latency: config.mem_latency, sizing, states, readmemh: files })
 }
 
-/// The LUT FITS `lut` as the FPGA model's four 12-bit tables, validated by the core.
+/// The LUT `lut` (any format the LUT home reads) as the FPGA model's four 12-bit tables,
+/// validated by the core.
 fn load_luts(lut: &Path) -> Result<Mvd1024eLuts, HostError> {
-    let t = read_lut(lut)?;
+    let (_, t) = crate::formats::lut::read(lut)?;
     let bits: Vec<[u32; 4096]> = t
         .tables
         .iter()

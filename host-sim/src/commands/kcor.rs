@@ -5,13 +5,13 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::camera::Camera;
-use crate::commands::lut::{inspect, tables_from_weights};
+use crate::model::camera::Camera;
+use crate::formats::lut::tables_from_weights;
 use crate::commands::{wrote, Report};
-use crate::flatten::to_core_weights;
-use crate::kcor::{noisy_weights, run_luts, KcorParams, KcorResult};
-use crate::plots::{map_plot, Map};
-use crate::outputs::OutDir;
+use crate::analyses::flatten::to_core_weights;
+use crate::analyses::kcor::{noisy_weights, run_luts, KcorParams, KcorResult};
+use crate::formats::plots::{map_plot, Map};
+use crate::formats::outputs::OutDir;
 use crate::HostError;
 
 /// What `kcor-model` prints: the result without its grids, and the figures.
@@ -53,7 +53,7 @@ impl Report for KcorSummary {
             let spread = |f: fn(&Realization) -> f64| {
                 let v: Vec<f64> = self.realizations.iter().map(f).collect();
                 let (lo, hi) = v.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
-                (lo, crate::stats::median(v), hi)
+                (lo, crate::infra::stats::median(v), hi)
             };
             let (a, b, c) = spread(|x| x.reduction);
             let (d, e, f) = spread(|x| x.rms_reduction);
@@ -94,7 +94,7 @@ pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, real
     // A dark level at the top code (or the full well) leaves no state a signal: every
     // error would be 0 and every reduction 0/0 (it printed "infx less").
     // (Less than one DN of room is none: every state would read the same codes.)
-    let room_e = crate::kcor::signal_room_e(camera, adc);
+    let room_e = crate::analyses::kcor::signal_room_e(camera, adc);
     if room_e.is_nan() || room_e < camera.config.gain_e_per_dn {
         let c = &camera.config;
         return Err(HostError::Format {
@@ -123,12 +123,12 @@ pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, real
     };
     let entries: Vec<u32> = match lut_file {
         Some(path) => {
-            let l = inspect(path)?;
-            let table = l.adcs.into_iter().nth(p.adc).ok_or_else(|| HostError::Format { path: path.into(), message: format!("no table for ADC {}", p.adc) })?;
-            if table.entries.len() != adc.codes() {
-                return Err(HostError::Format { path: path.into(), message: format!("{} codes, the camera's ADC has {}", table.entries.len(), adc.codes()) });
+            let (_, lut) = crate::formats::lut::read(path)?;
+            let table = lut.tables.into_iter().nth(p.adc).ok_or_else(|| HostError::Format { path: path.into(), message: format!("no table for ADC {}", p.adc) })?;
+            if table.len() != adc.codes() {
+                return Err(HostError::Format { path: path.into(), message: format!("{} codes, the camera's ADC has {}", table.len(), adc.codes()) });
             }
-            table.entries
+            table
         }
         None => noisy_table(p.seed)?,
     };
@@ -195,7 +195,7 @@ pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, real
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::camera::CameraConfig;
+    use crate::model::camera::CameraConfig;
 
     /// A dark level above the top code: a clear refusal, not a run whose every error is 0
     /// and whose reduction is 0/0; a dark level just inside the range still runs.

@@ -8,10 +8,10 @@ use serde::Serialize;
 
 use crate::commands::progress::{spinner, stage};
 use crate::commands::{wrote, Report};
-use crate::fits::{read_linearity, stage_cube, stage_pixel_correction, PixelCorrection};
-use crate::linearity::{analyze_unsaturated, check_flat_level, example_row, unsaturated_levels, Cube, LinearityReport, MAX_ORDER};
-use crate::plots::{level_lines_plot, line_plot_paired, map_plot, Map, Series};
-use crate::outputs::OutDir;
+use crate::formats::fits::{read_linearity, stage_cube, stage_pixel_correction, PixelCorrection};
+use crate::analyses::linearity::{analyze_unsaturated, check_flat_level, example_row, unsaturated_levels, Cube, LinearityReport, MAX_ORDER};
+use crate::formats::plots::{level_lines_plot, line_plot_paired, map_plot, Map, Series};
+use crate::formats::outputs::OutDir;
 use crate::HostError;
 
 /// What `linearity` prints.
@@ -70,7 +70,7 @@ pub fn linearity_as(read_from: &Path, input: &Path, order: usize, flat: Option<u
         Cube::Keep => (24 * set.levels as u64 + 256, "the pixel-wise analysis (the corrected cube and the fits)"),
         Cube::Skip => (16 * set.levels as u64 + 256, "the pixel-wise analysis (the fits)"),
     };
-    crate::budget::check(read_from, what, crate::budget::bytes_of((set.width * set.height) as u64, per_pixel))?;
+    crate::infra::budget::check(read_from, what, crate::infra::budget::bytes_of((set.width * set.height) as u64, per_pixel))?;
     if set.levels < order + 3 {
         return Err(HostError::Format { path: input.into(), message: format!("{} levels; an order-{order} fit needs at least {}", set.levels, order + 3) });
     }

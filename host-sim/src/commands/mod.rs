@@ -14,8 +14,7 @@ pub mod linearity;
 pub mod lut;
 pub mod progress;
 pub mod quantization;
-pub mod report;
 pub mod simulate;
 pub mod stream;
 
-pub use report::{wrote, Report};
+pub use crate::formats::report::{wrote, Report};

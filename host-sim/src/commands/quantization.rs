@@ -7,9 +7,9 @@ use rand::SeedableRng;
 use serde::Serialize;
 
 use crate::commands::{wrote, Report};
-use crate::outputs::Outputs;
-use crate::plots::{map_plot, Map};
-use crate::quantization::{bias_erf, bias_exact_gaussian, bias_fourier, bias_map, bias_monte_carlo, sigma_for_bias, worst_bias, WorstBias};
+use crate::formats::outputs::Outputs;
+use crate::formats::plots::{map_plot, Map};
+use crate::analyses::quantization::{bias_erf, bias_exact_gaussian, bias_fourier, bias_map, bias_monte_carlo, sigma_for_bias, worst_bias, WorstBias};
 use crate::HostError;
 
 /// The worst case at one noise level, checked three ways at the worst `lambda'`.
@@ -190,7 +190,7 @@ pub fn quantization(request: &Request) -> Result<QuantizationReport, HostError> 
     let at_sigma = sigma.map(|s| at_sigma(s, request.samples, 1)).transpose()?;
     let for_bias = request.bias.map(for_bias).transpose()?;
     if let Some(path) = &request.figure {
-        crate::outputs::write_one(|o| figure(o, path))?;
+        crate::formats::outputs::write_one(|o| figure(o, path))?;
     }
     Ok(QuantizationReport { at_sigma, for_bias, figure: request.figure.clone() })
 }

@@ -5,12 +5,12 @@ use std::time::Instant;
 
 use serde::Serialize;
 
-use crate::camera::calibration::{LinearityParams, RampParams};
-use crate::camera::{Camera, CameraConfig};
+use crate::model::camera::calibration::{LinearityParams, RampParams};
+use crate::model::camera::{Camera, CameraConfig};
 use crate::commands::progress::{bar, stage};
 use crate::commands::Report;
-use crate::fits::{stage_linearity, write_histograms, AdcHistograms, LinearitySet};
-use crate::outputs::Outputs;
+use crate::formats::fits::{stage_linearity, write_histograms, AdcHistograms, LinearitySet};
+use crate::formats::outputs::Outputs;
 use crate::HostError;
 
 /// Builds the camera of `config`, naming `source` (a file or "defaults") in errors.
@@ -20,7 +20,7 @@ pub fn camera_from(config: CameraConfig, source: &str) -> Result<Camera, HostErr
     // The pixel maps: gain, dark, the nonlinearity terms (f64 each) and a state byte.
     let per_pixel = 17 + 8 * config.nonlinearity.len() as u64;
     let what = format!("the camera model of {} x {} pixels", config.width, config.height);
-    crate::budget::check(source.as_ref(), &what, crate::budget::bytes_of(config.width as u64 * config.height as u64, per_pixel))?;
+    crate::infra::budget::check(source.as_ref(), &what, crate::infra::budget::bytes_of(config.width as u64 * config.height as u64, per_pixel))?;
     Camera::new(config).map_err(|e| HostError::Config { path: source.into(), source: e })
 }
 

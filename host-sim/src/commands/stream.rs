@@ -1,18 +1,18 @@
 //! `dncal stream`: frames from the camera model through the core, against the float
-//! reference ([`crate::streaming`]).
+//! reference ([`crate::checks::streaming`]).
 
 use std::path::Path;
 use std::sync::Arc;
 
 use dncal_core::Weight;
 
-use crate::camera::Camera;
-use crate::commands::lut::build_luts;
+use crate::model::camera::Camera;
+use crate::analyses::lut_build::build_luts;
 use crate::commands::progress::{bar, stage};
-use crate::fits::read_histograms_for_analysis;
-use crate::flatten::{to_core_weights, FlattenParams};
-use crate::streaming::{run_stream, StreamParams, StreamReport};
-use crate::roi::RoiSpec;
+use crate::formats::fits::read_histograms_for_analysis;
+use crate::analyses::flatten::{to_core_weights, FlattenParams};
+use crate::checks::streaming::{run_stream, StreamParams, StreamReport};
+use crate::infra::roi::RoiSpec;
 use crate::HostError;
 
 /// The weights of a perfect calibration: each ADC's true code widths, normalized.
@@ -40,7 +40,7 @@ pub fn stream(camera: &Camera, hist: Option<&Path>, flatten: &FlattenParams, par
         }
         None => oracle_weights(camera)?,
     };
-    stage(&format!("streaming {} frames of {} x {} through the {}", params.frames, params.width, params.height, match params.engine { crate::streaming::Engine::Core => "core", crate::streaming::Engine::Fpga(_) => "FPGA model and the core" }));
+    stage(&format!("streaming {} frames of {} x {} through the {}", params.frames, params.width, params.height, match params.engine { crate::checks::streaming::Engine::Core => "core", crate::checks::streaming::Engine::Fpga(_) => "FPGA model and the core" }));
     let pb = bar(params.frames as u64, "streaming frames");
     let report = run_stream(camera, &weights, params, |n| pb.set_position(n));
     pb.finish_and_clear();
@@ -57,7 +57,7 @@ pub fn placed(camera: &Camera, mut params: StreamParams, roi: Option<RoiSpec>, f
         (params.width, params.height, params.first_column, params.first_row) = (fit("--roi", w)?, fit("--roi", h)?, fit("--roi", x)?, fit("--roi", y)?);
     }
     if let Some(path) = frames_from {
-        let cube = crate::fits::read_frames(path)?;
+        let cube = crate::formats::fits::read_frames(path)?;
         let (x, y) = (params.first_column as usize, params.first_row as usize);
         if x + cube.width > camera.config.width || y + cube.height > camera.config.height {
             return Err(HostError::Format { path: path.into(), message: format!("{}x{} frames at ({x}, {y}) do not fit the {}x{} sensor", cube.width, cube.height, camera.config.width, camera.config.height) });

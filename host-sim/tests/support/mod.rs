@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-use dncal_host::fits::{write_histograms, AdcHistograms};
+use dncal_host::formats::fits::{write_histograms, AdcHistograms};
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal, Poisson};
 

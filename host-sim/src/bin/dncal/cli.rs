@@ -4,12 +4,12 @@
 use std::path::PathBuf;
 
 use clap::{Args, Parser, Subcommand};
-use dncal_host::camera::calibration::RampParams;
-use dncal_host::camera::{Camera, CameraConfig};
+use dncal_host::model::camera::calibration::RampParams;
+use dncal_host::model::camera::{Camera, CameraConfig};
 use dncal_host::commands::simulate;
-use dncal_host::flatten::FlattenParams;
-use dncal_host::kcor::KcorParams;
-use dncal_host::roi::RoiSpec;
+use dncal_host::analyses::flatten::FlattenParams;
+use dncal_host::analyses::kcor::KcorParams;
+use dncal_host::infra::roi::RoiSpec;
 use dncal_host::HostError;
 
 #[derive(Parser)]
@@ -20,7 +20,7 @@ pub(crate) struct Cli {
     /// Memory budget: a file or config whose sizes would make a step need more is refused
     /// before anything is allocated (bytes, or K, M, G, T: powers of 1024). Default: 3/4 of
     /// the machine's physical memory.
-    #[arg(long, global = true, value_name = "SIZE", value_parser = dncal_host::budget::parse_size)]
+    #[arg(long, global = true, value_name = "SIZE", value_parser = dncal_host::infra::budget::parse_size)]
     pub(crate) max_memory: Option<u64>,
     /// No stage lines or progress bars on stderr (they show only on a terminal anyway).
     #[arg(long, short, global = true)]
@@ -32,6 +32,28 @@ pub(crate) struct Cli {
 pub(crate) enum ExportFormat {
     /// The K-Coronagraph's four per-ADC tables (`OUT_adc0.bin` .. `OUT_adc3.bin`, little-endian u32; docs/kcor-luts.md).
     Kcor,
+}
+
+/// The LUT formats `lut convert` writes.
+#[derive(clap::ValueEnum, Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum LutFormatArg {
+    /// Our LUT FITS (entries, and the code widths in extension WEIGHTS where known; docs/formats.md).
+    Fits,
+    /// The device image the co-processor loads (the core's encoding, with its CRC).
+    Image,
+    /// The K-Coronagraph's four per-ADC tables (little-endian u32; docs/kcor-luts.md).
+    Kcor,
+}
+
+impl From<LutFormatArg> for dncal_host::formats::lut::LutFormat {
+    fn from(a: LutFormatArg) -> Self {
+        use dncal_host::formats::lut::LutFormat;
+        match a {
+            LutFormatArg::Fits => LutFormat::Fits,
+            LutFormatArg::Image => LutFormat::DeviceImage,
+            LutFormatArg::Kcor => LutFormat::Kcor,
+        }
+    }
 }
 
 /// How the input spread its samples over the ADC's range, for the IEEE 1241 histogram test.
@@ -47,8 +69,8 @@ pub(crate) enum DensityArg {
 }
 
 impl DensityArg {
-    pub(crate) fn density(self) -> dncal_host::ieee1241::Density {
-        use dncal_host::ieee1241::Density;
+    pub(crate) fn density(self) -> dncal_host::analyses::ieee1241::Density {
+        use dncal_host::analyses::ieee1241::Density;
         match self {
             DensityArg::Smooth => Density::Smooth,
             DensityArg::Ramp => Density::Ramp,
@@ -89,12 +111,12 @@ pub(crate) struct EngineArgs {
 }
 
 impl EngineArgs {
-    pub(crate) fn engine(&self) -> Result<dncal_host::streaming::Engine, HostError> {
+    pub(crate) fn engine(&self) -> Result<dncal_host::checks::streaming::Engine, HostError> {
         let fpga_flags = [("--taps", self.taps.is_some()), ("--fifo-depth", self.fifo_depth.is_some()), ("--mem-latency", self.mem_latency.is_some()), ("--mem-words-per-cycle", self.mem_words_per_cycle.is_some())];
         match self.engine {
             EngineKind::Core => match fpga_flags.iter().find(|f| f.1) {
                 Some((flag, _)) => Err(HostError::argument(*flag, "applies to the FPGA model only: add --engine fpga")),
-                None => Ok(dncal_host::streaming::Engine::Core),
+                None => Ok(dncal_host::checks::streaming::Engine::Core),
             },
             EngineKind::Fpga => {
                 let d = dncal_fpga_model::Config::default();
@@ -106,7 +128,7 @@ impl EngineArgs {
                     ..d
                 };
                 config.validate().map_err(|e| HostError::argument("--engine fpga", e.to_string()))?;
-                Ok(dncal_host::streaming::Engine::Fpga(config))
+                Ok(dncal_host::checks::streaming::Engine::Fpga(config))
             }
         }
     }
@@ -298,7 +320,7 @@ pub(crate) enum Cmd {
         /// Relative Gaussian noise on the histogram the LUT is built from.
         #[arg(long, default_value_t = KcorParams::default().lut_noise)]
         lut_noise: f64,
-        /// LUT to apply (FITS or device image; default: the true widths with --lut-noise).
+        /// LUT to apply (any format: LUT FITS, device image, K-Cor table; default: the true widths with --lut-noise).
         #[arg(long)]
         lut: Option<PathBuf>,
         /// Largest |Q| of the grid as a fraction of the brightest I.
@@ -394,8 +416,8 @@ pub(crate) enum Cmd {
         descriptor: PathBuf,
         /// The standard's release whose definitions apply: 3.1 or 4.0 (default: the
         /// descriptor's `v` record; 3.1 when it has none).
-        #[arg(long, value_parser = dncal_host::emva::Release::parse)]
-        release: Option<dncal_host::emva::Release>,
+        #[arg(long, value_parser = dncal_host::analyses::emva::Release::parse)]
+        release: Option<dncal_host::analyses::emva::Release>,
         /// Write the datasheet (datasheet.html with its plots, datasheet.json) here.
         #[arg(short, long)]
         out: Option<PathBuf>,
@@ -425,8 +447,8 @@ pub(crate) enum Cmd {
         /// Sum-memory latency, cycles.
         #[arg(long, default_value_t = dncal_fpga_model::Config::default().mem_latency)]
         mem_latency: u32,
-        /// LUT FITS file to write as `$readmemh` files (with --out).
-        #[arg(long, value_name = "FITS", requires = "out")]
+        /// LUT (any format: LUT FITS, device image, K-Cor table) to write as `$readmemh` files (with --out).
+        #[arg(long, value_name = "LUT", requires = "out")]
         lut: Option<PathBuf>,
         /// Folder for the `$readmemh` files.
         #[arg(short, long, requires = "lut")]
@@ -588,10 +610,31 @@ pub(crate) enum LutCmd {
         #[arg(long)]
         json: bool,
     },
+    /// Write a LUT in another format: our LUT FITS, the device image or the K-Cor
+    /// tables (the input's format is read from its bytes).
+    Convert {
+        /// LUT in any format: LUT FITS, device image, or one of a camera's K-Cor tables
+        /// (its name says its ADC, adc0 .. adc3; the other three are found beside it).
+        lut: PathBuf,
+        /// The format to write.
+        #[arg(long, value_enum)]
+        to: LutFormatArg,
+        /// Output: OUT.fits, OUT.bin (OUT may end in .fits for the LUT FITS), or the K-Cor
+        /// tables OUT_adc0.bin .. OUT_adc3.bin (OUT with {adc} replaced, if it has it).
+        #[arg(short, long)]
+        out: PathBuf,
+        /// K-Cor scaling: the last entry is 2^BITS - 1 (22 or 23); default the imported
+        /// tables' own, else 23.
+        #[arg(long)]
+        bits: Option<u32>,
+        /// Print a JSON summary on stdout.
+        #[arg(long)]
+        json: bool,
+    },
     /// Show the tables, steps (each the mean width of two neighbouring codes) and
-    /// cumulative offsets of a LUT FITS or device image.
+    /// cumulative offsets of a LUT in any format (LUT FITS, device image, K-Cor tables).
     Inspect {
-        /// LUT FITS or device image.
+        /// LUT FITS, device image, or one of a camera's K-Cor tables.
         file: PathBuf,
         /// Also list every code (code, entry, DN, step, offset) in the readable output.
         #[arg(long)]

@@ -9,11 +9,11 @@ use std::path::Path;
 use std::process::ExitCode;
 
 use cli::{Cli, Cmd, ExportFormat, LutCmd, SimulateCmd};
-use dncal_host::camera::calibration::LinearityParams;
+use dncal_host::model::camera::calibration::LinearityParams;
 use dncal_host::commands::firmware::{firmware_check, CheckParams};
 use dncal_host::commands::{adc, bench, demo, diagnose, emva, fpga, kcor, linearity, lut, progress, quantization, simulate, stream, Report};
-use dncal_host::outputs::{staged, staged_in};
-use dncal_host::streaming::StreamParams;
+use dncal_host::formats::outputs::{staged, staged_in};
+use dncal_host::checks::streaming::StreamParams;
 use dncal_host::HostError;
 
 fn main() -> ExitCode {
@@ -34,7 +34,7 @@ fn main() -> ExitCode {
 /// ran but its check did not pass (`stream`, `demo`, `firmware-check`).
 fn run(cli: Cli) -> Result<ExitCode, HostError> {
     if let Some(bytes) = cli.max_memory {
-        dncal_host::budget::set_limit(bytes);
+        dncal_host::infra::budget::set_limit(bytes);
     }
     progress::set_quiet(cli.quiet);
     let passed = |ok: bool| if ok { ExitCode::SUCCESS } else { ExitCode::FAILURE };
@@ -52,6 +52,7 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
         Cmd::Lut { what: LutCmd::Build { hist, out, flatten, json } } => print(json, &lut::build(&hist, &out, &flatten.params())?)?,
         Cmd::Lut { what: LutCmd::Import { kcor, out, json } } => print(json, &lut::import_kcor(&kcor, &out)?)?,
         Cmd::Lut { what: LutCmd::Export { lut: file, format: ExportFormat::Kcor, out, bits, json } } => print(json, &lut::export_kcor(&file, &out, bits)?)?,
+        Cmd::Lut { what: LutCmd::Convert { lut: file, to, out, bits, json } } => print(json, &lut::convert(&file, to.into(), &out, bits)?)?,
         Cmd::Lut { what: LutCmd::Inspect { file, table, json } } => print(json, &lut::InspectSummary { list_codes: table, ..lut::inspect(&file)? })?,
         Cmd::Stream { camera, hist, flatten, frames, states, roi, seed, frames_from, engine, json } => {
             let cam = camera.camera()?;
@@ -68,7 +69,7 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
         }
         Cmd::KcorModel { camera, adc, exposure_ms, steps, lut_noise, lut, q_fraction, seed, realizations, out, json } => {
             let cam = camera.camera()?;
-            let p = dncal_host::kcor::KcorParams { adc, exposure_s: exposure_ms * 1e-3, steps, lut_noise, q_fraction, seed, ..Default::default() };
+            let p = dncal_host::analyses::kcor::KcorParams { adc, exposure_s: exposure_ms * 1e-3, steps, lut_noise, q_fraction, seed, ..Default::default() };
             let spin = progress::spinner(&format!("K-Coronagraph model: ADC {adc}, {steps} steps of the Stokes map, {realizations} realization(s)"));
             let s = staged(out.as_deref(), |o| kcor::kcor_model(&cam, &p, lut.as_deref(), realizations, o));
             spin.finish_and_clear();
@@ -164,7 +165,7 @@ fn command() -> clap::Command {
 
 fn parse() -> Result<Cli, clap::Error> {
     let matches = command().try_get_matches()?;
-    dncal_host::fits::record_parameters(effective_parameters(&matches));
+    dncal_host::formats::fits::record_parameters(effective_parameters(&matches));
     <Cli as clap::FromArgMatches>::from_arg_matches(&matches)
 }
 
@@ -207,10 +208,10 @@ fn man_pages(out: Option<&Path>) -> Result<(), HostError> {
     let Some(dir) = out else {
         return to_stdout(&render(&cmd)?);
     };
-    let mut files = dncal_host::outputs::Outputs::new();
+    let mut files = dncal_host::formats::outputs::Outputs::new();
     files.create_dir(dir)?;
     // Each subcommand's page is named by its path (`dncal-lut-build.1`), as git's are.
-    fn walk(cmd: &clap::Command, name: String, dir: &Path, files: &mut dncal_host::outputs::Outputs) -> Result<(), HostError> {
+    fn walk(cmd: &clap::Command, name: String, dir: &Path, files: &mut dncal_host::formats::outputs::Outputs) -> Result<(), HostError> {
         let named = cmd.clone().name(name.clone());
         files.write_bytes(&dir.join(format!("{name}.1")), render(&named)?)?;
         for sub in cmd.get_subcommands().filter(|s| s.get_name() != "help") {

@@ -103,7 +103,7 @@ fn drain(pipe: Option<impl Read + Send + 'static>) -> std::thread::JoinHandle<Ve
 /// `VmHWM` of a `/proc/PID/status`, bytes; `None` where it cannot be read (a process gone
 /// or a zombie, which has no memory left).
 fn high_water_mark(status: &Path) -> Option<u64> {
-    crate::budget::kib_field(&std::fs::read_to_string(status).ok()?, "VmHWM:")
+    crate::infra::budget::kib_field(&std::fs::read_to_string(status).ok()?, "VmHWM:")
 }
 
 /// Waits until child `pid` has exited, leaving it unreaped (`WNOWAIT`).

@@ -26,8 +26,8 @@ use rand::{rngs::StdRng, Rng, SeedableRng};
 use serde::Serialize;
 
 use crate::commands::Report;
-use crate::parallel::{band_rows, Bands};
-use crate::stats::median;
+use crate::infra::parallel::{band_rows, Bands};
+use crate::infra::stats::median;
 use crate::HostError;
 
 /// What the bench runs.
@@ -143,7 +143,7 @@ fn plain_lut_frame(tables: &[[u32; 4096]; 4], codes: &[u16], sums: &mut [u32]) {
 
 /// The plain LUT loop on a frame cut into `sums.len()` bands of rows, each band on its
 /// own thread and clearing its own sums first, as the core's bands do
-/// ([`crate::parallel`]): what the parallel path's speed-up can reach on this machine.
+/// ([`crate::infra::parallel`]): what the parallel path's speed-up can reach on this machine.
 fn plain_lut_bands(tables: &[[u32; 4096]; 4], codes: &[u16], frames: usize, sums: &mut [Vec<u32>]) {
     use rayon::prelude::*;
     let count = sums.len();
@@ -166,11 +166,11 @@ fn bytes_frame(codes: &[u16], sums: &mut [u32]) {
 
 /// A simulated `side x side` x 41-level linearity set (16 frames a level) at the sensor's
 /// centre, in a temporary directory kept alive by the returned handle.
-fn simulated_linearity(camera: &crate::camera::Camera, side: usize) -> Result<(tempfile::TempDir, std::path::PathBuf), HostError> {
+fn simulated_linearity(camera: &crate::model::camera::Camera, side: usize) -> Result<(tempfile::TempDir, std::path::PathBuf), HostError> {
     let dir = tempfile::tempdir().map_err(|e| HostError::io(std::env::temp_dir(), e))?;
     let path = dir.path().join("linearity.fits");
     let corner = (WIDTH - side) / 2;
-    let lp = crate::camera::calibration::LinearityParams { frames: 16, roi: (corner, corner, side, side), ..crate::camera::calibration::LinearityParams::paper(camera) };
+    let lp = crate::model::camera::calibration::LinearityParams { frames: 16, roi: (corner, corner, side, side), ..crate::model::camera::calibration::LinearityParams::paper(camera) };
     crate::commands::simulate::simulate_linearity(camera, &lp, path.clone())?;
     Ok((dir, path))
 }
@@ -178,7 +178,7 @@ fn simulated_linearity(camera: &crate::camera::Camera, side: usize) -> Result<(t
 /// The bench's floor for `diagnose`: every pixel's weighted least-squares quartic through
 /// its levels (noise of the mean from the frames' deviation), by SVD; the sum of the
 /// coefficients, so nothing is optimized away.
-fn quartic_per_pixel(set: &crate::fits::LinearitySet) -> f64 {
+fn quartic_per_pixel(set: &crate::formats::fits::LinearitySet) -> f64 {
     use rayon::prelude::*;
     let np = set.width * set.height;
     let vmax = set.voltage.iter().copied().fold(f64::MIN, f64::max);
@@ -194,17 +194,17 @@ fn quartic_per_pixel(set: &crate::fits::LinearitySet) -> f64 {
 }
 
 /// The firmware's exact-mode correction, instructions a pixel counted by QEMU
-/// ([`crate::firmware::instructions::correction_cost`]), against issue 17's limit of 7, as
+/// ([`crate::checks::firmware::instructions::correction_cost`]), against issue 17's limit of 7, as
 /// pixels an instruction (so that more is better, as in every other row). A count, not a
 /// timing: one run. Skipped with a note where the cross toolchain is missing (the bench
 /// does not install it: `scripts/firmware.sh install`) or the count fails.
 fn firmware_ratio() -> Result<(Ratio, String), String> {
-    let script = crate::firmware::repo_root().join("scripts/firmware.sh");
+    let script = crate::checks::firmware::repo_root().join("scripts/firmware.sh");
     let have = std::process::Command::new(&script).arg("have").status().map(|s| s.success()).unwrap_or(false);
     if !have {
         return Err("firmware skipped: no cross toolchain (scripts/firmware.sh install)".into());
     }
-    let cost = crate::firmware::build_firmware().and_then(|elf| crate::firmware::instructions::correction_cost(&elf)).map_err(|e| format!("firmware skipped: {e}"))?;
+    let cost = crate::checks::firmware::build_firmware().and_then(|elf| crate::checks::firmware::instructions::correction_cost(&elf)).map_err(|e| format!("firmware skipped: {e}"))?;
     let limit = 7.0;
     let r = ratio("firmware correction, QEMU count", &[1.0 / cost.per_pixel], "issue 17: 7 instructions a pixel", &[1.0 / limit], "px/instr", Some(1.0));
     Ok((r, format!("firmware: the exact-mode correction executes {:.3} instructions a pixel plus {:.1} a line (Cortex-M4 under QEMU)", cost.per_pixel, cost.per_line)))
@@ -341,7 +341,7 @@ pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, Ho
         }
         None => notes.push("one core: the parallel path was not measured".into()),
     }
-    let camera = crate::camera::Camera::new(crate::camera::CameraConfig::default()).map_err(|source| HostError::Config { path: "default camera".into(), source })?;
+    let camera = crate::model::camera::Camera::new(crate::model::camera::CameraConfig::default()).map_err(|source| HostError::Config { path: "default camera".into(), source })?;
     ratios.extend(stream_ratios(&camera, runs)?);
     ratios.push(poisson_ratio(runs));
     if p.numpy && notes.is_empty() {
@@ -510,10 +510,10 @@ fn core_runs(p: &BenchParams, progress: &impl Fn(&str), notes: &mut Vec<String>)
 /// check) on 1024 x 1024 frames, and replay (`stream --frames-from`) of recorded frames
 /// of uniform codes, against one K-Coronagraph camera's rate (1024 x 1024 x 150 Hz): a
 /// fixed rate, not a run in this process, so a ratio's spread is the stream's own.
-fn stream_ratios(camera: &crate::camera::Camera, runs: usize) -> Result<[Ratio; 2], HostError> {
-    use crate::streaming::{run_stream, StreamParams};
+fn stream_ratios(camera: &crate::model::camera::Camera, runs: usize) -> Result<[Ratio; 2], HostError> {
+    use crate::checks::streaming::{run_stream, StreamParams};
     let weights = crate::commands::stream::oracle_weights(camera)?;
-    let cube = crate::fits::FrameCube { width: WIDTH, height: HEIGHT, frames: 16, codes: uniform_codes(WIDTH * HEIGHT).repeat(16) };
+    let cube = crate::formats::fits::FrameCube { width: WIDTH, height: HEIGHT, frames: 16, codes: uniform_codes(WIDTH * HEIGHT).repeat(16) };
     let replay = StreamParams { recorded: Some(std::sync::Arc::new(cube)), ..StreamParams::full_frame(camera, 16) };
     let rates = |what: &str, params: &StreamParams| -> Result<Vec<f64>, HostError> {
         (0..runs.min(3))
@@ -542,9 +542,9 @@ fn poisson_ratio(runs: usize) -> Ratio {
     let means: Vec<f64> = (0..1 << 18).map(|i| 200.0 + (i as f64 * 0.618_034).fract() * 179_800.0).collect();
     let (mut ptrs_rates, mut crate_rates) = (Vec::new(), Vec::new());
     for run in 0..=runs {
-        let mut g = crate::camera::sample::line_rng(run as u64, 0);
+        let mut g = crate::model::camera::sample::line_rng(run as u64, 0);
         let t = Instant::now();
-        black_box(means.iter().map(|&m| crate::camera::sample::poisson(&mut g, m)).sum::<f64>());
+        black_box(means.iter().map(|&m| crate::model::camera::sample::poisson(&mut g, m)).sum::<f64>());
         let a = t.elapsed().as_secs_f64();
         let t = Instant::now();
         black_box(means.iter().map(|&m| rand_distr::Poisson::new(m).map_or(0.0, |d| rand_distr::Distribution::sample(&d, &mut g))).sum::<f64>());
@@ -561,7 +561,7 @@ fn poisson_ratio(runs: usize) -> Ratio {
 /// reading the file to the RMS per level (the numpy script's own clock starts after its
 /// imports), on the same file; the results must agree. None, with a note, where numpy
 /// could not run.
-fn linearity_ratio(camera: &crate::camera::Camera, runs: usize, notes: &mut Vec<String>) -> Result<Option<Ratio>, HostError> {
+fn linearity_ratio(camera: &crate::model::camera::Camera, runs: usize, notes: &mut Vec<String>) -> Result<Option<Ratio>, HostError> {
     let (_dir, set) = simulated_linearity(camera, 256)?;
     let (mut ours, mut theirs) = (Vec::new(), Vec::new());
     for _ in 0..runs.min(3) {
@@ -590,17 +590,17 @@ fn linearity_ratio(camera: &crate::camera::Camera, runs: usize, notes: &mut Vec<
 /// does) against the plainest per-pixel work it contains: one weighted least-squares
 /// quartic per pixel through all its levels by nalgebra's SVD, on the same means. The
 /// ratio says how many such fits a diagnosis costs per pixel.
-fn diagnose_ratio(camera: &crate::camera::Camera, runs: usize) -> Result<Ratio, HostError> {
+fn diagnose_ratio(camera: &crate::model::camera::Camera, runs: usize) -> Result<Ratio, HostError> {
     let (_dir, path) = simulated_linearity(camera, 128)?;
     // The baseline's means, read once (the diagnosis reads its file every run, as the
     // command does).
-    let wide = crate::fits::read_linearity(&path)?;
+    let wide = crate::formats::fits::read_linearity(&path)?;
     let pixels = (wide.width * wide.height) as f64;
     let (mut ours, mut fits) = (Vec::new(), Vec::new());
     for _ in 0..runs.min(3) {
         let t = Instant::now();
-        let set = crate::fits::read_linearity_as::<f32>(&path)?;
-        black_box(crate::diagnose::diagnose_linearity(&set, 0.01).map_err(|source| HostError::Diagnose { path: path.clone(), source })?);
+        let set = crate::formats::fits::read_linearity_as::<f32>(&path)?;
+        black_box(crate::analyses::diagnose::diagnose_linearity(&set, 0.01).map_err(|source| HostError::Diagnose { path: path.clone(), source })?);
         ours.push(pixels / t.elapsed().as_secs_f64() / 1e3);
         let t = Instant::now();
         black_box(quartic_per_pixel(&wide));

@@ -82,8 +82,8 @@ pub fn rows(w: &WholeParams, runs: usize, numpy: bool, notes: &mut Vec<String>) 
 }
 
 /// The default camera at `side x side` pixels.
-fn camera_of_side(side: usize) -> crate::camera::CameraConfig {
-    crate::camera::CameraConfig { width: side, height: side, ..Default::default() }
+fn camera_of_side(side: usize) -> crate::model::camera::CameraConfig {
+    crate::model::camera::CameraConfig { width: side, height: side, ..Default::default() }
 }
 
 /// A whole `side x side` sensor's 41-level set, simulated into `dir/name` by

@@ -1,0 +1,166 @@
+//! What a linearity set measures of the camera (for the model file), and the
+//! quantization floor of the means its noise model needs.
+
+use rayon::prelude::*;
+
+use crate::analyses::diagnose::cubes::SetView;
+use crate::analyses::diagnose::records::Records;
+use super::scoring::Scoring;
+use crate::analyses::diagnose::Measured;
+use super::populations::populations;
+use crate::formats::fits::Sample;
+
+/// Per level, the mean square error a mean of quantized frames carries beyond what their
+/// spread shows ([`crate::analyses::quantization::mean_square_bias`] at the analog noise behind the
+/// pixels' mean frame variance, [`crate::analyses::quantization::sigma_from_quantized_variance`]):
+/// 1/12 DN^2 where every frame reads one code, negligible from 0.5 DN of noise. Without
+/// it a set with 0.1 DN of noise gave `bad-pixels` at 950 sigma and `unexplained` at 800
+/// (its means were taken to be good to 1/sqrt(12 N) of a code); with the median frame
+/// deviation taken for the analog noise (0.3 DN read for 0.17), `unexplained` at 98.
+///
+/// Over the `n` pixels fitted, `pixel(i)` being the set's pixel that pixel `i` is.
+pub(super) fn quantization_floor<T: Sample>(set: &SetView<'_, T>, n: usize, pixel: &(dyn Fn(usize) -> usize + Sync)) -> Vec<f64> {
+    let nl = set.levels;
+    // Per level, the finite deviations; their upper median (exact, in passes over the
+    // pixels: [`crate::infra::select`]) sets the cut.
+    let finite = |i: usize, f: &mut dyn FnMut(usize, f64)| {
+        set.with_pixel(pixel(i), |at| (0..nl).map(|l| (l, at.std(l))).filter(|(_, v)| v.is_finite()).for_each(|(l, v)| f(l, v)))
+    };
+    // Noisy or hot pixels out: they are not the level's noise.
+    let cut: Vec<f64> = crate::infra::select::upper_medians(n, nl, &finite).into_iter().map(|m| 5.0 * m.max(0.0) + 1.0).collect();
+    // Their mean square below the cut, summed in a fixed order ([`crate::analyses::diagnose::TASKS`]).
+    let chunk = n.div_ceil(crate::analyses::diagnose::TASKS).max(1);
+    let parts: Vec<Vec<(f64, usize)>> = (0..n.div_ceil(chunk))
+        .into_par_iter()
+        .map(|c| {
+            let mut acc = vec![(0.0, 0usize); nl];
+            for i in c * chunk..((c + 1) * chunk).min(n) {
+                finite(i, &mut |l, v| {
+                    if v <= cut[l] {
+                        acc[l] = (acc[l].0 + v * v, acc[l].1 + 1);
+                    }
+                });
+            }
+            acc
+        })
+        .collect();
+    (0..nl)
+        .map(|l| {
+            let (sum, count) = parts.iter().fold((0.0, 0), |(s, k), p| (s + p[l].0, k + p[l].1));
+            let v = sum / count.max(1) as f64;
+            crate::analyses::quantization::mean_square_bias(crate::analyses::quantization::sigma_from_quantized_variance(v))
+        })
+        .collect()
+}
+
+/// The camera parameters a linearity set measures (for the model file): conversion gain
+/// and read noise from the pixels' temporal variance against their signal (median over
+/// pixels per level, corrected for the median of `chi^2`, a line over the levels below
+/// 70% of the range: `var = r^2 + 1/12 + S / G`), dark level and DSNU, PRNU (both about
+/// each pixel's own ADC), full scale and whether it is a saturation, the fraction of bad
+/// pixels, and the
+/// pixel-to-pixel rms of the quadratic response term from the *covariance* of the
+/// pixels' even-level and odd-level quartics (their noises are independent, so the
+/// covariance over pixels is the spread of the true terms alone).
+///
+/// Also the median dark noise, DN (the good pixels' temporal deviation at level 0).
+pub(super) fn measure_camera<T: Sample>(scoring: &Scoring<'_, T>, n_frames: u32, bad: usize) -> (Measured, f64) {
+    let (px, good, fits, top) = (scoring.px, &scoring.good, scoring.fits, scoring.top);
+    let levels = px.x.len();
+    // The median of `s^2` is `sigma^2` times the median of `chi^2_(N-1) / (N-1)`,
+    // `(1 - 2 / (9 (N-1)))^3` (Wilson-Hilferty): 0.26% low at 256 frames, and the gain
+    // with it.
+    let dof = f64::from(n_frames.max(2)) - 1.0;
+    let median_chi2 = (1.0 - 2.0 / (9.0 * dof)).powi(3);
+    let n_adc = px.n_adc();
+    // The medians over the good pixels, exact, in passes over them ([`crate::infra::select`]):
+    // cell 0 the dark level, 1 the dark frames' variance of a mean, 2 the signal at the
+    // last unsaturated level, then per level from 1 the signal and the frames' variance,
+    // and last the dark frames' deviation.
+    let (dark_cell, noise_cell, full_cell, signal_cell, var_cell) = (0, 1, 2, |l: usize| 1 + 2 * l, |l: usize| 2 + 2 * l);
+    let dark_std_cell = 2 * levels + 1;
+    let nf = f64::from(n_frames.max(1));
+    let medians = crate::infra::select::upper_medians(good.len(), 2 * levels + 2, &|j, f| {
+        let i = good.index(j);
+        let valid = px.valid(i);
+        px.with_levels(i, |at| {
+            let dark = at.mean(0);
+            f(dark_cell, dark);
+            f(noise_cell, at.std(0).powi(2) / nf);
+            f(dark_std_cell, at.std(0));
+            if valid > 1 {
+                f(full_cell, at.mean(valid - 1) - dark);
+            }
+            for l in 1..valid.min(levels) {
+                f(signal_cell(l), at.mean(l) - dark);
+                f(var_cell(l), at.std(l).powi(2));
+            }
+        })
+    });
+    let (mut s, mut v) = (Vec::new(), Vec::new());
+    let dark = medians[dark_cell];
+    let mut on = vec![0usize; levels];
+    good.iter().for_each(|i| on[..px.valid(i as usize).min(levels)].iter_mut().for_each(|n| *n += 1));
+    for l in 1..levels {
+        if on[l] * 2 < good.len() {
+            break;
+        }
+        let signal = medians[signal_cell(l)];
+        if signal > 0.7 * (top - dark) {
+            break;
+        }
+        s.push(signal);
+        v.push(medians[var_cell(l)] / median_chi2);
+    }
+    let (gain, read) = if s.len() >= 3 {
+        let (a, b, _) = crate::analyses::emva::fit_line(&s, &v);
+        ((b > 0.0).then(|| 1.0 / b), Some((a - 1.0 / 12.0).max(0.0).sqrt()))
+    } else {
+        (None, None)
+    };
+    // DSNU from the dark frames themselves, less their own noise; PRNU from the signal at
+    // the level nearest half scale (fitted intercepts and slopes would absorb part of each
+    // pixel's own curvature: they read 2.1 DN of DSNU where the camera had 0.9).
+    let d_noise = medians[noise_cell] / median_chi2;
+    let half = s.iter().enumerate().min_by(|a, b| (a.1 - 0.5 * s.last().copied().unwrap_or(0.0) / 0.7).abs().total_cmp(&(b.1 - 0.5 * s.last().copied().unwrap_or(0.0) / 0.7).abs())).map_or(1, |(j, _)| j + 1);
+    // Per good pixel its dark mean and its signal at `half` (NaN past its unsaturated
+    // levels: left out), kept as records for the passes of the selections.
+    let own = Records::from_fn(px.keep(), good.len(), |j| {
+        let i = good.index(j);
+        px.with_levels(i, |at| [at.mean(0), if half < px.valid(i) { at.mean(half) - at.mean(0) } else { f64::NAN }])
+    });
+    // Pixel-to-pixel spreads about each pixel's own ADC's median: an ADC offset or gain is
+    // an `adc-mismatch`, not DSNU or PRNU.
+    let [(_, _, d_scatter), (_, gm, gs)] = populations(good.len(), n_adc, &|j, f| {
+        let (v, adc) = (own.at(j), px.adc(good.index(j)));
+        f(0, adc, v[0]);
+        f(1, adc, v[1]);
+    });
+    drop(own);
+    // The pixels' quadratic terms on either half, `b2 / gain^2`, where both are finite;
+    // their means, then their covariance (two passes in pixel order).
+    let b2 = |j: usize| -> Option<(f64, f64)> {
+        let f = fits.at(good.index(j));
+        let (a, b) = (f.quartic(0)?, f.quartic(1)?);
+        Some((a.b2 / a.gain.powi(2), b.b2 / b.gain.powi(2))).filter(|(a, b)| a.is_finite() && b.is_finite())
+    };
+    let pairs = || (0..good.len()).filter_map(b2);
+    // (Each sum from -0.0, as `Sum` takes them.)
+    let (count, sa, sb) = pairs().fold((0usize, -0.0, -0.0), |(k, a, b), v| (k + 1, a + v.0, b + v.1));
+    let n = count as f64;
+    let (ma, mb) = (sa / n, sb / n);
+    let cov = pairs().map(|v| (v.0 - ma) * (v.1 - mb)).sum::<f64>() / (n - 1.0);
+    let measured = Measured {
+        gain_e_per_dn: gain,
+        read_noise_dn: read,
+        offset_dn: Some(dark),
+        full_scale_dn: Some(medians[full_cell]),
+        // (Those unsaturated at the last level are all but the saturated.)
+        saturated: (good.len() - on.last().copied().unwrap_or(good.len())) * 2 > good.len(),
+        prnu_rms: Some(gs / gm),
+        dsnu_dn: Some((d_scatter.powi(2) - d_noise).max(0.0).sqrt()),
+        pixel_b2_rms_per_dn: (n > 10.0).then(|| cov.max(0.0).sqrt()),
+        bad_fraction: Some(bad as f64 / px.len().max(1) as f64),
+    };
+    (measured, medians[dark_std_cell])
+}

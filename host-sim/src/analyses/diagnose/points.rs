@@ -1,0 +1,151 @@
+//! A linearity set's levels as the per-pixel fits see them ([`Point`]s: reference, mean,
+//! noise of the mean), computed from the set when a fit asks for them and not held: a
+//! pixel's points took 1.3 KB at 41 levels, most of what `diagnose` held per pixel
+//! (5.1 KB in all), and each costs a few flops to recompute against a Gauss-Newton fit.
+
+use super::cubes::{Levels, SetView};
+use super::pixel_fit::Point;
+use super::records::{Keep, Records};
+use crate::formats::fits::Sample;
+
+/// A per-level term common to pixels, taken out of their means: `(c, var)` in DN and
+/// DN^2 at `level` for a pixel read by `adc` whose own response is `shape` (read once a
+/// pixel: `shape(i)` for pixel `i`, an index into [`Pixels`]), where there is one.
+/// ([`super::levels::LevelTerm`] is the one there is.)
+pub(super) trait Common: Sync {
+    fn shape(&self, i: usize) -> Option<[f64; 5]>;
+    fn at(&self, level: usize, adc: usize, shape: Option<&[f64; 5]>) -> Option<(f64, f64)>;
+}
+
+/// Which of a set's pixels a diagnosis fits: all, or those a mask leaves (their indices,
+/// held or spilled as the records are).
+pub(super) enum Fitted {
+    All(usize),
+    Listed(Records<u32>),
+}
+
+impl Fitted {
+    /// The set's pixel that pixel `i` is.
+    pub fn index(&self, i: usize) -> usize {
+        match self {
+            Fitted::All(_) => i,
+            Fitted::Listed(list) => list.index(i),
+        }
+    }
+
+    /// Pixels fitted.
+    pub fn len(&self) -> usize {
+        match self {
+            Fitted::All(n) => *n,
+            Fitted::Listed(list) => list.len(),
+        }
+    }
+}
+
+/// The pixels of a set a diagnosis fits (those not masked) and what their points need.
+pub(super) struct Pixels<'a, T: Sample> {
+    set: &'a SetView<'a, T>,
+    /// Reference per level, `V_l / max V`.
+    pub x: Vec<f64>,
+    /// `(N - 1) / (N - 3)`: the mean of `1 / s^2` over Gaussian frames, relative.
+    kappa: f64,
+    /// Per level, the quantization's mean square error of a mean, DN^2.
+    bias2: Vec<f64>,
+    /// Per pixel of the set, its levels below saturation.
+    valid: Records<u16>,
+    /// The set's pixels fitted.
+    fitted: Fitted,
+    /// Where the records kept per pixel go ([`super::records`]).
+    keep: Keep,
+}
+
+impl<'a, T: Sample> Pixels<'a, T> {
+    pub fn new(set: &'a SetView<'a, T>, x: Vec<f64>, kappa: f64, bias2: Vec<f64>, valid: Records<u16>, fitted: Fitted, keep: Keep) -> Self {
+        Pixels { set, x, kappa, bias2, valid, fitted, keep }
+    }
+
+    /// The index into the set's pixels of pixel `i`.
+    pub fn index(&self, i: usize) -> usize {
+        self.fitted.index(i)
+    }
+
+    /// Where the records kept per pixel go.
+    pub fn keep(&self) -> &Keep {
+        &self.keep
+    }
+
+    /// Pixels fitted.
+    pub fn len(&self) -> usize {
+        self.fitted.len()
+    }
+
+    /// ADCs of the camera.
+    pub fn n_adc(&self) -> usize {
+        self.set.n_adc.clamp(1, self.set.width.max(1))
+    }
+
+    /// The ADC of pixel `i`: column `c` is read by ADC `c mod n_adc`.
+    pub fn adc(&self, i: usize) -> usize {
+        self.adc_of(self.index(i))
+    }
+
+    /// The ADC of the set's pixel `p`.
+    fn adc_of(&self, p: usize) -> usize {
+        dncal_core::adc_of_column(p % self.set.width, self.n_adc())
+    }
+
+    /// Whether pixel `i` lies on an even row: those estimate shared parameters, the odd
+    /// rows score them.
+    pub fn estimating(&self, i: usize) -> bool {
+        (self.index(i) / self.set.width) % 2 == 0
+    }
+
+    /// Levels of pixel `i` below saturation.
+    pub fn valid(&self, i: usize) -> usize {
+        usize::from(self.valid.at(self.index(i)))
+    }
+
+    /// The levels of pixel `i`, split: (even levels, odd levels); less the `common` term
+    /// where one is given (its variance added to the noise, and the rounding of the
+    /// mean's value type: [`Sample::rounding_var`]).
+    pub fn halves(&self, i: usize, common: Option<&dyn Common>) -> (Vec<Point>, Vec<Point>) {
+        let set = self.set;
+        let p = self.index(i);
+        let valid = usize::from(self.valid.at(p));
+        let n = f64::from(set.n_frames.max(1));
+        let floor = 1.0 / (12.0 * n);
+        let adc = self.adc_of(p);
+        let shape = common.and_then(|t| t.shape(i));
+        let mut halves = (Vec::with_capacity(valid.div_ceil(2)), Vec::with_capacity(valid / 2));
+        set.with_pixel(p, |at| {
+            let pts = (0..valid)
+                .map(|l| {
+                    let (c, v) = common.and_then(|t| t.at(l, adc, shape.as_ref())).unwrap_or((0.0, 0.0));
+                    let (m, s) = (at.mean(l), at.std(l));
+                    Point { level: l, x: self.x[l], y: m - c, sigma: ((self.kappa * s * s / n).max(floor) + self.bias2[l] + v + T::rounding_var(m)).sqrt() }
+                })
+                .filter(|q| q.x.is_finite() && q.y.is_finite() && q.sigma.is_finite());
+            for q in pts {
+                if q.level % 2 == 0 { halves.0.push(q) } else { halves.1.push(q) }
+            }
+        });
+        halves
+    }
+
+    /// All levels of pixel `i`: the even ones, then the odd ones.
+    pub fn all(&self, i: usize, common: Option<&dyn Common>) -> Vec<Point> {
+        let (mut ev, od) = self.halves(i, common);
+        ev.extend(od);
+        ev
+    }
+
+    /// `f` of the levels of pixel `i` ([`SetView::with_pixel`]).
+    pub fn with_levels<R>(&self, i: usize, f: impl FnOnce(Levels<'_, T>) -> R) -> R {
+        self.set.with_pixel(self.index(i), f)
+    }
+
+    /// The raw mean of pixel `i` at `level`, DN.
+    pub fn mean(&self, level: usize, i: usize) -> f64 {
+        self.with_levels(i, |at| at.mean(level))
+    }
+}

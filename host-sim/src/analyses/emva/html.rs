@@ -1,0 +1,214 @@
+//! The datasheet as a folder a user opens in a browser: `datasheet.html` with the
+//! standard's plots (photon transfer, SNR, linearity deviation, spectrograms, defect
+//! histograms) as PNGs, and `datasheet.json`. The files are published together or not at
+//! all ([`crate::formats::outputs`]), so a failure leaves neither a half-written file nor a
+//! datasheet whose pages are of two runs.
+
+use std::path::{Path, PathBuf};
+
+use super::{Datasheet, Release};
+use crate::formats::outputs::{html_escape as esc, html_figure, html_path, Outputs};
+use crate::formats::plots::{line_plot, Series};
+use crate::HostError;
+
+/// One datasheet row: value with unit, or the reason it has none.
+fn row(sheet: &Datasheet, name: &str, key: &str, value: Option<f64>, unit: &str, digits: usize) -> String {
+    let shown = match value {
+        Some(v) => format!("{v:.digits$} {unit}"),
+        None => format!("&ndash; <small>({})</small>", esc(sheet.why(key))),
+    };
+    format!("<tr><td>{name}</td><td>{shown}</td><td><code>{key}</code></td></tr>\n")
+}
+
+/// `log10(count + 1)` over the bins of a histogram: logarithmic counts with empty bins
+/// at 0.
+fn log_counts(bins: &[f64], counts: &[u64]) -> Vec<(f64, f64)> {
+    bins.iter().zip(counts).map(|(&b, &c)| (b, ((c + 1) as f64).log10())).collect()
+}
+
+/// Writes the datasheet of `descriptor` into `dir`, all files or none
+/// ([`crate::formats::outputs`]); returns the files written.
+pub fn write_datasheet(dir: &Path, descriptor: &Path, sheet: &Datasheet) -> Result<Vec<PathBuf>, HostError> {
+    let mut staged = Outputs::new();
+    staged.create_dir(dir)?;
+    let names = ["photon_transfer.png", "snr.png", "linearity.png", "spectrograms.png", "defect_histograms.png", "datasheet.html", "datasheet.json"];
+    staged.expect(names.map(|n| dir.join(n)))?;
+    let mut files = figures(&mut staged, dir, sheet)?;
+    let page = dir.join("datasheet.html");
+    staged.write_bytes(&page, page_html(descriptor, sheet, &files))?;
+    files.push(page);
+    let json = dir.join("datasheet.json");
+    let text = serde_json::to_string_pretty(sheet).map_err(|e| HostError::Format { path: json.clone(), message: e.to_string() })?;
+    staged.write_bytes(&json, text + "\n")?;
+    files.push(json);
+    staged.publish()?;
+    Ok(files)
+}
+
+/// Stages the datasheet's figures in `dir`: photon transfer, SNR, linearity and, where
+/// the set has the spatial images, the spectrograms and defect histograms.
+fn figures(staged: &mut Outputs, dir: &Path, sheet: &Datasheet) -> Result<Vec<PathBuf>, HostError> {
+    let (t, s) = (&sheet.temporal, &sheet.spatial);
+    let mut files = Vec::new();
+    let ptc = dir.join("photon_transfer.png");
+    let points: Vec<(f64, f64)> = t.photon_transfer.iter().map(|p| (p.0, p.1)).collect();
+    let fit_end = t.photon_transfer.get(t.gain_fit_levels.saturating_sub(1)).map_or(0.0, |p| p.0);
+    let offset = match t.release {
+        Release::R3 => 0.0,
+        Release::R4 => t.gain_offset_dn2,
+    };
+    let fit: Vec<(f64, f64)> = [0.0, fit_end].iter().map(|&x| (x, offset + t.gain_dn_per_e * x)).collect();
+    line_plot(
+        staged,
+        &ptc,
+        "Photon transfer: temporal variance above dark against mean above dark",
+        "mean above dark (DN)",
+        "variance - dark variance (DN^2)",
+        &[
+            Series { label: "measured".into(), points },
+            Series { label: format!("K = {:.4} DN/e- over the fit range", t.gain_dn_per_e), points: fit },
+        ],
+        1,
+    )?;
+    files.push(ptc);
+
+    let snr = dir.join("snr.png");
+    let log = |v: f64| if v > 0.0 { v.log10() } else { f64::NAN };
+    line_plot(
+        staged,
+        &snr,
+        "Signal-to-noise ratio",
+        "log10 photons per pixel",
+        "log10 SNR",
+        &[
+            Series { label: "measured (mean above dark / temporal noise)".into(), points: t.snr.iter().map(|p| (log(p.photons), log(p.measured))).collect() },
+            Series { label: "linear model (K, QE, dark noise)".into(), points: t.snr.iter().map(|p| (log(p.photons), log(p.model))).collect() },
+        ],
+        1,
+    )?;
+    files.push(snr);
+
+    let lin = dir.join("linearity.png");
+    line_plot(
+        staged,
+        &lin,
+        "Linearity: deviation from the fit over 5-95% of saturation",
+        "photons per pixel",
+        "deviation (%)",
+        &[Series { label: "relative deviation".into(), points: t.linearity_deviation_pct.clone() }],
+        1,
+    )?;
+    files.push(lin);
+
+    if let (Some(sp), Some(h)) = (&s.spectrograms, &s.histograms) {
+        let freq = |n: usize| move |i: usize| i as f64 / (2.0 * (n.max(2) - 1) as f64);
+        let curve = |v: &[f64]| -> Vec<(f64, f64)> { v.iter().enumerate().skip(1).map(|(i, &a)| (freq(v.len())(i), log(a))).collect() };
+        // Release 4.0 takes the spectrograms and histograms of high-pass filtered images.
+        let r4 = t.release == Release::R4;
+        let spec = dir.join("spectrograms.png");
+        line_plot(
+            staged,
+            &spec,
+            if r4 { "Spectrograms of the high-pass filtered images (frequency 0 left out)" } else { "Spectrograms (frequency 0 left out)" },
+            "cycles per pixel",
+            "log10 amplitude (DSNU: DN; PRNU: %)",
+            &[
+                Series { label: "DSNU horizontal".into(), points: curve(&sp.dsnu_horizontal_dn) },
+                Series { label: "PRNU horizontal".into(), points: curve(&sp.prnu_horizontal_pct) },
+                Series { label: "DSNU vertical".into(), points: curve(&sp.dsnu_vertical_dn) },
+                Series { label: "PRNU vertical".into(), points: curve(&sp.prnu_vertical_pct) },
+            ],
+            2,
+        )?;
+        files.push(spec);
+        let hist = dir.join("defect_histograms.png");
+        line_plot(
+            staged,
+            &hist,
+            "Logarithmic histograms of the averaged images (defect pixels)",
+            "deviation (DN)",
+            "log10 (pixels + 1)",
+            &[
+                Series { label: format!("DSNU: {}dark image about its mean", if r4 { "high-pass filtered " } else { "" }), points: log_counts(&h.dsnu.bins, &h.dsnu.counts) },
+                Series { label: format!("PRNU: {} high-pass filtered bright - dark", if r4 { "Release 4.0" } else { "5x5" }), points: log_counts(&h.prnu.bins, &h.prnu.counts) },
+            ],
+            2,
+        )?;
+        files.push(hist);
+    }
+    Ok(files)
+}
+
+/// The datasheet's page: every quantity with its JSON key, the defect pixels, and the
+/// `figures` written.
+fn page_html(descriptor: &Path, sheet: &Datasheet, figures: &[PathBuf]) -> String {
+    let (t, s) = (&sheet.temporal, &sheet.spatial);
+    let release = match t.release {
+        Release::R3 => "3.1 (as the reference implementation emva1288 1.0.2 computes it)",
+        Release::R4 => "4.0",
+    };
+    let mut html = format!(
+        "<!doctype html><html><head><meta charset=\"utf-8\"><title>EMVA 1288 datasheet</title>\
+         <style>body{{font-family:sans-serif;max-width:1050px;margin:2em auto}}td,th{{padding:2px 10px;text-align:left}}</style></head><body>\
+         <h1>EMVA 1288 datasheet</h1><p>{}<br>{} photon-transfer levels; definitions of Release {release}; descriptor version {}.</p>",
+        html_path(descriptor),
+        t.levels,
+        esc(sheet.version.as_deref().unwrap_or("none"))
+    );
+    for note in ["levels", "saturation"].iter().filter_map(|k| t.why.get(*k)) {
+        html += &format!("<p><b>Note:</b> {}</p>", esc(note));
+    }
+    html += "<h2>Temporal</h2><table><tr><th>quantity</th><th>value</th><th>JSON key</th></tr>\n";
+    html += &row(sheet, "System gain K", "gain_dn_per_e", Some(t.gain_dn_per_e), "DN/e-", 4);
+    html += &row(sheet, "1/K", "gain_e_per_dn", Some(t.gain_e_per_dn), "e-/DN", 3);
+    html += &row(sheet, "Responsivity R", "responsivity_dn_per_photon", Some(t.responsivity_dn_per_photon), "DN/photon", 5);
+    html += &row(sheet, "Quantum efficiency", "quantum_efficiency", Some(100.0 * t.quantum_efficiency), "%", 2);
+    html += &row(sheet, "Dark noise", "dark_noise_dn", Some(t.dark_noise_dn), "DN", 3);
+    html += &row(sheet, "Dark noise", "dark_noise_e", t.dark_noise_e, "e-", 2);
+    html += &row(sheet, "Saturation (mean above dark)", "saturation_dn", Some(t.saturation_dn), "DN", 1);
+    html += &row(sheet, "Saturation irradiation", "saturation_photons", t.saturation_photons, "photons", 0);
+    html += &row(sheet, "Saturation capacity", "saturation_capacity_e", t.saturation_capacity_e, "e-", 0);
+    html += &row(sheet, "SNR max", "snr_max", t.snr_max, "", 1);
+    html += &row(sheet, "SNR max", "snr_max_db", t.snr_max_db, "dB", 1);
+    html += &row(sheet, "Absolute sensitivity threshold", "sensitivity_threshold_photons", t.sensitivity_threshold_photons, "photons", 2);
+    html += &row(sheet, "Absolute sensitivity threshold", "sensitivity_threshold_e", t.sensitivity_threshold_e, "e-", 2);
+    html += &row(sheet, "Dynamic range", "dynamic_range", t.dynamic_range, "", 0);
+    html += &row(sheet, "Dynamic range", "dynamic_range_db", t.dynamic_range_db, "dB", 1);
+    html += &row(sheet, "Linearity error min", "linearity_error_min_pct", t.linearity_error_min_pct, "%", 3);
+    html += &row(sheet, "Linearity error max", "linearity_error_max_pct", t.linearity_error_max_pct, "%", 3);
+    html += &row(sheet, "Linearity error (mean |deviation|, Release 4.0)", "linearity_error_pct", t.linearity_error_pct, "%", 3);
+    html += &row(sheet, "Dark current (mean)", "dark_current_mean_e_per_s", t.dark_current_mean_e_per_s, "e-/s", 2);
+    html += &row(sheet, "Dark current (variance)", "dark_current_var_e_per_s", t.dark_current_var_e_per_s, "e-/s", 2);
+    html += "</table><h2>Spatial</h2><table><tr><th>quantity</th><th>value</th><th>JSON key</th></tr>\n";
+    html += &row(sheet, "DSNU", "dsnu_dn", s.dsnu_dn, "DN", 3);
+    html += &row(sheet, "DSNU", "dsnu_e", s.dsnu_e, "e-", 2);
+    html += &row(sheet, "DSNU row / column / pixel", "dsnu_row_e", s.dsnu_row_e, "e-", 2);
+    html += &row(sheet, "", "dsnu_col_e", s.dsnu_col_e, "e-", 2);
+    html += &row(sheet, "", "dsnu_pixel_e", s.dsnu_pixel_e, "e-", 2);
+    html += &row(sheet, "PRNU", "prnu_pct", s.prnu_pct, "%", 3);
+    html += &row(sheet, "PRNU row / column / pixel", "prnu_row_pct", s.prnu_row_pct, "%", 3);
+    html += &row(sheet, "", "prnu_col_pct", s.prnu_col_pct, "%", 3);
+    html += &row(sheet, "", "prnu_pixel_pct", s.prnu_pixel_pct, "%", 3);
+    html += "</table>";
+    match &s.defect_pixels {
+        Some(d) => {
+            html += &format!(
+                "<h2>Defect pixels</h2><p>dncal's criteria (the standard defines no counts; <code>docs/emva.md</code>): hot {} (dark above its median by more than {:.3} DN), dead {} (below half their neighbourhood's response), high PRNU {} (high-pass response beyond {:.3} DN); {} pixels in all.</p>",
+                d.hot, d.hot_threshold_dn, d.dead, d.high_prnu, d.prnu_threshold_dn, d.total
+            );
+        }
+        None => html += &format!("<h2>Defect pixels</h2><p>{}</p>", esc(sheet.why("defect_pixels"))),
+    }
+    for (file, caption) in [
+        ("photon_transfer.png", "Photon transfer"),
+        ("snr.png", "SNR"),
+        ("linearity.png", "Linearity deviation"),
+        ("spectrograms.png", "Spectrograms"),
+        ("defect_histograms.png", "Defect-pixel histograms"),
+    ] {
+        if figures.iter().any(|f| f.ends_with(file)) {
+            html += &format!("<h2>{caption}</h2>{}", html_figure(file, 1000, caption, None));
+        }
+    }
+    html + "</body></html>\n"
+}

@@ -1,0 +1,821 @@
+//! Pixel-to-pixel gain variation and nonlinearity (de Wijn 2018, section 5, Figs. 7-8).
+//!
+//! Input: a linearity set (mean and standard-deviation frames at levels from dark to
+//! saturation, and a linear reference detector's voltage per level; `docs/formats.md`).
+//!
+//! ## Definitions
+//! - Normalized reference `x_l = V_l / max V`; the *gain level* `g` is the level whose
+//!   `x` is nearest 1/2 (in the default 41-level set, level index 20, about 51% of
+//!   saturation; the paper's example flat, Fig. 6, is near 57%), level 0 is dark. A level is *expected*
+//!   to read the normalized intensity `e_l = (x_l - x_0) / (x_g - x_0)`.
+//! - A pixel's level is *saturated* when its mean is within `4 max(std, 0.5)` DN of the
+//!   top code, or when its temporal noise falls below half the previous level's in the
+//!   upper half of the range (clipping below the top code); it and every level above are
+//!   left out for that pixel.
+//! - *Masked* pixels: the set's `MASK`, pixels whose signal at the gain level is below half
+//!   the median, and pixels whose own 4th-order fit leaves an rms residual above 10 times
+//!   the median (anomalous trends: dead, hot, stuck pixels). Masked pixels are left out
+//!   of every statistic and replaced in corrected images by the mean of their good
+//!   neighbours (8-connected).
+//!
+//! ## The three corrections, per pixel `p` and level `l`, with mean `m_l(p)` DN
+//! - **raw**: `c = m_l(p) / <m_l>` (the pixel against the mean of the good pixels); its
+//!   residual is `c - 1`: the fixed-pattern structure of the paper's Fig. 7, left.
+//! - **standard**: a global cubic `f` fitted to `x_l` against the median pixel's mean,
+//!   applied to every pixel, then dark and gain: `c = (f(m_l) - f(m_0)) / (f(m_g) - f(m_0))`.
+//! - **pixel-wise**: per pixel the 4th-order polynomial `m = P_p(x) = sum_k a_k x^k` fitted
+//!   by least squares to its unsaturated levels; the correction inverts it,
+//!   `x^_l = P_p^-1(m_l)` (Newton from the linear guess), then dark and gain:
+//!   `c = (x^_l - x^_0) / (x^_g - x^_0)`.
+//!
+//! For the standard and pixel-wise corrections the residual is `c - e_l`. The RMS of a
+//! level is over the good, unsaturated pixels. The *random* noise is the frames' standard
+//! deviation over `sqrt(NFRAMES)` propagated through the dark and gain correction:
+//! `sigma_c = sqrt(s_l^2 + (c s_g)^2 + ((1 - c) s_0)^2) / (m_g - m_0)`, `s = std / sqrt(N)`.
+//!
+//! All pixels share the design matrix of a level prefix, so the least-squares fit is one
+//! precomputed pseudo-inverse per distinct number of unsaturated levels: a matrix-vector
+//! product per pixel.
+
+use nalgebra::{DMatrix, DVector};
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::formats::fits::{LinearitySet, Sample};
+use crate::infra::stats::{median, rms_finite, RmsSum};
+
+mod inverse;
+pub use inverse::invert;
+use inverse::{invert_all, poly, poly_slope};
+
+/// Order of the pixel-wise polynomial (the paper: 4; higher did not help).
+pub const PIXEL_ORDER: usize = 4;
+/// The highest order `analyze` accepts (the powers of x in [0, 1] grow collinear).
+pub const MAX_ORDER: usize = 8;
+/// Order of the global nonlinearity of the standard correction (the paper: 3).
+pub const GLOBAL_ORDER: usize = 3;
+
+/// Why a pixel is masked (bit flags).
+pub mod reason {
+    /// In the set's MASK extension.
+    pub const INPUT: u8 = 1;
+    /// Signal at the gain level below half the median.
+    pub const LOW: u8 = 2;
+    /// Pixel-wise fit residual above 10x the median.
+    pub const TREND: u8 = 4;
+    /// Too few unsaturated levels to fit, or non-finite data.
+    pub const UNFIT: u8 = 8;
+}
+
+/// The analysis of one set.
+#[derive(Debug, Clone, Serialize)]
+pub struct LinearityReport {
+    /// Levels, dark included.
+    pub levels: usize,
+    /// Pixels in a frame.
+    pub pixels: usize,
+    /// The gain (flat) level.
+    pub gain_level: usize,
+    /// Expected normalized intensity of each level (1 at the gain level).
+    pub intensity: Vec<f64>,
+    /// Normalized reference `x = V / max V` of each level.
+    pub reference: Vec<f64>,
+    /// RMS residual per level, raw (NaN at level 0).
+    pub rms_raw: Vec<f64>,
+    /// RMS residual per level, standard correction (NaN at the dark and gain levels, where
+    /// it is zero by construction).
+    pub rms_standard: Vec<f64>,
+    /// RMS residual per level, pixel-wise correction (NaN at dark and gain).
+    pub rms_pixelwise: Vec<f64>,
+    /// Propagated random noise per level (NaN at dark and gain): the frames' standard
+    /// deviations over sqrt(N) of the level, the flat and the dark, through the linear dark
+    /// and gain correction.
+    pub rms_random: Vec<f64>,
+    /// The paper's three dashed curves of Fig. 8. Raw: `s_l / <m_l>`.
+    pub rms_random_raw: Vec<f64>,
+    /// Standard: through the global cubic's slope, dark and gain.
+    pub rms_random_standard: Vec<f64>,
+    /// Pixel-wise: through the inverse polynomial's slope `1 / P_p'`, dark and gain.
+    pub rms_random_pixelwise: Vec<f64>,
+    /// The level's own noise alone, `s_l / (m_g - m_0)`, without the flat's and dark's:
+    /// the part that averages away over levels (the flat's and dark's noise is one fixed
+    /// error per pixel, repeated at every level, growing as `c` and `1 - c`).
+    pub rms_random_level_only: Vec<f64>,
+    /// Mean of the good, unsaturated pixels per level, DN (the raw correction's divisor).
+    pub level_mean_dn: Vec<f64>,
+    /// max over levels of `rms_raw`.
+    pub rms_raw_max: f64,
+    /// max over levels of `rms_standard`.
+    pub rms_standard_max: f64,
+    /// max over levels of `rms_pixelwise`.
+    pub rms_pixelwise_max: f64,
+    /// max over levels of `rms_random`.
+    pub rms_random_max: f64,
+    /// Masked pixels.
+    pub masked_pixels: usize,
+    /// Order of the pixel-wise polynomial.
+    pub order: usize,
+    /// Global cubic of the standard correction, `x = sum c_k (m / top)^k`.
+    pub global_coefficients: Vec<f64>,
+}
+
+/// The per-pixel results, for the FITS outputs.
+#[derive(Debug, Clone)]
+pub struct PixelResults {
+    /// Coefficients `a_k` of `m = sum a_k x^k`, k-major: `coeffs[(k * height + row) * width + col]`;
+    /// NaN for unfitted pixels.
+    pub coeffs: Vec<f64>,
+    /// Mask reasons per pixel (0 = good).
+    pub mask: Vec<u8>,
+    /// Pixel-wise corrected normalized intensity per level, masked pixels filled from
+    /// their good neighbours, laid out as the set's mean cube: where it was asked for
+    /// ([`Cube::Keep`]).
+    pub corrected: Option<Vec<f64>>,
+}
+
+/// Whether an analysis keeps the corrected cube (for the FITS outputs and the example
+/// row) or only its statistics: without the cube, the pixel-levels no statistic counts
+/// (masked pixels, saturated levels) are not inverted, and the cube's 8 bytes a pixel and
+/// level are never allocated.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Cube {
+    /// Keep it.
+    Keep,
+    /// Statistics only.
+    Skip,
+}
+
+/// Least-squares pseudo-inverse `(A^T A)^-1 A^T` of the Vandermonde matrix of `x` up to
+/// `order`, via SVD (robust for the near-collinear powers of x in [0, 1]).
+fn pseudo_inverse(x: &[f64], order: usize) -> DMatrix<f64> {
+    let a = DMatrix::from_fn(x.len(), order + 1, |r, c| x[r].powi(c as i32));
+    a.pseudo_inverse(1e-13).unwrap_or_else(|_| DMatrix::zeros(order + 1, x.len()))
+}
+
+/// The dark and gain correction of a value `x` given the same pixel's values at the dark
+/// (`x0`) and at the flat (`xg`): `(x - x0) / (xg - x0)`.
+fn dark_and_gain(x: f64, x0: f64, xg: f64) -> f64 {
+    (x - x0) / (xg - x0)
+}
+
+/// Replaces masked pixels of one `width x height` image by the mean of their good
+/// 8-neighbours (left as they are when none is good).
+pub fn fill_masked(image: &mut [f64], mask: &[u8], width: usize, height: usize) {
+    GoodNeighbours::of(mask, width, height).fill(image);
+}
+
+/// Each masked pixel's good 8-neighbours, in row-major order: listed once for a mask and
+/// used for every image (level) it applies to.
+struct GoodNeighbours {
+    /// The masked pixels.
+    pixel: Vec<usize>,
+    /// `of[start[i]..start[i + 1]]` are `pixel[i]`'s good neighbours.
+    start: Vec<usize>,
+    of: Vec<usize>,
+}
+
+impl GoodNeighbours {
+    fn of(mask: &[u8], width: usize, height: usize) -> Self {
+        let mut n = GoodNeighbours { pixel: Vec::new(), start: vec![0], of: Vec::new() };
+        for p in (0..width * height).filter(|&p| mask[p] != 0) {
+            let (r, c) = (p / width, p % width);
+            for rr in r.saturating_sub(1)..(r + 2).min(height) {
+                for cc in c.saturating_sub(1)..(c + 2).min(width) {
+                    let i = rr * width + cc;
+                    if mask[i] == 0 {
+                        n.of.push(i);
+                    }
+                }
+            }
+            n.pixel.push(p);
+            n.start.push(n.of.len());
+        }
+        n
+    }
+
+    /// Each masked pixel of `image` set to the mean of its good neighbours' finite values.
+    /// Only masked pixels are written and only good ones read, so the image is its own
+    /// source (no copy of it per level).
+    fn fill(&self, image: &mut [f64]) {
+        for (k, &p) in self.pixel.iter().enumerate() {
+            let (mut sum, mut n) = (0.0, 0);
+            for &i in &self.of[self.start[k]..self.start[k + 1]] {
+                if image[i].is_finite() {
+                    sum += image[i];
+                    n += 1;
+                }
+            }
+            if n > 0 {
+                image[p] = sum / n as f64;
+            }
+        }
+    }
+}
+
+/// Per pixel, how many levels from dark up are unsaturated (they form a prefix): a level
+/// is saturated at the top code (within `4 max(std, 0.5)` DN), or where the temporal
+/// noise collapses to less than half the previous level's while the signal is in the
+/// upper half of the range (a sensor or amplifier that clips below the top code, as the
+/// real EMVA CCD does at 4080 DN with zero variance), or where the data are not finite.
+pub fn unsaturated_levels<T: Sample>(set: &LinearitySet<T>) -> Vec<usize> {
+    let (nl, np) = (set.levels, set.width * set.height);
+    let top = ((1u64 << set.bit_depth) - 1) as f64;
+    let m = |l: usize, p: usize| -> f64 { set.mean[l * np + p].into() };
+    let sd = |l: usize, p: usize| -> f64 { set.std[l * np + p].into() };
+    let saturated = |l: usize, p: usize| saturated_at(l, top, |l| m(l, p), |l| sd(l, p));
+    // Level by level over blocks of pixels: the cube is level-major, so a pixel's levels
+    // are a frame apart and walking them pixel by pixel misses the cache at every level.
+    const BLOCK: usize = 4096;
+    let mut valid = vec![nl; np];
+    valid.par_chunks_mut(BLOCK).enumerate().for_each(|(b, block)| {
+        let first = b * BLOCK;
+        for l in 0..nl {
+            for (i, v) in block.iter_mut().enumerate() {
+                if *v == nl && saturated(l, first + i) {
+                    *v = l;
+                }
+            }
+        }
+    });
+    valid
+}
+
+/// Whether a pixel whose mean and frame deviation at level `k` are `m(k)` and `sd(k)`
+/// is saturated at level `l` (see [`unsaturated_levels`]); `top` is the top code.
+pub(crate) fn saturated_at(l: usize, top: f64, m: impl Fn(usize) -> f64, sd: impl Fn(usize) -> f64) -> bool {
+    !(m(l).is_finite() && sd(l).is_finite()) || m(l) >= top - 4.0 * sd(l).max(0.5) || (l > 0 && m(l) > 0.5 * top && sd(l) < 0.5 * sd(l - 1))
+}
+
+/// The paper's Fig. 7 data: `n` consecutive pixels centered in the region's middle row,
+/// per level from 1 on (`values[level - 1][i]`), the normalized value of each correction:
+/// raw `m_l / <m_l>`, standard and pixel-wise `c / e_l`. NaN where the pixel is masked or
+/// saturated at that level (the paper's lines break there too).
+#[derive(Debug, Clone)]
+pub struct ExampleRow {
+    /// Row of the region.
+    pub row: usize,
+    /// First column of the region.
+    pub first_column: usize,
+    /// Raw, `[level - 1][pixel]`.
+    pub raw: Vec<Vec<f64>>,
+    /// Standard correction.
+    pub standard: Vec<Vec<f64>>,
+    /// Pixel-wise correction.
+    pub pixelwise: Vec<Vec<f64>>,
+}
+
+/// See [`ExampleRow`]; `report`, `px` and its `corrected` cube are [`analyze`]'s of `set`.
+pub fn example_row(set: &LinearitySet, report: &LinearityReport, px: &PixelResults, corrected: &[f64], n: usize) -> ExampleRow {
+    let (nl, w, h) = (set.levels, set.width, set.height);
+    let np = w * h;
+    let n = n.min(w);
+    let (row, first_column) = (h / 2, (w - n) / 2);
+    let top = ((1u64 << set.bit_depth) - 1) as f64;
+    let f = |v: f64| poly(&report.global_coefficients, v / top);
+    let m = |l: usize, p: usize| set.mean[l * np + p];
+    let valid = unsaturated_levels(set);
+    let g = report.gain_level;
+    let pixels: Vec<usize> = (first_column..first_column + n).map(|c| row * w + c).collect();
+    let per_level = |value: &dyn Fn(usize, usize) -> f64| -> Vec<Vec<f64>> {
+        (1..nl).map(|l| pixels.iter().map(|&p| if px.mask[p] == 0 && l < valid[p] { value(l, p) } else { f64::NAN }).collect()).collect()
+    };
+    let e = &report.intensity;
+    ExampleRow {
+        row,
+        first_column,
+        raw: per_level(&|l, p| m(l, p) / report.level_mean_dn[l]),
+        standard: per_level(&|l, p| (f(m(l, p)) - f(m(0, p))) / (f(m(g, p)) - f(m(0, p))) / e[l]),
+        pixelwise: per_level(&|l, p| corrected[l * np + p] / e[l]),
+    }
+}
+
+/// One correction's terms at a pixel's dark and flat, for the dark and gain correction
+/// `c = (y_l - y_0) / (y_g - y_0)` of what it makes of the pixel's means (`y`) and the
+/// propagation of the frames' noise through it. Held once per pixel for all levels,
+/// the division as its reciprocal.
+#[derive(Debug, Clone, Copy)]
+struct Ends {
+    y0: f64,
+    /// `1 / (y_g - y_0)`.
+    inv_span: f64,
+    /// The flat's and the dark's noise through the correction's slope, `y' s`.
+    sg: f64,
+    s0: f64,
+}
+
+impl Ends {
+    /// From `(y, y')` at the dark and at the flat and those levels' noise `s = std / sqrt(N)`.
+    fn new((y0, d0): (f64, f64), (yg, dg): (f64, f64), s0: f64, sg: f64) -> Self {
+        Ends { y0, inv_span: 1.0 / (yg - y0), sg: dg * sg, s0: d0 * s0 }
+    }
+
+    /// `c` of a level where the correction makes `y`.
+    fn corrected(&self, y: f64) -> f64 {
+        (y - self.y0) * self.inv_span
+    }
+
+    /// The noise of `c` for a level read `y` with noise `sl` through the slope:
+    /// `sqrt(sl^2 + (c sg)^2 + ((1 - c) s0)^2) / (y_g - y_0)`.
+    fn noise(&self, y: f64, sl: f64) -> f64 {
+        let c = self.corrected(y);
+        (sl * sl + (c * self.sg).powi(2) + ((1.0 - c) * self.s0).powi(2)).sqrt() * self.inv_span
+    }
+}
+
+/// The pixel-wise inversion of a set's levels: pixel `p`'s polynomial is
+/// `coef[p * k1..][..k1]`; masked pixels are not inverted (NaN).
+struct Inversion<'a> {
+    coef: &'a [f64],
+    k1: usize,
+    mask: &'a [u8],
+    mean: &'a [f64],
+    np: usize,
+}
+
+impl Inversion<'_> {
+    /// `x^ = P^-1(m)` of every pixel at level `l`, Newton from the level's reference `x_l`.
+    fn level(&self, l: usize, x_l: f64) -> Vec<f64> {
+        const BLOCK: usize = 4096;
+        let mut out = vec![0.0; self.np];
+        out.par_chunks_mut(BLOCK).enumerate().for_each(|(b, chunk)| self.run(l, x_l, b * BLOCK, chunk, |_| false));
+        out
+    }
+
+    /// Level `l` into `row`, each pixel's `x^` then turned into `row[p] = put(p, x^)`, in
+    /// pixel order; pixels where `skip(p)` (besides the masked ones) are not inverted
+    /// (NaN).
+    fn level_into(&self, l: usize, x_l: f64, row: &mut [f64], skip: impl Fn(usize) -> bool, mut put: impl FnMut(usize, f64) -> f64) {
+        self.run(l, x_l, 0, row, skip);
+        for (p, v) in row.iter_mut().enumerate() {
+            *v = put(p, *v);
+        }
+    }
+
+    /// `x^` of pixels `first..first + out.len()` of level `l` into `out`; NaN for the
+    /// masked ones and those where `skip(j)` (`j` counted from `first`).
+    fn run(&self, l: usize, x_l: f64, first: usize, out: &mut [f64], skip: impl Fn(usize) -> bool) {
+        let mean = &self.mean[l * self.np + first..];
+        let coef = &self.coef[first * self.k1..];
+        let mask = &self.mask[first..];
+        invert_all(out, self.k1, x_l, |j, k| coef[j * self.k1 + k], |j| mean[j], |j| mask[j] != 0 || skip(j));
+    }
+}
+
+/// Analyzes `set` with the pixel-wise polynomial of `order` (clamped to 1..=[`MAX_ORDER`]):
+/// masks, the three corrections, their RMS per level, the random noise.
+pub fn analyze(set: &LinearitySet, order: usize) -> Result<(LinearityReport, PixelResults), LinearityError> {
+    analyze_with_flat(set, order, None)
+}
+
+/// [`analyze`] with the flat (gain) level chosen: `Some(l)` with `1 <= l < levels` (the
+/// caller checks, [`check_flat_level`]), `None` the level whose reference is nearest half
+/// the maximum (the paper's text: "approximately half saturation"; its Figs. 6-7 use a
+/// flat near 57%).
+pub fn analyze_with_flat(set: &LinearitySet, order: usize, flat: Option<usize>) -> Result<(LinearityReport, PixelResults), LinearityError> {
+    analyze_unsaturated(set, order, flat, unsaturated_levels(set), Cube::Keep)
+}
+
+/// Why a linearity set cannot be corrected as asked.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum LinearityError {
+    /// A flat level that is dark or beyond the set.
+    #[error("{level}: the flat must be one of the illuminated levels 1 to {}", levels - 1)]
+    FlatLevel { level: usize, levels: usize },
+    /// A flat level where most pixels saturate (it would mask most of the sensor).
+    #[error("{level}: {saturated} of {pixels} pixels are saturated at that level; {}", match highest_usable {
+        Some(k) => format!("levels 1 to {k} keep at least half of them unsaturated"),
+        None => "no level keeps half of them unsaturated".to_string(),
+    })]
+    SaturatedFlat { level: usize, saturated: usize, pixels: usize, highest_usable: Option<usize> },
+    /// Every pixel masked before or during the fits.
+    #[error("no pixel left to correct: all {pixels} are masked (the input MASK, too little signal at the flat, no fit of order {order}, or a residual 10x the median)")]
+    AllMasked { pixels: usize, order: usize },
+    /// Too few levels for the standard correction's global polynomial.
+    #[error("{levels} levels where most good pixels are unsaturated; the standard correction's global polynomial of order {GLOBAL_ORDER} needs {}", GLOBAL_ORDER + 1)]
+    TooFewLevels { levels: usize },
+}
+
+/// Whether level `l` can be the flat of a set whose pixels keep `valid[p]` levels below
+/// saturation ([`unsaturated_levels`]): one of the illuminated levels, and one where at
+/// least half the pixels are unsaturated (a pixel can only be fit and flat-fielded if it
+/// is unsaturated there: a flat where most saturate would mask most of the sensor). The
+/// message names the highest usable level.
+pub fn check_flat_level(valid: &[usize], levels: usize, l: usize) -> Result<(), LinearityError> {
+    if !(1..levels).contains(&l) {
+        return Err(LinearityError::FlatLevel { level: l, levels });
+    }
+    let np = valid.len();
+    let unsaturated_at = |level: usize| valid.iter().filter(|&&n| n > level).count();
+    if 2 * unsaturated_at(l) < np {
+        let highest_usable = (1..levels).rev().find(|&k| 2 * unsaturated_at(k) >= np);
+        return Err(LinearityError::SaturatedFlat { level: l, saturated: np - unsaturated_at(l), pixels: np, highest_usable });
+    }
+    Ok(())
+}
+
+/// Every pixel's polynomial of `order` in the reference `x` through its first
+/// `valid[p]` levels (least squares, one pseudo-inverse per prefix length): the
+/// coefficients, `order + 1` per pixel, and the fit's rms residual, DN; NaN where the
+/// pixel has too few levels or none past the flat `g`.
+fn fit_pixels(set: &LinearitySet, x: &[f64], order: usize, valid: &[usize], g: usize) -> (Vec<f64>, Vec<f64>) {
+    let np = set.width * set.height;
+    let pinv: Vec<Option<DMatrix<f64>>> = (0..=set.levels).map(|n| (n > order + 1).then(|| pseudo_inverse(&x[..n], order))).collect();
+    let k1 = order + 1;
+    let mut coef = vec![f64::NAN; k1 * np];
+    let resid: Vec<f64> = coef
+        .par_chunks_mut(k1)
+        .enumerate()
+        .map(|(p, a)| {
+            let n = valid[p];
+            let m = |l: usize| set.mean[l * np + p];
+            match &pinv[n] {
+                Some(pi) if n > g => {
+                    let y = DVector::from_iterator(n, (0..n).map(m));
+                    a.copy_from_slice((pi * &y).as_slice());
+                    rms_finite((0..n).map(|l| poly(a, x[l]) - m(l)))
+                }
+                _ => f64::NAN,
+            }
+        })
+        .collect();
+    (coef, resid)
+}
+
+/// Why each pixel is left out ([`reason`] bits): flagged in the input, a signal at the
+/// flat `g` below half the median, no fit, or a fit residual `resid` beyond 10 times the
+/// median.
+fn pixel_mask(set: &LinearitySet, resid: &[f64], g: usize) -> Vec<u8> {
+    let np = set.width * set.height;
+    let mut mask = vec![0u8; np];
+    if let Some(input) = &set.mask {
+        for (m, &i) in mask.iter_mut().zip(input) {
+            if i != 0 {
+                *m |= reason::INPUT;
+            }
+        }
+    }
+    let signal = |p: usize| set.mean[g * np + p] - set.mean[p];
+    let (med_signal, med_resid) = rayon::join(|| median((0..np).map(signal)), || median(resid.iter().copied()));
+    mask.par_iter_mut().enumerate().for_each(|(p, m)| {
+        let s = signal(p);
+        if s.is_nan() || s < 0.5 * med_signal {
+            *m |= reason::LOW;
+        }
+        if resid[p].is_nan() {
+            *m |= reason::UNFIT;
+        } else if resid[p] > 10.0 * med_resid.max(1e-12) {
+            *m |= reason::TREND;
+        }
+    });
+    mask
+}
+
+/// The standard correction: a global cubic `x = f(m / top)` through the median of the
+/// `good` pixels at each level that more than half of them reach unsaturated.
+fn global_correction(set: &LinearitySet, x: &[f64], good: &[usize], valid: &[usize], top: f64) -> Result<Vec<f64>, LinearityError> {
+    let np = set.width * set.height;
+    let reached = |l: usize| good.iter().filter(move |&&p| l < valid[p]);
+    // A level's median is a selection over up to every pixel: the levels on every thread,
+    // each with the count of pixels that reach it.
+    let med_levels: Vec<(f64, usize)> = (0..set.levels).into_par_iter().map(|l| (median(reached(l).map(|&p| set.mean[l * np + p])), reached(l).count())).collect();
+    let usable: Vec<usize> = (0..set.levels).filter(|&l| med_levels[l].0.is_finite() && med_levels[l].1 * 2 > good.len()).collect();
+    if usable.len() <= GLOBAL_ORDER {
+        return Err(LinearityError::TooFewLevels { levels: usable.len() });
+    }
+    let gpinv = pseudo_inverse(&usable.iter().map(|&l| med_levels[l].0 / top).collect::<Vec<_>>(), GLOBAL_ORDER);
+    Ok((&gpinv * DVector::from_iterator(usable.len(), usable.iter().map(|&l| x[l]))).iter().copied().collect())
+}
+
+/// [`analyze_with_flat`] given the set's [`unsaturated_levels`] (a caller that checked the
+/// flat with them computes them once).
+///
+/// About 125 lines: the per-pixel fits, the masks and the global cubic are functions of
+/// their own; what stays is the one pass per level that shares the corrections' ends,
+/// the inversion and the statistics' accumulators (split, it would pass them all).
+pub fn analyze_unsaturated(set: &LinearitySet, order: usize, flat: Option<usize>, valid: Vec<usize>, cube: Cube) -> Result<(LinearityReport, PixelResults), LinearityError> {
+    let order = order.clamp(1, MAX_ORDER);
+    let (nl, w, h) = (set.levels, set.width, set.height);
+    let np = w * h;
+    let top = ((1u64 << set.bit_depth) - 1) as f64;
+    let vmax = set.voltage.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+    let x: Vec<f64> = set.voltage.iter().map(|v| v / vmax).collect();
+    let g = flat.filter(|l| (1..nl).contains(l)).unwrap_or_else(|| (1..nl).min_by(|&a, &b| (x[a] - 0.5).abs().total_cmp(&(x[b] - 0.5).abs())).unwrap_or(0));
+    let e: Vec<f64> = x.iter().map(|xl| (xl - x[0]) / (x[g] - x[0])).collect();
+    let m = |l: usize, p: usize| set.mean[l * np + p];
+    let sd = |l: usize, p: usize| set.std[l * np + p];
+    let k1 = order + 1;
+    let (coef, resid) = fit_pixels(set, &x, order, &valid, g);
+    let fit = |p: usize| &coef[p * k1..(p + 1) * k1];
+    let mask = pixel_mask(set, &resid, g);
+    let good: Vec<usize> = (0..np).filter(|&p| mask[p] == 0).collect();
+    if good.is_empty() {
+        return Err(LinearityError::AllMasked { pixels: np, order });
+    }
+    let global = global_correction(set, &x, &good, &valid, top)?;
+    let inversion = Inversion { coef: &coef, k1, mask: &mask, mean: &set.mean[..], np };
+    // The pixel-wise correction at the dark and at the flat, used at every level.
+    let (xh0, xhg) = (inversion.level(0, x[0]), inversion.level(g, x[g]));
+    let nf = f64::from(set.n_frames.max(1)).sqrt();
+    let (inv_nf, inv_top) = (1.0 / nf, 1.0 / top);
+    let f = |v: f64| poly(&global, v * inv_top);
+    // Each correction as `(y, y')`, what it makes of a mean and its slope; their terms at
+    // the dark and the flat ([`Ends`]) once per pixel for all levels.
+    let identity = |l: usize, p: usize, _: f64| (m(l, p), 1.0);
+    let standard = |l: usize, p: usize, _: f64| (f(m(l, p)), poly_slope(&global, m(l, p) * inv_top) * inv_top);
+    let pixelwise = |_: usize, p: usize, xh: f64| (xh, 1.0 / poly_slope(fit(p), xh));
+    let ends: Vec<[Ends; 3]> = (0..np)
+        .into_par_iter()
+        .map(|p| {
+            let (s0, sg) = (sd(0, p) * inv_nf, sd(g, p) * inv_nf);
+            let at = |h: &dyn Fn(usize, usize, f64) -> (f64, f64)| Ends::new(h(0, p, xh0[p]), h(g, p, xhg[p]), s0, sg);
+            [at(&identity), at(&standard), at(&pixelwise)]
+        })
+        .collect();
+    // Masked pixels' good neighbours, for the cube only.
+    let keep = cube == Cube::Keep;
+    let fill = keep.then(|| GoodNeighbours::of(&mask, w, h));
+    // Level by level, in one pass over its pixels: the pixel-wise correction `x^ =
+    // P^-1(m)` then dark and gain into the output cube (every level, saturated or not:
+    // the corrected images show them all), the level's statistics over the good,
+    // unsaturated pixels in pixel order, and the masked pixels filled. The cube is
+    // allocated zeroed (untouched pages) and first written here, by the worker threads.
+    // Without the cube ([`Cube::Skip`]) only the counted pixels are inverted (the same
+    // values: each pixel's inversion is its own, [`invert_all`]) and nothing is filled.
+    let nan_unless = |cond: bool, v: f64| if cond { v } else { f64::NAN };
+    let level = |l: usize, row: &mut [f64]| -> [f64; 9] {
+        let counted = |p: usize| mask[p] == 0 && l < valid[p];
+        let (sum, n) = (0..np).filter(|&p| counted(p)).fold((0.0, 0usize), |(s, n), p| (s + m(l, p), n + 1));
+        let mean_l = sum / n.max(1) as f64;
+        let inv_mean = 1.0 / mean_l;
+        let mut acc = [RmsSum::default(); 8];
+        inversion.level_into(l, x[l], row, |p| !keep && !counted(p), |p, xh| {
+            let c = dark_and_gain(xh, xh0[p], xhg[p]);
+            if counted(p) {
+                let (ml, sl) = (m(l, p), sd(l, p) * inv_nf);
+                let [id, st, pw] = &ends[p];
+                let (yst, dst) = standard(l, p, xh);
+                acc[0].add(ml * inv_mean - 1.0);
+                acc[1].add(st.corrected(yst) - e[l]);
+                acc[2].add(c - e[l]);
+                acc[3].add(id.noise(ml, sl));
+                acc[4].add(st.noise(yst, dst * sl));
+                acc[5].add(pw.noise(xh, sl / poly_slope(fit(p), xh)));
+                acc[6].add(sl * inv_mean);
+                acc[7].add(sl * id.inv_span);
+            }
+            c
+        });
+        if let Some(fill) = &fill {
+            fill.fill(row);
+        }
+        let calibrated = l != 0 && l != g;
+        let [raw, std, pw, random, random_standard, random_pixelwise, random_raw, random_level_only] = acc.map(RmsSum::rms);
+        [
+            nan_unless(l != 0, raw),
+            nan_unless(calibrated, std),
+            nan_unless(calibrated, pw),
+            nan_unless(calibrated, random),
+            nan_unless(l != 0, random_raw),
+            nan_unless(calibrated, random_standard),
+            nan_unless(calibrated, random_pixelwise),
+            nan_unless(l != 0, random_level_only),
+            mean_l,
+        ]
+    };
+    // With the cube, each level is its row of it; without, a thread's one row of scratch.
+    let (level_stats, corrected): (Vec<[f64; 9]>, Option<Vec<f64>>) = match cube {
+        Cube::Keep => {
+            let mut corrected = vec![0.0; nl * np];
+            let stats = corrected.par_chunks_mut(np).enumerate().map(|(l, row)| level(l, row)).collect();
+            (stats, Some(corrected))
+        }
+        Cube::Skip => ((0..nl).into_par_iter().map_init(|| vec![0.0; np], |row, l| level(l, row)).collect(), None),
+    };
+    let col = |i: usize| -> Vec<f64> { level_stats.iter().map(|s| s[i]).collect() };
+    let maxf = |v: &[f64]| v.iter().filter(|x| x.is_finite()).fold(0.0f64, |a, &b| a.max(b));
+    let (rms_raw, rms_standard, rms_pixelwise, rms_random) = (col(0), col(1), col(2), col(3));
+    let (rms_random_raw, rms_random_standard, rms_random_pixelwise, rms_random_level_only) = (col(4), col(5), col(6), col(7));
+    let level_mean_dn = col(8);
+    // The coefficients k-major for the FITS cube.
+    let coeffs: Vec<f64> = (0..k1 * np).into_par_iter().map(|i| coef[i % np * k1 + i / np]).collect();
+    let report = LinearityReport {
+        levels: nl,
+        pixels: np,
+        gain_level: g,
+        intensity: e,
+        reference: x,
+        rms_raw_max: maxf(&rms_raw),
+        rms_standard_max: maxf(&rms_standard),
+        rms_pixelwise_max: maxf(&rms_pixelwise),
+        rms_random_max: maxf(&rms_random),
+        rms_raw,
+        rms_standard,
+        rms_pixelwise,
+        rms_random,
+        rms_random_raw,
+        rms_random_standard,
+        rms_random_pixelwise,
+        rms_random_level_only,
+        level_mean_dn,
+        masked_pixels: mask.iter().filter(|&&m| m != 0).count(),
+        order,
+        global_coefficients: global,
+    };
+    Ok((report, PixelResults { coeffs, mask, corrected }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A set whose pixel p reads exactly `sum_k a_k(p) x^k` at x = l / (levels - 1).
+    fn planted(w: usize, h: usize, levels: usize, a: impl Fn(usize) -> [f64; 5]) -> LinearitySet {
+        let np = w * h;
+        let mut mean = vec![0.0; levels * np];
+        for l in 0..levels {
+            let x = l as f64 / (levels - 1) as f64;
+            for p in 0..np {
+                mean[l * np + p] = poly(&a(p), x);
+            }
+        }
+        LinearitySet { bit_depth: 12, n_adc: 4, n_frames: 256, width: w, height: h, levels, std: vec![2.0; levels * np], mean, voltage: (0..levels).map(|l| 0.01 * l as f64).collect(), mask: None }
+    }
+
+    fn coefficients(p: usize) -> [f64; 5] {
+        let t = p as f64;
+        [100.0 + t, 3000.0 + 7.0 * t, -150.0 + t % 5.0, 40.0 - (t % 3.0) * 10.0, -12.0 + (t % 7.0)]
+    }
+
+    #[test]
+    fn the_example_row_shows_each_correction_as_the_closed_form() {
+        // Planted quartic pixels (a_0 = 100 + t, a_1 = 3000 + 7t, ...; t the pixel index):
+        // the pixel-wise correction returns exactly e_l (value 1); raw is the pixel's mean
+        // over the level's mean of all pixels; the standard correction's value is the
+        // closed form with the fitted global cubic.
+        let set = planted(12, 4, 41, coefficients);
+        let (r, px) = analyze(&set, PIXEL_ORDER).unwrap();
+        let ex = example_row(&set, &r, &px, px.corrected.as_ref().unwrap(), 6);
+        assert_eq!((ex.row, ex.first_column), (2, 3));
+        assert_eq!(ex.raw.len(), 40);
+        let np = 48;
+        let top = 4095.0;
+        let f = |v: f64| poly(&r.global_coefficients, v / top);
+        for l in 1..41 {
+            let mean_l = (0..np).map(|p| set.mean[l * np + p]).sum::<f64>() / np as f64;
+            for i in 0..6 {
+                let p = 2 * 12 + 3 + i;
+                let m = |l: usize| set.mean[l * np + p];
+                assert!((ex.pixelwise[l - 1][i] - 1.0).abs() < 1e-6, "level {l} pixel {p}: {}", ex.pixelwise[l - 1][i]);
+                assert!((ex.raw[l - 1][i] - m(l) / mean_l).abs() < 1e-12);
+                let standard = (f(m(l)) - f(m(0))) / (f(m(20)) - f(m(0))) / (l as f64 / 20.0);
+                assert!((ex.standard[l - 1][i] - standard).abs() < 1e-9, "level {l}");
+            }
+        }
+        // The standard correction is exact at the flat.
+        assert!(ex.standard[19].iter().all(|v| (v - 1.0).abs() < 1e-12));
+    }
+
+    #[test]
+    fn the_pixel_fit_recovers_planted_coefficients() {
+        let set = planted(6, 5, 41, coefficients);
+        let (r, px) = analyze(&set, PIXEL_ORDER).unwrap();
+        let np = 30;
+        for p in 0..np {
+            for (k, want) in coefficients(p).iter().enumerate() {
+                let got = px.coeffs[k * np + p];
+                assert!((got - want).abs() < 1e-6 * want.abs().max(1.0), "pixel {p} a{k}: {got} vs {want}");
+            }
+        }
+        // Exact quartics: the pixel-wise correction is exact, the standard one is not.
+        assert!(r.rms_pixelwise_max < 1e-9, "{}", r.rms_pixelwise_max);
+        assert!(r.rms_standard_max > 1e-4, "{}", r.rms_standard_max);
+        assert_eq!(r.masked_pixels, 0);
+        assert_eq!(r.gain_level, 20);
+    }
+
+    #[test]
+    fn saturated_levels_are_left_out_of_the_fit() {
+        // Pixel 0 clips at the top code from level 30: its fit uses levels 0..29 only and
+        // still recovers the quartic.
+        let mut set = planted(4, 1, 41, coefficients);
+        for l in 30..41 {
+            set.mean[l * 4] = 4095.0;
+        }
+        let (_, px) = analyze(&set, PIXEL_ORDER).unwrap();
+        for (k, want) in coefficients(0).iter().enumerate() {
+            assert!((px.coeffs[k * 4] - want).abs() < 1e-6 * want.abs().max(1.0), "a{k}");
+        }
+    }
+
+    #[test]
+    fn clipping_below_the_top_code_is_saturation() {
+        // Pixel 1 clips at 4080 DN with no noise from level 33 (as the real EMVA CCD does):
+        // the fit must stop there and still recover its quartic.
+        let mut set = planted(4, 1, 41, coefficients);
+        for l in 33..41 {
+            set.mean[l * 4 + 1] = 4080.0;
+            set.std[l * 4 + 1] = 0.0;
+        }
+        let (_, px) = analyze(&set, PIXEL_ORDER).unwrap();
+        for (k, want) in coefficients(1).iter().enumerate() {
+            assert!((px.coeffs[k * 4 + 1] - want).abs() < 1e-6 * want.abs().max(1.0), "a{k}: {}", px.coeffs[k * 4 + 1]);
+        }
+    }
+
+    #[test]
+    fn the_statistics_without_the_cube_are_those_with_it_bit_for_bit() {
+        // Pixels that vary, one dead, one with a kink, two clipping at the top from
+        // levels 30 and 36, one flagged in the input: the statistics only count good,
+        // unsaturated pixel-levels, so leaving the others uninverted changes no bit.
+        let mut set = planted(6, 5, 41, |p| [100.0 + p as f64, 3000.0 - 7.0 * p as f64, -150.0, 40.0 + p as f64, -12.0]);
+        let np = 30;
+        for l in 0..41 {
+            set.mean[l * np + 7] = 100.0;
+            if l > 20 {
+                set.mean[l * np + 12] += 300.0;
+            }
+            if l >= 30 {
+                set.mean[l * np + 3] = 4095.0;
+            }
+            if l >= 36 {
+                set.mean[l * np + 20] = 4095.0;
+            }
+            for p in 0..np {
+                set.std[l * np + p] = 1.0 + 0.01 * ((l * 7 + p * 3) % 11) as f64;
+            }
+        }
+        set.mask = Some((0..np).map(|p| (p == 25) as u8).collect());
+        let valid = unsaturated_levels(&set);
+        assert!(valid[3] == 30 && valid[20] == 36, "{valid:?}");
+        let (kept, px_kept) = analyze_unsaturated(&set, PIXEL_ORDER, None, valid.clone(), Cube::Keep).unwrap();
+        let (skipped, px_skipped) = analyze_unsaturated(&set, PIXEL_ORDER, None, valid, Cube::Skip).unwrap();
+        assert!(kept.masked_pixels >= 3, "{}", kept.masked_pixels);
+        let json = |r: &LinearityReport| serde_json::to_string(r).unwrap();
+        assert_eq!(json(&kept), json(&skipped));
+        assert_eq!(px_kept.mask, px_skipped.mask);
+        assert!(px_kept.coeffs.iter().zip(&px_skipped.coeffs).all(|(a, b)| a.to_bits() == b.to_bits()));
+        assert_eq!(px_kept.corrected.map(|c| c.len()), Some(41 * np));
+        assert!(px_skipped.corrected.is_none());
+    }
+
+    #[test]
+    fn dead_and_anomalous_pixels_are_masked_and_filled() {
+        let mut set = planted(5, 5, 41, |_| [100.0, 3000.0, -150.0, 40.0, -12.0]);
+        let np = 25;
+        // Pixel 7 is dead (no signal), pixel 12 (the center) has a kink no quartic fits.
+        for l in 0..41 {
+            set.mean[l * np + 7] = 100.0;
+            if l > 20 {
+                set.mean[l * np + 12] += 300.0;
+            }
+        }
+        let (r, px) = analyze(&set, PIXEL_ORDER).unwrap();
+        assert_eq!(px.mask[7] & reason::LOW, reason::LOW);
+        assert_eq!(px.mask[12] & reason::TREND, reason::TREND);
+        assert_eq!(r.masked_pixels, 2);
+        // The filled value is the mean of the good neighbours: here every good pixel reads
+        // the same corrected intensity, so the filled one must equal it.
+        for l in [5, 20, 35] {
+            let row = &px.corrected.as_ref().unwrap()[l * np..(l + 1) * np];
+            assert!((row[12] - row[0]).abs() < 1e-12 && (row[7] - row[0]).abs() < 1e-12, "level {l}: {row:?}");
+        }
+    }
+
+    #[test]
+    fn fill_masked_averages_the_good_neighbours() {
+        let mut img = vec![1.0, 2.0, 3.0, 4.0, 99.0, 6.0, 7.0, 8.0, 9.0];
+        let mut mask = vec![0u8; 9];
+        mask[4] = 1;
+        mask[0] = 1;
+        fill_masked(&mut img, &mask, 3, 3);
+        assert_eq!(img[4], (2.0 + 3.0 + 4.0 + 6.0 + 7.0 + 8.0 + 9.0) / 7.0);
+        assert_eq!(img[0], (2.0 + 4.0) / 2.0);
+    }
+
+    #[test]
+    fn random_noise_propagates_as_the_closed_form() {
+        // Linear pixels (no fit error) with std 2 DN, 256 frames: at level l the noise is
+        // sqrt(s^2 (1 + c^2 + (1 - c)^2)) / (m_g - m_0) with s = 2/16.
+        let set = planted(3, 3, 41, |_| [100.0, 3000.0, 0.0, 0.0, 0.0]);
+        let (r, _) = analyze(&set, PIXEL_ORDER).unwrap();
+        let d = 3000.0 * 0.5;
+        for l in [1usize, 10, 30, 40] {
+            let c = (l as f64 / 40.0) / 0.5;
+            let s: f64 = 2.0 / 16.0;
+            let want = (s * s * (1.0 + c * c + (1.0 - c).powi(2))).sqrt() / d;
+            assert!((r.rms_random[l] - want).abs() < 1e-12, "level {l}");
+            // Linear pixels: the pixel-wise inverse has slope 1/3000 per DN and the
+            // corrections' curves are the linear one; raw is s over the level's mean; the
+            // level alone is s / (m_g - m_0).
+            assert!((r.rms_random_pixelwise[l] - want).abs() < 1e-9 * want, "level {l}: {}", r.rms_random_pixelwise[l]);
+            // The global cubic fit to the median pixel's levels is exactly linear here, so
+            // the standard correction propagates the noise the same way.
+            assert!((r.rms_random_standard[l] - want).abs() < 1e-9 * want, "level {l}: {}", r.rms_random_standard[l]);
+            let mean = 100.0 + 3000.0 * l as f64 / 40.0;
+            assert!((r.rms_random_raw[l] - s / mean).abs() < 1e-12, "level {l}");
+            assert!((r.rms_random_level_only[l] - s / d).abs() < 1e-12, "level {l}");
+        }
+        assert!(r.rms_random[0].is_nan() && r.rms_random[20].is_nan());
+        assert!(r.rms_random_standard[20].is_nan() && r.rms_random_raw[0].is_nan());
+    }
+}

@@ -1,0 +1,92 @@
+//! From a histogram set to LUTs, the paper's recipe: each ADC's histogram flattened
+//! ([`crate::analyses::flatten`]), the weights quantized to the core's grid, the core's
+//! LUT set built by its rounding rule ([`crate::formats::lut`]), and every entry checked
+//! against the independent float reference ([`crate::model::reference`]) of the same
+//! weights. `lut build`, `adc` and `stream --hist` call it.
+
+use std::path::Path;
+
+use dncal_core::Weight;
+use serde::Serialize;
+
+use crate::analyses::flatten::{flatten_histogram, to_core_weights, FlattenParams, Flattened};
+use crate::formats::fits::AdcHistograms;
+use crate::formats::lut::Lut;
+use crate::HostError;
+
+/// The LUT of one ADC, summarized.
+#[derive(Debug, Clone, Serialize)]
+pub struct AdcLutSummary {
+    /// ADC index.
+    pub adc: usize,
+    /// Cumulative offset at the top code before normalization, DN.
+    pub top_offset_before_dn: f64,
+    /// Cumulative offset at the top code after normalization, DN (~0).
+    pub top_offset_dn: f64,
+    /// Largest |cumulative offset| over the codes, DN.
+    pub max_abs_offset_dn: f64,
+    /// Smallest and largest weight of the inner codes.
+    pub weight_range: (f64, f64),
+    /// Top entry, units of 2^-11 DN (must be below 2^23).
+    pub top_entry: u32,
+}
+
+/// The LUTs built from a histogram set: weights, flattening details, core tables, image.
+pub struct BuiltLuts {
+    /// Flattening results per ADC.
+    pub flattened: Vec<Flattened>,
+    /// The weights the core received, per ADC.
+    pub weights: Vec<Vec<Weight>>,
+    /// The core's entries, per ADC.
+    pub tables: Vec<Vec<u32>>,
+    /// The device image.
+    pub image: Vec<u8>,
+}
+
+impl BuiltLuts {
+    /// The LUT set (entries and the weights they were built from).
+    pub fn lut(&self) -> Lut {
+        Lut { tables: self.tables.clone(), weights: Some(self.weights.clone()), kcor_bits: None }
+    }
+
+    /// Each ADC's summary.
+    pub fn summaries(&self) -> Vec<AdcLutSummary> {
+        self.flattened.iter().zip(&self.tables).enumerate().map(|(a, (f, t))| summarize(a, f, t)).collect()
+    }
+}
+
+/// Flattens `hist` and builds the LUT set in the core; `source` names the input in errors.
+pub fn build_luts(hist: &AdcHistograms, params: &FlattenParams, source: &Path) -> Result<BuiltLuts, HostError> {
+    let mut flattened = Vec::new();
+    let mut weights = Vec::new();
+    for (adc, counts) in hist.counts.iter().enumerate() {
+        let f = flatten_histogram(counts, params).map_err(|e| HostError::Format { path: source.into(), message: format!("ADC {adc}: {e}") })?;
+        let w = to_core_weights(&f.weights).map_err(|e| HostError::Format { path: source.into(), message: format!("ADC {adc}: {e}") })?;
+        flattened.push(f);
+        weights.push(w);
+    }
+    let (tables, image) = crate::formats::lut::tables_from_weights(&weights, source)?;
+    // The independent float reference must reproduce every entry.
+    let reference = crate::model::reference::ReferenceLut::from_weights(&weights.iter().map(|w| w.iter().map(|x| x.to_num::<f64>()).collect()).collect::<Vec<_>>());
+    for (adc, (q, t)) in reference.quantized().iter().zip(&tables).enumerate() {
+        if let Some(k) = (0..t.len()).find(|&k| q[k] != t[k] as u64) {
+            return Err(HostError::Format { path: source.into(), message: format!("ADC {adc} code {k}: core entry {} differs from the float reference {}", t[k], q[k]) });
+        }
+    }
+    Ok(BuiltLuts { flattened, weights, tables, image })
+}
+
+/// One ADC's summary from its flattening and its core table.
+pub fn summarize(adc: usize, f: &Flattened, table: &[u32]) -> AdcLutSummary {
+    let n = f.weights.len();
+    let offsets = crate::analyses::flatten::cumulative_offsets(&f.weights);
+    let inner = &f.weights[1..n - 1];
+    AdcLutSummary {
+        adc,
+        top_offset_before_dn: f.top_offset_before_dn,
+        top_offset_dn: f.top_offset_dn,
+        max_abs_offset_dn: offsets.iter().fold(0.0, |m: f64, o| m.max(o.abs())),
+        weight_range: (inner.iter().cloned().fold(f64::INFINITY, f64::min), inner.iter().cloned().fold(f64::NEG_INFINITY, f64::max)),
+        top_entry: table.last().copied().unwrap_or(0),
+    }
+}

@@ -1,0 +1,16 @@
+//! Characterization and diagnosis: the paper's flattening and its LUTs, the IEEE 1241
+//! histogram test and ADC architectures, the K-Cor tables' ADCs, EMVA 1288, pixel-wise
+//! linearity, quantization bias, the K-Coronagraph polarimetric model, the paper's claims
+//! and `diagnose`. Imports the core, [`crate::formats`], [`crate::model`] and
+//! [`crate::infra`].
+
+pub mod diagnose;
+pub mod emva;
+pub mod flatten;
+pub mod ieee1241;
+pub mod kcor;
+pub mod linearity;
+pub mod lut_build;
+pub mod paper_claims;
+pub mod quantization;
+pub mod real_adcs;

@@ -1,0 +1,497 @@
+//! All-or-nothing outputs (issue 18, "never lose a file"): a command that fails leaves
+//! every file it would have written as it was, and adds none.
+//!
+//! [`Outputs`] is one command's set of files. Each is written to a temporary
+//! `.NAME.PID.XXXXXX.dncal-tmp` beside its target (same directory, so that the final
+//! rename is atomic and cannot cross file systems); [`Outputs::publish`] then renames them
+//! over their targets, one by one. A rename over an existing file cannot be undone, so
+//! every target about to be replaced is first kept as a hard link
+//! `.NAME.PID.XXXXXX.dncal-old` (or, where hard links are not supported, renamed there).
+//! If anything fails, before or while publishing, or the set is dropped unpublished (an
+//! error returned with `?`), every temporary is removed, every replaced target is put
+//! back from its backup, every target that is new is removed, and so is every directory
+//! the set created: the targets are byte-identical to before.
+//!
+//! Most failures are found before anything is computed: a target is checked when first
+//! named ([`Outputs::expect`]): it must not be a directory, device or FIFO, and its
+//! temporary is created at once, so an unwritable directory fails there too. A kill
+//! cannot clean up; its temporaries (and, killed while publishing, its backups) carry its
+//! process id, and the next set that writes the same target removes those of processes
+//! no longer running.
+//!
+//! ```
+//! use dncal_host::formats::outputs::Outputs;
+//! let dir = tempfile::tempdir().unwrap();
+//! let (a, b) = (dir.path().join("a.txt"), dir.path().join("b.txt"));
+//! let mut out = Outputs::new();
+//! out.expect([&a, &b])?;
+//! out.write_bytes(&a, "first")?;
+//! out.write_bytes(&b, "second")?;
+//! assert!(!a.exists(), "nothing is visible before publishing");
+//! out.publish()?;
+//! assert_eq!(std::fs::read_to_string(&b).unwrap(), "second");
+//! # Ok::<(), dncal_host::HostError>(())
+//! ```
+
+use std::path::{Path, PathBuf};
+
+use crate::HostError;
+
+/// Suffix of a temporary output not yet published.
+const TMP_SUFFIX: &str = ".dncal-tmp";
+/// Suffix of the backup of a target being replaced.
+const OLD_SUFFIX: &str = ".dncal-old";
+
+/// One target and where it stands.
+#[derive(Debug)]
+struct Staged {
+    target: PathBuf,
+    tmp: PathBuf,
+    state: State,
+}
+
+#[derive(Debug, Clone, PartialEq, Eq)]
+enum State {
+    /// The temporary exists, empty (named by [`Outputs::expect`], not written yet).
+    Claimed,
+    /// The temporary holds the complete file.
+    Written,
+    /// Renamed over the target; the old target, if there was one, is at the backup.
+    Published { backup: Option<Backup> },
+}
+
+#[derive(Debug, Clone, PartialEq, Eq)]
+struct Backup {
+    path: PathBuf,
+    /// A hard link (the target still existed beside it) rather than the target renamed.
+    linked: bool,
+}
+
+/// The files of one command, published together or not at all (see the module docs).
+/// Dropping it unpublished discards everything it staged.
+#[derive(Debug, Default)]
+pub struct Outputs {
+    staged: Vec<Staged>,
+    /// Directories this set created, parents first.
+    created_dirs: Vec<PathBuf>,
+}
+
+impl Outputs {
+    /// An empty set.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Creates `dir` and its missing parents; those created are removed again if the set
+    /// is not published. An existing non-directory on the way is refused.
+    pub fn create_dir(&mut self, dir: &Path) -> Result<(), HostError> {
+        let mut missing = Vec::new();
+        let mut at = Some(dir);
+        while let Some(d) = at.filter(|d| !d.as_os_str().is_empty()) {
+            match std::fs::symlink_metadata(d) {
+                Ok(_) if d.is_dir() => break,
+                Ok(_) => return Err(HostError::Format { path: d.into(), message: "is not a directory; outputs go into it".into() }),
+                Err(_) => missing.push(d.to_path_buf()),
+            }
+            at = d.parent();
+        }
+        for d in missing.into_iter().rev() {
+            std::fs::create_dir(&d).map_err(|e| HostError::io(&d, e))?;
+            self.created_dirs.push(d);
+        }
+        Ok(())
+    }
+
+    /// Checks `targets` before anything is computed: each must be a file or not exist,
+    /// in a directory where its temporary can be created (created now; see the module
+    /// docs). A target named but never written is left as it was.
+    pub fn expect<P: AsRef<Path>>(&mut self, targets: impl IntoIterator<Item = P>) -> Result<(), HostError> {
+        targets.into_iter().try_for_each(|t| self.claim(t.as_ref()).map(drop))
+    }
+
+    /// Runs `write` on the temporary of `target` (empty when `write` is called); the
+    /// result is published with the rest.
+    pub fn write(&mut self, target: &Path, write: impl FnOnce(&Path) -> Result<(), HostError>) -> Result<(), HostError> {
+        let i = self.claim(target)?;
+        let tmp = self.staged[i].tmp.clone();
+        write(&tmp)?;
+        // A replaced file keeps its permissions.
+        if let Ok(old) = std::fs::metadata(target) {
+            std::fs::set_permissions(&tmp, old.permissions()).map_err(|e| HostError::io(target, e))?;
+        }
+        std::fs::File::open(&tmp).and_then(|f| f.sync_all()).map_err(|e| HostError::io(target, e))?;
+        self.staged[i].state = State::Written;
+        Ok(())
+    }
+
+    /// Stages `bytes` as `target`.
+    pub fn write_bytes(&mut self, target: &Path, bytes: impl AsRef<[u8]>) -> Result<(), HostError> {
+        self.write(target, |tmp| std::fs::write(tmp, bytes.as_ref()).map_err(|e| HostError::io(target, e)))
+    }
+
+    /// Where the written, unpublished contents of `target` can be read back (a later step
+    /// of the same command reading an earlier one's output).
+    pub fn staged(&self, target: &Path) -> Option<&Path> {
+        self.staged.iter().find(|s| s.target == target && s.state == State::Written).map(|s| s.tmp.as_path())
+    }
+
+    /// Renames every written file over its target; on any failure puts everything back
+    /// (see the module docs) and returns the error. Returns the targets published.
+    pub fn publish(mut self) -> Result<Vec<PathBuf>, HostError> {
+        for s in self.staged.iter_mut().filter(|s| s.state == State::Written) {
+            let backup = publish_one(s)?;
+            s.state = State::Published { backup };
+        }
+        let mut published = Vec::new();
+        for s in std::mem::take(&mut self.staged) {
+            match s.state {
+                State::Published { backup } => {
+                    if let Some(b) = backup {
+                        // The new file is in place; a backup left behind is only litter.
+                        let _ = std::fs::remove_file(&b.path);
+                    }
+                    sync_dir(&s.target);
+                    published.push(s.target);
+                }
+                _ => {
+                    let _ = std::fs::remove_file(&s.tmp);
+                }
+            }
+        }
+        self.created_dirs.clear();
+        Ok(published)
+    }
+
+    /// The index of `target`'s entry, made (checked, stale files removed, temporary
+    /// created) if new.
+    fn claim(&mut self, target: &Path) -> Result<usize, HostError> {
+        if let Some(i) = self.staged.iter().position(|s| s.target == target) {
+            return Ok(i);
+        }
+        check_target(target)?;
+        let (dir, prefix) = temp_prefix(target)?;
+        remove_stale(dir, &prefix);
+        let mine = format!("{prefix}{}.", std::process::id());
+        let mut builder = tempfile::Builder::new();
+        builder.prefix(&mine).suffix(TMP_SUFFIX).rand_bytes(6);
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            // The process umask applies, as for any newly created file.
+            builder.permissions(std::fs::Permissions::from_mode(0o666));
+        }
+        let tmp = builder.tempfile_in(dir).map_err(|e| HostError::io(target, e))?.into_temp_path().keep().map_err(|e| HostError::io(target, e.error))?;
+        self.staged.push(Staged { target: target.into(), tmp, state: State::Claimed });
+        Ok(self.staged.len() - 1)
+    }
+}
+
+impl Drop for Outputs {
+    /// Puts everything back: published targets first (newest first), then temporaries,
+    /// then the directories this set created.
+    fn drop(&mut self) {
+        for s in self.staged.iter().rev() {
+            match &s.state {
+                State::Published { backup: Some(b) } => {
+                    let _ = std::fs::rename(&b.path, &s.target);
+                }
+                State::Published { backup: None } => {
+                    let _ = std::fs::remove_file(&s.target);
+                }
+                State::Claimed | State::Written => {
+                    let _ = std::fs::remove_file(&s.tmp);
+                }
+            }
+        }
+        for d in self.created_dirs.iter().rev() {
+            // Only if empty: anything else in it is not ours.
+            let _ = std::fs::remove_dir(d);
+        }
+    }
+}
+
+/// A directory a command writes its report into, inside the set of outputs the report
+/// belongs to: the caller publishes the set, with whatever else it writes.
+#[derive(Debug)]
+pub struct OutDir<'a> {
+    /// The set the files are staged in.
+    pub files: &'a mut Outputs,
+    /// The directory, created by the command ([`Outputs::create_dir`]).
+    pub dir: &'a Path,
+}
+
+impl<'a> OutDir<'a> {
+    /// `dir` inside `files`.
+    pub fn new(files: &'a mut Outputs, dir: &'a Path) -> Self {
+        OutDir { files, dir }
+    }
+
+    /// The path of `name` in the directory.
+    pub fn at(&self, name: &str) -> PathBuf {
+        self.dir.join(name)
+    }
+}
+
+/// Runs `command` with its output directory `dir`, if any, in a fresh set of outputs, and
+/// publishes them: all files of the command or, if it fails, none.
+pub fn staged<T>(dir: Option<&Path>, command: impl FnOnce(Option<OutDir<'_>>) -> Result<T, HostError>) -> Result<T, HostError> {
+    let mut files = Outputs::new();
+    let result = command(dir.map(|d| OutDir::new(&mut files, d)))?;
+    files.publish()?;
+    Ok(result)
+}
+
+/// [`staged`] for a command that always has an output directory.
+pub fn staged_in<T>(dir: &Path, command: impl FnOnce(OutDir<'_>) -> Result<T, HostError>) -> Result<T, HostError> {
+    let mut files = Outputs::new();
+    let result = command(OutDir::new(&mut files, dir))?;
+    files.publish()?;
+    Ok(result)
+}
+
+/// Runs `stage` on a fresh set and publishes it: for a command or writer of one file.
+pub fn write_one(stage: impl FnOnce(&mut Outputs) -> Result<(), HostError>) -> Result<(), HostError> {
+    let mut out = Outputs::new();
+    stage(&mut out)?;
+    out.publish().map(drop)
+}
+
+/// Writes one file atomically: readers see the old file or the complete new one, never a
+/// half-written one; on failure `path` is left as it was and no temporary remains.
+pub fn write_atomically(path: &Path, write: impl FnOnce(&Path) -> Result<(), HostError>) -> Result<(), HostError> {
+    let mut out = Outputs::new();
+    out.write(path, write)?;
+    out.publish().map(drop)
+}
+
+/// Writes `bytes` to `path` atomically (see [`write_atomically`]).
+pub fn write_file_atomically(path: &Path, bytes: impl AsRef<[u8]>) -> Result<(), HostError> {
+    write_atomically(path, |tmp| std::fs::write(tmp, bytes.as_ref()).map_err(|e| HostError::io(path, e)))
+}
+
+/// Backs the target of `s` up (if it exists) and renames the temporary over it. On
+/// failure the target is as before and the backup gone.
+fn publish_one(s: &Staged) -> Result<Option<Backup>, HostError> {
+    let err = |e| HostError::io(&s.target, e);
+    // Again: a directory made since the check would otherwise be moved to the backup.
+    check_target(&s.target)?;
+    let backup = match std::fs::symlink_metadata(&s.target) {
+        Ok(_) => {
+            // The temporary's name is plain ASCII (see `temp_prefix`).
+            let tmp_name = s.tmp.file_name().and_then(|n| n.to_str()).unwrap_or_default();
+            let path = s.tmp.with_file_name(format!("{}{OLD_SUFFIX}", tmp_name.strip_suffix(TMP_SUFFIX).unwrap_or(tmp_name)));
+            let linked = match std::fs::hard_link(&s.target, &path) {
+                Ok(()) => true,
+                Err(_) => {
+                    std::fs::rename(&s.target, &path).map_err(err)?;
+                    false
+                }
+            };
+            Some(Backup { path, linked })
+        }
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
+        Err(e) => return Err(err(e)),
+    };
+    if let Err(e) = std::fs::rename(&s.tmp, &s.target) {
+        if let Some(b) = &backup {
+            let _ = if b.linked { std::fs::remove_file(&b.path) } else { std::fs::rename(&b.path, &s.target) };
+        }
+        return Err(err(e));
+    }
+    Ok(backup)
+}
+
+/// Refuses a target that exists as anything but a file (or a link to one): a rename over
+/// a directory fails, over a device would replace it.
+fn check_target(target: &Path) -> Result<(), HostError> {
+    match std::fs::metadata(target) {
+        Ok(m) if !m.is_file() => Err(HostError::OutputNotFile { path: target.into(), kind: crate::formats::input::kind_of(&m.file_type()) }),
+        _ => Ok(()),
+    }
+}
+
+/// The directory of `target` and the start of its temporaries' names, `.NAME.` with only
+/// plain characters in NAME: the temporary may go to cfitsio, which parses brackets and
+/// more.
+fn temp_prefix(target: &Path) -> Result<(&Path, String), HostError> {
+    let file_name = target.file_name().ok_or_else(|| HostError::Format { path: target.into(), message: "not a file name to write to".into() })?;
+    let dir = match target.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    let plain: String = file_name.to_string_lossy().chars().map(|c| if c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-') { c } else { '_' }).collect();
+    Ok((dir, format!(".{plain}.")))
+}
+
+/// Removes the temporaries and backups `prefix` names in `dir` that were left by
+/// processes no longer running (killed mid-write). Best effort: a file that cannot be
+/// removed stays.
+fn remove_stale(dir: &Path, prefix: &str) {
+    let Ok(entries) = std::fs::read_dir(dir) else { return };
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let Some(pid) = name.to_str().and_then(|n| stale_pid(n, prefix)) else { continue };
+        if pid != std::process::id() && !process_is_running(pid) {
+            let _ = std::fs::remove_file(entry.path());
+        }
+    }
+}
+
+/// The process id in `name` if it is one of our temporaries or backups for `prefix`:
+/// `{prefix}{pid}.{6 characters}.dncal-tmp` (`.dncal-old` for a backup).
+fn stale_pid(name: &str, prefix: &str) -> Option<u32> {
+    let rest = name.strip_prefix(prefix)?;
+    let rest = rest.strip_suffix(TMP_SUFFIX).or_else(|| rest.strip_suffix(OLD_SUFFIX))?;
+    let (pid, random) = rest.split_once('.')?;
+    (random.len() == 6 && random.chars().all(|c| c.is_ascii_alphanumeric())).then_some(())?;
+    pid.parse().ok()
+}
+
+/// Whether process `pid` exists (on other systems than Unix: assumed to).
+fn process_is_running(pid: u32) -> bool {
+    #[cfg(unix)]
+    {
+        let Ok(pid) = libc::pid_t::try_from(pid) else { return true };
+        // SAFETY: signal 0 only checks that the process exists and may be signalled.
+        let r = unsafe { libc::kill(pid, 0) };
+        r == 0 || std::io::Error::last_os_error().raw_os_error() == Some(libc::EPERM)
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = pid;
+        true
+    }
+}
+
+/// Makes a rename in `target`'s directory durable. Best effort.
+fn sync_dir(target: &Path) {
+    #[cfg(unix)]
+    if let Some(d) = target.parent().map(|d| if d.as_os_str().is_empty() { Path::new(".") } else { d }) {
+        let _ = std::fs::File::open(d).and_then(|f| f.sync_all());
+    }
+    #[cfg(not(unix))]
+    let _ = target;
+}
+
+/// `s` escaped for HTML text and quoted attributes.
+pub fn html_escape(s: &str) -> String {
+    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;")
+}
+
+/// How a report page names an input file: its absolute path, escaped. (A relative path
+/// would be read relative to the page, not to where the command ran.)
+pub fn html_path(path: &Path) -> String {
+    html_escape(&std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf()).display().to_string())
+}
+
+/// One figure of a report page: image `src` shown `width` pixels wide, `alt` the text for
+/// a reader that does not show it, and `caption` under it when given (all escaped here).
+pub fn html_figure(src: &str, width: u32, alt: &str, caption: Option<&str>) -> String {
+    let caption = caption.map_or(String::new(), |c| format!("<figcaption>{}</figcaption>", html_escape(c)));
+    format!("<figure><img src=\"{}\" width=\"{width}\" alt=\"{}\">{caption}</figure>", html_escape(src), html_escape(alt))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn names(dir: &Path) -> Vec<String> {
+        let mut v: Vec<String> = std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+        v.sort();
+        v
+    }
+
+    #[test]
+    fn a_failure_while_publishing_restores_every_target_and_removes_the_new_ones() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let (a, b, c) = (d.join("a"), d.join("b"), d.join("sub/c"));
+        std::fs::write(&a, "old a").unwrap();
+        let mut out = Outputs::new();
+        out.create_dir(&d.join("sub")).unwrap();
+        out.write_bytes(&a, "new a").unwrap();
+        out.write_bytes(&c, "new c").unwrap();
+        out.write_bytes(&b, "new b").unwrap();
+        // After the checks, b becomes a directory: its rename fails mid-publish, after a
+        // and c are in place.
+        std::fs::create_dir(&b).unwrap();
+        let e = out.publish().unwrap_err();
+        assert_eq!(e.to_string(), format!("{}: is a directory; an output file cannot replace it", b.display()));
+        assert_eq!(std::fs::read_to_string(&a).unwrap(), "old a");
+        assert_eq!(names(d), ["a", "b"], "c and its new directory removed, no temporary or backup left");
+        assert!(names(&b).is_empty());
+    }
+
+    #[test]
+    fn dropping_unpublished_discards_and_publishing_replaces_keeping_permissions() {
+        let dir = tempfile::tempdir().unwrap();
+        let a = dir.path().join("a");
+        std::fs::write(&a, "old").unwrap();
+        let mut out = Outputs::new();
+        out.write_bytes(&a, "new").unwrap();
+        assert_eq!(std::fs::read(out.staged(&a).unwrap()).unwrap(), b"new");
+        drop(out);
+        assert_eq!(std::fs::read_to_string(&a).unwrap(), "old");
+        assert_eq!(names(dir.path()), ["a"]);
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            std::fs::set_permissions(&a, std::fs::Permissions::from_mode(0o640)).unwrap();
+            write_file_atomically(&a, "new").unwrap();
+            assert_eq!(std::fs::metadata(&a).unwrap().permissions().mode() & 0o777, 0o640);
+        }
+        assert_eq!(std::fs::read_to_string(&a).unwrap(), "new");
+        assert_eq!(names(dir.path()), ["a"]);
+    }
+
+    #[test]
+    fn a_failing_writer_leaves_the_old_file_and_no_temporary() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("h.fits");
+        std::fs::write(&p, "old").unwrap();
+        let mut seen = None;
+        let result = write_atomically(&p, |tmp| {
+            seen = Some(tmp.to_path_buf());
+            std::fs::write(tmp, b"half").unwrap();
+            Err(HostError::Format { path: tmp.into(), message: "stopped halfway".into() })
+        });
+        assert!(result.unwrap_err().to_string().ends_with("stopped halfway"));
+        assert_eq!(seen.unwrap().parent(), Some(dir.path()));
+        assert_eq!(std::fs::read_to_string(&p).unwrap(), "old");
+        assert_eq!(names(dir.path()), ["h.fits"]);
+        let e = write_atomically(Path::new(""), |_| Ok(())).unwrap_err();
+        assert!(e.to_string().ends_with("not a file name to write to"), "{e}");
+    }
+
+    #[test]
+    fn targets_that_are_not_files_are_refused_when_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path().join("d");
+        std::fs::create_dir(&d).unwrap();
+        let mut out = Outputs::new();
+        let e = out.expect([&dir.path().join("x"), &d]).unwrap_err();
+        assert_eq!(e.to_string(), format!("{}: is a directory; an output file cannot replace it", d.display()));
+        drop(out);
+        assert_eq!(names(dir.path()), ["d"]);
+    }
+
+    #[test]
+    fn only_stale_files_of_dead_processes_for_the_same_target_are_removed() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let mut child = std::process::Command::new("true").spawn().unwrap();
+        let dead = child.id();
+        child.wait().unwrap();
+        let me = std::process::id();
+        let keep = [format!(".a.fits.{me}.abc123.dncal-tmp"), format!(".b.fits.{dead}.abc123.dncal-tmp"), format!(".a.fits.{dead}.abc123.tmp"), ".a.fits.x.abc123.dncal-tmp".into()];
+        let stale = [format!(".a.fits.{dead}.abc123.dncal-tmp"), format!(".a.fits.{dead}.Xyz789.dncal-old")];
+        for n in keep.iter().chain(&stale) {
+            std::fs::write(d.join(n), "").unwrap();
+        }
+        write_file_atomically(&d.join("a.fits"), "new").unwrap();
+        let mut want: Vec<String> = keep.to_vec();
+        want.push("a.fits".into());
+        want.sort();
+        assert_eq!(names(d), want);
+    }
+}

@@ -1,0 +1,10 @@
+//! What every room uses: the memory budget, the core's compile-time sizes at run time,
+//! regions of interest, order statistics, robust statistics and least squares, and the
+//! core on several threads. Imports `dncal-core` only.
+
+pub mod budget;
+pub mod dims;
+pub mod parallel;
+pub mod roi;
+pub mod select;
+pub mod stats;

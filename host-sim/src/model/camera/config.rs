@@ -1,0 +1,355 @@
+//! Camera parameters, with the paper's MV-D1024E as the default. Every field carries its
+//! unit in its name; a TOML file may set any subset of them (`dncal simulate --config`).
+
+use serde::{Deserialize, Serialize};
+
+/// The pipelined ADC: stages from the most significant, and the rms error of each stage's
+/// DAC levels (in LSB), which sets the DN error. See [`super::adc`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct AdcConfig {
+    /// Bits resolved by each stage, most significant first; they sum to the bit depth.
+    pub stage_bits: Vec<u32>,
+    /// Rms error of each stage's DAC levels, LSB (one entry per stage).
+    pub stage_error_lsb: Vec<f64>,
+    /// Seed of the level errors: the same seed is the same physical ADC set.
+    pub seed: u64,
+    /// Measured code widths instead of the stage model: one list of `2^bits` widths (DN)
+    /// per ADC, as `dncal diagnose` writes into its model file. Code 0 is open below and
+    /// the top code above; the transition into code k is at `-1/2 + sum_{0<j<k} w_j`.
+    /// Empty (the default): the stage model.
+    pub widths: Vec<Vec<f64>>,
+    /// Real ADCs instead: `"kcor:SPEC"` takes the widths from a K-Coronagraph camera's
+    /// four deployed tables (SPEC a path with `{adc}` in it, or a prefix; relative to the
+    /// TOML file's folder), their DN error without the response correction the tables
+    /// also carry, codes below 150 ideal ([`crate::formats::lut::kcor::model_widths`]). Needs 12
+    /// bits and 4 ADCs; not with `widths`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub widths_from: Option<String>,
+    /// Fitted architectures instead of the stage model: one per ADC
+    /// (`[[adc.architecture]]` tables, `kind = "ideal" | "sar" | "pipelined"`; see
+    /// [`super::architecture::Architecture`]), as `dncal diagnose` writes them. Not with
+    /// `widths` or `widths_from`.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub architecture: Vec<super::architecture::Architecture>,
+}
+
+impl Default for AdcConfig {
+    fn default() -> Self {
+        AdcConfig { stage_bits: vec![3, 3, 3, 3], stage_error_lsb: vec![0.15, 0.06, 0.03, 0.015], seed: 13890, widths: Vec::new(), widths_from: None, architecture: Vec::new() }
+    }
+}
+
+/// The largest camera config or model file: 16 MiB holds the measured code widths
+/// (`adc.widths`, about 19 bytes a width as `dncal diagnose` writes them; 0.3 MB for four
+/// 12-bit ADCs) of twelve 16-bit ADCs; a bigger file is not a config.
+pub const CONFIG_LIMIT: crate::formats::input::SizeLimit = crate::formats::input::SizeLimit { what: "camera config", bytes: 16 << 20 };
+
+/// The largest sensor a camera model may have: 2^26 pixels (8192 x 8192), whose pixel
+/// maps take about 2 GB.
+pub const MAX_PIXELS: usize = 1 << 26;
+/// The largest electron count a model parameter may have (full well, dark, noise): 1e7,
+/// ten times the largest full wells of scientific sensors.
+pub const MAX_ELECTRONS: f64 = 1e7;
+
+/// Everything the camera model needs. Defaults: the PhotonFocus MV-D1024E of the
+/// K-Coronagraph (de Wijn 2018): 1024 x 1024, 12 bits, 4 ADCs, ~180 ke- full well,
+/// 44 e-/DN, 182 e- read noise, 150 frames/s; QE 30% at 735 nm (the paper's model).
+/// The dark signal, offset, PRNU, DSNU, nonlinearity and bad-pixel fraction are not in
+/// the paper; the defaults are plausible values for such a sensor, stated as such.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CameraConfig {
+    /// Name for reports.
+    pub name: String,
+    /// Columns.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// ADC bit depth B.
+    pub bits: u32,
+    /// ADCs; column c is read by ADC c mod n_adc.
+    pub n_adc: usize,
+    /// Quantum efficiency, photoelectrons per photon.
+    pub qe: f64,
+    /// Full-well capacity, e-.
+    pub full_well_e: f64,
+    /// Conversion gain, e- per DN.
+    pub gain_e_per_dn: f64,
+    /// Gaussian read noise, e- rms.
+    pub read_noise_e: f64,
+    /// Mean dark signal per frame (dark current x exposure), e-.
+    pub dark_e: f64,
+    /// Black level added before the ADC, DN.
+    pub offset_dn: f64,
+    /// Pixel-to-pixel gain spread (PRNU), relative rms.
+    pub prnu_rms: f64,
+    /// Pixel-to-pixel dark spread (DSNU), e- rms.
+    pub dsnu_rms_e: f64,
+    /// Global nonlinearity: y/FW = x + a2 x^2 + a3 x^3 + ..., x = n/FW; this lists
+    /// a2, a3, ...
+    pub nonlinearity: Vec<f64>,
+    /// Per-pixel rms spread of a2, a3, ... (empty: every pixel follows the global curve).
+    pub pixel_nonlinearity_rms: Vec<f64>,
+    /// Fraction of bad pixels (half hot: always the top code; half dead: no response).
+    pub bad_pixel_fraction: f64,
+    /// Highest frame rate, frames/s.
+    pub max_frame_rate_hz: f64,
+    /// The pipelined ADCs.
+    pub adc: AdcConfig,
+    /// Seed of the pixel maps (PRNU, DSNU, nonlinearity, bad pixels).
+    pub seed: u64,
+}
+
+impl Default for CameraConfig {
+    fn default() -> Self {
+        CameraConfig {
+            name: "PhotonFocus MV-D1024E (simulated)".into(),
+            width: 1024,
+            height: 1024,
+            bits: 12,
+            n_adc: 4,
+            qe: 0.30,
+            full_well_e: 180_000.0,
+            gain_e_per_dn: 44.0,
+            read_noise_e: 182.0,
+            dark_e: 400.0,
+            offset_dn: 60.0,
+            prnu_rms: 0.01,
+            dsnu_rms_e: 40.0,
+            nonlinearity: vec![-0.02, 0.02],
+            pixel_nonlinearity_rms: vec![0.005],
+            bad_pixel_fraction: 6.0e-5,
+            max_frame_rate_hz: 150.0,
+            adc: AdcConfig::default(),
+            seed: 2018,
+        }
+    }
+}
+
+impl CameraConfig {
+    /// Reads a TOML file whose fields override the defaults; unknown fields are errors.
+    pub fn from_toml_file(path: &std::path::Path) -> Result<Self, crate::HostError> {
+        let mut config: CameraConfig = crate::formats::input::read_toml(path, CONFIG_LIMIT)?;
+        let base = path.parent().unwrap_or(std::path::Path::new("."));
+        config.resolve_widths_from(base).map_err(|e| match e {
+            crate::HostError::Format { path: p, message } => crate::HostError::Format { path: path.into(), message: format!("adc.widths_from: {}: {message}", p.display()) },
+            other => other,
+        })?;
+        config.validate().map_err(|source| crate::HostError::Config { path: path.into(), source })?;
+        Ok(config)
+    }
+
+    /// Fills `adc.widths` from `adc.widths_from` (see [`AdcConfig::widths_from`]), a
+    /// relative SPEC taken from `base`.
+    pub fn resolve_widths_from(&mut self, base: &std::path::Path) -> Result<(), crate::HostError> {
+        let Some(from) = self.adc.widths_from.clone() else { return Ok(()) };
+        let bad = |message: String| crate::HostError::Format { path: from.clone().into(), message };
+        let Some(spec) = from.strip_prefix("kcor:") else {
+            return Err(bad("the only source is kcor:SPEC (a K-Coronagraph camera's four tables)".into()));
+        };
+        if !self.adc.widths.is_empty() {
+            return Err(bad("give adc.widths or adc.widths_from, not both".into()));
+        }
+        if self.bits != 12 || self.n_adc != 4 {
+            return Err(bad(format!("K-Cor tables are four 12-bit ADCs; this camera has {} ADCs of {} bits", self.n_adc, self.bits)));
+        }
+        let spec = if std::path::Path::new(spec).is_absolute() { spec.to_string() } else { base.join(spec).to_string_lossy().into_owned() };
+        let files = crate::formats::lut::kcor::expand(&spec)?;
+        self.adc.widths = files.iter().map(|f| crate::formats::lut::kcor::KcorTable::read(f).map(|t| crate::formats::lut::kcor::model_widths(&t))).collect::<Result<_, _>>()?;
+        Ok(())
+    }
+
+    /// Codes of the ADC, 2^B.
+    pub fn codes(&self) -> usize {
+        1 << self.bits
+    }
+
+    /// Checks every parameter for range and consistency; the error names the field.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let positive = [
+            ("width", self.width as f64),
+            ("height", self.height as f64),
+            ("n_adc", self.n_adc as f64),
+            ("qe", self.qe),
+            ("full_well_e", self.full_well_e),
+            ("gain_e_per_dn", self.gain_e_per_dn),
+            ("max_frame_rate_hz", self.max_frame_rate_hz),
+        ];
+        for (name, v) in positive {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(ConfigError::NotPositive { field: name, value: v });
+            }
+        }
+        let non_negative = [
+            ("read_noise_e", self.read_noise_e),
+            ("dark_e", self.dark_e),
+            ("prnu_rms", self.prnu_rms),
+            ("dsnu_rms_e", self.dsnu_rms_e),
+            ("bad_pixel_fraction", self.bad_pixel_fraction),
+        ];
+        for (name, v) in non_negative {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(ConfigError::Negative { field: name, value: v });
+            }
+        }
+        if !self.offset_dn.is_finite() {
+            return Err(ConfigError::NotFinite { field: "offset_dn" });
+        }
+        if !(1..=16).contains(&self.bits) {
+            return Err(ConfigError::Bits { bits: self.bits });
+        }
+        if self.qe > 1.0 {
+            return Err(ConfigError::Qe { qe: self.qe });
+        }
+        if self.bad_pixel_fraction > 1.0 {
+            return Err(ConfigError::BadPixelFraction { fraction: self.bad_pixel_fraction });
+        }
+        if self.n_adc > 255 || self.width > 65_535 || self.height > 65_535 {
+            return Err(ConfigError::Dimensions);
+        }
+        // Physical ranges, so that a typo cannot ask for memory no machine has (issue 18:
+        // dark_e = 1e19 made kcor-model ask for 607 GB; a 65535 x 65535 sensor aborted).
+        if self.width * self.height > MAX_PIXELS {
+            return Err(ConfigError::Sensor { width: self.width, height: self.height });
+        }
+        for (name, v) in [("full_well_e", self.full_well_e), ("dark_e", self.dark_e), ("read_noise_e", self.read_noise_e), ("dsnu_rms_e", self.dsnu_rms_e)] {
+            if v > MAX_ELECTRONS {
+                return Err(ConfigError::Electrons { field: name, value: v });
+            }
+        }
+        if self.nonlinearity.iter().chain(&self.pixel_nonlinearity_rms).any(|a| !a.is_finite()) {
+            return Err(ConfigError::NotFinite { field: "nonlinearity" });
+        }
+        if self.pixel_nonlinearity_rms.len() > self.nonlinearity.len() {
+            return Err(ConfigError::PixelNonlinearityTerms);
+        }
+        // Summed wide: a u32 sum of [2^32 - 1, 13] wraps to 12 and passed (issue 18).
+        let stage_sum: u64 = self.adc.stage_bits.iter().map(|&b| u64::from(b)).sum();
+        if stage_sum != u64::from(self.bits) || self.adc.stage_bits.contains(&0) {
+            return Err(ConfigError::StageBits { stage_bits: self.adc.stage_bits.clone(), bits: self.bits });
+        }
+        if !self.adc.widths.is_empty()
+            && (self.adc.widths.len() != self.n_adc || self.adc.widths.iter().any(|w| w.len() != self.codes() || w.iter().any(|x| !(x.is_finite() && *x > 0.0))))
+        {
+            return Err(ConfigError::Widths { n_adc: self.n_adc, codes: self.codes() });
+        }
+        if !self.adc.architecture.is_empty() {
+            if !self.adc.widths.is_empty() || self.adc.widths_from.is_some() {
+                return Err(ConfigError::ArchitectureAndWidths);
+            }
+            if self.adc.architecture.len() != self.n_adc {
+                return Err(ConfigError::Architectures { n_adc: self.n_adc, given: self.adc.architecture.len() });
+            }
+            for (adc, a) in self.adc.architecture.iter().enumerate() {
+                a.check(self.bits).map_err(|source| ConfigError::Architecture { adc, source })?;
+            }
+        }
+        if self.adc.stage_error_lsb.len() != self.adc.stage_bits.len() || self.adc.stage_error_lsb.iter().any(|e| !(e.is_finite() && *e >= 0.0)) {
+            return Err(ConfigError::StageErrors);
+        }
+        Ok(())
+    }
+}
+
+/// Why a camera configuration cannot be built: the field and the rule it breaks. The
+/// messages name the TOML field as the user wrote it.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ConfigError {
+    /// A quantity that must be positive is not.
+    #[error("{field} must be positive and finite, got {value}")]
+    NotPositive { field: &'static str, value: f64 },
+    /// A quantity that must be at least zero is not.
+    #[error("{field} must be non-negative and finite, got {value}")]
+    Negative { field: &'static str, value: f64 },
+    /// A value or coefficient that is NaN or infinite.
+    #[error("{field} must be finite")]
+    NotFinite { field: &'static str },
+    /// Bits per code outside what the formats hold.
+    #[error("bits must be 1..=16, got {bits}")]
+    Bits { bits: u32 },
+    /// A quantum efficiency above 1.
+    #[error("qe is a fraction (0, 1], got {qe}")]
+    Qe { qe: f64 },
+    /// More bad pixels than pixels.
+    #[error("bad_pixel_fraction must be <= 1, got {fraction}")]
+    BadPixelFraction { fraction: f64 },
+    /// ADCs or a side beyond the 8- and 16-bit registers.
+    #[error("at most 255 ADCs and 65535 x 65535 pixels")]
+    Dimensions,
+    /// A sensor larger than the model holds in memory.
+    #[error("width x height = {width} x {height} exceeds {MAX_PIXELS} pixels (8192 x 8192), the largest sensor the model holds in memory")]
+    Sensor { width: usize, height: usize },
+    /// A charge beyond any sensor's full well.
+    #[error("{field} = {value:e} electrons exceeds {MAX_ELECTRONS:e}, above any sensor's full well")]
+    Electrons { field: &'static str, value: f64 },
+    /// A pixel-to-pixel spread for a nonlinearity term the camera does not have.
+    #[error("pixel_nonlinearity_rms has more terms than nonlinearity")]
+    PixelNonlinearityTerms,
+    /// Pipeline stages that do not make up the code.
+    #[error("adc.stage_bits {stage_bits:?} must be positive and sum to bits = {bits}")]
+    StageBits { stage_bits: Vec<u32>, bits: u32 },
+    /// Measured code widths of the wrong shape or sign.
+    #[error("adc.widths needs {n_adc} lists of {codes} positive widths (or none)")]
+    Widths { n_adc: usize, codes: usize },
+    /// Stage errors that do not match the stages.
+    #[error("adc.stage_error_lsb needs one non-negative value per stage")]
+    StageErrors,
+    /// Stage errors so large that a code has no width.
+    #[error("ADC {adc}: code {code} has no width (stage errors {stage_error_lsb:?} LSB are too large)")]
+    NoWidth { adc: usize, code: usize, stage_error_lsb: Vec<f64> },
+    /// Fitted architectures beside measured widths.
+    #[error("give adc.architecture or adc.widths (widths_from), not both")]
+    ArchitectureAndWidths,
+    /// Not one architecture per ADC.
+    #[error("adc.architecture needs one entry per ADC ({n_adc}), got {given}")]
+    Architectures { n_adc: usize, given: usize },
+    /// An architecture that is not one of a `bits`-bit ADC.
+    #[error("adc.architecture of ADC {adc}: {source}")]
+    Architecture { adc: usize, source: super::architecture::ArchitectureError },
+    /// Transition levels that are not an ADC's.
+    #[error("transition levels must be 2^B - 1 strictly increasing values")]
+    Levels,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stage_bits_that_wrap_a_u32_sum_are_refused() {
+        // [2^32 - 1, 13] sums to 12 in u32 arithmetic (issue 18: accepted, then a capacity
+        // overflow); [2^32 - 64, 76] to 12 as well.
+        for bits in [vec![u32::MAX, 13], vec![u32::MAX - 63, 76]] {
+            let c = CameraConfig { adc: AdcConfig { stage_bits: bits.clone(), stage_error_lsb: vec![0.0; 2], ..AdcConfig::default() }, ..CameraConfig::default() };
+            let e = c.validate().unwrap_err().to_string();
+            assert!(e.contains("must be positive and sum to bits = 12"), "{bits:?}: {e}");
+        }
+        let ok = CameraConfig { adc: AdcConfig { stage_bits: vec![6, 6], stage_error_lsb: vec![0.0; 2], ..AdcConfig::default() }, ..CameraConfig::default() };
+        assert_eq!(ok.validate(), Ok(()));
+    }
+
+    /// The error is a value a caller can match on, and the host's error keeps it as its
+    /// source under the file's name.
+    #[test]
+    fn a_config_error_is_typed_and_the_hosts_errors_source() {
+        let e = CameraConfig { qe: 2.0, ..CameraConfig::default() }.validate().unwrap_err();
+        assert_eq!(e, ConfigError::Qe { qe: 2.0 });
+        let host = crate::HostError::Config { path: "cam.toml".into(), source: e.clone() };
+        assert_eq!(host.to_string(), "cam.toml: qe is a fraction (0, 1], got 2");
+        let source = std::error::Error::source(&host).and_then(|s| s.downcast_ref::<ConfigError>());
+        assert_eq!(source, Some(&e));
+    }
+
+    #[test]
+    fn sizes_and_electrons_beyond_physical_ranges_are_refused() {
+        let e = CameraConfig { dark_e: 1e19, ..CameraConfig::default() }.validate().unwrap_err().to_string();
+        assert!(e.contains("dark_e = 1e19") && e.contains("1e7"), "{e}");
+        let e = CameraConfig { full_well_e: 2e7, ..CameraConfig::default() }.validate().unwrap_err().to_string();
+        assert!(e.contains("full_well_e"), "{e}");
+        let e = CameraConfig { width: 65_535, height: 65_535, ..CameraConfig::default() }.validate().unwrap_err().to_string();
+        assert!(e.contains("65535 x 65535 exceeds 67108864 pixels"), "{e}");
+        // The edges are accepted.
+        assert_eq!(CameraConfig { width: 8192, height: 8192, dark_e: 1e7, ..CameraConfig::default() }.validate(), Ok(()));
+    }
+}
