@@ -5,6 +5,61 @@ use std::path::PathBuf;
 
 use dncal_core::CoreError;
 
+/// What an error concerns where that is not a file: the run's parameters, a built-in
+/// input, a check's own data. Printed as the label that names it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Subject {
+    /// `stream`'s ROI, frame count and recorded frames.
+    StreamParameters,
+    /// The weights `stream` hands the core.
+    Weights,
+    /// The weights `stream` hands the float reference.
+    ReferenceWeights,
+    /// The soak's parameters.
+    SoakParameters,
+    /// The soak's LUT sets.
+    SoakLutPool,
+    /// The FPGA model as the soak drives it.
+    SoakFpga,
+    /// The built-in MV-D1024E camera.
+    DefaultCamera,
+    /// The camera configuration a command was given (file or defaults).
+    CameraConfig,
+    /// A camera model's true code widths, as LUT weights.
+    CameraAdcWidths,
+    /// `simulate linearity`'s ROI, levels and frames.
+    SimulateLinearityArguments,
+    /// `dncal bench`'s own checks of what it timed.
+    Bench,
+    /// The LUT set `dncal bench` times.
+    BenchLut,
+    /// The frame geometry `dncal bench` times.
+    BenchGeometry,
+    /// The report printed on standard output.
+    Stdout,
+}
+
+impl std::fmt::Display for Subject {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Subject::StreamParameters => "stream parameters",
+            Subject::Weights => "weights",
+            Subject::ReferenceWeights => "reference weights",
+            Subject::SoakParameters => "soak parameters",
+            Subject::SoakLutPool => "soak LUT pool",
+            Subject::SoakFpga => "soak FPGA",
+            Subject::DefaultCamera => "default camera",
+            Subject::CameraConfig => "camera config",
+            Subject::CameraAdcWidths => "camera ADC widths",
+            Subject::SimulateLinearityArguments => "simulate linearity arguments",
+            Subject::Bench => "bench",
+            Subject::BenchLut => "bench LUT",
+            Subject::BenchGeometry => "bench geometry",
+            Subject::Stdout => "stdout",
+        })
+    }
+}
+
 /// Everything host-side work can fail with; each variant names the file or step.
 #[derive(Debug, thiserror::Error)]
 pub enum HostError {
@@ -90,11 +145,10 @@ pub enum HostError {
         #[source]
         source: dncal_fpga_model::FpgaError,
     },
-    /// A camera configuration (a TOML file, a model file, the defaults) that cannot be
-    /// built.
+    /// A camera configuration file (a TOML file, a model file) that cannot be built.
     #[error("{path}: {source}")]
     Config {
-        /// The file, or what stands for it ("default camera").
+        /// The file.
         path: PathBuf,
         /// The rule it breaks.
         #[source]
@@ -128,6 +182,50 @@ pub enum HostError {
         #[source]
         source: crate::analyses::emva::datasheet::PtcError,
     },
+    /// Something that is not a file is not what it must be ([`Subject`]).
+    #[error("{subject}: {message}")]
+    Invalid {
+        /// What it concerns.
+        subject: Subject,
+        /// What is wrong.
+        message: String,
+    },
+    /// A built-in camera configuration that cannot be built.
+    #[error("{subject}: {source}")]
+    BuiltInConfig {
+        /// Which.
+        subject: Subject,
+        /// The rule it breaks.
+        #[source]
+        source: crate::model::camera::ConfigError,
+    },
+    /// Code widths that are not LUT weights (NaN, negative, 256 DN or more).
+    #[error("{subject}: {source}")]
+    Weights {
+        /// Whose widths.
+        subject: Subject,
+        /// The code and width.
+        #[source]
+        source: crate::analyses::flatten::FlattenError,
+    },
+    /// The FPGA model refused what a check gave it.
+    #[error("{subject}: {source}")]
+    FpgaIn {
+        /// The check.
+        subject: Subject,
+        /// The model's error.
+        #[source]
+        source: dncal_fpga_model::FpgaError,
+    },
+    /// A FITS data set whose contents break a rule of its format.
+    #[error("{path}: {source}")]
+    FitsContent {
+        /// The file.
+        path: PathBuf,
+        /// The rule.
+        #[source]
+        source: crate::formats::fits::Fault,
+    },
     /// A file's contents are not what they must be.
     #[error("{path}: {message}")]
     Format {
@@ -139,6 +237,10 @@ pub enum HostError {
 }
 
 impl HostError {
+    /// `message` about `subject`.
+    pub fn invalid(subject: Subject, message: impl Into<String>) -> Self {
+        HostError::Invalid { subject, message: message.into() }
+    }
     /// An I/O error on `path`.
     pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
         HostError::Io { path: path.into(), source }

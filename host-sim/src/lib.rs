@@ -13,4 +13,4 @@ pub mod formats;
 pub mod infra;
 pub mod model;
 
-pub use error::HostError;
+pub use error::{HostError, Subject};

@@ -27,7 +27,7 @@ use serde::Serialize;
 use crate::model::camera::{Camera, CameraConfig};
 use crate::analyses::flatten::to_core_weights;
 use crate::model::reference::ReferenceLut;
-use crate::HostError;
+use crate::{HostError, Subject};
 
 const N: usize = 4;
 const CODES: usize = 4096;
@@ -66,7 +66,7 @@ pub struct PoolEntry {
 pub fn lut_pool(seed: u64) -> Result<Vec<PoolEntry>, HostError> {
     let mut rng = SplitMix64::new(seed ^ 0x005E_ED0F_1007);
     let unit = |rng: &mut SplitMix64| (rng.next_u64() >> 11) as f64 / (1u64 << 53) as f64;
-    let camera = Camera::new(CameraConfig::default()).map_err(|source| HostError::Config { path: "default camera".into(), source })?;
+    let camera = Camera::new(CameraConfig::default()).map_err(|source| HostError::BuiltInConfig { subject: Subject::DefaultCamera, source })?;
     let mut sets: Vec<Vec<Vec<f64>>> = vec![vec![vec![1.0; CODES]; N], camera.adcs.iter().map(|a| a.normalized_widths()).collect()];
     for spread in [0.05, 1.0] {
         sets.push((0..N).map(|_| normalized((0..CODES).map(|_| 1.0 + spread * (2.0 * unit(&mut rng) - 1.0)).collect())).collect());
@@ -76,7 +76,7 @@ pub fn lut_pool(seed: u64) -> Result<Vec<PoolEntry>, HostError> {
         .map(|set| {
             let weights = set
                 .iter()
-                .map(|w| to_core_weights(w).map_err(|e| HostError::Format { path: "soak LUT pool".into(), message: e.to_string() }))
+                .map(|w| to_core_weights(w).map_err(|source| HostError::Weights { subject: Subject::SoakLutPool, source }))
                 .collect::<Result<Vec<_>, _>>()?;
             let reference = weights.iter().map(|w| w.iter().map(|x| x.to_num::<f64>()).collect()).collect();
             Ok(PoolEntry { weights, reference })
@@ -244,7 +244,7 @@ impl Pool {
         let mut pool = Pool { luts: vec![], images: vec![], quantized: vec![], centers: vec![] };
         for e in entries {
             let slices: Vec<&[Weight]> = e.weights.iter().map(|w| w.as_slice()).collect();
-            let slices: &[&[Weight]; N] = slices.as_slice().try_into().map_err(|_| HostError::Format { path: "soak LUT pool".into(), message: format!("{} ADCs, need {N}", e.weights.len()) })?;
+            let slices: &[&[Weight]; N] = slices.as_slice().try_into().map_err(|_| HostError::invalid(Subject::SoakLutPool, format!("{} ADCs, need {N}", e.weights.len())))?;
             let luts = Box::new(Mvd1024eLuts::from_weights(slices).map_err(|err| HostError::core("soak LUT pool", err))?);
             let mut image = vec![0u8; image_len::<N, CODES>()];
             encode_image(&*luts, &mut image).map_err(|err| HostError::core("soak LUT image", err))?;
@@ -287,13 +287,13 @@ pub fn run(params: &SoakParams, progress: impl FnMut(u64)) -> Result<SoakReport,
 pub fn run_with_pool(params: &SoakParams, entries: &[PoolEntry], mut progress: impl FnMut(u64)) -> Result<SoakReport, HostError> {
     let start = Instant::now();
     if !(1..=SENSOR).contains(&params.sensor) {
-        return Err(HostError::Format { path: "soak parameters".into(), message: format!("sensor side {} is not 1 to {SENSOR}", params.sensor) });
+        return Err(HostError::invalid(Subject::SoakParameters, format!("sensor side {} is not 1 to {SENSOR}", params.sensor)));
     }
     let pool = Pool::new(entries)?;
     if pool.luts.is_empty() {
-        return Err(HostError::Format { path: "soak LUT pool".into(), message: "no LUT sets".into() });
+        return Err(HostError::invalid(Subject::SoakLutPool, "no LUT sets"));
     }
-    let camera = Camera::new(CameraConfig::default()).map_err(|source| HostError::Config { path: "default camera".into(), source })?;
+    let camera = Camera::new(CameraConfig::default()).map_err(|source| HostError::BuiltInConfig { subject: Subject::DefaultCamera, source })?;
     let mut rng = SplitMix64::new(params.seed);
     let mut report = SoakReport { seed: params.seed, ..Default::default() };
     let mut model = BankModel { active: 0, staged: None, pending: false, swaps: 0 };
@@ -429,7 +429,7 @@ fn run_segment(
     let mut fpga = match &seg.fpga {
         None => None,
         Some(config) => {
-            let device = dncal_fpga_model::Fpga::new(config.clone(), g).map_err(|e| HostError::Format { path: "soak FPGA".into(), message: e.to_string() })?;
+            let device = dncal_fpga_model::Fpga::new(config.clone(), g).map_err(|source| HostError::FpgaIn { subject: Subject::SoakFpga, source })?;
             let mut dp = Datapath::new(device);
             dp.identify().map_err(|e| HostError::core("soak FPGA identify", e))?;
             dp.configure(g).map_err(|e| HostError::core("soak FPGA configure", e))?;
@@ -545,7 +545,7 @@ fn fpga_frame(dp: &mut Datapath<dncal_fpga_model::Fpga>, loaded: &mut Option<usi
         report.fpga_uploads += 1;
     }
     let lines: Vec<&[u16]> = codes.chunks_exact(w).collect();
-    dp.device_mut().stream_frame(state, &lines).map_err(|e| HostError::Format { path: "soak FPGA".into(), message: e.to_string() })?;
+    dp.device_mut().stream_frame(state, &lines).map_err(|source| HostError::FpgaIn { subject: Subject::SoakFpga, source })?;
     report.pixels_fpga += codes.len() as u64;
     Ok(())
 }

@@ -20,7 +20,7 @@ use serde::Serialize;
 use crate::model::camera::Camera;
 use crate::infra::parallel::Bands;
 use crate::model::reference::ReferenceLut;
-use crate::HostError;
+use crate::{HostError, Subject};
 
 /// Which datapath sums the frames.
 #[derive(Debug, Clone, Default)]
@@ -220,11 +220,11 @@ const MIN_BAND_PIXELS: usize = 1 << 18;
 /// The run asked for fits the sensor, and recorded frames are the run's size and count.
 fn check_params(camera: &Camera, p: &StreamParams) -> Result<(), HostError> {
     if p.first_column as usize + p.width as usize > camera.config.width || p.first_row as usize + p.height as usize > camera.config.height {
-        return Err(HostError::Format { path: "stream parameters".into(), message: format!("ROI {}x{} at ({}, {}) exceeds the {}x{} sensor", p.width, p.height, p.first_column, p.first_row, camera.config.width, camera.config.height) });
+        return Err(HostError::invalid(Subject::StreamParameters, format!("ROI {}x{} at ({}, {}) exceeds the {}x{} sensor", p.width, p.height, p.first_column, p.first_row, camera.config.width, camera.config.height)));
     }
     if let Some(cube) = &p.recorded {
         if (cube.width, cube.height) != (p.width as usize, p.height as usize) || cube.frames != p.frames as usize {
-            return Err(HostError::Format { path: "stream parameters".into(), message: format!("{} frames of {}x{} recorded, {} of {}x{} asked", cube.frames, cube.width, cube.height, p.frames, p.width, p.height) });
+            return Err(HostError::invalid(Subject::StreamParameters, format!("{} frames of {}x{} recorded, {} of {}x{} asked", cube.frames, cube.width, cube.height, p.frames, p.width, p.height)));
         }
     }
     Ok(())
@@ -276,11 +276,11 @@ fn run_typed<const N: usize, const CODES: usize>(
     let geometry = Geometry::new(p.width, p.height, p.states, p.first_column).map_err(|e| HostError::core(ctx("geometry"), e))?;
     check_params(camera, p)?;
     let slices: Vec<&[Weight]> = weights.iter().map(|w| w.as_slice()).collect();
-    let slices: &[&[Weight]; N] = slices.as_slice().try_into().map_err(|_| HostError::Format { path: "weights".into(), message: format!("{} weight vectors for {N} ADCs", weights.len()) })?;
+    let slices: &[&[Weight]; N] = slices.as_slice().try_into().map_err(|_| HostError::invalid(Subject::Weights, format!("{} weight vectors for {N} ADCs", weights.len())))?;
     let luts = Box::new(LutSet::<N, CODES>::from_weights(slices).map_err(|e| HostError::core(ctx("LUT from weights"), e))?);
     let reference = ReferenceLut::from_weights(reference_weights);
     if reference.centers.len() != N || reference.centers.iter().any(|t| t.len() != CODES) {
-        return Err(HostError::Format { path: "reference weights".into(), message: format!("need {N} vectors of {CODES} weights") });
+        return Err(HostError::invalid(Subject::ReferenceWeights, format!("need {N} vectors of {CODES} weights")));
     }
     let quantized = reference.quantized();
 

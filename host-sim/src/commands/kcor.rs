@@ -97,9 +97,9 @@ pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, real
     let room_e = crate::analyses::kcor::signal_room_e(camera, adc);
     if room_e.is_nan() || room_e < camera.config.gain_e_per_dn {
         let c = &camera.config;
-        return Err(HostError::Format {
-            path: "camera config".into(),
-            message: format!(
+        return Err(HostError::invalid(
+            crate::Subject::CameraConfig,
+            format!(
                 "the dark level ({:.4e} e- = {:.1} DN with the offset) fills ADC {}'s range (top code {}) or the full well ({:.4e} e-): no room for a signal",
                 c.dark_e,
                 c.dark_e / c.gain_e_per_dn + c.offset_dn,
@@ -107,7 +107,7 @@ pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, real
                 adc.codes() - 1,
                 c.full_well_e
             ),
-        });
+        ));
     }
     if realizations == 0 || (realizations > 1 && lut_file.is_some()) {
         return Err(HostError::Argument { flag: "--realizations".into(), message: "need at least 1, and more than 1 only for the noisy LUT (not with --lut)".into() });

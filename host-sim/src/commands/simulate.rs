@@ -105,10 +105,10 @@ pub fn simulate_linearity_staged(files: &mut Outputs, camera: &Camera, p: &Linea
     let start = Instant::now();
     let (x0, y0, w, h) = p.roi;
     if w == 0 || h == 0 || x0 + w > camera.config.width || y0 + h > camera.config.height || p.levels < 2 || p.frames < 2 {
-        return Err(HostError::Format {
-            path: "simulate linearity arguments".into(),
-            message: format!("ROI {w}x{h} at ({x0}, {y0}) must be non-empty and inside the {}x{} sensor, with >= 2 levels and >= 2 frames", camera.config.width, camera.config.height),
-        });
+        return Err(HostError::invalid(
+            crate::Subject::SimulateLinearityArguments,
+            format!("ROI {w}x{h} at ({x0}, {y0}) must be non-empty and inside the {}x{} sensor, with >= 2 levels and >= 2 frames", camera.config.width, camera.config.height),
+        ));
     }
     files.expect([&output])?;
     stage(&format!("simulating a linearity set: {w} x {h} pixels, {} levels of {} frames", p.levels, p.frames));

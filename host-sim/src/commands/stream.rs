@@ -20,7 +20,7 @@ pub fn oracle_weights(camera: &Camera) -> Result<Vec<Vec<Weight>>, HostError> {
     camera
         .adcs
         .iter()
-        .map(|a| to_core_weights(&a.normalized_widths()).map_err(|e| HostError::Format { path: "camera ADC widths".into(), message: e.to_string() }))
+        .map(|a| to_core_weights(&a.normalized_widths()).map_err(|source| HostError::Weights { subject: crate::Subject::CameraAdcWidths, source }))
         .collect()
 }
 

@@ -129,79 +129,114 @@ fn canonical_folder(descriptor: &Path) -> Result<PathBuf, HostError> {
     folder.canonicalize().map_err(|e| HostError::io(folder, e))
 }
 
+/// What is wrong with a record's values or the image it names (each prints as the
+/// message it always printed; [`at_line`] adds the descriptor and the line).
+#[derive(Debug, thiserror::Error)]
+pub(crate) enum RecordFault {
+    /// Too few or too many numbers.
+    #[error("expected {want} numbers, found {found}")]
+    Count { want: usize, found: usize },
+    /// A token that is not a number.
+    #[error("{0:?} is not a number")]
+    NotNumber(String),
+    /// A number that is negative, infinite or NaN.
+    #[error("{0:?} is not a finite number >= 0")]
+    NotFinite(String),
+    /// The `n` record without its three values.
+    #[error("expected bits, width and height, found {0} values")]
+    HeaderCount(usize),
+    /// A token that is not a whole number.
+    #[error("{0:?} is not a whole number")]
+    NotWhole(String),
+    /// A bit depth outside 1 to 16.
+    #[error("{0} bits: 1 to 16 supported")]
+    Bits(usize),
+    /// A frame that is empty or larger than any image read.
+    #[error("frame of {width} x {height} pixels: must be 1 to {MAX_PIXELS} pixels")]
+    Frame { width: usize, height: usize },
+    /// An image path outside the descriptor's folder or not a file in it: the reason.
+    #[error("{0}")]
+    ImagePath(String),
+    /// An image that is not the PNG the descriptor says: the reason.
+    #[error("{0}")]
+    Image(String),
+}
+
 /// Parses exactly `N` whitespace-separated numbers after the tag, each finite and >= 0.
-fn numbers<const N: usize>(rest: &str) -> Result<[f64; N], String> {
+fn numbers<const N: usize>(rest: &str) -> Result<[f64; N], RecordFault> {
     let tokens: Vec<&str> = rest.split_whitespace().collect();
     if tokens.len() != N {
-        return Err(format!("expected {N} numbers, found {}", tokens.len()));
+        return Err(RecordFault::Count { want: N, found: tokens.len() });
     }
     let mut out = [0.0; N];
     for (o, t) in out.iter_mut().zip(&tokens) {
-        *o = t.parse::<f64>().map_err(|_| format!("{t:?} is not a number"))?;
+        *o = t.parse::<f64>().map_err(|_| RecordFault::NotNumber(t.to_string()))?;
         if !(o.is_finite() && *o >= 0.0) {
-            return Err(format!("{t:?} is not a finite number >= 0"));
+            return Err(RecordFault::NotFinite(t.to_string()));
         }
     }
     Ok(out)
 }
 
 /// The `n bits width height` record.
-fn header(rest: &str) -> Result<(u32, usize, usize), String> {
+fn header(rest: &str) -> Result<(u32, usize, usize), RecordFault> {
     let tokens: Vec<&str> = rest.split_whitespace().collect();
     let [bits, width, height] = tokens[..] else {
-        return Err(format!("expected bits, width and height, found {} values", tokens.len()));
+        return Err(RecordFault::HeaderCount(tokens.len()));
     };
-    let int = |t: &str| t.parse::<usize>().map_err(|_| format!("{t:?} is not a whole number"));
+    let int = |t: &str| t.parse::<usize>().map_err(|_| RecordFault::NotWhole(t.to_string()));
     let (bits, width, height) = (int(bits)?, int(width)?, int(height)?);
     if !(1..=16).contains(&bits) {
-        return Err(format!("{bits} bits: 1 to 16 supported"));
+        return Err(RecordFault::Bits(bits));
     }
     if width == 0 || height == 0 || width.checked_mul(height).is_none_or(|p| p > MAX_PIXELS) {
-        return Err(format!("frame of {width} x {height} pixels: must be 1 to {MAX_PIXELS} pixels"));
+        return Err(RecordFault::Frame { width, height });
     }
     Ok((bits as u32, width, height))
 }
 
 /// Resolves an `i` record's path inside `folder` (canonical), or says why not.
-fn resolve_image(folder: &Path, written: &str) -> Result<PathBuf, String> {
+fn resolve_image(folder: &Path, written: &str) -> Result<PathBuf, RecordFault> {
+    let bad = RecordFault::ImagePath;
     let bytes = written.as_bytes();
     let drive = bytes.len() >= 2 && bytes[0].is_ascii_alphabetic() && bytes[1] == b':';
     if written.starts_with(['/', '\\']) || drive {
-        return Err(format!("image path {written:?} is absolute; it must be relative to the descriptor's folder"));
+        return Err(bad(format!("image path {written:?} is absolute; it must be relative to the descriptor's folder")));
     }
     // Lexical pass: separators of either system, and no `..` above the folder.
     let mut relative = PathBuf::new();
     for part in written.split(['/', '\\']).filter(|p| !p.is_empty() && *p != ".") {
         if part == ".." {
             if !relative.pop() {
-                return Err(format!("image path {written:?} escapes the descriptor's folder"));
+                return Err(bad(format!("image path {written:?} escapes the descriptor's folder")));
             }
         } else {
             relative.push(part);
         }
     }
     if relative.components().any(|c| !matches!(c, Component::Normal(_))) || relative.as_os_str().is_empty() {
-        return Err(format!("image path {written:?} is not a file name inside the descriptor's folder"));
+        return Err(bad(format!("image path {written:?} is not a file name inside the descriptor's folder")));
     }
     // Canonical pass: symlinks resolved, the file must exist and stay inside.
-    let canonical = folder.join(&relative).canonicalize().map_err(|e| format!("image {written:?}: {e}"))?;
+    let canonical = folder.join(&relative).canonicalize().map_err(|e| bad(format!("image {written:?}: {e}")))?;
     if !canonical.starts_with(folder) {
-        return Err(format!("image {written:?} resolves to {} outside the descriptor's folder", canonical.display()));
+        return Err(bad(format!("image {written:?} resolves to {} outside the descriptor's folder", canonical.display())));
     }
     if !canonical.is_file() {
-        return Err(format!("image {written:?} is not a file"));
+        return Err(bad(format!("image {written:?} is not a file")));
     }
     Ok(canonical)
 }
 
 /// Opens a PNG and checks its header: grayscale, 8 or 16 bits (16 when `bits > 8`),
 /// `width x height`. Returns the reader, positioned before the pixels.
-fn open_png(image: &Path, bits: u32, width: usize, height: usize) -> Result<png::Reader<BufReader<File>>, String> {
+fn open_png(image: &Path, bits: u32, width: usize, height: usize) -> Result<png::Reader<BufReader<File>>, RecordFault> {
+    let bad = RecordFault::Image;
     // The error names the image itself.
-    let file = crate::formats::input::open_regular(image).map_err(|e| format!("image {e}"))?;
+    let file = crate::formats::input::open_regular(image).map_err(|e| bad(format!("image {e}")))?;
     let mut decoder = png::Decoder::new(BufReader::new(file));
     decoder.set_transformations(png::Transformations::IDENTITY);
-    let reader = decoder.read_info().map_err(|e| format!("image {}: not a PNG: {e}", image.display()))?;
+    let reader = decoder.read_info().map_err(|e| bad(format!("image {}: not a PNG: {e}", image.display())))?;
     let info = reader.info();
     let depth_ok = match info.bit_depth {
         png::BitDepth::Sixteen => true,
@@ -209,23 +244,23 @@ fn open_png(image: &Path, bits: u32, width: usize, height: usize) -> Result<png:
         _ => false,
     };
     if info.color_type != png::ColorType::Grayscale || !depth_ok {
-        return Err(format!(
+        return Err(bad(format!(
             "image {}: {:?} {:?}-bit PNG; {bits}-bit codes need grayscale of {} bits",
             image.display(),
             info.color_type,
             info.bit_depth as u8,
             if bits <= 8 { "8 or 16" } else { "16" }
-        ));
+        )));
     }
     // The decoder's buffer and the codes: 4 bytes per pixel at most.
-    crate::infra::budget::check(image, "the image's pixels", crate::infra::budget::bytes_of(u64::from(info.width) * u64::from(info.height), 4)).map_err(|e| e.to_string())?;
+    crate::infra::budget::check(image, "the image's pixels", crate::infra::budget::bytes_of(u64::from(info.width) * u64::from(info.height), 4)).map_err(|e| bad(e.to_string()))?;
     if (info.width as usize, info.height as usize) != (width, height) {
-        return Err(format!(
+        return Err(bad(format!(
             "image {} is {} x {} pixels; the descriptor says {width} x {height}",
             image.display(),
             info.width,
             info.height
-        ));
+        )));
     }
     Ok(reader)
 }
@@ -261,17 +296,17 @@ pub fn read_descriptor(path: &Path) -> Result<EmvaSet, HostError> {
                 if header_line.is_some() || !levels.is_empty() {
                     return Err(fail("the n record must come once, before any level".into()));
                 }
-                header_line = Some(header(rest).map_err(fail)?);
+                header_line = Some(header(rest).map_err(|f| fail(f.to_string()))?);
             }
             "b" | "d" => {
                 if header_line.is_none() {
                     return Err(fail("level before the n record".into()));
                 }
                 let (kind, exposure) = if tag == "b" {
-                    let [exposure, photons] = numbers::<2>(rest).map_err(fail)?;
+                    let [exposure, photons] = numbers::<2>(rest).map_err(|f| fail(f.to_string()))?;
                     (LevelKind::Bright { photons }, exposure)
                 } else {
-                    let [exposure] = numbers::<1>(rest).map_err(fail)?;
+                    let [exposure] = numbers::<1>(rest).map_err(|f| fail(f.to_string()))?;
                     (LevelKind::Dark, exposure)
                 };
                 levels.push(EmvaLevel { kind, exposure, images: Vec::new(), line, image_lines: Vec::new() });
@@ -283,8 +318,8 @@ pub fn read_descriptor(path: &Path) -> Result<EmvaSet, HostError> {
                 if rest.is_empty() {
                     return Err(fail("image record without a path".into()));
                 }
-                let image = resolve_image(&folder, rest).map_err(fail)?;
-                open_png(&image, bits, width, height).map_err(fail)?;
+                let image = resolve_image(&folder, rest).map_err(|f| fail(f.to_string()))?;
+                open_png(&image, bits, width, height).map_err(|f| fail(f.to_string()))?;
                 level.images.push(image);
                 level.image_lines.push(line);
             }
@@ -319,7 +354,7 @@ pub fn load_image(set: &EmvaSet, image: &Path) -> Result<Vec<u16>, HostError> {
     if !canonical.starts_with(&folder) {
         return Err(fail(format!("image {} is outside the descriptor's folder", image.display())));
     }
-    let mut reader = open_png(&canonical, set.bits, set.width, set.height).map_err(fail)?;
+    let mut reader = open_png(&canonical, set.bits, set.width, set.height).map_err(|f| fail(f.to_string()))?;
     let mut buffer = vec![0u8; reader.output_buffer_size()];
     let frame = reader.next_frame(&mut buffer).map_err(|e| fail(format!("image {}: {e}", image.display())))?;
     let pixels = set.width * set.height;

@@ -136,7 +136,7 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
 /// The report as JSON (`--json`) or as its readable text, on stdout.
 fn print(json: bool, report: &(impl Report + ?Sized)) -> Result<(), HostError> {
     let out = if json {
-        let mut s = serde_json::to_string_pretty(report).map_err(|e| HostError::Format { path: "stdout".into(), message: e.to_string() })?;
+        let mut s = serde_json::to_string_pretty(report).map_err(|e| HostError::invalid(dncal_host::Subject::Stdout, e.to_string()))?;
         s.push('\n');
         s
     } else {

@@ -198,13 +198,13 @@ fn quartic_per_pixel(set: &crate::formats::fits::LinearitySet) -> f64 {
 /// pixels an instruction (so that more is better, as in every other row). A count, not a
 /// timing: one run. Skipped with a note where the cross toolchain is missing (the bench
 /// does not install it: `scripts/firmware.sh install`) or the count fails.
-fn firmware_ratio() -> Result<(Ratio, String), String> {
+fn firmware_ratio() -> Result<(Ratio, String), Skipped> {
     let script = crate::checks::firmware::repo_root().join("scripts/firmware.sh");
     let have = std::process::Command::new(&script).arg("have").status().map(|s| s.success()).unwrap_or(false);
     if !have {
-        return Err("firmware skipped: no cross toolchain (scripts/firmware.sh install)".into());
+        return Err(Skipped::NoToolchain);
     }
-    let cost = crate::checks::firmware::build_firmware().and_then(|elf| crate::checks::firmware::instructions::correction_cost(&elf)).map_err(|e| format!("firmware skipped: {e}"))?;
+    let cost = crate::checks::firmware::build_firmware().and_then(|elf| crate::checks::firmware::instructions::correction_cost(&elf)).map_err(Skipped::Firmware)?;
     let limit = 7.0;
     let r = ratio("firmware correction, QEMU count", &[1.0 / cost.per_pixel], "issue 17: 7 instructions a pixel", &[1.0 / limit], "px/instr", Some(1.0));
     Ok((r, format!("firmware: the exact-mode correction executes {:.3} instructions a pixel plus {:.1} a line (Cortex-M4 under QEMU)", cost.per_pixel, cost.per_line)))
@@ -276,25 +276,51 @@ const LINEARITY_NUMPY: &str = include_str!("../../../../scripts/linearity_numpy.
 
 /// Seconds the numpy version of `linearity` takes on `set` (its own clock, from after its
 /// imports: reading the file and every step), and its largest pixel-wise RMS.
-fn numpy_linearity(set: &std::path::Path) -> Result<(f64, f64), String> {
+fn numpy_linearity(set: &std::path::Path) -> Result<(f64, f64), Skipped> {
     let out = python(LINEARITY_NUMPY, set.as_os_str())?;
-    let v: serde_json::Value = serde_json::from_slice(&out).map_err(|e| format!("numpy linearity output: {e}"))?;
+    let v: serde_json::Value = serde_json::from_slice(&out).map_err(Skipped::LinearityJson)?;
     match (v["seconds"].as_f64(), v["pixelwise"].as_f64()) {
         (Some(s), Some(p)) => Ok((s, p)),
-        _ => Err(format!("numpy linearity output without seconds or pixelwise: {v}")),
+        _ => Err(Skipped::LinearityFields(v)),
     }
 }
 
-fn numpy_rate(frames: usize) -> Result<f64, String> {
+fn numpy_rate(frames: usize) -> Result<f64, Skipped> {
     let out = python(NUMPY, frames.to_string().as_ref())?;
-    String::from_utf8_lossy(&out).trim().parse::<f64>().map_err(|e| format!("numpy output: {e}"))
+    String::from_utf8_lossy(&out).trim().parse::<f64>().map_err(Skipped::Rate)
+}
+
+/// Why a reference of the bench did not run: its row is then a note saying this.
+#[derive(Debug, thiserror::Error)]
+enum Skipped {
+    /// The cross toolchain is not installed.
+    #[error("firmware skipped: no cross toolchain (scripts/firmware.sh install)")]
+    NoToolchain,
+    /// Building or counting the firmware failed.
+    #[error("firmware skipped: {0}")]
+    Firmware(HostError),
+    /// `python3` could not be started.
+    #[error("python3: {0}")]
+    Spawn(std::io::Error),
+    /// The script failed: the last line of its error output.
+    #[error("{0}")]
+    Python(String),
+    /// The numpy linearity script's output is not JSON.
+    #[error("numpy linearity output: {0}")]
+    LinearityJson(serde_json::Error),
+    /// ... or lacks its two numbers.
+    #[error("numpy linearity output without seconds or pixelwise: {0}")]
+    LinearityFields(serde_json::Value),
+    /// The numpy rate is not a number.
+    #[error("numpy output: {0}")]
+    Rate(std::num::ParseFloatError),
 }
 
 /// Standard output of `python3 -c script arg`, or the last line of its error output.
-fn python(script: &str, arg: &std::ffi::OsStr) -> Result<Vec<u8>, String> {
-    let out = Command::new("python3").arg("-c").arg(script).arg(arg).output().map_err(|e| format!("python3: {e}"))?;
+fn python(script: &str, arg: &std::ffi::OsStr) -> Result<Vec<u8>, Skipped> {
+    let out = Command::new("python3").arg("-c").arg(script).arg(arg).output().map_err(Skipped::Spawn)?;
     if !out.status.success() {
-        return Err(child::last_line(&out.stderr).unwrap_or_else(|| "python3 failed".into()));
+        return Err(Skipped::Python(child::last_line(&out.stderr).unwrap_or_else(|| "python3 failed".into())));
     }
     Ok(out.stdout)
 }
@@ -341,7 +367,7 @@ pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, Ho
         }
         None => notes.push("one core: the parallel path was not measured".into()),
     }
-    let camera = crate::model::camera::Camera::new(crate::model::camera::CameraConfig::default()).map_err(|source| HostError::Config { path: "default camera".into(), source })?;
+    let camera = crate::model::camera::Camera::new(crate::model::camera::CameraConfig::default()).map_err(|source| HostError::BuiltInConfig { subject: crate::Subject::DefaultCamera, source })?;
     ratios.extend(stream_ratios(&camera, runs)?);
     ratios.push(poisson_ratio(runs));
     if p.numpy && notes.is_empty() {
@@ -353,7 +379,7 @@ pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, Ho
             ratios.push(r);
             notes.push(note);
         }
-        Err(note) => notes.push(note),
+        Err(note) => notes.push(note.to_string()),
     }
     if core.numpy.len() == runs {
         ratios.push(ratio("core, frame as a block", &core.by_block, "numpy lut[adc, codes]", &core.numpy, "Mpx/s", Some(8.0)));
@@ -409,11 +435,11 @@ fn core_runs(p: &BenchParams, progress: &impl Fn(&str), notes: &mut Vec<String>)
     let (runs, frames) = (p.runs, p.frames);
     let codes = uniform_codes(WIDTH * HEIGHT);
     let bits: Box<[[u32; 4096]; 4]> = Box::new(core::array::from_fn(|a| core::array::from_fn(|k| ((a * 4096 + k) as u32 * 2048) % (1 << 23))));
-    let luts = Mvd1024eLuts::from_bits(&bits).map_err(|e| HostError::Format { path: "bench LUT".into(), message: format!("{e:?}") })?;
+    let luts = Mvd1024eLuts::from_bits(&bits).map_err(|e| HostError::core(crate::Subject::BenchLut.to_string(), e))?;
     let mut banks_line = Box::new(LutBanks::new(luts.clone()));
     let mut banks_block = Box::new(LutBanks::new(luts.clone()));
-    let geometry = Geometry::new(WIDTH as u16, HEIGHT as u16, STATES as u8, 0).map_err(|e| HostError::Format { path: "bench geometry".into(), message: format!("{e:?}") })?;
-    let core_err = |e: dncal_core::CoreError| HostError::Format { path: "bench".into(), message: format!("the core refused the bench's frame: {e:?}") };
+    let geometry = Geometry::new(WIDTH as u16, HEIGHT as u16, STATES as u8, 0).map_err(|e| HostError::core(crate::Subject::BenchGeometry.to_string(), e))?;
+    let core_err = |e: dncal_core::CoreError| HostError::core(format!("{}: the core refused the bench's frame", crate::Subject::Bench), e);
     let n = WIDTH * HEIGHT;
     let (mut line_sums, mut block_sums, mut plain_sums, mut byte_sums) = (vec![0u32; STATES * n], vec![0u32; STATES * n], vec![0u32; STATES * n], vec![0u32; STATES * n]);
     let mut r = CoreRates { by_line: Vec::new(), by_block: Vec::new(), plain: Vec::new(), bytes: Vec::new(), numpy: Vec::new(), banded: None };
@@ -492,15 +518,15 @@ fn core_runs(p: &BenchParams, progress: &impl Fn(&str), notes: &mut Vec<String>)
     }
     // The core and the plain loop must agree bit for bit, or the comparison is void.
     if c_line.sums().as_slice() != plain_sums.as_slice() || c_block.sums().as_slice() != plain_sums.as_slice() {
-        return Err(HostError::Format { path: "bench".into(), message: "the core's sums differ from the plain LUT loop's".into() });
+        return Err(HostError::invalid(crate::Subject::Bench, "the core's sums differ from the plain LUT loop's"));
     }
     if many_bands.sums() != one_band.sums() {
-        return Err(HostError::Format { path: "bench".into(), message: "the bands' sums differ from one band's".into() });
+        return Err(HostError::invalid(crate::Subject::Bench, "the bands' sums differ from one band's"));
     }
     // The plain bands put together must be the core's bands' sums of the last run.
     let plain_whole: Vec<u32> = (0..STATES).flat_map(|st| plain_sums_n.iter().flat_map(move |b| b[st * b.len() / STATES..(st + 1) * b.len() / STATES].iter().copied())).collect();
     if plain_whole != many_bands.sums() || plain_sums_1[0] != one_band.sums() {
-        return Err(HostError::Format { path: "bench".into(), message: "the plain loop's bands differ from the core's".into() });
+        return Err(HostError::invalid(crate::Subject::Bench, "the plain loop's bands differ from the core's"));
     }
     r.banded = (threads > 1).then_some(Banded { threads, core_n: banded_n, core_1: banded_1, plain_n, plain_1 });
     Ok(r)
@@ -521,7 +547,7 @@ fn stream_ratios(camera: &crate::model::camera::Camera, runs: usize) -> Result<[
                 let r = run_stream(camera, &weights, params, |_| {})?;
                 match r.mismatches {
                     0 => Ok(r.pixels as f64 / r.wall_s / 1e6),
-                    m => Err(HostError::Format { path: "bench".into(), message: format!("{what}: {m} mismatches against the float reference") }),
+                    m => Err(HostError::invalid(crate::Subject::Bench, format!("{what}: {m} mismatches against the float reference"))),
                 }
             })
             .collect()
@@ -572,7 +598,7 @@ fn linearity_ratio(camera: &crate::model::camera::Camera, runs: usize, notes: &m
             Ok((s, pw)) => {
                 let want = r.report.rms_pixelwise_max;
                 if !same_rms(want, pw) {
-                    return Err(HostError::Format { path: "bench".into(), message: format!("linearity: numpy's largest pixel-wise RMS {pw} differs from ours {want}") });
+                    return Err(HostError::invalid(crate::Subject::Bench, format!("linearity: numpy's largest pixel-wise RMS {pw} differs from ours {want}")));
                 }
                 ours.push(1.0 / seconds);
                 theirs.push(1.0 / s);

@@ -26,7 +26,7 @@ pub fn write_histograms(path: &Path, hist: &AdcHistograms) -> Result<(), HostErr
 /// Stages a histogram set in `out`: primary image of `NADC` rows x `2^BITDEPTH` codes,
 /// 64-bit signed (BITPIX 64).
 pub fn stage_histograms(out: &mut Outputs, path: &Path, hist: &AdcHistograms) -> Result<(), HostError> {
-    let codes = check_tables(hist.bit_depth, &hist.counts, "codes").map_err(|m| format_error(path, m))?;
+    let codes = check_tables(hist.bit_depth, &hist.counts, "codes").map_err(fault(path))?;
     let mut flat = Vec::with_capacity(hist.n_adc() * codes);
     for (adc, row) in hist.counts.iter().enumerate() {
         for (code, &n) in row.iter().enumerate() {

@@ -61,7 +61,7 @@ pub fn write_linearity(path: &Path, set: &LinearitySet) -> Result<(), HostError>
 /// Stages a linearity set in `out`: primary float64 cube of mean frames, extensions `STD`
 /// (same cube), `MASK` (uint8, when present) and `REFERENCE` (table, column `VOLTAGE`).
 pub fn stage_linearity(out: &mut Outputs, path: &Path, set: &LinearitySet) -> Result<(), HostError> {
-    check_linearity(set).map_err(|m| format_error(path, m))?;
+    check_linearity(set).map_err(fault(path))?;
     out.write(path, |tmp| {
         let cube = [set.levels, set.height, set.width];
         let mut fits = FitsWriter::create(tmp, path, ImageType::Double, &cube)?;
@@ -162,7 +162,7 @@ where
     let (voltage, mask) = read_reference(&mut r, &h)?;
     let Header { bit_depth, n_adc, n_frames, width, height, levels, .. } = h;
     let set = LinearitySet { bit_depth, n_adc, n_frames, width, height, levels, mean, std, voltage, mask };
-    check_linearity(&set).map_err(|m| r.error(m))?;
+    check_linearity(&set).map_err(|f| r.fault(f))?;
     r.finish()?;
     Ok(set)
 }
@@ -295,11 +295,11 @@ impl RowsToCheck<'_> {
         let [mean_bad, _] = r.scan_floats::<T>(&h.cubes[0], &at[0], [&not_finite, &never])?;
         let [std_bad, std_negative] = r.scan_floats::<T>(&h.cubes[1], &at[1], [&not_finite, &negative])?;
         let (voltage, mask) = read_reference(&mut r, &h)?;
-        let (frame, _) = check_shape(&h).map_err(|m| r.error(m))?;
-        if let Some(m) = value_fault(mean_bad, std_bad, std_negative, frame, h.width) {
-            return Err(r.error(m));
+        let (frame, _) = check_shape(&h).map_err(|f| r.fault(f))?;
+        if let Some(f) = value_fault(mean_bad, std_bad, std_negative, frame, h.width) {
+            return Err(r.fault(f));
         }
-        check_reference(&voltage, h.levels, mask.as_deref(), frame, h.width).map_err(|m| r.error(m))?;
+        check_reference(&voltage, h.levels, mask.as_deref(), frame, h.width).map_err(|f| r.fault(f))?;
         let path = r.path().to_path_buf();
         r.finish()?;
         let Header { bit_depth, n_adc, n_frames, width, height, levels, .. } = h;
@@ -389,17 +389,11 @@ fn read_reference(r: &mut FitsReader, h: &Header) -> Result<(Vec<f64>, Option<Ve
 }
 
 /// Everything a [`LinearitySet`] must satisfy, whether about to be written or just read.
-pub(super) fn check_linearity<T: Sample>(s: &LinearitySet<T>) -> Result<(), String> {
+pub(super) fn check_linearity<T: Sample>(s: &LinearitySet<T>) -> Result<(), Fault> {
     let (frame, cube) = check_frame(s.bit_depth, s.n_adc, s.n_frames, [s.width, s.height, s.levels])?;
     for (name, values) in [("mean", &s.mean), ("std", &s.std)] {
         if values.len() != cube {
-            return Err(format!(
-                "{name} holds {} values, {} x {} x {} (columns x rows x levels) needs {cube}",
-                values.len(),
-                s.width,
-                s.height,
-                s.levels
-            ));
+            return Err(Fault::CubeLength { name, len: values.len(), width: s.width, height: s.height, levels: s.levels, cube });
         }
     }
     let first = |values: &[T], bad: &dyn Fn(T) -> bool| values.iter().position(|&v| bad(v)).map(|i| (i, values[i]));
@@ -415,58 +409,55 @@ pub(super) fn check_linearity<T: Sample>(s: &LinearitySet<T>) -> Result<(), Stri
 }
 
 /// [`check_frame`] of a header.
-fn check_shape(h: &Header) -> Result<(usize, usize), String> {
+fn check_shape(h: &Header) -> Result<(usize, usize), Fault> {
     check_frame(h.bit_depth, h.n_adc, h.n_frames, [h.width, h.height, h.levels])
 }
 
 /// The keys and shape a set must have: pixels per frame and values per cube.
-fn check_frame(bit_depth: u32, n_adc: usize, n_frames: u32, [width, height, levels]: [usize; 3]) -> Result<(usize, usize), String> {
+fn check_frame(bit_depth: u32, n_adc: usize, n_frames: u32, [width, height, levels]: [usize; 3]) -> Result<(usize, usize), Fault> {
     codes_for(bit_depth)?;
     if n_adc == 0 {
-        return Err("no ADCs: NADC must be at least 1".into());
+        return Err(Fault::NoAdcs);
     }
     if n_frames == 0 {
-        return Err("NFRAMES must be at least 1".into());
+        return Err(Fault::NoFrames);
     }
     let frame = width.checked_mul(height).filter(|&n| n > 0);
     match (frame, frame.and_then(|f| f.checked_mul(levels)).filter(|&n| n > 0)) {
         (Some(frame), Some(cube)) => Ok((frame, cube)),
-        _ => Err(format!("shape {width} x {height} x {levels} (columns x rows x levels) is empty or too large")),
+        _ => Err(Fault::Shape { width, height, levels }),
     }
 }
 
-/// Where value `i` of a cube is.
-fn at(i: usize, frame: usize, width: usize) -> String {
-    format!("level {}, row {}, column {}", i / frame, i % frame / width, i % width)
-}
 
 /// The first of a set's value faults in the order they are named: a mean not finite,
 /// a deviation not finite, a deviation negative (each the first of its kind, as index
 /// and value, where there is one).
-fn value_fault<T: Sample>(mean_not_finite: Option<(usize, T)>, std_not_finite: Option<(usize, T)>, std_negative: Option<(usize, T)>, frame: usize, width: usize) -> Option<String> {
+fn value_fault<T: Sample>(mean_not_finite: Option<(usize, T)>, std_not_finite: Option<(usize, T)>, std_negative: Option<(usize, T)>, frame: usize, width: usize) -> Option<Fault> {
+    let at = |what, value: String, i: usize| Fault::Value { what, value, level: i / frame, row: i % frame / width, column: i % width };
     if let Some((i, v)) = mean_not_finite {
-        return Some(format!("mean is {v} at {}", at(i, frame, width)));
+        return Some(at("mean is", v.to_string(), i));
     }
     if let Some((i, v)) = std_not_finite {
-        return Some(format!("std is {v} at {}", at(i, frame, width)));
+        return Some(at("std is", v.to_string(), i));
     }
-    std_negative.map(|(i, v)| format!("std is negative ({v}) at {}", at(i, frame, width)))
+    std_negative.map(|(i, v)| at("std is negative", format!("({v})"), i))
 }
 
 /// The reference voltages (one per level, finite) and the mask (a frame of 0 and 1).
-fn check_reference(voltage: &[f64], levels: usize, mask: Option<&[u8]>, frame: usize, width: usize) -> Result<(), String> {
+fn check_reference(voltage: &[f64], levels: usize, mask: Option<&[u8]>, frame: usize, width: usize) -> Result<(), Fault> {
     if voltage.len() != levels {
-        return Err(format!("{} reference voltages for {levels} levels", voltage.len()));
+        return Err(Fault::Voltages { len: voltage.len(), levels });
     }
     if let Some(level) = voltage.iter().position(|v| !v.is_finite()) {
-        return Err(format!("reference voltage is {} at level {level}", voltage[level]));
+        return Err(Fault::Voltage { value: voltage[level], level });
     }
     if let Some(mask) = mask {
         if mask.len() != frame {
-            return Err(format!("mask holds {} values, {width} x {} frames need {frame}", mask.len(), frame / width));
+            return Err(Fault::MaskLength { len: mask.len(), width, rows: frame / width, frame });
         }
         if let Some(i) = mask.iter().position(|&m| m > 1) {
-            return Err(format!("mask value {} at row {}, column {} is not 0 or 1", mask[i], i / width, i % width));
+            return Err(Fault::MaskValue { value: mask[i], row: i / width, column: i % width });
         }
     }
     Ok(())

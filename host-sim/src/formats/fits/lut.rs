@@ -37,7 +37,7 @@ pub fn write_lut(path: &Path, lut: &LutTables) -> Result<(), HostError> {
 /// Stages LUTs in `out`: primary image of `NADC` rows x `2^BITDEPTH` codes, unsigned
 /// 32-bit (BITPIX 32 with BZERO 2^31, which astropy reads as uint32), with `FRACBITS`.
 pub fn stage_lut(out: &mut Outputs, path: &Path, lut: &LutTables) -> Result<(), HostError> {
-    let bit_depth = check_lut(lut).map_err(|m| format_error(path, m))?;
+    let bit_depth = check_lut(lut).map_err(fault(path))?;
     let flat: Vec<u32> = lut.tables.concat();
     out.write(path, |tmp| {
         let codes = 1usize << bit_depth;
@@ -100,19 +100,19 @@ pub fn read_lut(path: &Path) -> Result<LutTables, HostError> {
 }
 
 /// A LUT set's bit depth, from its table length, after checking it is writable.
-pub(super) fn check_lut(lut: &LutTables) -> Result<u32, String> {
+pub(super) fn check_lut(lut: &LutTables) -> Result<u32, Fault> {
     if lut.frac_bits != FRAC_BITS {
-        return Err(format!("{} fractional bits; dncal LUT entries have {FRAC_BITS}", lut.frac_bits));
+        return Err(Fault::FracBits(lut.frac_bits));
     }
     let codes = lut.tables.first().map_or(0, Vec::len);
     if !codes.is_power_of_two() {
-        return Err(format!("tables of {codes} entries; a table has 2^bits entries"));
+        return Err(Fault::TableLength(codes));
     }
     let bit_depth = codes.trailing_zeros();
     check_tables(bit_depth, &lut.tables, "entries")?;
     if let Some(w) = &lut.weights {
         if w.len() != lut.tables.len() {
-            return Err(format!("weights for {} ADCs, tables for {}", w.len(), lut.tables.len()));
+            return Err(Fault::WeightRows { weights: w.len(), tables: lut.tables.len() });
         }
         check_tables(bit_depth, w, "weights")?;
     }

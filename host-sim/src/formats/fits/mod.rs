@@ -21,7 +21,8 @@
 //! ones write one file atomically. Either way a failed or rejected write never leaves a
 //! half-written file at the destination. Readers check every shape, key and value
 //! before returning and answer a truncated, foreign or malformed file with a
-//! [`HostError::Format`] naming it. They deliberately avoid the `fitsio` calls that panic on
+//! [`HostError::Format`] naming it (a data set that breaks a rule of its contents: a
+//! typed [`Fault`] in [`HostError::FitsContent`]). They deliberately avoid the `fitsio` calls that panic on
 //! legal FITS they do not expect (unsigned 64-bit images, variable-length or complex table
 //! columns): image and table headers are read key by key instead. Paths reach cfitsio only
 //! in a form it takes literally (`CfitsioName`): `h.fits[1]` is a file of that name, not
@@ -117,30 +118,85 @@ impl FileKind {
     }
 }
 
+/// What is wrong with a data set's contents, found before it is written or as it is read
+/// (each prints as the message it always printed). [`HostError::FitsContent`] wraps it
+/// with the file.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum Fault {
+    /// A bit depth the formats do not take.
+    #[error("bit depth {0}, must be 1 to {MAX_BIT_DEPTH}")]
+    BitDepth(u32),
+    /// Tables without a row.
+    #[error("no ADCs: at least one row is needed")]
+    NoRows,
+    /// A row of the wrong length.
+    #[error("ADC {adc} has {len} {what}, bit depth {bit_depth} needs 2^{bit_depth} = {codes}")]
+    RowLength { adc: usize, len: usize, what: &'static str, bit_depth: u32, codes: usize },
+    /// `NADC = 0`.
+    #[error("no ADCs: NADC must be at least 1")]
+    NoAdcs,
+    /// `NFRAMES = 0`.
+    #[error("NFRAMES must be at least 1")]
+    NoFrames,
+    /// A cube shape that is empty or overflows.
+    #[error("shape {width} x {height} x {levels} (columns x rows x levels) is empty or too large")]
+    Shape { width: usize, height: usize, levels: usize },
+    /// A cube (`mean` or `std`) of the wrong length.
+    #[error("{name} holds {len} values, {width} x {height} x {levels} (columns x rows x levels) needs {cube}")]
+    CubeLength { name: &'static str, len: usize, width: usize, height: usize, levels: usize, cube: usize },
+    /// A value a cube must not hold: `what` is "mean is", "std is" or "std is negative",
+    /// `value` the value as the file holds it.
+    #[error("{what} {value} at level {level}, row {row}, column {column}")]
+    Value { what: &'static str, value: String, level: usize, row: usize, column: usize },
+    /// As many reference voltages as levels are needed.
+    #[error("{len} reference voltages for {levels} levels")]
+    Voltages { len: usize, levels: usize },
+    /// A reference voltage that is not finite.
+    #[error("reference voltage is {value} at level {level}")]
+    Voltage { value: f64, level: usize },
+    /// A mask of the wrong length.
+    #[error("mask holds {len} values, {width} x {rows} frames need {frame}")]
+    MaskLength { len: usize, width: usize, rows: usize, frame: usize },
+    /// A mask value other than 0 and 1.
+    #[error("mask value {value} at row {row}, column {column} is not 0 or 1")]
+    MaskValue { value: u8, row: usize, column: usize },
+    /// LUT entries of another fixed-point format.
+    #[error("{0} fractional bits; dncal LUT entries have {FRAC_BITS}")]
+    FracBits(u32),
+    /// LUT tables whose length is not a power of two.
+    #[error("tables of {0} entries; a table has 2^bits entries")]
+    TableLength(usize),
+    /// LUT weights for another number of ADCs than the tables.
+    #[error("weights for {weights} ADCs, tables for {tables}")]
+    WeightRows { weights: usize, tables: usize },
+}
+
 /// Codes of an ADC of `bit_depth` bits, if the formats accept that depth.
-fn codes_for(bit_depth: u32) -> Result<usize, String> {
+fn codes_for(bit_depth: u32) -> Result<usize, Fault> {
     if (1..=MAX_BIT_DEPTH).contains(&bit_depth) {
         Ok(1usize << bit_depth)
     } else {
-        Err(format!("bit depth {bit_depth}, must be 1 to {MAX_BIT_DEPTH}"))
+        Err(Fault::BitDepth(bit_depth))
     }
 }
 
 /// Per-ADC rows of `2^bit_depth` entries each, at least one row; returns the codes per row.
-fn check_tables<T>(bit_depth: u32, rows: &[Vec<T>], what: &str) -> Result<usize, String> {
+fn check_tables<T>(bit_depth: u32, rows: &[Vec<T>], what: &'static str) -> Result<usize, Fault> {
     let codes = codes_for(bit_depth)?;
     if rows.is_empty() {
-        return Err("no ADCs: at least one row is needed".into());
+        return Err(Fault::NoRows);
     }
     for (adc, row) in rows.iter().enumerate() {
         if row.len() != codes {
-            return Err(format!(
-                "ADC {adc} has {} {what}, bit depth {bit_depth} needs 2^{bit_depth} = {codes}",
-                row.len()
-            ));
+            return Err(Fault::RowLength { adc, len: row.len(), what, bit_depth, codes });
         }
     }
     Ok(codes)
+}
+
+/// A fault of the file `path`.
+fn fault(path: &Path) -> impl Fn(Fault) -> HostError + '_ {
+    move |source| HostError::FitsContent { path: path.into(), source }
 }
 
 fn format_error(path: &Path, message: impl Into<String>) -> HostError {

@@ -433,6 +433,11 @@ impl<'a> FitsReader<'a> {
         format_error(self.path, message)
     }
 
+    /// A fault of the file read.
+    pub(super) fn fault(&self, source: Fault) -> HostError {
+        fault(self.path)(source)
+    }
+
     /// Key `name` of HDU `hdu`, `None` when absent.
     pub(super) fn key<T: KeyValue>(&mut self, hdu: usize, label: &str, name: &str) -> Result<Option<T>, HostError> {
         match T::read(&mut self.file, hdu, name) {

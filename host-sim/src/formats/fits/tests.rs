@@ -47,12 +47,16 @@ fn with(mut k: Vec<(&'static str, Key)>, name: &'static str, value: Key) -> Vec<
     k
 }
 
-/// The message of a `Format` error, after checking it names `path`.
+/// The message of a `Format` error or a typed [`Fault`], after checking it names `path`.
 fn format_message<T: std::fmt::Debug>(result: Result<T, HostError>, path: &Path) -> String {
     match result {
         Err(HostError::Format { path: p, message }) => {
             assert_eq!(p, path, "error names the wrong file: {message}");
             message
+        }
+        Err(HostError::FitsContent { path: p, source }) => {
+            assert_eq!(p, path, "error names the wrong file: {source}");
+            source.to_string()
         }
         other => panic!("expected a format error for {}, got {other:?}", path.display()),
     }

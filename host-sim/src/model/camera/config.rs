@@ -335,7 +335,7 @@ mod tests {
     fn a_config_error_is_typed_and_the_hosts_errors_source() {
         let e = CameraConfig { qe: 2.0, ..CameraConfig::default() }.validate().unwrap_err();
         assert_eq!(e, ConfigError::Qe { qe: 2.0 });
-        let host = crate::HostError::Config { path: "cam.toml".into(), source: e.clone() };
+        let host = crate::HostError::Config { path: std::path::PathBuf::from("cam.toml"), source: e.clone() };
         assert_eq!(host.to_string(), "cam.toml: qe is a fraction (0, 1], got 2");
         let source = std::error::Error::source(&host).and_then(|s| s.downcast_ref::<ConfigError>());
         assert_eq!(source, Some(&e));
