@@ -15,9 +15,9 @@ Counts (each should reach 0; the ratchet keeps them from rising meanwhile):
                      (a string literal), not a file
   commands_imports   `commands::` paths in files outside src/commands and src/bin (the
                      library reaching up into the CLI)
-  command_calls      files of src/commands/ that use another command's module (the
-                     shared `progress`, `report` glue and `mod.rs` apart): a command's
-                     work belongs in the library, where both commands can call it
+  command_calls      references from a file of src/commands/ to another command's module
+                     (the shared `progress` and `mod.rs` apart), one per pair: a
+                     command's work belongs in the library, where both can call it
   room_imports       references from a file in one room of src/ to a room above it
                      (ROOMS, lowest first: infra, formats, model, analyses, checks, then
                      the CLI in commands/ and bin/); a room may use itself and the rooms

@@ -122,7 +122,7 @@ pub fn fits_lut(bytes: &[u8]) -> bool {
     // tables the core would not load; what it reads it can write in every format.
     let home = crate::formats::lut::read(&path);
     if let Ok((_, lut)) = &home {
-        for format in [crate::formats::lut::LutFormat::Fits, crate::formats::lut::LutFormat::DeviceImage, crate::formats::lut::LutFormat::Kcor] {
+        for format in crate::formats::lut::LutFormat::ALL {
             if let Ok(paths) = crate::formats::lut::output_paths(format, &dir.path().join("out")) {
                 let mut files = crate::formats::outputs::Outputs::new();
                 let _ = crate::formats::lut::write(&mut files, lut, format, &paths, None, &path);

@@ -124,6 +124,7 @@ pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, real
     let entries: Vec<u32> = match lut_file {
         Some(path) => {
             let (_, lut) = crate::formats::lut::read(path)?;
+            crate::formats::lut::validate(&lut, path)?;
             let table = lut.tables.into_iter().nth(p.adc).ok_or_else(|| HostError::Format { path: path.into(), message: format!("no table for ADC {}", p.adc) })?;
             if table.len() != adc.codes() {
                 return Err(HostError::Format { path: path.into(), message: format!("{} codes, the camera's ADC has {}", table.len(), adc.codes()) });

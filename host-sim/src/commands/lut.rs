@@ -202,10 +202,18 @@ impl Report for ConvertSummary {
 /// `lut convert LUT --to FORMAT -o OUT [--bits B]`: a LUT in any format ([`lut::read`])
 /// written in `to` ([`lut::output_paths`] says where). All files are written or none.
 pub fn convert(input: &Path, to: LutFormat, out: &Path, bits: Option<u32>) -> Result<ConvertSummary, HostError> {
+    if bits.is_some() && to != LutFormat::Kcor {
+        return Err(HostError::argument("--bits", "sets the scaling of K-Cor tables; give it with --to kcor only"));
+    }
     let paths = lut::output_paths(to, out)?;
     let mut files = Outputs::new();
     files.expect(&paths)?;
     let (from, read) = lut::read(input)?;
+    // The K-Cor writer's own checks come first there (shape, widths, that the widths
+    // rebuild the entries), as `lut export` always made them.
+    if to != LutFormat::Kcor {
+        lut::validate(&read, input)?;
+    }
     let kcor_bits = (to == LutFormat::Kcor).then(|| bits.or(read.kcor_bits).unwrap_or(23));
     lut::write(&mut files, &read, to, &paths, kcor_bits, input)?;
     files.publish()?;

@@ -58,6 +58,7 @@ mod linearity;
 mod lut;
 mod name;
 mod reader;
+pub(crate) use reader::compressed_magic;
 mod scan;
 mod writer;
 #[cfg(test)]

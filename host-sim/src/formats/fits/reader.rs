@@ -156,7 +156,7 @@ fn stored_width(image: &ImageHeader) -> Option<usize> {
 
 /// Whether a file starting with `start` is compressed, by the magic numbers cfitsio
 /// recognizes (gzip, compress, pack, LZH, zip).
-fn compressed_magic(start: &[u8]) -> bool {
+pub(crate) fn compressed_magic(start: &[u8]) -> bool {
     matches!(start.get(..2), Some([0x1f, 0x8b | 0x9d | 0x1e | 0xa0] | [b'P', b'K']))
 }
 

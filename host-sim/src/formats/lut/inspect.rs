@@ -65,6 +65,7 @@ impl Report for InspectSummary {
 /// lists every code when the caller sets `list_codes`.
 pub fn inspect(path: &Path) -> Result<InspectSummary, HostError> {
     let (kind, lut) = super::read(path)?;
+    super::validate(&lut, path)?;
     let bit_depth = lut.bit_depth();
     let adcs = lut
         .tables

@@ -38,6 +38,11 @@ pub enum LutFormat {
     Kcor,
 }
 
+impl LutFormat {
+    /// Every format, in the order `lut convert --to` lists them.
+    pub const ALL: [LutFormat; 3] = [LutFormat::Fits, LutFormat::DeviceImage, LutFormat::Kcor];
+}
+
 impl fmt::Display for LutFormat {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(match self {
@@ -81,21 +86,29 @@ impl Lut {
 }
 
 /// Which format `path` holds, from its first bytes: a device image starts with `DNLT`; a
-/// file of exactly 4096 little-endian `u32` that is not FITS is a K-Cor table; anything
+/// file of exactly 4096 little-endian `u32` that is neither FITS nor compressed (the FITS
+/// reader opens gzip and the other formats cfitsio inflates) is a K-Cor table; anything
 /// else is read as FITS (whose reader says what is wrong with it).
 pub fn sniff(path: &Path) -> Result<LutFormat, HostError> {
-    if crate::formats::input::starts_with(path, image::MAGIC)? {
-        return Ok(LutFormat::DeviceImage);
-    }
-    let len = std::fs::metadata(path).map_err(|e| HostError::io(path, e))?.len();
-    if len == kcor::FILE_BYTES as u64 && !crate::formats::input::starts_with(path, b"SIMPLE")? {
-        return Ok(LutFormat::Kcor);
-    }
-    Ok(LutFormat::Fits)
+    use std::io::Read;
+    let file = crate::formats::input::open_regular(path)?;
+    let len = file.metadata().map_err(|e| HostError::io(path, e))?.len();
+    let mut start = Vec::with_capacity(6);
+    file.take(6).read_to_end(&mut start).map_err(|e| HostError::io(path, e))?;
+    Ok(if start.starts_with(image::MAGIC) {
+        LutFormat::DeviceImage
+    } else if len == kcor::FILE_BYTES as u64 && !start.starts_with(b"SIMPLE") && !crate::formats::fits::compressed_magic(&start) {
+        LutFormat::Kcor
+    } else {
+        LutFormat::Fits
+    })
 }
 
 /// Reads the LUT in `path`, of any format ([`sniff`]). A K-Cor table is one of four: the
-/// others are found by its name (`..._adc0_...` read as `..._adc{adc}_...`).
+/// others are found by its name (`..._adc0_...` read as `..._adc{adc}_...`). A device
+/// image and K-Cor tables come back as the core loads them; a LUT FITS as the file holds
+/// it (the format allows any `u32`): [`validate`] checks it as the core would, and each
+/// consumer does so where its own checks do not come first.
 pub fn read(path: &Path) -> Result<(LutFormat, Lut), HostError> {
     let format = sniff(path)?;
     let lut = match format {
@@ -106,14 +119,18 @@ pub fn read(path: &Path) -> Result<(LutFormat, Lut), HostError> {
     Ok((format, lut))
 }
 
-/// A LUT FITS, its tables checked as the core would load them (the file format allows
-/// any `u32`).
+/// A LUT FITS as the file holds it.
 pub fn read_fits(path: &Path) -> Result<Lut, HostError> {
     let t = read_lut(path)?;
-    let (n, codes) = (t.tables.len(), t.tables.first().map_or(0, Vec::len));
-    crate::dispatch_lut_dims!(n, codes, path.display().to_string(), validate_tables(&t.tables, path))?;
     let weights = t.weights.map(|w| w.iter().map(|w| w.iter().map(|&b| Weight::from_bits(b)).collect()).collect());
     Ok(Lut { tables: t.tables, weights, kcor_bits: t.kcor_bits })
+}
+
+/// Checks `lut`'s tables as the core checks every set it loads (a layout it is built for,
+/// every entry below 2^23, none below its predecessor); `path` names the file.
+pub fn validate(lut: &Lut, path: &Path) -> Result<(), HostError> {
+    let (n, codes) = (lut.tables.len(), lut.tables.first().map_or(0, Vec::len));
+    crate::dispatch_lut_dims!(n, codes, path.display().to_string(), validate_tables(&lut.tables, path))
 }
 
 /// The core's checks of a LUT set (every entry below 2^23, non-decreasing).
@@ -139,6 +156,11 @@ pub(crate) fn set_from_tables<const N: usize, const CODES: usize>(tables: &[Vec<
 pub fn output_paths(format: LutFormat, out: &Path) -> Result<Vec<PathBuf>, HostError> {
     Ok(match format {
         LutFormat::Fits => vec![LutOutputs::for_prefix(out)?.fits],
+        // OUT.bin itself where OUT already ends in .bin.
+        LutFormat::DeviceImage if out.extension().is_some_and(|e| e.eq_ignore_ascii_case("bin")) => {
+            check_file_prefix(out, "OUT.bin")?;
+            vec![out.to_path_buf()]
+        }
         LutFormat::DeviceImage => vec![LutOutputs::for_prefix(out)?.image],
         LutFormat::Kcor => {
             let prefix = out.to_string_lossy();
@@ -256,6 +278,8 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let lut = planted();
         let fits = written(dir.path(), &lut, LutFormat::Fits, "a");
+        // A device image asked for as OUT.bin is OUT.bin, not OUT.bin.bin.
+        assert_eq!(output_paths(LutFormat::DeviceImage, &dir.path().join("x.bin")).unwrap(), vec![dir.path().join("x.bin")]);
         assert_eq!(read(&fits[0]).unwrap(), (LutFormat::Fits, lut.clone()));
         let image = written(dir.path(), &lut, LutFormat::DeviceImage, "b");
         assert_eq!(read(&image[0]).unwrap(), (LutFormat::DeviceImage, Lut { weights: None, ..lut.clone() }));
@@ -305,5 +329,25 @@ mod tests {
         let e = read(&anonymous).unwrap_err().to_string();
         assert!(e.starts_with(&anonymous.display().to_string()) && e.contains("does not say its ADC"), "{e}");
         assert!(output_paths(LutFormat::Fits, dir.path()).is_err());
+    }
+
+    /// A file of a K-Cor table's length is one only if it is neither FITS nor compressed
+    /// (the FITS reader inflates gzip, compress and zip files); a device image is known by
+    /// its magic whatever its length.
+    #[test]
+    fn the_format_is_told_by_the_bytes() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = |name: &str, start: &[u8]| {
+            let mut bytes = start.to_vec();
+            bytes.resize(kcor::FILE_BYTES, 0);
+            let p = dir.path().join(name);
+            std::fs::write(&p, bytes).unwrap();
+            p
+        };
+        assert_eq!(sniff(&file("a_adc0.bin", &[0, 0, 0, 0])).unwrap(), LutFormat::Kcor);
+        for (name, start) in [("gz", &[0x1f, 0x8b][..]), ("z", &[0x1f, 0x9d]), ("zip", b"PK\x03\x04"), ("fits", b"SIMPLE  =")] {
+            assert_eq!(sniff(&file(name, start)).unwrap(), LutFormat::Fits, "{name}");
+        }
+        assert_eq!(sniff(&file("img", b"DNLT")).unwrap(), LutFormat::DeviceImage);
     }
 }
