@@ -11,8 +11,9 @@ Counts (each should reach 0; the ratchet keeps them from rising meanwhile):
                      graph of `use crate::...`, `super::...` and `crate::x::y` paths)
   string_results     `Result<..., String>` outside clap value parsers (functions passed
                      to `value_parser`)
-  label_paths        `HostError::Variant { path: "..." ...` whose path is a label
-                     (a string literal), not a file
+  label_paths        a label where a file should be: `HostError::Variant { path: "..." }`,
+                     `HostError::io("...")`, `Path::new`/`PathBuf::from` of a literal
+                     with a space (test modules apart)
   commands_imports   `commands::` paths in files outside src/commands and src/bin (the
                      library reaching up into the CLI)
   command_calls      references from a file of src/commands/ to another command's module
@@ -161,8 +162,13 @@ def check() -> dict:
         for fm in re.finditer(r"fn\s+([a-z_][a-z0-9_]*)\b(?:(?!\bfn\b)[^{])*?->\s*Result<(?:(?!\bfn\b)[^{])*?,\s*String\s*>\s*(?:\{|where)", t, flags=re.S):
             if fm.group(1) not in parsers:
                 string_results.append(f"{rel}:{t[: fm.start()].count(chr(10)) + 1} {fm.group(1)}")
-        for lm in re.finditer(r"HostError::[A-Za-z]+\s*\{\s*path:\s*\"([^\"]*)\"", t):
-            label_paths.append(f"{rel}:{t[: lm.start()].count(chr(10)) + 1} \"{lm.group(1)}\"")
+        # A label where a path goes: a literal in a path field or in HostError::io, or a
+        # path made from a literal with a space in it (files do not have one; "camera
+        # config" does); test modules apart.
+        body = t.split("#[cfg(test)]")[0]
+        for lm in re.finditer(r"HostError::[A-Za-z]+\s*\{\s*path:\s*\"([^\"]*)\"|HostError::io\(\s*\"([^\"]*)\"|(?:Path::new|PathBuf::from)\(\s*\"([^\"]* [^\"]*)\"", body):
+            label = next(g for g in lm.groups() if g is not None)
+            label_paths.append(f"{rel}:{t[: lm.start()].count(chr(10)) + 1} \"{label}\"")
         if m[:1] not in (("commands",), ("bin",)):
             for cm in re.finditer(r"\bcommands::", t):
                 commands_imports.append(f"{rel}:{t[: cm.start()].count(chr(10)) + 1}")
@@ -191,7 +197,7 @@ def self_test() -> None:
         (SRC / "analyses" / "y.rs").write_text("use super::super::formats::z;\npub fn y() {}\n")
         (SRC / "a.rs").write_text("use crate::b::f;\npub fn g() -> Result<u8, String> { Ok(1) }\n// crate::c::h in a comment is no import\nfn h(x: [u8; 3]) -> Result<[u8; 3], String> { let u = \"http://x\"; Ok(x) }\n")
         (SRC / "b.rs").write_text("use crate::a::g;\npub fn f() { crate::commands::x(); let e = HostError::Format { path: \"label\".into(), message: String::new() }; }\n")
-        (SRC / "c.rs").write_text("use super::a::g;\n#[arg(value_parser = parse_n)]\nfn parse_n(s: &str) -> Result<u8, String> { Ok(0) }\n#[arg(value_parser = Kind::parse)]\nfn parse(s: &str) -> Result<u8, String> { Ok(0) }\nfn e() { HostError::Config { path: \"default\".into(), source }; }\n")
+        (SRC / "c.rs").write_text("use super::a::g;\n#[arg(value_parser = parse_n)]\nfn parse_n(s: &str) -> Result<u8, String> { Ok(0) }\n#[arg(value_parser = Kind::parse)]\nfn parse(s: &str) -> Result<u8, String> { Ok(0) }\nfn e() { HostError::Config { path: \"default\".into(), source }; HostError::io(\"stdout\", e); f(Path::new(\"camera config\"), Path::new(\"t.bin\")); }\n#[cfg(test)]\nmod tests { fn t() { HostError::io(\"x\", e); } }\n")
         (SRC / "commands" / "mod.rs").write_text("pub mod p; pub mod q; pub mod progress;\npub fn x() { crate::commands::y(); }\npub fn y() {}\n")
         (SRC / "commands" / "p.rs").write_text("use crate::commands::progress::bar;\nuse crate::commands::q::Q;\nuse super::y;\n")
         (SRC / "commands" / "q.rs").write_text("pub struct Q;\n")
@@ -201,7 +207,7 @@ def self_test() -> None:
     want = {
         "import_cycles": ["a", "b"],
         "string_results": ["host-sim/src/a.rs:2 g", "host-sim/src/a.rs:4 h"],
-        "label_paths": ['host-sim/src/b.rs:2 "label"', 'host-sim/src/c.rs:6 "default"'],
+        "label_paths": ['host-sim/src/b.rs:2 "label"', 'host-sim/src/c.rs:6 "default"', 'host-sim/src/c.rs:6 "stdout"', 'host-sim/src/c.rs:6 "camera config"'],
         "commands_imports": ["host-sim/src/b.rs:2"],
         "room_imports": ["host-sim/src/formats/x.rs -> analyses::y"],
         "command_calls": ["host-sim/src/commands/p.rs -> commands::q"],

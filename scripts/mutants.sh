@@ -8,7 +8,7 @@
 #                             model's (which check the model against naive sums)
 #   scripts/mutants.sh host   a uniform sample (MUTANTS_SHARD, default every 400th) of
 #                             the mutants of analyses/{diagnose/, flatten.rs,
-#                             quantization.rs, kcor.rs}, commands/adc.rs and
+#                             quantization/, kcor/}, analyses/adc.rs and
 #                             model/camera/calibration.rs against the
 #                             host's library tests (the CLI tests run whole commands)
 #   scripts/mutants.sh FILE.. those files, tested by their own package
@@ -88,7 +88,7 @@ host)
     git -C "$tree" diff --quiet || { echo "$tree has changes (an interrupted run?): git -C $tree checkout -- ." >&2; exit 1; }
     git -C "$tree" checkout -q --detach "$(git rev-parse HEAD)"
     files=()
-    for f in 'analyses/diagnose/**' analyses/flatten.rs analyses/quantization.rs analyses/kcor.rs commands/adc.rs model/camera/calibration.rs; do files+=(-f "host-sim/src/$f"); done
+    for f in 'analyses/diagnose/**' analyses/flatten.rs analyses/quantization/mod.rs analyses/kcor/mod.rs analyses/adc.rs model/camera/calibration.rs; do files+=(-f "host-sim/src/$f"); done
     shard=${MUTANTS_SHARD:-0/400}
     (cd "$tree" && OUT="$PWD/../mutants/host-${shard//\//-}" run_in_place -p dncal-host "${files[@]}" \
         --test-workspace=false --cargo-arg=--lib --shard "$shard" --sharding round-robin)

@@ -128,8 +128,8 @@ def main() -> int:
         if not d.is_dir():
             print(f"{d}: not a folder", file=sys.stderr)
             return 2
-    files_a = {p.relative_to(before) for p in before.rglob("*") if p.is_file() and p.name != ".snapshot-root"}
-    files_b = {p.relative_to(after) for p in after.rglob("*") if p.is_file() and p.name != ".snapshot-root"}
+    files_a = {p.relative_to(before) for p in before.rglob("*") if p.is_file() and p.name not in (".snapshot-root", ".dncal")}
+    files_b = {p.relative_to(after) for p in after.rglob("*") if p.is_file() and p.name not in (".snapshot-root", ".dncal")}
     root_a, root_b = snapshot_root(before), snapshot_root(after)
     problems = []
     for rel in sorted(files_a - files_b):

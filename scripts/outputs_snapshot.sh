@@ -28,6 +28,10 @@ mkdir -p "$out"
 cd "$out"
 # Where the outputs were written: outputs_compare.py reads this path in them as "<dir>".
 pwd >.snapshot-root
+# The binary under one name in every snapshot: the FITS files' HISTORY records the
+# command line as run, and two binaries compared must not differ by their paths.
+ln -s "$bin" .dncal
+bin=./.dncal
 
 # run NAME ARGS...: one command, its stdout, stderr and exit code kept.
 run() {

@@ -29,7 +29,7 @@ fn main() {
     let args = Args::parse();
     let params = SoakParams { pixels: args.pixels, seed: args.seed, fpga: !args.no_fpga, sensor: args.sensor };
     // The command's own bar: shown only on a terminal, cleared when done.
-    let bar = dncal_host::commands::progress::bar(args.pixels, "soak pixels");
+    let bar = dncal_host::infra::progress::bar(args.pixels, "soak pixels");
     let result = run(&params, |done| bar.set_position(done.min(args.pixels)));
     bar.finish_and_clear();
     let report = match result {

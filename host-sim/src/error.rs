@@ -37,6 +37,12 @@ pub enum Subject {
     BenchGeometry,
     /// The report printed on standard output.
     Stdout,
+    /// The noisy LUT weights of the K-Coronagraph model (`kcor-model --lut-noise`).
+    KcorLutWeights,
+    /// The running `dncal` executable (`bench --whole` runs it again).
+    DncalBinary,
+    /// A man page as it is rendered (`dncal man`).
+    ManPage,
 }
 
 impl std::fmt::Display for Subject {
@@ -56,7 +62,47 @@ impl std::fmt::Display for Subject {
             Subject::BenchLut => "bench LUT",
             Subject::BenchGeometry => "bench geometry",
             Subject::Stdout => "stdout",
+            Subject::KcorLutWeights => "K-Cor LUT weights",
+            Subject::DncalBinary => "the dncal binary",
+            Subject::ManPage => "man page",
         })
+    }
+}
+
+/// What an error concerns where it may be a file or not: the file a LUT or camera was
+/// read from, or a [`Subject`] (weights drawn by a model, the built-in camera).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Origin {
+    /// A file.
+    File(PathBuf),
+    /// Not a file.
+    Subject(Subject),
+}
+
+impl std::fmt::Display for Origin {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Origin::File(path) => write!(f, "{}", path.display()),
+            Origin::Subject(subject) => write!(f, "{subject}"),
+        }
+    }
+}
+
+impl From<&std::path::Path> for Origin {
+    fn from(path: &std::path::Path) -> Self {
+        Origin::File(path.to_path_buf())
+    }
+}
+
+impl From<&PathBuf> for Origin {
+    fn from(path: &PathBuf) -> Self {
+        Origin::File(path.clone())
+    }
+}
+
+impl From<Subject> for Origin {
+    fn from(subject: Subject) -> Self {
+        Origin::Subject(subject)
     }
 }
 
@@ -225,6 +271,25 @@ pub enum HostError {
         /// The rule.
         #[source]
         source: crate::formats::fits::Fault,
+    },
+    /// Reading or writing something that is not a file failed (stdout, a rendering).
+    #[error("{subject}: {source}")]
+    IoOf {
+        /// What was read or written.
+        subject: Subject,
+        /// The cause.
+        #[source]
+        source: std::io::Error,
+    },
+    /// A LUT set or camera of a shape the core is not built for.
+    #[error("{origin}: {n_adc} ADCs of {codes} codes: the core is built for 1, 2, 4 or 8 ADCs of 8, 10, 12 or 14 bits (8 ADCs up to 12 bits)")]
+    UnsupportedDims {
+        /// Whose shape.
+        origin: Origin,
+        /// ADCs.
+        n_adc: usize,
+        /// Codes per ADC.
+        codes: usize,
     },
     /// A file's contents are not what they must be.
     #[error("{path}: {message}")]

@@ -13,4 +13,4 @@ pub mod formats;
 pub mod infra;
 pub mod model;
 
-pub use error::{HostError, Subject};
+pub use error::{HostError, Origin, Subject};

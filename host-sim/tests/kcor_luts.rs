@@ -335,7 +335,7 @@ fn histograms_of_real_adcs_are_diagnosed_and_their_widths_recovered() {
 /// four) gains the most, a median 5.8x (docs/paper.md), not an order of magnitude.
 #[test]
 fn the_lut_figure_with_real_adcs_is_set_by_the_random_walk_of_its_noise() {
-    use dncal_host::commands::kcor::kcor_model;
+    use dncal_host::analyses::kcor::run::kcor_model;
     use dncal_host::analyses::kcor::KcorParams;
     let Some(dir) = luts_dir() else { return };
     let tmp = tempfile::tempdir().unwrap();

@@ -4,13 +4,15 @@
 //! and `diagnose`. Imports the core, [`crate::formats`], [`crate::model`] and
 //! [`crate::infra`].
 
+pub mod adc;
 pub mod diagnose;
 pub mod emva;
 pub mod flatten;
+pub mod fpga_size;
 pub mod ieee1241;
 pub mod kcor;
 pub mod linearity;
-pub mod lut_build;
+pub mod lut;
 pub mod paper_claims;
 pub mod quantization;
 pub mod real_adcs;

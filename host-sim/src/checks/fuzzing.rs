@@ -115,7 +115,7 @@ pub fn fits_lut(bytes: &[u8]) -> bool {
         if let Some(raw) = &lut.weights {
             let weights: Vec<Vec<dncal_core::Weight>> =
                 raw.iter().map(|w| w.iter().map(|&b| dncal_core::Weight::from_bits(b)).collect()).collect();
-            let _ = crate::formats::lut::tables_from_weights(&weights, &path);
+            let _ = crate::formats::lut::tables_from_weights(&weights, &path.as_path().into());
         }
     }
     // The LUT home's reader also takes device images and K-Cor tables, and refuses

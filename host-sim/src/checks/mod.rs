@@ -2,8 +2,10 @@
 //! float reference ([`crate::model::reference`]) and the FPGA model, the soak, the
 //! firmware in QEMU and the fuzz targets. Imports every room but the CLI.
 
+pub mod bench;
 pub mod firmware;
 #[doc(hidden)]
 pub mod fuzzing;
 pub mod soak;
+pub mod stream_run;
 pub mod streaming;

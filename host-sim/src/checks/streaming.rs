@@ -208,7 +208,7 @@ pub fn run_stream_against(
     p: &StreamParams,
     progress: impl Fn(u64) + Sync,
 ) -> Result<StreamReport, HostError> {
-    crate::dispatch_lut_dims!(camera.config.n_adc, camera.config.codes(), "camera config", run_typed(camera, weights, reference_weights, p, progress))
+    crate::dispatch_lut_dims!(camera.config.n_adc, camera.config.codes(), crate::Subject::CameraConfig, run_typed(camera, weights, reference_weights, p, progress))
 }
 
 /// The fewest pixels a band of the core takes in `stream`: a smaller frame (an ROI) is

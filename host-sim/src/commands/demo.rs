@@ -16,15 +16,15 @@ use std::time::Instant;
 use serde::Serialize;
 
 use crate::model::camera::calibration::{LinearityParams, RampParams};
-use crate::commands::kcor::KcorSummary;
-use crate::commands::linearity::LinearitySummary;
-use crate::commands::quantization::SigmaReport;
+use crate::analyses::kcor::run::KcorSummary;
+use crate::analyses::linearity::run::LinearitySummary;
+use crate::analyses::quantization::run::SigmaReport;
 use crate::analyses::kcor::KcorParams;
 use crate::analyses::paper_claims::{claims, finite_range, Claim, Measured, Verdict};
 use crate::model::camera::Camera;
-use crate::commands::adc::AdcReport;
-use crate::commands::progress::{bar, stage};
-use crate::commands::Report;
+use crate::analyses::adc::AdcReport;
+use crate::infra::progress::{bar, stage};
+use crate::formats::report::Report;
 use crate::analyses::flatten::FlattenParams;
 use crate::checks::streaming::{run_stream, StreamParams, StreamReport};
 use crate::formats::outputs::{html_figure, OutDir, Outputs};
@@ -55,9 +55,9 @@ pub struct DemoSummary {
     /// Pixel-wise nonlinearity on a simulated linearity set (section 5).
     pub linearity: LinearitySummary,
     /// `diagnose` on the calibration histograms.
-    pub diagnose: crate::commands::diagnose::DiagnoseSummary,
+    pub diagnose: crate::analyses::diagnose::run::DiagnoseSummary,
     /// `diagnose` on the linearity set.
-    pub diagnose_linearity: crate::commands::diagnose::DiagnoseSummary,
+    pub diagnose_linearity: crate::analyses::diagnose::run::DiagnoseSummary,
     /// Wall time, s.
     pub seconds: f64,
     /// The paper's claims beside this run's numbers (the report's first table).
@@ -133,7 +133,7 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
 
     // 1-2. Calibration histograms, LUTs, characterization and its figures.
     stage("1/8 calibration ramps, LUTs and the ADC characterization");
-    let (adc, luts) = crate::commands::adc::run(camera, None, ramp, flatten, crate::analyses::ieee1241::Density::Smooth, OutDir::new(&mut files, out_dir))?;
+    let (adc, luts) = crate::analyses::adc::run(camera, None, ramp, flatten, crate::analyses::ieee1241::Density::Smooth, OutDir::new(&mut files, out_dir))?;
     let levels: usize = ramp.ramp_levels.iter().sum();
 
     // 3. Streaming check.
@@ -152,35 +152,35 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
 
     // 4. The paper's other analyses (docs/paper.md): quantization, K-Cor, linearity.
     stage("4/8 quantization bias (paper section 2)");
-    crate::commands::quantization::figure(&mut files, &at("quantization.png"))?;
-    let quantization = crate::commands::quantization::at_sigma(camera.config.read_noise_e / camera.config.gain_e_per_dn, 100_000, 1)?;
+    crate::analyses::quantization::run::figure(&mut files, &at("quantization.png"))?;
+    let quantization = crate::analyses::quantization::run::at_sigma(camera.config.read_noise_e / camera.config.gain_e_per_dn, 100_000, 1)?;
     stage("5/8 the K-Coronagraph polarimetric model (section 4)");
     let kp = KcorParams { adc: camera.adcs.len().min(4) - 1, steps: 50, ..Default::default() };
-    let spin = crate::commands::progress::spinner("K-Coronagraph model");
-    let kcor = crate::commands::kcor::kcor_model(camera, &kp, None, 1, Some(OutDir::new(&mut files, out_dir)));
+    let spin = crate::infra::progress::spinner("K-Coronagraph model");
+    let kcor = crate::analyses::kcor::run::kcor_model(camera, &kp, None, 1, Some(OutDir::new(&mut files, out_dir)));
     spin.finish_and_clear();
     let kcor = kcor?;
     // The paper's Fig. 5 claim turns on the LUT's noise: the same model with less of it,
     // for the report's table.
     let mut kcor_reductions = vec![(kp.lut_noise, kcor.result.reduction)];
     for noise in [0.001, 0.0] {
-        let with = crate::commands::kcor::kcor_model(camera, &KcorParams { lut_noise: noise, ..kp.clone() }, None, 1, None)?;
+        let with = crate::analyses::kcor::run::kcor_model(camera, &KcorParams { lut_noise: noise, ..kp.clone() }, None, 1, None)?;
         kcor_reductions.push((noise, with.result.reduction));
     }
     stage("6/8 pixel-wise nonlinearity on a simulated linearity set (section 5)");
     let lin_path = at("linearity.fits");
-    crate::commands::simulate::simulate_linearity_staged(&mut files, camera, &LinearityParams::paper(camera), lin_path.clone())?;
+    crate::model::sets::simulate_linearity_staged(&mut files, camera, &LinearityParams::paper(camera), lin_path.clone())?;
     let lin_staged = staged(&files, &lin_path)?;
     let lin_dir = at("linearity");
-    let linearity = crate::commands::linearity::linearity_as(&lin_staged, &lin_path, crate::analyses::linearity::PIXEL_ORDER, None, Some(OutDir::new(&mut files, &lin_dir)))?;
+    let linearity = crate::analyses::linearity::run::linearity_as(&lin_staged, &lin_path, crate::analyses::linearity::PIXEL_ORDER, None, Some(OutDir::new(&mut files, &lin_dir)))?;
     // 5. What a diagnosis of the calibration histograms finds (issue: diagnose).
     stage("7/8 diagnosing the calibration histograms and the linearity set");
     let hist_path = at("histograms.fits");
     let hist_staged = staged(&files, &hist_path)?;
     let (diagnose_dir, diagnose_lin_dir) = (at("diagnose"), at("diagnose-linearity"));
-    let params = crate::commands::diagnose::DiagnoseParams { flatten: flatten.clone(), seed: 1, block_rows: None, spill: false };
-    let diagnose = crate::commands::diagnose::diagnose_as(&hist_staged, &hist_path, &params, Some(OutDir::new(&mut files, &diagnose_dir)))?;
-    let diagnose_linearity = crate::commands::diagnose::diagnose_as(&lin_staged, &lin_path, &params, Some(OutDir::new(&mut files, &diagnose_lin_dir)))?;
+    let params = crate::analyses::diagnose::run::DiagnoseParams { flatten: flatten.clone(), seed: 1, block_rows: None, spill: false };
+    let diagnose = crate::analyses::diagnose::run::diagnose_as(&hist_staged, &hist_path, &params, Some(OutDir::new(&mut files, &diagnose_dir)))?;
+    let diagnose_linearity = crate::analyses::diagnose::run::diagnose_as(&lin_staged, &lin_path, &params, Some(OutDir::new(&mut files, &diagnose_lin_dir)))?;
 
     let paper = paper_claims(&adc, &quantization, &kcor, kcor_reductions, &linearity.report);
     let summary = DemoSummary {

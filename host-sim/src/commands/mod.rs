@@ -1,20 +1,6 @@
-//! The `dncal` subcommands as library functions: each takes its arguments and returns a
-//! [`Report`] (serializable, and rendering its own readable text); `main.rs` only parses,
+//! The CLI's one composite command: `dncal demo` runs the others' library functions in
+//! sequence (each command's work lives in the room of what it is: `analyses::X::run`,
+//! `model::sets`, `checks::stream_run`, `checks::bench`...). `main.rs` parses,
 //! dispatches, prints and sets the exit code.
 
-pub mod adc;
-pub mod bench;
 pub mod demo;
-pub mod diagnose;
-pub mod emva;
-pub mod firmware;
-pub mod fpga;
-pub mod kcor;
-pub mod linearity;
-pub mod lut;
-pub mod progress;
-pub mod quantization;
-pub mod simulate;
-pub mod stream;
-
-pub use crate::formats::report::{wrote, Report};

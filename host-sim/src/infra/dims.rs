@@ -3,10 +3,11 @@
 //! one to the other.
 
 /// Calls `$f::<N, CODES>(args...)` for the supported (ADCs, codes) pairs, or returns a
-/// `HostError::Format` naming `$what` for any other pair.
+/// `HostError::UnsupportedDims` naming `$origin` (anything `Into<Origin>`: a path or a
+/// `Subject`) for any other pair.
 #[macro_export]
 macro_rules! dispatch_lut_dims {
-    ($n:expr, $codes:expr, $what:expr, $f:ident ( $($arg:expr),* $(,)? )) => {
+    ($n:expr, $codes:expr, $origin:expr, $f:ident ( $($arg:expr),* $(,)? )) => {
         match ($n, $codes) {
             (1, 256) => $f::<1, 256>($($arg),*),
             (1, 1024) => $f::<1, 1024>($($arg),*),
@@ -23,10 +24,7 @@ macro_rules! dispatch_lut_dims {
             (8, 256) => $f::<8, 256>($($arg),*),
             (8, 1024) => $f::<8, 1024>($($arg),*),
             (8, 4096) => $f::<8, 4096>($($arg),*),
-            (n, c) => Err($crate::HostError::Format {
-                path: ::std::path::PathBuf::from($what),
-                message: format!("{n} ADCs of {c} codes: the core is built for 1, 2, 4 or 8 ADCs of 8, 10, 12 or 14 bits (8 ADCs up to 12 bits)"),
-            }),
+            (n_adc, codes) => Err($crate::HostError::UnsupportedDims { origin: $crate::Origin::from($origin), n_adc, codes }),
         }
     };
 }

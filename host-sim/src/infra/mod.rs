@@ -5,6 +5,7 @@
 pub mod budget;
 pub mod dims;
 pub mod parallel;
+pub mod progress;
 pub mod roi;
 pub mod select;
 pub mod stats;

@@ -7,4 +7,5 @@
 pub mod camera;
 pub mod hidden;
 pub mod reference;
+pub mod sets;
 pub mod synth;

@@ -18,6 +18,7 @@ mod points;
 mod ptc;
 mod scores;
 mod tasks;
+pub mod run;
 
 pub use codes::{diagnose_code_density, CodeDensity};
 pub use cubes::blocks_of;

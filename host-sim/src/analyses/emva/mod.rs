@@ -18,6 +18,7 @@ pub mod html;
 pub mod sheet;
 pub mod spatial;
 pub mod temporal;
+pub mod run;
 
 pub use datasheet::{summarize_points, PtcSummary, Release};
 pub use descriptor::{code_histogram_halves, code_histograms, load_image, read_descriptor, EmvaLevel, EmvaSet, LevelKind, Series, DESCRIPTOR_LIMIT};

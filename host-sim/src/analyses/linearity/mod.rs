@@ -45,6 +45,7 @@ use crate::formats::fits::{LinearitySet, Sample};
 use crate::infra::stats::{median, rms_finite, RmsSum};
 
 mod inverse;
+pub mod run;
 pub use inverse::invert;
 use inverse::{invert_all, poly, poly_slope};
 

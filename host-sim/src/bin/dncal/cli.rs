@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use clap::{Args, Parser, Subcommand};
 use dncal_host::model::camera::calibration::RampParams;
 use dncal_host::model::camera::{Camera, CameraConfig};
-use dncal_host::commands::simulate;
+use dncal_host::model::sets;
 use dncal_host::analyses::flatten::FlattenParams;
 use dncal_host::analyses::kcor::KcorParams;
 use dncal_host::infra::roi::RoiSpec;
@@ -145,8 +145,8 @@ pub(crate) struct CameraArgs {
 impl CameraArgs {
     pub(crate) fn camera(&self) -> Result<Camera, HostError> {
         match &self.config {
-            Some(path) => simulate::camera_from(CameraConfig::from_toml_file(path)?, &path.display().to_string()),
-            None => simulate::camera_from(CameraConfig::default(), "default camera"),
+            Some(path) => sets::camera_from(CameraConfig::from_toml_file(path)?, &path.display().to_string()),
+            None => sets::camera_from(CameraConfig::default(), "default camera"),
         }
     }
 }
@@ -476,10 +476,10 @@ pub(crate) enum Cmd {
         #[arg(long)]
         whole: bool,
         /// Side of the `linearity` set of --whole, pixels (limits checked at 1024 only).
-        #[arg(long, default_value_t = dncal_host::commands::bench::whole::LINEARITY_SIDE, requires = "whole")]
+        #[arg(long, default_value_t = dncal_host::checks::bench::whole::LINEARITY_SIDE, requires = "whole")]
         linearity_side: usize,
         /// Side of the `diagnose` set of --whole, pixels (limits checked at 2048 only).
-        #[arg(long, default_value_t = dncal_host::commands::bench::whole::DIAGNOSE_SIDE, requires = "whole")]
+        #[arg(long, default_value_t = dncal_host::checks::bench::whole::DIAGNOSE_SIDE, requires = "whole")]
         diagnose_side: usize,
         /// Print a JSON summary on stdout.
         #[arg(long)]

@@ -10,8 +10,14 @@ use std::process::ExitCode;
 
 use cli::{Cli, Cmd, ExportFormat, LutCmd, SimulateCmd};
 use dncal_host::model::camera::calibration::LinearityParams;
-use dncal_host::commands::firmware::{firmware_check, CheckParams};
-use dncal_host::commands::{adc, bench, demo, diagnose, emva, fpga, kcor, linearity, lut, progress, quantization, simulate, stream, Report};
+use dncal_host::checks::firmware::check::{firmware_check, CheckParams};
+use dncal_host::analyses::quantization::run as quantization;
+use dncal_host::analyses::{adc, diagnose::run as diagnose, emva::run as emva, fpga_size as fpga, kcor::run as kcor, linearity::run as linearity, lut::run as lut};
+use dncal_host::checks::{bench, stream_run as stream};
+use dncal_host::commands::demo;
+use dncal_host::formats::report::Report;
+use dncal_host::infra::progress;
+use dncal_host::model::sets as simulate;
 use dncal_host::formats::outputs::{staged, staged_in};
 use dncal_host::checks::streaming::StreamParams;
 use dncal_host::HostError;
@@ -111,7 +117,7 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
             let params = bench::BenchParams { runs, frames, numpy: !no_numpy };
             params.check()?;
             let whole = match whole {
-                true => Some(bench::whole::WholeParams::new(std::env::current_exe().map_err(|e| HostError::io("the dncal binary", e))?, linearity_side, diagnose_side)?),
+                true => Some(bench::whole::WholeParams::new(std::env::current_exe().map_err(|e| HostError::IoOf { subject: dncal_host::Subject::DncalBinary, source: e })?, linearity_side, diagnose_side)?),
                 false => None,
             };
             // The whole commands first, while this process is small: a child's
@@ -149,7 +155,7 @@ fn print(json: bool, report: &(impl Report + ?Sized)) -> Result<(), HostError> {
 /// not an error.
 fn to_stdout(bytes: &[u8]) -> Result<(), HostError> {
     match std::io::stdout().lock().write_all(bytes) {
-        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(HostError::io("stdout", e)),
+        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(HostError::IoOf { subject: dncal_host::Subject::Stdout, source: e }),
         _ => Ok(()),
     }
 }
@@ -200,7 +206,7 @@ fn effective_parameters(matches: &clap::ArgMatches) -> String {
 fn man_pages(out: Option<&Path>) -> Result<(), HostError> {
     fn render(cmd: &clap::Command) -> Result<Vec<u8>, HostError> {
         let mut page = Vec::new();
-        clap_mangen::Man::new(cmd.clone()).render(&mut page).map_err(|e| HostError::io("man page", e))?;
+        clap_mangen::Man::new(cmd.clone()).render(&mut page).map_err(|e| HostError::IoOf { subject: dncal_host::Subject::ManPage, source: e })?;
         Ok(page)
     }
     let mut cmd = command();

@@ -4,6 +4,7 @@
 //! ([`instructions`]).
 
 pub mod instructions;
+pub mod check;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};

@@ -27,7 +27,7 @@ pub fn read(path: &Path) -> Result<Vec<Vec<u32>>, HostError> {
     if !(1..=16).contains(&bits) {
         return Err(HostError::Format { path: path.into(), message: format!("device image declares {bits} bits") });
     }
-    crate::dispatch_lut_dims!(n, 1usize << bits, path.display().to_string(), parse(&bytes, path))
+    crate::dispatch_lut_dims!(n, 1usize << bits, path, parse(&bytes, path))
 }
 
 fn parse<const N: usize, const CODES: usize>(bytes: &[u8], path: &Path) -> Result<Vec<Vec<u32>>, HostError> {
@@ -53,7 +53,7 @@ pub fn encode_set<const N: usize, const CODES: usize>(set: &LutSet<N, CODES>) ->
 /// validates first; `source` names the input in errors.
 pub fn encode(tables: &[Vec<u32>], source: &Path) -> Result<Vec<u8>, HostError> {
     let (n, codes) = (tables.len(), tables.first().map_or(0, Vec::len));
-    crate::dispatch_lut_dims!(n, codes, source.display().to_string(), encode_tables(tables, source))
+    crate::dispatch_lut_dims!(n, codes, source, encode_tables(tables, source))
 }
 
 fn encode_tables<const N: usize, const CODES: usize>(tables: &[Vec<u32>], source: &Path) -> Result<Vec<u8>, HostError> {

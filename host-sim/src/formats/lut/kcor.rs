@@ -214,7 +214,7 @@ pub fn read_set(files: &[PathBuf; 4]) -> Result<(Vec<KcorTable>, Lut), HostError
         return Err(HostError::Format { path: files[i].clone(), message: format!("ends at 2^{} - 1 where ADC 0's table ends at 2^{bits} - 1: one camera's tables share a scaling", t.bits) });
     }
     let weights: Vec<Vec<Weight>> = tables.iter().zip(files).map(|(t, p)| t.weights(p)).collect::<Result<_, _>>()?;
-    let (ours, _) = super::tables_from_weights(&weights, &files[0])?;
+    let (ours, _) = super::tables_from_weights(&weights, &files[0].as_path().into())?;
     Ok((tables, Lut { tables: ours, weights: Some(weights), kcor_bits: Some(bits) }))
 }
 
@@ -234,7 +234,7 @@ pub fn tables_of(lut: &Lut, bits: Option<u32>, source: &Path) -> Result<Vec<Kcor
     if !KCOR_SCALINGS.contains(&bits) {
         return Err(err(format!("--bits {bits}: K-Cor tables end at 2^22 - 1 or 2^23 - 1")));
     }
-    let (rebuilt, _) = super::tables_from_weights(weights, source)?;
+    let (rebuilt, _) = super::tables_from_weights(weights, &source.into())?;
     if let Some(adc) = (0..4).find(|&a| rebuilt[a] != lut.tables[a]) {
         return Err(err(format!("ADC {adc}: the WEIGHTS extension does not rebuild the tables (the file was edited?); refusing to export")));
     }

@@ -21,7 +21,7 @@ use serde::Serialize;
 
 use crate::formats::fits::{read_lut, stage_lut, LutTables};
 use crate::formats::outputs::Outputs;
-use crate::HostError;
+use crate::{HostError, Origin};
 
 /// A LUT file format.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -69,7 +69,7 @@ pub struct Lut {
 impl Lut {
     /// The core's LUT set from per-ADC `weights`; `source` names the input in errors.
     pub fn from_weights(weights: Vec<Vec<Weight>>, source: &Path) -> Result<Lut, HostError> {
-        let (tables, _) = tables_from_weights(&weights, source)?;
+        let (tables, _) = tables_from_weights(&weights, &source.into())?;
         Ok(Lut { tables, weights: Some(weights), kcor_bits: None })
     }
 
@@ -130,7 +130,7 @@ pub fn read_fits(path: &Path) -> Result<Lut, HostError> {
 /// every entry below 2^23, none below its predecessor); `path` names the file.
 pub fn validate(lut: &Lut, path: &Path) -> Result<(), HostError> {
     let (n, codes) = (lut.tables.len(), lut.tables.first().map_or(0, Vec::len));
-    crate::dispatch_lut_dims!(n, codes, path.display().to_string(), validate_tables(&lut.tables, path))
+    crate::dispatch_lut_dims!(n, codes, path, validate_tables(&lut.tables, path))
 }
 
 /// The core's checks of a LUT set (every entry below 2^23, non-decreasing).
@@ -191,15 +191,15 @@ pub fn write(files: &mut Outputs, lut: &Lut, format: LutFormat, paths: &[PathBuf
 
 /// The core's LUT entries (units of 2^-11 DN) and device image for per-ADC `weights`;
 /// `source` names the input in errors.
-pub fn tables_from_weights(weights: &[Vec<Weight>], source: &Path) -> Result<(Vec<Vec<u32>>, Vec<u8>), HostError> {
+pub fn tables_from_weights(weights: &[Vec<Weight>], source: &Origin) -> Result<(Vec<Vec<u32>>, Vec<u8>), HostError> {
     let codes = weights.first().map_or(0, Vec::len);
-    crate::dispatch_lut_dims!(weights.len(), codes, source.display().to_string(), core_tables(weights, source))
+    crate::dispatch_lut_dims!(weights.len(), codes, source.clone(), core_tables(weights, source))
 }
 
-fn core_tables<const N: usize, const CODES: usize>(weights: &[Vec<Weight>], source: &Path) -> Result<(Vec<Vec<u32>>, Vec<u8>), HostError> {
+fn core_tables<const N: usize, const CODES: usize>(weights: &[Vec<Weight>], source: &Origin) -> Result<(Vec<Vec<u32>>, Vec<u8>), HostError> {
     let slices: Vec<&[Weight]> = weights.iter().map(|w| w.as_slice()).collect();
-    let slices: &[&[Weight]; N] = slices.as_slice().try_into().map_err(|_| HostError::Format { path: source.into(), message: "ADC count".into() })?;
-    let set = Box::new(LutSet::<N, CODES>::from_weights(slices).map_err(|e| HostError::core(format!("{}: LUT from weights", source.display()), e))?);
+    let slices: &[&[Weight]; N] = slices.as_slice().try_into().map_err(|_| HostError::UnsupportedDims { origin: source.clone(), n_adc: weights.len(), codes: CODES })?;
+    let set = Box::new(LutSet::<N, CODES>::from_weights(slices).map_err(|e| HostError::core(format!("{source}: LUT from weights"), e))?);
     let tables = set.tables().iter().map(|t| t.iter().map(|e| e.to_bits()).collect()).collect();
     Ok((tables, image::encode_set(&set)?))
 }

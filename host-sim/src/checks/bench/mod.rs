@@ -25,7 +25,7 @@ use dncal_core::{Corrector, Geometry, LutBanks, Mvd1024eLuts};
 use rand::{rngs::StdRng, Rng, SeedableRng};
 use serde::Serialize;
 
-use crate::commands::Report;
+use crate::formats::report::Report;
 use crate::infra::parallel::{band_rows, Bands};
 use crate::infra::stats::median;
 use crate::HostError;
@@ -171,7 +171,7 @@ fn simulated_linearity(camera: &crate::model::camera::Camera, side: usize) -> Re
     let path = dir.path().join("linearity.fits");
     let corner = (WIDTH - side) / 2;
     let lp = crate::model::camera::calibration::LinearityParams { frames: 16, roi: (corner, corner, side, side), ..crate::model::camera::calibration::LinearityParams::paper(camera) };
-    crate::commands::simulate::simulate_linearity(camera, &lp, path.clone())?;
+    crate::model::sets::simulate_linearity(camera, &lp, path.clone())?;
     Ok((dir, path))
 }
 
@@ -538,7 +538,7 @@ fn core_runs(p: &BenchParams, progress: &impl Fn(&str), notes: &mut Vec<String>)
 /// fixed rate, not a run in this process, so a ratio's spread is the stream's own.
 fn stream_ratios(camera: &crate::model::camera::Camera, runs: usize) -> Result<[Ratio; 2], HostError> {
     use crate::checks::streaming::{run_stream, StreamParams};
-    let weights = crate::commands::stream::oracle_weights(camera)?;
+    let weights = crate::checks::stream_run::oracle_weights(camera)?;
     let cube = crate::formats::fits::FrameCube { width: WIDTH, height: HEIGHT, frames: 16, codes: uniform_codes(WIDTH * HEIGHT).repeat(16) };
     let replay = StreamParams { recorded: Some(std::sync::Arc::new(cube)), ..StreamParams::full_frame(camera, 16) };
     let rates = |what: &str, params: &StreamParams| -> Result<Vec<f64>, HostError> {
@@ -592,7 +592,7 @@ fn linearity_ratio(camera: &crate::model::camera::Camera, runs: usize, notes: &m
     let (mut ours, mut theirs) = (Vec::new(), Vec::new());
     for _ in 0..runs.min(3) {
         let t = Instant::now();
-        let r = crate::commands::linearity::linearity(&set, 4, None, None)?;
+        let r = crate::analyses::linearity::run::linearity(&set, 4, None, None)?;
         let seconds = t.elapsed().as_secs_f64();
         match numpy_linearity(&set) {
             Ok((s, pw)) => {

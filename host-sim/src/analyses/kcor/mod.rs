@@ -45,6 +45,8 @@
 //! The systematic error is the recovered `Q` minus the input `Q`, in `B_sun`; everything
 //! is an expectation value, so there is no random error in it.
 
+pub mod run;
+
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 use rayon::prelude::*;

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use rand::SeedableRng;
 use serde::Serialize;
 
-use crate::commands::{wrote, Report};
+use crate::formats::report::{wrote, Report};
 use crate::formats::outputs::Outputs;
 use crate::formats::plots::{map_plot, Map};
 use crate::analyses::quantization::{bias_erf, bias_exact_gaussian, bias_fourier, bias_map, bias_monte_carlo, sigma_for_bias, worst_bias, WorstBias};

@@ -10,9 +10,9 @@ use serde::Serialize;
 
 use crate::model::camera::calibration::RampParams;
 use crate::model::camera::{Camera, AdcTransfer};
-use crate::analyses::lut_build::{build_luts, summarize, AdcLutSummary, BuiltLuts};
-use crate::commands::progress::{bar, stage};
-use crate::commands::Report;
+use crate::analyses::lut::build::{build_luts, summarize, AdcLutSummary, BuiltLuts};
+use crate::infra::progress::{bar, stage};
+use crate::formats::report::Report;
 use crate::formats::fits::{read_histograms_for_analysis, stage_histograms, AdcHistograms};
 use crate::analyses::flatten::{cumulative_offsets, FlattenParams};
 use crate::analyses::ieee1241::{analyse_set, AdcLinearity, Density};

@@ -10,7 +10,7 @@ use crate::analyses::diagnose::model::{extended_model, linearity_model, ptc_mode
 use crate::analyses::diagnose::{diagnose_code_density, diagnose_histograms, diagnose_linearity, diagnose_linearity_rows, diagnose_ptc, Diagnosis, Effect, Finding};
 use crate::formats::fits::{open_linearity_rows, read_histograms_for_analysis, read_linearity_as};
 use crate::formats::outputs::{html_figure, OutDir, Outputs};
-use crate::commands::Report;
+use crate::formats::report::Report;
 use crate::analyses::flatten::FlattenParams;
 use crate::formats::plots::{line_plot, Series};
 use crate::HostError;
@@ -94,7 +94,7 @@ fn diagnose_linearity_file(read_from: &Path, input: &Path, block_rows: Option<us
             format!("diagnosing each pixel (about {} bytes per pixel beyond the set)", RESIDENT_BYTES + RECORD_BYTES)
         }
     };
-    let spin = |[w, h, l]: [usize; 3], how: &str| crate::commands::progress::spinner(&format!("diagnosing {} (linearity set, {w} x {h} pixels, {l} levels{how})", input.display()));
+    let spin = |[w, h, l]: [usize; 3], how: &str| crate::infra::progress::spinner(&format!("diagnosing {} (linearity set, {w} x {h} pixels, {l} levels{how})", input.display()));
     let failed = |source| HostError::Diagnose { path: input.into(), source };
     let spilling = |spilled: bool| if spilled { ", its records spilled" } else { "" };
     // Decided from the header: held (read and checked in one pass) where the set and the
@@ -210,7 +210,7 @@ pub fn diagnose_as(read_from: &Path, input: &Path, params: &DiagnoseParams, mut 
     let model: Option<crate::model::camera::CameraConfig>;
     let diagnosis = if is_descriptor {
         let set = crate::analyses::emva::read_descriptor(read_from)?;
-        let spin = crate::commands::progress::spinner(&format!("diagnosing {} (EMVA 1288 set: photon transfer, code density)", input.display()));
+        let spin = crate::infra::progress::spinner(&format!("diagnosing {} (EMVA 1288 set: photon transfer, code density)", input.display()));
         let points = crate::analyses::emva::photon_transfer(&set)?;
         // The frames' code density: all columns as one ADC, then the columns of each of
         // four interleaved ADCs (column c read by ADC c mod 4, as the MV-D1024E's): where
@@ -288,7 +288,7 @@ pub fn diagnose_as(read_from: &Path, input: &Path, params: &DiagnoseParams, mut 
                 return report(input, d, Some(model), out, ("level", "baseline (linear pixels): RMS over pixels"));
             }
         };
-        let spin = crate::commands::progress::spinner(&format!("diagnosing {} (histogram set, {} ADCs)", input.display(), hist.counts.len()));
+        let spin = crate::infra::progress::spinner(&format!("diagnosing {} (histogram set, {} ADCs)", input.display(), hist.counts.len()));
         let d = diagnose_histograms(&hist, flatten, seed);
         spin.finish_and_clear();
         let d = d.map_err(|source| HostError::Diagnose { path: input.into(), source })?;

@@ -6,8 +6,8 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::commands::progress::{spinner, stage};
-use crate::commands::{wrote, Report};
+use crate::infra::progress::{spinner, stage};
+use crate::formats::report::{wrote, Report};
 use crate::formats::fits::{read_linearity, stage_cube, stage_pixel_correction, PixelCorrection};
 use crate::analyses::linearity::{analyze_unsaturated, check_flat_level, example_row, unsaturated_levels, Cube, LinearityReport, MAX_ORDER};
 use crate::formats::plots::{level_lines_plot, line_plot_paired, map_plot, Map, Series};

@@ -1,6 +1,6 @@
 //! `dncal lut build`, `inspect`, `import`, `export` and `convert`: argument glue and
 //! reports over the LUT home ([`crate::formats::lut`]: every format, read and written)
-//! and the paper's recipe ([`crate::analyses::lut_build`]: histograms to LUTs).
+//! and the paper's recipe ([`crate::analyses::lut::build`]: histograms to LUTs).
 //!
 //! `build` flattens each ADC's histogram, quantizes the weights to the core's 2^-24 grid,
 //! lets the core build the LUT set by its rounding rule, and writes the LUT FITS and the
@@ -12,8 +12,8 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 
 use crate::analyses::flatten::FlattenParams;
-use crate::analyses::lut_build::{build_luts, AdcLutSummary};
-use crate::commands::Report;
+use crate::analyses::lut::build::{build_luts, AdcLutSummary};
+use crate::formats::report::Report;
 use crate::formats::fits::read_histograms_for_analysis;
 use crate::formats::lut::{self, kcor, LutFormat, LutOutputs};
 use crate::formats::outputs::Outputs;

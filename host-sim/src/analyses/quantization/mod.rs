@@ -24,6 +24,8 @@
 //! sigma = 4 DN); [`bias_monte_carlo`] samples, rounds and averages, as a camera does.
 //! Maps and searches use [`bias_gaussian`]: the series from sigma = 0.3 DN, eq. 4 below.
 
+pub mod run;
+
 use rand::Rng;
 use rand_distr::{Distribution, Normal};
 use serde::Serialize;

@@ -9,7 +9,7 @@ use dncal_fpga_model::sizing::{readmemh, size, Sizing, System};
 use dncal_fpga_model::Config;
 use serde::Serialize;
 
-use crate::commands::{wrote, Report};
+use crate::formats::report::{wrote, Report};
 use crate::formats::outputs::Outputs;
 use crate::HostError;
 

@@ -65,7 +65,7 @@ pub fn build_luts(hist: &AdcHistograms, params: &FlattenParams, source: &Path) -
         flattened.push(f);
         weights.push(w);
     }
-    let (tables, image) = crate::formats::lut::tables_from_weights(&weights, source)?;
+    let (tables, image) = crate::formats::lut::tables_from_weights(&weights, &source.into())?;
     // The independent float reference must reproduce every entry.
     let reference = crate::model::reference::ReferenceLut::from_weights(&weights.iter().map(|w| w.iter().map(|x| x.to_num::<f64>()).collect()).collect::<Vec<_>>());
     for (adc, (q, t)) in reference.quantized().iter().zip(&tables).enumerate() {

@@ -20,7 +20,7 @@ use std::path::{Path, PathBuf};
 
 use super::child::{run_measured, Finished};
 use super::{cost, numpy_linearity, ratio, Ratio};
-use crate::commands::progress::stage;
+use crate::infra::progress::stage;
 use crate::HostError;
 
 /// The issue's `linearity` set: 1024 x 1024 pixels, 2 frames a level (the frames only

@@ -7,7 +7,7 @@ use serde::Serialize;
 
 use crate::model::camera::Camera;
 use crate::formats::lut::tables_from_weights;
-use crate::commands::{wrote, Report};
+use crate::formats::report::{wrote, Report};
 use crate::analyses::flatten::to_core_weights;
 use crate::analyses::kcor::{noisy_weights, run_luts, KcorParams, KcorResult};
 use crate::formats::plots::{map_plot, Map};
@@ -117,9 +117,8 @@ pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, real
         o.files.expect([o.at("kcor_raw.png"), o.at("kcor_lut.png")])?;
     }
     let noisy_table = |seed: u64| -> Result<Vec<u32>, HostError> {
-        let source = Path::new("K-Cor LUT weights");
-        let w = to_core_weights(&noisy_weights(adc, p.lut_noise, seed)).map_err(|e| HostError::Format { path: source.into(), message: e.to_string() })?;
-        Ok(tables_from_weights(&[w], source)?.0.remove(0))
+        let w = to_core_weights(&noisy_weights(adc, p.lut_noise, seed)).map_err(|source| HostError::Weights { subject: crate::Subject::KcorLutWeights, source })?;
+        Ok(tables_from_weights(&[w], &crate::Subject::KcorLutWeights.into())?.0.remove(0))
     };
     let entries: Vec<u32> = match lut_file {
         Some(path) => {

@@ -7,8 +7,8 @@ use serde::Serialize;
 
 use crate::model::camera::calibration::{LinearityParams, RampParams};
 use crate::model::camera::{Camera, CameraConfig};
-use crate::commands::progress::{bar, stage};
-use crate::commands::Report;
+use crate::infra::progress::{bar, stage};
+use crate::formats::report::Report;
 use crate::formats::fits::{stage_linearity, write_histograms, AdcHistograms, LinearitySet};
 use crate::formats::outputs::Outputs;
 use crate::HostError;

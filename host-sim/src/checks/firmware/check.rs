@@ -6,7 +6,7 @@ use std::time::Duration;
 use dncal_core::{Geometry, Mvd1024eLuts};
 use serde::Serialize;
 
-use crate::commands::Report;
+use crate::formats::report::Report;
 use crate::checks::firmware::instructions::{attribute, InstructionCounts};
 use crate::checks::firmware::{build_firmware, repo_root, run_firmware, run_on_host, RunInputs};
 use crate::model::synth::{dn_error_weights, synthetic_frames, Rng};

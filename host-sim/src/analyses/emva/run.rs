@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::commands::{wrote, Report};
+use crate::formats::report::{wrote, Report};
 use crate::analyses::emva::{datasheet, html::write_datasheet, read_descriptor, Datasheet, Release};
 use crate::HostError;
 
@@ -45,7 +45,7 @@ impl Report for EmvaSummary {
 /// (the descriptor's own by default) and, with `out`, writes the page into that folder.
 pub fn emva(descriptor: &Path, release: Option<Release>, out: Option<&Path>) -> Result<EmvaSummary, HostError> {
     let set = read_descriptor(descriptor)?;
-    let spin = crate::commands::progress::spinner(&format!("EMVA 1288 datasheet of {} ({} levels)", descriptor.display(), set.levels.len()));
+    let spin = crate::infra::progress::spinner(&format!("EMVA 1288 datasheet of {} ({} levels)", descriptor.display(), set.levels.len()));
     let sheet = datasheet(&set, release);
     spin.finish_and_clear();
     let sheet = sheet?;

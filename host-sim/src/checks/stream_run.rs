@@ -7,8 +7,8 @@ use std::sync::Arc;
 use dncal_core::Weight;
 
 use crate::model::camera::Camera;
-use crate::analyses::lut_build::build_luts;
-use crate::commands::progress::{bar, stage};
+use crate::analyses::lut::build::build_luts;
+use crate::infra::progress::{bar, stage};
 use crate::formats::fits::read_histograms_for_analysis;
 use crate::analyses::flatten::{to_core_weights, FlattenParams};
 use crate::checks::streaming::{run_stream, StreamParams, StreamReport};
