@@ -69,6 +69,24 @@ impl std::fmt::Display for Subject {
     }
 }
 
+/// An encoder's error, as the file it writes is wrapped around it.
+#[derive(Debug, thiserror::Error)]
+pub enum EncodeError {
+    /// JSON (reports, summaries).
+    #[error(transparent)]
+    Json(#[from] serde_json::Error),
+    /// TOML (camera models).
+    #[error(transparent)]
+    Toml(#[from] toml::ser::Error),
+}
+
+impl HostError {
+    /// `source` encoding what goes to `path`.
+    pub fn encode(path: impl Into<PathBuf>, source: impl Into<EncodeError>) -> Self {
+        HostError::Encode { path: path.into(), source: source.into() }
+    }
+}
+
 /// What an error concerns where it may be a file or not: the file a LUT or camera was
 /// read from, or a [`Subject`] (weights drawn by a model, the built-in camera).
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -290,6 +308,68 @@ pub enum HostError {
         n_adc: usize,
         /// Codes per ADC.
         codes: usize,
+    },
+    /// A fault at a line of an EMVA 1288 descriptor (a record, an image it names, or the
+    /// set's levels).
+    #[error("{path}: line {line}: {fault}")]
+    DescriptorLine {
+        /// The descriptor.
+        path: PathBuf,
+        /// The line, from 1.
+        line: usize,
+        /// What is wrong.
+        #[source]
+        fault: crate::analyses::emva::DescriptorFault,
+    },
+    /// A fault of an EMVA 1288 descriptor or image not tied to one line.
+    #[error("{path}: {fault}")]
+    DescriptorFile {
+        /// The descriptor, or the image.
+        path: PathBuf,
+        /// What is wrong.
+        #[source]
+        fault: crate::analyses::emva::DescriptorFault,
+    },
+    /// A file that must be text holds bytes that are not UTF-8.
+    #[error("{path}: not UTF-8 text (byte {valid_up_to} is invalid)")]
+    NotUtf8 {
+        /// The file.
+        path: PathBuf,
+        /// The offset of the first invalid byte.
+        valid_up_to: usize,
+    },
+    /// One ADC's histogram of a set could not be flattened into LUT weights.
+    #[error("{path}: ADC {adc}: {source}")]
+    AdcFlatten {
+        /// The histogram set.
+        path: PathBuf,
+        /// The ADC.
+        adc: usize,
+        /// Why.
+        #[source]
+        source: crate::analyses::flatten::FlattenError,
+    },
+    /// One ADC's histogram of a set failed the IEEE 1241 histogram test.
+    #[error("{path}: ADC {adc}: IEEE 1241 histogram test ({} density): {source}", .density.name())]
+    Ieee1241 {
+        /// The histogram set.
+        path: PathBuf,
+        /// The ADC.
+        adc: usize,
+        /// The input density the test assumed.
+        density: crate::analyses::ieee1241::Density,
+        /// Why.
+        #[source]
+        source: crate::analyses::ieee1241::TestError,
+    },
+    /// A report or model could not be encoded for the file it goes to.
+    #[error("{path}: {source}")]
+    Encode {
+        /// The file.
+        path: PathBuf,
+        /// The encoder's error.
+        #[source]
+        source: EncodeError,
     },
     /// A file's contents are not what they must be.
     #[error("{path}: {message}")]

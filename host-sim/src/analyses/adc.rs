@@ -418,7 +418,7 @@ pub fn from_luts(specs: &[String], out: OutDir<'_>) -> Result<RealAdcsReport, Ho
         // The camera model of the fitted stages, for `simulate --config`.
         let model = crate::analyses::real_adcs::architecture_model(&label, &mine);
         let path = out_dir.join(format!("{label}-architecture.toml"));
-        let text = toml::to_string(&model).map_err(|e| HostError::Format { path: path.clone(), message: e.to_string() })?;
+        let text = toml::to_string(&model).map_err(|e| HostError::encode(path.clone(), e))?;
         staged.write_bytes(&path, format!("# {}; each ADC the stage model with the largest held-out share (docs/kcor-luts.md)\n{text}", model.name))?;
         models.push(path);
         adcs.extend(mine);
@@ -451,6 +451,6 @@ pub fn from_luts(specs: &[String], out: OutDir<'_>) -> Result<RealAdcsReport, Ho
         models,
     };
     let json = out_dir.join("real_adcs.json");
-    staged.write_bytes(&json, serde_json::to_string_pretty(&report).map_err(|e| HostError::Format { path: json.clone(), message: e.to_string() })?)?;
+    staged.write_bytes(&json, serde_json::to_string_pretty(&report).map_err(|e| HostError::encode(json.clone(), e))?)?;
     Ok(report)
 }

@@ -26,7 +26,7 @@ use serde::Serialize;
 
 use crate::model::camera::{Camera, CameraConfig};
 use crate::analyses::flatten::to_core_weights;
-use crate::model::reference::ReferenceLut;
+use crate::model::reference::{ReferenceLut, ReferenceTables};
 use crate::{HostError, Subject};
 
 const N: usize = 4;
@@ -235,22 +235,19 @@ fn draw_codes(rng: &mut SplitMix64) -> Codes {
 struct Pool {
     luts: Vec<Box<Mvd1024eLuts>>,
     images: Vec<Vec<u8>>,
-    quantized: Vec<Vec<Vec<u64>>>,
-    centers: Vec<Vec<Vec<f64>>>,
+    references: Vec<ReferenceTables>,
 }
 
 impl Pool {
     fn new(entries: &[PoolEntry]) -> Result<Self, HostError> {
-        let mut pool = Pool { luts: vec![], images: vec![], quantized: vec![], centers: vec![] };
+        let mut pool = Pool { luts: vec![], images: vec![], references: vec![] };
         for e in entries {
             let slices: Vec<&[Weight]> = e.weights.iter().map(|w| w.as_slice()).collect();
             let slices: &[&[Weight]; N] = slices.as_slice().try_into().map_err(|_| HostError::invalid(Subject::SoakLutPool, format!("{} ADCs, need {N}", e.weights.len())))?;
             let luts = Box::new(Mvd1024eLuts::from_weights(slices).map_err(|err| HostError::core("soak LUT pool", err))?);
             let mut image = vec![0u8; image_len::<N, CODES>()];
             encode_image(&*luts, &mut image).map_err(|err| HostError::core("soak LUT image", err))?;
-            let reference = ReferenceLut::from_weights(&e.reference);
-            pool.quantized.push(reference.quantized());
-            pool.centers.push(reference.centers);
+            pool.references.push(ReferenceLut::from_weights(&e.reference).tables());
             pool.luts.push(luts);
             pool.images.push(image);
         }
@@ -445,7 +442,7 @@ fn run_segment(
         }
         let lut = model.active;
         let frame_seed = seed.wrapping_mul(0x2545_F491_4F6C_DD1D).wrapping_add(frame as u64);
-        draw_frame(seg, camera, frame_seed, state, (&pool.quantized[lut], &pool.centers[lut]), &mut codes, &mut refs);
+        draw_frame(seg, camera, frame_seed, state, &pool.references[lut], &mut codes, &mut refs);
         // The core: the whole frame in one call, or line by line with perhaps a LUT
         // change asked in the middle (it must wait for the frame's end).
         corrector.begin_frame(state).map_err(|e| HostError::core("soak begin frame", e))?;
@@ -490,8 +487,8 @@ fn run_segment(
 }
 
 /// Draws frame `frame_seed` of `seg` into `codes` and adds it to the references of
-/// `state` with the active LUT's `(quantized, centers)` tables, line by line in parallel.
-fn draw_frame(seg: &Segment, camera: &Camera, frame_seed: u64, state: u8, (q_tables, c_tables): (&[Vec<u64>], &[Vec<f64>]), codes: &mut [u16], refs: &mut References) {
+/// `state` with the active LUT's reference tables, line by line in parallel.
+fn draw_frame(seg: &Segment, camera: &Camera, frame_seed: u64, state: u8, tables: &ReferenceTables, codes: &mut [u16], refs: &mut References) {
     let g = seg.geometry;
     let (w, states, x0) = (g.width() as usize, g.states() as usize, g.first_column() as usize);
     let cfg = &camera.config;
@@ -508,17 +505,8 @@ fn draw_frame(seg: &Segment, camera: &Camera, frame_seed: u64, state: u8, (q_tab
         .enumerate()
         .map(|(y, ((line, q), f))| {
             draw_line(seg.codes, camera, seg.first_row as usize + y, x0, frame_seed, &light, line);
-            let (mut oor, mut clipped) = (0u64, 0u64);
-            for (x, &code) in line.iter().enumerate() {
-                let adc = (x0 + x) % N;
-                let k = usize::from(code.min(TOP));
-                oor += u64::from(code > TOP);
-                let e = q_tables[adc][k];
-                clipped += u64::from(q[x].min(u32::MAX as u64) + e > u32::MAX as u64);
-                q[x] += e;
-                f[x] += c_tables[adc][k];
-            }
-            (oor, clipped)
+            let counts = tables.add_line::<N>(x0, line, q, f);
+            (counts.out_of_range, counts.clipped)
         })
         .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
     refs.out_of_range += frame_oor;

@@ -282,7 +282,7 @@ fn run_typed<const N: usize, const CODES: usize>(
     if reference.centers.len() != N || reference.centers.iter().any(|t| t.len() != CODES) {
         return Err(HostError::invalid(Subject::ReferenceWeights, format!("need {N} vectors of {CODES} weights")));
     }
-    let quantized = reference.quantized();
+    let reference = reference.tables();
 
     // The core in bands of rows, one per thread; the references written first on every
     // thread (a fresh page read before its first write costs a copy-on-write fault and a
@@ -305,12 +305,7 @@ fn run_typed<const N: usize, const CODES: usize>(
     // One pass over each line while it is in cache: drawn (or read), then added to the
     // float and quantized references.
     let add_reference = |line: &[u16], q: &mut [u64], f: &mut [f64]| {
-        for (x, &code) in line.iter().enumerate() {
-            let adc = (x0 + x) % N;
-            let k = (code as usize).min(CODES - 1);
-            q[x] += quantized[adc][k];
-            f[x] += reference.centers[adc][k];
-        }
+        reference.add_line::<N>(x0, line, q, f);
     };
     let mut sampled = vec![0u16; if p.recorded.is_some() { 0 } else { w * h }];
     for frame in 0..p.frames {

@@ -200,7 +200,7 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
         seconds: start.elapsed().as_secs_f64(),
     };
     stage("8/8 writing the report");
-    let json = serde_json::to_string_pretty(&summary).map_err(|e| HostError::Format { path: at("summary.json"), message: e.to_string() })?;
+    let json = serde_json::to_string_pretty(&summary).map_err(|e| HostError::encode(at("summary.json"), e))?;
     files.write_bytes(&at("summary.json"), &json)?;
     let html = report_html(&summary, camera, ramp, flatten);
     files.write_bytes(&summary.report, &html)?;

@@ -102,13 +102,10 @@ pub fn read_regular(path: &Path, limit: SizeLimit) -> Result<Vec<u8>, HostError>
     Ok(bytes)
 }
 
-/// [`read_regular`] as UTF-8 text; other bytes are a [`HostError::Format`] giving the
+/// [`read_regular`] as UTF-8 text; other bytes are a [`HostError::NotUtf8`] giving the
 /// offset of the first.
 pub fn read_text(path: &Path, limit: SizeLimit) -> Result<String, HostError> {
-    String::from_utf8(read_regular(path, limit)?).map_err(|e| HostError::Format {
-        path: path.into(),
-        message: format!("not UTF-8 text (byte {} is invalid)", e.utf8_error().valid_up_to()),
-    })
+    String::from_utf8(read_regular(path, limit)?).map_err(|e| HostError::NotUtf8 { path: path.into(), valid_up_to: e.utf8_error().valid_up_to() })
 }
 
 /// Reads and parses a TOML file; a syntax or type error is one line naming the line and

@@ -41,10 +41,56 @@ impl ReferenceLut {
         self.centers.iter().map(|t| t.iter().map(|&c| (c * dncal_core::UNITS_PER_DN).round_ties_even() as u64).collect()).collect()
     }
 
+    /// The tables the checks sum: [`Self::quantized`] beside the centres.
+    pub fn tables(self) -> ReferenceTables {
+        ReferenceTables { quantized: self.quantized(), centers: self.centers }
+    }
+
     /// Deviation of each code's center from an ideal ADC's `k + 1/2`, DN: the cumulative
     /// offset the paper plots in Fig. 3.
     pub fn cumulative_offsets(&self) -> Vec<Vec<f64>> {
         self.centers.iter().map(|t| t.iter().enumerate().map(|(k, &c)| c - (k as f64 + 0.5)).collect()).collect()
+    }
+}
+
+/// The reference as the bit-exactness checks (`stream`, the soak) sum it, per ADC and
+/// code: the quantized entries `RNE(2^11 c_k)` (LUT units) and the centres `c_k` (DN).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReferenceTables {
+    /// `quantized[adc][code]`, LUT units.
+    pub quantized: Vec<Vec<u64>>,
+    /// `centers[adc][code]`, DN.
+    pub centers: Vec<Vec<f64>>,
+}
+
+/// What one line added to the reference sums.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct LineCounts {
+    /// Codes above the top code (each summed as the top code, the core's rule).
+    pub out_of_range: u64,
+    /// Sums that passed `u32::MAX` with this line's entry, where the core's 32-bit sum
+    /// saturates (counted once more for every entry added past it).
+    pub clipped: u64,
+}
+
+impl ReferenceTables {
+    /// Adds one line of raw codes to one state's sums: the exact sums `q` (LUT units, u64,
+    /// never clipped) and the float sums `f` (DN). The line's first pixel is sensor
+    /// column `first_column`; column `c` is read by ADC `c mod N` (the paper's four
+    /// pipelined ADCs for N = 4). The one reference-sum loop of the host's checks.
+    pub fn add_line<const N: usize>(&self, first_column: usize, line: &[u16], q: &mut [u64], f: &mut [f64]) -> LineCounts {
+        let top = self.quantized.first().map_or(0, |t| t.len().saturating_sub(1));
+        let mut counts = LineCounts::default();
+        for (x, ((&code, q), f)) in line.iter().zip(q.iter_mut()).zip(f.iter_mut()).enumerate() {
+            let adc = (first_column + x) % N;
+            let k = usize::from(code).min(top);
+            counts.out_of_range += u64::from(usize::from(code) > top);
+            let e = self.quantized[adc][k];
+            counts.clipped += u64::from((*q).min(u64::from(u32::MAX)) + e > u64::from(u32::MAX));
+            *q += e;
+            *f += self.centers[adc][k];
+        }
+        counts
     }
 }
 
@@ -65,5 +111,28 @@ mod tests {
         }
         assert_eq!(q[0].len(), 4096);
         assert_eq!(reference.cumulative_offsets()[0][0], w[0].to_num::<f64>() / 2.0 - 0.5);
+    }
+
+    #[test]
+    fn a_line_adds_the_entry_of_its_adc_and_clamped_code_to_each_sum() {
+        // Two ADCs of four codes, written out: column c is read by ADC c mod 2.
+        let tables = ReferenceTables {
+            quantized: vec![vec![1, 10, 100, 1000], vec![2, 20, 200, u64::from(u32::MAX)]],
+            centers: vec![vec![0.5, 1.5, 2.5, 3.5], vec![0.25, 1.25, 2.25, 3.25]],
+        };
+        // The line starts at sensor column 3 (ADC 1); code 9 is above the top (3) and
+        // sums as code 3.
+        let line = [0u16, 1, 9, 3];
+        let mut q = vec![0u64, 0, 5, 1];
+        let mut f = vec![0.0; 4];
+        let counts = tables.add_line::<2>(3, &line, &mut q, &mut f);
+        // Columns 3, 4, 5, 6 -> ADCs 1, 0, 1, 0.
+        assert_eq!(q, vec![2, 10, 5 + u64::from(u32::MAX), 1001]);
+        assert_eq!(f, vec![0.25, 1.5, 3.25, 3.5]);
+        // One code above the top; one sum (column 5) passed u32::MAX.
+        assert_eq!(counts, LineCounts { out_of_range: 1, clipped: 1 });
+        // A sum already past u32::MAX counts as clipped again with any further entry.
+        let again = tables.add_line::<2>(3, &[0, 0, 0, 0], &mut q, &mut f);
+        assert_eq!(again, LineCounts { out_of_range: 0, clipped: 1 });
     }
 }

@@ -144,7 +144,7 @@ fn looks_like_descriptor(input: &Path) -> Result<bool, HostError> {
     }
     Ok(match crate::formats::input::read_text(input, DESCRIPTOR_LIMIT) {
         Ok(text) => text.lines().any(|l| l.trim_start().starts_with("n ")),
-        Err(HostError::TooLarge { .. } | HostError::Format { .. }) => false,
+        Err(HostError::TooLarge { .. } | HostError::NotUtf8 { .. }) => false,
         Err(e) => return Err(e),
     })
 }
@@ -446,7 +446,7 @@ fn report(input: &Path, mut diagnosis: Diagnosis, model: Option<crate::model::ca
             }
         }) {
             let path = dir.join("model.toml");
-            let text = toml::to_string(m).map_err(|e| HostError::Format { path: path.clone(), message: e.to_string() })?;
+            let text = toml::to_string(m).map_err(|e| HostError::encode(path.clone(), e))?;
             let note = |f: &Finding| match f.effect.in_model() {
                 crate::analyses::diagnose::InModel::NotYet => Some(format!("# not in the camera model yet: {}\n", f.label())),
                 crate::analyses::diagnose::InModel::OfTheMeasurement => Some(format!("# of the measurement, not the camera (not simulated): {}\n", f.effect)),

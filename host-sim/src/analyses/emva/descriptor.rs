@@ -14,8 +14,8 @@
 //! Image paths are relative to the descriptor's folder and must stay inside it: absolute
 //! paths, `..` escapes and symlinks that resolve outside are rejected after
 //! canonicalization, so a descriptor from elsewhere cannot make dncal read arbitrary
-//! files. Every malformed line is a [`HostError::Format`] naming the descriptor and the
-//! line number.
+//! files. Every malformed line is a [`HostError::DescriptorLine`] naming the descriptor,
+//! the line number and the [`DescriptorFault`].
 //!
 //! A level's frames are a *temporal* series when there are exactly two (a point of the
 //! photon-transfer curve) and a *spatial* series when there are more (the many-frame
@@ -115,9 +115,9 @@ pub struct EmvaSet {
     pub levels: Vec<EmvaLevel>,
 }
 
-/// A format error at `line` of descriptor `path`.
-pub(crate) fn at_line(path: &Path, line: usize, message: impl std::fmt::Display) -> HostError {
-    HostError::Format { path: path.to_path_buf(), message: format!("line {line}: {message}") }
+/// A fault at `line` of descriptor `path`.
+pub(crate) fn at_line(path: &Path, line: usize, fault: impl Into<DescriptorFault>) -> HostError {
+    HostError::DescriptorLine { path: path.to_path_buf(), line, fault: fault.into() }
 }
 
 /// The descriptor's folder, canonical: the root every image must stay inside.
@@ -129,10 +129,111 @@ fn canonical_folder(descriptor: &Path) -> Result<PathBuf, HostError> {
     folder.canonicalize().map_err(|e| HostError::io(folder, e))
 }
 
-/// What is wrong with a record's values or the image it names (each prints as the
-/// message it always printed; [`at_line`] adds the descriptor and the line).
+/// What is wrong at a line of an EMVA descriptor, or with the set it describes
+/// (`HostError::DescriptorLine` adds the descriptor and the line).
 #[derive(Debug, thiserror::Error)]
-pub(crate) enum RecordFault {
+pub enum DescriptorFault {
+    /// A record's values or the image it names.
+    #[error(transparent)]
+    Record(#[from] RecordFault),
+    /// A `v` record of other than one token.
+    #[error("version record {0:?}: expected one version")]
+    Version(String),
+    /// A second `n` record, or one after a level.
+    #[error("the n record must come once, before any level")]
+    HeaderPlace,
+    /// A `b` or `d` record before the `n` record.
+    #[error("level before the n record")]
+    LevelBeforeHeader,
+    /// An `i` record before any level.
+    #[error("image before any level")]
+    ImageBeforeLevel,
+    /// An `i` record without a path.
+    #[error("image record without a path")]
+    ImageWithoutPath,
+    /// A tag the format does not have.
+    #[error("unknown record {0:?}")]
+    Unknown(String),
+    /// No `n` record in the file.
+    #[error("no n record (bits, width, height)")]
+    NoHeader,
+    /// A level with no `i` record.
+    #[error("level without images")]
+    LevelWithoutImages,
+    /// An image that resolves outside the descriptor's folder when it is loaded.
+    #[error("image {} is outside the descriptor's folder", .0.display())]
+    OutsideFolder(PathBuf),
+    /// An image whose PNG data do not decode.
+    #[error("image {}: {source}", .image.display())]
+    Decode {
+        /// The image.
+        image: PathBuf,
+        /// The decoder's error.
+        #[source]
+        source: png::DecodingError,
+    },
+    /// A code at or above `2^bits`.
+    #[error("image {}: code {code} at pixel ({x}, {y}) does not fit {bits} bits", .image.display())]
+    CodeTooLarge {
+        /// The image.
+        image: PathBuf,
+        /// The code.
+        code: u16,
+        /// Its column.
+        x: usize,
+        /// Its row.
+        y: usize,
+        /// The set's bits per code.
+        bits: u32,
+    },
+    /// The spatial series is not one bright and one dark level.
+    #[error("the spatial series (levels of more than two frames) must be one bright and one dark level; found {bright} bright, {dark} dark")]
+    SpatialLevels {
+        /// Bright levels of more than two frames.
+        bright: usize,
+        /// Dark ones.
+        dark: usize,
+    },
+    /// The spatial series' dark and bright levels differ in exposure.
+    #[error("the dark spatial series has exposure {dark}, the bright one {bright}")]
+    SpatialExposures {
+        /// The dark level's exposure.
+        dark: f64,
+        /// The bright one's.
+        bright: f64,
+    },
+    /// A photon-transfer level of fewer than two frames.
+    #[error("the photon-transfer curve needs two frames per level")]
+    PtcFrames,
+    /// A level of one frame.
+    #[error("a level needs at least two frames (two: a photon-transfer point; more: a spatial series)")]
+    SingleFrame,
+    /// A second two-frame level of the same exposure and photons.
+    #[error("a second two-frame level with exposure {exposure} and {photons} photons (the first at line {first}): one level per exposure and photon count")]
+    RepeatedLevel {
+        /// Exposure.
+        exposure: f64,
+        /// Photons.
+        photons: f64,
+        /// The first level's line.
+        first: usize,
+    },
+    /// A bright level without the dark level of its exposure.
+    #[error("no two-frame dark level with exposure {exposure} (nearest {nearest})")]
+    NoDark {
+        /// The bright level's exposure.
+        exposure: f64,
+        /// The nearest dark exposure.
+        nearest: f64,
+    },
+    /// No two-frame dark level at all.
+    #[error("no two-frame dark levels at all")]
+    NoDarks,
+}
+
+/// What is wrong with a record's values or the image it names.
+#[derive(Debug, thiserror::Error)]
+pub enum RecordFault {
     /// Too few or too many numbers.
     #[error("expected {want} numbers, found {found}")]
     Count { want: usize, found: usize },
@@ -284,53 +385,53 @@ pub fn read_descriptor(path: &Path) -> Result<EmvaSet, HostError> {
         }
         let (tag, rest) = record.split_once(char::is_whitespace).unwrap_or((record, ""));
         let rest = rest.trim();
-        let fail = |message: String| at_line(path, line, message);
+        let fail = |fault: DescriptorFault| at_line(path, line, fault);
         match tag {
             "v" => {
                 if rest.split_whitespace().count() != 1 {
-                    return Err(fail(format!("version record {record:?}: expected one version")));
+                    return Err(fail(DescriptorFault::Version(record.to_string())));
                 }
                 version = Some(rest.to_string());
             }
             "n" => {
                 if header_line.is_some() || !levels.is_empty() {
-                    return Err(fail("the n record must come once, before any level".into()));
+                    return Err(fail(DescriptorFault::HeaderPlace));
                 }
-                header_line = Some(header(rest).map_err(|f| fail(f.to_string()))?);
+                header_line = Some(header(rest).map_err(|f| fail(f.into()))?);
             }
             "b" | "d" => {
                 if header_line.is_none() {
-                    return Err(fail("level before the n record".into()));
+                    return Err(fail(DescriptorFault::LevelBeforeHeader));
                 }
                 let (kind, exposure) = if tag == "b" {
-                    let [exposure, photons] = numbers::<2>(rest).map_err(|f| fail(f.to_string()))?;
+                    let [exposure, photons] = numbers::<2>(rest).map_err(|f| fail(f.into()))?;
                     (LevelKind::Bright { photons }, exposure)
                 } else {
-                    let [exposure] = numbers::<1>(rest).map_err(|f| fail(f.to_string()))?;
+                    let [exposure] = numbers::<1>(rest).map_err(|f| fail(f.into()))?;
                     (LevelKind::Dark, exposure)
                 };
                 levels.push(EmvaLevel { kind, exposure, images: Vec::new(), line, image_lines: Vec::new() });
             }
             "i" => {
                 let (Some((bits, width, height)), Some(level)) = (header_line, levels.last_mut()) else {
-                    return Err(fail("image before any level".into()));
+                    return Err(fail(DescriptorFault::ImageBeforeLevel));
                 };
                 if rest.is_empty() {
-                    return Err(fail("image record without a path".into()));
+                    return Err(fail(DescriptorFault::ImageWithoutPath));
                 }
-                let image = resolve_image(&folder, rest).map_err(|f| fail(f.to_string()))?;
-                open_png(&image, bits, width, height).map_err(|f| fail(f.to_string()))?;
+                let image = resolve_image(&folder, rest).map_err(|f| fail(f.into()))?;
+                open_png(&image, bits, width, height).map_err(|f| fail(f.into()))?;
                 level.images.push(image);
                 level.image_lines.push(line);
             }
-            other => return Err(fail(format!("unknown record {other:?}"))),
+            other => return Err(fail(DescriptorFault::Unknown(other.to_string()))),
         }
     }
     let Some((bits, width, height)) = header_line else {
-        return Err(HostError::Format { path: path.to_path_buf(), message: "no n record (bits, width, height)".into() });
+        return Err(HostError::DescriptorFile { path: path.to_path_buf(), fault: DescriptorFault::NoHeader });
     };
     if let Some(empty) = levels.iter().find(|l| l.images.is_empty()) {
-        return Err(at_line(path, empty.line, "level without images"));
+        return Err(at_line(path, empty.line, DescriptorFault::LevelWithoutImages));
     }
     Ok(EmvaSet { path: path.to_path_buf(), version, bits, width, height, levels })
 }
@@ -345,18 +446,18 @@ pub fn load_image(set: &EmvaSet, image: &Path) -> Result<Vec<u16>, HostError> {
         .flat_map(|l| l.images.iter().zip(&l.image_lines))
         .find(|(p, _)| p.as_path() == image)
         .map(|(_, &line)| line);
-    let fail = |message: String| match line {
-        Some(line) => at_line(&set.path, line, message),
-        None => HostError::Format { path: image.to_path_buf(), message },
+    let fail = |fault: DescriptorFault| match line {
+        Some(line) => at_line(&set.path, line, fault),
+        None => HostError::DescriptorFile { path: image.to_path_buf(), fault },
     };
     let folder = canonical_folder(&set.path)?;
     let canonical = image.canonicalize().map_err(|e| HostError::io(image, e))?;
     if !canonical.starts_with(&folder) {
-        return Err(fail(format!("image {} is outside the descriptor's folder", image.display())));
+        return Err(fail(DescriptorFault::OutsideFolder(image.to_path_buf())));
     }
-    let mut reader = open_png(&canonical, set.bits, set.width, set.height).map_err(|f| fail(f.to_string()))?;
+    let mut reader = open_png(&canonical, set.bits, set.width, set.height).map_err(|f| fail(f.into()))?;
     let mut buffer = vec![0u8; reader.output_buffer_size()];
-    let frame = reader.next_frame(&mut buffer).map_err(|e| fail(format!("image {}: {e}", image.display())))?;
+    let frame = reader.next_frame(&mut buffer).map_err(|source| fail(DescriptorFault::Decode { image: image.to_path_buf(), source }))?;
     let pixels = set.width * set.height;
     let codes: Vec<u16> = match frame.bit_depth {
         png::BitDepth::Sixteen => buffer.chunks_exact(2).take(pixels).map(|b| u16::from_be_bytes([b[0], b[1]])).collect(),
@@ -364,13 +465,7 @@ pub fn load_image(set: &EmvaSet, image: &Path) -> Result<Vec<u16>, HostError> {
     };
     let limit = 1u32 << set.bits;
     if let Some((i, &code)) = codes.iter().enumerate().find(|(_, &c)| c as u32 >= limit) {
-        return Err(fail(format!(
-            "image {}: code {code} at pixel ({}, {}) does not fit {} bits",
-            image.display(),
-            i % set.width,
-            i / set.width,
-            set.bits
-        )));
+        return Err(fail(DescriptorFault::CodeTooLarge { image: image.to_path_buf(), code, x: i % set.width, y: i / set.width, bits: set.bits }));
     }
     Ok(codes)
 }
@@ -487,9 +582,10 @@ pub(crate) mod tests {
     /// `result` must be a format error naming `descriptor`, `line line:` and `words`.
     pub(crate) fn assert_format_error<T: std::fmt::Debug>(descriptor: &Path, result: Result<T, HostError>, line: usize, words: &str) {
         match result {
-            Err(HostError::Format { path, message }) => {
+            Err(HostError::DescriptorLine { path, line: at, fault }) => {
                 assert_eq!(path, descriptor);
-                assert!(message.starts_with(&format!("line {line}: ")), "{message}");
+                assert_eq!(at, line, "{fault}");
+                let message = fault.to_string();
                 assert!(message.contains(words), "{message:?} should mention {words:?}");
             }
             other => panic!("expected a format error at line {line}, got {other:?}"),
@@ -571,7 +667,7 @@ pub(crate) mod tests {
             assert_format_error(&descriptor, result, 2, words);
         }
         let (descriptor, result) = read_text(&set, "v 3.0\n");
-        assert!(matches!(result, Err(HostError::Format { path, .. }) if path == descriptor));
+        assert!(matches!(result, Err(HostError::DescriptorFile { path, fault: DescriptorFault::NoHeader }) if path == descriptor));
         assert!(matches!(read_descriptor(&set.join("nothing.txt")), Err(HostError::Io { .. })));
     }
 

@@ -38,7 +38,7 @@ pub fn write_datasheet(dir: &Path, descriptor: &Path, sheet: &Datasheet) -> Resu
     staged.write_bytes(&page, page_html(descriptor, sheet, &files))?;
     files.push(page);
     let json = dir.join("datasheet.json");
-    let text = serde_json::to_string_pretty(sheet).map_err(|e| HostError::Format { path: json.clone(), message: e.to_string() })?;
+    let text = serde_json::to_string_pretty(sheet).map_err(|e| HostError::encode(json.clone(), e))?;
     staged.write_bytes(&json, text + "\n")?;
     files.push(json);
     staged.publish()?;

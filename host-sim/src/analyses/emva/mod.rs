@@ -21,7 +21,7 @@ pub mod temporal;
 pub mod run;
 
 pub use datasheet::{summarize_points, PtcSummary, Release};
-pub use descriptor::{code_histogram_halves, code_histograms, load_image, read_descriptor, EmvaLevel, EmvaSet, LevelKind, Series, DESCRIPTOR_LIMIT};
+pub use descriptor::{code_histogram_halves, code_histograms, load_image, read_descriptor, DescriptorFault, EmvaLevel, EmvaSet, LevelKind, RecordFault, Series, DESCRIPTOR_LIMIT};
 pub use fit::fit_line;
 pub use sheet::{datasheet, datasheet_of, Datasheet};
 pub use temporal::{photon_transfer, photon_transfer_selected, PtcPoint};

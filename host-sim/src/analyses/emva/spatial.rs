@@ -27,7 +27,7 @@ use rayon::prelude::*;
 use rustfft::{num_complex::Complex, FftPlanner};
 use serde::Serialize;
 
-use super::descriptor::at_line;
+use super::descriptor::{at_line, DescriptorFault};
 use super::highpass::{high_pass, NoiseGains, SCALE};
 use super::Release;
 use super::{load_image, EmvaLevel, EmvaSet, LevelKind, Series};
@@ -197,14 +197,10 @@ pub fn spatial_levels(set: &EmvaSet) -> Result<Option<(&EmvaLevel, &EmvaLevel)>,
     let bright: Vec<&&EmvaLevel> = spatial.iter().filter(|l| matches!(l.kind, LevelKind::Bright { .. })).collect();
     let dark: Vec<&&EmvaLevel> = spatial.iter().filter(|l| l.kind == LevelKind::Dark).collect();
     let (&[b], &[d]) = (&bright[..], &dark[..]) else {
-        return Err(at_line(
-            &set.path,
-            spatial[0].line,
-            format!("the spatial series (levels of more than two frames) must be one bright and one dark level; found {} bright, {} dark", bright.len(), dark.len()),
-        ));
+        return Err(at_line(&set.path, spatial[0].line, DescriptorFault::SpatialLevels { bright: bright.len(), dark: dark.len() }));
     };
     if b.exposure != d.exposure {
-        return Err(at_line(&set.path, d.line, format!("the dark spatial series has exposure {}, the bright one {}", d.exposure, b.exposure)));
+        return Err(at_line(&set.path, d.line, DescriptorFault::SpatialExposures { dark: d.exposure, bright: b.exposure }));
     }
     Ok(Some((b, d)))
 }

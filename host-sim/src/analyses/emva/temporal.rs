@@ -19,7 +19,7 @@
 
 use rayon::prelude::*;
 
-use super::descriptor::at_line;
+use super::descriptor::{at_line, DescriptorFault};
 use super::{load_image, EmvaLevel, EmvaSet, LevelKind, Series};
 use crate::HostError;
 
@@ -102,7 +102,7 @@ fn pair_statistics(a: &[u16], b: &[u16], top: u16, columns: Option<&[bool]>) -> 
 /// The statistics of a level's first two frames.
 fn level_statistics(set: &EmvaSet, level: &EmvaLevel, columns: Option<&[bool]>) -> Result<PairStatistics, HostError> {
     let [a, b, ..] = &level.images[..] else {
-        return Err(at_line(&set.path, level.line, "the photon-transfer curve needs two frames per level"));
+        return Err(at_line(&set.path, level.line, DescriptorFault::PtcFrames));
     };
     let (a, b) = (load_image(set, a)?, load_image(set, b)?);
     Ok(pair_statistics(&a, &b, ((1u32 << set.bits) - 1) as u16, columns))
@@ -138,7 +138,7 @@ pub fn photon_transfer_selected(set: &EmvaSet, keep: &[bool]) -> Result<Vec<PtcP
 
 fn photon_transfer_of(set: &EmvaSet, columns: Option<&[bool]>) -> Result<Vec<PtcPoint>, HostError> {
     if let Some(single) = set.levels.iter().find(|l| l.series().is_none()) {
-        return Err(at_line(&set.path, single.line, "a level needs at least two frames (two: a photon-transfer point; more: a spatial series)"));
+        return Err(at_line(&set.path, single.line, DescriptorFault::SingleFrame));
     }
     let temporal = |i: &usize| set.levels[*i].series() == Some(Series::Temporal);
     // One temporal level per (exposure, photons), as the reference implementation
@@ -148,11 +148,7 @@ fn photon_transfer_of(set: &EmvaSet, columns: Option<&[bool]>) -> Result<Vec<Ptc
     for (n, &i) in keys.iter().enumerate() {
         let (a, pa) = (&set.levels[i], set.levels[i].photons());
         if let Some(&j) = keys[..n].iter().find(|&&j| set.levels[j].exposure == a.exposure && set.levels[j].photons() == pa) {
-            return Err(at_line(
-                &set.path,
-                a.line,
-                format!("a second two-frame level with exposure {} and {} photons (the first at line {}): one level per exposure and photon count", a.exposure, pa, set.levels[j].line),
-            ));
+            return Err(at_line(&set.path, a.line, DescriptorFault::RepeatedLevel { exposure: a.exposure, photons: pa, first: set.levels[j].line }));
         }
     }
     let darks: Vec<usize> = (0..set.levels.len()).filter(temporal).filter(|&i| set.levels[i].kind == LevelKind::Dark).collect();
@@ -164,11 +160,11 @@ fn photon_transfer_of(set: &EmvaSet, columns: Option<&[bool]>) -> Result<Vec<Ptc
                     .iter()
                     .map(|&d| set.levels[d].exposure)
                     .min_by(|x, y| (x - level.exposure).abs().total_cmp(&(y - level.exposure).abs()));
-                let message = match nearest {
-                    Some(e) => format!("no two-frame dark level with exposure {} (nearest {e})", level.exposure),
-                    None => "no two-frame dark levels at all".to_string(),
+                let fault = match nearest {
+                    Some(nearest) => DescriptorFault::NoDark { exposure: level.exposure, nearest },
+                    None => DescriptorFault::NoDarks,
                 };
-                return Err(at_line(&set.path, level.line, message));
+                return Err(at_line(&set.path, level.line, fault));
             };
             pairs.push((i, dark, photons));
         }

@@ -331,7 +331,7 @@ pub fn analyse_set(h: &AdcHistograms, density: Density, flatten: &FlattenParams,
     h.counts
         .iter()
         .enumerate()
-        .map(|(adc, counts)| analyse(counts, density, flatten).map_err(|e| HostError::Format { path: source.into(), message: format!("ADC {adc}: IEEE 1241 histogram test ({} density): {e}", density.name()) }))
+        .map(|(adc, counts)| analyse(counts, density, flatten).map_err(|e| HostError::Ieee1241 { path: source.into(), adc, density, source: e }))
         .collect()
 }
 

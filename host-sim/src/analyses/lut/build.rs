@@ -60,8 +60,8 @@ pub fn build_luts(hist: &AdcHistograms, params: &FlattenParams, source: &Path) -
     let mut flattened = Vec::new();
     let mut weights = Vec::new();
     for (adc, counts) in hist.counts.iter().enumerate() {
-        let f = flatten_histogram(counts, params).map_err(|e| HostError::Format { path: source.into(), message: format!("ADC {adc}: {e}") })?;
-        let w = to_core_weights(&f.weights).map_err(|e| HostError::Format { path: source.into(), message: format!("ADC {adc}: {e}") })?;
+        let f = flatten_histogram(counts, params).map_err(|e| HostError::AdcFlatten { path: source.into(), adc, source: e })?;
+        let w = to_core_weights(&f.weights).map_err(|e| HostError::AdcFlatten { path: source.into(), adc, source: e })?;
         flattened.push(f);
         weights.push(w);
     }
