@@ -165,7 +165,7 @@ def check() -> dict:
         # A label where a path goes: a literal in a path field or in HostError::io, or a
         # path made from a literal with a space in it (files do not have one; "camera
         # config" does); test modules apart.
-        body = t.split("#[cfg(test)]")[0]
+        body = strip_comments(re.split(r"#\[cfg\(test\)\]\s*(?:pub(?:\(crate\))?\s+)?mod\s", t)[0])
         for lm in re.finditer(r"HostError::[A-Za-z]+\s*\{\s*path:\s*\"([^\"]*)\"|HostError::io\(\s*\"([^\"]*)\"|(?:Path::new|PathBuf::from)\(\s*\"([^\"]* [^\"]*)\"", body):
             label = next(g for g in lm.groups() if g is not None)
             label_paths.append(f"{rel}:{t[: lm.start()].count(chr(10)) + 1} \"{label}\"")

@@ -182,10 +182,10 @@ pub enum HostError {
         kind: &'static str,
     },
     /// A step would need more memory than the budget ([`crate::infra::budget`], `--max-memory`).
-    #[error("{path}: {what} needs about {}, more than the memory budget of {} (--max-memory)", crate::infra::budget::human(*bytes), crate::infra::budget::human(*limit))]
+    #[error("{origin}: {what} needs about {}, more than the memory budget of {} (--max-memory)", crate::infra::budget::human(*bytes), crate::infra::budget::human(*limit))]
     OverBudget {
-        /// The file (or config) whose sizes ask for it.
-        path: PathBuf,
+        /// The file (or the built-in configuration) whose sizes ask for it.
+        origin: Origin,
         /// What needs the memory.
         what: String,
         /// The estimate, bytes.
@@ -371,6 +371,24 @@ pub enum HostError {
         #[source]
         source: EncodeError,
     },
+    /// A camera configuration whose `adc.widths_from` tables are wrong (the tables' own
+    /// error inside).
+    #[error("{path}: adc.widths_from: {inner}")]
+    WidthsFrom {
+        /// The configuration file.
+        path: PathBuf,
+        /// The tables' error (it names the table file).
+        inner: Box<HostError>,
+    },
+    /// A LUT file's or set's fault ([`crate::formats::lut::LutFault`]).
+    #[error("{path}: {fault}")]
+    Lut {
+        /// The LUT file (or the prefix or histogram set it comes from).
+        path: PathBuf,
+        /// What is wrong.
+        #[source]
+        fault: crate::formats::lut::LutFault,
+    },
     /// A file's contents are not what they must be.
     #[error("{path}: {message}")]
     Format {
@@ -401,6 +419,10 @@ impl HostError {
             HostError::Argument { .. } => 2,
             _ => 1,
         }
+    }
+    /// `fault` of the LUT file `path`.
+    pub fn lut(path: impl Into<PathBuf>, fault: crate::formats::lut::LutFault) -> Self {
+        HostError::Lut { path: path.into(), fault }
     }
     /// A core error while doing `context`.
     pub fn core(context: impl Into<String>, source: CoreError) -> Self {

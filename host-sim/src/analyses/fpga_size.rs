@@ -10,6 +10,7 @@ use dncal_fpga_model::Config;
 use serde::Serialize;
 
 use crate::formats::report::{wrote, Report};
+use crate::formats::lut::LutFault;
 use crate::formats::outputs::Outputs;
 use crate::HostError;
 
@@ -111,8 +112,8 @@ fn load_luts(lut: &Path) -> Result<Mvd1024eLuts, HostError> {
     let bits: Vec<[u32; 4096]> = t
         .tables
         .iter()
-        .map(|v| <[u32; 4096]>::try_from(v.as_slice()).map_err(|_| HostError::Format { path: lut.into(), message: format!("a table of {} entries; the FPGA model is built for 4096", v.len()) }))
+        .map(|v| <[u32; 4096]>::try_from(v.as_slice()).map_err(|_| HostError::lut(lut, LutFault::FpgaTableLength { entries: v.len() })))
         .collect::<Result<_, _>>()?;
-    let bits: [[u32; 4096]; 4] = bits.try_into().map_err(|v: Vec<_>| HostError::Format { path: lut.into(), message: format!("{} tables; the FPGA model is built for 4 ADCs", v.len()) })?;
+    let bits: [[u32; 4096]; 4] = bits.try_into().map_err(|v: Vec<_>| HostError::lut(lut, LutFault::FpgaTableCount { tables: v.len() }))?;
     Mvd1024eLuts::from_bits(&bits).map_err(|e| HostError::core(format!("{}", lut.display()), e))
 }

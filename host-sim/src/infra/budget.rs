@@ -10,7 +10,6 @@
 //! accounting of every byte: a command may use somewhat more than what it checked, never
 //! an order of magnitude more.
 
-use std::path::Path;
 use std::sync::atomic::{AtomicU64, Ordering};
 
 use crate::HostError;
@@ -51,11 +50,12 @@ pub fn limit() -> u64 {
     }
 }
 
-/// `Ok` if `bytes` fit the budget, else [`HostError::OverBudget`] naming `path` and `what`.
-pub fn check(path: &Path, what: &str, bytes: u64) -> Result<(), HostError> {
+/// `Ok` if `bytes` fit the budget, else [`HostError::OverBudget`] naming `origin` (a file
+/// or a `Subject`) and `what`.
+pub fn check(origin: impl Into<crate::Origin>, what: &str, bytes: u64) -> Result<(), HostError> {
     let limit = limit();
     if bytes > limit {
-        return Err(HostError::OverBudget { path: path.into(), what: what.into(), bytes, limit });
+        return Err(HostError::OverBudget { origin: origin.into(), what: what.into(), bytes, limit });
     }
     Ok(())
 }

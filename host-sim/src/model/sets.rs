@@ -11,17 +11,22 @@ use crate::infra::progress::{bar, stage};
 use crate::formats::report::Report;
 use crate::formats::fits::{stage_linearity, write_histograms, AdcHistograms, LinearitySet};
 use crate::formats::outputs::Outputs;
-use crate::HostError;
+use crate::{HostError, Origin};
 
-/// Builds the camera of `config`, naming `source` (a file or "defaults") in errors.
-pub fn camera_from(config: CameraConfig, source: &str) -> Result<Camera, HostError> {
+/// Builds the camera of `config`, naming `origin` (its file, or the built-in camera) in
+/// errors.
+pub fn camera_from(config: CameraConfig, origin: Origin) -> Result<Camera, HostError> {
+    let refused = |e| match &origin {
+        Origin::File(path) => HostError::Config { path: path.clone(), source: e },
+        Origin::Subject(subject) => HostError::BuiltInConfig { subject: *subject, source: e },
+    };
     // Ranges first (a sensor of 10^6 x 10^6 pixels is out of range, not over budget).
-    config.validate().map_err(|e| HostError::Config { path: source.into(), source: e })?;
+    config.validate().map_err(refused)?;
     // The pixel maps: gain, dark, the nonlinearity terms (f64 each) and a state byte.
     let per_pixel = 17 + 8 * config.nonlinearity.len() as u64;
     let what = format!("the camera model of {} x {} pixels", config.width, config.height);
-    crate::infra::budget::check(source.as_ref(), &what, crate::infra::budget::bytes_of(config.width as u64 * config.height as u64, per_pixel))?;
-    Camera::new(config).map_err(|e| HostError::Config { path: source.into(), source: e })
+    crate::infra::budget::check(origin.clone(), &what, crate::infra::budget::bytes_of(config.width as u64 * config.height as u64, per_pixel))?;
+    Camera::new(config).map_err(refused)
 }
 
 /// What `simulate histograms` wrote.

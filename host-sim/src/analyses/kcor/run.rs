@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 
 use crate::model::camera::Camera;
-use crate::formats::lut::tables_from_weights;
+use crate::formats::lut::{tables_from_weights, LutFault};
 use crate::formats::report::{wrote, Report};
 use crate::analyses::flatten::to_core_weights;
 use crate::analyses::kcor::{noisy_weights, run_luts, KcorParams, KcorResult};
@@ -124,9 +124,9 @@ pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, real
         Some(path) => {
             let (_, lut) = crate::formats::lut::read(path)?;
             crate::formats::lut::validate(&lut, path)?;
-            let table = lut.tables.into_iter().nth(p.adc).ok_or_else(|| HostError::Format { path: path.into(), message: format!("no table for ADC {}", p.adc) })?;
+            let table = lut.tables.into_iter().nth(p.adc).ok_or_else(|| HostError::lut(path, LutFault::NoTableForAdc { adc: p.adc }))?;
             if table.len() != adc.codes() {
-                return Err(HostError::Format { path: path.into(), message: format!("{} codes, the camera's ADC has {}", table.len(), adc.codes()) });
+                return Err(HostError::lut(path, LutFault::CodesDiffer { codes: table.len(), camera_codes: adc.codes() }));
             }
             table
         }

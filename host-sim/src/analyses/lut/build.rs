@@ -70,7 +70,7 @@ pub fn build_luts(hist: &AdcHistograms, params: &FlattenParams, source: &Path) -
     let reference = crate::model::reference::ReferenceLut::from_weights(&weights.iter().map(|w| w.iter().map(|x| x.to_num::<f64>()).collect()).collect::<Vec<_>>());
     for (adc, (q, t)) in reference.quantized().iter().zip(&tables).enumerate() {
         if let Some(k) = (0..t.len()).find(|&k| q[k] != t[k] as u64) {
-            return Err(HostError::Format { path: source.into(), message: format!("ADC {adc} code {k}: core entry {} differs from the float reference {}", t[k], q[k]) });
+            return Err(HostError::lut(source, crate::formats::lut::LutFault::CoreDiffersFromReference { adc, code: k, core: t[k], reference: q[k] }));
         }
     }
     Ok(BuiltLuts { flattened, weights, tables, image })

@@ -145,8 +145,8 @@ pub(crate) struct CameraArgs {
 impl CameraArgs {
     pub(crate) fn camera(&self) -> Result<Camera, HostError> {
         match &self.config {
-            Some(path) => sets::camera_from(CameraConfig::from_toml_file(path)?, &path.display().to_string()),
-            None => sets::camera_from(CameraConfig::default(), "default camera"),
+            Some(path) => sets::camera_from(CameraConfig::from_toml_file(path)?, path.as_path().into()),
+            None => sets::camera_from(CameraConfig::default(), dncal_host::Subject::DefaultCamera.into()),
         }
     }
 }

@@ -7,6 +7,7 @@ use std::path::Path;
 
 use dncal_core::{encode_image, image_len, LutSet};
 
+use super::LutFault;
 use crate::HostError;
 
 /// The first bytes of every device image.
@@ -21,11 +22,11 @@ const DEVICE_IMAGE_LIMIT: crate::formats::input::SizeLimit = crate::formats::inp
 pub fn read(path: &Path) -> Result<Vec<Vec<u32>>, HostError> {
     let bytes = crate::formats::input::read_regular(path, DEVICE_IMAGE_LIMIT)?;
     if bytes.len() < 16 {
-        return Err(HostError::Format { path: path.into(), message: "device image shorter than its 16-byte header".into() });
+        return Err(HostError::lut(path, LutFault::ImageShort));
     }
     let (bits, n) = (bytes[6] as u32, bytes[7] as usize);
     if !(1..=16).contains(&bits) {
-        return Err(HostError::Format { path: path.into(), message: format!("device image declares {bits} bits") });
+        return Err(HostError::lut(path, LutFault::ImageBits { bits }));
     }
     crate::dispatch_lut_dims!(n, 1usize << bits, path, parse(&bytes, path))
 }

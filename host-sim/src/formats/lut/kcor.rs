@@ -35,7 +35,7 @@ use std::path::{Path, PathBuf};
 
 use dncal_core::Weight;
 
-use super::Lut;
+use super::{Lut, LutFault};
 use crate::HostError;
 
 /// Codes per K-Cor table (12-bit ADCs).
@@ -72,17 +72,17 @@ fn rne(num: u128, den: u128) -> u128 {
 impl KcorTable {
     /// Parses a deployed file's bytes; `path` names it in errors.
     pub fn parse(bytes: &[u8], path: &Path) -> Result<KcorTable, HostError> {
-        let err = |message: String| HostError::Format { path: path.into(), message };
+        let err = |fault: LutFault| HostError::lut(path, fault);
         if bytes.len() != FILE_BYTES {
-            return Err(err(format!("{} bytes; a K-Cor table is {} little-endian u32 entries ({} bytes)", bytes.len(), KCOR_CODES, 4 * KCOR_CODES)));
+            return Err(err(LutFault::KcorSize { bytes: bytes.len() }));
         }
         let entries: Vec<u32> = bytes.chunks_exact(4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
         let top = entries[KCOR_CODES - 1];
         let Some(bits) = KCOR_SCALINGS.into_iter().find(|&b| top == (1u32 << b) - 1) else {
-            return Err(err(format!("the last entry is {top}; the deployed tables end at 2^22 - 1 = {} or 2^23 - 1 = {}", (1u32 << 22) - 1, (1u32 << 23) - 1)));
+            return Err(err(LutFault::KcorTop { top }));
         };
         if let Some(k) = (1..KCOR_CODES).find(|&k| entries[k] < entries[k - 1]) {
-            return Err(err(format!("entry {k} ({}) is below entry {} ({}): a table must not decrease", entries[k], k - 1, entries[k - 1])));
+            return Err(err(LutFault::KcorDecreasing { code: k, entry: entries[k], previous: entries[k - 1] }));
         }
         Ok(KcorTable { bits, entries })
     }
@@ -112,10 +112,9 @@ impl KcorTable {
                 let cumulative = rne((e as u128 * FULL_SCALE_DN) << dncal_core::WEIGHT_FRAC_BITS, den);
                 let w = cumulative - below;
                 below = cumulative;
-                u32::try_from(w).map(Weight::from_bits).map_err(|_| HostError::Format {
-                    path: path.into(),
-                    message: format!("code {k} is {:.1} DN wide; a dncal LUT holds code widths below 256 DN", w as f64 / (1u64 << dncal_core::WEIGHT_FRAC_BITS) as f64),
-                })
+                u32::try_from(w)
+                    .map(Weight::from_bits)
+                    .map_err(|_| HostError::lut(path, LutFault::KcorWideCode { code: k, width_dn: w as f64 / (1u64 << dncal_core::WEIGHT_FRAC_BITS) as f64 }))
             })
             .collect()
     }
@@ -168,14 +167,8 @@ pub fn expand(spec: &str) -> Result<[PathBuf; 4], HostError> {
         found.sort();
         match found[..] {
             [one] => *slot = dir.join(one),
-            [] => return Err(HostError::Format { path: prefix.into(), message: format!("no file for ADC {adc} (a name starting with '{stem}' and containing '{tag}') in {}", dir.display()) }),
-            _ => {
-                let list: Vec<&str> = found.iter().map(|s| s.as_str()).collect();
-                return Err(HostError::Format {
-                    path: prefix.into(),
-                    message: format!("{} files for ADC {adc}: {}; give a longer prefix or a path with {{adc}} in it", found.len(), list.join(", ")),
-                });
-            }
+            [] => return Err(HostError::lut(prefix, LutFault::NoFileForAdc { adc, stem: stem.clone(), tag, dir: dir.to_path_buf() })),
+            _ => return Err(HostError::lut(prefix, LutFault::SeveralFilesForAdc { adc, files: found.iter().map(|s| s.to_string()).collect() })),
         }
     }
     Ok(out)
@@ -198,10 +191,7 @@ pub fn siblings(path: &Path) -> Result<[PathBuf; 4], HostError> {
     let tags: Vec<String> = (0..4).map(|a| format!("adc{a}")).filter(|t| name.contains(t.as_str())).collect();
     match &tags[..] {
         [tag] => expand(&path.with_file_name(name.replacen(tag.as_str(), "adc{adc}", 1)).to_string_lossy()),
-        _ => Err(HostError::Format {
-            path: path.into(),
-            message: "a K-Cor table (4096 little-endian u32) whose name does not say its ADC (one of adc0 .. adc3): give the camera's four tables, a prefix or a path with {adc} in it".into(),
-        }),
+        _ => Err(HostError::lut(path, LutFault::NameWithoutAdc)),
     }
 }
 
@@ -211,7 +201,7 @@ pub fn read_set(files: &[PathBuf; 4]) -> Result<(Vec<KcorTable>, Lut), HostError
     let tables: Vec<KcorTable> = files.iter().map(|p| KcorTable::read(p)).collect::<Result<_, _>>()?;
     let bits = tables[0].bits;
     if let Some((i, t)) = tables.iter().enumerate().find(|(_, t)| t.bits != bits) {
-        return Err(HostError::Format { path: files[i].clone(), message: format!("ends at 2^{} - 1 where ADC 0's table ends at 2^{bits} - 1: one camera's tables share a scaling", t.bits) });
+        return Err(HostError::lut(&files[i], LutFault::ScalingDiffers { bits: t.bits, first_bits: bits }));
     }
     let weights: Vec<Vec<Weight>> = tables.iter().zip(files).map(|(t, p)| t.weights(p)).collect::<Result<_, _>>()?;
     let (ours, _) = super::tables_from_weights(&weights, &files[0].as_path().into())?;
@@ -222,23 +212,23 @@ pub fn read_set(files: &[PathBuf; 4]) -> Result<(Vec<KcorTable>, Lut), HostError
 /// LUT's own K-Cor scaling, else 23). The widths must rebuild the LUT's entries in the
 /// core (else the file was edited and the two disagree); `source` names the LUT's file.
 pub fn tables_of(lut: &Lut, bits: Option<u32>, source: &Path) -> Result<Vec<KcorTable>, HostError> {
-    let err = |message: String| HostError::Format { path: source.into(), message };
+    let err = |fault: LutFault| HostError::lut(source, fault);
     let codes = lut.tables.first().map_or(0, Vec::len);
     if lut.tables.len() != 4 || codes != KCOR_CODES {
-        return Err(err(format!("{} ADCs of {codes} codes; K-Cor tables are four ADCs of 4096 codes", lut.tables.len())));
+        return Err(err(LutFault::NotKcorShape { n_adc: lut.tables.len(), codes }));
     }
     let Some(weights) = &lut.weights else {
-        return Err(err("no WEIGHTS extension: the code widths a K-Cor table needs are not in this LUT (LUT files written by `lut build` or `lut import` carry them)".into()));
+        return Err(err(LutFault::NoWeights));
     };
     let bits = bits.or(lut.kcor_bits).unwrap_or(23);
     if !KCOR_SCALINGS.contains(&bits) {
-        return Err(err(format!("--bits {bits}: K-Cor tables end at 2^22 - 1 or 2^23 - 1")));
+        return Err(err(LutFault::KcorBits { bits }));
     }
     let (rebuilt, _) = super::tables_from_weights(weights, &source.into())?;
     if let Some(adc) = (0..4).find(|&a| rebuilt[a] != lut.tables[a]) {
-        return Err(err(format!("ADC {adc}: the WEIGHTS extension does not rebuild the tables (the file was edited?); refusing to export")));
+        return Err(err(LutFault::WeightsDisagree { adc }));
     }
-    weights.iter().enumerate().map(|(adc, w)| KcorTable::from_weights(w, bits).ok_or_else(|| err(format!("ADC {adc}: the weights sum to zero")))).collect()
+    weights.iter().enumerate().map(|(adc, w)| KcorTable::from_weights(w, bits).ok_or_else(|| err(LutFault::ZeroWeights { adc }))).collect()
 }
 
 /// Where export writes ADC `adc`'s table: `prefix` with `{adc}` replaced, or
@@ -347,7 +337,7 @@ mod tests {
     fn bad_tables_are_errors_naming_the_problem() {
         let p = Path::new("x.bin");
         let msg = |b: &[u8]| match KcorTable::parse(b, p) {
-            Err(HostError::Format { message, .. }) => message,
+            Err(HostError::Lut { fault, .. }) => fault.to_string(),
             other => panic!("{other:?}"),
         };
         assert!(msg(&[0u8; 100]).contains("100 bytes"));
@@ -365,7 +355,7 @@ mod tests {
         wide[4095] = (1 << 23) - 1;
         let t = KcorTable::parse(&bytes(&wide), p).unwrap();
         match t.weights(p) {
-            Err(HostError::Format { message, .. }) => assert!(message.contains("code 100 is") && message.contains("below 256 DN"), "{message}"),
+            Err(HostError::Lut { fault: LutFault::KcorWideCode { code: 100, width_dn }, .. }) => assert!(width_dn > 256.0, "{width_dn}"),
             other => panic!("{other:?}"),
         }
     }

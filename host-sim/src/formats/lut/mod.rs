@@ -9,6 +9,7 @@
 //! A new format is a variant of [`LutFormat`], its codec in this folder, its arms in
 //! [`read`] and [`write`], its section in `docs/formats.md` and its fuzz target.
 
+mod fault;
 pub mod image;
 pub mod inspect;
 pub mod kcor;
@@ -22,6 +23,8 @@ use serde::Serialize;
 use crate::formats::fits::{read_lut, stage_lut, LutTables};
 use crate::formats::outputs::Outputs;
 use crate::{HostError, Origin};
+
+pub use fault::LutFault;
 
 /// A LUT file format.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -145,7 +148,7 @@ pub(crate) fn set_from_tables<const N: usize, const CODES: usize>(tables: &[Vec<
     for (dst, src) in bits.iter_mut().zip(tables) {
         dst.copy_from_slice(src);
     }
-    let bits: Box<[[u32; CODES]; N]> = bits.into_boxed_slice().try_into().map_err(|_| HostError::Format { path: path.into(), message: "table count".into() })?;
+    let bits: Box<[[u32; CODES]; N]> = bits.into_boxed_slice().try_into().map_err(|_| HostError::lut(path, LutFault::TableCount))?;
     LutSet::<N, CODES>::from_bits(&bits).map(Box::new).map_err(|e| HostError::core(path.display().to_string(), e))
 }
 
@@ -243,7 +246,7 @@ pub fn check_file_prefix(out: &Path, writes: &str) -> Result<(), HostError> {
     let trailing_separator = text.ends_with(std::path::is_separator);
     if trailing_separator || out.file_name().is_none() || out.is_dir() {
         let example = if trailing_separator { format!("{text}cal") } else { format!("{text}/cal") };
-        return Err(HostError::Format { path: out.into(), message: format!("names a directory; -o takes a file prefix OUT and writes {writes} (e.g. -o {example})") });
+        return Err(HostError::lut(out, LutFault::OutputIsDirectory { writes: writes.to_string(), example }));
     }
     Ok(())
 }

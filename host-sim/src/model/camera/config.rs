@@ -133,7 +133,7 @@ impl CameraConfig {
         let mut config: CameraConfig = crate::formats::input::read_toml(path, CONFIG_LIMIT)?;
         let base = path.parent().unwrap_or(std::path::Path::new("."));
         config.resolve_widths_from(base).map_err(|e| match e {
-            crate::HostError::Format { path: p, message } => crate::HostError::Format { path: path.into(), message: format!("adc.widths_from: {}: {message}", p.display()) },
+            inner @ (crate::HostError::Format { .. } | crate::HostError::Lut { .. }) => crate::HostError::WidthsFrom { path: path.into(), inner: Box::new(inner) },
             other => other,
         })?;
         config.validate().map_err(|source| crate::HostError::Config { path: path.into(), source })?;
