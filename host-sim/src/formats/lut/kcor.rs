@@ -334,6 +334,25 @@ mod tests {
     }
 
     #[test]
+    fn rne_rounds_the_exact_quotient_half_to_even() {
+        // Worked by hand: below, at and above each half, even and odd quotients.
+        for (num, den, want) in [(0, 3, 0), (1, 3, 0), (2, 3, 1), (4, 2, 2), (5, 2, 2), (7, 2, 4), (9, 4, 2), (10, 4, 2), (14, 4, 4), (11, 4, 3), (29, 10, 3), (25, 10, 2), (35, 10, 4)] {
+            assert_eq!(rne(num, den), want, "{num} / {den}");
+        }
+        // Against f64's round_ties_even: its division is correctly rounded, and no
+        // quotient here lies within an ulp of a half without being one.
+        for num in 0..2000u128 {
+            for den in [1u128, 2, 3, 8, 10, 4095, 8388607] {
+                assert_eq!(rne(num, den) as f64, (num as f64 / den as f64).round_ties_even(), "{num} / {den}");
+            }
+        }
+        // Beyond u64, where the K-Cor weights live (entries times 4095, shifted by 24 bits).
+        let big = (8388607u128 * 4095) << 24;
+        assert_eq!(rne(big + 1, 2), big >> 1);
+        assert_eq!(rne(big + 3, 2), (big >> 1) + 2);
+    }
+
+    #[test]
     fn bad_tables_are_errors_naming_the_problem() {
         let p = Path::new("x.bin");
         let msg = |b: &[u8]| match KcorTable::parse(b, p) {
