@@ -394,6 +394,15 @@ pub enum LinearityError {
     /// Too few levels for the standard correction's global polynomial.
     #[error("{levels} levels where most good pixels are unsaturated; the standard correction's global polynomial of order {GLOBAL_ORDER} needs {}", GLOBAL_ORDER + 1)]
     TooFewLevels { levels: usize },
+    /// Fewer levels than a pixel's fit of `order` needs.
+    #[error("{levels} levels; an order-{order} fit needs at least {}", .order + 3)]
+    LevelsForOrder { levels: usize, order: usize },
+    /// A reference voltage that is negative, not finite, or zero everywhere.
+    #[error("REFERENCE VOLTAGE must be finite, >= 0 and not all zero")]
+    ReferenceVoltage,
+    /// Outputs asked of an analysis that kept no corrected cube.
+    #[error("the analysis kept no corrected cube for the outputs")]
+    NoCorrectedCube,
 }
 
 /// Whether level `l` can be the flat of a set whose pixels keep `valid[p]` levels below

@@ -9,7 +9,7 @@ use serde::Serialize;
 use crate::infra::progress::{spinner, stage};
 use crate::formats::report::{wrote, Report};
 use crate::formats::fits::{read_linearity, stage_cube, stage_pixel_correction, PixelCorrection};
-use crate::analyses::linearity::{analyze_unsaturated, check_flat_level, example_row, unsaturated_levels, Cube, LinearityReport, MAX_ORDER};
+use crate::analyses::linearity::{analyze_unsaturated, LinearityError, check_flat_level, example_row, unsaturated_levels, Cube, LinearityReport, MAX_ORDER};
 use crate::formats::plots::{level_lines_plot, line_plot_paired, map_plot, Map, Series};
 use crate::formats::outputs::OutDir;
 use crate::HostError;
@@ -72,10 +72,10 @@ pub fn linearity_as(read_from: &Path, input: &Path, order: usize, flat: Option<u
     };
     crate::infra::budget::check(read_from, what, crate::infra::budget::bytes_of((set.width * set.height) as u64, per_pixel))?;
     if set.levels < order + 3 {
-        return Err(HostError::Format { path: input.into(), message: format!("{} levels; an order-{order} fit needs at least {}", set.levels, order + 3) });
+        return Err(HostError::Linearity { path: input.into(), source: LinearityError::LevelsForOrder { levels: set.levels, order } });
     }
     if set.voltage.iter().any(|v| !(v.is_finite() && *v >= 0.0)) || set.voltage.iter().cloned().fold(0.0, f64::max) <= 0.0 {
-        return Err(HostError::Format { path: input.into(), message: "REFERENCE VOLTAGE must be finite, >= 0 and not all zero".into() });
+        return Err(HostError::Linearity { path: input.into(), source: LinearityError::ReferenceVoltage });
     }
     let start = std::time::Instant::now();
     let valid = unsaturated_levels(&set);
@@ -90,7 +90,7 @@ pub fn linearity_as(read_from: &Path, input: &Path, order: usize, flat: Option<u
     let mut outputs = Vec::new();
     if let Some(OutDir { files, dir }) = out {
         // Kept above for the outputs; an error rather than outputs left out if not.
-        let corrected = px.corrected.as_deref().ok_or_else(|| HostError::Format { path: input.into(), message: "the analysis kept no corrected cube for the outputs".into() })?;
+        let corrected = px.corrected.as_deref().ok_or_else(|| HostError::Linearity { path: input.into(), source: LinearityError::NoCorrectedCube })?;
         let c = dir.join("coefficients.fits");
         let pc = PixelCorrection { coeffs: &px.coeffs, mask: &px.mask, width: set.width, height: set.height, order, bit_depth: set.bit_depth, n_adc: set.n_adc };
         stage_pixel_correction(files, &c, &pc)?;
