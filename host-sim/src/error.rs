@@ -80,13 +80,6 @@ pub enum EncodeError {
     Toml(#[from] toml::ser::Error),
 }
 
-impl HostError {
-    /// `source` encoding what goes to `path`.
-    pub fn encode(path: impl Into<PathBuf>, source: impl Into<EncodeError>) -> Self {
-        HostError::Encode { path: path.into(), source: source.into() }
-    }
-}
-
 /// What an error concerns where it may be a file or not: the file a LUT or camera was
 /// read from, or a [`Subject`] (weights drawn by a model, the built-in camera).
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -389,6 +382,35 @@ pub enum HostError {
         #[source]
         fault: crate::formats::lut::LutFault,
     },
+    /// An output path that cannot take the outputs ([`crate::formats::outputs::OutputFault`]).
+    #[error("{path}: {fault}")]
+    Output {
+        /// The path.
+        path: PathBuf,
+        /// What is wrong.
+        #[source]
+        fault: crate::formats::outputs::OutputFault,
+    },
+    /// A histogram set or recorded frames that the streamed camera cannot take
+    /// ([`crate::checks::stream_run::StreamInputFault`]).
+    #[error("{path}: {fault}")]
+    StreamInput {
+        /// The histogram set or frame cube.
+        path: PathBuf,
+        /// What is wrong.
+        #[source]
+        fault: crate::checks::stream_run::StreamInputFault,
+    },
+    /// A firmware file (the ELF, or an output of its run) that is not what it must be
+    /// ([`crate::checks::firmware::FirmwareFault`]).
+    #[error("{path}: {fault}")]
+    Firmware {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        #[source]
+        fault: crate::checks::firmware::FirmwareFault,
+    },
     /// A file's contents are not what they must be.
     #[error("{path}: {message}")]
     Format {
@@ -423,6 +445,10 @@ impl HostError {
     /// `fault` of the LUT file `path`.
     pub fn lut(path: impl Into<PathBuf>, fault: crate::formats::lut::LutFault) -> Self {
         HostError::Lut { path: path.into(), fault }
+    }
+    /// `source` encoding what goes to `path`.
+    pub fn encode(path: impl Into<PathBuf>, source: impl Into<EncodeError>) -> Self {
+        HostError::Encode { path: path.into(), source: source.into() }
     }
     /// A core error while doing `context`.
     pub fn core(context: impl Into<String>, source: CoreError) -> Self {

@@ -24,6 +24,49 @@ pub fn oracle_weights(camera: &Camera) -> Result<Vec<Vec<Weight>>, HostError> {
         .collect()
 }
 
+/// Why a histogram set or a recorded frame cube cannot be streamed through the camera;
+/// `HostError::StreamInput` wraps it with the file.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum StreamInputFault {
+    /// A histogram set of another camera.
+    #[error("{adcs} ADCs of {bits} bits, but the camera has {camera_adcs} ADCs of {camera_bits} bits")]
+    Adcs {
+        /// The set's ADCs.
+        adcs: usize,
+        /// The set's bit depth.
+        bits: u32,
+        /// The camera's ADCs.
+        camera_adcs: usize,
+        /// The camera's bit depth.
+        camera_bits: u32,
+    },
+    /// Frames that, placed at the ROI's corner, reach outside the sensor.
+    #[error("{width}x{height} frames at ({x}, {y}) do not fit the {sensor_width}x{sensor_height} sensor")]
+    OutsideSensor {
+        /// The frames' width, pixels.
+        width: usize,
+        /// The frames' height, pixels.
+        height: usize,
+        /// The ROI's first column.
+        x: usize,
+        /// The ROI's first row.
+        y: usize,
+        /// The sensor's width, pixels.
+        sensor_width: usize,
+        /// The sensor's height, pixels.
+        sensor_height: usize,
+    },
+    /// A frame width the stream's header cannot carry.
+    #[error("the frame width does not fit 16 bits")]
+    WidthOver16Bits,
+    /// A frame height the stream's header cannot carry.
+    #[error("the frame height does not fit 16 bits")]
+    HeightOver16Bits,
+    /// More frames than the stream counts.
+    #[error("too many frames")]
+    TooManyFrames,
+}
+
 /// Streams with LUTs from `hist` (flattened as `lut build` does) or, without it, from
 /// the camera's true code widths.
 pub fn stream(camera: &Camera, hist: Option<&Path>, flatten: &FlattenParams, params: &StreamParams) -> Result<StreamReport, HostError> {
@@ -31,9 +74,9 @@ pub fn stream(camera: &Camera, hist: Option<&Path>, flatten: &FlattenParams, par
         Some(path) => {
             let h = read_histograms_for_analysis(path)?;
             if h.counts.len() != camera.config.n_adc || h.bit_depth != camera.config.bits {
-                return Err(HostError::Format {
+                return Err(HostError::StreamInput {
                     path: path.into(),
-                    message: format!("{} ADCs of {} bits, but the camera has {} ADCs of {} bits", h.counts.len(), h.bit_depth, camera.config.n_adc, camera.config.bits),
+                    fault: StreamInputFault::Adcs { adcs: h.counts.len(), bits: h.bit_depth, camera_adcs: camera.config.n_adc, camera_bits: camera.config.bits },
                 });
             }
             build_luts(&h, flatten, path)?.weights
@@ -60,12 +103,12 @@ pub fn placed(camera: &Camera, mut params: StreamParams, roi: Option<RoiSpec>, f
         let cube = crate::formats::fits::read_frames(path)?;
         let (x, y) = (params.first_column as usize, params.first_row as usize);
         if x + cube.width > camera.config.width || y + cube.height > camera.config.height {
-            return Err(HostError::Format { path: path.into(), message: format!("{}x{} frames at ({x}, {y}) do not fit the {}x{} sensor", cube.width, cube.height, camera.config.width, camera.config.height) });
+            return Err(HostError::StreamInput { path: path.into(), fault: StreamInputFault::OutsideSensor { width: cube.width, height: cube.height, x, y, sensor_width: camera.config.width, sensor_height: camera.config.height } });
         }
-        let too_large = |what: &str| HostError::Format { path: path.into(), message: format!("{what} does not fit 16 bits") };
-        params.width = u16::try_from(cube.width).map_err(|_| too_large("the frame width"))?;
-        params.height = u16::try_from(cube.height).map_err(|_| too_large("the frame height"))?;
-        params.frames = u32::try_from(cube.frames).map_err(|_| HostError::Format { path: path.into(), message: "too many frames".into() })?;
+        let fault = |fault| HostError::StreamInput { path: path.into(), fault };
+        params.width = u16::try_from(cube.width).map_err(|_| fault(StreamInputFault::WidthOver16Bits))?;
+        params.height = u16::try_from(cube.height).map_err(|_| fault(StreamInputFault::HeightOver16Bits))?;
+        params.frames = u32::try_from(cube.frames).map_err(|_| fault(StreamInputFault::TooManyFrames))?;
         params.recorded = Some(Arc::new(cube));
     }
     Ok(params)

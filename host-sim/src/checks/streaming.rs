@@ -302,11 +302,6 @@ fn run_typed<const N: usize, const CODES: usize>(
     let (w, h) = (p.width as usize, p.height as usize);
     let mut core_s = 0.0;
     let x0 = p.first_column as usize;
-    // One pass over each line while it is in cache: drawn (or read), then added to the
-    // float and quantized references.
-    let add_reference = |line: &[u16], q: &mut [u64], f: &mut [f64]| {
-        reference.add_line::<N>(x0, line, q, f);
-    };
     let mut sampled = vec![0u16; if p.recorded.is_some() { 0 } else { w * h }];
     for frame in 0..p.frames {
         let state = (frame % p.states as u32) as u8;
@@ -316,7 +311,9 @@ fn run_typed<const N: usize, const CODES: usize>(
         let codes: &[u16] = match &p.recorded {
             Some(cube) => {
                 let codes = cube.frame(frame as usize);
-                codes.par_chunks_exact(w).zip(refs).for_each(|(line, (q, f))| add_reference(line, q, f));
+                codes.par_chunks_exact(w).zip(refs).for_each(|(line, (q, f))| {
+                    reference.add_line::<N>(x0, line, q, f);
+                });
                 codes
             }
             None => {
@@ -324,7 +321,9 @@ fn run_typed<const N: usize, const CODES: usize>(
                 let light: Vec<f64> = (x0..x0 + w).map(|c| illumination(p, peak, c, state)).collect();
                 sampled.par_chunks_mut(w).zip(refs).enumerate().for_each(|(y, (line, (q, f)))| {
                     camera.sample_span_into(p.first_row as usize + y, x0..x0 + w, frame_seed, |c| light[c - x0], line);
-                    add_reference(line, q, f);
+                    // One pass over each line while it is in cache: drawn, then added
+                    // to the float and quantized references.
+                    reference.add_line::<N>(x0, line, q, f);
                 });
                 &sampled
             }

@@ -129,7 +129,7 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
     let at = |name: &str| out_dir.join(name);
     files.expect(["quantization.png", "linearity.fits", "summary.json", "report.html"].map(at))?;
     // The staged contents of `target`, which an earlier step wrote.
-    let staged = |files: &Outputs, target: &Path| files.staged(target).map(Path::to_path_buf).ok_or_else(|| HostError::Format { path: target.into(), message: "not written by the step before".into() });
+    let staged = |files: &Outputs, target: &Path| files.staged(target).map(Path::to_path_buf).ok_or_else(|| HostError::Output { path: target.into(), fault: crate::formats::outputs::OutputFault::NotStaged });
 
     // 1-2. Calibration histograms, LUTs, characterization and its figures.
     stage("1/8 calibration ramps, LUTs and the ADC characterization");

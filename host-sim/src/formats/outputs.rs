@@ -37,6 +37,20 @@ use std::path::{Path, PathBuf};
 
 use crate::HostError;
 
+/// Why a path cannot take an output; `HostError::Output` wraps it with the path.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum OutputFault {
+    /// A directory the outputs go into is something else.
+    #[error("is not a directory; outputs go into it")]
+    NotADirectory,
+    /// A target without a file name (`..`, `/`).
+    #[error("not a file name to write to")]
+    NotAFileName,
+    /// A step's input that the step before it did not write (the demo's chain).
+    #[error("not written by the step before")]
+    NotStaged,
+}
+
 /// Suffix of a temporary output not yet published.
 const TMP_SUFFIX: &str = ".dncal-tmp";
 /// Suffix of the backup of a target being replaced.
@@ -90,7 +104,7 @@ impl Outputs {
         while let Some(d) = at.filter(|d| !d.as_os_str().is_empty()) {
             match std::fs::symlink_metadata(d) {
                 Ok(_) if d.is_dir() => break,
-                Ok(_) => return Err(HostError::Format { path: d.into(), message: "is not a directory; outputs go into it".into() }),
+                Ok(_) => return Err(HostError::Output { path: d.into(), fault: OutputFault::NotADirectory }),
                 Err(_) => missing.push(d.to_path_buf()),
             }
             at = d.parent();
@@ -314,7 +328,7 @@ fn check_target(target: &Path) -> Result<(), HostError> {
 /// plain characters in NAME: the temporary may go to cfitsio, which parses brackets and
 /// more.
 fn temp_prefix(target: &Path) -> Result<(&Path, String), HostError> {
-    let file_name = target.file_name().ok_or_else(|| HostError::Format { path: target.into(), message: "not a file name to write to".into() })?;
+    let file_name = target.file_name().ok_or_else(|| HostError::Output { path: target.into(), fault: OutputFault::NotAFileName })?;
     let dir = match target.parent() {
         Some(d) if !d.as_os_str().is_empty() => d,
         _ => Path::new("."),

@@ -19,6 +19,7 @@ use std::path::Path;
 
 use serde::Serialize;
 
+use super::FirmwareFault;
 use crate::HostError;
 
 /// The QEMU arguments that log one line per executed instruction on stderr, for QEMU
@@ -140,12 +141,12 @@ impl InstructionCounts {
 /// Places `executed` in `elf`'s source (DWARF), files relative to `root`; `pixels` is
 /// what the per-pixel figures divide by.
 pub fn attribute(elf: &Path, executed: &Executed, root: &Path, pixels: u64) -> Result<InstructionCounts, HostError> {
-    let format = |message: String| HostError::Format { path: elf.to_path_buf(), message };
-    let loader = addr2line::Loader::new(elf).map_err(|e| format(format!("reading DWARF: {e}")))?;
+    let fault = |fault| HostError::Firmware { path: elf.to_path_buf(), fault };
+    let loader = addr2line::Loader::new(elf).map_err(|e| fault(FirmwareFault::Dwarf(e.to_string())))?;
     let root = root.to_string_lossy().into_owned() + "/";
     let mut by_place: BTreeMap<(String, String), u64> = BTreeMap::new();
     for (&pc, &n) in executed {
-        let place = place_of(&loader, pc as u64, &root).map_err(|e| format(format!("DWARF at {pc:#x}: {e}")))?;
+        let place = place_of(&loader, pc as u64, &root).map_err(|e| fault(FirmwareFault::DwarfAt { pc, cause: e.to_string() }))?;
         *by_place.entry(place).or_default() += n;
     }
     let mut places: Vec<Place> = by_place

@@ -120,6 +120,47 @@ pub fn build_firmware() -> Result<PathBuf, HostError> {
     }
 }
 
+/// What is wrong with the firmware's ELF or an output file of its run;
+/// `HostError::Firmware` wraps it with the file. The causes from other crates (defmt's
+/// decoder, addr2line) come as their text.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum FirmwareFault {
+    /// An output file of u32 words with bytes left over.
+    #[error("{bytes} bytes is not a whole number of u32")]
+    PartialWord {
+        /// The file's size.
+        bytes: usize,
+    },
+    /// The status file's length is not the counters' and the states'.
+    #[error("{words} words, expected {expected}")]
+    StatusWords {
+        /// Words read.
+        words: usize,
+        /// Words the geometry gives.
+        expected: usize,
+    },
+    /// The ELF's defmt table cannot be parsed.
+    #[error("{0}")]
+    DefmtTable(String),
+    /// An ELF without a defmt table.
+    #[error("no defmt table")]
+    NoDefmtTable,
+    /// A defmt log that the ELF's table does not decode.
+    #[error("malformed defmt log: {0}")]
+    DefmtLog(String),
+    /// The ELF's DWARF cannot be read.
+    #[error("reading DWARF: {0}")]
+    Dwarf(String),
+    /// No source place for an executed address.
+    #[error("DWARF at {pc:#x}: {cause}")]
+    DwarfAt {
+        /// The address.
+        pc: u32,
+        /// addr2line's reason.
+        cause: String,
+    },
+}
+
 fn write(path: PathBuf, bytes: &[u8]) -> Result<(), HostError> {
     std::fs::write(&path, bytes).map_err(|e| HostError::io(path, e))
 }
@@ -127,7 +168,7 @@ fn write(path: PathBuf, bytes: &[u8]) -> Result<(), HostError> {
 fn read_words(path: PathBuf) -> Result<Vec<u32>, HostError> {
     let bytes = std::fs::read(&path).map_err(|e| HostError::io(&path, e))?;
     if bytes.len() % 4 != 0 {
-        return Err(HostError::Format { path, message: format!("{} bytes is not a whole number of u32", bytes.len()) });
+        return Err(HostError::Firmware { path, fault: FirmwareFault::PartialWord { bytes: bytes.len() } });
     }
     Ok(bytes.chunks_exact(4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect())
 }
@@ -135,8 +176,8 @@ fn read_words(path: PathBuf) -> Result<Vec<u32>, HostError> {
 /// Decodes a defmt log with the ELF that wrote it.
 pub fn decode_defmt(elf: &Path, log: &[u8]) -> Result<Vec<String>, HostError> {
     let bytes = std::fs::read(elf).map_err(|e| HostError::io(elf, e))?;
-    let format = |message: String| HostError::Format { path: elf.to_path_buf(), message };
-    let table = defmt_decoder::Table::parse(&bytes).map_err(|e| format(e.to_string()))?.ok_or_else(|| format("no defmt table".into()))?;
+    let fault = |fault| HostError::Firmware { path: elf.to_path_buf(), fault };
+    let table = defmt_decoder::Table::parse(&bytes).map_err(|e| fault(FirmwareFault::DefmtTable(e.to_string())))?.ok_or_else(|| fault(FirmwareFault::NoDefmtTable))?;
     let mut decoder = table.new_stream_decoder();
     decoder.received(log);
     let mut out = Vec::new();
@@ -144,7 +185,7 @@ pub fn decode_defmt(elf: &Path, log: &[u8]) -> Result<Vec<String>, HostError> {
         match decoder.decode() {
             Ok(frame) => out.push(frame.display_message().to_string()),
             Err(defmt_decoder::DecodeError::UnexpectedEof) => return Ok(out),
-            Err(e) => return Err(format(format!("malformed defmt log: {e:?}"))),
+            Err(e) => return Err(fault(FirmwareFault::DefmtLog(format!("{e:?}")))),
         }
     }
 }
@@ -206,7 +247,7 @@ pub fn run_firmware(elf: &Path, inputs: &RunInputs, expected: &[u32], timeout: D
     let sums = read_words(at("sums.bin"))?;
     let words = read_words(at("status.bin"))?;
     if words.len() != STATUS_WORDS + g.states() as usize {
-        return Err(HostError::Format { path: at("status.bin"), message: format!("{} words, expected {}", words.len(), STATUS_WORDS + g.states() as usize) });
+        return Err(HostError::Firmware { path: at("status.bin"), fault: FirmwareFault::StatusWords { words: words.len(), expected: STATUS_WORDS + g.states() as usize } });
     }
     let mut status = [0u32; STATUS_WORDS];
     status.copy_from_slice(&words[..STATUS_WORDS]);
