@@ -21,6 +21,9 @@ export DNCAL_REQUIRE_BROWSER=1
 # path fields, the library reaching into the CLI; a count may fall, never rise.
 python3 scripts/arch_check.py --self-test --ratchet scripts/arch_baseline.json >/dev/null
 cargo test --workspace --locked
+# The Python package: its wheel built into target/python-venv (maturin, numpy, dask... from
+# the registry) and its pytest suite, which compares it with the binary just tested.
+DNCAL_BIN="$PWD/target/debug/dncal" scripts/python.sh
 cargo clippy --workspace --all-targets --locked -- -D warnings
 # The core must also build with defmt on (as the firmware uses it) and stay warning-free.
 cargo build -p dncal-core --features defmt --locked

@@ -88,6 +88,8 @@ pub enum Origin {
     File(PathBuf),
     /// Not a file.
     Subject(Subject),
+    /// An argument of a library call (the Python package's arrays), by its name.
+    Argument(&'static str),
 }
 
 impl std::fmt::Display for Origin {
@@ -95,6 +97,7 @@ impl std::fmt::Display for Origin {
         match self {
             Origin::File(path) => write!(f, "{}", path.display()),
             Origin::Subject(subject) => write!(f, "{subject}"),
+            Origin::Argument(name) => f.write_str(name),
         }
     }
 }
@@ -111,10 +114,31 @@ impl From<&PathBuf> for Origin {
     }
 }
 
+impl From<PathBuf> for Origin {
+    fn from(path: PathBuf) -> Self {
+        Origin::File(path)
+    }
+}
+
 impl From<Subject> for Origin {
     fn from(subject: Subject) -> Self {
         Origin::Subject(subject)
     }
+}
+
+/// What kind of failure an error is, for callers that sort them (the Python package's
+/// exception classes): the data or arguments, the file system, the memory budget, an
+/// external program.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ErrorKind {
+    /// Bad input: a file's or an argument's contents, a rule they break.
+    Input,
+    /// Reading or writing failed, or a path that cannot be read or written as asked.
+    Io,
+    /// The work would need more memory than the budget allows.
+    OverBudget,
+    /// A program the run needs (QEMU, numpy) failed or is missing.
+    Tool,
 }
 
 /// Everything host-side work can fail with; each variant names the file or step.
@@ -222,10 +246,10 @@ pub enum HostError {
         source: crate::analyses::diagnose::DiagnoseError,
     },
     /// A linearity set that cannot be corrected as asked.
-    #[error("{path}: {source}")]
+    #[error("{origin}: {source}")]
     Linearity {
-        /// The file.
-        path: PathBuf,
+        /// The file (or the arrays' argument).
+        origin: Origin,
         /// Why.
         #[source]
         source: crate::analyses::linearity::LinearityError,
@@ -247,11 +271,12 @@ pub enum HostError {
         /// What is wrong.
         message: String,
     },
-    /// A built-in camera configuration that cannot be built.
-    #[error("{subject}: {source}")]
+    /// A camera configuration not from a file (built in, or a library call's argument)
+    /// that cannot be built.
+    #[error("{origin}: {source}")]
     BuiltInConfig {
         /// Which.
-        subject: Subject,
+        origin: Origin,
         /// The rule it breaks.
         #[source]
         source: crate::model::camera::ConfigError,
@@ -332,10 +357,10 @@ pub enum HostError {
         valid_up_to: usize,
     },
     /// One ADC's histogram of a set could not be flattened into LUT weights.
-    #[error("{path}: ADC {adc}: {source}")]
+    #[error("{origin}: ADC {adc}: {source}")]
     AdcFlatten {
         /// The histogram set.
-        path: PathBuf,
+        origin: Origin,
         /// The ADC.
         adc: usize,
         /// Why.
@@ -374,10 +399,10 @@ pub enum HostError {
         inner: Box<HostError>,
     },
     /// A LUT file's or set's fault ([`crate::formats::lut::LutFault`]).
-    #[error("{path}: {fault}")]
+    #[error("{origin}: {fault}")]
     Lut {
-        /// The LUT file (or the prefix or histogram set it comes from).
-        path: PathBuf,
+        /// The LUT file (or the prefix or histogram set it comes from, or the argument).
+        origin: Origin,
         /// What is wrong.
         #[source]
         fault: crate::formats::lut::LutFault,
@@ -434,6 +459,15 @@ impl HostError {
     pub fn argument(flag: impl Into<String>, message: impl Into<String>) -> Self {
         HostError::Argument { flag: flag.into(), message: message.into() }
     }
+    /// What kind of failure this is.
+    pub fn kind(&self) -> ErrorKind {
+        match self {
+            HostError::Io { .. } | HostError::IoOf { .. } | HostError::NotRegular { .. } | HostError::OutputNotFile { .. } | HostError::Output { .. } => ErrorKind::Io,
+            HostError::OverBudget { .. } => ErrorKind::OverBudget,
+            HostError::Tool { .. } => ErrorKind::Tool,
+            _ => ErrorKind::Input,
+        }
+    }
     /// The process exit code for this error: 2 for usage errors (as clap's own), 1 for
     /// everything else (bad data, I/O, a failed tool).
     pub fn exit_code(&self) -> u8 {
@@ -443,8 +477,8 @@ impl HostError {
         }
     }
     /// `fault` of the LUT file `path`.
-    pub fn lut(path: impl Into<PathBuf>, fault: crate::formats::lut::LutFault) -> Self {
-        HostError::Lut { path: path.into(), fault }
+    pub fn lut(origin: impl Into<Origin>, fault: crate::formats::lut::LutFault) -> Self {
+        HostError::Lut { origin: origin.into(), fault }
     }
     /// `source` encoding what goes to `path`.
     pub fn encode(path: impl Into<PathBuf>, source: impl Into<EncodeError>) -> Self {

@@ -66,7 +66,7 @@ pub struct PoolEntry {
 pub fn lut_pool(seed: u64) -> Result<Vec<PoolEntry>, HostError> {
     let mut rng = SplitMix64::new(seed ^ 0x005E_ED0F_1007);
     let unit = |rng: &mut SplitMix64| (rng.next_u64() >> 11) as f64 / (1u64 << 53) as f64;
-    let camera = Camera::new(CameraConfig::default()).map_err(|source| HostError::BuiltInConfig { subject: Subject::DefaultCamera, source })?;
+    let camera = Camera::new(CameraConfig::default()).map_err(|source| HostError::BuiltInConfig { origin: Subject::DefaultCamera.into(), source })?;
     let mut sets: Vec<Vec<Vec<f64>>> = vec![vec![vec![1.0; CODES]; N], camera.adcs.iter().map(|a| a.normalized_widths()).collect()];
     for spread in [0.05, 1.0] {
         sets.push((0..N).map(|_| normalized((0..CODES).map(|_| 1.0 + spread * (2.0 * unit(&mut rng) - 1.0)).collect())).collect());
@@ -290,7 +290,7 @@ pub fn run_with_pool(params: &SoakParams, entries: &[PoolEntry], mut progress: i
     if pool.luts.is_empty() {
         return Err(HostError::invalid(Subject::SoakLutPool, "no LUT sets"));
     }
-    let camera = Camera::new(CameraConfig::default()).map_err(|source| HostError::BuiltInConfig { subject: Subject::DefaultCamera, source })?;
+    let camera = Camera::new(CameraConfig::default()).map_err(|source| HostError::BuiltInConfig { origin: Subject::DefaultCamera.into(), source })?;
     let mut rng = SplitMix64::new(params.seed);
     let mut report = SoakReport { seed: params.seed, ..Default::default() };
     let mut model = BankModel { active: 0, staged: None, pending: false, swaps: 0 };

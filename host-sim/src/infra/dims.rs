@@ -2,6 +2,26 @@
 //! files and camera configurations say them at run time. This is the one place that maps
 //! one to the other.
 
+use dncal_core::LutSet;
+
+use crate::{HostError, Origin};
+
+/// The core's LUT set of `tables` (`tables[adc][code]`, `N` of `CODES` entries, units of
+/// 2^-11 DN), checked as the core checks every set it loads; tables of another layout
+/// are [`HostError::UnsupportedDims`]. `origin` names the tables in errors.
+pub fn lut_set<const N: usize, const CODES: usize>(tables: &[Vec<u32>], origin: &Origin) -> Result<Box<LutSet<N, CODES>>, HostError> {
+    let layout = || HostError::UnsupportedDims { origin: origin.clone(), n_adc: tables.len(), codes: tables.iter().map(Vec::len).find(|&c| c != CODES).unwrap_or(CODES) };
+    if tables.len() != N || tables.iter().any(|t| t.len() != CODES) {
+        return Err(layout());
+    }
+    let mut bits = vec![[0u32; CODES]; N];
+    for (dst, src) in bits.iter_mut().zip(tables) {
+        dst.copy_from_slice(src);
+    }
+    let bits: Box<[[u32; CODES]; N]> = bits.into_boxed_slice().try_into().map_err(|_| layout())?;
+    LutSet::<N, CODES>::from_bits(&bits).map(Box::new).map_err(|e| HostError::core(origin.to_string(), e))
+}
+
 /// Calls `$f::<N, CODES>(args...)` for the supported (ADCs, codes) pairs, or returns a
 /// `HostError::UnsupportedDims` naming `$origin` (anything `Into<Origin>`: a path or a
 /// `Subject`) for any other pair.

@@ -18,7 +18,7 @@ use crate::{HostError, Origin};
 pub fn camera_from(config: CameraConfig, origin: Origin) -> Result<Camera, HostError> {
     let refused = |e| match &origin {
         Origin::File(path) => HostError::Config { path: path.clone(), source: e },
-        Origin::Subject(subject) => HostError::BuiltInConfig { subject: *subject, source: e },
+        other => HostError::BuiltInConfig { origin: other.clone(), source: e },
     };
     // Ranges first (a sensor of 10^6 x 10^6 pixels is out of range, not over budget).
     config.validate().map_err(refused)?;

@@ -8,11 +8,11 @@ use serde::Serialize;
 
 use crate::infra::progress::{spinner, stage};
 use crate::formats::report::{wrote, Report};
-use crate::formats::fits::{read_linearity, stage_cube, stage_pixel_correction, PixelCorrection};
-use crate::analyses::linearity::{analyze_unsaturated, LinearityError, check_flat_level, example_row, unsaturated_levels, Cube, LinearityReport, MAX_ORDER};
+use crate::formats::fits::{read_linearity, LinearitySet, stage_cube, stage_pixel_correction, PixelCorrection};
+use crate::analyses::linearity::{analyze_unsaturated, LinearityError, check_flat_level, example_row, unsaturated_levels, Cube, LinearityReport, PixelResults, MAX_ORDER};
 use crate::formats::plots::{level_lines_plot, line_plot_paired, map_plot, Map, Series};
 use crate::formats::outputs::OutDir;
-use crate::HostError;
+use crate::{HostError, Origin};
 
 /// What `linearity` prints.
 #[derive(Debug, Serialize)]
@@ -71,26 +71,11 @@ pub fn linearity_as(read_from: &Path, input: &Path, order: usize, flat: Option<u
         Cube::Skip => (16 * set.levels as u64 + 256, "the pixel-wise analysis (the fits)"),
     };
     crate::infra::budget::check(read_from, what, crate::infra::budget::bytes_of((set.width * set.height) as u64, per_pixel))?;
-    if set.levels < order + 3 {
-        return Err(HostError::Linearity { path: input.into(), source: LinearityError::LevelsForOrder { levels: set.levels, order } });
-    }
-    if set.voltage.iter().any(|v| !(v.is_finite() && *v >= 0.0)) || set.voltage.iter().cloned().fold(0.0, f64::max) <= 0.0 {
-        return Err(HostError::Linearity { path: input.into(), source: LinearityError::ReferenceVoltage });
-    }
-    let start = std::time::Instant::now();
-    let valid = unsaturated_levels(&set);
-    if let Some(l) = flat {
-        check_flat_level(&valid, set.levels, l).map_err(|e| HostError::Argument { flag: "--flat-level".into(), message: format!("{e} ({})", input.display()) })?;
-    }
-    let spin = spinner(&format!("fitting {} pixels ({} levels): standard and pixel-wise corrections", set.width * set.height, set.levels));
-    let analysis = analyze_unsaturated(&set, order, flat, valid, cube);
-    spin.finish_and_clear();
-    let (report, px) = analysis.map_err(|source| HostError::Linearity { path: input.into(), source })?;
-    let analysis_s = start.elapsed().as_secs_f64();
+    let (report, px, analysis_s) = fit(&set, &Origin::File(input.into()), order, flat, cube)?;
     let mut outputs = Vec::new();
     if let Some(OutDir { files, dir }) = out {
         // Kept above for the outputs; an error rather than outputs left out if not.
-        let corrected = px.corrected.as_deref().ok_or_else(|| HostError::Linearity { path: input.into(), source: LinearityError::NoCorrectedCube })?;
+        let corrected = px.corrected.as_deref().ok_or_else(|| HostError::Linearity { origin: input.into(), source: LinearityError::NoCorrectedCube })?;
         let c = dir.join("coefficients.fits");
         let pc = PixelCorrection { coeffs: &px.coeffs, mask: &px.mask, width: set.width, height: set.height, order, bit_depth: set.bit_depth, n_adc: set.n_adc };
         stage_pixel_correction(files, &c, &pc)?;
@@ -165,4 +150,27 @@ pub fn linearity_as(read_from: &Path, input: &Path, order: usize, flat: Option<u
         outputs.extend([c, k, fig, flat_png, levels_png]);
     }
     Ok(LinearitySummary { input: input.into(), report, analysis_s, outputs })
+}
+
+/// The analysis of a set in memory (`origin` names it in errors): its levels and
+/// reference checked for the pixel-wise order, the flat level checked where one is given
+/// (`--flat-level`), then the fits. Returns the report, the per-pixel results and the
+/// analysis' wall time, seconds.
+pub fn fit(set: &LinearitySet, origin: &Origin, order: usize, flat: Option<usize>, cube: Cube) -> Result<(LinearityReport, PixelResults, f64), HostError> {
+    if set.levels < order + 3 {
+        return Err(HostError::Linearity { origin: origin.clone(), source: LinearityError::LevelsForOrder { levels: set.levels, order } });
+    }
+    if set.voltage.iter().any(|v| !(v.is_finite() && *v >= 0.0)) || set.voltage.iter().cloned().fold(0.0, f64::max) <= 0.0 {
+        return Err(HostError::Linearity { origin: origin.clone(), source: LinearityError::ReferenceVoltage });
+    }
+    let start = std::time::Instant::now();
+    let valid = unsaturated_levels(set);
+    if let Some(l) = flat {
+        check_flat_level(&valid, set.levels, l).map_err(|e| HostError::Argument { flag: "--flat-level".into(), message: format!("{e} ({origin})") })?;
+    }
+    let spin = spinner(&format!("fitting {} pixels ({} levels): standard and pixel-wise corrections", set.width * set.height, set.levels));
+    let analysis = analyze_unsaturated(set, order, flat, valid, cube);
+    spin.finish_and_clear();
+    let (report, px) = analysis.map_err(|source| HostError::Linearity { origin: origin.clone(), source })?;
+    Ok((report, px, start.elapsed().as_secs_f64()))
 }

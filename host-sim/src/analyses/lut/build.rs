@@ -4,7 +4,7 @@
 //! against the independent float reference ([`crate::model::reference`]) of the same
 //! weights. `lut build`, `adc` and `stream --hist` call it.
 
-use std::path::Path;
+use crate::Origin;
 
 use dncal_core::Weight;
 use serde::Serialize;
@@ -56,21 +56,22 @@ impl BuiltLuts {
 }
 
 /// Flattens `hist` and builds the LUT set in the core; `source` names the input in errors.
-pub fn build_luts(hist: &AdcHistograms, params: &FlattenParams, source: &Path) -> Result<BuiltLuts, HostError> {
+pub fn build_luts(hist: &AdcHistograms, params: &FlattenParams, source: impl Into<Origin>) -> Result<BuiltLuts, HostError> {
+    let source = source.into();
     let mut flattened = Vec::new();
     let mut weights = Vec::new();
     for (adc, counts) in hist.counts.iter().enumerate() {
-        let f = flatten_histogram(counts, params).map_err(|e| HostError::AdcFlatten { path: source.into(), adc, source: e })?;
-        let w = to_core_weights(&f.weights).map_err(|e| HostError::AdcFlatten { path: source.into(), adc, source: e })?;
+        let f = flatten_histogram(counts, params).map_err(|e| HostError::AdcFlatten { origin: source.clone(), adc, source: e })?;
+        let w = to_core_weights(&f.weights).map_err(|e| HostError::AdcFlatten { origin: source.clone(), adc, source: e })?;
         flattened.push(f);
         weights.push(w);
     }
-    let (tables, image) = crate::formats::lut::tables_from_weights(&weights, &source.into())?;
+    let (tables, image) = crate::formats::lut::tables_from_weights(&weights, &source)?;
     // The independent float reference must reproduce every entry.
     let reference = crate::model::reference::ReferenceLut::from_weights(&weights.iter().map(|w| w.iter().map(|x| x.to_num::<f64>()).collect()).collect::<Vec<_>>());
     for (adc, (q, t)) in reference.quantized().iter().zip(&tables).enumerate() {
         if let Some(k) = (0..t.len()).find(|&k| q[k] != t[k] as u64) {
-            return Err(HostError::lut(source, crate::formats::lut::LutFault::CoreDiffersFromReference { adc, code: k, core: t[k], reference: q[k] }));
+            return Err(HostError::lut(source.clone(), crate::formats::lut::LutFault::CoreDiffersFromReference { adc, code: k, core: t[k], reference: q[k] }));
         }
     }
     Ok(BuiltLuts { flattened, weights, tables, image })

@@ -367,7 +367,7 @@ pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, Ho
         }
         None => notes.push("one core: the parallel path was not measured".into()),
     }
-    let camera = crate::model::camera::Camera::new(crate::model::camera::CameraConfig::default()).map_err(|source| HostError::BuiltInConfig { subject: crate::Subject::DefaultCamera, source })?;
+    let camera = crate::model::camera::Camera::new(crate::model::camera::CameraConfig::default()).map_err(|source| HostError::BuiltInConfig { origin: crate::Subject::DefaultCamera.into(), source })?;
     ratios.extend(stream_ratios(&camera, runs)?);
     ratios.push(poisson_ratio(runs));
     if p.numpy && notes.is_empty() {

@@ -389,7 +389,7 @@ fn read_reference(r: &mut FitsReader, h: &Header) -> Result<(Vec<f64>, Option<Ve
 }
 
 /// Everything a [`LinearitySet`] must satisfy, whether about to be written or just read.
-pub(super) fn check_linearity<T: Sample>(s: &LinearitySet<T>) -> Result<(), Fault> {
+pub fn check_linearity<T: Sample>(s: &LinearitySet<T>) -> Result<(), Fault> {
     let (frame, cube) = check_frame(s.bit_depth, s.n_adc, s.n_frames, [s.width, s.height, s.levels])?;
     for (name, values) in [("mean", &s.mean), ("std", &s.std)] {
         if values.len() != cube {

@@ -108,9 +108,6 @@ pub enum LutFault {
         /// What the header says.
         bits: u32,
     },
-    /// Tables that are not the set's ADC count.
-    #[error("table count")]
-    TableCount,
     /// A core entry the independent float reference does not reproduce.
     #[error("ADC {adc} code {code}: core entry {core} differs from the float reference {reference}")]
     CoreDiffersFromReference {

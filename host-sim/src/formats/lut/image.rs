@@ -8,7 +8,7 @@ use std::path::Path;
 use dncal_core::{encode_image, image_len, LutSet};
 
 use super::LutFault;
-use crate::HostError;
+use crate::{HostError, Origin};
 
 /// The first bytes of every device image.
 pub const MAGIC: &[u8] = &dncal_core::image::MAGIC;
@@ -52,11 +52,12 @@ pub fn encode_set<const N: usize, const CODES: usize>(set: &LutSet<N, CODES>) ->
 
 /// The device image of per-ADC `tables` (entries, units of 2^-11 DN), which the core
 /// validates first; `source` names the input in errors.
-pub fn encode(tables: &[Vec<u32>], source: &Path) -> Result<Vec<u8>, HostError> {
+pub fn encode(tables: &[Vec<u32>], source: impl Into<Origin>) -> Result<Vec<u8>, HostError> {
+    let source = source.into();
     let (n, codes) = (tables.len(), tables.first().map_or(0, Vec::len));
-    crate::dispatch_lut_dims!(n, codes, source, encode_tables(tables, source))
+    crate::dispatch_lut_dims!(n, codes, source.clone(), encode_tables(tables, &source))
 }
 
-fn encode_tables<const N: usize, const CODES: usize>(tables: &[Vec<u32>], source: &Path) -> Result<Vec<u8>, HostError> {
-    encode_set(&*super::set_from_tables::<N, CODES>(tables, source)?)
+fn encode_tables<const N: usize, const CODES: usize>(tables: &[Vec<u32>], source: &Origin) -> Result<Vec<u8>, HostError> {
+    encode_set(&*crate::infra::dims::lut_set::<N, CODES>(tables, source)?)
 }

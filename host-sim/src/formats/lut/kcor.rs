@@ -36,7 +36,7 @@ use std::path::{Path, PathBuf};
 use dncal_core::Weight;
 
 use super::{Lut, LutFault};
-use crate::HostError;
+use crate::{HostError, Origin};
 
 /// Codes per K-Cor table (12-bit ADCs).
 pub const KCOR_CODES: usize = 4096;
@@ -211,8 +211,8 @@ pub fn read_set(files: &[PathBuf; 4]) -> Result<(Vec<KcorTable>, Lut), HostError
 /// The four K-Cor tables of `lut`, from its code widths, at scaling `bits` (default the
 /// LUT's own K-Cor scaling, else 23). The widths must rebuild the LUT's entries in the
 /// core (else the file was edited and the two disagree); `source` names the LUT's file.
-pub fn tables_of(lut: &Lut, bits: Option<u32>, source: &Path) -> Result<Vec<KcorTable>, HostError> {
-    let err = |fault: LutFault| HostError::lut(source, fault);
+pub fn tables_of(lut: &Lut, bits: Option<u32>, source: &Origin) -> Result<Vec<KcorTable>, HostError> {
+    let err = |fault: LutFault| HostError::lut(source.clone(), fault);
     let codes = lut.tables.first().map_or(0, Vec::len);
     if lut.tables.len() != 4 || codes != KCOR_CODES {
         return Err(err(LutFault::NotKcorShape { n_adc: lut.tables.len(), codes }));
@@ -224,7 +224,7 @@ pub fn tables_of(lut: &Lut, bits: Option<u32>, source: &Path) -> Result<Vec<Kcor
     if !KCOR_SCALINGS.contains(&bits) {
         return Err(err(LutFault::KcorBits { bits }));
     }
-    let (rebuilt, _) = super::tables_from_weights(weights, &source.into())?;
+    let (rebuilt, _) = super::tables_from_weights(weights, source)?;
     if let Some(adc) = (0..4).find(|&a| rebuilt[a] != lut.tables[a]) {
         return Err(err(LutFault::WeightsDisagree { adc }));
     }

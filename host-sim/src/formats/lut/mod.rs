@@ -71,7 +71,7 @@ pub struct Lut {
 
 impl Lut {
     /// The core's LUT set from per-ADC `weights`; `source` names the input in errors.
-    pub fn from_weights(weights: Vec<Vec<Weight>>, source: &Path) -> Result<Lut, HostError> {
+    pub fn from_weights(weights: Vec<Vec<Weight>>, source: impl Into<Origin>) -> Result<Lut, HostError> {
         let (tables, _) = tables_from_weights(&weights, &source.into())?;
         Ok(Lut { tables, weights: Some(weights), kcor_bits: None })
     }
@@ -131,26 +131,17 @@ pub fn read_fits(path: &Path) -> Result<Lut, HostError> {
 
 /// Checks `lut`'s tables as the core checks every set it loads (a layout it is built for,
 /// every entry below 2^23, none below its predecessor); `path` names the file.
-pub fn validate(lut: &Lut, path: &Path) -> Result<(), HostError> {
+pub fn validate(lut: &Lut, origin: impl Into<Origin>) -> Result<(), HostError> {
+    let origin = origin.into();
     let (n, codes) = (lut.tables.len(), lut.tables.first().map_or(0, Vec::len));
-    crate::dispatch_lut_dims!(n, codes, path, validate_tables(&lut.tables, path))
+    crate::dispatch_lut_dims!(n, codes, origin.clone(), validate_tables(&lut.tables, &origin))
 }
 
 /// The core's checks of a LUT set (every entry below 2^23, non-decreasing).
-fn validate_tables<const N: usize, const CODES: usize>(tables: &[Vec<u32>], path: &Path) -> Result<(), HostError> {
-    set_from_tables::<N, CODES>(tables, path).map(drop)
+fn validate_tables<const N: usize, const CODES: usize>(tables: &[Vec<u32>], origin: &Origin) -> Result<(), HostError> {
+    crate::infra::dims::lut_set::<N, CODES>(tables, origin).map(drop)
 }
 
-/// The core's LUT set of `tables` (`N` of `CODES` entries), checked as the core checks
-/// every set it loads; `path` names the input in errors.
-pub(crate) fn set_from_tables<const N: usize, const CODES: usize>(tables: &[Vec<u32>], path: &Path) -> Result<Box<LutSet<N, CODES>>, HostError> {
-    let mut bits = vec![[0u32; CODES]; N];
-    for (dst, src) in bits.iter_mut().zip(tables) {
-        dst.copy_from_slice(src);
-    }
-    let bits: Box<[[u32; CODES]; N]> = bits.into_boxed_slice().try_into().map_err(|_| HostError::lut(path, LutFault::TableCount))?;
-    LutSet::<N, CODES>::from_bits(&bits).map(Box::new).map_err(|e| HostError::core(path.display().to_string(), e))
-}
 
 /// The files [`write`] writes for `-o OUT` in `format`: the LUT FITS `OUT.fits` (OUT
 /// itself if it ends in `.fits`), the device image `OUT.bin`, or the four K-Cor tables
@@ -179,12 +170,13 @@ pub fn output_paths(format: LutFormat, out: &Path) -> Result<Vec<PathBuf>, HostE
 /// the input in errors. The K-Cor tables need the code widths, at scaling `kcor_bits`
 /// (default the LUT's own, else 23), and widths that rebuild the entries (else the file
 /// was edited and the two disagree).
-pub fn write(files: &mut Outputs, lut: &Lut, format: LutFormat, paths: &[PathBuf], kcor_bits: Option<u32>, source: &Path) -> Result<(), HostError> {
+pub fn write(files: &mut Outputs, lut: &Lut, format: LutFormat, paths: &[PathBuf], kcor_bits: Option<u32>, source: impl Into<Origin>) -> Result<(), HostError> {
+    let source = source.into();
     match format {
         LutFormat::Fits => stage_lut(files, &paths[0], &lut.fits_tables()),
         LutFormat::DeviceImage => files.write_bytes(&paths[0], &image::encode(&lut.tables, source)?),
         LutFormat::Kcor => {
-            for (t, path) in kcor::tables_of(lut, kcor_bits, source)?.iter().zip(paths) {
+            for (t, path) in kcor::tables_of(lut, kcor_bits, &source)?.iter().zip(paths) {
                 files.write_bytes(path, t.to_bytes())?;
             }
             Ok(())

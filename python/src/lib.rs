@@ -1,0 +1,24 @@
+//! `dncal._dncal`: the extension module of the `dncal` Python package (`python/pysrc`).
+//!
+//! A thin layer: every number comes from `dncal-core` (the correction) and `dncal-host`
+//! (LUTs, characterizations, diagnose); this crate only turns numpy arrays into slices
+//! (read in place, never copied on the way in), library errors into Python exceptions
+//! (`errors.rs`), and summaries into the JSON the CLI's `--json` prints, which the
+//! Python side turns into dicts.
+
+use pyo3::prelude::*;
+
+mod analyses;
+mod arrays;
+mod correct;
+mod errors;
+mod luts;
+
+#[pymodule]
+fn _dncal(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    luts::register(m)?;
+    correct::register(m)?;
+    analyses::register(m)?;
+    Ok(())
+}

@@ -1,0 +1,86 @@
+"""Characterizations and diagnose from Python against the CLI's --json on the same
+files; the in-memory linearity fit against `dncal linearity` on the set's own file."""
+
+import math
+
+import numpy as np
+import pytest
+from astropy.io import fits
+
+import dncal
+
+
+def without_timing(d):
+    return {k: v for k, v in d.items() if k != "analysis_s"}
+
+
+def test_diagnose_is_the_clis_json(sets, cli):
+    for name in ["h.fits", "lin.fits"]:
+        assert dncal.diagnose(sets / name) == cli("diagnose", sets / name)
+
+
+def test_linearity_of_a_file_is_the_clis_json(sets, cli):
+    assert without_timing(dncal.linearity(sets / "lin.fits")) == without_timing(cli("linearity", sets / "lin.fits"))
+
+
+def test_quantization_is_the_clis_json(cli):
+    assert dncal.quantization(sigma=0.3) == cli("quantization", "--sigma", "0.3")
+    assert dncal.quantization(bias=0.01) == cli("quantization", "--bias", "0.01")
+
+
+def read_set(path):
+    with fits.open(path) as f:
+        mean = np.ascontiguousarray(f[0].data, dtype=np.float64)
+        std = np.ascontiguousarray(f["STD"].data, dtype=np.float64)
+        voltage = np.ascontiguousarray(f["REFERENCE"].data["VOLTAGE"], dtype=np.float64)
+        frames = int(f[0].header["NFRAMES"])
+    return mean, std, voltage, frames
+
+
+def test_fit_linearity_on_arrays_equals_the_cli_on_the_file(sets, cli, dncal_bin, tmp_path):
+    import subprocess
+
+    mean, std, voltage, frames = read_set(sets / "lin.fits")
+    fit = dncal.fit_linearity(mean, std, voltage, frames)
+    theirs = cli("linearity", sets / "lin.fits")
+    assert fit.report == {k: v for k, v in theirs.items() if k not in ("input", "analysis_s", "outputs")}
+    subprocess.run([str(dncal_bin), "--quiet", "linearity", str(sets / "lin.fits"), "-o", str(tmp_path / "out")], check=True, capture_output=True)
+    with fits.open(tmp_path / "out" / "coefficients.fits") as f:
+        coeffs, mask = f[0].data, f["MASK"].data
+    assert fit.coefficients.shape == (5,) + mean.shape[1:]
+    assert np.array_equal(fit.coefficients, coeffs, equal_nan=True)
+    assert np.array_equal(fit.mask, mask)
+    with fits.open(tmp_path / "out" / "corrected.fits") as f:
+        assert np.array_equal(fit.corrected, f[0].data, equal_nan=True)
+    # keep_corrected=False: the same report without the cube.
+    lean = dncal.fit_linearity(mean, std, voltage, frames, keep_corrected=False)
+    assert lean.corrected is None and lean.report == fit.report
+
+
+def test_bad_linearity_inputs(sets):
+    mean, std, voltage, frames = read_set(sets / "lin.fits")
+    bad = mean.copy()
+    bad[3, 2, 1] = math.nan
+    with pytest.raises(dncal.InputError, match="mean is NaN at level 3, row 2, column 1"):
+        dncal.fit_linearity(bad, std, voltage, frames)
+    with pytest.raises(dncal.InputError, match="REFERENCE VOLTAGE"):
+        dncal.fit_linearity(mean, std, np.zeros_like(voltage), frames)
+    with pytest.raises(ValueError, match="voltage: 3 values"):
+        dncal.fit_linearity(mean, std, voltage[:3].copy(), frames)
+    with pytest.raises(ValueError, match="std: shape"):
+        dncal.fit_linearity(mean, std[:, :-1].copy(), voltage, frames)
+    with pytest.raises(ValueError, match="order 9"):
+        dncal.fit_linearity(mean, std, voltage, frames, order=9)
+    with pytest.raises(dncal.InputError, match="an order-8 fit needs at least 11"):
+        dncal.fit_linearity(mean[:10].copy(), std[:10].copy(), voltage[:10].copy(), frames, order=8)
+    with pytest.raises(TypeError, match="dtype float32"):
+        dncal.fit_linearity(mean.astype(np.float32), std, voltage, frames)
+
+
+def test_missing_and_bad_files_raise_their_class(tmp_path):
+    with pytest.raises(dncal.DncalIOError):
+        dncal.diagnose(tmp_path / "nothing.fits")
+    junk = tmp_path / "junk.fits"
+    junk.write_bytes(b"SIMPLE  =                    T" + b" " * 3000)
+    with pytest.raises(dncal.InputError, match="junk.fits"):
+        dncal.diagnose(junk)
