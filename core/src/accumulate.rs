@@ -125,26 +125,6 @@ impl<'a> SumImages<'a> {
         buf.fill(0);
         Ok(SumImages { buf, geometry, frames: Self::zero_counts(geometry) })
     }
-    /// Sums over `buf` as a [`Corrector`] left them ([`Corrector::suspend`]): nothing is
-    /// cleared. A state whose next frame adds exactly must hold no sum above its frame
-    /// count times the largest entry ([`CoreError::SumAboveCount`]), so that exact
-    /// addition still cannot wrap whatever the buffer went through meanwhile.
-    fn resume(geometry: Geometry, buf: &'a mut [u32], frames: heapless::Vec<FrameCount, MAX_STATES>) -> Result<Self, CoreError> {
-        if buf.len() != geometry.sum_len() {
-            return Err(CoreError::Length { what: Quantity::SumBuffer, expected: geometry.sum_len() as u32, got: buf.len() as u32 });
-        }
-        let pixels = geometry.pixels();
-        for (state, (count, sums)) in frames.iter().zip(buf.chunks_exact(pixels.max(1))).enumerate() {
-            if count.mode() == SumMode::Exact {
-                // Below EXACT_FRAMES = 2^9 frames of entries below 2^23: no overflow here.
-                let bound = count.get() * (crate::lut::LUT_ENTRY_LIMIT - 1);
-                if sums.iter().any(|&s| s > bound) {
-                    return Err(CoreError::SumAboveCount { state: state as u8, frames: count.get() });
-                }
-            }
-        }
-        Ok(SumImages { buf, geometry, frames })
-    }
     fn zero_counts(geometry: Geometry) -> heapless::Vec<FrameCount, MAX_STATES> {
         // Geometry::new bounds `states` by MAX_STATES, so every push fits.
         let mut counts = heapless::Vec::new();
@@ -204,9 +184,8 @@ pub struct Status {
     pub lut_swaps: u32,
 }
 
-/// What a suspended [`Corrector`] counted: its geometry, each state's completed frames
-/// and the status. Made only by [`Corrector::suspend`], so the frame counts that decide
-/// exact addition are the ones the sums were made with.
+/// What a [`Corrector`] counted, kept between calls by [`SealedSums`]: the geometry,
+/// each state's completed frames and the status.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Suspended {
     geometry: Geometry,
@@ -226,6 +205,58 @@ impl Suspended {
     /// The counters.
     pub fn status(&self) -> Status {
         self.status
+    }
+}
+
+/// Sums in a buffer the caller owns (`B`: a `Vec<u32>` on a host, a static slice on a
+/// device) but can only read: a host that hands the core frames one call at a time (the
+/// Python package) keeps them here between calls, and each call gets a [`Corrector`] that
+/// goes on where the last one stopped. Only a corrector writes the buffer, so the frame
+/// counts that decide exact addition are always the ones the sums were made with: a run
+/// cut into calls is one run, bit for bit, at no cost per call. `B`'s `AsMut` must give
+/// the same buffer every time (as `Vec` and slices do).
+#[derive(Debug)]
+pub struct SealedSums<B> {
+    buf: B,
+    kept: Suspended,
+}
+
+impl<B: AsRef<[u32]> + AsMut<[u32]>> SealedSums<B> {
+    /// Sums over `buf` (exactly `geometry.sum_len()` elements; cleared).
+    pub fn new(geometry: Geometry, mut buf: B) -> Result<Self, CoreError> {
+        SumImages::new(geometry, buf.as_mut())?;
+        Ok(SealedSums { buf, kept: Suspended { geometry, frames: SumImages::zero_counts(geometry), status: Status::default() } })
+    }
+    /// The sums, state-major as [`SumImages`] lays them out.
+    pub fn sums(&self) -> &[u32] {
+        self.buf.as_ref()
+    }
+    /// The geometry, frame counts and status so far.
+    pub fn kept(&self) -> &Suspended {
+        &self.kept
+    }
+    /// Zeroes the sums, frame counts and status, as after a readout.
+    pub fn clear(&mut self) {
+        self.buf.as_mut().fill(0);
+        self.kept = Suspended { geometry: self.kept.geometry, frames: SumImages::zero_counts(self.kept.geometry), status: Status::default() };
+    }
+    /// Runs `work` with a corrector over these sums and `banks`, then keeps what it
+    /// counted; a frame `work` leaves open is ended (counted incomplete if short).
+    pub fn correct<const N: usize, const CODES: usize, R>(&mut self, banks: &mut LutBanks<N, CODES>, work: impl FnOnce(&mut Corrector<'_, N, CODES>) -> R) -> Result<R, CoreError> {
+        let geometry = self.kept.geometry;
+        let buf = self.buf.as_mut();
+        if buf.len() != geometry.sum_len() {
+            return Err(CoreError::Length { what: Quantity::SumBuffer, expected: geometry.sum_len() as u32, got: buf.len() as u32 });
+        }
+        let sums = SumImages { buf, geometry, frames: self.kept.frames.clone() };
+        let mut c = Corrector { banks, sums, status: self.kept.status, frame: None };
+        let result = work(&mut c);
+        if c.frame.is_some() {
+            c.end_frame()?;
+        }
+        let kept = Suspended { geometry, frames: c.sums.frames.clone(), status: c.status };
+        self.kept = kept;
+        Ok(result)
     }
 }
 
@@ -420,24 +451,6 @@ impl<'a, const N: usize, const CODES: usize> Corrector<'a, N, CODES> {
     /// The counters.
     pub fn status(&self) -> Status {
         self.status
-    }
-    /// Ends this corrector between frames and keeps what it counted: the frames of each
-    /// state and the status, for [`resume`](Self::resume) on the same banks and sum
-    /// buffer (a host that owns them and corrects frames one call at a time). Refused
-    /// while a frame is open; the corrector is given back with the error.
-    pub fn suspend(self) -> Result<Suspended, (Self, CoreError)> {
-        if self.frame.is_some() {
-            return Err((self, CoreError::FrameOpen));
-        }
-        Ok(Suspended { geometry: self.sums.geometry, frames: self.sums.frames, status: self.status })
-    }
-
-    /// A corrector that goes on where [`suspend`](Self::suspend) left off: `sum_buf`
-    /// is the suspended one, not cleared (sums that its frame counts cannot have made
-    /// are refused, [`CoreError::SumAboveCount`]).
-    pub fn resume(banks: &'a mut LutBanks<N, CODES>, sum_buf: &'a mut [u32], suspended: Suspended) -> Result<Self, CoreError> {
-        let sums = SumImages::resume(suspended.geometry, sum_buf, suspended.frames)?;
-        Ok(Corrector { banks, sums, status: suspended.status, frame: None })
     }
     /// Whether a frame is open.
     pub fn frame_open(&self) -> bool {
@@ -680,66 +693,58 @@ mod tests {
         assert!(c.sums().state(0).unwrap().iter().all(|&s| s == LUT_ENTRY_LIMIT - 1));
     }
 
-    fn suspend<const N: usize, const CODES: usize>(c: Corrector<'_, N, CODES>) -> Suspended {
-        match c.suspend() {
-            Ok(s) => s,
-            Err((_, e)) => panic!("suspend: {e}"),
-        }
-    }
-
     #[test]
-    fn suspended_and_resumed_at_every_frame_is_one_uninterrupted_run() {
+    fn sealed_sums_cut_at_every_frame_are_one_uninterrupted_run() {
         // 520 frames, mostly top codes with some codes above the top: state 0 gets 515
         // of them and so crosses 512 into saturating addition, state 1 the last 5.
-        // Suspended after every frame, the sums, counts and status equal those of one
-        // corrector that was never suspended.
+        // One call a frame through SealedSums: the sums, counts and status equal those
+        // of one corrector that ran them all.
         let g = Geometry::new(8, 2, 2, 3).unwrap();
         let frame = |f: u32| -> [u16; 16] { core::array::from_fn(|i| if f % 7 == 0 { (i as u16 * 517 + f as u16) % 5000 } else { 4095 }) };
         let state = |f: u32| if f < 515 { 0 } else { 1 };
         let (mut once_buf, mut banks_once) = ([0u32; 32], LutBanks::new(top_luts()));
         let mut once = Corrector::new(&mut banks_once, g, &mut once_buf).unwrap();
-        let (mut buf, mut banks) = ([0u32; 32], LutBanks::new(top_luts()));
-        let mut suspended = suspend(Corrector::new(&mut banks, g, &mut buf).unwrap());
+        let mut banks = LutBanks::new(top_luts());
+        let mut sealed = SealedSums::new(g, [7u32; 32]).unwrap();
+        assert!(sealed.sums().iter().all(|&s| s == 0), "cleared");
         for f in 0..520 {
             once.begin_frame(state(f)).unwrap();
             once.accumulate_lines(0, &frame(f)).unwrap();
             once.end_frame().unwrap();
-            let mut c = Corrector::resume(&mut banks, &mut buf, suspended).unwrap();
-            c.begin_frame(state(f)).unwrap();
-            c.accumulate_lines(0, &frame(f)).unwrap();
-            c.end_frame().unwrap();
-            suspended = suspend(c);
+            sealed
+                .correct(&mut banks, |c| {
+                    c.begin_frame(state(f)).unwrap();
+                    c.accumulate_lines(0, &frame(f)).unwrap();
+                    c.end_frame().unwrap();
+                })
+                .unwrap();
         }
-        assert_eq!(suspended.status(), once.status());
+        let kept = sealed.kept();
+        assert_eq!(kept.status(), once.status());
         assert!(once.status().saturated_additions > 0 && once.status().out_of_range_codes > 0);
-        assert_eq!((suspended.frames(0).get(), suspended.frames(1).get()), (515, 5));
-        assert_eq!(suspended.frames(0), once.sums().frames(0));
-        assert_eq!(suspended.geometry(), g);
-        assert_eq!(&buf[..], once.sums().as_slice());
+        assert_eq!((kept.frames(0).get(), kept.frames(1).get()), (515, 5));
+        assert_eq!(kept.frames(0), once.sums().frames(0));
+        assert_eq!(kept.geometry(), g);
+        assert_eq!(sealed.sums(), once.sums().as_slice());
+        sealed.clear();
+        assert!(sealed.sums().iter().all(|&s| s == 0));
+        assert_eq!((sealed.kept().frames(0).get(), sealed.kept().status()), (0, Status::default()));
     }
 
     #[test]
-    fn a_resume_on_sums_its_counts_cannot_have_made_is_refused() {
-        let g = Geometry::new(4, 1, 2, 0).unwrap();
-        let (mut buf, mut banks) = ([0u32; 8], LutBanks::new(top_luts()));
-        let mut c = Corrector::new(&mut banks, g, &mut buf).unwrap();
-        c.begin_frame(1).unwrap();
-        c.accumulate_line(0, &[4095; 4]).unwrap();
-        // Open frame: refused, the corrector given back.
-        let Err((mut c, e)) = c.suspend() else { panic!("suspended with a frame open") };
-        assert_eq!(e, CoreError::FrameOpen);
-        c.end_frame().unwrap();
-        let suspended = suspend(c);
-        // State 1 holds one top entry per pixel: its bound exactly, accepted.
-        assert!(Corrector::resume(&mut banks, &mut buf, suspended.clone()).is_ok());
-        // One unit more in state 1, or anything in state 0 (no frames), is refused.
-        buf[5] += 1;
-        assert_eq!(Corrector::resume(&mut banks, &mut buf, suspended.clone()).err(), Some(CoreError::SumAboveCount { state: 1, frames: 1 }));
-        buf[5] -= 1;
-        buf[0] = 1;
-        assert_eq!(Corrector::resume(&mut banks, &mut buf, suspended.clone()).err(), Some(CoreError::SumAboveCount { state: 0, frames: 0 }));
-        // A buffer of another size.
-        assert!(matches!(Corrector::resume(&mut banks, &mut buf[..4], suspended).err(), Some(CoreError::Length { what: Quantity::SumBuffer, .. })));
+    fn a_frame_left_open_is_ended_and_a_buffer_of_another_size_refused() {
+        let g = Geometry::new(4, 2, 1, 0).unwrap();
+        let mut banks = LutBanks::new(top_luts());
+        let mut sealed = SealedSums::new(g, [0u32; 8]).unwrap();
+        sealed
+            .correct(&mut banks, |c| {
+                c.begin_frame(0).unwrap();
+                c.accumulate_line(0, &[4095; 4]).unwrap();
+            })
+            .unwrap();
+        assert_eq!((sealed.kept().frames(0).get(), sealed.kept().status().incomplete_frames), (1, 1));
+        assert_eq!(sealed.sums(), &[LUT_ENTRY_LIMIT - 1, LUT_ENTRY_LIMIT - 1, LUT_ENTRY_LIMIT - 1, LUT_ENTRY_LIMIT - 1, 0, 0, 0, 0]);
+        assert!(matches!(SealedSums::new(g, [0u32; 7]).err(), Some(CoreError::Length { what: Quantity::SumBuffer, .. })));
     }
 
     #[test]

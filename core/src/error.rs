@@ -80,15 +80,6 @@ pub enum CoreError {
     FrameOpen,
     /// A line or `end_frame` while no frame is open.
     NoFrame,
-    /// A sum buffer handed back to [`Corrector::resume`](crate::Corrector::resume) that
-    /// holds more in a state than its frame count can have added: not the buffer that
-    /// was suspended, and exact addition on it could wrap.
-    SumAboveCount {
-        /// The state.
-        state: u8,
-        /// Its completed frames.
-        frames: u32,
-    },
     /// A ROI outside the geometry or empty.
     Roi,
     /// The device image does not start with the magic bytes `DNLT`.
@@ -281,7 +272,6 @@ impl fmt::Display for CoreError {
             LineOrder { expected, got } => write!(f, "line {got} out of order, expected line {expected}"),
             FrameOpen => f.write_str("a frame is already open"),
             NoFrame => f.write_str("no frame is open"),
-            SumAboveCount { state, frames } => write!(f, "a sum of state {state} is above what its {frames} frames can add: not the suspended sums"),
             Roi => f.write_str("region of interest empty or outside the geometry"),
             ImageMagic => f.write_str("LUT image does not start with magic 'DNLT'"),
             ImageVersion { version } => write!(f, "LUT image version {version} is not supported"),

@@ -46,7 +46,7 @@ pub mod noise;
 pub mod regs;
 pub mod stream;
 
-pub use accumulate::{Corrector, FrameCount, Geometry, LineReport, Status, SumImages, Suspended, EXACT_FRAMES, MAX_STATES};
+pub use accumulate::{Corrector, FrameCount, Geometry, LineReport, Status, SealedSums, SumImages, Suspended, EXACT_FRAMES, MAX_STATES};
 pub use adc::{adc_of_column, AdcMap, Code};
 pub use banks::{LutBanks, StagingState};
 pub use error::{CoreError, LinkFault, LinkStep};

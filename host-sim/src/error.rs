@@ -465,6 +465,7 @@ impl HostError {
             HostError::Io { .. } | HostError::IoOf { .. } | HostError::NotRegular { .. } | HostError::OutputNotFile { .. } | HostError::Output { .. } => ErrorKind::Io,
             HostError::OverBudget { .. } => ErrorKind::OverBudget,
             HostError::Tool { .. } => ErrorKind::Tool,
+            HostError::WidthsFrom { inner, .. } => inner.kind(),
             _ => ErrorKind::Input,
         }
     }

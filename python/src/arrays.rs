@@ -1,5 +1,5 @@
-//! numpy arrays in and out. In: an argument is taken as the array it is, read in place
-//! (no copy), or refused with a `TypeError` (not an array, another dtype) or a
+//! numpy arrays in and out. In: an argument is viewed as the array it is (the caller
+//! reads it in place or copies what it keeps), or refused with a `TypeError` (not an array, another dtype) or a
 //! `ValueError` (dimensions, layout, empty) that names the argument and says what is
 //! needed (an unaligned or non-contiguous buffer is refused, not copied). Out: results are new arrays that Python owns.
 

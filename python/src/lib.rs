@@ -2,7 +2,8 @@
 //!
 //! A thin layer: every number comes from `dncal-core` (the correction) and `dncal-host`
 //! (LUTs, characterizations, diagnose); this crate only turns numpy arrays into slices
-//! (read in place, never copied on the way in), library errors into Python exceptions
+//! (frames read in place; a linearity cube copied once into the library's set), library
+//! errors into Python exceptions
 //! (`errors.rs`), and summaries into the JSON the CLI's `--json` prints, which the
 //! Python side turns into dicts.
 
@@ -10,6 +11,7 @@ use pyo3::prelude::*;
 
 mod analyses;
 mod arrays;
+mod bench;
 mod correct;
 mod errors;
 mod luts;
@@ -20,5 +22,6 @@ fn _dncal(m: &Bound<'_, PyModule>) -> PyResult<()> {
     luts::register(m)?;
     correct::register(m)?;
     analyses::register(m)?;
+    bench::register(m)?;
     Ok(())
 }

@@ -78,3 +78,15 @@ def test_bad_inputs():
         dd.correct(da.zeros((2, 3, 4), dtype=np.uint16), l, 2, frame_states=[0, 2])
     with pytest.raises(dncal.InputError):
         dd.correct(da.zeros((2, 3, 4), dtype=np.uint16), np.zeros((3, 4096), dtype=np.uint32), 1)
+    with pytest.raises(TypeError, match="uint32"):
+        dd.correct(da.zeros((2, 3, 4), dtype=np.uint16), l.entries.astype(np.int64), 1)
+    with pytest.raises(ValueError, match="1 to 8"):
+        dd.correct(da.zeros((2, 3, 4), dtype=np.uint16), l, 9)
+    with pytest.raises(TypeError, match="integers"):
+        dd.correct(da.zeros((2, 3, 4), dtype=np.uint16), l, 2, frame_states=[0.0, 1.5])
+
+
+def test_a_mosaic_wider_than_the_cores_columns():
+    # First columns past 2^16: each block's ADC phase is what the column gives.
+    frames = frames_with_codes_above_the_top(3, 4, 24, seed=2)
+    check(frames, (3, 2, 6), 1, first_column=65533)

@@ -1,11 +1,11 @@
 //! The core's corrector for a host that owns the LUT banks and the sums and hands it
-//! frames one call at a time (the Python package's `Corrector`): between calls the
-//! corrector is suspended ([`dncal_core::Corrector::suspend`]) and resumed on the same
-//! buffers, so a run cut into calls is bit for bit one uninterrupted run, the switch to
-//! saturating addition after 512 frames included. The LUT layout (ADCs, codes) is a
-//! compile-time size of the core; [`FrameSums`] hides it behind one type.
+//! frames one call at a time (the Python package's `Corrector`): the sums live in the
+//! core's [`SealedSums`], which only a corrector writes, so a run cut into calls is bit
+//! for bit one uninterrupted run, the switch to saturating addition after 512 frames
+//! included, at no cost per call. The LUT layout (ADCs, codes) is a compile-time size of
+//! the core; [`FrameSums`] hides it behind one type.
 
-use dncal_core::{CoreError, Corrector, Geometry, LutBanks, Status, Suspended};
+use dncal_core::{CoreError, Geometry, LutBanks, SealedSums, Status, Suspended};
 
 use crate::infra::dims::lut_set;
 use crate::{HostError, Origin};
@@ -36,8 +36,9 @@ impl FrameSums {
     /// is refused before any frame is added.
     pub fn add_frames(&mut self, codes: &[u16], states: &[u8]) -> Result<(), HostError> {
         let g = self.geometry();
-        if codes.len() != states.len() * g.pixels() {
-            let e = CoreError::Length { what: dncal_core::error::Quantity::BlockPixels, expected: (states.len() * g.pixels()) as u32, got: codes.len() as u32 };
+        if states.len().checked_mul(g.pixels()) != Some(codes.len()) {
+            let expected = states.len().saturating_mul(g.pixels()).try_into().unwrap_or(u32::MAX);
+            let e = CoreError::Length { what: dncal_core::error::Quantity::BlockPixels, expected, got: codes.len().try_into().unwrap_or(u32::MAX) };
             return Err(HostError::core("frames", e));
         }
         if let Some(&state) = states.iter().find(|&&s| s >= g.states()) {
@@ -83,52 +84,39 @@ trait Engine: Send + Sync {
 
 struct Owned<const N: usize, const CODES: usize> {
     banks: Box<LutBanks<N, CODES>>,
-    sums: Vec<u32>,
-    suspended: Suspended,
+    sums: SealedSums<Vec<u32>>,
 }
 
 fn engine<const N: usize, const CODES: usize>(tables: &[Vec<u32>], origin: &Origin, geometry: Geometry) -> Result<Box<dyn Engine>, HostError> {
     let set = lut_set::<N, CODES>(tables, origin)?;
-    let mut banks = Box::new(LutBanks::new(*set));
-    let mut sums = vec![0u32; geometry.sum_len()];
-    let suspended = fresh(&mut banks, geometry, &mut sums).map_err(|e| HostError::core(origin.to_string(), e))?;
-    Ok(Box::new(Owned { banks, sums, suspended }))
-}
-
-/// A new corrector's state over cleared `sums`.
-fn fresh<const N: usize, const CODES: usize>(banks: &mut LutBanks<N, CODES>, geometry: Geometry, sums: &mut [u32]) -> Result<Suspended, CoreError> {
-    Corrector::new(banks, geometry, sums)?.suspend().map_err(|(_, e)| e)
+    let banks = Box::new(LutBanks::new(*set));
+    let sums = SealedSums::new(geometry, vec![0u32; geometry.sum_len()]).map_err(|e| HostError::core(origin.to_string(), e))?;
+    Ok(Box::new(Owned { banks, sums }))
 }
 
 impl<const N: usize, const CODES: usize> Engine for Owned<N, CODES> {
     fn add_frames(&mut self, codes: &[u16], states: &[u8]) -> Result<(), CoreError> {
-        let pixels = self.suspended.geometry().pixels();
-        let mut c = Corrector::resume(&mut self.banks, &mut self.sums, self.suspended.clone())?;
-        let mut result = Ok(());
-        for (frame, &state) in codes.chunks_exact(pixels).zip(states) {
-            result = c.begin_frame(state).and_then(|_| c.accumulate_lines(0, frame)).and_then(|_| c.end_frame());
-            if result.is_err() {
-                break;
+        let pixels = self.sums.kept().geometry().pixels();
+        self.sums.correct(&mut self.banks, |c| {
+            for (frame, &state) in codes.chunks_exact(pixels).zip(states) {
+                c.begin_frame(state)?;
+                c.accumulate_lines(0, frame)?;
+                c.end_frame()?;
             }
-        }
-        // A frame an error left open is closed: its lines stay counted as incomplete.
-        if c.frame_open() {
-            c.end_frame()?;
-        }
-        self.suspended = c.suspend().map_err(|(_, e)| e)?;
-        result
+            Ok(())
+        })?
     }
 
     fn sums(&self) -> &[u32] {
-        &self.sums
+        self.sums.sums()
     }
 
     fn suspended(&self) -> &Suspended {
-        &self.suspended
+        self.sums.kept()
     }
 
     fn clear(&mut self) -> Result<(), CoreError> {
-        self.suspended = fresh(&mut self.banks, self.suspended.geometry(), &mut self.sums)?;
+        self.sums.clear();
         Ok(())
     }
 }

@@ -29,7 +29,13 @@ STATUS_KEYS = ("out_of_range_codes", "saturated_additions", "rejected_lines", "i
 
 
 def _entries(lut) -> np.ndarray:
-    return np.ascontiguousarray(lut.entries if isinstance(lut, Lut) else lut, dtype=np.uint32)
+    """The LUT's entries: a :class:`dncal.Lut`, or a uint32 (adcs, codes) array that
+    the core checks as it checks every set (another dtype is refused, not cast)."""
+    entries = lut.entries if isinstance(lut, Lut) else np.asarray(lut)
+    if entries.dtype != np.uint32:
+        raise TypeError(f"lut: dtype {entries.dtype}, but a dncal.Lut or uint32 entries are needed")
+    Lut(np.require(entries, requirements=["C", "A"]))
+    return entries
 
 
 def _correct_block(block: np.ndarray, entries: np.ndarray, states: int, first_column: int, frame_states: np.ndarray) -> Tuple[np.ndarray, Dict[str, int]]:
@@ -60,8 +66,9 @@ def correct(frames, lut, states: int, first_column: int = 0, frame_states=None) 
     Frame f goes into state ``frame_states[f]`` (default f mod ``states``). Returns
     ``(sums, status)``, both lazy: ``sums`` a ``dask.array`` of uint32 (states, rows,
     cols), units of 2^-11 DN, chunked as the frames' rows and columns; ``status`` a
-    ``dask.delayed`` dict of the core's counters summed over the blocks (the frame counts
-    are the stack's). Compute both in one pass: ``dask.compute(sums, status)``.
+    ``dask.delayed`` dict of the core's counters (:data:`STATUS_KEYS`) summed over the
+    blocks as Python integers (the core's own 32-bit counters saturate; these do not).
+    Compute both in one pass: ``dask.compute(sums, status)``.
     """
     if not isinstance(frames, da.Array):
         raise TypeError(f"frames: a dask.array is needed, not {type(frames).__name__} (dncal.Corrector takes numpy arrays)")
@@ -71,17 +78,23 @@ def correct(frames, lut, states: int, first_column: int = 0, frame_states=None) 
         raise ValueError(f"frames: {frames.ndim} dimension(s), but 3 (frames, rows, cols) are needed")
     if 0 in frames.shape:
         raise ValueError(f"frames: empty {frames.shape}")
+    if not 1 <= states <= 8:
+        raise ValueError(f"states: {states}, but the core sums 1 to 8 modulation states")
     n = frames.shape[0]
     if frame_states is None:
         frame_states = np.arange(n) % states
-    frame_states = np.asarray(frame_states, dtype=np.int64)
+    frame_states = np.asarray(frame_states)
+    if frame_states.dtype.kind not in "iu":
+        raise TypeError(f"frame_states: dtype {frame_states.dtype}, but integers are needed")
     if frame_states.shape != (n,):
         raise ValueError(f"frame_states: {frame_states.size} values for {n} frames")
     if frame_states.min() < 0 or frame_states.max() >= states:
         raise ValueError(f"frame_states: every state must be 0 to {states - 1}")
     frame_states = frame_states.astype(np.uint8)
-    entries = _entries(lut)
-    Lut(entries)  # checked once here, as the core checks it, before any block runs
+    # Checked once here, as the core checks it, before any block runs; given to the
+    # graph once, not copied into every task.
+    entries = dask.delayed(_entries(lut), pure=True)
+    frame_states = dask.delayed(frame_states, pure=True)
     frames = frames.rechunk({0: -1})
     blocks = frames.to_delayed()[0]  # (row blocks, column blocks) of whole frame stacks
     col_starts = np.cumsum((0,) + frames.chunks[2][:-1])
@@ -90,7 +103,11 @@ def correct(frames, lut, states: int, first_column: int = 0, frame_states=None) 
     for i, h in enumerate(frames.chunks[1]):
         row = []
         for j, w in enumerate(frames.chunks[2]):
-            sums, status = correct_block(blocks[i][j], entries, states, first_column + int(col_starts[j]), frame_states)
+            # The ADC of a column is the column mod N (N = 1, 2, 4 or 8): mod 8 keeps
+            # it, and the block's first column within the core's 16 bits however wide
+            # the mosaic.
+            column = (first_column + int(col_starts[j])) % 8
+            sums, status = correct_block(blocks[i][j], entries, states, column, frame_states)
             row.append(da.from_delayed(sums, shape=(states, h, w), dtype=np.uint32))
             statuses.append(status)
         rows.append(row)
