@@ -129,7 +129,22 @@ fn fit_linearity<'py>(
     Ok((json(&report)?, coeffs, mask, corrected))
 }
 
+/// Sets the memory budget, bytes (the CLI's `--max-memory`): work that would need more
+/// is refused before anything is allocated (`OverBudgetError`).
+#[pyfunction]
+fn set_memory_budget(bytes: u64) {
+    dncal_host::infra::budget::set_limit(bytes);
+}
+
+/// The memory budget in force, bytes (default: 3/4 of the machine's physical memory).
+#[pyfunction]
+fn memory_budget() -> u64 {
+    dncal_host::infra::budget::limit()
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(set_memory_budget, m)?)?;
+    m.add_function(wrap_pyfunction!(memory_budget, m)?)?;
     m.add_function(wrap_pyfunction!(diagnose_json, m)?)?;
     m.add_function(wrap_pyfunction!(linearity_file_json, m)?)?;
     m.add_function(wrap_pyfunction!(quantization_json, m)?)?;

@@ -77,6 +77,26 @@ def test_bad_linearity_inputs(sets):
         dncal.fit_linearity(mean.astype(np.float32), std, voltage, frames)
 
 
+def test_a_fit_over_the_memory_budget_is_refused_as_the_cli_refuses_it(sets, dncal_bin, tmp_path):
+    import subprocess
+
+    # 512 KiB: the set's cubes (48 x 40 x 14 values) are read, its analysis (about
+    # 1.1 MiB) is refused.
+    mean, std, voltage, frames = read_set(sets / "lin.fits")
+    before = dncal.memory_budget()
+    dncal.set_memory_budget(512 * 1024)
+    try:
+        with pytest.raises(dncal.OverBudgetError) as e:
+            dncal.fit_linearity(mean, std, voltage, frames)
+    finally:
+        dncal.set_memory_budget(before)
+    assert isinstance(e.value, MemoryError) and dncal.memory_budget() == before
+    out = subprocess.run([str(dncal_bin), "--max-memory", "512K", "linearity", str(sets / "lin.fits"), "-o", str(tmp_path / "out")], capture_output=True, text=True)
+    theirs = out.stderr.strip().removeprefix("dncal: error: ")
+    assert out.returncode == 1 and "the pixel-wise analysis" in theirs, out.stderr
+    assert str(e.value) == "linearity set: " + theirs.split(": ", 1)[1]
+
+
 def test_missing_and_bad_files_raise_their_class(tmp_path):
     with pytest.raises(dncal.DncalIOError):
         dncal.diagnose(tmp_path / "nothing.fits")

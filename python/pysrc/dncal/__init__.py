@@ -21,7 +21,7 @@ from typing import Any, Dict, Optional
 import numpy as _np
 
 from . import errors
-from ._dncal import Corrector, Lut, __version__, build_luts, read_histograms, read_lut
+from ._dncal import Corrector, Lut, __version__, build_luts, memory_budget, read_histograms, read_lut, set_memory_budget
 from . import _dncal
 from .errors import DncalError, DncalIOError, InputError, OverBudgetError, ToolError
 
@@ -94,8 +94,10 @@ __all__ = [
     "errors",
     "fit_linearity",
     "linearity",
+    "memory_budget",
     "quantization",
     "read_histograms",
     "read_lut",
+    "set_memory_budget",
     "__version__",
 ]

@@ -64,13 +64,6 @@ pub fn linearity_as(read_from: &Path, input: &Path, order: usize, flat: Option<u
     // The corrected cube only for the outputs: without them the report needs its
     // statistics alone.
     let cube = if out.is_some() { Cube::Keep } else { Cube::Skip };
-    // The fits and their work space, and the corrected cube (f64 per pixel and level)
-    // where it is kept.
-    let (per_pixel, what) = match cube {
-        Cube::Keep => (24 * set.levels as u64 + 256, "the pixel-wise analysis (the corrected cube and the fits)"),
-        Cube::Skip => (16 * set.levels as u64 + 256, "the pixel-wise analysis (the fits)"),
-    };
-    crate::infra::budget::check(read_from, what, crate::infra::budget::bytes_of((set.width * set.height) as u64, per_pixel))?;
     let (report, px, analysis_s) = fit(&set, &Origin::File(input.into()), order, flat, cube)?;
     let mut outputs = Vec::new();
     if let Some(OutDir { files, dir }) = out {
@@ -152,11 +145,19 @@ pub fn linearity_as(read_from: &Path, input: &Path, order: usize, flat: Option<u
     Ok(LinearitySummary { input: input.into(), report, analysis_s, outputs })
 }
 
-/// The analysis of a set in memory (`origin` names it in errors): its levels and
+/// The analysis of a set in memory (`origin` names it in errors): its memory checked
+/// against the budget, its levels and
 /// reference checked for the pixel-wise order, the flat level checked where one is given
 /// (`--flat-level`), then the fits. Returns the report, the per-pixel results and the
 /// analysis' wall time, seconds.
 pub fn fit(set: &LinearitySet, origin: &Origin, order: usize, flat: Option<usize>, cube: Cube) -> Result<(LinearityReport, PixelResults, f64), HostError> {
+    // The fits and their work space, and the corrected cube (f64 per pixel and level)
+    // where it is kept.
+    let (per_pixel, what) = match cube {
+        Cube::Keep => (24 * set.levels as u64 + 256, "the pixel-wise analysis (the corrected cube and the fits)"),
+        Cube::Skip => (16 * set.levels as u64 + 256, "the pixel-wise analysis (the fits)"),
+    };
+    crate::infra::budget::check(origin.clone(), what, crate::infra::budget::bytes_of((set.width * set.height) as u64, per_pixel))?;
     if set.levels < order + 3 {
         return Err(HostError::Linearity { origin: origin.clone(), source: LinearityError::LevelsForOrder { levels: set.levels, order } });
     }
