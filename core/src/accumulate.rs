@@ -251,12 +251,10 @@ impl<B: AsRef<[u32]> + AsMut<[u32]>> SealedSums<B> {
         let sums = SumImages { buf, geometry, frames: self.kept.frames.clone() };
         let mut c = Corrector { banks, sums, status: self.kept.status, frame: None };
         let result = work(&mut c);
-        if c.frame.is_some() {
-            c.end_frame()?;
-        }
-        let kept = Suspended { geometry, frames: c.sums.frames.clone(), status: c.status };
-        self.kept = kept;
-        Ok(result)
+        let ended = if c.frame.is_some() { c.end_frame() } else { Ok(()) };
+        // Kept whatever happened, so the counts always describe the sums.
+        self.kept = Suspended { geometry, frames: c.sums.frames.clone(), status: c.status };
+        ended.map(|()| result)
     }
 }
 

@@ -120,9 +120,9 @@ impl PyCorrector {
     }
 
     /// Zeroes the sums, frame counts and counters, as after a readout.
-    fn clear(&mut self) -> PyResult<()> {
+    fn clear(&mut self) {
         self.added = 0;
-        self.sums.clear().py_err()
+        self.sums.clear();
     }
 
     fn __repr__(&self) -> String {

@@ -69,8 +69,8 @@ impl FrameSums {
     }
 
     /// Zeroes the sums, frame counts and counters, as after a readout.
-    pub fn clear(&mut self) -> Result<(), HostError> {
-        self.engine.clear().map_err(|e| HostError::core("clear", e))
+    pub fn clear(&mut self) {
+        self.engine.clear();
     }
 }
 
@@ -79,7 +79,7 @@ trait Engine: Send + Sync {
     fn add_frames(&mut self, codes: &[u16], states: &[u8]) -> Result<(), CoreError>;
     fn sums(&self) -> &[u32];
     fn suspended(&self) -> &Suspended;
-    fn clear(&mut self) -> Result<(), CoreError>;
+    fn clear(&mut self);
 }
 
 struct Owned<const N: usize, const CODES: usize> {
@@ -115,9 +115,8 @@ impl<const N: usize, const CODES: usize> Engine for Owned<N, CODES> {
         self.sums.kept()
     }
 
-    fn clear(&mut self) -> Result<(), CoreError> {
+    fn clear(&mut self) {
         self.sums.clear();
-        Ok(())
     }
 }
 
@@ -155,7 +154,7 @@ mod tests {
         }
         assert_eq!(s.frames_per_state(), vec![2, 2]);
         assert_eq!((s.status().out_of_range_codes, s.status().frames), (1, 4));
-        s.clear().unwrap();
+        s.clear();
         assert!(s.sums().iter().all(|&x| x == 0));
         assert_eq!((s.frames_per_state(), s.status().frames), (vec![0, 0], 0));
     }
