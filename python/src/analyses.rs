@@ -9,7 +9,7 @@ use dncal_host::analyses::flatten::FlattenParams;
 use dncal_host::analyses::linearity::run::{fit, linearity};
 use dncal_host::analyses::linearity::{Cube, MAX_ORDER};
 use dncal_host::analyses::quantization::run::{quantization as quantization_report, Request};
-use dncal_host::formats::fits::{check_linearity, LinearitySet};
+use dncal_host::formats::fits::{check_linearity, SetView};
 use dncal_host::Origin;
 use numpy::{Ix1, Ix2, Ix3, PyArray2, PyArray3, PyUntypedArrayMethods};
 use pyo3::exceptions::PyValueError;
@@ -97,27 +97,24 @@ fn fit_linearity<'py>(
     if v.shape()[0] != levels {
         return Err(PyValueError::new_err(format!("voltage: {} values for {levels} levels", v.shape()[0])));
     }
-    let mask = match mask {
-        None => None,
-        Some(obj) => {
-            let k = arrays::view::<u8, Ix2>(obj, "mask", "(rows, cols)")?;
-            if k.shape() != [height, width] {
-                return Err(PyValueError::new_err(format!("mask: shape {:?}, but frames are {height} x {width}", k.shape())));
-            }
-            Some(k.as_slice()?.to_vec())
+    let mask = mask.map(|obj| arrays::view::<u8, Ix2>(obj, "mask", "(rows, cols)")).transpose()?;
+    if let Some(k) = &mask {
+        if k.shape() != [height, width] {
+            return Err(PyValueError::new_err(format!("mask: shape {:?}, but frames are {height} x {width}", k.shape())));
         }
-    };
-    let set = LinearitySet {
+    }
+    // The arrays read in place: the analysis borrows them.
+    let set = SetView {
         bit_depth,
         n_adc,
         n_frames: frames,
         width,
         height,
         levels,
-        mean: m.as_slice()?.to_vec(),
-        std: s.as_slice()?.to_vec(),
-        voltage: v.as_slice()?.to_vec(),
-        mask,
+        mean: m.as_slice()?,
+        std: s.as_slice()?,
+        voltage: v.as_slice()?,
+        mask: mask.as_ref().map(|k| k.as_slice()).transpose()?,
     };
     check_linearity(&set).map_err(|fault| raise("InputError", format!("linearity set: {fault}")))?;
     let cube = if keep_corrected { Cube::Keep } else { Cube::Skip };

@@ -2,7 +2,7 @@
 //!
 //! A thin layer: every number comes from `dncal-core` (the correction) and `dncal-host`
 //! (LUTs, characterizations, diagnose); this crate only turns numpy arrays into slices
-//! (frames read in place; a linearity cube copied once into the library's set), library
+//! (frames and linearity cubes read in place), library
 //! errors into Python exceptions
 //! (`errors.rs`), and summaries into the JSON the CLI's `--json` prints, which the
 //! Python side turns into dicts.
@@ -12,6 +12,7 @@ use pyo3::prelude::*;
 mod analyses;
 mod arrays;
 mod bench;
+mod blocks;
 mod correct;
 mod errors;
 mod luts;
@@ -23,5 +24,6 @@ fn _dncal(m: &Bound<'_, PyModule>) -> PyResult<()> {
     correct::register(m)?;
     analyses::register(m)?;
     bench::register(m)?;
+    blocks::register(m)?;
     Ok(())
 }

@@ -4,6 +4,7 @@
 
 pub mod budget;
 pub mod dims;
+pub mod exact_sum;
 pub mod frame_sums;
 pub mod parallel;
 pub mod progress;

@@ -61,103 +61,270 @@ pub fn select(n: usize, cells: usize, rank: &(dyn Fn(usize, usize) -> usize + Sy
 /// [`select`], collecting a bin of at most `collect` values; also the most values any
 /// cell collected.
 fn select_collecting(n: usize, cells: usize, rank: &(dyn Fn(usize, usize) -> usize + Sync), visit: &Visit, collect: usize) -> (Vec<f64>, usize) {
-    // Per cell: the key's high `fixed` bits found (`prefix`), the values below them, the
-    // rank (known after the first pass's counts), the values sharing the prefix.
-    #[derive(Clone, Copy)]
-    struct Search {
-        prefix: u64,
-        fixed: u32,
-        below: usize,
-        rank: usize,
-        inside: usize,
-        done: Option<f64>,
-    }
-    let shares = |s: &Search, k: u64| s.fixed == 0 || k >> (64 - s.fixed) == s.prefix >> (64 - s.fixed);
-    let mut s = vec![Search { prefix: 0, fixed: 0, below: 0, rank: 0, inside: usize::MAX, done: None }; cells];
-    let open = |s: &Search| s.done.is_none() && s.inside > collect;
-    let bins = 1usize << DIGIT;
-    while s.iter().any(open) {
-        let hist = fold_items(
-            n,
-            &|| vec![Vec::new(); cells],
-            &|a: &mut Vec<Vec<usize>>, c, v| {
-                let x = &s[c];
-                if !(open(x) && v.is_finite()) {
-                    return;
-                }
-                let k = key(v);
-                if shares(x, k) {
-                    let h = &mut a[c];
-                    if h.is_empty() {
-                        h.resize(bins, 0);
-                    }
-                    h[((k >> (64 - x.fixed - DIGIT)) & (bins as u64 - 1)) as usize] += 1;
-                }
-            },
-            &|a, b| {
-                a.iter_mut().zip(b).for_each(|(x, y)| {
-                    if x.is_empty() {
-                        *x = y;
-                    } else if !y.is_empty() {
-                        x.iter_mut().zip(y).for_each(|(p, q)| *p += q);
-                    }
-                })
-            },
-            visit,
-        );
-        for (c, (x, h)) in s.iter_mut().zip(hist).enumerate() {
-            if !open(x) {
-                continue;
-            }
-            if x.fixed == 0 {
-                let count: usize = h.iter().sum();
-                if count == 0 {
-                    x.done = Some(f64::NAN);
-                    continue;
-                }
-                x.rank = rank(c, count).min(count - 1);
-            }
-            // The digit holding the rank among the values that share the prefix.
-            let mut want = x.rank - x.below;
-            for (j, &k) in h.iter().enumerate() {
-                if want < k {
-                    x.fixed += DIGIT;
-                    x.prefix |= (j as u64) << (64 - x.fixed);
-                    x.below = x.rank - want;
-                    x.inside = k;
-                    if x.fixed == 64 {
-                        x.done = Some(value(x.prefix));
-                    }
-                    break;
-                }
-                want -= k;
-            }
-        }
-    }
-    // Collect what each cell's bin holds and select.
-    let need: Vec<bool> = s.iter().map(|x| x.done.is_none()).collect();
+    let mut search = Selection::collecting(cells, collect);
     let mut most = 0;
-    if need.iter().any(|&b| b) {
-        let held = fold_items(
-            n,
-            &|| vec![Vec::new(); cells],
-            &|a: &mut Vec<Vec<f64>>, c, v| {
-                if need[c] && v.is_finite() && shares(&s[c], key(v)) {
-                    a[c].push(v);
+    while !search.done() {
+        let counter = search.counter();
+        let tally = fold_items(n, &|| counter.tally(), &|t, c, v| counter.add(t, c, v), &|a, b| a.merge(b), visit);
+        if let Tally::Values(v) = &tally {
+            most = most.max(v.iter().map(Vec::len).max().unwrap_or(0));
+        }
+        search.advance(tally, rank);
+    }
+    (search.values(), most)
+}
+
+/// Per cell: the key's high `fixed` bits found (`prefix`), the values below them, the
+/// rank (known after the first pass's counts), the values sharing the prefix, the count
+/// of all.
+#[derive(Debug, Clone, Copy)]
+struct Search {
+    prefix: u64,
+    fixed: u32,
+    below: usize,
+    rank: usize,
+    inside: usize,
+    count: usize,
+    done: Option<f64>,
+}
+
+/// A radix selection in progress, driven pass by pass: [`Selection::counter`] says what a
+/// pass counts, any number of blocks of the values each [`Counter::add`] theirs to a
+/// [`Tally`], the tallies [`Tally::merge`] (in any order: counts and multisets), and
+/// [`Selection::advance`] takes the total. The values of one pass may be split over
+/// threads, processes or machines; only the counter and the tallies travel.
+#[derive(Debug, Clone)]
+pub struct Selection {
+    cells: Vec<Search>,
+    collect: usize,
+}
+
+/// What one pass counts in each cell (see [`Counter::add`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
+pub enum Mode {
+    /// Nothing: the cell is done, or waits while others narrow.
+    Idle,
+    /// The histogram of the next digit of the values that share the prefix.
+    Histogram,
+    /// The values that share the prefix.
+    Collect,
+}
+
+/// One pass's instructions: per cell the prefix, its bits and the [`Mode`].
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Counter {
+    cells: Vec<(u64, u32, Mode)>,
+}
+
+/// One pass's counts: per cell a histogram of `2^DIGIT` bins (empty when the cell counted
+/// nothing), or the values collected.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Tally {
+    Histograms(Vec<Vec<u64>>),
+    Values(Vec<Vec<f64>>),
+}
+
+impl Tally {
+    /// Adds `other`'s counts (histograms bin by bin; values appended).
+    pub fn merge(&mut self, other: Tally) {
+        match (self, other) {
+            (Tally::Histograms(a), Tally::Histograms(b)) => a.iter_mut().zip(b).for_each(|(x, y)| {
+                if x.is_empty() {
+                    *x = y;
+                } else if !y.is_empty() {
+                    x.iter_mut().zip(y).for_each(|(p, q)| *p += q);
                 }
-            },
-            &|a, b| a.iter_mut().zip(b).for_each(|(x, mut y)| x.append(&mut y)),
-            visit,
-        );
-        for ((x, mut v), need) in s.iter_mut().zip(held).zip(need) {
-            if need {
-                most = most.max(v.len());
-                let k = x.rank - x.below;
-                x.done = Some(if k < v.len() { *v.select_nth_unstable_by(k, f64::total_cmp).1 } else { f64::NAN });
+            }),
+            (Tally::Values(a), Tally::Values(b)) => a.iter_mut().zip(b).for_each(|(x, mut y)| x.append(&mut y)),
+            // Tallies of one pass are of one kind.
+            _ => {}
+        }
+    }
+}
+
+/// Bins of a histogram pass.
+pub const BINS: usize = 1 << DIGIT;
+
+impl Counter {
+    /// An empty tally of this pass.
+    pub fn tally(&self) -> Tally {
+        let n = self.cells.len();
+        if self.cells.iter().any(|c| c.2 == Mode::Histogram) { Tally::Histograms(vec![Vec::new(); n]) } else { Tally::Values(vec![Vec::new(); n]) }
+    }
+
+    /// Counts value `v` of `cell` into `t` (non-finite values are left out).
+    pub fn add(&self, t: &mut Tally, cell: usize, v: f64) {
+        let Some(&(prefix, fixed, mode)) = self.cells.get(cell) else { return };
+        if mode == Mode::Idle || !v.is_finite() {
+            return;
+        }
+        let k = key(v);
+        if fixed != 0 && k >> (64 - fixed) != prefix >> (64 - fixed) {
+            return;
+        }
+        match t {
+            Tally::Histograms(h) => {
+                let h = &mut h[cell];
+                if h.is_empty() {
+                    h.resize(BINS, 0);
+                }
+                h[((k >> (64 - fixed - DIGIT)) & (BINS as u64 - 1)) as usize] += 1;
+            }
+            Tally::Values(v_) => v_[cell].push(v),
+        }
+    }
+
+    /// The counter as integers, three per cell (prefix, bits, mode 0 idle, 1 histogram,
+    /// 2 collect): to send to where the values are.
+    pub fn to_words(&self) -> Vec<u64> {
+        self.cells.iter().flat_map(|&(p, f, m)| [p, u64::from(f), m as u64]).collect()
+    }
+
+    /// The counter of [`Counter::to_words`]; `None` for words it cannot have made.
+    pub fn from_words(w: &[u64]) -> Option<Counter> {
+        if w.len() % 3 != 0 {
+            return None;
+        }
+        let cells = w
+            .chunks(3)
+            .map(|c| {
+                let mode = match c[2] {
+                    0 => Mode::Idle,
+                    1 => Mode::Histogram,
+                    2 => Mode::Collect,
+                    _ => return None,
+                };
+                (c[1] < 64 || (c[1] == 64 && mode != Mode::Histogram)).then_some((c[0], c[1] as u32, mode))
+            })
+            .collect::<Option<Vec<_>>>()?;
+        // One pass counts one way.
+        let has = |m: Mode| cells.iter().any(|c| c.2 == m);
+        (!(has(Mode::Histogram) && has(Mode::Collect))).then_some(Counter { cells })
+    }
+}
+
+impl Selection {
+    /// A selection in `cells` cells, collecting bins of at most [`COLLECT`] values.
+    pub fn new(cells: usize) -> Self {
+        Self::collecting(cells, COLLECT)
+    }
+
+    fn collecting(cells: usize, collect: usize) -> Self {
+        Selection { cells: vec![Search { prefix: 0, fixed: 0, below: 0, rank: 0, inside: usize::MAX, count: 0, done: None }; cells], collect }
+    }
+
+    /// Whether a cell still narrows by histograms.
+    fn open(&self, s: &Search) -> bool {
+        s.done.is_none() && s.inside > self.collect
+    }
+
+    /// Whether every cell has its value.
+    pub fn done(&self) -> bool {
+        self.cells.iter().all(|s| s.done.is_some())
+    }
+
+    /// What the next pass counts: histograms while any cell's bin holds more than can be
+    /// collected, then the values of the bins.
+    pub fn counter(&self) -> Counter {
+        let narrowing = self.cells.iter().any(|s| self.open(s));
+        let cells = self
+            .cells
+            .iter()
+            .map(|s| {
+                let mode = match (s.done, narrowing, self.open(s)) {
+                    (Some(_), _, _) => Mode::Idle,
+                    (None, true, true) => Mode::Histogram,
+                    (None, true, false) => Mode::Idle,
+                    (None, false, _) => Mode::Collect,
+                };
+                (s.prefix, s.fixed, mode)
+            })
+            .collect();
+        Counter { cells }
+    }
+
+    /// Takes a pass's total tally: each cell's rank (`rank(cell, count)`, from 0, of its
+    /// `count` finite values) narrowed to the next digit, or found among the values
+    /// collected.
+    pub fn advance(&mut self, tally: Tally, rank: &(dyn Fn(usize, usize) -> usize + Sync)) {
+        let collect = self.collect;
+        match tally {
+            Tally::Histograms(hist) => {
+                for (c, (x, h)) in self.cells.iter_mut().zip(hist).enumerate() {
+                    if !(x.done.is_none() && x.inside > collect) {
+                        continue;
+                    }
+                    if x.fixed == 0 {
+                        let count: usize = h.iter().sum::<u64>() as usize;
+                        x.count = count;
+                        if count == 0 {
+                            x.done = Some(f64::NAN);
+                            continue;
+                        }
+                        x.rank = rank(c, count).min(count - 1);
+                    }
+                    // The digit holding the rank among the values that share the prefix.
+                    let mut want = x.rank - x.below;
+                    for (j, &k) in h.iter().enumerate() {
+                        let k = k as usize;
+                        if want < k {
+                            x.fixed += DIGIT;
+                            x.prefix |= (j as u64) << (64 - x.fixed);
+                            x.below = x.rank - want;
+                            x.inside = k;
+                            if x.fixed == 64 {
+                                x.done = Some(value(x.prefix));
+                            }
+                            break;
+                        }
+                        want -= k;
+                    }
+                    if x.done.is_none() && x.inside == usize::MAX {
+                        // A tally that does not hold the rank (not this pass's total).
+                        x.done = Some(f64::NAN);
+                    }
+                }
+            }
+            Tally::Values(held) => {
+                for (x, mut v) in self.cells.iter_mut().zip(held) {
+                    if x.done.is_none() {
+                        let k = x.rank - x.below;
+                        x.done = Some(if k < v.len() { *v.select_nth_unstable_by(k, f64::total_cmp).1 } else { f64::NAN });
+                    }
+                }
             }
         }
     }
-    (s.iter().map(|x| x.done.unwrap_or(f64::NAN)).collect(), most)
+
+    /// Each cell's value (NaN for a cell without finite values, or not done).
+    pub fn values(&self) -> Vec<f64> {
+        self.cells.iter().map(|x| x.done.unwrap_or(f64::NAN)).collect()
+    }
+
+    /// Each cell's count of finite values (known after the first pass).
+    pub fn counts(&self) -> Vec<usize> {
+        self.cells.iter().map(|x| x.count).collect()
+    }
+}
+
+/// The median of each of `queries` sets of values as [`crate::infra::stats::median`]
+/// gives it (the mean of the two middle values of an even count), by a [`Selection`] of
+/// two cells per set: cell `2q` holds set `q`'s lower middle, `2q + 1` its upper.
+pub fn median_rank(cell: usize, count: usize) -> usize {
+    if cell % 2 == 0 { (count - 1) / 2 } else { count / 2 }
+}
+
+/// The medians of a [`Selection`] run with [`median_rank`] over `2 q` cells, with each
+/// set's count of finite values.
+pub fn medians_of(search: &Selection) -> Vec<(f64, usize)> {
+    let (v, n) = (search.values(), search.counts());
+    (0..v.len() / 2)
+        .map(|q| {
+            let (lo, hi, count) = (v[2 * q], v[2 * q + 1], n[2 * q]);
+            (if count % 2 == 1 { hi } else { 0.5 * (lo + hi) }, count)
+        })
+        .collect()
 }
 
 /// Per cell, the upper median of its finite values ([`crate::infra::stats::upper_median`]).
@@ -253,6 +420,41 @@ mod tests {
     }
 
     proptest! {
+        /// The pass-by-pass protocol over blocks (a Dask reduction's view): any split of
+        /// the values, the counter sent as words, the tallies merged in reverse, gives
+        /// `stats::median` of each set bit for bit.
+        #[test]
+        fn medians_over_blocks_are_the_in_memory_ones(values in prop::collection::vec((0usize..3, prop::num::f64::ANY), 0..2000), narrow in prop::collection::vec(-1e-9f64..1e-9, 0..2000), blocks in 1usize..6) {
+            let mut values = values;
+            // A narrow bulk, so that the search narrows over several passes.
+            values.extend(narrow.iter().enumerate().map(|(i, d)| (i % 3, 7.0 + d)));
+            let mut search = Selection::collecting(6, 4);
+            let chunk = values.len().div_ceil(blocks).max(1);
+            while !search.done() {
+                let words = search.counter().to_words();
+                let mut tallies: Vec<Tally> = values.chunks(chunk).map(|part| {
+                    let counter = Counter::from_words(&words).unwrap();
+                    let mut t = counter.tally();
+                    for &(q, v) in part {
+                        counter.add(&mut t, 2 * q, v);
+                        counter.add(&mut t, 2 * q + 1, v);
+                    }
+                    t
+                }).collect();
+                let mut total = tallies.pop().unwrap_or_else(|| search.counter().tally());
+                while let Some(t) = tallies.pop() {
+                    total.merge(t);
+                }
+                search.advance(total, &median_rank);
+            }
+            let got = medians_of(&search);
+            for (q, &(median, count)) in got.iter().enumerate() {
+                let want = stats::median(values.iter().filter(|v| v.0 == q).map(|v| v.1));
+                prop_assert!(same(median, want) && (want.is_nan() || median.to_bits() == want.to_bits()), "set {}: {} vs {}", q, median, want);
+                prop_assert_eq!(count, values.iter().filter(|v| v.0 == q && v.1.is_finite()).count());
+            }
+        }
+
         #[test]
         fn any_values_give_the_sorted_rank(values in prop::collection::vec((0usize..4, prop::num::f64::ANY), 0..3000), rank_frac in 0.0f64..1.0) {
             let table: Vec<Vec<(usize, f64)>> = values.chunks(3).map(|c| c.to_vec()).collect();

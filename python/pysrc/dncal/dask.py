@@ -1,5 +1,9 @@
 """dncal on Dask: the per-pixel work of a sensor larger than one machine.
 
+Two functions: :func:`correct` (frames through the LUTs into per-state sums) and
+:func:`fit_linearity` (the pixel-wise linearity analysis), each bit for bit what the
+in-memory function gives on the same data.
+
 Every pixel's sum depends only on that pixel's codes, and the ADC that reads it only on
 its sensor column; so a frame stack chunked over rows and columns is corrected block by
 block, each block by the core (:class:`dncal.Corrector`, with the block's first column),
@@ -12,10 +16,13 @@ Needs ``dask[array]`` (``pip install './python[dask]'``); runs on any scheduler,
 threaded default or a ``dask.distributed`` cluster.
 """
 
-from typing import Any, Dict, Tuple
+from typing import Any, Callable, Dict, List, Optional, Tuple
 
 import numpy as np
 
+import json as _json
+
+from . import _dncal
 from ._dncal import Corrector, Lut
 
 try:
@@ -112,3 +119,172 @@ def correct(frames, lut, states: int, first_column: int = 0, frame_states=None) 
             statuses.append(status)
         rows.append(row)
     return da.block(rows), dask.delayed(_total)(statuses)
+
+
+# ---------------------------------------------------------------------------------------
+# The pixel-wise linearity analysis
+# ---------------------------------------------------------------------------------------
+
+
+def _c(a: np.ndarray, dtype) -> np.ndarray:
+    """An aligned, C-ordered array of `dtype` (arrays from pickle may be neither)."""
+    return np.require(a, dtype=dtype, requirements=["C", "A"])
+
+
+def _k(keys):
+    """The set's keys with the voltages aligned (they may come through pickle)."""
+    return (_c(keys[0], np.float64),) + tuple(keys[1:])
+
+
+def _f(fits):
+    """A block's stage-1 arrays aligned (they may come through pickle)."""
+    return (_c(fits[0], np.uint64), _c(fits[1], np.float64), _c(fits[2], np.float64), _c(fits[3], np.float64))
+
+
+def _fit_block(mean, std, mask, keys, first_row, first_column):
+    """Stage 1 of a block: (unsaturated levels, coefficients, residual, signal)."""
+    return _dncal._lin_fit(_c(mean, np.float64), _c(std, np.float64), *_k(keys), first_row, first_column, mask=None if mask is None else _c(mask, np.uint8))
+
+
+def _reaching(fits, levels: int) -> np.ndarray:
+    """A block's count of pixels per number of unsaturated levels (levels + 1,)."""
+    return np.bincount(fits[0].ravel().astype(np.int64), minlength=levels + 1)
+
+
+def _merge(tallies: List[Any]):
+    """Tallies of one pass added: histograms bin by bin (integers), collected values
+    appended per cell (a multiset: the order does not matter)."""
+    if isinstance(tallies[0], list):
+        return [np.concatenate([t[c] for t in tallies]) for c in range(len(tallies[0]))]
+    return np.sum(np.stack(tallies), axis=0, dtype=np.uint64)
+
+
+def _add_parts(parts: List[Tuple[np.ndarray, np.ndarray, np.ndarray]]):
+    """Exact sums' parts added over blocks: limbs and counts as integers; the non-finite
+    values' float sums of 0, infinities and NaN (the same in any order)."""
+    return (np.sum(np.stack([p[0] for p in parts]), axis=0, dtype=np.int64), np.sum(np.stack([p[1] for p in parts]), axis=0), np.sum(np.stack([p[2] for p in parts]), axis=0, dtype=np.uint64))
+
+
+def _parts(p):
+    """Sums' parts aligned (they may come through pickle)."""
+    return (_c(p[0], np.int64), _c(p[1], np.float64), _c(p[2], np.uint64))
+
+
+def _medians(queries: int, tally: Callable[[np.ndarray], List[Any]]) -> Tuple[np.ndarray, np.ndarray]:
+    """Exact medians of `queries` sets spread over blocks: passes of the radix search,
+    each `tally(counter)` a delayed tally per block, merged and taken by the search."""
+    search = _dncal._MedianSearch(queries)
+    while not search.done:
+        (total,) = dask.compute(dask.delayed(_merge)(tally(search.counter())))
+        search.advance([_c(v, np.float64) for v in total] if isinstance(total, list) else _c(total, np.uint64))
+    return search.medians()
+
+
+def _level_pass(mean, std, fits, mask, keys, global_coefficients, level_means, keep):
+    """Stage 4 of a block."""
+    return _dncal._lin_level_pass(_c(mean, np.float64), _c(std, np.float64), *_k(keys), _f(fits)[0], _f(fits)[1], _c(mask, np.uint8), global_coefficients, level_means, keep)
+
+
+def _fill(block: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """A corrected block with its halo, masked pixels filled."""
+    return _dncal._lin_fill(_c(block, np.float64), _c(mask, np.uint8))
+
+
+def fit_linearity(mean, std, voltage, frames: int, *, order: int = 4, flat_level: Optional[int] = None, mask=None, bit_depth: int = 12, n_adc: int = 4, keep_corrected: bool = True):
+    """The pixel-wise linearity analysis of a set held as Dask arrays: bit for bit what
+    :func:`dncal.fit_linearity` gives on the same numbers in memory.
+
+    ``mean`` and ``std`` are ``dask.array`` float64 (levels, rows, cols) in DN, chunked
+    over rows and columns (the level axis is made one chunk); ``voltage`` float64
+    (levels,), V; ``mask`` optional uint8 (rows, cols), numpy or Dask, 1 = bad.
+
+    The work per pixel runs on the blocks; the global steps are reductions over them
+    whose results do not depend on the split: the mask's two medians and each level's
+    median (exact radix selections, a few passes of histograms over the blocks), each
+    level's mean and the RMS statistics (exact sums, rounded once). Each block's fits
+    are persisted between the passes (about 8 x (order + 4) bytes per pixel on the
+    workers); ``mean`` is read once per pass (persist it too where it fits).
+
+    Returns a :class:`dncal.LinearityFit` whose ``report`` is computed (a dict, as the
+    in-memory one) and whose ``coefficients``, ``mask`` and ``corrected`` are Dask arrays
+    (the corrected cube lazy: computing or storing it runs the inversion again, block by
+    block, with the masked pixels filled across block edges from a one-pixel halo).
+    """
+    from . import LinearityFit
+
+    for name, a in (("mean", mean), ("std", std)):
+        if not isinstance(a, da.Array):
+            raise TypeError(f"{name}: a dask.array is needed, not {type(a).__name__} (dncal.fit_linearity takes numpy arrays)")
+        if a.dtype != np.float64:
+            raise TypeError(f"{name}: dtype {a.dtype}, but float64 is needed")
+        if a.ndim != 3:
+            raise ValueError(f"{name}: {a.ndim} dimension(s), but 3 (levels, rows, cols) are needed")
+        if 0 in a.shape:
+            raise ValueError(f"{name}: empty {a.shape}")
+    if std.shape != mean.shape:
+        raise ValueError(f"std: shape {std.shape}, but mean is {mean.shape}")
+    voltage = np.asarray(voltage)
+    if voltage.dtype != np.float64:
+        raise TypeError(f"voltage: dtype {voltage.dtype}, but float64 is needed")
+    levels, rows, cols = mean.shape
+    if voltage.shape != (levels,):
+        raise ValueError(f"voltage: shape {voltage.shape}, but ({levels},) for {levels} levels")
+    voltage = _c(voltage, np.float64)
+    _dncal._lin_check(voltage, frames, bit_depth, n_adc, order, flat_level)
+    keys = (voltage, frames, bit_depth, n_adc, order, flat_level)
+    mean = mean.rechunk({0: -1})
+    std = std.rechunk(mean.chunks)
+    row_chunks, col_chunks = mean.chunks[1], mean.chunks[2]
+    if mask is not None:
+        if mask.dtype != np.uint8:
+            raise TypeError(f"mask: dtype {mask.dtype}, but uint8 is needed")
+        if mask.shape != (rows, cols):
+            raise ValueError(f"mask: shape {mask.shape}, but frames are {rows} x {cols}")
+        mask = (mask if isinstance(mask, da.Array) else da.from_array(mask)).rechunk((row_chunks, col_chunks))
+    mb, sb = mean.to_delayed()[0], std.to_delayed()[0]
+    kb = None if mask is None else mask.to_delayed()
+    r0 = np.cumsum((0,) + row_chunks[:-1])
+    c0 = np.cumsum((0,) + col_chunks[:-1])
+    grid = [(i, j) for i in range(len(row_chunks)) for j in range(len(col_chunks))]
+    keys_d = dask.delayed(keys, pure=True)
+
+    # Stage 1, kept on the workers for the passes that follow.
+    fit = dask.delayed(_fit_block, pure=True)
+    fits = dask.persist(*[fit(mb[i][j], sb[i][j], None if kb is None else kb[i][j], keys_d, int(r0[i]), int(c0[j])) for i, j in grid])
+    if flat_level is not None:
+        (reaching,) = dask.compute(dask.delayed(lambda rs: np.sum(np.stack(rs), axis=0))([dask.delayed(_reaching)(f, levels) for f in fits]))
+        _dncal._lin_check_flat([int(n) for n in reaching], flat_level)
+
+    # The mask's medians, then each block's mask (kept).
+    med, _ = _medians(2, lambda w: [dask.delayed(lambda w, f: _dncal._lin_mask_tally(w, _f(f)[3], _f(f)[2]))(w, f) for f in fits])
+    mask_fn = dask.delayed(lambda f, k, s, r: _dncal._lin_mask(_f(f)[3], _f(f)[2], None if k is None else _c(k, np.uint8), s, r), pure=True)
+    masks = dask.persist(*[mask_fn(f, None if kb is None else kb[i][j], float(med[0]), float(med[1])) for f, (i, j) in zip(fits, grid)])
+    (good,) = dask.compute(dask.delayed(sum)([dask.delayed(lambda m: int(np.count_nonzero(m == 0)))(m) for m in masks]))
+    if good == 0:
+        _dncal._lin_global(*keys, [], [], 0, rows * cols)  # raises AllMasked, as the in-memory fit does
+
+    # Each level's median and count of the counted pixels; the global cubic.
+    level_tally = dask.delayed(lambda w, m, k, f, v: _dncal._lin_level_tally(w, _c(m, np.float64), _c(k, np.uint8), _f(f)[0], _c(v, np.float64)))
+    medians, counts = _medians(levels, lambda w: [level_tally(w, mb[i][j], k, f, voltage) for f, k, (i, j) in zip(fits, masks, grid)])
+    global_coefficients = _dncal._lin_global(*keys, [float(m) for m in medians], [int(n) for n in counts], good, rows * cols)
+    # Each level's mean of the counted pixels (exact sums).
+    sums = dask.delayed(lambda m, k, f, v: _dncal._lin_level_sums(_c(m, np.float64), _c(k, np.uint8), _f(f)[0], _c(v, np.float64)))
+    (level_parts,) = dask.compute(dask.delayed(_add_parts)([sums(mb[i][j], k, f, voltage) for f, k, (i, j) in zip(fits, masks, grid)]))
+    level_means = [float(x) for x in _dncal._lin_means(*_parts(level_parts))]
+
+    # The statistics (without the cube: it is the lazy result below).
+    stats = dask.delayed(lambda *a: _level_pass(*a)[0])
+    (stat_parts,) = dask.compute(dask.delayed(_add_parts)([stats(mb[i][j], sb[i][j], f, k, keys_d, global_coefficients, level_means, False) for f, k, (i, j) in zip(fits, masks, grid)]))
+    masked = rows * cols - good
+    report = _json.loads(_dncal._lin_report(*keys, level_means, global_coefficients, *_parts(stat_parts), masked, rows * cols))
+
+    k1 = min(max(order, 1), 8) + 1
+    at = {g: n for n, g in enumerate(grid)}
+    coefficients = da.block([[da.from_delayed(dask.delayed(lambda f: np.moveaxis(f[1], -1, 0).copy())(fits[at[(i, j)]]), shape=(k1, h, w), dtype=np.float64) for j, w in enumerate(col_chunks)] for i, h in enumerate(row_chunks)])
+    reasons = da.block([[da.from_delayed(masks[at[(i, j)]], shape=(h, w), dtype=np.uint8) for j, w in enumerate(col_chunks)] for i, h in enumerate(row_chunks)])
+    corrected = None
+    if keep_corrected:
+        cube = dask.delayed(lambda *a: _level_pass(*a)[1])
+        unfilled = da.block([[da.from_delayed(cube(mb[i][j], sb[i][j], fits[at[(i, j)]], masks[at[(i, j)]], keys_d, global_coefficients, level_means, True), shape=(levels, h, w), dtype=np.float64) for j, w in enumerate(col_chunks)] for i, h in enumerate(row_chunks)])
+        corrected = da.map_overlap(_fill, unfilled, reasons[None], depth={0: 0, 1: 1, 2: 1}, boundary="none", dtype=np.float64, align_arrays=False)
+    return LinearityFit(report, coefficients, reasons, corrected)

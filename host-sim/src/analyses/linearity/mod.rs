@@ -37,17 +37,19 @@
 //! precomputed pseudo-inverse per distinct number of unsaturated levels: a matrix-vector
 //! product per pixel.
 
-use nalgebra::{DMatrix, DVector};
+use nalgebra::DMatrix;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::formats::fits::{LinearitySet, Sample};
-use crate::infra::stats::{median, rms_finite, RmsSum};
+use crate::formats::fits::{LinearitySet, Sample, SetView};
+use crate::infra::stats::median;
 
 mod inverse;
 pub mod run;
+pub mod stages;
 pub use inverse::invert;
-use inverse::{invert_all, poly, poly_slope};
+use inverse::poly;
+use stages::{counted_means, MaskRule, Plan};
 
 /// Order of the pixel-wise polynomial (the paper: 4; higher did not help).
 pub const PIXEL_ORDER: usize = 4;
@@ -153,64 +155,10 @@ fn pseudo_inverse(x: &[f64], order: usize) -> DMatrix<f64> {
     a.pseudo_inverse(1e-13).unwrap_or_else(|_| DMatrix::zeros(order + 1, x.len()))
 }
 
-/// The dark and gain correction of a value `x` given the same pixel's values at the dark
-/// (`x0`) and at the flat (`xg`): `(x - x0) / (xg - x0)`.
-fn dark_and_gain(x: f64, x0: f64, xg: f64) -> f64 {
-    (x - x0) / (xg - x0)
-}
-
 /// Replaces masked pixels of one `width x height` image by the mean of their good
 /// 8-neighbours (left as they are when none is good).
 pub fn fill_masked(image: &mut [f64], mask: &[u8], width: usize, height: usize) {
-    GoodNeighbours::of(mask, width, height).fill(image);
-}
-
-/// Each masked pixel's good 8-neighbours, in row-major order: listed once for a mask and
-/// used for every image (level) it applies to.
-struct GoodNeighbours {
-    /// The masked pixels.
-    pixel: Vec<usize>,
-    /// `of[start[i]..start[i + 1]]` are `pixel[i]`'s good neighbours.
-    start: Vec<usize>,
-    of: Vec<usize>,
-}
-
-impl GoodNeighbours {
-    fn of(mask: &[u8], width: usize, height: usize) -> Self {
-        let mut n = GoodNeighbours { pixel: Vec::new(), start: vec![0], of: Vec::new() };
-        for p in (0..width * height).filter(|&p| mask[p] != 0) {
-            let (r, c) = (p / width, p % width);
-            for rr in r.saturating_sub(1)..(r + 2).min(height) {
-                for cc in c.saturating_sub(1)..(c + 2).min(width) {
-                    let i = rr * width + cc;
-                    if mask[i] == 0 {
-                        n.of.push(i);
-                    }
-                }
-            }
-            n.pixel.push(p);
-            n.start.push(n.of.len());
-        }
-        n
-    }
-
-    /// Each masked pixel of `image` set to the mean of its good neighbours' finite values.
-    /// Only masked pixels are written and only good ones read, so the image is its own
-    /// source (no copy of it per level).
-    fn fill(&self, image: &mut [f64]) {
-        for (k, &p) in self.pixel.iter().enumerate() {
-            let (mut sum, mut n) = (0.0, 0);
-            for &i in &self.of[self.start[k]..self.start[k + 1]] {
-                if image[i].is_finite() {
-                    sum += image[i];
-                    n += 1;
-                }
-            }
-            if n > 0 {
-                image[p] = sum / n as f64;
-            }
-        }
-    }
+    stages::fill_cube(image, mask, width, height);
 }
 
 /// Per pixel, how many levels from dark up are unsaturated (they form a prefix): a level
@@ -218,7 +166,7 @@ impl GoodNeighbours {
 /// noise collapses to less than half the previous level's while the signal is in the
 /// upper half of the range (a sensor or amplifier that clips below the top code, as the
 /// real EMVA CCD does at 4080 DN with zero variance), or where the data are not finite.
-pub fn unsaturated_levels<T: Sample>(set: &LinearitySet<T>) -> Vec<usize> {
+pub fn unsaturated_levels<T: Sample>(set: &SetView<'_, T>) -> Vec<usize> {
     let (nl, np) = (set.levels, set.width * set.height);
     let top = ((1u64 << set.bit_depth) - 1) as f64;
     let m = |l: usize, p: usize| -> f64 { set.mean[l * np + p].into() };
@@ -274,7 +222,7 @@ pub fn example_row(set: &LinearitySet, report: &LinearityReport, px: &PixelResul
     let top = ((1u64 << set.bit_depth) - 1) as f64;
     let f = |v: f64| poly(&report.global_coefficients, v / top);
     let m = |l: usize, p: usize| set.mean[l * np + p];
-    let valid = unsaturated_levels(set);
+    let valid = unsaturated_levels(&set.view());
     let g = report.gain_level;
     let pixels: Vec<usize> = (first_column..first_column + n).map(|c| row * w + c).collect();
     let per_level = |value: &dyn Fn(usize, usize) -> f64| -> Vec<Vec<f64>> {
@@ -290,78 +238,6 @@ pub fn example_row(set: &LinearitySet, report: &LinearityReport, px: &PixelResul
     }
 }
 
-/// One correction's terms at a pixel's dark and flat, for the dark and gain correction
-/// `c = (y_l - y_0) / (y_g - y_0)` of what it makes of the pixel's means (`y`) and the
-/// propagation of the frames' noise through it. Held once per pixel for all levels,
-/// the division as its reciprocal.
-#[derive(Debug, Clone, Copy)]
-struct Ends {
-    y0: f64,
-    /// `1 / (y_g - y_0)`.
-    inv_span: f64,
-    /// The flat's and the dark's noise through the correction's slope, `y' s`.
-    sg: f64,
-    s0: f64,
-}
-
-impl Ends {
-    /// From `(y, y')` at the dark and at the flat and those levels' noise `s = std / sqrt(N)`.
-    fn new((y0, d0): (f64, f64), (yg, dg): (f64, f64), s0: f64, sg: f64) -> Self {
-        Ends { y0, inv_span: 1.0 / (yg - y0), sg: dg * sg, s0: d0 * s0 }
-    }
-
-    /// `c` of a level where the correction makes `y`.
-    fn corrected(&self, y: f64) -> f64 {
-        (y - self.y0) * self.inv_span
-    }
-
-    /// The noise of `c` for a level read `y` with noise `sl` through the slope:
-    /// `sqrt(sl^2 + (c sg)^2 + ((1 - c) s0)^2) / (y_g - y_0)`.
-    fn noise(&self, y: f64, sl: f64) -> f64 {
-        let c = self.corrected(y);
-        (sl * sl + (c * self.sg).powi(2) + ((1.0 - c) * self.s0).powi(2)).sqrt() * self.inv_span
-    }
-}
-
-/// The pixel-wise inversion of a set's levels: pixel `p`'s polynomial is
-/// `coef[p * k1..][..k1]`; masked pixels are not inverted (NaN).
-struct Inversion<'a> {
-    coef: &'a [f64],
-    k1: usize,
-    mask: &'a [u8],
-    mean: &'a [f64],
-    np: usize,
-}
-
-impl Inversion<'_> {
-    /// `x^ = P^-1(m)` of every pixel at level `l`, Newton from the level's reference `x_l`.
-    fn level(&self, l: usize, x_l: f64) -> Vec<f64> {
-        const BLOCK: usize = 4096;
-        let mut out = vec![0.0; self.np];
-        out.par_chunks_mut(BLOCK).enumerate().for_each(|(b, chunk)| self.run(l, x_l, b * BLOCK, chunk, |_| false));
-        out
-    }
-
-    /// Level `l` into `row`, each pixel's `x^` then turned into `row[p] = put(p, x^)`, in
-    /// pixel order; pixels where `skip(p)` (besides the masked ones) are not inverted
-    /// (NaN).
-    fn level_into(&self, l: usize, x_l: f64, row: &mut [f64], skip: impl Fn(usize) -> bool, mut put: impl FnMut(usize, f64) -> f64) {
-        self.run(l, x_l, 0, row, skip);
-        for (p, v) in row.iter_mut().enumerate() {
-            *v = put(p, *v);
-        }
-    }
-
-    /// `x^` of pixels `first..first + out.len()` of level `l` into `out`; NaN for the
-    /// masked ones and those where `skip(j)` (`j` counted from `first`).
-    fn run(&self, l: usize, x_l: f64, first: usize, out: &mut [f64], skip: impl Fn(usize) -> bool) {
-        let mean = &self.mean[l * self.np + first..];
-        let coef = &self.coef[first * self.k1..];
-        let mask = &self.mask[first..];
-        invert_all(out, self.k1, x_l, |j, k| coef[j * self.k1 + k], |j| mean[j], |j| mask[j] != 0 || skip(j));
-    }
-}
-
 /// Analyzes `set` with the pixel-wise polynomial of `order` (clamped to 1..=[`MAX_ORDER`]):
 /// masks, the three corrections, their RMS per level, the random noise.
 pub fn analyze(set: &LinearitySet, order: usize) -> Result<(LinearityReport, PixelResults), LinearityError> {
@@ -373,7 +249,7 @@ pub fn analyze(set: &LinearitySet, order: usize) -> Result<(LinearityReport, Pix
 /// the maximum (the paper's text: "approximately half saturation"; its Figs. 6-7 use a
 /// flat near 57%).
 pub fn analyze_with_flat(set: &LinearitySet, order: usize, flat: Option<usize>) -> Result<(LinearityReport, PixelResults), LinearityError> {
-    analyze_unsaturated(set, order, flat, unsaturated_levels(set), Cube::Keep)
+    analyze_unsaturated(&set.view(), order, flat, unsaturated_levels(&set.view()), Cube::Keep)
 }
 
 /// Why a linearity set cannot be corrected as asked.
@@ -411,11 +287,20 @@ pub enum LinearityError {
 /// is unsaturated there: a flat where most saturate would mask most of the sensor). The
 /// message names the highest usable level.
 pub fn check_flat_level(valid: &[usize], levels: usize, l: usize) -> Result<(), LinearityError> {
+    let mut reaching = vec![0usize; levels + 1];
+    valid.iter().for_each(|&n| reaching[n.min(levels)] += 1);
+    check_flat_counts(&reaching, l)
+}
+
+/// [`check_flat_level`] from the count of pixels whose unsaturated levels number `n`,
+/// `reaching[n]` for `n` in `0..=levels` (added over blocks of pixels).
+pub fn check_flat_counts(reaching: &[usize], l: usize) -> Result<(), LinearityError> {
+    let levels = reaching.len().saturating_sub(1);
     if !(1..levels).contains(&l) {
         return Err(LinearityError::FlatLevel { level: l, levels });
     }
-    let np = valid.len();
-    let unsaturated_at = |level: usize| valid.iter().filter(|&&n| n > level).count();
+    let np: usize = reaching.iter().sum();
+    let unsaturated_at = |level: usize| reaching[level + 1..].iter().sum::<usize>();
     if 2 * unsaturated_at(l) < np {
         let highest_usable = (1..levels).rev().find(|&k| 2 * unsaturated_at(k) >= np);
         return Err(LinearityError::SaturatedFlat { level: l, saturated: np - unsaturated_at(l), pixels: np, highest_usable });
@@ -423,215 +308,31 @@ pub fn check_flat_level(valid: &[usize], levels: usize, l: usize) -> Result<(), 
     Ok(())
 }
 
-/// Every pixel's polynomial of `order` in the reference `x` through its first
-/// `valid[p]` levels (least squares, one pseudo-inverse per prefix length): the
-/// coefficients, `order + 1` per pixel, and the fit's rms residual, DN; NaN where the
-/// pixel has too few levels or none past the flat `g`.
-fn fit_pixels(set: &LinearitySet, x: &[f64], order: usize, valid: &[usize], g: usize) -> (Vec<f64>, Vec<f64>) {
-    let np = set.width * set.height;
-    let pinv: Vec<Option<DMatrix<f64>>> = (0..=set.levels).map(|n| (n > order + 1).then(|| pseudo_inverse(&x[..n], order))).collect();
-    let k1 = order + 1;
-    let mut coef = vec![f64::NAN; k1 * np];
-    let resid: Vec<f64> = coef
-        .par_chunks_mut(k1)
-        .enumerate()
-        .map(|(p, a)| {
-            let n = valid[p];
-            let m = |l: usize| set.mean[l * np + p];
-            match &pinv[n] {
-                Some(pi) if n > g => {
-                    let y = DVector::from_iterator(n, (0..n).map(m));
-                    a.copy_from_slice((pi * &y).as_slice());
-                    rms_finite((0..n).map(|l| poly(a, x[l]) - m(l)))
-                }
-                _ => f64::NAN,
-            }
-        })
-        .collect();
-    (coef, resid)
-}
-
-/// Why each pixel is left out ([`reason`] bits): flagged in the input, a signal at the
-/// flat `g` below half the median, no fit, or a fit residual `resid` beyond 10 times the
-/// median.
-fn pixel_mask(set: &LinearitySet, resid: &[f64], g: usize) -> Vec<u8> {
-    let np = set.width * set.height;
-    let mut mask = vec![0u8; np];
-    if let Some(input) = &set.mask {
-        for (m, &i) in mask.iter_mut().zip(input) {
-            if i != 0 {
-                *m |= reason::INPUT;
-            }
-        }
-    }
-    let signal = |p: usize| set.mean[g * np + p] - set.mean[p];
-    let (med_signal, med_resid) = rayon::join(|| median((0..np).map(signal)), || median(resid.iter().copied()));
-    mask.par_iter_mut().enumerate().for_each(|(p, m)| {
-        let s = signal(p);
-        if s.is_nan() || s < 0.5 * med_signal {
-            *m |= reason::LOW;
-        }
-        if resid[p].is_nan() {
-            *m |= reason::UNFIT;
-        } else if resid[p] > 10.0 * med_resid.max(1e-12) {
-            *m |= reason::TREND;
-        }
-    });
-    mask
-}
-
-/// The standard correction: a global cubic `x = f(m / top)` through the median of the
-/// `good` pixels at each level that more than half of them reach unsaturated.
-fn global_correction(set: &LinearitySet, x: &[f64], good: &[usize], valid: &[usize], top: f64) -> Result<Vec<f64>, LinearityError> {
-    let np = set.width * set.height;
-    let reached = |l: usize| good.iter().filter(move |&&p| l < valid[p]);
-    // A level's median is a selection over up to every pixel: the levels on every thread,
-    // each with the count of pixels that reach it.
-    let med_levels: Vec<(f64, usize)> = (0..set.levels).into_par_iter().map(|l| (median(reached(l).map(|&p| set.mean[l * np + p])), reached(l).count())).collect();
-    let usable: Vec<usize> = (0..set.levels).filter(|&l| med_levels[l].0.is_finite() && med_levels[l].1 * 2 > good.len()).collect();
-    if usable.len() <= GLOBAL_ORDER {
-        return Err(LinearityError::TooFewLevels { levels: usable.len() });
-    }
-    let gpinv = pseudo_inverse(&usable.iter().map(|&l| med_levels[l].0 / top).collect::<Vec<_>>(), GLOBAL_ORDER);
-    Ok((&gpinv * DVector::from_iterator(usable.len(), usable.iter().map(|&l| x[l]))).iter().copied().collect())
-}
-
 /// [`analyze_with_flat`] given the set's [`unsaturated_levels`] (a caller that checked the
-/// flat with them computes them once).
-///
-/// About 125 lines: the per-pixel fits, the masks and the global cubic are functions of
-/// their own; what stays is the one pass per level that shares the corrections' ends,
-/// the inversion and the statistics' accumulators (split, it would pass them all).
-pub fn analyze_unsaturated(set: &LinearitySet, order: usize, flat: Option<usize>, valid: Vec<usize>, cube: Cube) -> Result<(LinearityReport, PixelResults), LinearityError> {
-    let order = order.clamp(1, MAX_ORDER);
-    let (nl, w, h) = (set.levels, set.width, set.height);
-    let np = w * h;
-    let top = ((1u64 << set.bit_depth) - 1) as f64;
-    let vmax = set.voltage.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
-    let x: Vec<f64> = set.voltage.iter().map(|v| v / vmax).collect();
-    let g = flat.filter(|l| (1..nl).contains(l)).unwrap_or_else(|| (1..nl).min_by(|&a, &b| (x[a] - 0.5).abs().total_cmp(&(x[b] - 0.5).abs())).unwrap_or(0));
-    let e: Vec<f64> = x.iter().map(|xl| (xl - x[0]) / (x[g] - x[0])).collect();
-    let m = |l: usize, p: usize| set.mean[l * np + p];
-    let sd = |l: usize, p: usize| set.std[l * np + p];
-    let k1 = order + 1;
-    let (coef, resid) = fit_pixels(set, &x, order, &valid, g);
-    let fit = |p: usize| &coef[p * k1..(p + 1) * k1];
-    let mask = pixel_mask(set, &resid, g);
-    let good: Vec<usize> = (0..np).filter(|&p| mask[p] == 0).collect();
-    if good.is_empty() {
-        return Err(LinearityError::AllMasked { pixels: np, order });
+/// flat with them computes them once): the [`stages`] on the whole set as one block, the
+/// medians by selection in memory.
+pub fn analyze_unsaturated(set: &SetView, order: usize, flat: Option<usize>, valid: Vec<usize>, cube: Cube) -> Result<(LinearityReport, PixelResults), LinearityError> {
+    let plan = Plan::new(set.voltage, set.bit_depth, set.n_frames, order, flat);
+    let np = set.width * set.height;
+    let fits = plan.fit(set, valid);
+    let (signal, resid) = rayon::join(|| median(fits.signal.iter().copied()), || median(fits.resid.iter().copied()));
+    let mask = fits.mask(set.mask, MaskRule { signal, resid });
+    let good = mask.iter().filter(|&&m| m == 0).count();
+    if good == 0 {
+        return Err(LinearityError::AllMasked { pixels: np, order: plan.order });
     }
-    let global = global_correction(set, &x, &good, &valid, top)?;
-    let inversion = Inversion { coef: &coef, k1, mask: &mask, mean: &set.mean[..], np };
-    // The pixel-wise correction at the dark and at the flat, used at every level.
-    let (xh0, xhg) = (inversion.level(0, x[0]), inversion.level(g, x[g]));
-    let nf = f64::from(set.n_frames.max(1)).sqrt();
-    let (inv_nf, inv_top) = (1.0 / nf, 1.0 / top);
-    let f = |v: f64| poly(&global, v * inv_top);
-    // Each correction as `(y, y')`, what it makes of a mean and its slope; their terms at
-    // the dark and the flat ([`Ends`]) once per pixel for all levels.
-    let identity = |l: usize, p: usize, _: f64| (m(l, p), 1.0);
-    let standard = |l: usize, p: usize, _: f64| (f(m(l, p)), poly_slope(&global, m(l, p) * inv_top) * inv_top);
-    let pixelwise = |_: usize, p: usize, xh: f64| (xh, 1.0 / poly_slope(fit(p), xh));
-    let ends: Vec<[Ends; 3]> = (0..np)
-        .into_par_iter()
-        .map(|p| {
-            let (s0, sg) = (sd(0, p) * inv_nf, sd(g, p) * inv_nf);
-            let at = |h: &dyn Fn(usize, usize, f64) -> (f64, f64)| Ends::new(h(0, p, xh0[p]), h(g, p, xhg[p]), s0, sg);
-            [at(&identity), at(&standard), at(&pixelwise)]
-        })
-        .collect();
-    // Masked pixels' good neighbours, for the cube only.
-    let keep = cube == Cube::Keep;
-    let fill = keep.then(|| GoodNeighbours::of(&mask, w, h));
-    // Level by level, in one pass over its pixels: the pixel-wise correction `x^ =
-    // P^-1(m)` then dark and gain into the output cube (every level, saturated or not:
-    // the corrected images show them all), the level's statistics over the good,
-    // unsaturated pixels in pixel order, and the masked pixels filled. The cube is
-    // allocated zeroed (untouched pages) and first written here, by the worker threads.
-    // Without the cube ([`Cube::Skip`]) only the counted pixels are inverted (the same
-    // values: each pixel's inversion is its own, [`invert_all`]) and nothing is filled.
-    let nan_unless = |cond: bool, v: f64| if cond { v } else { f64::NAN };
-    let level = |l: usize, row: &mut [f64]| -> [f64; 9] {
-        let counted = |p: usize| mask[p] == 0 && l < valid[p];
-        let (sum, n) = (0..np).filter(|&p| counted(p)).fold((0.0, 0usize), |(s, n), p| (s + m(l, p), n + 1));
-        let mean_l = sum / n.max(1) as f64;
-        let inv_mean = 1.0 / mean_l;
-        let mut acc = [RmsSum::default(); 8];
-        inversion.level_into(l, x[l], row, |p| !keep && !counted(p), |p, xh| {
-            let c = dark_and_gain(xh, xh0[p], xhg[p]);
-            if counted(p) {
-                let (ml, sl) = (m(l, p), sd(l, p) * inv_nf);
-                let [id, st, pw] = &ends[p];
-                let (yst, dst) = standard(l, p, xh);
-                acc[0].add(ml * inv_mean - 1.0);
-                acc[1].add(st.corrected(yst) - e[l]);
-                acc[2].add(c - e[l]);
-                acc[3].add(id.noise(ml, sl));
-                acc[4].add(st.noise(yst, dst * sl));
-                acc[5].add(pw.noise(xh, sl / poly_slope(fit(p), xh)));
-                acc[6].add(sl * inv_mean);
-                acc[7].add(sl * id.inv_span);
-            }
-            c
-        });
-        if let Some(fill) = &fill {
-            fill.fill(row);
-        }
-        let calibrated = l != 0 && l != g;
-        let [raw, std, pw, random, random_standard, random_pixelwise, random_raw, random_level_only] = acc.map(RmsSum::rms);
-        [
-            nan_unless(l != 0, raw),
-            nan_unless(calibrated, std),
-            nan_unless(calibrated, pw),
-            nan_unless(calibrated, random),
-            nan_unless(l != 0, random_raw),
-            nan_unless(calibrated, random_standard),
-            nan_unless(calibrated, random_pixelwise),
-            nan_unless(l != 0, random_level_only),
-            mean_l,
-        ]
-    };
-    // With the cube, each level is its row of it; without, a thread's one row of scratch.
-    let (level_stats, corrected): (Vec<[f64; 9]>, Option<Vec<f64>>) = match cube {
-        Cube::Keep => {
-            let mut corrected = vec![0.0; nl * np];
-            let stats = corrected.par_chunks_mut(np).enumerate().map(|(l, row)| level(l, row)).collect();
-            (stats, Some(corrected))
-        }
-        Cube::Skip => ((0..nl).into_par_iter().map_init(|| vec![0.0; np], |row, l| level(l, row)).collect(), None),
-    };
-    let col = |i: usize| -> Vec<f64> { level_stats.iter().map(|s| s[i]).collect() };
-    let maxf = |v: &[f64]| v.iter().filter(|x| x.is_finite()).fold(0.0f64, |a, &b| a.max(b));
-    let (rms_raw, rms_standard, rms_pixelwise, rms_random) = (col(0), col(1), col(2), col(3));
-    let (rms_random_raw, rms_random_standard, rms_random_pixelwise, rms_random_level_only) = (col(4), col(5), col(6), col(7));
-    let level_mean_dn = col(8);
-    // The coefficients k-major for the FITS cube.
-    let coeffs: Vec<f64> = (0..k1 * np).into_par_iter().map(|i| coef[i % np * k1 + i / np]).collect();
-    let report = LinearityReport {
-        levels: nl,
-        pixels: np,
-        gain_level: g,
-        intensity: e,
-        reference: x,
-        rms_raw_max: maxf(&rms_raw),
-        rms_standard_max: maxf(&rms_standard),
-        rms_pixelwise_max: maxf(&rms_pixelwise),
-        rms_random_max: maxf(&rms_random),
-        rms_raw,
-        rms_standard,
-        rms_pixelwise,
-        rms_random,
-        rms_random_raw,
-        rms_random_standard,
-        rms_random_pixelwise,
-        rms_random_level_only,
-        level_mean_dn,
-        masked_pixels: mask.iter().filter(|&&m| m != 0).count(),
-        order,
-        global_coefficients: global,
-    };
-    Ok((report, PixelResults { coeffs, mask, corrected }))
+    // A level's median is a selection over up to every pixel: the levels on every thread.
+    let valid = &fits.valid[..];
+    let reached = |l: usize| counted_means(set, &mask, valid, l);
+    let medians: Vec<(f64, usize)> = (0..plan.levels).into_par_iter().map(|l| (median(reached(l)), reached(l).count())).collect();
+    let global = plan.global(&medians, good)?;
+    let mean_l: Vec<f64> = plan.level_sums(set, &mask, valid).iter().map(|(s, n)| s.value() / (*n).max(1) as f64).collect();
+    let (acc, mut corrected) = plan.level_pass(set, &fits, &mask, &global, &mean_l, cube);
+    if let Some(c) = corrected.as_mut() {
+        stages::fill_cube(c, &mask, set.width, set.height);
+    }
+    let report = plan.report(&acc, &mean_l, global, np - good, np);
+    Ok((report, PixelResults { coeffs: fits.k_major(plan.k1()), mask, corrected }))
 }
 
 #[cfg(test)]
@@ -755,10 +456,10 @@ mod tests {
             }
         }
         set.mask = Some((0..np).map(|p| (p == 25) as u8).collect());
-        let valid = unsaturated_levels(&set);
+        let valid = unsaturated_levels(&set.view());
         assert!(valid[3] == 30 && valid[20] == 36, "{valid:?}");
-        let (kept, px_kept) = analyze_unsaturated(&set, PIXEL_ORDER, None, valid.clone(), Cube::Keep).unwrap();
-        let (skipped, px_skipped) = analyze_unsaturated(&set, PIXEL_ORDER, None, valid, Cube::Skip).unwrap();
+        let (kept, px_kept) = analyze_unsaturated(&set.view(), PIXEL_ORDER, None, valid.clone(), Cube::Keep).unwrap();
+        let (skipped, px_skipped) = analyze_unsaturated(&set.view(), PIXEL_ORDER, None, valid, Cube::Skip).unwrap();
         assert!(kept.masked_pixels >= 3, "{}", kept.masked_pixels);
         let json = |r: &LinearityReport| serde_json::to_string(r).unwrap();
         assert_eq!(json(&kept), json(&skipped));

@@ -8,7 +8,7 @@ use serde::Serialize;
 
 use crate::infra::progress::{spinner, stage};
 use crate::formats::report::{wrote, Report};
-use crate::formats::fits::{read_linearity, LinearitySet, stage_cube, stage_pixel_correction, PixelCorrection};
+use crate::formats::fits::{read_linearity, SetView, stage_cube, stage_pixel_correction, PixelCorrection};
 use crate::analyses::linearity::{analyze_unsaturated, LinearityError, check_flat_level, example_row, unsaturated_levels, Cube, LinearityReport, PixelResults, MAX_ORDER};
 use crate::formats::plots::{level_lines_plot, line_plot_paired, map_plot, Map, Series};
 use crate::formats::outputs::OutDir;
@@ -64,7 +64,7 @@ pub fn linearity_as(read_from: &Path, input: &Path, order: usize, flat: Option<u
     // The corrected cube only for the outputs: without them the report needs its
     // statistics alone.
     let cube = if out.is_some() { Cube::Keep } else { Cube::Skip };
-    let (report, px, analysis_s) = fit(&set, &Origin::File(input.into()), order, flat, cube)?;
+    let (report, px, analysis_s) = fit(&set.view(), &Origin::File(input.into()), order, flat, cube)?;
     let mut outputs = Vec::new();
     if let Some(OutDir { files, dir }) = out {
         // Kept above for the outputs; an error rather than outputs left out if not.
@@ -150,7 +150,7 @@ pub fn linearity_as(read_from: &Path, input: &Path, order: usize, flat: Option<u
 /// reference checked for the pixel-wise order, the flat level checked where one is given
 /// (`--flat-level`), then the fits. Returns the report, the per-pixel results and the
 /// analysis' wall time, seconds.
-pub fn fit(set: &LinearitySet, origin: &Origin, order: usize, flat: Option<usize>, cube: Cube) -> Result<(LinearityReport, PixelResults, f64), HostError> {
+pub fn fit(set: &SetView, origin: &Origin, order: usize, flat: Option<usize>, cube: Cube) -> Result<(LinearityReport, PixelResults, f64), HostError> {
     // The fits and their work space, and the corrected cube (f64 per pixel and level)
     // where it is kept.
     let (per_pixel, what) = match cube {

@@ -53,6 +53,41 @@ pub struct LinearitySet<T: Sample = f64> {
     pub mask: Option<Vec<u8>>,
 }
 
+/// A linearity set borrowed: what the analysis and the checks read, from a
+/// [`LinearitySet`] or from arrays another owner holds (a numpy array, one block of a
+/// Dask array), without a copy. Fields as [`LinearitySet`]'s.
+#[derive(Debug, Clone, Copy)]
+pub struct SetView<'a, T: Sample = f64> {
+    pub bit_depth: u32,
+    pub n_adc: usize,
+    pub n_frames: u32,
+    pub width: usize,
+    pub height: usize,
+    pub levels: usize,
+    pub mean: &'a [T],
+    pub std: &'a [T],
+    pub voltage: &'a [f64],
+    pub mask: Option<&'a [u8]>,
+}
+
+impl<T: Sample> LinearitySet<T> {
+    /// The set, borrowed.
+    pub fn view(&self) -> SetView<'_, T> {
+        SetView {
+            bit_depth: self.bit_depth,
+            n_adc: self.n_adc,
+            n_frames: self.n_frames,
+            width: self.width,
+            height: self.height,
+            levels: self.levels,
+            mean: &self.mean,
+            std: &self.std,
+            voltage: &self.voltage,
+            mask: self.mask.as_deref(),
+        }
+    }
+}
+
 /// Writes a linearity set atomically: see [`stage_linearity`].
 pub fn write_linearity(path: &Path, set: &LinearitySet) -> Result<(), HostError> {
     write_one(|out| stage_linearity(out, path, set))
@@ -61,7 +96,7 @@ pub fn write_linearity(path: &Path, set: &LinearitySet) -> Result<(), HostError>
 /// Stages a linearity set in `out`: primary float64 cube of mean frames, extensions `STD`
 /// (same cube), `MASK` (uint8, when present) and `REFERENCE` (table, column `VOLTAGE`).
 pub fn stage_linearity(out: &mut Outputs, path: &Path, set: &LinearitySet) -> Result<(), HostError> {
-    check_linearity(set).map_err(fault(path))?;
+    check_linearity(&set.view()).map_err(fault(path))?;
     out.write(path, |tmp| {
         let cube = [set.levels, set.height, set.width];
         let mut fits = FitsWriter::create(tmp, path, ImageType::Double, &cube)?;
@@ -162,7 +197,7 @@ where
     let (voltage, mask) = read_reference(&mut r, &h)?;
     let Header { bit_depth, n_adc, n_frames, width, height, levels, .. } = h;
     let set = LinearitySet { bit_depth, n_adc, n_frames, width, height, levels, mean, std, voltage, mask };
-    check_linearity(&set).map_err(|f| r.fault(f))?;
+    check_linearity(&set.view()).map_err(|f| r.fault(f))?;
     r.finish()?;
     Ok(set)
 }
@@ -388,10 +423,10 @@ fn read_reference(r: &mut FitsReader, h: &Header) -> Result<(Vec<f64>, Option<Ve
     Ok((voltage, mask))
 }
 
-/// Everything a [`LinearitySet`] must satisfy, whether about to be written or just read.
-pub fn check_linearity<T: Sample>(s: &LinearitySet<T>) -> Result<(), Fault> {
+/// Everything a linearity set must satisfy, whether about to be written or just read.
+pub fn check_linearity<T: Sample>(s: &SetView<'_, T>) -> Result<(), Fault> {
     let (frame, cube) = check_frame(s.bit_depth, s.n_adc, s.n_frames, [s.width, s.height, s.levels])?;
-    for (name, values) in [("mean", &s.mean), ("std", &s.std)] {
+    for (name, values) in [("mean", s.mean), ("std", s.std)] {
         if values.len() != cube {
             return Err(Fault::CubeLength { name, len: values.len(), width: s.width, height: s.height, levels: s.levels, cube });
         }
@@ -402,10 +437,10 @@ pub fn check_linearity<T: Sample>(s: &LinearitySet<T>) -> Result<(), Fault> {
     // written with a rounding error) reads as -0.0 in the f32 reader, which must not
     // accept what this one refuses (found by the `fits_linearity` fuzz target: -8e-322).
     let negative = |v: T| (v.into() as f32) < 0.0;
-    if let Some(m) = value_fault(first(&s.mean, &not_finite), first(&s.std, &not_finite), first(&s.std, &negative), frame, s.width) {
+    if let Some(m) = value_fault(first(s.mean, &not_finite), first(s.std, &not_finite), first(s.std, &negative), frame, s.width) {
         return Err(m);
     }
-    check_reference(&s.voltage, s.levels, s.mask.as_deref(), frame, s.width)
+    check_reference(s.voltage, s.levels, s.mask, frame, s.width)
 }
 
 /// [`check_frame`] of a header.

@@ -1,0 +1,92 @@
+"""dncal.dask.fit_linearity against the in-memory fit on the same set, bit for bit: on
+Dask's threaded scheduler and on a LocalCluster of two worker processes, over blocks
+whose edges cut through masked pixels (filled from neighbours across the edge)."""
+
+import numpy as np
+import pytest
+
+import dncal
+
+da = pytest.importorskip("dask.array")
+import dask  # noqa: E402
+
+from dncal import dask as dd  # noqa: E402
+from test_analyses import read_set  # noqa: E402
+
+
+def planted(sets):
+    """The simulated set (40 x 48, 14 levels) with an input mask whose bad pixels sit on
+    the 13 x 17 blocks' edges and corners, and one dead pixel (no signal) inside."""
+    mean, std, voltage, frames = read_set(sets / "lin.fits")
+    mask = np.zeros(mean.shape[1:], dtype=np.uint8)
+    for r, c in [(12, 16), (13, 17), (12, 17), (25, 33), (26, 34), (0, 0), (39, 47), (20, 5)]:
+        mask[r, c] = 1
+    mean[:, 30, 40] = mean[0, 30, 40]
+    return mean, std, voltage, frames, mask
+
+
+def same(got, want):
+    """The Dask fit's report and arrays equal the in-memory fit's, NaN where it is."""
+    assert got.report == want.report
+    coefficients, reasons = dask.compute(got.coefficients, got.mask)
+    assert np.array_equal(coefficients, want.coefficients, equal_nan=True)
+    assert np.array_equal(reasons, want.mask)
+    if want.corrected is None:
+        assert got.corrected is None
+    else:
+        assert np.array_equal(got.corrected.compute(), want.corrected, equal_nan=True)
+
+
+def run(sets, chunks=(13, 17), **kw):
+    mean, std, voltage, frames, mask = planted(sets)
+    want = dncal.fit_linearity(mean, std, voltage, frames, mask=mask, **kw)
+    c = (mean.shape[0],) + chunks
+    got = dd.fit_linearity(da.from_array(mean, chunks=c), da.from_array(std, chunks=c), voltage, frames, mask=mask, **kw)
+    assert got.coefficients.numblocks[1] * got.coefficients.numblocks[2] > 1, "a test of several blocks"
+    # The planted pixels are masked, and some saturate (the set's top levels).
+    assert want.report["masked_pixels"] >= 9
+    same(got, want)
+    return want
+
+
+def test_blocks_equal_the_in_memory_fit_on_threads(sets):
+    want = run(sets)
+    assert want.mask[30, 40] != 0 and want.mask[12, 16] & 1
+    run(sets, chunks=(7, 48), order=3, flat_level=9, keep_corrected=False)
+    run(sets, chunks=(40, 5))
+
+
+def test_on_a_local_cluster_of_two_processes(sets):
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, distributed.Client(cluster):
+        run(sets)
+
+
+def test_bad_inputs_raise_as_the_in_memory_fit(sets):
+    mean, std, voltage, frames, mask = planted(sets)
+    c = (mean.shape[0], 13, 17)
+    m, s = da.from_array(mean, chunks=c), da.from_array(std, chunks=c)
+    with pytest.raises(TypeError, match="mean: a dask.array is needed"):
+        dd.fit_linearity(mean, s, voltage, frames)
+    with pytest.raises(TypeError, match="std: dtype float32"):
+        dd.fit_linearity(m, s.astype(np.float32), voltage, frames)
+    with pytest.raises(ValueError, match="voltage: shape"):
+        dd.fit_linearity(m, s, voltage[:-1], frames)
+    with pytest.raises(ValueError, match="order 9"):
+        dd.fit_linearity(m, s, voltage, frames, order=9)
+    # A saturated flat, all pixels masked, a NaN in one block, a mask value of 2: the
+    # in-memory fit's errors and messages (the NaN's and the mask's name the block).
+    for kw in ({"flat_level": 13}, {"mask": np.ones_like(mask)}):
+        with pytest.raises(dncal.InputError) as want:
+            dncal.fit_linearity(mean, std, voltage, frames, **kw)
+        with pytest.raises(dncal.InputError) as got:
+            dd.fit_linearity(m, s, voltage, frames, **kw)
+        assert str(got.value) == str(want.value)
+    bad = mean.copy()
+    bad[3, 20, 30] = np.nan
+    with pytest.raises(dncal.InputError, match="block at row 13, column 17: .*NaN|block at row 13, column 17"):
+        dd.fit_linearity(da.from_array(bad, chunks=c), s, voltage, frames)
+    bad_mask = mask.copy()
+    bad_mask[1, 1] = 2
+    with pytest.raises(dncal.InputError, match="block at row 0, column 0"):
+        dd.fit_linearity(m, s, voltage, frames, mask=bad_mask)
