@@ -6,14 +6,19 @@
 # against `dncal linearity`'s analysis, alternating, in one process. Not part of the
 # tests (a benchmark, not a timed test). Prints the JSON.
 #
-#   scripts/python-bench.sh [RUNS]
+#   scripts/python-bench.sh [RUNS]          the two ratios (python/bench/speed.py)
+#   scripts/python-bench.sh --dask [ARGS]   the Dask fit's scaling (python/bench/dask_scale.py)
 set -euo pipefail
 
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 source "$ROOT/scripts/venv.sh"
-PY=$(make_venv python-bench-venv 'import numpy, astropy.io.fits, maturin' "maturin>=1.9,<2" "numpy>=1.21" astropy | tail -n 1)
+PY=$(make_venv python-bench-venv 'import numpy, astropy.io.fits, maturin, dask.array' "maturin>=1.9,<2" "numpy>=1.21" astropy "dask[array]" | tail -n 1)
 PATH="$(dirname "$PY"):$PATH" "$PY" -m pip install --quiet --disable-pip-version-check \
     --no-build-isolation --no-deps --force-reinstall "$ROOT/python" >&2
+if [[ "${1:-}" == --dask ]]; then
+    shift
+    exec "$PY" "$ROOT/python/bench/dask_scale.py" "$@"
+fi
 cargo build --quiet --release --locked -p dncal-host --bin dncal
 SET="$ROOT/target/python-bench-linearity.fits"
 # The paper's ROI size (128 x 128) at 41 levels, as `dncal bench`'s linearity set.

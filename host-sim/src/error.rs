@@ -29,6 +29,8 @@ pub enum Subject {
     CameraAdcWidths,
     /// `simulate linearity`'s ROI, levels and frames.
     SimulateLinearityArguments,
+    /// Simulated frames' region and light (the Python `simulate_frames`).
+    SimulateFramesArguments,
     /// `dncal bench`'s own checks of what it timed.
     Bench,
     /// The LUT set `dncal bench` times.
@@ -58,6 +60,7 @@ impl std::fmt::Display for Subject {
             Subject::CameraConfig => "camera config",
             Subject::CameraAdcWidths => "camera ADC widths",
             Subject::SimulateLinearityArguments => "simulate linearity arguments",
+            Subject::SimulateFramesArguments => "simulated frames arguments",
             Subject::Bench => "bench",
             Subject::BenchLut => "bench LUT",
             Subject::BenchGeometry => "bench geometry",

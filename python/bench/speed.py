@@ -9,7 +9,8 @@ release build (scripts/python-bench.sh builds it and runs this):
    the same set (`linearity_file_json`'s `analysis_s`, the CLI's function).
 
 Runs alternate A and B; each ratio is the median of the per-pair ratios, with the range.
-Prints a JSON object. Usage: python speed.py LINEARITY_SET.fits [--runs N]
+Prints a JSON object (`dncal bench --python PY` runs this file and reports the ratios as
+its rows). Usage: python speed.py LINEARITY_SET.fits [--runs N]
 """
 
 import argparse
@@ -32,7 +33,7 @@ def ratio_runs(a, b, runs):
         ta.append(x)
         tb.append(y)
         ratios.append(x / y)
-    return {"ratio_median": statistics.median(ratios), "ratio_min": min(ratios), "ratio_max": max(ratios), "a_median_s": statistics.median(ta), "b_median_s": statistics.median(tb), "runs": runs}
+    return {"ratio_median": statistics.median(ratios), "ratio_min": min(ratios), "ratio_max": max(ratios), "a_median_s": statistics.median(ta), "b_median_s": statistics.median(tb), "runs": runs, "a_s": ta, "b_s": tb}
 
 
 def correction(frames_per_call, size, states, runs):
@@ -54,7 +55,7 @@ def correction(frames_per_call, size, states, runs):
         return _dncal._core_seconds(lut, frames, states)
 
     r = ratio_runs(python, core, runs)
-    r.update({"what": f"Corrector.add / core, {frames_per_call} frame(s) of {size} x {size} a call, {states} states", "pixels_per_s_python": frames_per_call * size * size / r["a_median_s"]})
+    r.update({"what": f"Corrector.add / core, {frames_per_call} frame(s) of {size} x {size} a call, {states} states", "pixels": frames_per_call * size * size, "pixels_per_s_python": frames_per_call * size * size / r["a_median_s"]})
     return r
 
 

@@ -16,6 +16,7 @@ mod blocks;
 mod correct;
 mod errors;
 mod luts;
+mod simulate;
 
 #[pymodule]
 fn _dncal(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -25,5 +26,6 @@ fn _dncal(m: &Bound<'_, PyModule>) -> PyResult<()> {
     analyses::register(m)?;
     bench::register(m)?;
     blocks::register(m)?;
+    simulate::register(m)?;
     Ok(())
 }

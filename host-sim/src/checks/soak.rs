@@ -441,7 +441,7 @@ fn run_segment(
             lut_action(&mut corrector, pool, model, rng, report);
         }
         let lut = model.active;
-        let frame_seed = seed.wrapping_mul(0x2545_F491_4F6C_DD1D).wrapping_add(frame as u64);
+        let frame_seed = crate::model::camera::sample::frame_seed(seed, frame as u64);
         draw_frame(seg, camera, frame_seed, state, &pool.references[lut], &mut codes, &mut refs);
         // The core: the whole frame in one call, or line by line with perhaps a LUT
         // change asked in the middle (it must wait for the frame's end).

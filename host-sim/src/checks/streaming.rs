@@ -305,7 +305,7 @@ fn run_typed<const N: usize, const CODES: usize>(
     let mut sampled = vec![0u16; if p.recorded.is_some() { 0 } else { w * h }];
     for frame in 0..p.frames {
         let state = (frame % p.states as u32) as u8;
-        let frame_seed = p.seed.wrapping_mul(0x2545_F491_4F6C_DD1D).wrapping_add(frame as u64);
+        let frame_seed = crate::model::camera::sample::frame_seed(p.seed, frame as u64);
         let base = state as usize * w * h;
         let refs = ref_q[base..base + w * h].par_chunks_mut(w).zip(ref_f[base..base + w * h].par_chunks_mut(w));
         let codes: &[u16] = match &p.recorded {

@@ -3,9 +3,11 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
+use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::model::camera::calibration::{LinearityParams, RampParams};
+use crate::model::camera::sample::frame_seed;
 use crate::model::camera::{Camera, CameraConfig};
 use crate::infra::progress::{bar, stage};
 use crate::formats::report::Report;
@@ -108,6 +110,16 @@ pub fn simulate_linearity(camera: &Camera, p: &LinearityParams, output: PathBuf)
 /// Simulates a linearity set and stages it in `files` (the caller publishes it).
 pub fn simulate_linearity_staged(files: &mut Outputs, camera: &Camera, p: &LinearityParams, output: PathBuf) -> Result<LinearitySummary, HostError> {
     let start = Instant::now();
+    check_roi(camera, p)?;
+    files.expect([&output])?;
+    let set = linearity_set_of(camera, p)?;
+    let masked_pixels = set.mask.iter().flatten().filter(|&&m| m != 0).count();
+    stage_linearity(files, &output, &set)?;
+    Ok(LinearitySummary { output, width: set.width, height: set.height, levels: p.levels, frames: p.frames, masked_pixels, seconds: start.elapsed().as_secs_f64() })
+}
+
+/// The ROI and the counts of `p` checked against the camera.
+fn check_roi(camera: &Camera, p: &LinearityParams) -> Result<(), HostError> {
     let (x0, y0, w, h) = p.roi;
     if w == 0 || h == 0 || x0 + w > camera.config.width || y0 + h > camera.config.height || p.levels < 2 || p.frames < 2 {
         return Err(HostError::invalid(
@@ -115,13 +127,18 @@ pub fn simulate_linearity_staged(files: &mut Outputs, camera: &Camera, p: &Linea
             format!("ROI {w}x{h} at ({x0}, {y0}) must be non-empty and inside the {}x{} sensor, with >= 2 levels and >= 2 frames", camera.config.width, camera.config.height),
         ));
     }
-    files.expect([&output])?;
+    Ok(())
+}
+
+/// The linearity set of `p` in memory: what `simulate linearity` writes.
+pub fn linearity_set_of(camera: &Camera, p: &LinearityParams) -> Result<LinearitySet, HostError> {
+    check_roi(camera, p)?;
+    let (_, _, w, h) = p.roi;
     stage(&format!("simulating a linearity set: {w} x {h} pixels, {} levels of {} frames", p.levels, p.frames));
     let pb = bar(p.levels as u64, "linearity levels");
     let data = camera.linearity_set(p, |n| pb.set_position(n));
     pb.finish_and_clear();
-    let masked_pixels = data.mask.iter().filter(|&&m| m != 0).count();
-    let set = LinearitySet {
+    Ok(LinearitySet {
         bit_depth: camera.config.bits,
         n_adc: camera.config.n_adc,
         n_frames: p.frames,
@@ -132,7 +149,25 @@ pub fn simulate_linearity_staged(files: &mut Outputs, camera: &Camera, p: &Linea
         std: data.std,
         voltage: data.voltage,
         mask: Some(data.mask),
-    };
-    stage_linearity(files, &output, &set)?;
-    Ok(LinearitySummary { output, width: w, height: h, levels: p.levels, frames: p.frames, masked_pixels, seconds: start.elapsed().as_secs_f64() })
+    })
+}
+
+/// `n` frames of the region `(column, row, width, height)` under uniform light of
+/// `photons` per pixel and frame, frame-major then row then column; frame `f` is drawn
+/// with [`frame_seed`]`(seed, f)`, as `stream` draws its frames.
+pub fn frames_of(camera: &Camera, n: usize, photons: f64, (x0, y0, w, h): (usize, usize, usize, usize), seed: u64) -> Result<Vec<u16>, HostError> {
+    if w == 0 || h == 0 || x0 + w > camera.config.width || y0 + h > camera.config.height || !(photons.is_finite() && photons >= 0.0) {
+        return Err(HostError::invalid(
+            crate::Subject::SimulateFramesArguments,
+            format!("frames of {w}x{h} at ({x0}, {y0}) under {photons} photons: the region must be non-empty and inside the {}x{} sensor, the light finite and not negative", camera.config.width, camera.config.height),
+        ));
+    }
+    let bytes = (n as u64).saturating_mul((w * h) as u64);
+    crate::infra::budget::check(crate::Subject::SimulateFramesArguments, "the simulated frames", crate::infra::budget::bytes_of(bytes, 2))?;
+    let mut out = vec![0u16; n * w * h];
+    out.par_chunks_mut((w * h).max(1)).enumerate().for_each(|(f, frame)| {
+        let s = frame_seed(seed, f as u64);
+        frame.chunks_mut(w).enumerate().for_each(|(y, line)| camera.sample_span_into(y0 + y, x0..x0 + w, s, |_| photons, line));
+    });
+    Ok(out)
 }

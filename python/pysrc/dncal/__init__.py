@@ -8,7 +8,11 @@ fixed-point core and the host library, not a re-implementation), the same messag
 - Correction: :class:`Corrector` sums uint16 frames through the LUTs into per-state
   uint32 sums, bit for bit what the co-processor computes.
 - Characterization: :func:`fit_linearity` (the pixel-wise 4th-order correction),
-  :func:`linearity` of a set file, :func:`quantization`, :func:`diagnose` of any input.
+  :func:`linearity` of a set file, :func:`quantization`, :func:`emva` (the EMVA 1288
+  datasheet of a descriptor), :func:`diagnose` of any input.
+- The camera simulator: :func:`simulate_frames`, :func:`simulate_histograms`,
+  :func:`simulate_linearity` (the sets ``dncal simulate`` writes, as arrays) and
+  :func:`camera_config`, so a notebook can plant an effect and look for it.
 - :mod:`dncal.dask`: the per-pixel work of sensors larger than one machine.
 
 Units: LUT entries and sums are in 2^-11 DN (divide by 2048 for DN); code widths in DN.
@@ -47,6 +51,67 @@ def quantization(*, sigma=None, bias=None, read_noise_e=None, gain_e_per_dn=None
     ``sigma`` (DN, or ``read_noise_e`` over ``gain_e_per_dn``), or the noise a ``bias``
     target (DN) needs (the paper's Fig. 1)."""
     return _json.loads(_dncal.quantization_json(sigma=sigma, bias=bias, read_noise_e=read_noise_e, gain_e_per_dn=gain_e_per_dn, samples=samples))
+
+
+def emva(descriptor, *, release: Optional[str] = None) -> Dict[str, Any]:
+    """``dncal emva DESCRIPTOR --json`` as a dict: the EMVA 1288 datasheet (quantum
+    efficiency, gain, dark noise, SNR, linearity error, DSNU, PRNU...) of the set an
+    ``EMVA1288_Data.txt`` describes, by the definitions of ``release`` ("3.1" or "4.0";
+    default the descriptor's own)."""
+    return _json.loads(_dncal.emva_json(str(descriptor), release=release))
+
+
+def camera_config(camera=None) -> Dict[str, Any]:
+    """The camera model's configuration as a dict (the keys of its TOML file): the
+    built-in camera, or the one of the TOML file ``camera``."""
+    return _json.loads(_dncal.camera_json(None if camera is None else str(camera)))
+
+
+def simulate_frames(n: int, photons: float, *, roi=None, seed: int = 1, camera=None) -> _np.ndarray:
+    """``n`` frames of the camera model under uniform light of ``photons`` per pixel and
+    frame: uint16 (n, rows, cols), codes in DN. ``roi`` is (width, height, column, row)
+    of the sensor (default all of it); frame f is drawn with the seed ``dncal stream``
+    uses for frame f of ``seed``. ``camera``: a camera TOML file (default the built-in)."""
+    return _dncal.simulate_frames(n, photons, roi=roi, seed=seed, camera=None if camera is None else str(camera))
+
+
+def simulate_histograms(*, seed: int = 4, camera=None) -> _np.ndarray:
+    """The per-ADC code histograms of the calibration ramps, uint64 (adcs, codes): what
+    ``dncal simulate histograms`` writes (the default ramps, Poisson draws seeded
+    ``seed``). :func:`build_luts` takes them."""
+    return _dncal.simulate_histograms(seed=seed, camera=None if camera is None else str(camera))
+
+
+@_dataclass
+class LinearitySet:
+    """A linearity set in memory (:func:`simulate_linearity`): the arguments
+    :func:`fit_linearity` and :func:`dncal.dask.fit_linearity` take."""
+
+    #: Mean frames, float64 (levels, rows, cols), DN; level 0 dark.
+    mean: _np.ndarray
+    #: Per-pixel standard deviation of the frames, float64 (levels, rows, cols), DN.
+    std: _np.ndarray
+    #: Reference photodiode voltage per level, float64 (levels,), V.
+    voltage: _np.ndarray
+    #: Pixels the camera model knows to be bad (hot, dead), uint8 (rows, cols), 1 = bad.
+    mask: _np.ndarray
+    #: Frames averaged per level.
+    frames: int
+    #: Bits per code.
+    bit_depth: int
+    #: ADCs (column c read by ADC c mod n_adc).
+    n_adc: int
+
+    def fit(self, **options) -> "LinearityFit":
+        """:func:`fit_linearity` of this set (``order``, ``flat_level``, ``keep_corrected``)."""
+        return fit_linearity(self.mean, self.std, self.voltage, self.frames, mask=self.mask, bit_depth=self.bit_depth, n_adc=self.n_adc, **options)
+
+
+def simulate_linearity(*, levels: int = 41, frames: int = 256, roi=None, seed: int = 41, camera=None) -> LinearitySet:
+    """The linearity set ``dncal simulate linearity`` writes, in memory: ``levels`` from
+    dark to 1.02 x saturation, ``frames`` per level, of the region ``roi`` (width,
+    height, column, row; default 128 x 128 at the sensor's center)."""
+    return LinearitySet(*_dncal.simulate_linearity(levels=levels, frames=frames, roi=roi, seed=seed, camera=None if camera is None else str(camera)))
 
 
 @_dataclass
@@ -89,8 +154,11 @@ __all__ = [
     "OverBudgetError",
     "ToolError",
     "UNITS_PER_DN",
+    "LinearitySet",
     "build_luts",
+    "camera_config",
     "diagnose",
+    "emva",
     "errors",
     "fit_linearity",
     "linearity",
@@ -99,5 +167,8 @@ __all__ = [
     "read_histograms",
     "read_lut",
     "set_memory_budget",
+    "simulate_frames",
+    "simulate_histograms",
+    "simulate_linearity",
     "__version__",
 ]

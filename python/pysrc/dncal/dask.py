@@ -21,6 +21,9 @@ from typing import Any, Callable, Dict, List, Optional, Tuple
 import numpy as np
 
 import json as _json
+import logging
+import time
+from contextlib import contextmanager
 
 from . import _dncal
 from ._dncal import Corrector, Lut
@@ -30,6 +33,10 @@ try:
     import dask.array as da
 except ImportError as e:  # pragma: no cover - the message is the point
     raise ImportError("dncal.dask needs dask: pip install 'dask[array]' (or './python[dask]')") from e
+
+#: Each global step of :func:`fit_linearity` is logged here at INFO with its wall time
+#: and passes over the blocks (``logging.basicConfig(level=logging.INFO)`` shows them).
+log = logging.getLogger("dncal.dask")
 
 #: The status counters a correction sums over its blocks.
 STATUS_KEYS = ("out_of_range_codes", "saturated_additions", "rejected_lines", "incomplete_frames")
@@ -170,11 +177,22 @@ def _parts(p):
     return (_c(p[0], np.int64), _c(p[1], np.float64), _c(p[2], np.uint64))
 
 
-def _medians(queries: int, tally: Callable[[np.ndarray], List[Any]]) -> Tuple[np.ndarray, np.ndarray]:
+@contextmanager
+def _step(name: str, passes: Optional[List[int]] = None):
+    """Logs a step's wall time (and its passes over the blocks, counted into `passes`)."""
+    t = time.perf_counter()
+    yield
+    extra = f", {passes[0]} passes" if passes else ""
+    log.info("%s: %.3f s%s", name, time.perf_counter() - t, extra)
+
+
+def _medians(queries: int, tally: Callable[[np.ndarray], List[Any]], passes: Optional[List[int]] = None) -> Tuple[np.ndarray, np.ndarray]:
     """Exact medians of `queries` sets spread over blocks: passes of the radix search,
     each `tally(counter)` a delayed tally per block, merged and taken by the search."""
     search = _dncal._MedianSearch(queries)
     while not search.done:
+        if passes is not None:
+            passes[0] += 1
         (total,) = dask.compute(dask.delayed(_merge)(tally(search.counter())))
         search.advance([_c(v, np.float64) for v in total] if isinstance(total, list) else _c(total, np.uint64))
     return search.medians()
@@ -250,13 +268,17 @@ def fit_linearity(mean, std, voltage, frames: int, *, order: int = 4, flat_level
 
     # Stage 1, kept on the workers for the passes that follow.
     fit = dask.delayed(_fit_block, pure=True)
-    fits = dask.persist(*[fit(mb[i][j], sb[i][j], None if kb is None else kb[i][j], keys_d, int(r0[i]), int(c0[j])) for i, j in grid])
+    with _step(f"per-pixel fits, {len(grid)} blocks"):
+        fits = dask.persist(*[fit(mb[i][j], sb[i][j], None if kb is None else kb[i][j], keys_d, int(r0[i]), int(c0[j])) for i, j in grid])
+        dask.compute([dask.delayed(len)(f) for f in fits])
     if flat_level is not None:
         (reaching,) = dask.compute(dask.delayed(lambda rs: np.sum(np.stack(rs), axis=0))([dask.delayed(_reaching)(f, levels) for f in fits]))
         _dncal._lin_check_flat([int(n) for n in reaching], flat_level)
 
     # The mask's medians, then each block's mask (kept).
-    med, _ = _medians(2, lambda w: [dask.delayed(lambda w, f: _dncal._lin_mask_tally(w, _f(f)[3], _f(f)[2]))(w, f) for f in fits])
+    passes = [0]
+    with _step("mask medians", passes):
+        med, _ = _medians(2, lambda w: [dask.delayed(lambda w, f: _dncal._lin_mask_tally(w, _f(f)[3], _f(f)[2]))(w, f) for f in fits], passes)
     mask_fn = dask.delayed(lambda f, k, s, r: _dncal._lin_mask(_f(f)[3], _f(f)[2], None if k is None else _c(k, np.uint8), s, r), pure=True)
     masks = dask.persist(*[mask_fn(f, None if kb is None else kb[i][j], float(med[0]), float(med[1])) for f, (i, j) in zip(fits, grid)])
     (good,) = dask.compute(dask.delayed(sum)([dask.delayed(lambda m: int(np.count_nonzero(m == 0)))(m) for m in masks]))
@@ -265,16 +287,20 @@ def fit_linearity(mean, std, voltage, frames: int, *, order: int = 4, flat_level
 
     # Each level's median and count of the counted pixels; the global cubic.
     level_tally = dask.delayed(lambda w, m, k, f, v: _dncal._lin_level_tally(w, _c(m, np.float64), _c(k, np.uint8), _f(f)[0], _c(v, np.float64)))
-    medians, counts = _medians(levels, lambda w: [level_tally(w, mb[i][j], k, f, voltage) for f, k, (i, j) in zip(fits, masks, grid)])
+    passes = [0]
+    with _step(f"level medians ({levels} levels)", passes):
+        medians, counts = _medians(levels, lambda w: [level_tally(w, mb[i][j], k, f, voltage) for f, k, (i, j) in zip(fits, masks, grid)], passes)
     global_coefficients = _dncal._lin_global(*keys, [float(m) for m in medians], [int(n) for n in counts], good, rows * cols)
     # Each level's mean of the counted pixels (exact sums).
     sums = dask.delayed(lambda m, k, f, v: _dncal._lin_level_sums(_c(m, np.float64), _c(k, np.uint8), _f(f)[0], _c(v, np.float64)))
-    (level_parts,) = dask.compute(dask.delayed(_add_parts)([sums(mb[i][j], k, f, voltage) for f, k, (i, j) in zip(fits, masks, grid)]))
+    with _step("level means (exact sums)"):
+        (level_parts,) = dask.compute(dask.delayed(_add_parts)([sums(mb[i][j], k, f, voltage) for f, k, (i, j) in zip(fits, masks, grid)]))
     level_means = [float(x) for x in _dncal._lin_means(*_parts(level_parts))]
 
     # The statistics (without the cube: it is the lazy result below).
     stats = dask.delayed(lambda *a: _level_pass(*a)[0])
-    (stat_parts,) = dask.compute(dask.delayed(_add_parts)([stats(mb[i][j], sb[i][j], f, k, keys_d, global_coefficients, level_means, False) for f, k, (i, j) in zip(fits, masks, grid)]))
+    with _step("statistics (inversion, exact sums)"):
+        (stat_parts,) = dask.compute(dask.delayed(_add_parts)([stats(mb[i][j], sb[i][j], f, k, keys_d, global_coefficients, level_means, False) for f, k, (i, j) in zip(fits, masks, grid)]))
     masked = rows * cols - good
     report = _json.loads(_dncal._lin_report(*keys, level_means, global_coefficients, *_parts(stat_parts), masked, rows * cols))
 

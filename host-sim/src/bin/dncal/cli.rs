@@ -469,6 +469,12 @@ pub(crate) enum Cmd {
         /// Leave numpy out.
         #[arg(long)]
         no_numpy: bool,
+        /// A Python interpreter that imports the `dncal` package (a release wheel, as
+        /// `scripts/python-bench.sh` installs into target/python-bench-venv): adds the
+        /// package's rows, `Corrector.add` against the core and `fit_linearity` against
+        /// `linearity`'s analysis, from python/bench/speed.py.
+        #[arg(long, value_name = "PYTHON")]
+        python: Option<PathBuf>,
         /// Also run the whole commands against issue 17's limits: `linearity` on a 1024 x
         /// 1024 x 41-level set, `diagnose` on 2048 x 2048 x 41 (3.4 GB of FITS simulated in
         /// TMPDIR first) and the demo, each its own process, wall time and peak memory

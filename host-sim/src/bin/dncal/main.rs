@@ -113,8 +113,8 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
             print(json, &r)?;
             return Ok(passed(r.ok));
         }
-        Cmd::Bench { runs, frames, no_numpy, whole, linearity_side, diagnose_side, json } => {
-            let params = bench::BenchParams { runs, frames, numpy: !no_numpy };
+        Cmd::Bench { runs, frames, no_numpy, python, whole, linearity_side, diagnose_side, json } => {
+            let params = bench::BenchParams { runs, frames, numpy: !no_numpy, python };
             params.check()?;
             let whole = match whole {
                 true => Some(bench::whole::WholeParams::new(std::env::current_exe().map_err(|e| HostError::IoOf { subject: dncal_host::Subject::DncalBinary, source: e })?, linearity_side, diagnose_side)?),

@@ -15,6 +15,7 @@
 //! issue's limits.
 
 pub mod child;
+pub mod python;
 pub mod whole;
 
 use std::hint::black_box;
@@ -39,11 +40,13 @@ pub struct BenchParams {
     pub frames: usize,
     /// Time numpy too.
     pub numpy: bool,
+    /// An interpreter with the `dncal` package: adds the Python package's rows.
+    pub python: Option<std::path::PathBuf>,
 }
 
 impl Default for BenchParams {
     fn default() -> Self {
-        BenchParams { runs: 7, frames: 32, numpy: true }
+        BenchParams { runs: 7, frames: 32, numpy: true, python: None }
     }
 }
 
@@ -374,6 +377,13 @@ pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, Ho
         ratios.extend(linearity_ratio(&camera, runs, &mut notes)?);
     }
     ratios.push(diagnose_ratio(&camera, runs)?);
+    if let Some(py) = &p.python {
+        let (_dir, set) = simulated_linearity(&camera, 256)?;
+        match python::python_ratios(py, &set, runs) {
+            Ok(rows) => ratios.extend(rows),
+            Err(e) => notes.push(e.to_string()),
+        }
+    }
     match firmware_ratio() {
         Ok((r, note)) => {
             ratios.push(r);

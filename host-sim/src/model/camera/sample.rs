@@ -20,6 +20,12 @@ use rand_xoshiro::Xoshiro256PlusPlus;
 
 use super::{Camera, PixelState};
 
+/// The seed of frame `frame` of a run seeded `seed`: what `stream` and the Python
+/// `simulate_frames` draw frame `frame` with.
+pub fn frame_seed(seed: u64, frame: u64) -> u64 {
+    seed.wrapping_mul(0x2545_F491_4F6C_DD1D).wrapping_add(frame)
+}
+
 /// The generator of one line of one frame: independent streams per (frame seed, row).
 pub fn line_rng(frame_seed: u64, row: usize) -> Xoshiro256PlusPlus {
     Xoshiro256PlusPlus::seed_from_u64(frame_seed ^ (row as u64 + 1).wrapping_mul(0xA076_1D64_78BD_642F))
