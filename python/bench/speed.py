@@ -1,9 +1,12 @@
 """The Python package's two speed ratios (issue 41), measured in one process on a
 release build (scripts/python-bench.sh builds it and runs this):
 
-1. Correcting frames from Python (`Corrector.add`) against the Rust core's own rate on
-   the same frames (`_dncal._core_seconds`: the core's `Corrector` over the same
-   slice, timed in Rust), for one frame a call and for stacks.
+1. Correcting frames from Python (`Corrector.add`, wall time around the call) against
+   the Rust core's own time on the same frames and the same sum buffers (the core's
+   work inside a call, timed in Rust: `Corrector._last_core_seconds` of an `add` on
+   its own), for one frame a call and for stacks. Also, for information, against a
+   corrector made afresh in Rust (`_dncal._core_seconds`: its buffers in another
+   memory state, so the ratio mixes the cache's effects with the boundary's).
 2. The linearity fit from Python (`fit_linearity` on numpy arrays, wall time around the
    call: checks, copies in, arrays out) against `dncal linearity`'s own analysis time on
    the same set (`linearity_file_json`'s `analysis_s`, the CLI's function).
@@ -52,9 +55,16 @@ def correction(frames_per_call, size, states, runs):
         return time.perf_counter() - t
 
     def core():
+        c.clear()
+        c.add(frames, states=state_list)
+        return c._last_core_seconds
+
+    def fresh():
         return _dncal._core_seconds(lut, frames, states)
 
     r = ratio_runs(python, core, runs)
+    f = ratio_runs(python, fresh, runs)
+    r["against_a_fresh_core_corrector"] = {k: f[k] for k in ("ratio_median", "ratio_min", "ratio_max", "b_median_s")}
     r.update({"what": f"Corrector.add / core, {frames_per_call} frame(s) of {size} x {size} a call, {states} states", "pixels": frames_per_call * size * size, "pixels_per_s_python": frames_per_call * size * size / r["a_median_s"]})
     return r
 

@@ -24,6 +24,9 @@ pub struct PyCorrector {
     /// Where the last frames added were read from (the array's data pointer), so that a
     /// test can see they were read in place.
     last_input_address: usize,
+    /// Seconds the core took inside the last `add` (timed in Rust around the core's work
+    /// alone): the reference of the speed benchmark, on the same buffers as the call.
+    last_core_seconds: f64,
 }
 
 #[pymethods]
@@ -36,7 +39,7 @@ impl PyCorrector {
     fn new(lut: &PyLut, states: u8, height: u16, width: u16, first_column: u16) -> PyResult<Self> {
         let geometry = Geometry::new(width, height, states, first_column).map_err(|e| PyValueError::new_err(format!("geometry: {e}")))?;
         let sums = FrameSums::new(&lut.lut.tables, Origin::Argument("lut"), geometry).py_err()?;
-        Ok(PyCorrector { sums, added: 0, last_input_address: 0 })
+        Ok(PyCorrector { sums, added: 0, last_input_address: 0, last_core_seconds: 0.0 })
     }
 
     /// Adds frames of raw codes (uint16, C-contiguous): one frame (rows, cols) or a stack
@@ -49,18 +52,18 @@ impl PyCorrector {
         let ndim = frames.cast::<numpy::PyUntypedArray>().map(|a| a.ndim()).unwrap_or(0);
         let view3;
         let view2;
-        let (codes, n): (&[u16], usize) = match ndim {
+        let (codes, n, rows, cols): (&[u16], usize, usize, usize) = match ndim {
             2 => {
                 view2 = arrays::view::<u16, Ix2>(frames, "frames", "(rows, cols)")?;
-                (view2.as_slice().map_err(|e| PyValueError::new_err(e.to_string()))?, 1)
+                let (rows, cols) = (view2.shape()[0], view2.shape()[1]);
+                (view2.as_slice().map_err(|e| PyValueError::new_err(e.to_string()))?, 1, rows, cols)
             }
             _ => {
                 view3 = arrays::view::<u16, Ix3>(frames, "frames", "(frames, rows, cols) or one frame (rows, cols)")?;
-                (view3.as_slice().map_err(|e| PyValueError::new_err(e.to_string()))?, view3.shape()[0])
+                let (n, rows, cols) = (view3.shape()[0], view3.shape()[1], view3.shape()[2]);
+                (view3.as_slice().map_err(|e| PyValueError::new_err(e.to_string()))?, n, rows, cols)
             }
         };
-        let shape = frames.getattr("shape")?;
-        let (rows, cols): (usize, usize) = (shape.get_item(ndim - 2)?.extract()?, shape.get_item(ndim - 1)?.extract()?);
         if (rows, cols) != (g.height() as usize, g.width() as usize) {
             return Err(PyValueError::new_err(format!("frames: {rows} x {cols} pixels, but the corrector sums {} x {}", g.height(), g.width())));
         }
@@ -74,7 +77,11 @@ impl PyCorrector {
         };
         self.last_input_address = codes.as_ptr() as usize;
         let sums = &mut self.sums;
-        py.detach(|| sums.add_frames(codes, &states_of)).py_err()?;
+        let seconds = py.detach(|| {
+            let start = std::time::Instant::now();
+            sums.add_frames(codes, &states_of).map(|()| start.elapsed().as_secs_f64())
+        });
+        self.last_core_seconds = seconds.py_err()?;
         self.added += n as u64;
         Ok(n)
     }
@@ -117,6 +124,12 @@ impl PyCorrector {
     #[getter]
     fn _last_input_address(&self) -> usize {
         self.last_input_address
+    }
+
+    /// Seconds the core's own work took inside the last `add` (for the speed benchmark).
+    #[getter]
+    fn _last_core_seconds(&self) -> f64 {
+        self.last_core_seconds
     }
 
     /// Zeroes the sums, frame counts and counters, as after a readout.
