@@ -6,6 +6,7 @@
 
 use dncal_host::analyses::linearity::stages::{counted_means, fill_cube, mask_of, MaskRule, Plan, STATISTICS};
 use dncal_host::analyses::linearity::{check_flat_counts, unsaturated_levels, Cube, LinearityError, MAX_ORDER};
+use dncal_host::analyses::linearity::run::check_plan;
 use dncal_host::analyses::linearity::stages::Fits;
 use dncal_host::formats::fits::{check_linearity, SetView};
 use dncal_host::infra::exact_sum::{ExactRms, ExactSum, LIMBS};
@@ -64,13 +65,7 @@ fn _lin_check(voltage: &Bound<'_, PyAny>, frames: u32, bit_depth: u32, n_adc: us
     let zeros = vec![0.0; levels];
     let keys = Keys { voltage, frames, bit_depth, n_adc, order, flat: flat_level };
     check_linearity(&keys.view(&zeros, &zeros, 1, 1)).map_err(|fault| raise("InputError", format!("linearity set: {fault}")))?;
-    if levels < order + 3 {
-        return Err(linearity_error(LinearityError::LevelsForOrder { levels, order }));
-    }
-    if voltage.iter().cloned().fold(0.0, f64::max) <= 0.0 {
-        return Err(linearity_error(LinearityError::ReferenceVoltage));
-    }
-    Ok(())
+    check_plan(voltage, order).map_err(linearity_error)
 }
 
 /// Stage 1 of a block: (unsaturated levels uint64 (rows, cols), coefficients float64
@@ -105,7 +100,7 @@ fn _lin_fit<'py>(
     let keys = Keys { voltage: v.as_slice()?, frames, bit_depth, n_adc, order, flat: flat_level };
     let k = mask.map(|k| arrays::view::<u8, Ix2>(k, "mask", "(rows, cols)")).transpose()?;
     let set = keys.view(m.as_slice()?, s.as_slice()?, height, width);
-    check_linearity(&SetView { mask: k.as_ref().map(|k| k.as_slice()).transpose()?, ..set }).map_err(|fault| raise("InputError", format!("linearity set, block at row {first_row}, column {first_column}: {fault}")))?;
+    check_linearity(&SetView { mask: k.as_ref().map(|k| k.as_slice()).transpose()?, ..set }).map_err(|fault| raise("InputError", format!("linearity set, the block from row {first_row}, column {first_column} (positions below counted within it): {fault}")))?;
     let fits = py.detach(|| keys.plan().fit(&set, unsaturated_levels(&set)));
     let k1 = keys.plan().k1();
     Ok((

@@ -74,19 +74,23 @@ def test_bad_inputs_raise_as_the_in_memory_fit(sets):
         dd.fit_linearity(m, s, voltage[:-1], frames)
     with pytest.raises(ValueError, match="order 9"):
         dd.fit_linearity(m, s, voltage, frames, order=9)
+    with pytest.raises(ValueError, match="mean: empty"):
+        dd.fit_linearity(m[:, :0], s[:, :0], voltage, frames)
     # A saturated flat, all pixels masked, a NaN in one block, a mask value of 2: the
     # in-memory fit's errors and messages (the NaN's and the mask's name the block).
-    for kw in ({"flat_level": 13}, {"mask": np.ones_like(mask)}):
+    negative = voltage.copy()
+    negative[2] = -1e-3
+    for v, kw in ((voltage, {"flat_level": 13}), (voltage, {"mask": np.ones_like(mask)}), (negative, {})):
         with pytest.raises(dncal.InputError) as want:
-            dncal.fit_linearity(mean, std, voltage, frames, **kw)
+            dncal.fit_linearity(mean, std, v, frames, **kw)
         with pytest.raises(dncal.InputError) as got:
-            dd.fit_linearity(m, s, voltage, frames, **kw)
+            dd.fit_linearity(m, s, v, frames, **kw)
         assert str(got.value) == str(want.value)
     bad = mean.copy()
     bad[3, 20, 30] = np.nan
-    with pytest.raises(dncal.InputError, match="block at row 13, column 17: .*NaN|block at row 13, column 17"):
+    with pytest.raises(dncal.InputError, match="the block from row 13, column 17"):
         dd.fit_linearity(da.from_array(bad, chunks=c), s, voltage, frames)
     bad_mask = mask.copy()
     bad_mask[1, 1] = 2
-    with pytest.raises(dncal.InputError, match="block at row 0, column 0"):
+    with pytest.raises(dncal.InputError, match="the block from row 0, column 0"):
         dd.fit_linearity(m, s, voltage, frames, mask=bad_mask)

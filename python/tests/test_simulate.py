@@ -68,6 +68,10 @@ def test_emva_of_the_real_ccd_set_is_the_clis_datasheet(cli):
 def test_bad_simulator_and_emva_inputs(tmp_path):
     with pytest.raises(dncal.InputError, match="inside the"):
         dncal.simulate_frames(1, 100.0, roi=(10, 10, 100000, 0))
+    with pytest.raises(dncal.InputError, match="inside the"):
+        dncal.simulate_frames(1, 100.0, roi=(10, 10, 2**64 - 5, 0))  # a region whose end wraps
+    with pytest.raises(dncal.InputError, match="ROI"):
+        dncal.simulate_linearity(roi=(4, 4, 0, 2**64 - 2))
     with pytest.raises(dncal.InputError, match="not negative"):
         dncal.simulate_frames(1, -1.0, roi=(10, 10, 0, 0))
     with pytest.raises(dncal.InputError, match="ROI"):

@@ -3,7 +3,7 @@
 //! workers, any number, in any order) must give the bits that one pass over the whole set
 //! gives. A float sum rounds at every addition, so its bits depend on the order; this one
 //! is exact: every finite `f64` is an integer multiple of 2^-1074, and the sum is kept as
-//! that integer, in 32-bit limbs held in `i64` (room for 2^31 additions between carries),
+//! that integer, in 32-bit limbs held in `i64` (carried every 2^30 additions),
 //! rounded to the nearest `f64` only when read. Adding is a few integer operations; two
 //! sums merge by adding their limbs, so any split and any merge order give the same
 //! integer and the same rounded value.
@@ -115,8 +115,8 @@ impl ExactSum {
         ExactSum { limbs: out, pending: 0, special }
     }
 
-    /// The sum rounded to the nearest `f64` (ties to even; a result in the subnormal range
-    /// may round twice); the non-finite values' sum if any was added.
+    /// The sum rounded to the nearest `f64` (ties to even); the non-finite values' sum if
+    /// any was added.
     pub fn value(&self) -> f64 {
         if self.special != 0.0 {
             return self.special;

@@ -195,7 +195,10 @@ impl Counter {
                     2 => Mode::Collect,
                     _ => return None,
                 };
-                (c[1] < 64 || (c[1] == 64 && mode != Mode::Histogram)).then_some((c[0], c[1] as u32, mode))
+                // Whole digits fixed, and room for the next one where a histogram counts it.
+                let fixed = c[1];
+                let fits = fixed % u64::from(DIGIT) == 0 && if mode == Mode::Histogram { fixed + u64::from(DIGIT) <= 64 } else { fixed <= 64 };
+                fits.then_some((c[0], fixed as u32, mode))
             })
             .collect::<Option<Vec<_>>>()?;
         // One pass counts one way.
@@ -266,6 +269,7 @@ impl Selection {
                     }
                     // The digit holding the rank among the values that share the prefix.
                     let mut want = x.rank - x.below;
+                    let mut found = false;
                     for (j, &k) in h.iter().enumerate() {
                         let k = k as usize;
                         if want < k {
@@ -276,12 +280,15 @@ impl Selection {
                             if x.fixed == 64 {
                                 x.done = Some(value(x.prefix));
                             }
+                            found = true;
                             break;
                         }
                         want -= k;
                     }
-                    if x.done.is_none() && x.inside == usize::MAX {
-                        // A tally that does not hold the rank (not this pass's total).
+                    if !found {
+                        // A tally that does not hold the rank (not this pass's total, or
+                        // values that changed between passes): no value, rather than
+                        // the same pass again forever.
                         x.done = Some(f64::NAN);
                     }
                 }
@@ -417,6 +424,29 @@ mod tests {
         let (m, _) = run(&table, 3);
         assert!(m[0].is_nan() && m[2].is_nan());
         assert_eq!(m[1], 2.5);
+    }
+
+    #[test]
+    fn a_tally_without_the_rank_ends_the_search_and_bad_words_are_refused() {
+        // A second pass whose total holds no value at all (the values changed between
+        // passes): the cell ends without a value instead of asking for the pass again.
+        let mut search = Selection::collecting(2, 1);
+        let counter = search.counter();
+        let mut t = counter.tally();
+        for v in [1.0, 2.0, 3.0] {
+            counter.add(&mut t, 0, v);
+            counter.add(&mut t, 1, v);
+        }
+        search.advance(t, &median_rank);
+        assert!(!search.done());
+        search.advance(Tally::Histograms(vec![vec![0; BINS]; 2]), &median_rank);
+        assert!(search.done() && search.values().iter().all(|v| v.is_nan()));
+        // Words a search cannot make: a histogram without room for its digit, part of a
+        // digit fixed, an unknown mode, both kinds of count in one pass.
+        for words in [vec![0, 64, 1], vec![0, 60, 1], vec![0, 4, 2], vec![0, 8, 3], vec![0, 8, 1, 0, 8, 2], vec![0, 8]] {
+            assert!(Counter::from_words(&words).is_none(), "{words:?}");
+        }
+        assert!(Counter::from_words(&[5 << 56, 8, 1, 0, 64, 0]).is_some());
     }
 
     proptest! {

@@ -118,10 +118,16 @@ pub fn simulate_linearity_staged(files: &mut Outputs, camera: &Camera, p: &Linea
     Ok(LinearitySummary { output, width: set.width, height: set.height, levels: p.levels, frames: p.frames, masked_pixels, seconds: start.elapsed().as_secs_f64() })
 }
 
+/// Whether `len` pixels from `first` fit in `size` (any `usize`: a region from Python
+/// may be anything).
+fn inside(first: usize, len: usize, size: usize) -> bool {
+    first.checked_add(len).is_some_and(|end| end <= size)
+}
+
 /// The ROI and the counts of `p` checked against the camera.
 fn check_roi(camera: &Camera, p: &LinearityParams) -> Result<(), HostError> {
     let (x0, y0, w, h) = p.roi;
-    if w == 0 || h == 0 || x0 + w > camera.config.width || y0 + h > camera.config.height || p.levels < 2 || p.frames < 2 {
+    if w == 0 || h == 0 || !inside(x0, w, camera.config.width) || !inside(y0, h, camera.config.height) || p.levels < 2 || p.frames < 2 {
         return Err(HostError::invalid(
             crate::Subject::SimulateLinearityArguments,
             format!("ROI {w}x{h} at ({x0}, {y0}) must be non-empty and inside the {}x{} sensor, with >= 2 levels and >= 2 frames", camera.config.width, camera.config.height),
@@ -156,7 +162,7 @@ pub fn linearity_set_of(camera: &Camera, p: &LinearityParams) -> Result<Linearit
 /// `photons` per pixel and frame, frame-major then row then column; frame `f` is drawn
 /// with [`frame_seed`]`(seed, f)`, as `stream` draws its frames.
 pub fn frames_of(camera: &Camera, n: usize, photons: f64, (x0, y0, w, h): (usize, usize, usize, usize), seed: u64) -> Result<Vec<u16>, HostError> {
-    if w == 0 || h == 0 || x0 + w > camera.config.width || y0 + h > camera.config.height || !(photons.is_finite() && photons >= 0.0) {
+    if w == 0 || h == 0 || !inside(x0, w, camera.config.width) || !inside(y0, h, camera.config.height) || !(photons.is_finite() && photons >= 0.0) {
         return Err(HostError::invalid(
             crate::Subject::SimulateFramesArguments,
             format!("frames of {w}x{h} at ({x0}, {y0}) under {photons} photons: the region must be non-empty and inside the {}x{} sensor, the light finite and not negative", camera.config.width, camera.config.height),

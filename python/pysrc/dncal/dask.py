@@ -190,11 +190,16 @@ def _medians(queries: int, tally: Callable[[np.ndarray], List[Any]], passes: Opt
     """Exact medians of `queries` sets spread over blocks: passes of the radix search,
     each `tally(counter)` a delayed tally per block, merged and taken by the search."""
     search = _dncal._MedianSearch(queries)
-    while not search.done:
+    # 8 bits a pass: at most 8 histogram passes and one collection.
+    for _ in range(9):
+        if search.done:
+            break
         if passes is not None:
             passes[0] += 1
         (total,) = dask.compute(dask.delayed(_merge)(tally(search.counter())))
         search.advance([_c(v, np.float64) for v in total] if isinstance(total, list) else _c(total, np.uint64))
+    if not search.done:
+        raise RuntimeError("the exact median search did not end in 9 passes: the blocks' values changed between passes")
     return search.medians()
 
 

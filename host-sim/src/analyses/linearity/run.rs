@@ -145,6 +145,18 @@ pub fn linearity_as(read_from: &Path, input: &Path, order: usize, flat: Option<u
     Ok(LinearitySummary { input: input.into(), report, analysis_s, outputs })
 }
 
+/// What the fit needs of a set's reference and levels, before any pixel: at least
+/// `order + 3` levels, and voltages finite, not negative, not all zero.
+pub fn check_plan(voltage: &[f64], order: usize) -> Result<(), LinearityError> {
+    if voltage.len() < order + 3 {
+        return Err(LinearityError::LevelsForOrder { levels: voltage.len(), order });
+    }
+    if voltage.iter().any(|v| !(v.is_finite() && *v >= 0.0)) || voltage.iter().cloned().fold(0.0, f64::max) <= 0.0 {
+        return Err(LinearityError::ReferenceVoltage);
+    }
+    Ok(())
+}
+
 /// The analysis of a set in memory (`origin` names it in errors): its memory checked
 /// against the budget, its levels and
 /// reference checked for the pixel-wise order, the flat level checked where one is given
@@ -158,12 +170,7 @@ pub fn fit(set: &SetView, origin: &Origin, order: usize, flat: Option<usize>, cu
         Cube::Skip => (16 * set.levels as u64 + 256, "the pixel-wise analysis (the fits)"),
     };
     crate::infra::budget::check(origin.clone(), what, crate::infra::budget::bytes_of((set.width * set.height) as u64, per_pixel))?;
-    if set.levels < order + 3 {
-        return Err(HostError::Linearity { origin: origin.clone(), source: LinearityError::LevelsForOrder { levels: set.levels, order } });
-    }
-    if set.voltage.iter().any(|v| !(v.is_finite() && *v >= 0.0)) || set.voltage.iter().cloned().fold(0.0, f64::max) <= 0.0 {
-        return Err(HostError::Linearity { origin: origin.clone(), source: LinearityError::ReferenceVoltage });
-    }
+    check_plan(set.voltage, order).map_err(|source| HostError::Linearity { origin: origin.clone(), source })?;
     let start = std::time::Instant::now();
     let valid = unsaturated_levels(set);
     if let Some(l) = flat {
