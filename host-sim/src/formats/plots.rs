@@ -316,17 +316,22 @@ pub fn contour_segments(v: &[Vec<f64>], level: f64) -> Vec<[(f64, f64); 2]> {
     out
 }
 
-/// Draws `map` as a PNG at `path`, staged in `out`: cells colored by value (viridis), contour
-/// lines in white, a color bar. About 120 lines of plotters calls in drawing order (the
-/// cells, the contours, the bar and its labels), which share the layout's coordinates.
-pub fn map_plot(out: &mut Outputs, path: &Path, map: &Map) -> Result<(), HostError> {
-    use plotters::style::colors::colormaps::{ColorMap, ViridisRGB};
-    ensure_font();
-    let rows = map.values.len();
-    let cols = map.values.first().map_or(0, Vec::len);
-    if rows < 2 || cols < 2 {
-        return Err(plot_err(path, "a map needs at least 2 x 2 values"));
-    }
+/// How a map's cell is drawn.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Shade {
+    /// No value (NaN): white.
+    Missing,
+    /// Below the scale: grey. On a log scale only zero and negative values (they have no
+    /// logarithm); a positive value below the scale's bottom is drawn at the bottom
+    /// (its magnitude is never hidden as "none").
+    Below,
+    /// The colour at this fraction of the scale, 0 to 1.
+    Scale(f64),
+}
+
+/// The scale of `map` as drawn, in its units (log10 of them on a log scale): its range,
+/// or the values' (on a log scale at most six decades below the top).
+pub fn map_scale(map: &Map) -> (f64, f64) {
     let t = |x: f64| if map.log { if x > 0.0 { x.log10() } else { f64::NEG_INFINITY } } else { x };
     let finite: Vec<f64> = map.values.iter().flatten().map(|&x| t(x)).filter(|x| x.is_finite()).collect();
     let (mut lo, hi) = finite.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
@@ -338,7 +343,38 @@ pub fn map_plot(out: &mut Outputs, path: &Path, map: &Map) -> Result<(), HostErr
         Some((a, b)) if t(a).is_finite() && t(b) > t(a) => (t(a), t(b)),
         _ => (lo, hi),
     };
-    let hi = if hi > lo { hi } else { lo + 1.0 };
+    (lo, if hi > lo { hi } else { lo + 1.0 })
+}
+
+/// How value `x` of `map` is drawn on the scale `(lo, hi)` ([`map_scale`]).
+pub fn shade(map: &Map, (lo, hi): (f64, f64), x: f64) -> Shade {
+    if x.is_nan() {
+        return Shade::Missing;
+    }
+    let v = if map.log {
+        if x > 0.0 {
+            x.log10().max(lo)
+        } else {
+            return Shade::Below;
+        }
+    } else {
+        x
+    };
+    if v < lo { Shade::Below } else { Shade::Scale(((v - lo) / (hi - lo)).clamp(0.0, 1.0)) }
+}
+
+/// Draws `map` as a PNG at `path`, staged in `out`: cells colored by value (viridis), contour
+/// lines in white, a color bar. About 120 lines of plotters calls in drawing order (the
+/// cells, the contours, the bar and its labels), which share the layout's coordinates.
+pub fn map_plot(out: &mut Outputs, path: &Path, map: &Map) -> Result<(), HostError> {
+    use plotters::style::colors::colormaps::{ColorMap, ViridisRGB};
+    ensure_font();
+    let rows = map.values.len();
+    let cols = map.values.first().map_or(0, Vec::len);
+    if rows < 2 || cols < 2 {
+        return Err(plot_err(path, "a map needs at least 2 x 2 values"));
+    }
+    let (lo, hi) = map_scale(map);
     let (width, height) = (1000u32, 760u32);
     let mut rgb = vec![0u8; (width * height * 3) as usize];
     {
@@ -359,16 +395,13 @@ pub fn map_plot(out: &mut Outputs, path: &Path, map: &Map) -> Result<(), HostErr
             .build_cartesian_2d(xr.clone(), yr.clone())
             .map_err(|e| plot_err(path, e))?;
         draw_axes(&mut chart, (map.x_label, xr), (map.y_label, yr), 15, false, path)?;
-        // Below the scale (zero, on a log scale) in grey, no value (NaN) in white: neither
-        // may pass for the bottom of the scale.
+        // See [`Shade`]: no value in white, below the scale in grey, neither may pass for
+        // the scale's bottom.
         let color = |x: f64| -> RGBColor {
-            let v = t(x);
-            if x.is_nan() {
-                WHITE
-            } else if !v.is_finite() || v < lo {
-                BELOW_SCALE
-            } else {
-                ViridisRGB.get_color(((v - lo) / (hi - lo)).clamp(0.0, 1.0) as f32)
+            match shade(map, (lo, hi), x) {
+                Shade::Missing => WHITE,
+                Shade::Below => BELOW_SCALE,
+                Shade::Scale(f) => ViridisRGB.get_color(f as f32),
             }
         };
         chart
@@ -432,7 +465,7 @@ pub fn map_plot(out: &mut Outputs, path: &Path, map: &Map) -> Result<(), HostErr
             Rectangle::new([(0.0, a), (1.0, b)], ViridisRGB.get_color(k as f32 / n as f32).filled())
         }))
         .map_err(|e| plot_err(path, e))?;
-        let bottom = if map.log { "below / zero" } else { "below" };
+        let bottom = if map.log { "zero or less" } else { "below" };
         below.draw(&Rectangle::new([(90, 8), (150, 30)], BELOW_SCALE.filled())).map_err(|e| plot_err(path, e))?;
         below.draw(&Text::new(bottom, (90, 36), ("sans-serif", 13).into_font())).map_err(|e| plot_err(path, e))?;
         full.present().map_err(|e| plot_err(path, e))?;

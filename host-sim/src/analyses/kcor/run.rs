@@ -156,32 +156,10 @@ pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, real
     let result = results.swap_remove(0);
     let mut figures = Vec::new();
     if let Some(OutDir { files, dir }) = out {
-        let i_max = result.i_bsun.last().copied().unwrap_or(1.0);
-        // One color scale for both maps (they are compared): the largest error of either,
-        // six decades down.
-        let top = result.dq_raw.iter().chain(&result.dq_lut).flatten().copied().filter(|v| v.is_finite()).fold(0.0f64, f64::max);
-        let range = (top > 0.0).then_some((top * 1e-6, top));
-        for (name, grid, title) in [
-            ("kcor_raw.png", &result.dq_raw, "K-Cor model: |systematic error in Q| (B_sun), raw ADC"),
-            ("kcor_lut.png", &result.dq_lut, "K-Cor model: |systematic error in Q| (B_sun), with the LUT"),
-        ] {
+        let maps = MagnitudeMaps::of(&result);
+        for (name, map) in maps.maps(&result) {
             let path = dir.join(name);
-            map_plot(
-                files,
-                &path,
-                &Map {
-                    title,
-                    x_label: "Stokes I (B_sun)",
-                    y_label: "Stokes Q (B_sun)",
-                    values: grid,
-                    x_range: (0.0, i_max),
-                    y_range: (result.q_bsun.first().copied().unwrap_or(-i_max), result.q_bsun.last().copied().unwrap_or(i_max)),
-                    scale_label: "|dQ| (B_sun), log scale",
-                    log: true,
-                    contours: &[1e-8, 1e-9, 1e-10],
-                    range,
-                },
-            )?;
+            map_plot(files, &path, &map)?;
             figures.push(path);
         }
     }
@@ -192,9 +170,51 @@ pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, real
     Ok(KcorSummary { result, lut_source, realizations, figures })
 }
 
+/// The paper's Figs. 4 and 5 as drawn: the magnitude `|dQ|` of the signed errors (a
+/// negative error is as large as a positive one), on one log scale for both maps (they
+/// are compared) from the largest `|dQ|` of either down six decades; a magnitude below
+/// that is drawn at the scale's bottom, only an error of exactly 0 in grey.
+struct MagnitudeMaps {
+    raw: Vec<Vec<f64>>,
+    lut: Vec<Vec<f64>>,
+    range: Option<(f64, f64)>,
+}
+
+impl MagnitudeMaps {
+    fn of(r: &KcorResult) -> Self {
+        let abs = |g: &[Vec<f64>]| -> Vec<Vec<f64>> { g.iter().map(|row| row.iter().map(|v| v.abs()).collect()).collect() };
+        let (raw, lut) = (abs(&r.dq_raw), abs(&r.dq_lut));
+        let top = raw.iter().chain(&lut).flatten().copied().filter(|v| v.is_finite()).fold(0.0f64, f64::max);
+        MagnitudeMaps { raw, lut, range: (top > 0.0).then_some((top * 1e-6, top)) }
+    }
+
+    /// The two maps with their file names.
+    fn maps<'a>(&'a self, r: &KcorResult) -> [(&'static str, Map<'a>); 2] {
+        let i_max = r.i_bsun.last().copied().unwrap_or(1.0);
+        let y_range = (r.q_bsun.first().copied().unwrap_or(-i_max), r.q_bsun.last().copied().unwrap_or(i_max));
+        let map = |values: &'a [Vec<f64>], title: &'a str| Map {
+            title,
+            x_label: "Stokes I (B_sun)",
+            y_label: "Stokes Q (B_sun)",
+            values,
+            x_range: (0.0, i_max),
+            y_range,
+            scale_label: "|dQ| (B_sun), log scale from max |dQ|",
+            log: true,
+            contours: &[1e-8, 1e-9, 1e-10],
+            range: self.range,
+        };
+        [
+            ("kcor_raw.png", map(&self.raw, "K-Cor model: |systematic error in Q| (B_sun), raw ADC; grey: exactly 0")),
+            ("kcor_lut.png", map(&self.lut, "K-Cor model: |systematic error in Q| (B_sun), with the LUT; grey: exactly 0")),
+        ]
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::formats::plots::{map_scale, shade, Shade};
     use crate::model::camera::CameraConfig;
 
     /// A dark level above the top code: a clear refusal, not a run whose every error is 0
@@ -216,5 +236,32 @@ mod tests {
         let r = kcor_model(&room, &KcorParams { steps: 8, ..KcorParams::default() }, None, 1, None).unwrap();
         let j = serde_json::to_value(&r).unwrap().to_string();
         assert!(!j.contains("null") && !j.contains("inf") && !j.contains("NaN"), "{j}");
+    }
+
+    /// Figs. 4 and 5 as drawn: every cell whose error is not 0 is coloured (never the grey
+    /// of "none"), negative errors included, and the scale's top is the largest |dQ| of
+    /// either map (computed here from the signed grids).
+    #[test]
+    fn the_maps_show_every_errors_magnitude_from_the_largest() {
+        let camera = Camera::new(CameraConfig::default()).unwrap();
+        let r = kcor_model(&camera, &KcorParams { steps: 24, ..KcorParams::default() }, None, 1, None).unwrap().result;
+        let signed = r.dq_raw.iter().chain(&r.dq_lut).flatten().copied().filter(|v| v.is_finite());
+        assert!(signed.clone().any(|v| v < 0.0) && signed.clone().any(|v| v > 0.0), "the test needs errors of both signs");
+        let top = signed.map(f64::abs).fold(0.0, f64::max);
+        let maps = MagnitudeMaps::of(&r);
+        for ((name, map), grid) in maps.maps(&r).iter().zip([&r.dq_raw, &r.dq_lut]) {
+            let scale = map_scale(map);
+            assert_eq!(scale.1, top.log10(), "{name}: the scale's top");
+            for (row, signed_row) in map.values.iter().zip(grid.iter()) {
+                for (&v, &dq) in row.iter().zip(signed_row) {
+                    let s = shade(map, scale, v);
+                    match dq {
+                        d if d.is_nan() => assert_eq!(s, Shade::Missing),
+                        0.0 => assert_eq!(s, Shade::Below),
+                        d => assert!(matches!(s, Shade::Scale(_)), "{name}: dQ {d:e} drawn {s:?}"),
+                    }
+                }
+            }
+        }
     }
 }
