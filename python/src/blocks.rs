@@ -20,28 +20,27 @@ use pyo3::types::PyList;
 use crate::arrays;
 use crate::errors::raise;
 
-/// The set's keys, reference and order as the in-memory analysis checks them.
-#[derive(Clone, Copy)]
-struct Keys<'a> {
-    voltage: &'a [f64],
-    frames: u32,
-    bit_depth: u32,
-    n_adc: usize,
-    order: usize,
-    flat: Option<usize>,
-}
+/// The set's keys, reference and order: the `keys` tuple `dncal.dask` passes to every
+/// stage, `(voltage (levels,) V, frames, bit_depth, n_adc, order, flat_level)`.
+#[derive(Clone, FromPyObject)]
+struct Keys(Vec<f64>, u32, u32, usize, usize, Option<usize>);
 
-impl Keys<'_> {
+impl Keys {
+    fn voltage(&self) -> &[f64] {
+        &self.0
+    }
+
+    fn order(&self) -> usize {
+        self.4
+    }
+
     fn plan(&self) -> Plan {
-        Plan::new(self.voltage, self.bit_depth, self.frames, self.order, self.flat)
+        Plan::new(&self.0, self.2, self.1, self.4, self.5)
     }
 
     /// A block's view of `(levels, rows, cols)` arrays.
-    fn view<'b>(&self, mean: &'b [f64], std: &'b [f64], height: usize, width: usize) -> SetView<'b>
-    where
-        Self: 'b,
-    {
-        SetView { bit_depth: self.bit_depth, n_adc: self.n_adc, n_frames: self.frames, width, height, levels: self.voltage.len(), mean, std, voltage: self.voltage, mask: None }
+    fn view<'b>(&'b self, mean: &'b [f64], std: &'b [f64], height: usize, width: usize) -> SetView<'b> {
+        SetView { bit_depth: self.2, n_adc: self.3, n_frames: self.1, width, height, levels: self.0.len(), mean, std, voltage: &self.0, mask: None }
     }
 }
 
@@ -52,20 +51,16 @@ fn linearity_error(source: LinearityError) -> PyErr {
 /// The set's keys and reference, and the order against its levels, checked as the
 /// in-memory fit checks them (before any block is read).
 #[pyfunction]
-#[pyo3(signature = (voltage, frames, bit_depth, n_adc, order, flat_level))]
-fn _lin_check(voltage: &Bound<'_, PyAny>, frames: u32, bit_depth: u32, n_adc: usize, order: usize, flat_level: Option<usize>) -> PyResult<()> {
-    let v = arrays::view::<f64, Ix1>(voltage, "voltage", "(levels,)")?;
-    let voltage = v.as_slice()?;
+fn _lin_check(keys: Keys) -> PyResult<()> {
+    let order = keys.order();
     if !(1..=MAX_ORDER).contains(&order) {
         return Err(PyValueError::new_err(format!("order {order}: the pixel-wise polynomial order must be 1 to {MAX_ORDER}")));
     }
-    let levels = voltage.len();
     // The keys and the reference of a one-pixel set of zeros: its values pass, its keys
     // and reference are the set's.
-    let zeros = vec![0.0; levels];
-    let keys = Keys { voltage, frames, bit_depth, n_adc, order, flat: flat_level };
+    let zeros = vec![0.0; keys.voltage().len()];
     check_linearity(&keys.view(&zeros, &zeros, 1, 1)).map_err(|fault| raise("InputError", format!("linearity set: {fault}")))?;
-    check_plan(voltage, order).map_err(linearity_error)
+    check_plan(keys.voltage(), order).map_err(linearity_error)
 }
 
 /// Stage 1 of a block: (unsaturated levels uint64 (rows, cols), coefficients float64
@@ -73,31 +68,23 @@ fn _lin_check(voltage: &Bound<'_, PyAny>, frames: u32, bit_depth: u32, n_adc: us
 /// block's values and its part of the input `mask` are checked as the in-memory fit
 /// checks the set's, the error naming the block by its first row and column.
 #[pyfunction]
-#[pyo3(signature = (mean, std, voltage, frames, bit_depth, n_adc, order, flat_level, first_row, first_column, mask = None))]
-#[allow(clippy::too_many_arguments)]
+#[pyo3(signature = (mean, std, keys, first_row, first_column, mask = None))]
 #[allow(clippy::type_complexity)]
 fn _lin_fit<'py>(
     py: Python<'py>,
     mean: &Bound<'py, PyAny>,
     std: &Bound<'py, PyAny>,
-    voltage: &Bound<'py, PyAny>,
-    frames: u32,
-    bit_depth: u32,
-    n_adc: usize,
-    order: usize,
-    flat_level: Option<usize>,
+    keys: Keys,
     first_row: usize,
     first_column: usize,
     mask: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<(Bound<'py, PyArray2<u64>>, Bound<'py, PyArray3<f64>>, Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>)> {
     let m = arrays::view::<f64, Ix3>(mean, "mean", "(levels, rows, cols)")?;
     let s = arrays::view::<f64, Ix3>(std, "std", "(levels, rows, cols)")?;
-    let v = arrays::view::<f64, Ix1>(voltage, "voltage", "(levels,)")?;
     let (height, width) = (m.shape()[1], m.shape()[2]);
-    if s.shape() != m.shape() || m.shape()[0] != v.shape()[0] {
-        return Err(PyValueError::new_err(format!("block: mean {:?}, std {:?}, {} voltages", m.shape(), s.shape(), v.shape()[0])));
+    if s.shape() != m.shape() || m.shape()[0] != keys.voltage().len() {
+        return Err(PyValueError::new_err(format!("block: mean {:?}, std {:?}, {} voltages", m.shape(), s.shape(), keys.voltage().len())));
     }
-    let keys = Keys { voltage: v.as_slice()?, frames, bit_depth, n_adc, order, flat: flat_level };
     let k = mask.map(|k| arrays::view::<u8, Ix2>(k, "mask", "(rows, cols)")).transpose()?;
     let set = keys.view(m.as_slice()?, s.as_slice()?, height, width);
     check_linearity(&SetView { mask: k.as_ref().map(|k| k.as_slice()).transpose()?, ..set }).map_err(|fault| raise("InputError", format!("linearity set, the block from row {first_row}, column {first_column} (positions below counted within it): {fault}")))?;
@@ -332,16 +319,13 @@ fn _lin_means<'py>(py: Python<'py>, limbs: &Bound<'py, PyAny>, special: &Bound<'
 /// The standard correction's global cubic from the level medians and their counts, with
 /// the `good` pixels of `pixels` (none good is the in-memory fit's error).
 #[pyfunction]
-#[pyo3(signature = (voltage, frames, bit_depth, n_adc, order, flat_level, medians, counts, good, pixels))]
-#[allow(clippy::too_many_arguments)]
-fn _lin_global(voltage: Vec<f64>, frames: u32, bit_depth: u32, n_adc: usize, order: usize, flat_level: Option<usize>, medians: Vec<f64>, counts: Vec<u64>, good: usize, pixels: usize) -> PyResult<Vec<f64>> {
-    let keys = Keys { voltage: &voltage, frames, bit_depth, n_adc, order, flat: flat_level };
+fn _lin_global(keys: Keys, medians: Vec<f64>, counts: Vec<u64>, good: usize, pixels: usize) -> PyResult<Vec<f64>> {
     if good == 0 {
         return Err(linearity_error(LinearityError::AllMasked { pixels, order: keys.plan().order }));
     }
     let m: Vec<(f64, usize)> = medians.into_iter().zip(counts).map(|(m, n)| (m, n as usize)).collect();
-    if m.len() != voltage.len() {
-        return Err(PyValueError::new_err(format!("{} level medians for {} levels", m.len(), voltage.len())));
+    if m.len() != keys.voltage().len() {
+        return Err(PyValueError::new_err(format!("{} level medians for {} levels", m.len(), keys.voltage().len())));
     }
     keys.plan().global(&m, good).map_err(linearity_error)
 }
@@ -350,19 +334,14 @@ fn _lin_global(voltage: Vec<f64>, frames: u32, bit_depth: u32, n_adc: usize, ord
 /// level-major) and, with `keep`, the corrected block (levels, rows, cols), masked pixels
 /// NaN until filled.
 #[pyfunction]
-#[pyo3(signature = (mean, std, voltage, frames, bit_depth, n_adc, order, flat_level, valid, coef, mask, global_coefficients, level_means, keep))]
+#[pyo3(signature = (mean, std, keys, valid, coef, mask, global_coefficients, level_means, keep))]
 #[allow(clippy::too_many_arguments)]
 #[allow(clippy::type_complexity)]
 fn _lin_level_pass<'py>(
     py: Python<'py>,
     mean: &Bound<'py, PyAny>,
     std: &Bound<'py, PyAny>,
-    voltage: &Bound<'py, PyAny>,
-    frames: u32,
-    bit_depth: u32,
-    n_adc: usize,
-    order: usize,
-    flat_level: Option<usize>,
+    keys: Keys,
     valid: &Bound<'py, PyAny>,
     coef: &Bound<'py, PyAny>,
     mask: &Bound<'py, PyAny>,
@@ -370,16 +349,17 @@ fn _lin_level_pass<'py>(
     level_means: Vec<f64>,
     keep: bool,
 ) -> PyResult<(Parts<'py>, Option<Bound<'py, PyArray3<f64>>>)> {
-    let (m, k, n, v) = block_arrays(mean, mask, valid, voltage)?;
+    let m = arrays::view::<f64, Ix3>(mean, "mean", "(levels, rows, cols)")?;
+    let k = arrays::view::<u8, Ix2>(mask, "mask", "(rows, cols)")?;
+    let n = arrays::view::<u64, Ix2>(valid, "unsaturated levels", "(rows, cols)")?;
     let s = arrays::view::<f64, Ix3>(std, "std", "(levels, rows, cols)")?;
     let a = arrays::view::<f64, Ix3>(coef, "coefficients", "(rows, cols, order + 1)")?;
-    let keys = Keys { voltage: v.as_slice()?, frames, bit_depth, n_adc, order, flat: flat_level };
     let plan = keys.plan();
     let (levels, height, width) = (m.shape()[0], m.shape()[1], m.shape()[2]);
     if s.shape() != m.shape() || a.shape() != [height, width, plan.k1()] || level_means.len() != levels {
         return Err(PyValueError::new_err(format!("block: mean {:?}, std {:?}, coefficients {:?}, {} level means", m.shape(), s.shape(), a.shape(), level_means.len())));
     }
-    let c = counted_of(&m, &k, &n, keys.voltage)?;
+    let c = counted_of(&m, &k, &n, keys.voltage())?;
     let set = keys.view(c.set.mean, s.as_slice()?, height, width);
     let fits = Fits { valid: c.valid, coef: a.as_slice()?.to_vec(), resid: Vec::new(), signal: Vec::new() };
     let cube = if keep { Cube::Keep } else { Cube::Skip };
@@ -408,15 +388,10 @@ fn _lin_fill<'py>(py: Python<'py>, cube: &Bound<'py, PyAny>, mask: &Bound<'py, P
 
 /// The report (the JSON of `dncal linearity --json`'s "report") from the reductions.
 #[pyfunction]
-#[pyo3(signature = (voltage, frames, bit_depth, n_adc, order, flat_level, level_means, global_coefficients, limbs, special, counts, masked, pixels))]
+#[pyo3(signature = (keys, level_means, global_coefficients, limbs, special, counts, masked, pixels))]
 #[allow(clippy::too_many_arguments)]
 fn _lin_report(
-    voltage: Vec<f64>,
-    frames: u32,
-    bit_depth: u32,
-    n_adc: usize,
-    order: usize,
-    flat_level: Option<usize>,
+    keys: Keys,
     level_means: Vec<f64>,
     global_coefficients: Vec<f64>,
     limbs: &Bound<'_, PyAny>,
@@ -425,7 +400,6 @@ fn _lin_report(
     masked: usize,
     pixels: usize,
 ) -> PyResult<String> {
-    let keys = Keys { voltage: &voltage, frames, bit_depth, n_adc, order, flat: flat_level };
     let plan = keys.plan();
     let sums = sums_of(limbs, special, counts)?;
     if sums.len() != plan.levels * STATISTICS || level_means.len() != plan.levels {

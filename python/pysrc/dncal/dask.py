@@ -42,6 +42,19 @@ log = logging.getLogger("dncal.dask")
 STATUS_KEYS = ("out_of_range_codes", "saturated_additions", "rejected_lines", "incomplete_frames")
 
 
+def _check_array(name: str, a, dtype, axes: str, numpy_function: str) -> None:
+    """A ``dask.array`` of `dtype` with the three axes `axes`, not empty: else the
+    TypeError or ValueError that says which."""
+    if not isinstance(a, da.Array):
+        raise TypeError(f"{name}: a dask.array is needed, not {type(a).__name__} ({numpy_function} takes numpy arrays)")
+    if a.dtype != dtype:
+        raise TypeError(f"{name}: dtype {a.dtype}, but {np.dtype(dtype).name} is needed")
+    if a.ndim != 3:
+        raise ValueError(f"{name}: {a.ndim} dimension(s), but 3 {axes} are needed")
+    if 0 in a.shape:
+        raise ValueError(f"{name}: empty {a.shape}")
+
+
 def _entries(lut) -> np.ndarray:
     """The LUT's entries: a :class:`dncal.Lut`, or a uint32 (adcs, codes) array that
     the core checks as it checks every set (another dtype is refused, not cast)."""
@@ -84,14 +97,7 @@ def correct(frames, lut, states: int, first_column: int = 0, frame_states=None) 
     blocks as Python integers (the core's own 32-bit counters saturate; these do not).
     Compute both in one pass: ``dask.compute(sums, status)``.
     """
-    if not isinstance(frames, da.Array):
-        raise TypeError(f"frames: a dask.array is needed, not {type(frames).__name__} (dncal.Corrector takes numpy arrays)")
-    if frames.dtype != np.uint16:
-        raise TypeError(f"frames: dtype {frames.dtype}, but uint16 is needed")
-    if frames.ndim != 3:
-        raise ValueError(f"frames: {frames.ndim} dimension(s), but 3 (frames, rows, cols) are needed")
-    if 0 in frames.shape:
-        raise ValueError(f"frames: empty {frames.shape}")
+    _check_array("frames", frames, np.uint16, "(frames, rows, cols)", "dncal.Corrector")
     if not 1 <= states <= 8:
         raise ValueError(f"states: {states}, but the core sums 1 to 8 modulation states")
     n = frames.shape[0]
@@ -138,11 +144,6 @@ def _c(a: np.ndarray, dtype) -> np.ndarray:
     return np.require(a, dtype=dtype, requirements=["C", "A"])
 
 
-def _k(keys):
-    """The set's keys with the voltages aligned (they may come through pickle)."""
-    return (_c(keys[0], np.float64),) + tuple(keys[1:])
-
-
 def _f(fits):
     """A block's stage-1 arrays aligned (they may come through pickle)."""
     return (_c(fits[0], np.uint64), _c(fits[1], np.float64), _c(fits[2], np.float64), _c(fits[3], np.float64))
@@ -150,7 +151,7 @@ def _f(fits):
 
 def _fit_block(mean, std, mask, keys, first_row, first_column):
     """Stage 1 of a block: (unsaturated levels, coefficients, residual, signal)."""
-    return _dncal._lin_fit(_c(mean, np.float64), _c(std, np.float64), *_k(keys), first_row, first_column, mask=None if mask is None else _c(mask, np.uint8))
+    return _dncal._lin_fit(_c(mean, np.float64), _c(std, np.float64), keys, first_row, first_column, mask=None if mask is None else _c(mask, np.uint8))
 
 
 def _reaching(fits, levels: int) -> np.ndarray:
@@ -205,7 +206,7 @@ def _medians(queries: int, tally: Callable[[np.ndarray], List[Any]], passes: Opt
 
 def _level_pass(mean, std, fits, mask, keys, global_coefficients, level_means, keep):
     """Stage 4 of a block."""
-    return _dncal._lin_level_pass(_c(mean, np.float64), _c(std, np.float64), *_k(keys), _f(fits)[0], _f(fits)[1], _c(mask, np.uint8), global_coefficients, level_means, keep)
+    return _dncal._lin_level_pass(_c(mean, np.float64), _c(std, np.float64), keys, _f(fits)[0], _f(fits)[1], _c(mask, np.uint8), global_coefficients, level_means, keep)
 
 
 def _fill(block: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -236,14 +237,7 @@ def fit_linearity(mean, std, voltage, frames: int, *, order: int = 4, flat_level
     from . import LinearityFit
 
     for name, a in (("mean", mean), ("std", std)):
-        if not isinstance(a, da.Array):
-            raise TypeError(f"{name}: a dask.array is needed, not {type(a).__name__} (dncal.fit_linearity takes numpy arrays)")
-        if a.dtype != np.float64:
-            raise TypeError(f"{name}: dtype {a.dtype}, but float64 is needed")
-        if a.ndim != 3:
-            raise ValueError(f"{name}: {a.ndim} dimension(s), but 3 (levels, rows, cols) are needed")
-        if 0 in a.shape:
-            raise ValueError(f"{name}: empty {a.shape}")
+        _check_array(name, a, np.float64, "(levels, rows, cols)", "dncal.fit_linearity")
     if std.shape != mean.shape:
         raise ValueError(f"std: shape {std.shape}, but mean is {mean.shape}")
     voltage = np.asarray(voltage)
@@ -253,8 +247,8 @@ def fit_linearity(mean, std, voltage, frames: int, *, order: int = 4, flat_level
     if voltage.shape != (levels,):
         raise ValueError(f"voltage: shape {voltage.shape}, but ({levels},) for {levels} levels")
     voltage = _c(voltage, np.float64)
-    _dncal._lin_check(voltage, frames, bit_depth, n_adc, order, flat_level)
     keys = (voltage, frames, bit_depth, n_adc, order, flat_level)
+    _dncal._lin_check(keys)
     mean = mean.rechunk({0: -1})
     std = std.rechunk(mean.chunks)
     row_chunks, col_chunks = mean.chunks[1], mean.chunks[2]
@@ -288,14 +282,14 @@ def fit_linearity(mean, std, voltage, frames: int, *, order: int = 4, flat_level
     masks = dask.persist(*[mask_fn(f, None if kb is None else kb[i][j], float(med[0]), float(med[1])) for f, (i, j) in zip(fits, grid)])
     (good,) = dask.compute(dask.delayed(sum)([dask.delayed(lambda m: int(np.count_nonzero(m == 0)))(m) for m in masks]))
     if good == 0:
-        _dncal._lin_global(*keys, [], [], 0, rows * cols)  # raises AllMasked, as the in-memory fit does
+        _dncal._lin_global(keys, [], [], 0, rows * cols)  # raises AllMasked, as the in-memory fit does
 
     # Each level's median and count of the counted pixels; the global cubic.
     level_tally = dask.delayed(lambda w, m, k, f, v: _dncal._lin_level_tally(w, _c(m, np.float64), _c(k, np.uint8), _f(f)[0], _c(v, np.float64)))
     passes = [0]
     with _step(f"level medians ({levels} levels)", passes):
         medians, counts = _medians(levels, lambda w: [level_tally(w, mb[i][j], k, f, voltage) for f, k, (i, j) in zip(fits, masks, grid)], passes)
-    global_coefficients = _dncal._lin_global(*keys, [float(m) for m in medians], [int(n) for n in counts], good, rows * cols)
+    global_coefficients = _dncal._lin_global(keys, [float(m) for m in medians], [int(n) for n in counts], good, rows * cols)
     # Each level's mean of the counted pixels (exact sums).
     sums = dask.delayed(lambda m, k, f, v: _dncal._lin_level_sums(_c(m, np.float64), _c(k, np.uint8), _f(f)[0], _c(v, np.float64)))
     with _step("level means (exact sums)"):
@@ -307,7 +301,7 @@ def fit_linearity(mean, std, voltage, frames: int, *, order: int = 4, flat_level
     with _step("statistics (inversion, exact sums)"):
         (stat_parts,) = dask.compute(dask.delayed(_add_parts)([stats(mb[i][j], sb[i][j], f, k, keys_d, global_coefficients, level_means, False) for f, k, (i, j) in zip(fits, masks, grid)]))
     masked = rows * cols - good
-    report = _json.loads(_dncal._lin_report(*keys, level_means, global_coefficients, *_parts(stat_parts), masked, rows * cols))
+    report = _json.loads(_dncal._lin_report(keys, level_means, global_coefficients, *_parts(stat_parts), masked, rows * cols))
 
     k1 = min(max(order, 1), 8) + 1
     at = {g: n for n, g in enumerate(grid)}
