@@ -7,7 +7,6 @@
 use dncal_host::analyses::linearity::stages::{counted_means, fill_cube, mask_of, MaskRule, Plan, STATISTICS};
 use dncal_host::analyses::linearity::{check_flat_counts, unsaturated_levels, Cube, LinearityError, MAX_ORDER};
 use dncal_host::analyses::linearity::run::check_plan;
-use dncal_host::analyses::linearity::stages::Fits;
 use dncal_host::formats::fits::{check_linearity, SetView};
 use dncal_host::infra::exact_sum::{ExactRms, ExactSum, LIMBS};
 use dncal_host::infra::select::{median_rank, medians_of, Counter, Selection, Tally, BINS};
@@ -293,9 +292,7 @@ fn sums_of(limbs: &Bound<'_, PyAny>, special: &Bound<'_, PyAny>, counts: &Bound<
 fn _lin_level_sums<'py>(py: Python<'py>, mean: &Bound<'py, PyAny>, mask: &Bound<'py, PyAny>, valid: &Bound<'py, PyAny>, voltage: &Bound<'py, PyAny>) -> PyResult<Parts<'py>> {
     let (m, k, n, v) = block_arrays(mean, mask, valid, voltage)?;
     let c = counted_of(&m, &k, &n, v.as_slice()?)?;
-    // The plan's level count is all the sums need.
-    let plan = Plan::new(c.set.voltage, 1, 1, 1, None);
-    let sums = py.detach(|| plan.level_sums(&c.set, c.mask, &c.valid));
+    let sums = py.detach(|| Plan::level_sums(&c.set, c.mask, &c.valid));
     parts(py, sums.into_iter().map(|(s, n): (ExactSum, u64)| {
         let (l, sp) = s.parts();
         (l, sp, n)
@@ -361,9 +358,9 @@ fn _lin_level_pass<'py>(
     }
     let c = counted_of(&m, &k, &n, keys.voltage())?;
     let set = keys.view(c.set.mean, s.as_slice()?, height, width);
-    let fits = Fits { valid: c.valid, coef: a.as_slice()?.to_vec(), resid: Vec::new(), signal: Vec::new() };
+    let coef = a.as_slice()?;
     let cube = if keep { Cube::Keep } else { Cube::Skip };
-    let (acc, corrected) = py.detach(|| plan.level_pass(&set, &fits, c.mask, &global_coefficients, &level_means, cube));
+    let (acc, corrected) = py.detach(|| plan.level_pass(&set, (&c.valid, coef), c.mask, &global_coefficients, &level_means, cube));
     let p = parts(py, acc.iter().flat_map(|a| a.iter().map(ExactRms::parts)))?;
     Ok((p, corrected.map(|x| arrays::new(py, (levels, height, width), x)).transpose()?))
 }

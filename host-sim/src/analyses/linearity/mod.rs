@@ -326,8 +326,8 @@ pub fn analyze_unsaturated(set: &SetView, order: usize, flat: Option<usize>, val
     let reached = |l: usize| counted_means(set, &mask, valid, l);
     let medians: Vec<(f64, usize)> = (0..plan.levels).into_par_iter().map(|l| (median(reached(l)), reached(l).count())).collect();
     let global = plan.global(&medians, good)?;
-    let mean_l: Vec<f64> = plan.level_sums(set, &mask, valid).iter().map(|(s, n)| s.value() / (*n).max(1) as f64).collect();
-    let (acc, mut corrected) = plan.level_pass(set, &fits, &mask, &global, &mean_l, cube);
+    let mean_l: Vec<f64> = Plan::level_sums(set, &mask, valid).iter().map(|(s, n)| s.value() / (*n).max(1) as f64).collect();
+    let (acc, mut corrected) = plan.level_pass(set, (&fits.valid, &fits.coef), &mask, &global, &mean_l, cube);
     if let Some(c) = corrected.as_mut() {
         stages::fill_cube(c, &mask, set.width, set.height);
     }

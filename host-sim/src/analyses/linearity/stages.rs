@@ -133,9 +133,10 @@ impl Plan {
         Ok((&gpinv * DVector::from_iterator(usable.len(), usable.iter().map(|&l| self.x[l]))).iter().copied().collect())
     }
 
-    /// Stage 3: per level, the exact sum and the count of the means of the counted pixels.
-    pub fn level_sums(&self, set: &SetView, mask: &[u8], valid: &[usize]) -> Vec<(ExactSum, u64)> {
-        (0..self.levels)
+    /// Stage 3: per level of `set`, the exact sum and the count of the means of the counted
+    /// pixels (nothing of the plan's: any block computes it alone).
+    pub fn level_sums(set: &SetView, mask: &[u8], valid: &[usize]) -> Vec<(ExactSum, u64)> {
+        (0..set.levels)
             .into_par_iter()
             .map(|l| {
                 let mut s = ExactSum::default();
@@ -152,13 +153,15 @@ impl Plan {
     /// Stage 4: level by level, the pixel-wise correction `x^ = P^-1(m)` then dark and
     /// gain (into the corrected cube, every pixel and level, saturated or not: the
     /// corrected images show them all; masked pixels NaN until [`fill_cube`]), and the
-    /// level's [`STATISTICS`] over its counted pixels. `mean_l` is each level's mean of the
-    /// counted pixels (stage 3's reduction), `global` the standard correction's cubic.
+    /// level's [`STATISTICS`] over its counted pixels. `(valid, coef)` are the pixels'
+    /// [`Fits`] (borrowed: a Dask block's arrays are read in place), `mean_l` each level's
+    /// mean of the counted pixels (stage 3's reduction), `global` the standard
+    /// correction's cubic.
     /// Without the cube ([`Cube::Skip`]) only the counted pixels are inverted (the same
     /// values: each pixel's inversion is its own) and no cube is allocated.
-    pub fn level_pass(&self, set: &SetView, fits: &Fits, mask: &[u8], global: &[f64], mean_l: &[f64], cube: Cube) -> (Vec<[ExactRms; STATISTICS]>, Option<Vec<f64>>) {
+    pub fn level_pass(&self, set: &SetView, (valid, coef): (&[usize], &[f64]), mask: &[u8], global: &[f64], mean_l: &[f64], cube: Cube) -> (Vec<[ExactRms; STATISTICS]>, Option<Vec<f64>>) {
         let (np, k1, g) = (set.width * set.height, self.k1(), self.g);
-        let (x, e, valid, coef) = (&self.x, &self.e, &fits.valid, &fits.coef);
+        let (x, e) = (&self.x, &self.e);
         let m = |l: usize, p: usize| set.mean[l * np + p];
         let sd = |l: usize, p: usize| set.std[l * np + p];
         let fit = |p: usize| &coef[p * k1..(p + 1) * k1];
