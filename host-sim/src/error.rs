@@ -359,6 +359,16 @@ pub enum HostError {
         /// The offset of the first invalid byte.
         valid_up_to: usize,
     },
+    /// The illumination shared by a set's ADCs (the smooth density of their mean
+    /// histogram) could not be fitted.
+    #[error("{origin}: the illumination shared by the ADCs (fitted to their mean histogram): {source} (too few ramp levels or counts for a smooth illumination, or the fit starts below the data: more levels, a higher --fixed-low-codes, or --recipe paper)")]
+    SharedFlatten {
+        /// The histogram set.
+        origin: Origin,
+        /// Why.
+        #[source]
+        source: crate::analyses::flatten::FlattenError,
+    },
     /// One ADC's histogram of a set could not be flattened into LUT weights.
     #[error("{origin}: ADC {adc}: {source}")]
     AdcFlatten {

@@ -127,6 +127,21 @@ fn adc_leaves_no_simulated_histograms_when_their_flattening_fails() {
     assert_failed_and_untouched(&out, "a/histograms.fits: ADC 0: ", d, &before);
 }
 
+/// Two sparse ramps (levels 200 codes apart): the shared recipe's spline through the
+/// ADCs' mean histogram dips below zero; the refusal names the shared fit and the way
+/// out, and nothing is written.
+#[test]
+fn a_ramp_too_sparse_for_the_shared_illumination_is_refused_naming_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let before = snapshot(d);
+    let mut args = vec!["adc", "-o", "a"];
+    args.extend(SMALL_RAMPS);
+    let out = dncal(&args, d);
+    assert_failed_and_untouched(&out, "a/histograms.fits: the illumination shared by the ADCs (fitted to their mean histogram): the spline is ", d, &before);
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--recipe paper"));
+}
+
 #[test]
 fn demo_replaces_no_file_when_one_cannot_be_written() {
     let dir = tempfile::tempdir().unwrap();
@@ -193,7 +208,10 @@ fn hidden(dir: &Path) -> Vec<String> {
 fn temporaries_of_a_killed_run_are_removed_by_the_next_run_for_the_same_targets() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let mut args = vec!["adc", "-o", "a"];
+    // Two sparse ramps: their comb of levels 200 codes apart is more than the shared
+    // recipe's 20-point spline follows (it refuses them, naming the shared fit); the
+    // paper's per-ADC recipe flattens them, and the test is about the outputs.
+    let mut args = vec!["adc", "-o", "a", "--recipe", "paper"];
     args.extend(SMALL_RAMPS);
     let mut child = spawn(&args, d);
     let deadline = Instant::now() + Duration::from_secs(60);

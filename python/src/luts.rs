@@ -1,9 +1,9 @@
-//! LUTs: built from code histograms with the paper's flattening, read and written in
+//! LUTs: built from code histograms (the shared or the paper's flattening), read and written in
 //! every format the CLI knows (`formats::lut`), entries and weights as numpy arrays.
 
 use std::path::PathBuf;
 
-use dncal_host::analyses::flatten::{to_core_weights, FlattenParams};
+use dncal_host::analyses::flatten::{to_core_weights, FlattenParams, Recipe};
 use dncal_host::analyses::lut::build::build_luts as build;
 use dncal_host::formats::fits::AdcHistograms;
 use dncal_host::formats::lut::{self, Lut, LutFormat};
@@ -137,16 +137,18 @@ fn read_lut(py: Python<'_>, path: PathBuf) -> PyResult<(String, PyLut)> {
     Ok((format.to_string(), PyLut { lut, summaries: None }))
 }
 
-/// Builds the LUT set of code histograms `counts` (uint64, (adcs, codes)) with the
-/// paper's flattening (`lut build`'s defaults).
+/// Builds the LUT set of code histograms `counts` (uint64, (adcs, codes)) as `lut build`
+/// does: `recipe` "shared" (its default: one illumination for all ADCs) or "paper";
+/// `spline_points` and `median_window` default to the recipe's.
 #[pyfunction]
-#[pyo3(signature = (counts, spline_points = 50, median_window = 21, fixed_low_codes = 150, set_last_to_one = true, min_mean_count = 1.0, trim_below_fraction = 0.0))]
+#[pyo3(signature = (counts, recipe = "shared", spline_points = None, median_window = None, fixed_low_codes = 150, set_last_to_one = true, min_mean_count = 1.0, trim_below_fraction = 0.0))]
 #[allow(clippy::too_many_arguments)]
 fn build_luts(
     py: Python<'_>,
     counts: &Bound<'_, PyAny>,
-    spline_points: usize,
-    median_window: usize,
+    recipe: &str,
+    spline_points: Option<usize>,
+    median_window: Option<usize>,
     fixed_low_codes: usize,
     set_last_to_one: bool,
     min_mean_count: f64,
@@ -158,7 +160,21 @@ fn build_luts(
         return Err(PyValueError::new_err(format!("counts: {codes} codes, but an ADC of B bits has 2^B")));
     }
     let hist = AdcHistograms { bit_depth: codes.trailing_zeros(), counts: view.as_array().rows().into_iter().map(|r| r.to_vec()).collect() };
-    let params = FlattenParams { spline_points, median_window, fixed_low_codes, set_last_to_one, min_mean_count, trim_below_fraction, ..FlattenParams::default() };
+    let base = match recipe {
+        "shared" => Recipe::Shared,
+        "paper" => Recipe::Paper,
+        other => return Err(PyValueError::new_err(format!("recipe {other:?}: expected \"shared\" or \"paper\""))),
+    }
+    .params();
+    let params = FlattenParams {
+        spline_points: spline_points.unwrap_or(base.spline_points),
+        median_window: median_window.unwrap_or(base.median_window),
+        fixed_low_codes,
+        set_last_to_one,
+        min_mean_count,
+        trim_below_fraction,
+        ..base
+    };
     let built = py.detach(|| build(&hist, &params, Origin::Argument("counts"))).py_err()?;
     let summaries = serde_json::to_string(&built.summaries()).map_err(|e| PyValueError::new_err(e.to_string()))?;
     Ok(PyLut { lut: built.lut(), summaries: Some(summaries) })

@@ -28,6 +28,12 @@ def test_built_luts_equal_lut_build(sets, cli, tmp_path):
     # The weights rebuild the entries; every entry is the core's (below 2^23, rising).
     assert np.array_equal(dncal.Lut.from_weights(lut.weights).entries, lut.entries)
     assert lut.entries.max() < 2**23 and (np.diff(lut.entries.astype(np.int64), axis=1) >= 0).all()
+    # The paper's recipe, as `lut build --recipe paper` builds it, is another table.
+    cli("lut", "build", sets / "h.fits", "--recipe", "paper", "-o", tmp_path / "paper")
+    paper = dncal.build_luts(counts, recipe="paper")
+    with fits.open(tmp_path / "paper.fits") as f:
+        assert np.array_equal(paper.entries, np.asarray(f[0].data))
+    assert not np.array_equal(paper.entries, lut.entries)
 
 
 @pytest.mark.parametrize("fmt,cli_to", [("fits", "fits"), ("image", "image"), ("kcor", "kcor")])
@@ -78,6 +84,8 @@ def test_bad_luts_raise_the_clis_message(tmp_path):
         dncal.build_luts(np.ones((4, 1000), dtype=np.uint64))
     with pytest.raises(dncal.InputError, match="counts: ADC 0"):
         dncal.build_luts(np.zeros((4, 4096), dtype=np.uint64))
+    with pytest.raises(ValueError, match='recipe "median"'):
+        dncal.build_luts(np.ones((4, 4096), dtype=np.uint64), recipe="median")
     with pytest.raises(dncal.DncalIOError) as e:
         dncal.read_lut(tmp_path / "missing.fits")
     assert isinstance(e.value, OSError) and "missing.fits" in str(e.value)

@@ -178,7 +178,7 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
     let hist_path = at("histograms.fits");
     let hist_staged = staged(&files, &hist_path)?;
     let (diagnose_dir, diagnose_lin_dir) = (at("diagnose"), at("diagnose-linearity"));
-    let params = crate::analyses::diagnose::run::DiagnoseParams { flatten: flatten.clone(), seed: 1, block_rows: None, spill: false };
+    let params = crate::analyses::diagnose::run::DiagnoseParams { flatten: flatten.per_adc(), seed: 1, block_rows: None, spill: false };
     let diagnose = crate::analyses::diagnose::run::diagnose_as(&hist_staged, &hist_path, &params, Some(OutDir::new(&mut files, &diagnose_dir)))?;
     let diagnose_linearity = crate::analyses::diagnose::run::diagnose_as(&lin_staged, &lin_path, &params, Some(OutDir::new(&mut files, &diagnose_lin_dir)))?;
 
@@ -245,7 +245,7 @@ fn report_html(s: &DemoSummary, camera: &Camera, ramp: &RampParams, flat: &Flatt
          <h1>dncal demo: DN-error correction</h1>{}\
          <p>Camera: {} ({}x{}, {} bits, {} ADCs, {} e-/DN, {} e- read noise, {} e- full well). Calibration: {} ramp levels \
          (ramps of {}..{} levels, dark to {:.0}% of saturation, {} pixels per ADC, {} frames per level, signal spread {:.0}% rms across the region), \
-         flattened with a {}-point spline and a {}-code running median, the first {} codes {}set to 1 (de Wijn 2018, section 4). Files: <a href=\"histograms.fits\">histograms.fits</a>, <a href=\"lut.fits\">lut.fits</a>, \
+         flattened {}, the first {} codes {}set to 1. Files: <a href=\"histograms.fits\">histograms.fits</a>, <a href=\"lut.fits\">lut.fits</a>, \
          <a href=\"lut.bin\">lut.bin</a> (device image), <a href=\"summary.json\">summary.json</a>.</p>",
         claims_table(&s.paper),
         c.name,
@@ -263,8 +263,7 @@ fn report_html(s: &DemoSummary, camera: &Camera, ramp: &RampParams, flat: &Flatt
         ramp.pixels_per_adc,
         ramp.frames_per_level,
         100.0 * ramp.field_spread,
-        flat.spline_points,
-        flat.median_window,
+        flat.describe(),
         flat.fixed_low_codes,
         if flat.set_last_to_one { "and the last " } else { "" },
     );

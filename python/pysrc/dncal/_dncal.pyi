@@ -35,8 +35,9 @@ class Lut:
 def read_lut(path: _Path) -> Tuple[str, Lut]: ...
 def build_luts(
     counts: npt.NDArray[np.uint64],
-    spline_points: int = 50,
-    median_window: int = 21,
+    recipe: str = "shared",
+    spline_points: Optional[int] = None,
+    median_window: Optional[int] = None,
     fixed_low_codes: int = 150,
     set_last_to_one: bool = True,
     min_mean_count: float = 1.0,

@@ -328,6 +328,7 @@ fn bridge_sigma(expected: &[f64]) -> Vec<f64> {
 
 /// Every ADC of a histogram set through [`analyse`]; `source` names the set in errors.
 pub fn analyse_set(h: &AdcHistograms, density: Density, flatten: &FlattenParams, source: &Path) -> Result<Vec<AdcLinearity>, HostError> {
+    let flatten = &flatten.per_adc();
     h.counts
         .iter()
         .enumerate()

@@ -1,5 +1,6 @@
-//! From a histogram set to LUTs, the paper's recipe: each ADC's histogram flattened
-//! ([`crate::analyses::flatten`]), the weights quantized to the core's grid, the core's
+//! From a histogram set to LUTs: the ADCs' histograms flattened
+//! ([`crate::analyses::flatten::flatten_set`], by the paper's recipe or with one shared
+//! illumination), the weights quantized to the core's grid, the core's
 //! LUT set built by its rounding rule ([`crate::formats::lut`]), and every entry checked
 //! against the independent float reference ([`crate::model::reference`]) of the same
 //! weights. `lut build`, `adc` and `stream --hist` call it.
@@ -9,7 +10,7 @@ use crate::Origin;
 use dncal_core::Weight;
 use serde::Serialize;
 
-use crate::analyses::flatten::{flatten_histogram, to_core_weights, FlattenParams, Flattened};
+use crate::analyses::flatten::{flatten_set, to_core_weights, FlattenParams, Flattened};
 use crate::formats::fits::AdcHistograms;
 use crate::formats::lut::Lut;
 use crate::HostError;
@@ -58,14 +59,15 @@ impl BuiltLuts {
 /// Flattens `hist` and builds the LUT set in the core; `source` names the input in errors.
 pub fn build_luts(hist: &AdcHistograms, params: &FlattenParams, source: impl Into<Origin>) -> Result<BuiltLuts, HostError> {
     let source = source.into();
-    let mut flattened = Vec::new();
-    let mut weights = Vec::new();
-    for (adc, counts) in hist.counts.iter().enumerate() {
-        let f = flatten_histogram(counts, params).map_err(|e| HostError::AdcFlatten { origin: source.clone(), adc, source: e })?;
-        let w = to_core_weights(&f.weights).map_err(|e| HostError::AdcFlatten { origin: source.clone(), adc, source: e })?;
-        flattened.push(f);
-        weights.push(w);
-    }
+    let flattened = flatten_set(&hist.counts, params).map_err(|(adc, e)| match adc {
+        Some(adc) => HostError::AdcFlatten { origin: source.clone(), adc, source: e },
+        None => HostError::SharedFlatten { origin: source.clone(), source: e },
+    })?;
+    let weights = flattened
+        .iter()
+        .enumerate()
+        .map(|(adc, f)| to_core_weights(&f.weights).map_err(|e| HostError::AdcFlatten { origin: source.clone(), adc, source: e }))
+        .collect::<Result<Vec<_>, _>>()?;
     let (tables, image) = crate::formats::lut::tables_from_weights(&weights, &source)?;
     // The independent float reference must reproduce every entry.
     let reference = crate::model::reference::ReferenceLut::from_weights(&weights.iter().map(|w| w.iter().map(|x| x.to_num::<f64>()).collect()).collect::<Vec<_>>());

@@ -7,7 +7,7 @@ use clap::{Args, Parser, Subcommand};
 use dncal_host::model::camera::calibration::RampParams;
 use dncal_host::model::camera::{Camera, CameraConfig};
 use dncal_host::model::sets;
-use dncal_host::analyses::flatten::FlattenParams;
+use dncal_host::analyses::flatten::{FlattenParams, Recipe};
 use dncal_host::analyses::kcor::KcorParams;
 use dncal_host::infra::roi::RoiSpec;
 use dncal_host::HostError;
@@ -153,12 +153,20 @@ impl CameraArgs {
 
 #[derive(Args, Clone)]
 pub(crate) struct FlattenArgs {
-    /// Points of the smoothing spline.
-    #[arg(long, default_value_t = FlattenParams::default().spline_points)]
-    pub(crate) spline_points: usize,
-    /// Width of the running median, codes (odd).
-    #[arg(long, default_value_t = FlattenParams::default().median_window)]
-    pub(crate) median_window: usize,
+    /// How LUT weights come from the histograms: `shared` (one illumination for all ADCs,
+    /// fitted to their mean histogram, 20-point spline, no running median; the
+    /// default for LUTs) or `paper` (each ADC alone, 50-point spline, 21-code running
+    /// median). The histogram analyses (IEEE 1241 test, `diagnose`) always flatten each
+    /// ADC alone, with the paper's smoothing unless --recipe paper sets its own.
+    #[arg(long, value_enum)]
+    pub(crate) recipe: Option<Recipe>,
+    /// Points of the smoothing spline (default: the recipe's, 20 shared, 50 paper).
+    #[arg(long)]
+    pub(crate) spline_points: Option<usize>,
+    /// Width of the running median, codes, odd; 1 for none (default: the recipe's, 1
+    /// shared, 21 paper).
+    #[arg(long)]
+    pub(crate) median_window: Option<usize>,
     /// Lowest codes set to 1.
     #[arg(long, default_value_t = FlattenParams::default().fixed_low_codes)]
     pub(crate) fixed_low_codes: usize,
@@ -168,8 +176,20 @@ pub(crate) struct FlattenArgs {
 }
 
 impl FlattenArgs {
+    /// The flattening, `default` where --recipe is not given.
+    pub(crate) fn params_or(&self, default: Recipe) -> FlattenParams {
+        let base = self.recipe.unwrap_or(default).params();
+        FlattenParams {
+            spline_points: self.spline_points.unwrap_or(base.spline_points),
+            median_window: self.median_window.unwrap_or(base.median_window),
+            fixed_low_codes: self.fixed_low_codes,
+            set_last_to_one: !self.keep_last,
+            ..base
+        }
+    }
+    /// The flattening of a command that builds LUTs: the shared recipe by default.
     pub(crate) fn params(&self) -> FlattenParams {
-        FlattenParams { spline_points: self.spline_points, median_window: self.median_window, fixed_low_codes: self.fixed_low_codes, set_last_to_one: !self.keep_last, ..FlattenParams::default() }
+        self.params_or(Recipe::Shared)
     }
 }
 

@@ -9,6 +9,7 @@ use std::path::Path;
 use std::process::ExitCode;
 
 use cli::{Cli, Cmd, ExportFormat, LutCmd, SimulateCmd};
+use dncal_host::analyses::flatten::Recipe;
 use dncal_host::model::camera::calibration::LinearityParams;
 use dncal_host::checks::firmware::check::{firmware_check, CheckParams};
 use dncal_host::analyses::quantization::run as quantization;
@@ -82,7 +83,7 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
             print(json, &s?)?;
         }
         Cmd::Linearity { file, order, flat_level, out, json } => print(json, &staged(out.as_deref(), |o| linearity::linearity(&file, order, flat_level, o))?)?,
-        Cmd::Diagnose { files, flatten, seed, block_rows, spill, out, json } => match &diagnose::diagnose_files(&files, &diagnose::DiagnoseParams { flatten: flatten.params(), seed, block_rows: block_rows.map(|r| usize::try_from(r).unwrap_or(usize::MAX)), spill }, out.as_deref())?[..] {
+        Cmd::Diagnose { files, flatten, seed, block_rows, spill, out, json } => match &diagnose::diagnose_files(&files, &diagnose::DiagnoseParams { flatten: flatten.params_or(Recipe::Paper), seed, block_rows: block_rows.map(|r| usize::try_from(r).unwrap_or(usize::MAX)), spill }, out.as_deref())?[..] {
             [one] => print(json, one)?,
             several => print(json, several)?,
         },
