@@ -590,6 +590,16 @@ with fits.open('out/corrected.fits') as h:
     );
     assert_clean_failure(&dncal(&["linearity", "missing.fits"], d), "missing.fits", "No such file");
     assert_usage_failure(&dncal(&["linearity", "lin.fits", "--order", "0"], d), "--order", "0: the pixel-wise polynomial order must be 1 to 8");
+    // Held out (issue 42): one score per asked order, on the odd levels only; the paper's
+    // Fig. 8 statements with their distances in every run.
+    let h = stdout_json(&dncal(&["linearity", "lin.fits", "--held-out", "3,4,6", "--json"], d));
+    let orders: Vec<u64> = h["held_out"].as_array().unwrap().iter().map(|o| o["order"].as_u64().unwrap()).collect();
+    assert_eq!(orders, vec![3, 4, 6], "{h}");
+    assert!(h["held_out"][1]["rms"][2].is_null() && h["held_out"][1]["rms"][3].as_f64().is_some_and(|r| r > 0.0), "{h}");
+    assert_eq!(h["paper_fig8"]["statements"].as_array().unwrap().len(), 9);
+    assert!(h["paper_fig8"]["distance"].as_f64().is_some_and(|x| x.is_finite() && x >= 0.0), "{h}");
+    assert!(s.get("held_out").is_none(), "only when asked");
+    assert_usage_failure(&dncal(&["linearity", "lin.fits", "--held-out", "4,9"], d), "--held-out", "9: the pixel-wise polynomial order must be 1 to 8");
     // The flat can be chosen (the paper's Figs. 6-7 use level 22): the standard correction
     // is then exact there and not at the default flat (20).
     assert_eq!(s["gain_level"], 20);

@@ -49,7 +49,7 @@ fn diagnose_json(
 #[pyfunction]
 #[pyo3(signature = (path, order = 4, flat_level = None))]
 fn linearity_file_json(py: Python<'_>, path: PathBuf, order: usize, flat_level: Option<usize>) -> PyResult<String> {
-    let summary = py.detach(|| linearity(&path, order, flat_level, None)).py_err()?;
+    let summary = py.detach(|| linearity(&path, order, flat_level, &[], None)).py_err()?;
     json(&summary)
 }
 

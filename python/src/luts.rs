@@ -141,18 +141,18 @@ fn read_lut(py: Python<'_>, path: PathBuf) -> PyResult<(String, PyLut)> {
 /// does: `recipe` "shared" (its default: one illumination for all ADCs) or "paper";
 /// `spline_points` and `median_window` default to the recipe's.
 #[pyfunction]
-#[pyo3(signature = (counts, recipe = "shared", spline_points = None, median_window = None, fixed_low_codes = 150, set_last_to_one = true, min_mean_count = 1.0, trim_below_fraction = 0.0))]
+#[pyo3(signature = (counts, spline_points = None, median_window = None, fixed_low_codes = 150, set_last_to_one = true, min_mean_count = 1.0, trim_below_fraction = 0.0, *, recipe = "shared"))]
 #[allow(clippy::too_many_arguments)]
 fn build_luts(
     py: Python<'_>,
     counts: &Bound<'_, PyAny>,
-    recipe: &str,
     spline_points: Option<usize>,
     median_window: Option<usize>,
     fixed_low_codes: usize,
     set_last_to_one: bool,
     min_mean_count: f64,
     trim_below_fraction: f64,
+    recipe: &str,
 ) -> PyResult<PyLut> {
     let view = arrays::view::<u64, Ix2>(counts, "counts", "(adcs, codes)")?;
     let codes = view.shape()[1];

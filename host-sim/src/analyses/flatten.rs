@@ -136,7 +136,9 @@ pub enum Recipe {
     /// dncal's default for LUTs: one illumination for all ADCs (their mean
     /// histogram), a 20-point spline, no running median. On the twelve real K-Cor ADCs
     /// it puts the LUT's code values within 0.031-0.059 DN rms of the true centres where
-    /// the paper's gives 0.035-0.140 (`docs/kcor-luts.md`, "The recipe's error").
+    /// the paper's gives 0.035-0.140 (`docs/kcor-luts.md`, "The recipe's error"); not
+    /// the 0.03 DN issue 42 asks for, which a single ramp set cannot reach there (the
+    /// same page measures why).
     Shared,
 }
 
@@ -358,6 +360,8 @@ pub fn flatten_histogram(counts: &[u64], p: &FlattenParams) -> Result<Flattened,
 /// name the ADC, or `None` for the shared density.
 pub fn flatten_set(hists: &[Vec<u64>], p: &FlattenParams) -> Result<Vec<Flattened>, (Option<usize>, FlattenError)> {
     if p.illumination == Illumination::PerAdc || hists.len() < 2 {
+        // A single ADC has none to share with: the paper's flattening of it alone.
+        let p = &p.per_adc();
         return hists.iter().enumerate().map(|(a, h)| flatten_histogram(h, p).map_err(|e| (Some(a), e))).collect();
     }
     let ranges: Vec<Range<usize>> = hists.iter().enumerate().map(|(a, h)| fit_range(h, p).map_err(|e| (Some(a), e))).collect::<Result<_, _>>()?;
@@ -373,6 +377,15 @@ pub fn flatten_set(hists: &[Vec<u64>], p: &FlattenParams) -> Result<Vec<Flattene
     // codes (an arithmetic mean: at a few counts a code a geometric one is biased and
     // undefined at zero; to first order in the DN error the two are the same).
     let totals: Vec<f64> = hists.iter().map(|h| h[fit.clone()].iter().map(|&c| c as f64).sum::<f64>()).collect();
+    // Each ADC's own counts checked again over the codes they share.
+    for (a, &t) in totals.iter().enumerate() {
+        if t == 0.0 {
+            return Err((Some(a), FlattenError::NoCounts { start: fit.start, end: fit.end }));
+        }
+        if t / (fit.len() as f64) < p.min_mean_count {
+            return Err((Some(a), FlattenError::TooFewCounts { mean: t / fit.len() as f64, minimum: p.min_mean_count }));
+        }
+    }
     let mean_total = totals.iter().sum::<f64>() / totals.len() as f64;
     let scales: Vec<f64> = totals.iter().map(|&t| if t > 0.0 { mean_total / t } else { 0.0 }).collect();
     let mean: Vec<f64> = fit.clone().map(|k| hists.iter().zip(&scales).map(|(h, s)| h[k] as f64 * s).sum::<f64>() / hists.len() as f64).collect();
@@ -547,9 +560,14 @@ pub const MAX_MEDIAN_WIDENING: usize = 8;
 
 /// The variance of the running median of `window` samples, as a share of one sample's
 /// variance: `(pi / 2) / window` (the median's large-window limit). The smooth density
-/// `spline * median` carries it relative to the counts' own noise.
+/// `spline * median` carries it relative to the counts' own noise. A window of one code
+/// is no median step ([`FlattenParams::median_window`]): 0.
 pub fn median_variance(window: usize) -> f64 {
-    std::f64::consts::FRAC_PI_2 / window.max(1) as f64
+    if window <= 1 {
+        0.0
+    } else {
+        std::f64::consts::FRAC_PI_2 / window as f64
+    }
 }
 
 /// Quantizes weights to the core's [`Weight`] (`U8F24`) by the core's rule

@@ -35,13 +35,14 @@ class Lut:
 def read_lut(path: _Path) -> Tuple[str, Lut]: ...
 def build_luts(
     counts: npt.NDArray[np.uint64],
-    recipe: str = "shared",
     spline_points: Optional[int] = None,
     median_window: Optional[int] = None,
     fixed_low_codes: int = 150,
     set_last_to_one: bool = True,
     min_mean_count: float = 1.0,
     trim_below_fraction: float = 0.0,
+    *,
+    recipe: str = "shared",
 ) -> Lut: ...
 def read_histograms(path: _Path) -> Tuple[npt.NDArray[np.uint64], int]: ...
 

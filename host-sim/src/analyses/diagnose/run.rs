@@ -202,7 +202,9 @@ pub fn expect_report(files: &mut Outputs, dir: &Path) -> Result<(), HostError> {
 /// [`diagnose`] of the file at `read_from`, named `input` in the report: for a command
 /// that diagnoses a file it has staged but not published yet (`demo`).
 pub fn diagnose_as(read_from: &Path, input: &Path, params: &DiagnoseParams, mut out: Option<OutDir<'_>>) -> Result<DiagnoseSummary, HostError> {
-    let (flatten, seed) = (&params.flatten, params.seed);
+    // The histogram analyses flatten each ADC alone, whatever recipe builds the LUTs.
+    let per_adc = params.flatten.per_adc();
+    let (flatten, seed) = (&per_adc, params.seed);
     if let Some(o) = out.as_mut() {
         expect_report(o.files, o.dir)?;
     }

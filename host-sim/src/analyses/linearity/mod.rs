@@ -44,7 +44,9 @@ use serde::Serialize;
 use crate::formats::fits::{LinearitySet, Sample, SetView};
 use crate::infra::stats::median;
 
+pub mod held_out;
 mod inverse;
+pub mod paper_fig8;
 pub mod run;
 pub mod stages;
 pub use inverse::invert;

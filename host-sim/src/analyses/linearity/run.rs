@@ -10,6 +10,7 @@ use crate::infra::progress::{spinner, stage};
 use crate::formats::report::{wrote, Report};
 use crate::formats::fits::{read_linearity, SetView, stage_cube, stage_pixel_correction, PixelCorrection};
 use crate::analyses::linearity::{analyze_unsaturated, LinearityError, check_flat_level, example_row, unsaturated_levels, Cube, LinearityReport, PixelResults, MAX_ORDER};
+use crate::analyses::linearity::{held_out::HeldOut, paper_fig8::Fig8};
 use crate::formats::plots::{level_lines_plot, line_plot_paired, map_plot, Map, Series};
 use crate::formats::outputs::OutDir;
 use crate::{HostError, Origin};
@@ -24,6 +25,12 @@ pub struct LinearitySummary {
     pub report: LinearityReport,
     /// Wall time of the analysis (fit, inversion, statistics), s.
     pub analysis_s: f64,
+    /// The paper's Fig. 8, as its text states it, against this set's curves.
+    pub paper_fig8: Fig8,
+    /// The pixel-wise correction of each asked order scored on levels it was not fitted
+    /// to (`--held-out`; empty without).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub held_out: Vec<HeldOut>,
     /// Files written.
     pub outputs: Vec<PathBuf>,
 }
@@ -33,6 +40,15 @@ impl Report for LinearitySummary {
         let r = &self.report;
         let mut t = format!("{}: {} levels x {} pixels, gain level {}, {} masked, analysis {:.2} s\n", self.input.display(), r.levels, r.pixels, r.gain_level, r.masked_pixels, self.analysis_s);
         t += &format!("max RMS over levels: raw {:.3e}, standard {:.3e}, pixel-wise {:.3e}, random {:.3e}\n", r.rms_raw_max, r.rms_standard_max, r.rms_pixelwise_max, r.rms_random_max);
+        let f = &self.paper_fig8;
+        t += &format!("against the paper's Fig. 8 as its text states it: distance {:.3} (rms over {} statements of the log10 factor outside each; 0 inside all)\n", f.distance, f.statements.len());
+        for s in f.statements.iter().filter(|s| s.distance > 0.0) {
+            let (lo, hi) = s.ours.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &(_, v)| (a.min(v), b.max(v)));
+            t += &format!("  {:.3}: {} (read: {}); ours {lo:.3e} to {hi:.3e}\n", s.distance, s.paper, s.reading);
+        }
+        for h in &self.held_out {
+            t += &format!("held out (fitted on the even levels, scored on the odd): order {}: median RMS {:.3e}, largest {:.3e}\n", h.order, h.median, h.max);
+        }
         t + &wrote(&self.outputs)
     }
 }
@@ -45,15 +61,17 @@ const REPORT_FILES: [&str; 5] = ["coefficients.fits", "corrected.fits", "lineari
 /// filled) `linearity_rms.png` (Fig. 8), `flat_image.png` (Fig. 6) and
 /// `pixels_levels.png` (Fig. 7), published by the caller. `flat` is the gain level
 /// (default: nearest half the maximum reference).
-pub fn linearity(input: &Path, order: usize, flat: Option<usize>, out: Option<OutDir<'_>>) -> Result<LinearitySummary, HostError> {
-    linearity_as(input, input, order, flat, out)
+pub fn linearity(input: &Path, order: usize, flat: Option<usize>, held_out: &[usize], out: Option<OutDir<'_>>) -> Result<LinearitySummary, HostError> {
+    linearity_as(input, input, order, flat, held_out, out)
 }
 
 /// [`linearity`] of the set at `read_from`, named `input`: for a command that analyzes a
 /// set it has staged but not published yet (`demo`).
-pub fn linearity_as(read_from: &Path, input: &Path, order: usize, flat: Option<usize>, mut out: Option<OutDir<'_>>) -> Result<LinearitySummary, HostError> {
-    if !(1..=MAX_ORDER).contains(&order) {
-        return Err(HostError::Argument { flag: "--order".into(), message: format!("{order}: the pixel-wise polynomial order must be 1 to {MAX_ORDER}") });
+pub fn linearity_as(read_from: &Path, input: &Path, order: usize, flat: Option<usize>, held_out: &[usize], mut out: Option<OutDir<'_>>) -> Result<LinearitySummary, HostError> {
+    for (flag, &o) in std::iter::once(("--order", &order)).chain(held_out.iter().map(|o| ("--held-out", o))) {
+        if !(1..=MAX_ORDER).contains(&o) {
+            return Err(HostError::Argument { flag: flag.into(), message: format!("{o}: the pixel-wise polynomial order must be 1 to {MAX_ORDER}") });
+        }
     }
     if let Some(o) = out.as_mut() {
         o.files.create_dir(o.dir)?;
@@ -65,6 +83,8 @@ pub fn linearity_as(read_from: &Path, input: &Path, order: usize, flat: Option<u
     // statistics alone.
     let cube = if out.is_some() { Cube::Keep } else { Cube::Skip };
     let (report, px, analysis_s) = fit(&set.view(), &Origin::File(input.into()), order, flat, cube)?;
+    let held_out = if held_out.is_empty() { Vec::new() } else { super::held_out::held_out(&set.view(), &report, &px.mask, &super::unsaturated_levels(&set.view()), held_out) };
+    let paper_fig8 = super::paper_fig8::compare(&report);
     let mut outputs = Vec::new();
     if let Some(OutDir { files, dir }) = out {
         // Kept above for the outputs; an error rather than outputs left out if not.
@@ -142,7 +162,7 @@ pub fn linearity_as(read_from: &Path, input: &Path, order: usize, flat: Option<u
         )?;
         outputs.extend([c, k, fig, flat_png, levels_png]);
     }
-    Ok(LinearitySummary { input: input.into(), report, analysis_s, outputs })
+    Ok(LinearitySummary { input: input.into(), report, analysis_s, paper_fig8, held_out, outputs })
 }
 
 /// What the fit needs of a set's reference and levels, before any pixel: at least

@@ -1,8 +1,9 @@
 //! `dncal lut build`, `inspect`, `import`, `export` and `convert`: argument glue and
 //! reports over the LUT home ([`crate::formats::lut`]: every format, read and written)
-//! and the paper's recipe ([`crate::analyses::lut::build`]: histograms to LUTs).
+//! and the recipes ([`crate::analyses::lut::build`]: histograms to LUTs).
 //!
-//! `build` flattens each ADC's histogram, quantizes the weights to the core's 2^-24 grid,
+//! `build` flattens the ADCs' histograms (`--recipe`: one shared illumination by
+//! default, or the paper's per ADC), quantizes the weights to the core's 2^-24 grid,
 //! lets the core build the LUT set by its rounding rule, and writes the LUT FITS and the
 //! device image. The float reference must reproduce every entry; `build` checks it and
 //! refuses to write otherwise.

@@ -313,7 +313,7 @@ pub(crate) enum Cmd {
         #[arg(short, long, default_value = "dncal-adc")]
         out: PathBuf,
         /// The input's density over the codes, for the IEEE 1241 histogram test (DNL,
-        /// INL, missing and worst codes); the LUTs always use the paper's flattening.
+        /// INL, missing and worst codes); the LUTs use --recipe's flattening.
         #[arg(long, value_enum, default_value_t = DensityArg::Smooth)]
         density: DensityArg,
         #[command(flatten)]
@@ -371,6 +371,11 @@ pub(crate) enum Cmd {
         /// maximum reference; the paper's Figs. 6-7 flat is near 57%, level 22 of 0-40).
         #[arg(long)]
         flat_level: Option<usize>,
+        /// Also score the pixel-wise correction of these orders on levels it was not
+        /// fitted to (fitted on the even levels, scored on the odd), e.g. `--held-out
+        /// 3,4,5,6`: whether a higher order helps, on data it did not see.
+        #[arg(long, value_delimiter = ',', num_args = 1..)]
+        held_out: Vec<usize>,
         /// Folder for coefficients.fits, corrected.fits and the figures (Figs. 6-8).
         #[arg(short, long)]
         out: Option<PathBuf>,

@@ -82,7 +82,7 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
             spin.finish_and_clear();
             print(json, &s?)?;
         }
-        Cmd::Linearity { file, order, flat_level, out, json } => print(json, &staged(out.as_deref(), |o| linearity::linearity(&file, order, flat_level, o))?)?,
+        Cmd::Linearity { file, order, flat_level, held_out, out, json } => print(json, &staged(out.as_deref(), |o| linearity::linearity(&file, order, flat_level, &held_out, o))?)?,
         Cmd::Diagnose { files, flatten, seed, block_rows, spill, out, json } => match &diagnose::diagnose_files(&files, &diagnose::DiagnoseParams { flatten: flatten.params_or(Recipe::Paper), seed, block_rows: block_rows.map(|r| usize::try_from(r).unwrap_or(usize::MAX)), spill }, out.as_deref())?[..] {
             [one] => print(json, one)?,
             several => print(json, several)?,

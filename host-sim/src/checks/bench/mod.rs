@@ -602,7 +602,7 @@ fn linearity_ratio(camera: &crate::model::camera::Camera, runs: usize, notes: &m
     let (mut ours, mut theirs) = (Vec::new(), Vec::new());
     for _ in 0..runs.min(3) {
         let t = Instant::now();
-        let r = crate::analyses::linearity::run::linearity(&set, 4, None, None)?;
+        let r = crate::analyses::linearity::run::linearity(&set, 4, None, &[], None)?;
         let seconds = t.elapsed().as_secs_f64();
         match numpy_linearity(&set) {
             Ok((s, pw)) => {

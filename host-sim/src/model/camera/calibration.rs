@@ -23,8 +23,8 @@
 //!   level; per pixel the mean and standard deviation of the sampled frames, and the
 //!   reference photodiode's voltage, linear in the light.
 
-use rand::{rngs::StdRng, SeedableRng};
-use rand_distr::{Distribution, Poisson};
+use rand::{rngs::StdRng, Rng, SeedableRng};
+use rand_distr::{Distribution, Normal, Poisson};
 use rayon::prelude::*;
 
 use super::exact::{phi, poisson_range};
@@ -205,6 +205,40 @@ fn add_poisson_gamma(m: &mut Vec<f64>, mean: f64, g: f64) {
     m[lo..lo + p.len()].iter_mut().zip(&p).for_each(|(x, y)| *x += y);
 }
 
+/// The relative change of the light's spatial pattern at linearity level `level` over a
+/// region of `w x h` pixels, row-major: `rms phi(x, y)`, `phi` a sum of 24
+/// long-wavelength Fourier modes over the region (wave numbers `kx` in -3..=3 and `ky` in
+/// 0..=3 cycles per side, the half plane without (0, 0)), amplitudes N(0, 1) / |k| and
+/// uniform phases, then its mean taken out and scaled to unit rms over the region, so the
+/// reference diode, which sees the total light, does not see it
+/// ([`super::config::BenchConfig::illumination_change_rms`]). Drawn from (`seed`, level)
+/// alone: independent between levels, the same for any frame.
+pub fn illumination_change(rms: f64, w: usize, h: usize, seed: u64, level: usize) -> Vec<f64> {
+    let mut rng = StdRng::seed_from_u64(seed ^ (level as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+    let unit = Normal::new(0.0, 1.0).expect("unit normal");
+    let modes: Vec<(f64, f64, f64, f64)> = (0..=3i32)
+        .flat_map(|ky| (-3..=3i32).map(move |kx| (kx, ky)))
+        .filter(|&(kx, ky)| ky > 0 || kx > 0)
+        .map(|(kx, ky)| {
+            let k = f64::from(kx * kx + ky * ky).sqrt();
+            (f64::from(kx), f64::from(ky), unit.sample(&mut rng) / k, rng.random::<f64>() * std::f64::consts::TAU)
+        })
+        .collect();
+    let mut field: Vec<f64> = (0..h)
+        .flat_map(|y| (0..w).map(move |x| (x, y)))
+        .map(|(x, y)| {
+            let (u, v) = ((x as f64 + 0.5) / w as f64, (y as f64 + 0.5) / h as f64);
+            modes.iter().map(|&(kx, ky, a, phase)| a * (std::f64::consts::TAU * (kx * u + ky * v) + phase).cos()).sum()
+        })
+        .collect();
+    let n = field.len().max(1) as f64;
+    let mean = field.iter().sum::<f64>() / n;
+    let sd = (field.iter().map(|f| (f - mean).powi(2)).sum::<f64>() / n).sqrt();
+    let scale = if sd > 0.0 { rms / sd } else { 0.0 };
+    field.iter_mut().for_each(|f| *f = (*f - mean) * scale);
+    field
+}
+
 /// How a linearity set is recorded.
 #[derive(Debug, Clone)]
 pub struct LinearityParams {
@@ -262,13 +296,18 @@ impl Camera {
             .into_par_iter()
             .map(|level| {
                 let photons = sat * level as f64 / (p.levels - 1).max(1) as f64;
+                let bench = &self.config.bench;
+                let change = (bench.illumination_change_rms > 0.0).then(|| illumination_change(bench.illumination_change_rms, w, h, bench.seed, level));
                 // Welford per pixel over the frames.
                 let mut mean = vec![0.0; w * h];
                 let mut m2 = vec![0.0; w * h];
                 for f in 0..p.frames {
                     let seed = p.seed ^ ((level as u64) << 40) ^ ((f as u64) << 8);
                     for y in 0..h {
-                        let line = self.sample_span(y0 + y, x0..x0 + w, seed, |_| photons);
+                        let line = match &change {
+                            Some(c) => self.sample_span(y0 + y, x0..x0 + w, seed, |x| photons * (1.0 + c[y * w + x - x0])),
+                            None => self.sample_span(y0 + y, x0..x0 + w, seed, |_| photons),
+                        };
                         for (x, &c) in line.iter().enumerate() {
                             let i = y * w + x;
                             let d = c as f64 - mean[i];
@@ -307,6 +346,28 @@ mod tests {
         let mean = m.iter().enumerate().map(|(n, p)| n as f64 * p).sum::<f64>() / total;
         let var = m.iter().enumerate().map(|(n, p)| (n as f64 - mean).powi(2) * p).sum::<f64>() / total;
         (total, mean, var)
+    }
+
+    /// The bench's pattern change at a level: zero mean and the asked rms over the
+    /// region (exactly, by construction), smooth (neighbouring pixels alike: its shortest
+    /// wavelength is a third of the region), the same for the same seed and level, and
+    /// unrelated between levels (the correlation of 20 level pairs scatters about 0).
+    #[test]
+    fn the_illumination_change_has_zero_mean_the_asked_rms_and_differs_per_level() {
+        let (w, h) = (40, 24);
+        let a = illumination_change(3e-4, w, h, 735, 5);
+        let n = a.len() as f64;
+        assert!((a.iter().sum::<f64>() / n).abs() < 1e-18);
+        assert!(((a.iter().map(|x| x * x).sum::<f64>() / n).sqrt() - 3e-4).abs() < 1e-15);
+        assert_eq!(a, illumination_change(3e-4, w, h, 735, 5));
+        let corr = |u: &[f64], v: &[f64]| u.iter().zip(v).map(|(x, y)| x * y).sum::<f64>() / (u.iter().map(|x| x * x).sum::<f64>() * v.iter().map(|y| y * y).sum::<f64>()).sqrt();
+        let neighbours: Vec<f64> = (0..h).flat_map(|y| (0..w - 1).map(move |x| y * w + x)).map(|i| a[i + 1] - a[i]).collect();
+        // (Measured 0.25 of the rms here; white noise would differ by sqrt(2) of it.)
+        assert!(crate::infra::stats::rms(&neighbours) < 0.35 * 3e-4, "neighbouring pixels differ by {}", crate::infra::stats::rms(&neighbours));
+        let pairs: Vec<f64> = (1..=20).map(|l| corr(&illumination_change(1.0, w, h, 735, l), &illumination_change(1.0, w, h, 735, l + 20))).collect();
+        let mean = pairs.iter().sum::<f64>() / 20.0;
+        assert!(mean.abs() < 0.2 && pairs.iter().all(|c| c.abs() < 0.9), "correlations between levels {pairs:?}");
+        assert!(illumination_change(0.0, w, h, 735, 5).iter().all(|&x| x == 0.0));
     }
 
     #[test]

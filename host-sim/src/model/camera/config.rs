@@ -40,6 +40,37 @@ impl Default for AdcConfig {
     }
 }
 
+/// The lab bench a calibration set is recorded on (the paper's section 3: an LED, an
+/// uncoated glass plate sending about 10% of the light to a reference photodiode, a weak
+/// ground-glass diffuser before the sensor). Its imperfections are the set's, not the
+/// camera's; they act on linearity sets (`simulate linearity`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct BenchConfig {
+    /// Relative rms of the change of the light's spatial pattern over the recorded region
+    /// from one linearity level to the next (dimensionless; 3e-4 is 0.03%): each level's
+    /// light is `N_l (1 + illumination_change_rms phi_l(x, y))`, `phi_l` a smooth field
+    /// of zero mean and unit rms over the region, drawn independently per level
+    /// ([`super::calibration::illumination_change`]). An LED's emission pattern moves with
+    /// its drive current and temperature, and a weak diffuser passes part of it; the
+    /// reference diode sees the total light, not the pattern, so the voltages are
+    /// unchanged. 0 (the default) is none; issue 42 measures what 3e-4 does to Fig. 8
+    /// (`docs/paper.md`).
+    pub illumination_change_rms: f64,
+    /// Seed of the patterns.
+    pub seed: u64,
+}
+
+/// The bench's pattern change that brings our Fig. 8 nearest the paper's text (issue 42,
+/// `docs/paper.md`): what `demo` compares the camera's set with.
+pub const PAPER_ILLUMINATION_CHANGE_RMS: f64 = 3e-4;
+
+impl Default for BenchConfig {
+    fn default() -> Self {
+        BenchConfig { illumination_change_rms: 0.0, seed: 735 }
+    }
+}
+
 /// The largest camera config or model file: 16 MiB holds the measured code widths
 /// (`adc.widths`, about 19 bytes a width as `dncal diagnose` writes them; 0.3 MB for four
 /// 12-bit ADCs) of twelve 16-bit ADCs; a bigger file is not a config.
@@ -97,6 +128,8 @@ pub struct CameraConfig {
     pub max_frame_rate_hz: f64,
     /// The pipelined ADCs.
     pub adc: AdcConfig,
+    /// The lab bench the calibration sets are recorded on.
+    pub bench: BenchConfig,
     /// Seed of the pixel maps (PRNU, DSNU, nonlinearity, bad pixels).
     pub seed: u64,
 }
@@ -122,6 +155,7 @@ impl Default for CameraConfig {
             bad_pixel_fraction: 6.0e-5,
             max_frame_rate_hz: 150.0,
             adc: AdcConfig::default(),
+            bench: BenchConfig::default(),
             seed: 2018,
         }
     }
@@ -187,6 +221,7 @@ impl CameraConfig {
             ("prnu_rms", self.prnu_rms),
             ("dsnu_rms_e", self.dsnu_rms_e),
             ("bad_pixel_fraction", self.bad_pixel_fraction),
+            ("bench.illumination_change_rms", self.bench.illumination_change_rms),
         ];
         for (name, v) in non_negative {
             if !(v.is_finite() && v >= 0.0) {
@@ -201,6 +236,9 @@ impl CameraConfig {
         }
         if self.qe > 1.0 {
             return Err(ConfigError::Qe { qe: self.qe });
+        }
+        if self.bench.illumination_change_rms > 0.1 {
+            return Err(ConfigError::IlluminationChange { rms: self.bench.illumination_change_rms });
         }
         if self.bad_pixel_fraction > 1.0 {
             return Err(ConfigError::BadPixelFraction { fraction: self.bad_pixel_fraction });
@@ -256,6 +294,12 @@ impl CameraConfig {
 /// messages name the TOML field as the user wrote it.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ConfigError {
+    /// The bench's pattern change is beyond what the model is for.
+    #[error("bench.illumination_change_rms = {rms}: at most 0.1 (a relative change of the light's pattern between levels; the paper's bench needs about 3e-4)")]
+    IlluminationChange {
+        /// The value given.
+        rms: f64,
+    },
     /// A quantity that must be positive is not.
     #[error("{field} must be positive and finite, got {value}")]
     NotPositive { field: &'static str, value: f64 },
