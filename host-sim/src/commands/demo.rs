@@ -201,7 +201,8 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
     let hist_path = at("histograms.fits");
     let hist_staged = staged(&files, &hist_path)?;
     let (diagnose_dir, diagnose_lin_dir) = (at("diagnose"), at("diagnose-linearity"));
-    let params = crate::analyses::diagnose::run::DiagnoseParams { flatten: flatten.per_adc(), seed: 1, block_rows: None, spill: false };
+    // (diagnose_as flattens each ADC alone itself, whatever the LUTs' recipe.)
+    let params = crate::analyses::diagnose::run::DiagnoseParams { flatten: flatten.clone(), seed: 1, block_rows: None, spill: false };
     let diagnose = crate::analyses::diagnose::run::diagnose_as(&hist_staged, &hist_path, &params, Some(OutDir::new(&mut files, &diagnose_dir)))?;
     let diagnose_linearity = crate::analyses::diagnose::run::diagnose_as(&lin_staged, &lin_path, &params, Some(OutDir::new(&mut files, &diagnose_lin_dir)))?;
 
@@ -388,12 +389,12 @@ fn fig8_section(s: &DemoSummary) -> String {
          <table class=\"claims\"><tr><th>the paper</th><th>read as</th><th>ours</th><th>distance</th><th>other bench</th><th>distance</th></tr>",
         other.illumination_change_rms
     );
-    let range = |v: &[(usize, f64)]| {
-        let (lo, hi) = v.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &(_, x)| (a.min(x), b.max(x)));
+    let range = |s: &crate::analyses::linearity::paper_fig8::Statement| {
+        let (lo, hi) = s.range();
         if lo.is_finite() { format!("{lo:.2e} to {hi:.2e}") } else { "none".into() }
     };
     for (a, b) in ours.statements.iter().zip(&other.paper_fig8.statements) {
-        let _ = write!(h, "<tr><td>{}</td><td>{}</td><td>{}</td><td>{:.2}</td><td>{}</td><td>{:.2}</td></tr>", html_escape(a.paper), html_escape(a.reading), range(&a.ours), a.distance, range(&b.ours), b.distance);
+        let _ = write!(h, "<tr><td>{}</td><td>{}</td><td>{}</td><td>{:.2}</td><td>{}</td><td>{:.2}</td></tr>", html_escape(a.paper), html_escape(a.reading), range(a), a.distance, range(b), b.distance);
     }
     let mine_floor = crate::analyses::linearity::paper_fig8::over_random(&s.linearity.report);
     let _ = write!(

@@ -13,6 +13,7 @@ use serde::Serialize;
 
 use super::{invert, LinearityReport};
 use crate::formats::fits::{Sample, SetView};
+use crate::infra::stats::rms_finite;
 
 /// One order's held-out score.
 #[derive(Debug, Clone, Serialize)]
@@ -69,16 +70,7 @@ pub fn held_out<T: Sample>(set: &SetView<'_, T>, report: &LinearityReport, mask:
                     out
                 })
                 .collect();
-            let rms: Vec<f64> = (0..nl)
-                .map(|l| {
-                    let v: Vec<f64> = per_pixel.iter().map(|r| r[l]).filter(|v| v.is_finite()).collect();
-                    if v.is_empty() {
-                        f64::NAN
-                    } else {
-                        (v.iter().map(|r| r * r).sum::<f64>() / v.len() as f64).sqrt()
-                    }
-                })
-                .collect();
+            let rms: Vec<f64> = (0..nl).map(|l| rms_finite(per_pixel.iter().map(|r| r[l]))).collect();
             let scored: Vec<f64> = rms.iter().copied().filter(|v| v.is_finite()).collect();
             HeldOut { order, median: crate::infra::stats::median(scored.iter().copied()), max: scored.iter().copied().fold(f64::NAN, f64::max), rms }
         })

@@ -9,6 +9,8 @@
 use serde::Serialize;
 
 use super::LinearityReport;
+use crate::analyses::paper_claims::finite_range;
+use crate::infra::stats::rms_finite;
 
 /// One statement of the paper's Fig. 8 against our curves.
 #[derive(Debug, Clone, Serialize)]
@@ -23,6 +25,13 @@ pub struct Statement {
     pub band: (f64, f64),
     /// Rms over the levels of the log10 distance outside the band.
     pub distance: f64,
+}
+
+impl Statement {
+    /// Smallest and largest of our values (NaN for both where there are none).
+    pub fn range(&self) -> (f64, f64) {
+        finite_range(&self.ours.iter().map(|&(_, v)| v).collect::<Vec<_>>())
+    }
 }
 
 /// All statements and the set's distance (rms over the statements).
@@ -56,8 +65,7 @@ fn outside(v: f64, (lo, hi): (f64, f64)) -> f64 {
 }
 
 fn statement(paper: &'static str, reading: &'static str, ours: Vec<(usize, f64)>, band: (f64, f64)) -> Statement {
-    let d: Vec<f64> = ours.iter().map(|&(_, v)| outside(v, band)).filter(|d| d.is_finite()).collect();
-    let distance = if d.is_empty() { f64::NAN } else { (d.iter().map(|x| x * x).sum::<f64>() / d.len() as f64).sqrt() };
+    let distance = rms_finite(ours.iter().map(|&(_, v)| outside(v, band)));
     Statement { paper, reading, ours, band, distance }
 }
 
@@ -86,8 +94,7 @@ pub fn compare(r: &LinearityReport) -> Fig8 {
         statement("raw data: structure \"with amplitudes around 0.02\" (Fig. 7)", "raw RMS 0.005 to 0.02 between 0.1 and 0.9 of the maximum reference (amplitudes of 100 pixels are 2-4 times their rms)", pick(&r.rms_raw, &|l| (0.1..=0.9).contains(&r.reference[l])), (0.005, 0.02)),
     ];
     // NaN where no statement could be scored (not "inside all").
-    let d: Vec<f64> = statements.iter().map(|s| s.distance).filter(|d| d.is_finite()).collect();
-    let distance = if d.is_empty() { f64::NAN } else { (d.iter().map(|x| x * x).sum::<f64>() / d.len() as f64).sqrt() };
+    let distance = rms_finite(statements.iter().map(|s| s.distance));
     Fig8 { statements, distance }
 }
 
@@ -95,7 +102,7 @@ pub fn compare(r: &LinearityReport) -> Fig8 {
 /// least and largest over the levels where both are finite.
 pub fn over_random(r: &LinearityReport) -> (f64, f64, f64) {
     let v: Vec<f64> = r.rms_pixelwise.iter().zip(&r.rms_random).map(|(a, b)| a / b).filter(|x| x.is_finite()).collect();
-    let (lo, hi) = v.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+    let (lo, hi) = finite_range(&v);
     (crate::infra::stats::median(v.iter().copied()), lo, hi)
 }
 

@@ -43,7 +43,7 @@ impl Report for LinearitySummary {
         let f = &self.paper_fig8;
         t += &format!("against the paper's Fig. 8 as its text states it: distance {:.3} (rms over {} statements of the log10 factor outside each; 0 inside all)\n", f.distance, f.statements.len());
         for s in f.statements.iter().filter(|s| s.distance > 0.0) {
-            let (lo, hi) = s.ours.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &(_, v)| (a.min(v), b.max(v)));
+            let (lo, hi) = s.range();
             t += &format!("  {:.3}: {} (read: {}); ours {lo:.3e} to {hi:.3e}\n", s.distance, s.paper, s.reading);
         }
         for h in &self.held_out {
