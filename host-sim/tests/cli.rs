@@ -22,7 +22,14 @@ fn python(script: &str, dir: &Path) {
 #[test]
 fn demo_calibrates_streams_and_reports() {
     let dir = tempfile::tempdir().unwrap();
-    let out = dncal(&["demo", "-o", "report", "--frames", "2", "--json"], dir.path());
+    // With the K-Cor tables where they are (as scripts/demo.sh passes them).
+    let tables = support::kcor_luts_dir();
+    let mut args = vec!["demo", "-o", "report", "--frames", "2", "--json"];
+    let tables_arg = tables.as_ref().map(|t| t.to_string_lossy().into_owned());
+    if let Some(t) = &tables_arg {
+        args.extend(["--kcor-tables", t.as_str()]);
+    }
+    let out = dncal(&args, dir.path());
     let s = stdout_json(&out);
     let folder = dir.path().join("report");
     assert_eq!(s["stream"]["mismatches"], 0);
@@ -37,7 +44,7 @@ fn demo_calibrates_streams_and_reports() {
     // ratio, and where it does not reproduce the paper, a cause with the same model's
     // ratios at less LUT noise (measured in the run).
     let claims = s["paper"].as_array().unwrap();
-    assert_eq!(claims.len(), 9, "{claims:?}");
+    assert_eq!(claims.len(), 9 + usize::from(tables.is_some()), "{claims:?}");
     let verdicts = ["agrees", "same-order", "does-not-reproduce"];
     assert!(claims.iter().all(|c| verdicts.contains(&c["verdict"].as_str().unwrap())), "{claims:?}");
     let fig5 = claims.iter().find(|c| c["section"] == "4, Fig. 5").unwrap();
@@ -46,6 +53,16 @@ fn demo_calibrates_streams_and_reports() {
     assert_eq!(fig5["verdict"] == "does-not-reproduce", reduction < 5.0, "{fig5}");
     if reduction < 5.0 {
         assert!(fig5["cause"].as_str().unwrap().contains("with 0.1% noise per code"), "{fig5}");
+    }
+    // On the real camera's ADC (docs/paper.md: 5.8x, 4.2-8.7 over 20 draws at 1 ms
+    // frames, |Q| <= 0.01 I_max), named, with the verdict of its median.
+    if tables.is_some() {
+        let real = claims.iter().filter(|c| c["section"] == "4, Fig. 5").nth(1).unwrap();
+        let ours = real["ours"].as_str().unwrap();
+        assert!(ours.starts_with("real K-Cor camera 13889, ADC 3, |Q| <= 0.01 I_max, 1 ms frames: "), "{real}");
+        let median: f64 = ours.split(": ").nth(1).unwrap().split('x').next().unwrap().parse().unwrap();
+        assert!((4.5..7.5).contains(&median), "{real}");
+        assert_eq!(real["verdict"] == "agrees", median >= 5.0, "{real}");
     }
     let page = std::fs::read_to_string(folder.join("report.html")).unwrap();
     assert!(page.find("The paper's claims, measured").unwrap() < page.find("Streaming through the core").unwrap(), "the claims table leads the report");
@@ -786,9 +803,11 @@ fn diagnose_names_hidden_linearity_effects_blind() {
 }
 
 /// The simulator's own camera (global cubic a2 = -0.02, a3 = 0.02 of full well, 0.5% rms
-/// per-pixel spread): diagnose recovers the global curve's coefficients (the camera's
-/// full well over its gain times the top code is 0.999, so c2 and c3 should read about
-/// -0.02 and 0.02) and names the pixel-to-pixel nonlinearity.
+/// per-pixel spread) on the paper's bench (the light's pattern changing by 3e-4 rms
+/// between levels): diagnose names the pattern and measures it, recovers the global
+/// curve's coefficients (the camera's full well over its gain times the top code is
+/// 0.999, so c2 and c3 should read about -0.02 and 0.02) and names the pixel-to-pixel
+/// nonlinearity.
 #[test]
 fn diagnose_recovers_the_simulated_cameras_nonlinearity() {
     let dir = tempfile::tempdir().unwrap();
@@ -798,8 +817,8 @@ fn diagnose_recovers_the_simulated_cameras_nonlinearity() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let s = stdout_json(&dncal(&["diagnose", "lin.fits", "--json", "-o", "rep"], d));
     let names: Vec<&str> = s["findings"].as_array().unwrap().iter().map(|f| f["effect"].as_str().unwrap()).collect();
-    assert_eq!(names, vec!["global-nonlinearity", "pixel-nonlinearity"], "{s}");
-    let detail = s["findings"][0]["detail"].as_str().unwrap();
+    assert_eq!(names, vec!["illumination-change", "global-nonlinearity", "pixel-nonlinearity"], "{s}");
+    let detail = s["findings"][1]["detail"].as_str().unwrap();
     let coefficients: Vec<f64> = detail.split("G(S) = S (1 + ").nth(1).unwrap().split(" + ").take(2).map(|t| t.split_whitespace().next().unwrap().parse().unwrap()).collect();
     assert!((coefficients[0] + 0.02).abs() < 0.003 && (coefficients[1] - 0.02).abs() < 0.004, "{coefficients:?}");
     assert!(d.join("rep/report.html").exists());
@@ -813,6 +832,7 @@ fn diagnose_recovers_the_simulated_cameras_nonlinearity() {
     assert!((get("prnu_rms") / 0.01 - 1.0).abs() < 0.2, "{model}");
     assert!((get("dsnu_rms_e") / 40.0 - 1.0).abs() < 0.15, "{model}");
     assert!((model["pixel_nonlinearity_rms"][0].as_float().unwrap() / 0.005 - 1.0).abs() < 0.25, "{model}");
+    assert!((model["bench"]["illumination_change_rms"].as_float().unwrap() / 3e-4 - 1.0).abs() < 0.15, "{model}");
     let again = dncal(&["simulate", "linearity", "--model", "rep/model.toml", "-o", "again.fits"], d);
     assert!(again.status.success(), "{}", String::from_utf8_lossy(&again.stderr));
     let s2 = stdout_json(&dncal(&["diagnose", "again.fits", "--json"], d));
@@ -878,7 +898,8 @@ fn diagnose_reads_a_set_by_rows_beyond_its_budget_with_the_same_numbers() {
 
 /// The default camera's pipelined ADCs have their own DN error: in a linearity set it
 /// shows as level means off alike within each ADC, and is named `adc-dnl` on each ADC,
-/// not taken for the light (`level-errors`) or left `unexplained`; with ideal ADCs
+/// not taken for the light (`level-errors`) or left `unexplained`, beside the default
+/// bench's pattern change (`illumination-change`); with ideal ADCs
 /// (`diagnose_recovers_the_simulated_cameras_nonlinearity`) it is not there.
 #[test]
 fn diagnose_names_the_simulated_adcs_dn_error_in_a_linearity_set() {
@@ -888,7 +909,7 @@ fn diagnose_names_the_simulated_adcs_dn_error_in_a_linearity_set() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let s = stdout_json(&dncal(&["diagnose", "lin.fits", "--json", "-o", "rep"], d));
     let names: Vec<String> = s["findings"].as_array().unwrap().iter().map(|f| format!("{} {}", f["effect"].as_str().unwrap(), f["adc"])).collect();
-    let want = ["adc-dnl 0", "adc-dnl 1", "adc-dnl 2", "adc-dnl 3", "global-nonlinearity null", "pixel-nonlinearity null"];
+    let want = ["adc-dnl 0", "adc-dnl 1", "adc-dnl 2", "adc-dnl 3", "illumination-change null", "global-nonlinearity null", "pixel-nonlinearity null"];
     assert_eq!(names, want, "{s}");
     // Each finding has its figure in the report, numbered from 1 in the table's order.
     for (i, f) in s["findings"].as_array().unwrap().iter().enumerate() {
@@ -995,4 +1016,16 @@ fits.PrimaryHDU(cube.astype(np.int32) + 70000).writeto('wide.fits')
     assert_clean_failure(&dncal(&["stream", "--frames-from", "wide.fits"], d), "wide.fits", "does not fit 16 bits");
     assert_clean_failure(&dncal(&["stream", "--frames-from", "cube.fits", "--roi", "40x16+1000+0"], d), "cube.fits", "do not fit");
     assert_clean_failure(&dncal(&["stream", "--frames-from", "missing.fits"], d), "missing.fits", "No such file");
+}
+
+/// `demo --kcor-tables` on a folder without the real camera's tables: refused before any
+/// work, naming the file it looked for, with no output folder.
+#[test]
+fn demo_refuses_missing_kcor_tables_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dncal(&["demo", "-o", "report", "--kcor-tables", "nowhere"], dir.path());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("nowhere/Photonfocus_MV-D1024E_13889_adc0_20131203.bin"), "{err}");
+    assert!(!dir.path().join("report").exists());
 }

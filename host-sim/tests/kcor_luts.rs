@@ -12,19 +12,7 @@ use std::process::{Command, Output};
 use serde_json::Value;
 use support::dncal_here as dncal;
 
-/// The shared tables' folder; `DNCAL_KCOR_LUTS` overrides it. `None` (the test then says
-/// it skips) where it is absent.
-fn luts_dir() -> Option<PathBuf> {
-    let dir = std::env::var_os("DNCAL_KCOR_LUTS")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/kcor-luts"));
-    if dir.join("README.md").exists() {
-        Some(dir)
-    } else {
-        eprintln!("skipping: {} is absent", dir.display());
-        None
-    }
-}
+use support::kcor_luts_dir as luts_dir;
 
 fn json(out: Output, what: &str) -> Value {
     assert!(out.status.success(), "{what}: {}", String::from_utf8_lossy(&out.stderr));

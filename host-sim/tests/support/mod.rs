@@ -20,6 +20,21 @@ pub const DEADLINE: Duration = Duration::from_secs(600);
 pub const PROMPT: Duration = Duration::from_secs(60);
 
 /// `dncal args` started in `dir`, stdin closed, stdout and stderr captured.
+/// The K-Coronagraph's shared tables' folder; `DNCAL_KCOR_LUTS` overrides it. `None`
+/// (the test then says it skips) where it is absent.
+#[allow(dead_code)]
+pub fn kcor_luts_dir() -> Option<PathBuf> {
+    let dir = std::env::var_os("DNCAL_KCOR_LUTS")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/kcor-luts"));
+    if dir.join("README.md").exists() {
+        Some(dir)
+    } else {
+        eprintln!("skipping: {} is absent", dir.display());
+        None
+    }
+}
+
 pub fn spawn(args: &[&str], dir: &Path) -> Child {
     Command::new(env!("CARGO_BIN_EXE_dncal"))
         .args(args)

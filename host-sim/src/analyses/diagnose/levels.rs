@@ -189,7 +189,7 @@ impl Common for LevelTerm {
     /// pixels, when there is one: the ADC's own where the ADCs differ; the light's share
     /// scaled by the pixel's slope there against the pixels the term came from (a fixed
     /// DN amount left an ADC with 3% more gain a residual that read as `adc-dnl`).
-    fn at(&self, level: usize, adc: usize, shape: Option<&[f64; 5]>) -> Option<(f64, f64)> {
+    fn at(&self, level: usize, _i: usize, adc: usize, shape: Option<&[f64; 5]>) -> Option<(f64, f64)> {
         let ratio = self.slope_ratio(shape, level);
         let adc_ratio = self.adc_ratio.get(adc).and_then(|r| r.get(level)).copied().unwrap_or(1.0);
         // The black level's part goes through the ADC's gain (an analog offset ahead of

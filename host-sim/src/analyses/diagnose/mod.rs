@@ -97,6 +97,8 @@ pub enum Effect {
     LowSignalNonlinearity,
     /// Errors of the measurement every pixel shares at a level (light, black level).
     LevelErrors,
+    /// The light's spatial pattern changing between levels, unseen by the reference.
+    IlluminationChange,
     /// Pixels the model cannot follow (hot, dead, kinked).
     BadPixels,
     /// A noise larger than the frames' spread says, alike everywhere.
@@ -134,6 +136,7 @@ impl crate::model::hidden::Hidden {
             Hidden::LevelErrors { .. } => Effect::LevelErrors,
             Hidden::SubtleBad { .. } => Effect::Unexplained,
             Hidden::ChargeLoss { .. } => Effect::LowSignalNonlinearity,
+            Hidden::IlluminationChange { .. } => Effect::IlluminationChange,
         };
         (effect, self.adc())
     }
@@ -143,20 +146,21 @@ impl Effect {
     /// Whether `model.toml` carries this effect.
     pub fn in_model(self) -> InModel {
         match self {
-            Effect::AdcDnl | Effect::GlobalNonlinearity | Effect::PixelNonlinearity | Effect::BadPixels | Effect::InsufficientNoise => InModel::Yes,
+            Effect::AdcDnl | Effect::GlobalNonlinearity | Effect::PixelNonlinearity | Effect::BadPixels | Effect::InsufficientNoise | Effect::IlluminationChange => InModel::Yes,
             Effect::AdcMismatch | Effect::Unexplained | Effect::LowSignalNonlinearity => InModel::NotYet,
             Effect::LevelErrors | Effect::ExcessNoise => InModel::OfTheMeasurement,
         }
     }
 
     /// Every effect, in the catalog's order.
-    pub const ALL: [Effect; 10] = [
+    pub const ALL: [Effect; 11] = [
         Effect::AdcDnl,
         Effect::AdcMismatch,
         Effect::GlobalNonlinearity,
         Effect::PixelNonlinearity,
         Effect::LowSignalNonlinearity,
         Effect::LevelErrors,
+        Effect::IlluminationChange,
         Effect::BadPixels,
         Effect::ExcessNoise,
         Effect::InsufficientNoise,
@@ -172,6 +176,7 @@ impl Effect {
             Effect::PixelNonlinearity => "pixel-nonlinearity",
             Effect::LowSignalNonlinearity => "low-signal-nonlinearity",
             Effect::LevelErrors => "level-errors",
+            Effect::IlluminationChange => "illumination-change",
             Effect::BadPixels => "bad-pixels",
             Effect::ExcessNoise => "excess-noise",
             Effect::InsufficientNoise => "insufficient-noise",
@@ -362,6 +367,9 @@ pub struct Measured {
     pub pixel_b2_rms_per_dn: Option<f64>,
     /// Fraction of pixels found bad.
     pub bad_fraction: Option<f64>,
+    /// Relative rms of the light's pattern change between levels (`illumination-change`),
+    /// at the levels above 20% of the top signal.
+    pub illumination_change_rms: Option<f64>,
 }
 
 /// `insufficient-noise` when a noise of `sigma_dn` ("{what} {sigma_dn} DN") leaves a
@@ -495,10 +503,11 @@ mod effect_tests {
             Effect::PixelNonlinearity => 3,
             Effect::LowSignalNonlinearity => 4,
             Effect::LevelErrors => 5,
-            Effect::BadPixels => 6,
-            Effect::ExcessNoise => 7,
-            Effect::InsufficientNoise => 8,
-            Effect::Unexplained => 9,
+            Effect::IlluminationChange => 6,
+            Effect::BadPixels => 7,
+            Effect::ExcessNoise => 8,
+            Effect::InsufficientNoise => 9,
+            Effect::Unexplained => 10,
         };
         assert!(Effect::ALL.iter().enumerate().all(|(i, &e)| index(e) == i));
     }

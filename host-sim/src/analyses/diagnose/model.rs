@@ -84,6 +84,9 @@ pub fn apply_measured(mut c: crate::model::camera::CameraConfig, d: &Diagnosis) 
     if let Some(b) = m.bad_fraction {
         c.bad_pixel_fraction = b;
     }
+    if let Some(r) = m.illumination_change_rms {
+        c.bench.illumination_change_rms = r.min(crate::model::camera::config::MAX_ILLUMINATION_CHANGE_RMS);
+    }
     let scale = c.full_well_e / g;
     c.nonlinearity = d.curve_per_dn.as_ref().map_or(Vec::new(), |b| b.iter().enumerate().map(|(k, b)| b * scale.powi(k as i32 + 1)).collect());
     c.pixel_nonlinearity_rms = match (m.pixel_b2_rms_per_dn, d.findings.iter().any(|f| f.effect == Effect::PixelNonlinearity)) {
@@ -109,6 +112,8 @@ pub fn linearity_model(set: &impl crate::formats::fits::LinearityKeys, d: &Diagn
     c.name = "linearity set, model extended by dncal diagnose".into();
     c.adc.stage_bits = vec![bit_depth];
     c.adc.stage_error_lsb = vec![0.0];
+    // (A linearity set measures the bench's pattern change: none unless it was found.)
+    c.bench.illumination_change_rms = 0.0;
     apply_measured(c, d)
 }
 

@@ -8,13 +8,14 @@ use super::pixel_fit::Point;
 use super::records::{Keep, Records};
 use crate::formats::fits::Sample;
 
-/// A per-level term common to pixels, taken out of their means: `(c, var)` in DN and
-/// DN^2 at `level` for a pixel read by `adc` whose own response is `shape` (read once a
-/// pixel: `shape(i)` for pixel `i`, an index into [`Pixels`]), where there is one.
-/// ([`super::levels::LevelTerm`] is the one there is.)
+/// A per-level term taken out of pixels' means: `(c, var)` in DN and DN^2 at `level` for
+/// pixel `i` (an index into [`Pixels`]) read by `adc` whose own response is `shape` (read
+/// once a pixel: `shape(i)`), where there is one. [`super::levels::LevelTerm`] is common
+/// to the pixels (per ADC at most); the light's pattern
+/// ([`super::linearity`]'s `illumination` stage) depends on where the pixel is.
 pub(super) trait Common: Sync {
     fn shape(&self, i: usize) -> Option<[f64; 5]>;
-    fn at(&self, level: usize, adc: usize, shape: Option<&[f64; 5]>) -> Option<(f64, f64)>;
+    fn at(&self, level: usize, i: usize, adc: usize, shape: Option<&[f64; 5]>) -> Option<(f64, f64)>;
 }
 
 /// Which of a set's pixels a diagnosis fits: all, or those a mask leaves (their indices,
@@ -100,6 +101,17 @@ impl<'a, T: Sample> Pixels<'a, T> {
         (self.index(i) / self.set.width) % 2 == 0
     }
 
+    /// Pixel `i`'s column and row in the set.
+    pub fn position(&self, i: usize) -> (usize, usize) {
+        let p = self.index(i);
+        (p % self.set.width, p / self.set.width)
+    }
+
+    /// The set's width and height, pixels.
+    pub fn size(&self) -> (usize, usize) {
+        (self.set.width, self.set.height)
+    }
+
     /// Levels of pixel `i` below saturation.
     pub fn valid(&self, i: usize) -> usize {
         usize::from(self.valid.at(self.index(i)))
@@ -120,7 +132,7 @@ impl<'a, T: Sample> Pixels<'a, T> {
         set.with_pixel(p, |at| {
             let pts = (0..valid)
                 .map(|l| {
-                    let (c, v) = common.and_then(|t| t.at(l, adc, shape.as_ref())).unwrap_or((0.0, 0.0));
+                    let (c, v) = common.and_then(|t| t.at(l, i, adc, shape.as_ref())).unwrap_or((0.0, 0.0));
                     let (m, s) = (at.mean(l), at.std(l));
                     Point { level: l, x: self.x[l], y: m - c, sigma: ((self.kappa * s * s / n).max(floor) + self.bias2[l] + v + T::rounding_var(m)).sqrt() }
                 })

@@ -293,6 +293,11 @@ pub(crate) enum Cmd {
         ramp: RampArgs,
         #[command(flatten)]
         flatten: FlattenArgs,
+        /// Folder of the K-Coronagraph's deployed tables (`Photonfocus_MV-D1024E_13889_adc{0..3}_20131203.bin`
+        /// among them): Fig. 5 is judged on that real camera's 4th ADC too. `scripts/demo.sh`
+        /// passes `../shared/data/kcor-luts` when it is there.
+        #[arg(long, value_name = "DIR")]
+        kcor_tables: Option<PathBuf>,
         /// Print a JSON summary on stdout.
         #[arg(long)]
         json: bool,

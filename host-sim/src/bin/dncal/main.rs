@@ -99,8 +99,8 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
             to_stdout(&script)?;
         }
         Cmd::Man { out } => man_pages(out.as_deref())?,
-        Cmd::Demo { camera, out, frames, ramp, flatten, json } => {
-            let s = demo::demo(&camera.camera()?, &out, &ramp.params()?, &flatten.params(), frames)?;
+        Cmd::Demo { camera, out, frames, ramp, flatten, kcor_tables, json } => {
+            let s = demo::demo(&camera.camera()?, &out, &ramp.params()?, &flatten.params(), frames, kcor_tables.as_deref())?;
             print(json, &s)?;
             return Ok(passed(s.passed()));
         }

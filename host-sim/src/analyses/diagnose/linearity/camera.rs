@@ -161,6 +161,8 @@ pub(super) fn measure_camera<T: Sample>(scoring: &Scoring<'_, T>, n_frames: u32,
         dsnu_dn: Some((d_scatter.powi(2) - d_noise).max(0.0).sqrt()),
         pixel_b2_rms_per_dn: (n > 10.0).then(|| cov.max(0.0).sqrt()),
         bad_fraction: Some(bad as f64 / px.len().max(1) as f64),
+        // (Measured by `illumination-change`, where it is found.)
+        illumination_change_rms: None,
     };
     (measured, medians[dark_std_cell])
 }

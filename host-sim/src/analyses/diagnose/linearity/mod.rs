@@ -77,6 +77,7 @@
 mod adc_apart;
 mod camera;
 mod curves;
+mod illumination;
 mod level_stage;
 mod pixel_fits;
 mod populations;
@@ -99,6 +100,7 @@ use level_stage::{level_stage, LevelStage};
 use pixel_fits::{PixelStage, LINEAR, QUARTIC};
 use scoring::pixel_nonlinearity;
 use remainder::remainder;
+use illumination::{illumination_change, Found};
 
 fn with_residuals(r: AdcResiduals, mut f: Finding) -> Finding {
     f.residuals = Some(r);
@@ -256,8 +258,18 @@ fn diagnose_set<T: Sample>(set: &SetView<'_, T>, keep: Keep, accuracy_dn: f64) -
     // Errors every pixel shares at a level (the light off the reference, the black level
     // off) first: found, they are taken out of every pixel's means before any model.
     let LevelStage { term: levels_term, accepted: level_accepted, mut findings } = level_stage(&px, nl);
-    // From here every pixel's points are its means less the term, where one was found.
-    let common: Option<&dyn Common> = (level_accepted || levels_term.per_adc.is_some()).then_some(&levels_term as &dyn Common);
+    let level_common: Option<&dyn Common> = (level_accepted || levels_term.per_adc.is_some()).then_some(&levels_term as &dyn Common);
+    // Then the light's pattern changing between levels, held out by rows.
+    let pattern = illumination_change(&px, level_common, &levels_term, &levels_term.signal);
+    // From here every pixel's points are its means less the terms found.
+    let common: Option<&dyn Common> = match &pattern {
+        Some(found) => Some(&found.term),
+        None => level_common,
+    };
+    let (mut pattern_finding, pattern_rms) = match pattern.as_ref() {
+        Some(Found { finding, rms, .. }) => (Some(finding.clone()), Some(*rms)),
+        None => (None, None),
+    };
 
     // Each pixel's own fits, the population of dark and gain, the bad-pixel flags.
     let stage = PixelStage::new(&px, common, n_adc);
@@ -345,9 +357,9 @@ fn diagnose_set<T: Sample>(set: &SetView<'_, T>, keep: Keep, accuracy_dn: f64) -
     // (with the smooth part a shared curve takes of it where no bend is named), each ADC
     // set apart under its own curve, the shared bend.
     let others = followed.as_ref().unwrap_or(&base);
+    let others_rms = others.totals(&all).rms();
     if common.is_some() {
-        let after = others.totals(&all).rms();
-        findings[..level_findings].iter_mut().for_each(|f| f.all_data_rms_after = Some(after));
+        findings[..level_findings].iter_mut().for_each(|f| f.all_data_rms_after = Some(others_rms));
     }
     if let Some(own_curve) = &own_curve {
         // On all the data: the ADCs set apart so far under their own curves, the others
@@ -367,11 +379,14 @@ fn diagnose_set<T: Sample>(set: &SetView<'_, T>, keep: Keep, accuracy_dn: f64) -
     // Pixel-to-pixel nonlinearity: each pixel's own quartic.
     let own = s.score(&|_| quartic);
     let t3 = own.totals(&all);
-    if let Some(mut f) = pixel_nonlinearity(&s, (&current, tcur), (&own, t3)) {
+    let mut final_params = linear.params();
+    let unattributed = |params: usize| pattern.as_ref().map_or(0.0, |p| p.unattributed(params));
+    if let Some(mut f) = pixel_nonlinearity(&s, (&current, tcur), (&own, t3), unattributed(linear.params())) {
         f.all_data_rms_after = Some(t3.rms());
         findings.push(f);
         current = own;
         tcur = t3;
+        final_params = quartic.params();
     }
     // Maps: each good pixel's dark and gain under the shared curve (all its levels), the
     // population estimated on even rows and scored on odd rows.
@@ -385,12 +400,18 @@ fn diagnose_set<T: Sample>(set: &SetView<'_, T>, keep: Keep, accuracy_dn: f64) -
     // gain (tested on the maps) after the per-pixel steps.
     let curved: Vec<Finding> = apart.iter().filter_map(|&a| adc_findings[a].take()).collect();
     findings.splice(level_findings..level_findings, curved);
+    // (The pattern entered the model right after the level term.)
+    if let Some(mut f) = pattern_finding.take() {
+        f.all_data_rms_after = Some(others_rms);
+        findings.insert(level_findings, f);
+    }
     findings.extend(adc_findings.into_iter().flatten());
     findings.extend(stage.finding(&px));
     // Noise: the dark level's temporal noise against the quantization bias.
-    let (measured, dark_noise) = measure_camera(&s, set.n_frames, stage.bad_count());
+    let (mut measured, dark_noise) = measure_camera(&s, set.n_frames, stage.bad_count());
+    measured.illumination_change_rms = pattern_rms;
     findings.extend(insufficient_noise("median dark noise", dark_noise, accuracy_dn));
-    findings.extend(remainder(&s, &current, tcur));
+    findings.extend(remainder(&s, &current, tcur, unattributed(final_params)));
     Ok(Diagnosis {
         not_tested: Vec::new(),
         measured,

@@ -10,15 +10,21 @@ use super::{finding, with_residuals};
 use crate::formats::fits::Sample;
 
 /// The finding for what `current` (the accepted model's held-out scores of the good
-/// pixels, totals `tcur`) leaves, if anything stands out.
-pub(super) fn remainder<T: Sample>(s: &Scoring<'_, T>, current: &Scores, tcur: Totals) -> Option<Finding> {
+/// pixels, totals `tcur`) leaves, if anything stands out, beyond `extra`: the mean `z^2`
+/// per held-out residual of a term found that no model can attribute (the light's
+/// pattern's part that looks like each pixel's own curve, [`super::illumination`]).
+pub(super) fn remainder<T: Sample>(s: &Scoring<'_, T>, current: &Scores, tcur: Totals, extra: f64) -> Option<Finding> {
     let (px, common, good, n_adc, nl) = (s.px, s.common, &s.good, s.n_adc, s.levels);
     let all = |_: Cell| true;
     let mut out = None;
     // The noise model off by one factor everywhere (frames that are not independent) is
     // not structure: the factor is measured on the pixels of even rows and the odd rows
     // scored with it; only what that leaves is `unexplained`.
-    let (te, to) = (current.totals(&|c| !c.odd), current.totals(&|c| c.odd));
+    // (A known structure of mean square `extra` adds it to each residual's expectation
+    // and `4 extra` to the variance of its square.)
+    let widen = |t: Totals| Totals { e: t.e + extra * t.n as f64, v: t.v + 4.0 * extra * t.n as f64, ..t };
+    let tcur = widen(tcur);
+    let (te, to) = (widen(current.totals(&|c| !c.odd)), widen(current.totals(&|c| c.odd)));
     let k2 = te.s / te.e.max(1e-300);
     // The factor's own noise (the even rows are as many as the odd ones) is in the
     // denominator: without it the null spread was 1.4, not 1.
@@ -30,7 +36,8 @@ pub(super) fn remainder<T: Sample>(s: &Scoring<'_, T>, current: &Scores, tcur: T
     let (mut x_sum, mut g, mut n_sum) = (0.0, 0.0, 0.0);
     for (s, _) in current.iter().zip(good.iter()).filter(|&(_, i)| !px.estimating(i as usize)) {
         if let Some(s) = s {
-            let (tr, tr2) = (f64::from(s.tr), f64::from(s.tr2));
+            let n = f64::from(s.n);
+            let (tr, tr2) = (f64::from(s.tr) + extra * n, f64::from(s.tr2) + 2.0 * extra * n);
             x_sum += (s.sum_sq - k2 * tr).powi(2) / (k2 * k2 * 2.0 * tr2).max(1e-300);
             g += 1.0;
             n_sum += f64::from(s.n);

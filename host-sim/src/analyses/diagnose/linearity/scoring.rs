@@ -84,11 +84,17 @@ impl<'a, T: Sample> Scoring<'a, T> {
 /// `pixel-nonlinearity`: each pixel's own quartic (scores `own`, totals `t3`) against the
 /// shared model (`current`, `tcur`) on the `good` pixels' held-out levels, with how far the
 /// pixels' curves depart from the shared one at their highest held-out level.
-pub(super) fn pixel_nonlinearity<T: Sample>(s: &Scoring<'_, T>, (current, tcur): (&Scores, Totals), (own, t3): (&Scores, Totals)) -> Option<Finding> {
+///
+/// `extra` is the mean `z^2` per held-out residual under the shared model that a known
+/// term leaves and each pixel's quartic would take (the light's pattern's part that looks
+/// like the pixels' own curves, [`super::illumination`]): the quartics must do better
+/// than that.
+pub(super) fn pixel_nonlinearity<T: Sample>(s: &Scoring<'_, T>, (current, tcur): (&Scores, Totals), (own, t3): (&Scores, Totals), extra: f64) -> Option<Finding> {
     let (px, common, fits, good) = (s.px, s.common, s.fits, &s.good);
     let all = |_: Cell| true;
-    let sig = tcur.significance_to(&t3);
-    if sig > SIGNIFICANCE && t3.s < tcur.s {
+    let beyond = Totals { s: tcur.s - extra * tcur.n as f64, ..tcur };
+    let sig = beyond.significance_to(&t3);
+    if sig > SIGNIFICANCE && t3.s < beyond.s {
         // How far each pixel's quartic departs from the shared model at its highest
         // held-out level, relative to its signal there.
         let last = |s: Option<crate::analyses::diagnose::scores::Score>| s.filter(|s| s.n > 0).map(|s| f64::from(s.last_z));
