@@ -198,7 +198,7 @@ pub fn claims(m: &Measured) -> Vec<Claim> {
             "4, Fig. 5",
             "on the paper's camera (its 4th ADC) the LUT from 1%-noisy histograms reduces the error by about an order of magnitude",
             format!(
-                "real K-Cor camera {}, ADC {}, |Q| <= {} I_max, {} ms frames: {:.1}x, the median over {} draws of the LUT's {}% noise per code ({:.1}x to {:.1}x)",
+                "real K-Cor camera {}, ADC {}, |Q| <= {} I_max, {} ms frames: {:.2}x, the median over {} draws of the LUT's {}% noise per code ({:.1}x to {:.1}x)",
                 r.camera, r.adc, r.q_fraction, r.exposure_ms, r.median, r.draws, 100.0 * r.lut_noise, r.min, r.max
             ),
             if ok { Verdict::Agrees } else { Verdict::DoesNotReproduce },
@@ -281,9 +281,11 @@ mod tests {
         assert_eq!(fig5(&paper_like()).len(), 1);
         let rows = fig5(&Measured { kcor_real: Some(real(5.8)), ..paper_like() });
         assert_eq!(rows.len(), 2);
-        assert!(rows[1].ours.starts_with("real K-Cor camera 13889, ADC 3, |Q| <= 0.01 I_max, 1 ms frames: 5.8x, the median over 20 draws"), "{}", rows[1].ours);
+        assert!(rows[1].ours.starts_with("real K-Cor camera 13889, ADC 3, |Q| <= 0.01 I_max, 1 ms frames: 5.80x, the median over 20 draws"), "{}", rows[1].ours);
         assert_eq!((rows[1].verdict, rows[1].cause.is_none()), (Verdict::Agrees, true));
-        let rows = fig5(&Measured { kcor_real: Some(real(4.9)), ..paper_like() });
+        // (4.996 would have printed as "5.0x" beside "does not reproduce".)
+        let rows = fig5(&Measured { kcor_real: Some(real(4.996)), ..paper_like() });
+        assert!(rows[1].ours.contains(": 5.00x"), "{}", rows[1].ours);
         assert_eq!(rows[1].verdict, Verdict::DoesNotReproduce);
         assert!(rows[1].cause.as_deref().is_some_and(|c| c.contains("noise per code")));
     }

@@ -425,11 +425,11 @@ fn other_bench(camera: &Camera) -> Result<OtherBench, HostError> {
 fn fig8_section(s: &DemoSummary) -> String {
     let (ours, other) = (&s.linearity.paper_fig8, &s.linearity_other_bench);
     let own = s.linearity_other_bench.illumination_change_rms == 0.0;
-    let (mine, theirs) = if own { ("with the camera's bench", "without the pattern change") } else { ("the camera's set (no pattern change between levels)", "with the paper's bench pattern change") };
+    let (mine, theirs) = if own { ("the camera's set on its bench", "on a perfect bench (no pattern change between levels)") } else { ("the camera's set (no pattern change between levels)", "with the paper's bench pattern change") };
     let mut h = format!(
         "<h3>Fig. 8 against the paper</h3><p>The paper's Fig. 8 curves are not in its source; its text states them, and each statement is read as a band over the levels it speaks of. \
-         Distance: the rms over the levels of the log10 factor by which our value lies outside the band (0 inside; 0.30 is a factor 2). Columns: {mine}, and the same camera's set recorded {theirs} \
-         (relative rms {:.1e} of the light's pattern change per level; <code>[bench] illumination_change_rms</code>, <code>docs/model.md</code>).</p>\
+         Distance: the rms over the levels of the log10 factor by which our value lies outside the band (0 inside; 0.30 is a factor 2). Columns: {mine}, and the same camera's set recorded {theirs}. \
+         The bench with the pattern change has a relative rms of {:.1e} of the light's pattern change per level (<code>[bench] illumination_change_rms</code>, <code>docs/model.md</code>).</p>\
          <table class=\"claims\"><tr><th>the paper</th><th>read as</th><th>ours</th><th>distance</th><th>other bench</th><th>distance</th></tr>",
         if own { other.camera_illumination_change_rms } else { other.illumination_change_rms }
     );

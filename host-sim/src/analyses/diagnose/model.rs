@@ -137,6 +137,8 @@ pub fn ptc_model(set: &crate::analyses::emva::EmvaSet, sheet: &crate::analyses::
         ..Default::default()
     };
     c.name = "EMVA 1288 set, model extended by dncal diagnose".into();
+    // (A photon-transfer set does not measure the linearity bench's pattern change.)
+    c.bench.illumination_change_rms = 0.0;
     c.adc.stage_bits = vec![set.bits];
     c.adc.stage_error_lsb = vec![0.0];
     if d.findings.iter().any(|f| f.effect == Effect::AdcDnl) {

@@ -16,8 +16,11 @@
 //! term's), alternated three times (the quartics take a pattern's part that is a quartic in
 //! the reference at every pixel; each round gives the field the rest). A pixel's means then
 //! lose `S phi_l(x, y)` of the field the **other** half of the rows fitted, and gain that
-//! fit's variance: nothing of a pixel's own data enters its correction, so the held-out
-//! scores stay honest.
+//! fit's variance: the field that corrects a pixel is fitted without it. (The signal `S`
+//! it is scaled by is the pixel's quartic through all its levels, as for the level term's
+//! light part: a leverage of the pixel's own held-out levels on its correction of order
+//! the field times 5 / 41. And an even-row pixel is corrected with the odd rows' field, so
+//! the shared curves estimated on even rows afterwards carry that much of the odd rows.)
 //!
 //! The test: the two halves' fields agree beyond their noise, `T = sum_l f_e . A_o f_o`
 //! against `sqrt(sum_l s_o^2 f_e^T A_o f_e)` (given the even rows' field, the odd rows'
@@ -71,8 +74,8 @@ impl Grid {
     /// The grid of a `width x height` set with `levels` levels, or `None` where it is too
     /// small for a smooth field to be told from its bins.
     fn new(width: usize, height: usize, levels: usize) -> Option<Grid> {
-        // The sums are 12 bytes a bin, level and half of the rows, per task.
-        let most = BUDGET / (levels.max(1) * 2 * 12 * crate::analyses::diagnose::TASKS);
+        // The sums are 16 bytes a bin, level and half of the rows, per task.
+        let most = BUDGET / (levels.max(1) * 2 * 16 * crate::analyses::diagnose::TASKS);
         let side = BINS.min(most.isqrt());
         // (Each bin needs rows of both parities.)
         let (bx, by) = (side.min(width), side.min(height / 2));
@@ -214,15 +217,17 @@ impl<T: Sample> Pattern<'_, T> {
         let from = if self.cross { 1 - own } else { own };
         let fields = self.fields.get(level)?;
         let field = fields[from].as_ref()?;
-        // About the field's mean over the pixels it corrects (the level term's part).
-        let mean = fields[own].as_ref().map_or(0.0, |f| field.f.dot(&f.mean_mode));
+        // About the field's mean over the pixels it corrects (the level term's part), or
+        // over those it was fitted on where that half has no fit.
+        let mean = field.f.dot(fields[own].as_ref().map_or(&field.mean_mode, |f| &f.mean_mode));
         let var = if self.cross { field.added[self.grid.bin(x, y)] } else { 0.0 };
         Some((self.grid.at(&field.f, x, y) - mean, var))
     }
 
     /// The pattern's change of pixel `i`'s mean at `level`, DN, for its quartic `shape`.
     fn field_dn(&self, level: usize, i: usize, shape: Option<&[f64; 5]>) -> f64 {
-        self.change(level, i).map_or(0.0, |c| c.0 * self.signal(level, shape))
+        let dn = self.change(level, i).map_or(0.0, |c| c.0 * self.signal(level, shape));
+        if dn.is_finite() { dn } else { 0.0 }
     }
 
     /// A pixel's signal at `level` (its quartic `shape` above its dark level), DN.
@@ -347,9 +352,16 @@ pub(super) fn illumination_change<'a, T: Sample>(px: &'a Pixels<'a, T>, level: O
             into.1 += h.var * a_theirs.dot(theirs);
         }
     }
-    let sig = agreement.iter().map(|&(t, v)| t / v.sqrt().max(1e-300)).fold(f64::INFINITY, f64::min);
-    // (NaN, no level with both halves, is no finding.)
-    if sig.is_nan() || sig <= SIGNIFICANCE {
+    // Each pixel's quartic took 5 of its levels' worth of the residuals the fields were
+    // fitted to, and correlates them across levels: the null spread is widened by
+    // `nl / (nl - 5)` (1.14 in variance at 41 levels). A spread that is not positive
+    // and finite (no level with both halves, noise-free data) is no finding.
+    let widen = nl as f64 / nl.saturating_sub(QUARTIC.params()).max(1) as f64;
+    if agreement.iter().any(|&(t, v)| !(t.is_finite() && v.is_finite() && v > 0.0)) {
+        return None;
+    }
+    let sig = agreement.iter().map(|&(t, v)| t / (widen * v).sqrt()).fold(f64::INFINITY, f64::min);
+    if !sig.is_finite() || sig <= SIGNIFICANCE {
         return None;
     }
     // Held out: each pixel's quartic fitted on its even levels, scored on its odd ones,
@@ -482,6 +494,6 @@ mod tests {
         assert!(Grid::new(6, 5, 12).is_none());
         assert!(Grid::new(64, 64, 60_000).is_none());
         let g = Grid::new(64, 64, 400).unwrap();
-        assert!(g.bins() * 400 * 2 * 12 * crate::analyses::diagnose::TASKS <= BUDGET);
+        assert!(g.bins() * 400 * 2 * 16 * crate::analyses::diagnose::TASKS <= BUDGET);
     }
 }
