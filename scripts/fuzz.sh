@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Runs every libFuzzer target (fuzz/, issue 18) for SECONDS each (default 60), one after
+# Runs every libFuzzer target (fuzz/, issues 18 and 43) for SECONDS each (default 60), one after
 # the other, and prints executions, corpus and crashes per target.
 #
 #   scripts/fuzz.sh [SECONDS]                      all targets
@@ -15,7 +15,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 seconds=${1:-60}
-targets=(${FUZZ_TARGETS:-lut_image_chunks fits_histograms fits_linearity fits_lut emva_descriptor camera_toml})
+targets=(${FUZZ_TARGETS:-lut_image_chunks fits_histograms fits_linearity fits_lut emva_descriptor camera_toml analysis_linearity analysis_histograms analysis_lut})
 
 cargo fuzz --version >/dev/null 2>&1 || cargo install cargo-fuzz --locked
 cargo +nightly fuzz build
@@ -30,15 +30,21 @@ printf '%-18s %8s %12s %10s %8s\n' target seconds executions corpus crashes
 for t in "${targets[@]}"; do
     work=fuzz/target/corpus/$t
     mkdir -p "$work" "fuzz/artifacts/$t"
-    dirs=("$work" "fuzz/corpus/$t")
+    dirs=("$work")
+    [[ -d fuzz/corpus/$t ]] && dirs+=("fuzz/corpus/$t")
     [[ -d fuzz/regressions/$t ]] && dirs+=("fuzz/regressions/$t")
+    # The analysis targets (issue 43) read the files their reader's target reads: its
+    # seeds are theirs.
+    case $t in
+        analysis_*) dirs+=("fuzz/corpus/fits_${t#analysis_}") ;;
+    esac
     log=fuzz/target/logs/$t.log
     crashes_before=$(find "fuzz/artifacts/$t" -type f | wc -l)
     status=0
     cargo +nightly fuzz run "$t" "${dirs[@]}" -- \
         -max_total_time="$seconds" -timeout=30 -rss_limit_mb=3072 -print_final_stats=1 >"$log" 2>&1 || status=$?
     execs=$(sed -n 's/^stat::number_of_executed_units: *//p' "$log" | tail -1)
-    corpus=$(find "$work" "fuzz/corpus/$t" -type f | wc -l)
+    corpus=$(find "${dirs[@]}" -type f | wc -l)
     crashes=$(( $(find "fuzz/artifacts/$t" -type f | wc -l) - crashes_before ))
     printf '%-18s %8s %12s %10s %8s\n' "$t" "$seconds" "${execs:-?}" "$corpus" "$crashes"
     if [[ $status -ne 0 ]]; then

@@ -201,6 +201,22 @@ pub enum HostError {
         /// What it is ("directory", "FIFO", ...).
         kind: &'static str,
     },
+    /// An output that is one of the command's inputs ([`crate::formats::same_file`]).
+    #[error("{path}: is the input {input} (or a link to it); writing it would replace that input: name another output")]
+    OutputIsInput {
+        /// The output.
+        path: PathBuf,
+        /// The input, as it was named.
+        input: PathBuf,
+    },
+    /// An output another run is writing now ([`crate::formats::outputs`]).
+    #[error("{path}: another dncal run{} is writing this output now; run again when it has finished, or name another output", pid.map_or(String::new(), |p| format!(" (process {p})")))]
+    Busy {
+        /// The output.
+        path: PathBuf,
+        /// The process holding it, where its lock file says.
+        pid: Option<u32>,
+    },
     /// A step would need more memory than the budget ([`crate::infra::budget`], `--max-memory`).
     #[error("{origin}: {what} needs about {}, more than the memory budget of {} (--max-memory)", crate::infra::budget::human(*bytes), crate::infra::budget::human(*limit))]
     OverBudget {
@@ -475,7 +491,7 @@ impl HostError {
     /// What kind of failure this is.
     pub fn kind(&self) -> ErrorKind {
         match self {
-            HostError::Io { .. } | HostError::IoOf { .. } | HostError::NotRegular { .. } | HostError::OutputNotFile { .. } | HostError::Output { .. } => ErrorKind::Io,
+            HostError::Io { .. } | HostError::IoOf { .. } | HostError::NotRegular { .. } | HostError::OutputNotFile { .. } | HostError::Output { .. } | HostError::Busy { .. } => ErrorKind::Io,
             HostError::OverBudget { .. } => ErrorKind::OverBudget,
             HostError::Tool { .. } => ErrorKind::Tool,
             HostError::WidthsFrom { inner, .. } => inner.kind(),
@@ -486,7 +502,7 @@ impl HostError {
     /// everything else (bad data, I/O, a failed tool).
     pub fn exit_code(&self) -> u8 {
         match self {
-            HostError::Argument { .. } => 2,
+            HostError::Argument { .. } | HostError::OutputIsInput { .. } => 2,
             _ => 1,
         }
     }
@@ -503,3 +519,4 @@ impl HostError {
         HostError::Core { context: context.into(), source }
     }
 }
+

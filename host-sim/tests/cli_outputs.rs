@@ -227,3 +227,109 @@ fn temporaries_of_a_killed_run_are_removed_by_the_next_run_for_the_same_targets(
     succeed(&args, d);
     assert_eq!(hidden(&d.join("a")), Vec::<String>::new(), "left by the killed run: {left:?}");
 }
+
+/// Issue 43: an output that is the command's own input (by name, through a link, or one
+/// file of a set written over one of the inputs) is refused before any work, exit 2, the
+/// input byte for byte as it was and nothing written beside it. Each was exit 0 with the
+/// input replaced.
+#[test]
+fn no_output_replaces_its_own_input() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    flat_histograms(&d.join("h.fits"));
+    succeed(&["lut", "build", "h.fits", "-o", "cal"], d);
+    succeed(&["lut", "export", "cal.fits", "--format", "kcor", "-o", "k"], d);
+    std::fs::write(d.join("c.toml"), "gain_e_per_dn = 30.0\n").unwrap();
+    std::os::unix::fs::symlink("h.fits", d.join("link.fits")).unwrap();
+    let same = |output: &str, input: &str| format!("{output}: is the input {input} (or a link to it); writing it would replace that input: name another output\n");
+    let cases: [(&[&str], String); 8] = [
+        (&["lut", "build", "h.fits", "-o", "h"], same("h.fits", "h.fits")),
+        (&["lut", "build", "h.fits", "-o", "h.fits"], same("h.fits", "h.fits")),
+        (&["lut", "build", "link.fits", "-o", "h"], same("h.fits", "link.fits")),
+        (&["lut", "import", "--kcor", "k_adc{adc}.bin", "-o", "k_adc0"], same("k_adc0.bin", "k_adc0.bin")),
+        (&["simulate", "linearity", "--config", "c.toml", "--roi", "8x8+0+0", "--frames", "4", "-o", "c.toml"], same("c.toml", "c.toml")),
+        (&["lut", "export", "k_adc0.bin", "--format", "kcor", "-o", "k"], same("k_adc0.bin", "k_adc0.bin")),
+        (&["lut", "convert", "cal.fits", "--to", "fits", "-o", "cal.fits"], same("cal.fits", "cal.fits")),
+        (&["lut", "convert", "cal.bin", "--to", "image", "-o", "cal"], same("cal.bin", "cal.bin")),
+    ];
+    for (args, message) in cases {
+        let before = snapshot(d);
+        let out = support::dncal_prompt(args, d);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(stderr, format!("dncal: error: {message}"), "{args:?}");
+        assert_eq!(out.status.code(), Some(2), "{args:?}");
+        assert_eq!(snapshot(d), before, "{args:?} changed the directory");
+    }
+}
+
+/// Issue 43: two `lut build` runs with different inputs into one `-o`, 200 times. Before,
+/// 4 of 200 left `out.fits` from one run and `out.bin` from the other, both exit 0. Now
+/// each run publishes its whole set or is refused at once (exit 1, the file and the
+/// other run named); the two files always hold one LUT, one of the two runs', and no
+/// temporary, backup, journal or lock is left.
+#[test]
+fn two_runs_into_one_output_set_never_mix_it() {
+    use dncal_host::formats::fits::{write_histograms, AdcHistograms};
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    flat_histograms(&d.join("h1.fits"));
+    let sloped: Vec<Vec<u64>> = (0..4).map(|a| (0..4096u64).map(|k| 800 + (k * 7 + a * 13) % 400).collect()).collect();
+    write_histograms(&d.join("h2.fits"), &AdcHistograms { bit_depth: 12, counts: sloped }).unwrap();
+    let tables = |p: &Path| dncal_host::formats::lut::read(p).unwrap().1.tables;
+    succeed(&["lut", "build", "h1.fits", "-o", "one"], d);
+    succeed(&["lut", "build", "h2.fits", "-o", "two"], d);
+    let (one, two) = (tables(&d.join("one.fits")), tables(&d.join("two.fits")));
+    assert_ne!(one, two);
+    let (mut both, mut refused) = (0, 0);
+    for trial in 0..200 {
+        let runs = [spawn(&["lut", "build", "h1.fits", "-o", "out", "-q"], d), spawn(&["lut", "build", "h2.fits", "-o", "out", "-q"], d)];
+        let outs: Vec<std::process::Output> = runs.into_iter().map(|c| c.wait_with_output().unwrap()).collect();
+        let ok = outs.iter().filter(|o| o.status.success()).count();
+        for o in outs.iter().filter(|o| !o.status.success()) {
+            let stderr = String::from_utf8_lossy(&o.stderr);
+            assert!(stderr.starts_with("dncal: error: out.") && stderr.contains("another dncal run") && stderr.contains("is writing this output now") && o.status.code() == Some(1), "trial {trial}: {stderr}");
+            refused += 1;
+        }
+        assert!(ok >= 1, "trial {trial}: neither run published");
+        both += usize::from(ok == 2);
+        let (fits, image) = (tables(&d.join("out.fits")), tables(&d.join("out.bin")));
+        assert_eq!(fits, image, "trial {trial}: out.fits and out.bin hold different LUTs");
+        assert!(fits == one || fits == two, "trial {trial}: a LUT neither run built");
+        let litter: Vec<String> = support::listing(d).iter().filter_map(|p| p.file_name()?.to_str().filter(|n| n.starts_with('.')).map(String::from)).collect();
+        assert!(litter.is_empty(), "trial {trial}: left {litter:?}");
+    }
+    eprintln!("two runs into one set, 200 trials: both published one after the other {both} times, one refused {refused} times");
+}
+
+/// Issue 43: a run killed while it publishes (here at random moments of many runs) leaves
+/// at worst a journal; the next run that names a file of the set, even one that then
+/// fails (a missing input), finishes it first: `out.fits` and `out.bin` hold one LUT.
+#[cfg(unix)]
+#[test]
+fn a_killed_run_never_leaves_a_mixed_set_for_the_next() {
+    use dncal_host::formats::fits::{write_histograms, AdcHistograms};
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    flat_histograms(&d.join("h1.fits"));
+    let sloped: Vec<Vec<u64>> = (0..4).map(|a| (0..4096u64).map(|k| 800 + (k * 7 + a * 13) % 400).collect()).collect();
+    write_histograms(&d.join("h2.fits"), &AdcHistograms { bit_depth: 12, counts: sloped }).unwrap();
+    let tables = |p: &Path| dncal_host::formats::lut::read(p).unwrap().1.tables;
+    succeed(&["lut", "build", "h1.fits", "-o", "out"], d);
+    let (mut killed, mut journals) = (0, 0);
+    for trial in 0..60u64 {
+        let input = if trial % 2 == 0 { "h2.fits" } else { "h1.fits" };
+        let mut child = spawn(&["lut", "build", input, "-o", "out", "-q"], d);
+        // Somewhere in its run (it takes some tens of milliseconds).
+        std::thread::sleep(Duration::from_micros(500 * (trial * 37 % 97)));
+        killed += usize::from(child.try_wait().unwrap().is_none());
+        child.kill().ok();
+        child.wait().unwrap();
+        journals += support::listing(d).iter().filter(|p| p.file_name().unwrap().to_string_lossy().starts_with(".dncal-journal.")).count();
+        let out = dncal(&["lut", "build", "missing.fits", "-o", "out"], d);
+        assert_eq!(out.status.code(), Some(1));
+        assert_eq!(tables(&d.join("out.fits")), tables(&d.join("out.bin")), "trial {trial}: a mixed set");
+        let litter: Vec<String> = support::listing(d).iter().filter_map(|p| p.file_name()?.to_str().filter(|n| n.starts_with(".dncal-journal") || n.ends_with(".dncal-old")).map(String::from)).collect();
+        assert!(litter.is_empty(), "trial {trial}: left {litter:?}");
+    }
+    eprintln!("killed {killed} of 60 runs mid-way; {journals} left a journal the next run finished");
+}

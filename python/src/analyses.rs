@@ -133,7 +133,7 @@ fn set_memory_budget(bytes: u64) {
     dncal_host::infra::budget::set_limit(bytes);
 }
 
-/// The memory budget in force, bytes (default: 3/4 of the machine's physical memory).
+/// The memory budget in force, bytes (default: 3/4 of the memory the process can have: physical memory, ulimit -v / -d and the cgroup limit, less what is in use).
 #[pyfunction]
 fn memory_budget() -> u64 {
     dncal_host::infra::budget::limit()

@@ -47,6 +47,7 @@ pub fn open_regular(path: &Path) -> Result<File, HostError> {
     let file = options.open(path).map_err(|e| HostError::io(path, e))?;
     let file_type = file.metadata().map_err(|e| HostError::io(path, e))?.file_type();
     if file_type.is_file() {
+        crate::formats::same_file::note_input(path, &file)?;
         Ok(file)
     } else {
         Err(HostError::NotRegular { path: path.into(), kind: kind_of(&file_type) })

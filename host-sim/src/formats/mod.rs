@@ -8,3 +8,4 @@ pub mod lut;
 pub mod outputs;
 pub mod plots;
 pub mod report;
+pub mod same_file;

@@ -343,7 +343,21 @@ pub fn map_scale(map: &Map) -> (f64, f64) {
         Some((a, b)) if t(a).is_finite() && t(b) > t(a) => (t(a), t(b)),
         _ => (lo, hi),
     };
-    (lo, if hi > lo { hi } else { lo + 1.0 })
+    span_of(lo, hi)
+}
+
+/// `(lo, hi)` as a scale a color can be read from: both finite and `hi > lo` (a constant
+/// or huge map has no width of its own: one unit, or enough above `lo` that `hi` differs
+/// from it at f64 precision; a map without a finite value gets 0 to 1).
+fn span_of(lo: f64, hi: f64) -> (f64, f64) {
+    if !(lo.is_finite() && hi.is_finite()) {
+        return (0.0, 1.0);
+    }
+    if hi > lo && (hi - lo).is_finite() {
+        return (lo, hi);
+    }
+    let width = 1f64.max(lo.abs() * 1e-9);
+    if (lo + width).is_finite() { (lo, lo + width) } else { (lo - width, lo) }
 }
 
 /// How value `x` of `map` is drawn on the scale `(lo, hi)` ([`map_scale`]).
@@ -360,7 +374,13 @@ pub fn shade(map: &Map, (lo, hi): (f64, f64), x: f64) -> Shade {
     } else {
         x
     };
-    if v < lo { Shade::Below } else { Shade::Scale(((v - lo) / (hi - lo)).clamp(0.0, 1.0)) }
+    let f = (v - lo) / (hi - lo);
+    match () {
+        _ if v < lo => Shade::Below,
+        // (A scale not from [`map_scale`] may still be empty: no color to read.)
+        _ if f.is_nan() => Shade::Missing,
+        _ => Shade::Scale(f.clamp(0.0, 1.0)),
+    }
 }
 
 /// Draws `map` as a PNG at `path`, staged in `out`: cells colored by value (viridis), contour
@@ -628,6 +648,35 @@ mod tests {
         let one = vec![vec![1.0]];
         assert!(crate::formats::outputs::write_one(|out| map_plot(out, &dir.path().join("n.png"), &Map { values: &one, ..map })).is_err());
         assert!(!dir.path().join("n.png").exists());
+    }
+
+    /// Issue 43's panic: a flat of means near -9.3e18 gave the scale `med +- 10`, which
+    /// is one value at f64 precision, and the color map unwrapped a NaN. Any values, any
+    /// asked range: a PNG, never a panic; a scale always finite and rising.
+    #[test]
+    fn a_map_of_huge_constant_or_missing_values_is_drawn_without_a_panic() {
+        let dir = tempfile::tempdir().unwrap();
+        let huge = vec![vec![-2.27e17, -2.27e17], vec![-2.27e17, -2.27e17 + 1e3]];
+        let all_nan = vec![vec![f64::NAN; 2]; 2];
+        let infinite = vec![vec![f64::INFINITY, f64::NEG_INFINITY], vec![f64::MAX, -f64::MAX]];
+        for (k, (values, range, log)) in [
+            (&huge, Some((-2.27e17 - 10.0, -2.27e17 + 10.0)), false),
+            (&huge, None, false),
+            (&all_nan, None, true),
+            (&all_nan, Some((0.0, 0.0)), false),
+            (&infinite, None, false),
+            (&infinite, None, true),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let map = Map { title: "t", x_label: "x", y_label: "y", values, x_range: (0.0, 1.0), y_range: (0.0, 1.0), scale_label: "s", log, contours: &[], range };
+            let (lo, hi) = map_scale(&map);
+            assert!(lo.is_finite() && hi.is_finite() && hi > lo, "case {k}: scale {lo} to {hi}");
+            let path = dir.path().join(format!("m{k}.png"));
+            crate::formats::outputs::write_one(|out| map_plot(out, &path, &map)).unwrap();
+            assert_eq!(&std::fs::read(&path).unwrap()[..4], b"\x89PNG");
+        }
     }
 
     #[test]

@@ -1,5 +1,5 @@
 //! What every room uses: the memory budget, the core's compile-time sizes at run time,
-//! regions of interest, order statistics, robust statistics and least squares, and the
+//! regions of interest, text made safe for a terminal, order statistics, robust statistics and least squares, and the
 //! core on several threads. Imports `dncal-core` only.
 
 pub mod budget;
@@ -7,6 +7,7 @@ pub mod dims;
 pub mod exact_sum;
 pub mod frame_sums;
 pub mod parallel;
+pub mod printable;
 pub mod progress;
 pub mod roi;
 pub mod select;

@@ -25,7 +25,7 @@ pub fn shown() -> bool {
 /// Announces a stage as it starts: `dncal: MESSAGE` on stderr (when [`shown`]).
 pub fn stage(message: &str) {
     if shown() {
-        eprintln!("dncal: {message}");
+        eprintln!("dncal: {}", super::printable::printable(message));
     }
 }
 

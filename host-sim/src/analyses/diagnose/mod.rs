@@ -220,6 +220,9 @@ pub enum DiagnoseError {
     /// Too few levels in a linearity set for the held-out split.
     #[error("{levels} levels: the held-out split needs at least 11 (a quartic on the even levels and one on the odd ones)")]
     TooFewLevels { levels: usize },
+    /// Too few distinct reference voltages for the held-out split.
+    #[error("the reference voltages take {distinct} distinct value(s) (to 1e-6 of the largest); the held-out split needs at least 11 levels of different signal")]
+    DistinctLevels { distinct: usize },
     /// More levels than the diagnosis indexes.
     #[error("{levels} levels: at most {} are diagnosed (levels are indexed in 16 bits)", u16::MAX)]
     TooManyLevels { levels: usize },

@@ -255,7 +255,7 @@ pub fn analyze_with_flat(set: &LinearitySet, order: usize, flat: Option<usize>) 
 }
 
 /// Why a linearity set cannot be corrected as asked.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum LinearityError {
     /// A flat level that is dark or beyond the set.
     #[error("{level}: the flat must be one of the illuminated levels 1 to {}", levels - 1)]
@@ -278,6 +278,15 @@ pub enum LinearityError {
     /// A reference voltage that is negative, not finite, or zero everywhere.
     #[error("REFERENCE VOLTAGE must be finite, >= 0 and not all zero")]
     ReferenceVoltage,
+    /// Fewer distinct reference voltages than the fit needs levels.
+    #[error("the reference voltages take {distinct} distinct value(s) (to 1e-6 of the largest); an order-{order} fit needs at least {} levels of different signal", .order + 3)]
+    DistinctVoltages { distinct: usize, order: usize },
+    /// The levels' means do not rise.
+    #[error("the means do not change with the level: the levels' mean signals span {span:.3e} DN (at least 1 DN is a linearity set)")]
+    NoSignal { span: f64 },
+    /// The frames' standard deviations are zero nearly everywhere.
+    #[error("the standard deviations are zero at {zero} of {finite} pixels and levels: the noise of the means, and so the random floor, is unknown")]
+    NoNoise { zero: usize, finite: usize },
     /// Outputs asked of an analysis that kept no corrected cube.
     #[error("the analysis kept no corrected cube for the outputs")]
     NoCorrectedCube,

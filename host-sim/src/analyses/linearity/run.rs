@@ -166,7 +166,9 @@ pub fn linearity_as(read_from: &Path, input: &Path, order: usize, flat: Option<u
 }
 
 /// What the fit needs of a set's reference and levels, before any pixel: at least
-/// `order + 3` levels, and voltages finite, not negative, not all zero.
+/// `order + 3` levels, voltages finite, not negative, not all zero, and at least
+/// `order + 3` of them distinct (to [`DISTINCT`] of the largest): equal voltages leave
+/// the fit nothing to fit against (it "corrects" perfectly, to zero residual).
 pub fn check_plan(voltage: &[f64], order: usize) -> Result<(), LinearityError> {
     if voltage.len() < order + 3 {
         return Err(LinearityError::LevelsForOrder { levels: voltage.len(), order });
@@ -174,8 +176,50 @@ pub fn check_plan(voltage: &[f64], order: usize) -> Result<(), LinearityError> {
     if voltage.iter().any(|v| !(v.is_finite() && *v >= 0.0)) || voltage.iter().cloned().fold(0.0, f64::max) <= 0.0 {
         return Err(LinearityError::ReferenceVoltage);
     }
+    let distinct = distinct_voltages(voltage);
+    if distinct < order + 3 {
+        return Err(LinearityError::DistinctVoltages { distinct, order });
+    }
     Ok(())
 }
+
+/// Two reference voltages closer than this fraction of the largest are one level of
+/// signal to the fits (1e-6: a millionth of full scale, far below any level spacing).
+pub const DISTINCT: f64 = 1e-6;
+
+/// How many of `voltage`'s values differ by more than [`DISTINCT`] of the largest.
+pub fn distinct_voltages(voltage: &[f64]) -> usize {
+    let vmax = voltage.iter().cloned().fold(0.0, f64::max);
+    let mut x: Vec<f64> = voltage.iter().map(|v| v / vmax).filter(|x| x.is_finite()).collect();
+    x.sort_by(f64::total_cmp);
+    x.windows(2).filter(|w| w[1] - w[0] > DISTINCT).count() + usize::from(!x.is_empty())
+}
+
+/// What the fit needs of a set's values (the reader has checked them finite and within
+/// the codes): a signal that rises (the levels' means over the pixels span at least
+/// [`MIN_SPAN_DN`]) and a noise (at most half the finite deviations zero, as `diagnose`
+/// asks): without them every residual and every random floor is zero or undefined, and
+/// a report of zeros would read as a perfect camera.
+pub fn check_values<T: crate::formats::fits::Sample>(set: &SetView<'_, T>) -> Result<(), LinearityError> {
+    let np = set.width * set.height;
+    let level_mean = |l: usize| {
+        let (sum, n) = set.mean[l * np..(l + 1) * np].iter().map(|&v| v.into()).filter(|v: &f64| v.is_finite()).fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
+        sum / n.max(1) as f64
+    };
+    let means: Vec<f64> = (0..set.levels).map(level_mean).collect();
+    let span = means.iter().cloned().fold(f64::NEG_INFINITY, f64::max) - means.iter().cloned().fold(f64::INFINITY, f64::min);
+    if span.is_nan() || span < MIN_SPAN_DN {
+        return Err(LinearityError::NoSignal { span });
+    }
+    let (zero, finite) = set.std.iter().map(|&v| v.into()).filter(|v: &f64| v.is_finite()).fold((0usize, 0usize), |(z, n), s| (z + usize::from(s <= 0.0), n + 1));
+    if finite == 0 || zero > finite / 2 {
+        return Err(LinearityError::NoNoise { zero, finite });
+    }
+    Ok(())
+}
+
+/// The smallest span of the levels' mean signals, DN, that is a linearity set.
+pub const MIN_SPAN_DN: f64 = 1.0;
 
 /// The analysis of a set in memory (`origin` names it in errors): its memory checked
 /// against the budget, its levels and
@@ -190,7 +234,7 @@ pub fn fit(set: &SetView, origin: &Origin, order: usize, flat: Option<usize>, cu
         Cube::Skip => (16 * set.levels as u64 + 256, "the pixel-wise analysis (the fits)"),
     };
     crate::infra::budget::check(origin.clone(), what, crate::infra::budget::bytes_of((set.width * set.height) as u64, per_pixel))?;
-    check_plan(set.voltage, order).map_err(|source| HostError::Linearity { origin: origin.clone(), source })?;
+    check_plan(set.voltage, order).and_then(|()| check_values(set)).map_err(|source| HostError::Linearity { origin: origin.clone(), source })?;
     let start = std::time::Instant::now();
     let valid = unsaturated_levels(set);
     if let Some(l) = flat {
@@ -201,4 +245,46 @@ pub fn fit(set: &SetView, origin: &Origin, order: usize, flat: Option<usize>, cu
     spin.finish_and_clear();
     let (report, px) = analysis.map_err(|source| HostError::Linearity { origin: origin.clone(), source })?;
     Ok((report, px, start.elapsed().as_secs_f64()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::formats::fits::{write_linearity, LinearitySet};
+    use crate::model::hidden::{linearity_set, Plant};
+
+    /// Issue 43's reproducers: sets the reader takes but no analysis can use. Each was
+    /// "analyzed" with exit 0 (equal voltages printed "standard 0.000e0, pixel-wise
+    /// 0.000e0", a perfect correction, beside 60 JSON nulls and a cube of NaN). Now each
+    /// is refused naming the file and what is degenerate, and nothing is written.
+    #[test]
+    fn degenerate_sets_are_refused_before_any_output() {
+        let dir = tempfile::tempdir().unwrap();
+        let base = linearity_set(&Plant { width: 8, height: 6, levels: 15, ..Plant::default() }, &[], 5);
+        let mut one_huge = base.voltage.clone();
+        one_huge[5] = 1e308;
+        let zero_std = format!("the standard deviations are zero at {0} of {0} pixels and levels", base.std.len());
+        let cases: Vec<(&str, LinearitySet, &str)> = vec![
+            ("equal", LinearitySet { voltage: vec![2.5; base.levels], ..base.clone() }, "the reference voltages take 1 distinct value(s) (to 1e-6 of the largest); an order-4 fit needs at least 7 levels of different signal"),
+            ("huge", LinearitySet { voltage: one_huge, ..base.clone() }, "the reference voltages take 2 distinct value(s)"),
+            ("zero-means", LinearitySet { mean: vec![0.0; base.mean.len()], ..base.clone() }, "the means do not change with the level: the levels' mean signals span 0.000e0 DN"),
+            ("zero-std", LinearitySet { std: vec![0.0; base.std.len()], ..base.clone() }, &zero_std),
+        ];
+        for (name, set, expected) in cases {
+            let input = dir.path().join(format!("{name}.fits"));
+            write_linearity(&input, &set).unwrap();
+            let out = dir.path().join(format!("out-{name}"));
+            let e = crate::formats::outputs::staged(Some(&out), |o| linearity(&input, 4, None, &[], o)).unwrap_err().to_string();
+            assert!(e.starts_with(&format!("{}: ", input.display())) && e.contains(expected), "{name}: {e}");
+            assert!(!out.exists(), "{name}: an output directory was left");
+        }
+        // The set as drawn is analyzed, every maximum a finite number.
+        let input = dir.path().join("good.fits");
+        write_linearity(&input, &base).unwrap();
+        let s = linearity(&input, 4, None, &[], None).unwrap();
+        let r = &s.report;
+        assert!([r.rms_raw_max, r.rms_standard_max, r.rms_pixelwise_max, r.rms_random_max].iter().all(|v| v.is_finite() && *v > 0.0), "{r:?}");
+        assert_eq!(distinct_voltages(&[0.0, 1.0, 1.0 + 1e-7, 2.0]), 3);
+        assert_eq!(distinct_voltages(&[]), 0);
+    }
 }

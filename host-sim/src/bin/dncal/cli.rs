@@ -19,7 +19,8 @@ pub(crate) struct Cli {
     pub(crate) command: Cmd,
     /// Memory budget: a file or config whose sizes would make a step need more is refused
     /// before anything is allocated (bytes, or K, M, G, T: powers of 1024). Default: 3/4 of
-    /// the machine's physical memory.
+    /// the memory the process can have: physical memory, `ulimit -v` / `-d` and the
+    /// cgroup's limit, less what is in use.
     #[arg(long, global = true, value_name = "SIZE", value_parser = dncal_host::infra::budget::parse_size)]
     pub(crate) max_memory: Option<u64>,
     /// No stage lines or progress bars on stderr (they show only on a terminal anyway).

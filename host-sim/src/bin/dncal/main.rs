@@ -31,7 +31,8 @@ fn main() -> ExitCode {
     match run(cli) {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("dncal: error: {e}");
+            // Bytes from files may be in it: escaped, never sent raw to the terminal.
+            eprintln!("dncal: error: {}", dncal_host::infra::printable::printable(&e.to_string()));
             ExitCode::from(e.exit_code())
         }
     }
@@ -44,6 +45,8 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
         dncal_host::infra::budget::set_limit(bytes);
     }
     progress::set_quiet(cli.quiet);
+    // No output may replace an input (issue 43): compared for the whole run.
+    let _inputs = dncal_host::formats::same_file::watch();
     let passed = |ok: bool| if ok { ExitCode::SUCCESS } else { ExitCode::FAILURE };
     match cli.command {
         Cmd::Simulate { what: SimulateCmd::Histograms { camera, ramp, out, json } } => print(json, &simulate::simulate_histograms(&camera.camera()?, &ramp.params()?, out)?)?,
@@ -261,6 +264,6 @@ fn usage_error(e: clap::Error) -> ExitCode {
         path.push(sub.get_name().to_string());
         cmd = sub;
     }
-    eprintln!("dncal: error: {message} (see {} --help)", path.join(" "));
+    eprintln!("dncal: error: {} (see {} --help)", dncal_host::infra::printable::printable(message), path.join(" "));
     ExitCode::from(2)
 }

@@ -6,7 +6,7 @@ use super::*;
 /// The value type a linearity set's cubes are held in: `f64` (the default, every
 /// command that writes from them) or `f32` (`diagnose`, which holds the cubes through the
 /// whole run: half the memory, each value to 2^-24 of itself).
-pub trait Sample: Copy + Into<f64> + Send + Sync + std::fmt::Display + super::direct::BigEndianFloat + 'static {
+pub trait Sample: Copy + Into<f64> + Send + Sync + std::fmt::Display + std::fmt::LowerExp + super::direct::BigEndianFloat + 'static {
     /// A bound on the variance the type's rounding adds to a value `v`: `(v 2^-24)^2 / 3`
     /// for `f32` (an error uniform within half a last place taken at its widest relative
     /// size; up to 4 times the true variance, negligible beside a mean's noise either
@@ -325,13 +325,14 @@ impl RowsToCheck<'_> {
     pub fn check<T: Sample>(self) -> Result<LinearityRows, HostError> {
         let RowsToCheck { mut r, h, at } = self;
         let not_finite = |v: T| !v.into().is_finite();
+        let not_a_mean = |v: T| !is_code_mean(v.into(), h.bit_depth);
         let negative = |v: T| (v.into() as f32) < 0.0;
         let never = |_: T| false;
-        let [mean_bad, _] = r.scan_floats::<T>(&h.cubes[0], &at[0], [&not_finite, &never])?;
+        let [mean_bad, _] = r.scan_floats::<T>(&h.cubes[0], &at[0], [&not_a_mean, &never])?;
         let [std_bad, std_negative] = r.scan_floats::<T>(&h.cubes[1], &at[1], [&not_finite, &negative])?;
         let (voltage, mask) = read_reference(&mut r, &h)?;
         let (frame, _) = check_shape(&h).map_err(|f| r.fault(f))?;
-        if let Some(f) = value_fault(mean_bad, std_bad, std_negative, frame, h.width) {
+        if let Some(f) = value_fault(mean_bad, std_bad, std_negative, frame, h.width, h.bit_depth) {
             return Err(r.fault(f));
         }
         check_reference(&voltage, h.levels, mask.as_deref(), frame, h.width).map_err(|f| r.fault(f))?;
@@ -437,7 +438,8 @@ pub fn check_linearity<T: Sample>(s: &SetView<'_, T>) -> Result<(), Fault> {
     // written with a rounding error) reads as -0.0 in the f32 reader, which must not
     // accept what this one refuses (found by the `fits_linearity` fuzz target: -8e-322).
     let negative = |v: T| (v.into() as f32) < 0.0;
-    if let Some(m) = value_fault(first(s.mean, &not_finite), first(s.std, &not_finite), first(s.std, &negative), frame, s.width) {
+    let not_a_mean = |v: T| !is_code_mean(v.into(), s.bit_depth);
+    if let Some(m) = value_fault(first(s.mean, &not_a_mean), first(s.std, &not_finite), first(s.std, &negative), frame, s.width, s.bit_depth) {
         return Err(m);
     }
     check_reference(s.voltage, s.levels, s.mask, frame, s.width)
@@ -465,12 +467,25 @@ fn check_frame(bit_depth: u32, n_adc: usize, n_frames: u32, [width, height, leve
 }
 
 
-/// The first of a set's value faults in the order they are named: a mean not finite,
-/// a deviation not finite, a deviation negative (each the first of its kind, as index
-/// and value, where there is one).
-fn value_fault<T: Sample>(mean_not_finite: Option<(usize, T)>, std_not_finite: Option<(usize, T)>, std_negative: Option<(usize, T)>, frame: usize, width: usize) -> Option<Fault> {
+/// Whether `v` can be the mean of `bit_depth`-bit codes: finite and within one code
+/// range either side of the codes (`-2^b` to `2^(b+1)`: room for a set whose dark was
+/// subtracted or whose codes were offset, none for a value that is no code's mean, such
+/// as -9.3e18 from a wrong `BZERO`, which would reach the analyses as a "signal").
+pub fn is_code_mean(v: f64, bit_depth: u32) -> bool {
+    let range = 2f64.powi(bit_depth.min(64) as i32);
+    v.is_finite() && v >= -range && v <= 2.0 * range
+}
+
+/// The first of a set's value faults in the order they are named: a mean not finite or
+/// outside the codes ([`is_code_mean`]), a deviation not finite, a deviation negative
+/// (each the first of its kind, as index and value, where there is one).
+fn value_fault<T: Sample>(mean_bad: Option<(usize, T)>, std_not_finite: Option<(usize, T)>, std_negative: Option<(usize, T)>, frame: usize, width: usize, bit_depth: u32) -> Option<Fault> {
     let at = |what, value: String, i: usize| Fault::Value { what, value, level: i / frame, row: i % frame / width, column: i % width };
-    if let Some((i, v)) = mean_not_finite {
+    if let Some((i, v)) = mean_bad {
+        if v.into().is_finite() {
+            let range = 2f64.powi(bit_depth.min(64) as i32);
+            return Some(Fault::MeanRange { value: format!("{v:e}"), level: i / frame, row: i % frame / width, column: i % width, bit_depth, lo: -range, hi: 2.0 * range });
+        }
         return Some(at("mean is", v.to_string(), i));
     }
     if let Some((i, v)) = std_not_finite {

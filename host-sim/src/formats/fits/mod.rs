@@ -149,6 +149,9 @@ pub enum Fault {
     /// `value` the value as the file holds it.
     #[error("{what} {value} at level {level}, row {row}, column {column}")]
     Value { what: &'static str, value: String, level: usize, row: usize, column: usize },
+    /// A mean that no `bit_depth`-bit codes can have.
+    #[error("mean {value} at level {level}, row {row}, column {column} is no mean of {bit_depth}-bit codes (allowed {lo} to {hi}: one code range either side)")]
+    MeanRange { value: String, level: usize, row: usize, column: usize, bit_depth: u32, lo: f64, hi: f64 },
     /// As many reference voltages as levels are needed.
     #[error("{len} reference voltages for {levels} levels")]
     Voltages { len: usize, levels: usize },

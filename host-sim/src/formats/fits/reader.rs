@@ -132,9 +132,12 @@ pub(super) struct FitsReader<'a> {
     _name: CfitsioName,
     path: &'a Path,
     /// Most data bytes the file can hold: no header may make us allocate more. The file
-    /// size, or for a gzip-, compress- or zip-compressed file (cfitsio opens those too)
-    /// the size times 1100, above deflate's largest ratio of 1032.
+    /// size; for a gzip file the size it inflates to (counted at open); for a compress-
+    /// or zip-compressed file (cfitsio opens those too) the size times 1100, above
+    /// deflate's largest ratio of 1032.
     len: u64,
+    /// The size a gzip file inflates to, where it is one.
+    inflated: Option<u64>,
     /// The file itself, where it is not compressed: large float images are read from it
     /// directly ([`super::direct`]).
     raw: Option<std::fs::File>,
@@ -231,7 +234,9 @@ impl<'a> FitsReader<'a> {
         let read = std::io::Read::read_exact(&mut plain_file, &mut start).is_ok();
         let compressed = read && compressed_magic(&start);
         let plain = !compressed;
-        let len = if plain { size } else { size.saturating_mul(1100) };
+        let mut len = if plain { size } else { size.saturating_mul(1100) };
+        // (`Some` exactly for a gzip file: inflated, counted, its true size.)
+        let mut inflated = None;
         if let Some(declared) = declared_uncompressed_size(&mut plain_file, size).map_err(|e| HostError::io(path, e))? {
             if declared > len {
                 return Err(format_error(path, format!(
@@ -240,7 +245,11 @@ impl<'a> FitsReader<'a> {
             }
             crate::infra::budget::check(path, "decompressing it (the size its header declares)", declared)?;
             if start[..2] == [0x1f, 0x8b] {
-                check_gzip_inflates_within(&mut plain_file, path, len.min(crate::infra::budget::limit()))?;
+                // Counted in chunks into nothing, never held: the size the headers'
+                // declarations are then held to (issue 43: a 1.2 MB file declaring 9.6 GB
+                // of counts was allocated from that declaration).
+                let n = check_gzip_inflates_within(&mut plain_file, path, len.min(crate::infra::budget::limit()))?;
+                (len, inflated) = (n, Some(n));
             }
         }
         if plain {
@@ -253,7 +262,7 @@ impl<'a> FitsReader<'a> {
         let name = CfitsioName::for_reading(path)?;
         let file = FitsFile::open(&name.name).map_err(|e| fits_error(path, "not a readable FITS file", &e))?;
         let raw = plain.then_some(plain_file);
-        let mut reader = FitsReader { file, _name: name, path, len, raw, deferred: Vec::new() };
+        let mut reader = FitsReader { file, _name: name, path, len, inflated, raw, deferred: Vec::new() };
         reader.check_declared_sizes(plain)?;
         reader.verify_checksums(defer)?;
         Ok(reader)
@@ -415,7 +424,11 @@ impl<'a> FitsReader<'a> {
                     (_, Some(name)) => format!("HDU {hdu} ({})", name.trim()),
                     (_, None) => format!("HDU {hdu}"),
                 };
-                let has = if plain { format!("the file has {} bytes", self.len) } else { "more than the compressed file can hold".into() };
+                let has = match (plain, self.inflated) {
+                    (true, _) => format!("the file has {} bytes", self.len),
+                    (false, Some(n)) => format!("the file inflates to {n} bytes"),
+                    (false, None) => "more than the compressed file can hold".into(),
+                };
                 return Err(self.error(format!(
                     "the {label} declares its header, data and heap (PCOUNT) to end at byte {end}; {has} (truncated?)"
                 )));

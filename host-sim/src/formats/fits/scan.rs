@@ -47,7 +47,7 @@ pub(super) fn declared_uncompressed_size(file: &mut std::fs::File, size: u64) ->
 /// (which is the size modulo 2^32: a 5 GiB file declares 1 GiB), so the only bound is the
 /// inflated size itself: counted here by inflating into nothing, stopping one byte past
 /// the limit (issue 18: a 5 MB file reached 3 GB in cfitsio before it gave up).
-pub(super) fn check_gzip_inflates_within(file: &mut std::fs::File, path: &Path, limit: u64) -> Result<(), HostError> {
+pub(super) fn check_gzip_inflates_within(file: &mut std::fs::File, path: &Path, limit: u64) -> Result<u64, HostError> {
     use std::io::{Read, Seek, SeekFrom};
     file.seek(SeekFrom::Start(0)).map_err(|e| HostError::io(path, e))?;
     let mut inflated = flate2::read::MultiGzDecoder::new(std::io::BufReader::new(&mut *file)).take(limit.saturating_add(1));
@@ -67,7 +67,7 @@ pub(super) fn check_gzip_inflates_within(file: &mut std::fs::File, path: &Path, 
             if limit == crate::infra::budget::limit() { "the memory budget (--max-memory)" } else { "1100 times its size, above deflate's largest ratio" }
         )));
     }
-    Ok(())
+    Ok(n)
 }
 
 /// The first table header of the plain FITS file `file` whose mandatory keywords cfitsio

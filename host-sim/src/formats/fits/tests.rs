@@ -365,9 +365,25 @@ fn linearity_reader_rejects_bad_files() {
     let mut p = parts();
     p.mean[23] = 1e300;
     write_parts(&path, &p);
-    read_linearity(&path).unwrap();
+    // As f64 finite, and no mean of 12-bit codes (issue 43).
+    assert_rejects(read_linearity(&path), &path, "mean 1e300 at level 1, row 1, column 3 is no mean of 12-bit codes (allowed -4096 to 8192: one code range either side)");
     assert_rejects(read_linearity_as::<f32>(&path), &path, "mean is inf at level 1, row 1, column 3");
     assert_eq!(by_rows(&path), read_linearity_as::<f32>(&path).unwrap_err().to_string());
+    // Issue 43's reproducer: means near -9.3e18 (a wrong BZERO) reached the plots as a
+    // signal and panicked in the color map; both readers, and the reader by rows, refuse
+    // them in the same words. The edges of the range are taken.
+    let mut p = parts();
+    p.mean[5] = -9.3e18;
+    write_parts(&path, &p);
+    let expected = "mean -9.3e18 at level 0, row 1, column 0 is no mean of 12-bit codes (allowed -4096 to 8192: one code range either side)";
+    assert_rejects(read_linearity(&path), &path, expected);
+    assert_rejects(read_linearity_as::<f32>(&path), &path, expected);
+    assert_eq!(by_rows(&path), read_linearity_as::<f32>(&path).unwrap_err().to_string());
+    let mut p = parts();
+    (p.mean[5], p.mean[6]) = (-4096.0, 8192.0);
+    write_parts(&path, &p);
+    read_linearity(&path).unwrap();
+    assert!(open_linearity_rows(&path).unwrap().unwrap().check::<f32>().is_ok());
 }
 
 /// The refusal of a set opened by rows (at open or when its values are checked), as f32.
@@ -592,7 +608,17 @@ fn checksums_verified_while_reading_give_cfitsios_verdicts() {
         let mut bytes = clean.clone();
         bytes[at] ^= 1 << (at % 8);
         std::fs::write(&copy, &bytes).unwrap();
-        let (want, got) = (oracle(&copy), ours(&copy));
+        let (mut want, mut got) = (oracle(&copy), ours(&copy));
+        // cfitsio's verdict on a few damaged header bytes is not reproducible when other
+        // tests use cfitsio at the same time (seen once in a full run: byte 171 read as
+        // status 212 by one open and 205 by the next, alone always the same): asked again,
+        // up to three times, before the two are called different.
+        for _ in 0..3 {
+            if got == want {
+                break;
+            }
+            (want, got) = (oracle(&copy), ours(&copy));
+        }
         assert_eq!(got, want, "byte {at} (block {}) flipped", at / 2880);
         damaged += 1;
         failures += usize::from(want.is_some_and(|m| m.contains("fails its checksum")));

@@ -59,6 +59,14 @@ pub enum LutFault {
         /// The files' names.
         files: Vec<String>,
     },
+    /// One of four K-Cor tables given in a place its name contradicts.
+    #[error("its name says ADC {named}, but it is given as table {} of four (ADC {position}): give the tables in ADC order 0 to 3, or one prefix", .position + 1)]
+    AdcOutOfOrder {
+        /// The ADC the name says.
+        named: usize,
+        /// The place it was given in (0-based: the ADC it would be read as).
+        position: usize,
+    },
     /// A K-Cor table whose name does not say its ADC.
     #[error("a K-Cor table (4096 little-endian u32) whose name does not say its ADC (one of adc0 .. adc3): give the camera's four tables, a prefix or a path with {{adc}} in it")]
     NameWithoutAdc,
@@ -92,6 +100,14 @@ pub enum LutFault {
     WeightsDisagree {
         /// The first ADC that differs.
         adc: usize,
+    },
+    /// A table that does not rise: the same entry at every code (all zero, say).
+    #[error("ADC {adc}'s table holds {entry} at every code: a LUT maps each code to its cumulative width and must rise (a constant table would read every code as one value)")]
+    FlatTable {
+        /// The ADC.
+        adc: usize,
+        /// Its one entry.
+        entry: u32,
     },
     /// Code widths that sum to zero.
     #[error("ADC {adc}: the weights sum to zero")]

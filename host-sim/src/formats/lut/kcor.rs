@@ -179,9 +179,32 @@ pub fn expand(spec: &str) -> Result<[PathBuf; 4], HostError> {
 pub fn files(specs: &[String]) -> Result<[PathBuf; 4], HostError> {
     match specs {
         [one] => expand(one),
-        [a, b, c, d] => Ok([a, b, c, d].map(PathBuf::from)),
+        [a, b, c, d] => {
+            let files = [a, b, c, d].map(PathBuf::from);
+            // By position, unless a name says another ADC (issue 43: `adc3 adc2 adc1
+            // adc0` was taken in that order without a word).
+            for (position, f) in files.iter().enumerate() {
+                match f.file_name().and_then(|n| adc_in_name(&n.to_string_lossy())) {
+                    Some(named) if named != position => return Err(HostError::lut(f, LutFault::AdcOutOfOrder { named, position })),
+                    _ => {}
+                }
+            }
+            Ok(files)
+        }
         _ => Err(HostError::Argument { flag: "--kcor".into(), message: format!("{} files given; give the four tables of ADC 0-3, or one prefix", specs.len()) }),
     }
+}
+
+/// The ADC a table's file name says: the number after `adc` (`..._adc3_...`), where the
+/// name has exactly one such number.
+pub fn adc_in_name(name: &str) -> Option<usize> {
+    let lower = name.to_ascii_lowercase();
+    let mut found = lower.match_indices("adc").filter_map(|(i, _)| {
+        let digits: String = lower[i + 3..].chars().take_while(char::is_ascii_digit).collect();
+        digits.parse::<usize>().ok()
+    });
+    let first = found.next()?;
+    found.all(|n| n == first).then_some(first)
 }
 
 /// The four files of the camera whose table `path` is: its name with `adcN` read as
@@ -308,6 +331,21 @@ mod tests {
     /// A table of a planted width pattern at both scalings: weights -> table -> weights ->
     /// table is the identity on the table, and the weights come back within 2^-24 DN of
     /// the planted widths rescaled to 4095 DN (a naive float sum).
+    /// Issue 43: four tables given out of order are refused by the name of the first
+    /// that its place contradicts; names without an ADC are taken by place.
+    #[test]
+    fn four_tables_are_taken_in_the_order_their_names_say() {
+        assert_eq!(adc_in_name("Photonfocus_MV-D1024E_13889_adc3_20131203.bin"), Some(3));
+        assert_eq!(adc_in_name("k_ADC12.bin"), Some(12));
+        assert_eq!(adc_in_name("adc1_of_adc2.bin"), None);
+        assert_eq!(adc_in_name("table.bin"), None);
+        let given = |names: [&str; 4]| files(&names.map(String::from));
+        let e = given(["k_adc3.bin", "k_adc2.bin", "k_adc1.bin", "k_adc0.bin"]).unwrap_err().to_string();
+        assert_eq!(e, "k_adc3.bin: its name says ADC 3, but it is given as table 1 of four (ADC 0): give the tables in ADC order 0 to 3, or one prefix");
+        assert_eq!(given(["k_adc0.bin", "k_adc1.bin", "k_adc2.bin", "k_adc3.bin"]).unwrap()[3], PathBuf::from("k_adc3.bin"));
+        assert_eq!(given(["a.bin", "b.bin", "c.bin", "d.bin"]).unwrap()[1], PathBuf::from("b.bin"));
+    }
+
     #[test]
     fn tables_and_widths_round_trip() {
         let widths: Vec<f64> = (0..KCOR_CODES).map(|k| if k == 0 { 0.0 } else { 1.0 + 0.03 * ((k * 7919) % 13) as f64 / 13.0 - 0.015 + 2e-4 * k as f64 }).collect();

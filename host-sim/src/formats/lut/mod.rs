@@ -119,7 +119,18 @@ pub fn read(path: &Path) -> Result<(LutFormat, Lut), HostError> {
         LutFormat::Fits => read_fits(path)?,
         LutFormat::Kcor => kcor::read_set(&kcor::siblings(path)?)?.1,
     };
+    check_rises(&lut, path)?;
     Ok((format, lut))
+}
+
+/// Refuses a LUT with a table that does not rise ([`LutFault::FlatTable`]): the formats
+/// and the core take it (it is non-decreasing), but every code would read as one value,
+/// and an analysis of it reports zeros as a perfect correction.
+pub fn check_rises(lut: &Lut, origin: impl Into<Origin>) -> Result<(), HostError> {
+    match lut.tables.iter().enumerate().find(|(_, t)| t.first() == t.last()) {
+        Some((adc, t)) => Err(HostError::lut(origin, LutFault::FlatTable { adc, entry: t.first().copied().unwrap_or(0) })),
+        None => Ok(()),
+    }
 }
 
 /// A LUT FITS as the file holds it.
@@ -324,6 +335,29 @@ mod tests {
         let e = read(&anonymous).unwrap_err().to_string();
         assert!(e.starts_with(&anonymous.display().to_string()) && e.contains("does not say its ADC"), "{e}");
         assert!(output_paths(LutFormat::Fits, dir.path()).is_err());
+    }
+
+    /// Issue 43: an all-zero LUT (a device image with a valid CRC, a FITS without
+    /// checksums) is what every format and the core accept, and no LUT: refused on
+    /// reading, naming the file and the ADC, so no analysis reports its zeros.
+    #[test]
+    fn a_table_that_does_not_rise_is_refused_in_every_format() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut flat = planted();
+        flat.tables = vec![vec![0; 4096]; 4];
+        let image = dir.path().join("zero.bin");
+        std::fs::write(&image, image::encode(&flat.tables, Path::new("zero")).unwrap()).unwrap();
+        let e = read(&image).unwrap_err().to_string();
+        assert_eq!(e, format!("{}: ADC 0's table holds 0 at every code: a LUT maps each code to its cumulative width and must rise (a constant table would read every code as one value)", image.display()));
+        let fits = dir.path().join("zero.fits");
+        crate::formats::fits::write_lut(&fits, &Lut { weights: None, ..flat.clone() }.fits_tables()).unwrap();
+        assert!(read(&fits).unwrap_err().to_string().contains("ADC 0's table holds 0 at every code"));
+        // One constant ADC among rising ones is named.
+        let mut one = planted();
+        one.tables[2] = vec![5000; 4096];
+        let image = dir.path().join("one.bin");
+        std::fs::write(&image, image::encode(&one.tables, Path::new("one")).unwrap()).unwrap();
+        assert!(read(&image).unwrap_err().to_string().contains("ADC 2's table holds 5000 at every code"));
     }
 
     /// A file of a K-Cor table's length is one only if it is neither FITS nor compressed

@@ -131,6 +131,10 @@ fn prepare<'a, T: Sample>(set: &'a SetView<'a, T>, keep: Keep) -> Result<(Pixels
     if vmax.is_nan() || vmax <= 0.0 {
         return Err(DiagnoseError::Reference);
     }
+    let distinct = crate::analyses::linearity::run::distinct_voltages(set.voltage);
+    if distinct < 11 {
+        return Err(DiagnoseError::DistinctLevels { distinct });
+    }
     let x: Vec<f64> = set.voltage.iter().map(|v| v / vmax).collect();
     // One pass over the blocks of rows, level by level within each (the cubes are
     // level-major): each pixel's levels below saturation, as
@@ -538,6 +542,7 @@ mod bad_input_tests {
             ("all at the top code", LinearitySet { mean: vec![4095.0; base.mean.len()], ..base.clone() }),
             ("zero voltages", LinearitySet { voltage: vec![0.0; base.levels], ..base.clone() }),
             ("nan voltages", LinearitySet { voltage: vec![f64::NAN; base.levels], ..base.clone() }),
+            ("equal voltages", LinearitySet { voltage: vec![1.0; base.levels], ..base.clone() }),
             ("one ADC", LinearitySet { n_adc: 1, ..base.clone() }),
             ("two ADCs", LinearitySet { n_adc: 2, ..base.clone() }),
             ("more ADCs than columns", LinearitySet { n_adc: 8, ..base.clone() }),
@@ -553,6 +558,7 @@ mod bad_input_tests {
             "one frame" => Some(DiagnoseError::TooFewFrames { frames: 1 }),
             "zero noise" => Some(DiagnoseError::NoNoise),
             "zero voltages" | "nan voltages" => Some(DiagnoseError::Reference),
+            "equal voltages" => Some(DiagnoseError::DistinctLevels { distinct: 1 }),
             "eight levels" => Some(DiagnoseError::TooFewLevels { levels: 8 }),
             "all masked" => Some(DiagnoseError::NoPixelFits),
             _ => None,

@@ -19,6 +19,12 @@
 //! process id, and the next set that writes the same target removes those of processes
 //! no longer running.
 //!
+//! Two runs never write one file together: each target is locked when named
+//! ([`lock`]: a second run naming it fails at once). A set of several files is published
+//! under a journal ([`journal`]), so a run killed between its renames is finished (or
+//! undone) by the next run that names a file beside it: never a mixed set, never a
+//! backup deleted before its set is whole.
+//!
 //! ```
 //! use dncal_host::formats::outputs::Outputs;
 //! let dir = tempfile::tempdir().unwrap();
@@ -33,9 +39,14 @@
 //! # Ok::<(), dncal_host::HostError>(())
 //! ```
 
+mod journal;
+mod lock;
+
 use std::path::{Path, PathBuf};
 
 use crate::HostError;
+use journal::{Direction, Journal};
+use lock::TargetLock;
 
 /// Why a path cannot take an output; `HostError::Output` wraps it with the path.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
@@ -62,6 +73,9 @@ struct Staged {
     target: PathBuf,
     tmp: PathBuf,
     state: State,
+    /// Held until the set is published or dropped (`None` only in a test's simulated
+    /// kill).
+    _lock: Option<TargetLock>,
 }
 
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -83,11 +97,22 @@ struct Backup {
 
 /// The files of one command, published together or not at all (see the module docs).
 /// Dropping it unpublished discards everything it staged.
-#[derive(Debug, Default)]
+#[derive(Debug)]
 pub struct Outputs {
     staged: Vec<Staged>,
     /// Directories this set created, parents first.
     created_dirs: Vec<PathBuf>,
+    /// The journal of a set of several files while it is published.
+    journal: Option<Journal>,
+    /// The process id its temporaries and journal are named for (this process's; a
+    /// test's simulated kill names a dead one).
+    pid: u32,
+}
+
+impl Default for Outputs {
+    fn default() -> Self {
+        Outputs { staged: Vec::new(), created_dirs: Vec::new(), journal: None, pid: std::process::id() }
+    }
 }
 
 impl Outputs {
@@ -152,6 +177,7 @@ impl Outputs {
     /// Renames every written file over its target; on any failure puts everything back
     /// (see the module docs) and returns the error. Returns the targets published.
     pub fn publish(mut self) -> Result<Vec<PathBuf>, HostError> {
+        self.start_journal()?;
         for s in self.staged.iter_mut().filter(|s| s.state == State::Written) {
             let backup = publish_one(s)?;
             s.state = State::Published { backup };
@@ -173,7 +199,33 @@ impl Outputs {
             }
         }
         self.created_dirs.clear();
+        // Last: with it gone, no later run will touch this set.
+        if let Some(j) = self.journal.take() {
+            j.remove();
+        }
         Ok(published)
+    }
+
+    /// Writes the journal of a set of two or more written files ([`journal`]) into every
+    /// directory they go to, before the first rename.
+    fn start_journal(&mut self) -> Result<(), HostError> {
+        let written: Vec<&Staged> = self.staged.iter().filter(|s| s.state == State::Written).collect();
+        if written.len() < 2 {
+            return Ok(());
+        }
+        let entries = written
+            .iter()
+            .map(|s| journal::Entry { tmp: absolute(&s.tmp), target: absolute(&s.target), backup: absolute(&backup_path(&s.tmp)), had_old: std::fs::symlink_metadata(&s.target).is_ok() })
+            .collect();
+        let mut dirs: Vec<PathBuf> = Vec::new();
+        for s in &written {
+            let dir = absolute(s.tmp.parent().unwrap_or(Path::new(".")));
+            if !dirs.contains(&dir) {
+                dirs.push(dir);
+            }
+        }
+        self.journal = Some(Journal::write(entries, &dirs, self.pid)?);
+        Ok(())
     }
 
     /// The index of `target`'s entry, made (checked, stale files removed, temporary
@@ -183,9 +235,14 @@ impl Outputs {
             return Ok(i);
         }
         check_target(target)?;
+        crate::formats::same_file::note_target(target)?;
         let (dir, prefix) = temp_prefix(target)?;
+        let lock = TargetLock::take(target, dir, &prefix)?;
+        // A set a killed run left half published is finished first; what is left of it
+        // after that is litter.
+        journal::recover(dir);
         remove_stale(dir, &prefix);
-        let mine = format!("{prefix}{}.", std::process::id());
+        let mine = format!("{prefix}{}.", self.pid);
         let mut builder = tempfile::Builder::new();
         builder.prefix(&mine).suffix(TMP_SUFFIX).rand_bytes(6);
         #[cfg(unix)]
@@ -195,7 +252,7 @@ impl Outputs {
             builder.permissions(std::fs::Permissions::from_mode(0o666));
         }
         let tmp = builder.tempfile_in(dir).map_err(|e| HostError::io(target, e))?.into_temp_path().keep().map_err(|e| HostError::io(target, e.error))?;
-        self.staged.push(Staged { target: target.into(), tmp, state: State::Claimed });
+        self.staged.push(Staged { target: target.into(), tmp, state: State::Claimed, _lock: Some(lock) });
         Ok(self.staged.len() - 1)
     }
 }
@@ -204,6 +261,10 @@ impl Drop for Outputs {
     /// Puts everything back: published targets first (newest first), then temporaries,
     /// then the directories this set created.
     fn drop(&mut self) {
+        // A run killed while it puts the old files back is finished that way by the next.
+        if let Some(j) = &self.journal {
+            let _ = j.store(Direction::Rollback);
+        }
         for s in self.staged.iter().rev() {
             match &s.state {
                 State::Published { backup: Some(b) } => {
@@ -217,6 +278,12 @@ impl Drop for Outputs {
                 }
             }
         }
+        if let Some(j) = self.journal.take() {
+            j.remove();
+        }
+        // The locks go with the entries, after everything is back; their files first,
+        // so that the directories the set created can go too.
+        self.staged.clear();
         for d in self.created_dirs.iter().rev() {
             // Only if empty: anything else in it is not ours.
             let _ = std::fs::remove_dir(d);
@@ -291,9 +358,7 @@ fn publish_one(s: &Staged) -> Result<Option<Backup>, HostError> {
     check_target(&s.target)?;
     let backup = match std::fs::symlink_metadata(&s.target) {
         Ok(_) => {
-            // The temporary's name is plain ASCII (see `temp_prefix`).
-            let tmp_name = s.tmp.file_name().and_then(|n| n.to_str()).unwrap_or_default();
-            let path = s.tmp.with_file_name(format!("{}{OLD_SUFFIX}", tmp_name.strip_suffix(TMP_SUFFIX).unwrap_or(tmp_name)));
+            let path = backup_path(&s.tmp);
             let linked = match std::fs::hard_link(&s.target, &path) {
                 Ok(()) => true,
                 Err(_) => {
@@ -313,6 +378,18 @@ fn publish_one(s: &Staged) -> Result<Option<Backup>, HostError> {
         return Err(err(e));
     }
     Ok(backup)
+}
+
+/// Where the target of temporary `tmp` is kept while the set is published: the
+/// temporary's name with `.dncal-old` for `.dncal-tmp` (plain ASCII, see `temp_prefix`).
+fn backup_path(tmp: &Path) -> PathBuf {
+    let tmp_name = tmp.file_name().and_then(|n| n.to_str()).unwrap_or_default();
+    tmp.with_file_name(format!("{}{OLD_SUFFIX}", tmp_name.strip_suffix(TMP_SUFFIX).unwrap_or(tmp_name)))
+}
+
+/// `path` made absolute (a journal is read by runs started elsewhere).
+fn absolute(path: &Path) -> PathBuf {
+    std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf())
 }
 
 /// Refuses a target that exists as anything but a file (or a link to one): a rename over
@@ -406,8 +483,111 @@ pub fn html_figure(src: &str, width: u32, alt: &str, caption: Option<&str>) -> S
 }
 
 #[cfg(test)]
+impl Outputs {
+    /// A set whose files are named for process `pid` (a dead one: a simulated kill).
+    fn for_pid(pid: u32) -> Outputs {
+        let mut out = Outputs::new();
+        out.pid = pid;
+        out
+    }
+
+    /// What a run killed after `renames` of its renames leaves: its journal, those
+    /// renames with their backups, the other temporaries; no lock held (the kernel drops
+    /// a dead process's), nothing put back.
+    fn killed_after(mut self, renames: usize) {
+        self.start_journal().unwrap();
+        for s in self.staged.iter_mut().filter(|s| s.state == State::Written).take(renames) {
+            let backup = publish_one(s).unwrap();
+            s.state = State::Published { backup };
+        }
+        for s in &mut self.staged {
+            s._lock = None;
+        }
+        std::mem::forget(self);
+    }
+}
+
+#[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A dead process's id.
+    fn dead_pid() -> u32 {
+        let mut child = std::process::Command::new("true").spawn().unwrap();
+        let pid = child.id();
+        child.wait().unwrap();
+        pid
+    }
+
+    /// Issue 43: a run killed between the renames of a set of files. The next run naming
+    /// any of them (here a third file beside one of them) finishes the set: every file
+    /// the new one, the backups gone only then, no journal, temporary or backup left.
+    /// Killed before any rename, after one, after all: the same end.
+    #[test]
+    fn a_set_killed_between_its_renames_is_finished_by_the_next_run() {
+        for renames in 0..=3 {
+            let dir = tempfile::tempdir().unwrap();
+            let d = dir.path();
+            std::fs::create_dir(d.join("sub")).unwrap();
+            let (a, b, c) = (d.join("a.fits"), d.join("a.bin"), d.join("sub/c.toml"));
+            std::fs::write(&a, "old a").unwrap();
+            std::fs::write(&b, "old b").unwrap();
+            let mut out = Outputs::for_pid(dead_pid());
+            for (t, text) in [(&a, "new a"), (&b, "new b"), (&c, "new c")] {
+                out.write_bytes(t, text).unwrap();
+            }
+            out.killed_after(renames);
+            let mixed = std::fs::read_to_string(&a).unwrap();
+            assert_eq!(mixed, if renames >= 1 { "new a" } else { "old a" });
+            // The next run, for another file in the subdirectory.
+            write_file_atomically(&d.join("sub/other"), "x").unwrap();
+            for (t, text) in [(&a, "new a"), (&b, "new b"), (&c, "new c")] {
+                assert_eq!(std::fs::read_to_string(t).unwrap(), text, "killed after {renames} renames");
+            }
+            assert_eq!(names(d), ["a.bin", "a.fits", "sub"], "killed after {renames} renames");
+            assert_eq!(names(&d.join("sub")), ["c.toml", "other"]);
+        }
+    }
+
+    /// A run killed while it put the old files back (its journal says `rollback`) is
+    /// undone the rest of the way: the old files, a new one removed.
+    #[test]
+    fn a_set_killed_while_rolling_back_is_rolled_back() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let (a, b) = (d.join("a"), d.join("b"));
+        std::fs::write(&a, "old a").unwrap();
+        let mut out = Outputs::for_pid(dead_pid());
+        out.write_bytes(&a, "new a").unwrap();
+        out.write_bytes(&b, "new b").unwrap();
+        out.start_journal().unwrap();
+        for s in out.staged.iter_mut() {
+            let backup = publish_one(s).unwrap();
+            s.state = State::Published { backup };
+            s._lock = None;
+        }
+        out.journal.as_ref().unwrap().store(Direction::Rollback).unwrap();
+        std::mem::forget(out);
+        write_file_atomically(&d.join("c"), "x").unwrap();
+        assert_eq!(std::fs::read_to_string(&a).unwrap(), "old a");
+        assert_eq!(names(d), ["a", "c"]);
+    }
+
+    /// Two sets naming one file: the second is refused at once, naming the file, and
+    /// takes it once the first is done.
+    #[test]
+    fn a_file_another_set_is_writing_is_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let a = dir.path().join("a");
+        let mut first = Outputs::new();
+        first.write_bytes(&a, "first").unwrap();
+        let e = Outputs::new().expect([&a]).unwrap_err();
+        assert!(e.to_string().starts_with(&format!("{}: another dncal run (process {}) is writing this output now", a.display(), std::process::id())), "{e}");
+        first.publish().unwrap();
+        write_file_atomically(&a, "second").unwrap();
+        assert_eq!(std::fs::read_to_string(&a).unwrap(), "second");
+        assert_eq!(names(dir.path()), ["a"]);
+    }
 
     fn names(dir: &Path) -> Vec<String> {
         let mut v: Vec<String> = std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
