@@ -350,3 +350,29 @@ fn bytes_from_files_are_printed_escaped() {
     let out = dncal(&["lut", "build", "esc.fits", "-o", "cal"], d);
     assert_error(&out, "esc.fits: ADCMAP = '\\x1b]0;owned\\x07'; only 'COLMOD' (column c read by ADC c mod NADC) is defined");
 }
+
+/// Issue 43: an EMVA descriptor with too few levels is refused from the descriptor, before
+/// any image is decoded (two levels of 16384 x 16384 images were decoded, 31-65 s, before
+/// the refusal). Here each image is a PNG header of 16384 x 16384 16-bit pixels and no
+/// data (the descriptor's check of the headers takes it): decoded, it would be the error.
+#[test]
+fn too_few_emva_levels_are_refused_before_any_image_is_decoded() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let chunk = |kind: &[u8], data: &[u8]| {
+        let mut crc = flate2::Crc::new();
+        crc.update(kind);
+        crc.update(data);
+        [&(data.len() as u32).to_be_bytes()[..], kind, data, &crc.sum().to_be_bytes()].concat()
+    };
+    let ihdr = [&16384u32.to_be_bytes()[..], &16384u32.to_be_bytes(), &[16, 0, 0, 0, 0]].concat();
+    // One IDAT of no pixels: the header reads, the pixels are not there.
+    let idat = flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::fast()).finish().unwrap();
+    let png = [&b"\x89PNG\r\n\x1a\n"[..], &chunk(b"IHDR", &ihdr), &chunk(b"IDAT", &idat), &chunk(b"IEND", &[])].concat();
+    std::fs::write(d.join("junk.png"), png).unwrap();
+    std::fs::write(d.join("set.txt"), "v 3.0\nn 12 16384 16384\nb 40000.0 120.0\ni junk.png\ni junk.png\nb 40000.0 240.0\ni junk.png\ni junk.png\nd 40000.0\ni junk.png\ni junk.png\n").unwrap();
+    let out = dncal(&["emva", "set.txt"], d);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.starts_with("dncal: error: set.txt: 2 illuminated two-frame levels: at least 6 are needed") && stderr.lines().count() == 1, "{stderr}");
+    assert_eq!(out.status.code(), Some(1));
+}

@@ -262,6 +262,19 @@ fn no_output_replaces_its_own_input() {
     }
 }
 
+/// Two histogram sets in `dir` whose LUTs differ: `h1.fits` (flat), `h2.fits` (sloped).
+fn two_histogram_sets(dir: &Path) {
+    use dncal_host::formats::fits::{write_histograms, AdcHistograms};
+    flat_histograms(&dir.join("h1.fits"));
+    let sloped: Vec<Vec<u64>> = (0..4).map(|a| (0..4096u64).map(|k| 800 + (k * 7 + a * 13) % 400).collect()).collect();
+    write_histograms(&dir.join("h2.fits"), &AdcHistograms { bit_depth: 12, counts: sloped }).unwrap();
+}
+
+/// The LUT tables in `path`, any format.
+fn tables(path: &Path) -> Vec<Vec<u32>> {
+    dncal_host::formats::lut::read(path).unwrap().1.tables
+}
+
 /// Issue 43: two `lut build` runs with different inputs into one `-o`, 200 times. Before,
 /// 4 of 200 left `out.fits` from one run and `out.bin` from the other, both exit 0. Now
 /// each run publishes its whole set or is refused at once (exit 1, the file and the
@@ -269,13 +282,9 @@ fn no_output_replaces_its_own_input() {
 /// temporary, backup, journal or lock is left.
 #[test]
 fn two_runs_into_one_output_set_never_mix_it() {
-    use dncal_host::formats::fits::{write_histograms, AdcHistograms};
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    flat_histograms(&d.join("h1.fits"));
-    let sloped: Vec<Vec<u64>> = (0..4).map(|a| (0..4096u64).map(|k| 800 + (k * 7 + a * 13) % 400).collect()).collect();
-    write_histograms(&d.join("h2.fits"), &AdcHistograms { bit_depth: 12, counts: sloped }).unwrap();
-    let tables = |p: &Path| dncal_host::formats::lut::read(p).unwrap().1.tables;
+    two_histogram_sets(d);
     succeed(&["lut", "build", "h1.fits", "-o", "one"], d);
     succeed(&["lut", "build", "h2.fits", "-o", "two"], d);
     let (one, two) = (tables(&d.join("one.fits")), tables(&d.join("two.fits")));
@@ -307,13 +316,9 @@ fn two_runs_into_one_output_set_never_mix_it() {
 #[cfg(unix)]
 #[test]
 fn a_killed_run_never_leaves_a_mixed_set_for_the_next() {
-    use dncal_host::formats::fits::{write_histograms, AdcHistograms};
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    flat_histograms(&d.join("h1.fits"));
-    let sloped: Vec<Vec<u64>> = (0..4).map(|a| (0..4096u64).map(|k| 800 + (k * 7 + a * 13) % 400).collect()).collect();
-    write_histograms(&d.join("h2.fits"), &AdcHistograms { bit_depth: 12, counts: sloped }).unwrap();
-    let tables = |p: &Path| dncal_host::formats::lut::read(p).unwrap().1.tables;
+    two_histogram_sets(d);
     succeed(&["lut", "build", "h1.fits", "-o", "out"], d);
     let (mut killed, mut journals) = (0, 0);
     for trial in 0..60u64 {
@@ -332,4 +337,53 @@ fn a_killed_run_never_leaves_a_mixed_set_for_the_next() {
         assert!(litter.is_empty(), "trial {trial}: left {litter:?}");
     }
     eprintln!("killed {killed} of 60 runs mid-way; {journals} left a journal the next run finished");
+}
+
+/// Issue 43: the demo checks every step's files, at any depth, before its first step: a
+/// directory where `diagnose/model.toml` goes, or a file where the `linearity` folder
+/// goes, was refused after 42 s of work. Now at once (with the default ramps and frames,
+/// whose first step alone takes longer than the 20 s allowed here), the directory as it
+/// was.
+#[test]
+fn the_demo_refuses_a_clash_deep_in_its_outputs_before_any_work() {
+    for (clash, is_dir, message) in [("dm/diagnose/model.toml", true, "dm/diagnose/model.toml: is a directory; an output file cannot replace it\n"), ("dm/linearity", false, "dm/linearity: is not a directory; outputs go into it\n")] {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let p = d.join(clash);
+        std::fs::create_dir_all(p.parent().unwrap()).unwrap();
+        if is_dir {
+            std::fs::create_dir(&p).unwrap();
+        } else {
+            std::fs::write(&p, "a file").unwrap();
+        }
+        let before = snapshot(d);
+        let start = Instant::now();
+        let out = support::dncal_prompt(&["demo", "-o", "dm"], d);
+        assert_failed_and_untouched(&out, message, d, &before);
+        assert!(start.elapsed() < Duration::from_secs(20), "refused after {:?}", start.elapsed());
+    }
+}
+
+/// Issue 43: `--json` into a stdout that cannot take it (`/dev/full`) fails before the
+/// outputs are committed: the earlier files stay, none is added.
+#[cfg(target_os = "linux")]
+#[test]
+fn a_report_that_cannot_be_written_leaves_no_outputs() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    flat_histograms(&d.join("h.fits"));
+    earlier(d, &["cal.fits"]);
+    let before = snapshot(d);
+    for json in [true, false] {
+        let mut args = vec!["lut", "build", "h.fits", "-o", "cal"];
+        if json {
+            args.push("--json");
+        }
+        let full = std::fs::OpenOptions::new().write(true).open("/dev/full").unwrap();
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_dncal")).args(&args).current_dir(d).stdout(full).stderr(std::process::Stdio::piped()).output().unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(stderr.starts_with("dncal: error: stdout: ") && stderr.lines().count() == 1, "{stderr}");
+        assert_eq!(out.status.code(), Some(1));
+        assert_eq!(snapshot(d), before, "--json {json}: outputs left");
+    }
 }

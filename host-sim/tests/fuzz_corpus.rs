@@ -36,10 +36,18 @@ fn seed_and_table() -> (Vec<u8>, usize) {
 
 /// Runs `entry` on every input of `target`; returns how many there were.
 fn replay(target: &str, entry: Entry) -> usize {
+    replay_of(&[target], entry).0
+}
+
+/// Runs `entry` on every input of each of `targets`; returns how many there were and
+/// how many `entry` accepted.
+fn replay_of(targets: &[&str], entry: Entry) -> (usize, usize) {
     let mut inputs = Vec::new();
     for kind in ["corpus", "regressions"] {
-        let Ok(dir) = std::fs::read_dir(fuzz_dir().join(kind).join(target)) else { continue };
-        inputs.extend(dir.map(|e| e.unwrap().path()).filter(|p| p.is_file()));
+        for target in targets {
+            let Ok(dir) = std::fs::read_dir(fuzz_dir().join(kind).join(target)) else { continue };
+            inputs.extend(dir.map(|e| e.unwrap().path()).filter(|p| p.is_file()));
+        }
     }
     inputs.sort();
     for input in &inputs {
@@ -49,7 +57,31 @@ fn replay(target: &str, entry: Entry) -> usize {
             panic!("{}: {}", input.display(), message.unwrap_or_default());
         }
     }
-    inputs.len()
+    let accepted = inputs.iter().filter(|p| entry(&std::fs::read(p).unwrap())).count();
+    (inputs.len(), accepted)
+}
+
+/// The analysis targets (issue 43) read what their readers' targets read: those seeds and
+/// regressions, and their own regressions. The seeds are valid files, so each target
+/// also runs its analyses on some of them.
+#[test]
+fn analysis_corpora_never_panic_nor_print_a_non_finite_result() {
+    for (target, reader, entry) in [
+        ("analysis_linearity", "fits_linearity", fuzzing::analysis_linearity as Entry),
+        ("analysis_histograms", "fits_histograms", fuzzing::analysis_histograms),
+        ("analysis_lut", "fits_lut", fuzzing::analysis_lut),
+    ] {
+        let (inputs, accepted) = replay_of(&[target, reader], entry);
+        assert!(inputs >= 3 && accepted >= 2, "{target}: {accepted} of {inputs} inputs accepted");
+    }
+}
+
+#[test]
+fn a_report_showing_a_non_finite_number_is_found() {
+    assert_eq!(fuzzing::non_finite_word("max RMS: raw 1.1e-2, standard NaN, pixel-wise 2e-3"), Some("NaN".into()));
+    assert_eq!(fuzzing::non_finite_word("0.000e0 B_sun with the LUT: infx less"), Some("infx".into()));
+    assert_eq!(fuzzing::non_finite_word("gain (-inf)"), Some("-inf".into()));
+    assert_eq!(fuzzing::non_finite_word("inflates to 5.8x; information, infinite loops, 12%"), None);
 }
 
 #[test]

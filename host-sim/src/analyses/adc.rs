@@ -17,7 +17,7 @@ use crate::formats::fits::{read_histograms_for_analysis, stage_histograms, AdcHi
 use crate::analyses::flatten::{cumulative_offsets, FlattenParams};
 use crate::analyses::ieee1241::{analyse_set, AdcLinearity, Density};
 use crate::formats::plots::{line_plot, line_plot_paired, Series};
-use crate::formats::outputs::OutDir;
+use crate::formats::outputs::{OutDir, Outputs};
 use crate::HostError;
 
 /// The least-squares line `y = c0 + c1 x`, as `(c0, c1)`: [`crate::analyses::emva::fit_line`], with
@@ -243,6 +243,15 @@ pub fn characterize(source: &Path, hist: &AdcHistograms, density: Density, luts:
 }
 
 /// The files [`run`] writes, simulating the histograms or not.
+/// Creates `dir` and checks the files [`run`] writes there (with the simulated ramps'
+/// truth where `simulated`; the per-ADC figures where `n_adc` is known), before anything
+/// is computed.
+pub fn expect_run(files: &mut Outputs, dir: &Path, simulated: bool, n_adc: Option<usize>) -> Result<(), HostError> {
+    files.create_dir(dir)?;
+    files.expect(run_files(simulated).map(|n| dir.join(n)))?;
+    files.expect((0..n_adc.unwrap_or(0)).map(|a| dir.join(format!("dnl_inl_adc{a}.png"))))
+}
+
 fn run_files(simulated: bool) -> impl Iterator<Item = &'static str> {
     let figures = ["histograms.png", "histograms_zoom.png", "offsets.png"];
     let truth = if simulated { &["histograms.fits", "correction_error.png"][..] } else { &[] };
@@ -254,8 +263,7 @@ fn run_files(simulated: bool) -> impl Iterator<Item = &'static str> {
 /// the caller publishes them.
 pub fn run(camera: &Camera, hist: Option<&Path>, ramp: &RampParams, flatten: &FlattenParams, density: Density, out: OutDir<'_>) -> Result<(AdcReport, BuiltLuts), HostError> {
     let OutDir { files, dir: out_dir } = out;
-    files.create_dir(out_dir)?;
-    files.expect(run_files(hist.is_none()).map(|n| out_dir.join(n)))?;
+    expect_run(files, out_dir, hist.is_none(), None)?;
     let (histograms, source, truth) = match hist {
         Some(path) => (read_histograms_for_analysis(path)?, path.to_path_buf(), None),
         None => {

@@ -18,6 +18,12 @@
 //!   builds the camera model (on at most 64 x 64 pixels: the sensor size is bounded by
 //!   validation and costs only memory).
 //!
+//! - `analysis_linearity`, `analysis_histograms`, `analysis_lut` (issue 43): what the
+//!   reader accepts goes on through the analyses that read it, with their figures and
+//!   files (`linearity`, `diagnose`, `lut build`, `lut inspect`, `kcor-model --lut`): no
+//!   panic, an error of one line, and no report text showing a non-finite number as a
+//!   result ([`non_finite_word`]).
+//!
 //! The EMVA input is several files in one: the descriptor, then each image after a line
 //! [`EMVA_FILE_SEPARATOR`]; the images are written as `f1.png`, `f2.png`, ... beside the
 //! descriptor, which names them in its `i` records.
@@ -199,4 +205,113 @@ pub fn camera_toml(bytes: &[u8]) -> bool {
         let _ = Camera::new(config);
     }
     true
+}
+
+/// Where a report's text shows a number that is not one (`NaN`, `inf`, `-inf`, also as a
+/// ratio `infx` or a percentage): the word, if any. A report prints results, and a
+/// non-finite value is no result (issue 43: "infx less", a perfect correction of zeros).
+pub fn non_finite_word(text: &str) -> Option<String> {
+    text.split_whitespace()
+        .map(|w| w.trim_matches(|c: char| ",;:()[]{}'\"".contains(c)))
+        .find(|w| {
+            let number = w.trim_end_matches(['x', '%']);
+            number.parse::<f64>().is_ok_and(|v| !v.is_finite())
+        })
+        .map(String::from)
+}
+
+/// Panics with `what` if `text` shows a non-finite number ([`non_finite_word`]).
+fn assert_finite_text(what: &str, text: &str) {
+    if let Some(w) = non_finite_word(text) {
+        panic!("{what} printed {w:?} as a result:\n{text}");
+    }
+}
+
+/// Most values (pixels x levels, or codes) an analysis target runs its analyses on: the
+/// formats bound a file's declarations by its bytes, the analyses' time is the fuzzer's.
+const ANALYSIS_MAX_VALUES: usize = 1 << 16;
+
+/// The `analysis_linearity` target (issue 43): a linearity set the reader accepts goes
+/// through `linearity` with its figures and FITS outputs (and the held-out orders), and,
+/// where small, through `diagnose` with its report: never a panic, and every report's
+/// text without a non-finite number; an error is one line naming the file.
+pub fn analysis_linearity(bytes: &[u8]) -> bool {
+    let dir = scratch();
+    let path = write_input(dir.path(), "linearity.fits", bytes);
+    let Ok(set) = fits::read_linearity(&path) else { return false };
+    if set.width * set.height * set.levels > ANALYSIS_MAX_VALUES {
+        return true;
+    }
+    let out = dir.path().join("linearity");
+    match crate::formats::outputs::staged(Some(&out), |o| crate::analyses::linearity::run::linearity(&path, 4, None, &[3, 4], o)) {
+        Ok(s) => {
+            use crate::formats::report::Report;
+            let r = &s.report;
+            for (name, v) in [("rms_raw_max", r.rms_raw_max), ("rms_standard_max", r.rms_standard_max), ("rms_pixelwise_max", r.rms_pixelwise_max), ("rms_random_max", r.rms_random_max), ("paper_fig8.distance", s.paper_fig8.distance)] {
+                assert!(v.is_finite(), "linearity reported {name} = {v}");
+            }
+            assert_finite_text("linearity", &s.text());
+        }
+        Err(e) => assert_one_line(&e),
+    }
+    if set.width * set.height <= 256 {
+        let params = crate::analyses::diagnose::run::DiagnoseParams { flatten: Default::default(), seed: 1, block_rows: None, spill: false };
+        let out = dir.path().join("diagnose");
+        match crate::formats::outputs::staged(Some(&out), |o| crate::analyses::diagnose::run::diagnose(&path, &params, o)) {
+            Ok(s) => {
+                use crate::formats::report::Report;
+                assert_finite_text("diagnose", &s.text());
+            }
+            Err(e) => assert_one_line(&e),
+        }
+    }
+    true
+}
+
+/// The `analysis_histograms` target (issue 43): a histogram set the analysis reader
+/// accepts goes through `lut build` (the LUT files and the IEEE 1241 test) and `diagnose`
+/// with its report and figures.
+pub fn analysis_histograms(bytes: &[u8]) -> bool {
+    let dir = scratch();
+    let path = write_input(dir.path(), "histograms.fits", bytes);
+    let Ok(set) = fits::read_histograms_for_analysis(&path) else { return false };
+    if set.counts.iter().map(Vec::len).sum::<usize>() > ANALYSIS_MAX_VALUES {
+        return true;
+    }
+    use crate::formats::report::Report;
+    match crate::analyses::lut::run::build(&path, &dir.path().join("cal"), &Default::default()) {
+        Ok(s) => assert_finite_text("lut build", &s.text()),
+        Err(e) => assert_one_line(&e),
+    }
+    let params = crate::analyses::diagnose::run::DiagnoseParams { flatten: Default::default(), seed: 1, block_rows: None, spill: false };
+    match crate::formats::outputs::staged(Some(&dir.path().join("diagnose")), |o| crate::analyses::diagnose::run::diagnose(&path, &params, o)) {
+        Ok(s) => assert_finite_text("diagnose", &s.text()),
+        Err(e) => assert_one_line(&e),
+    }
+    true
+}
+
+/// The `analysis_lut` target (issue 43): a LUT (any format) the reader accepts goes
+/// through `lut inspect` and `kcor-model --lut` with its two maps.
+pub fn analysis_lut(bytes: &[u8]) -> bool {
+    use crate::formats::report::Report;
+    let dir = scratch();
+    let path = write_input(dir.path(), "lut.fits", bytes);
+    let Ok(inspected) = crate::formats::lut::inspect::inspect(&path) else { return false };
+    assert_finite_text("lut inspect", &inspected.text());
+    static CAMERA: std::sync::OnceLock<Camera> = std::sync::OnceLock::new();
+    let camera = CAMERA.get_or_init(|| Camera::new(CameraConfig { width: 16, height: 16, ..CameraConfig::default() }).expect("the default camera on 16 x 16 pixels"));
+    let adc = inspected.adcs.len().saturating_sub(1).min(camera.adcs.len() - 1);
+    let p = crate::analyses::kcor::KcorParams { adc, steps: 8, ..Default::default() };
+    match crate::formats::outputs::staged(Some(&dir.path().join("kcor")), |o| crate::analyses::kcor::run::kcor_model(camera, &p, Some(&path), 1, o)) {
+        Ok(s) => assert_finite_text("kcor-model", &s.text()),
+        Err(e) => assert_one_line(&e),
+    }
+    true
+}
+
+/// An error is one line (the commands print it after `dncal: error: `).
+fn assert_one_line(e: &crate::HostError) {
+    let m = e.to_string();
+    assert!(!m.is_empty() && !m.contains('\n'), "an error of more or less than one line: {m:?}");
 }

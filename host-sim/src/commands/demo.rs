@@ -181,6 +181,14 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
     files.create_dir(out_dir)?;
     let at = |name: &str| out_dir.join(name);
     files.expect(["quantization.png", "linearity.fits", "summary.json", "report.html"].map(at))?;
+    // Every step's files, at every depth, before the first step (issue 43: a directory
+    // where `diagnose/model.toml` goes was found after 42 s of work).
+    crate::analyses::adc::expect_run(&mut files, out_dir, true, Some(camera.adcs.len()))?;
+    crate::analyses::kcor::run::expect_figures(&mut files, out_dir)?;
+    crate::analyses::linearity::run::expect_report(&mut files, &at("linearity"))?;
+    for dir in ["diagnose", "diagnose-linearity"] {
+        crate::analyses::diagnose::run::expect_report(&mut files, &at(dir))?;
+    }
     // The staged contents of `target`, which an earlier step wrote.
     let staged = |files: &Outputs, target: &Path| files.staged(target).map(Path::to_path_buf).ok_or_else(|| HostError::Output { path: target.into(), fault: crate::formats::outputs::OutputFault::NotStaged });
 

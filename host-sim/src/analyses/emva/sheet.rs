@@ -118,6 +118,12 @@ fn root(why: &mut std::collections::BTreeMap<String, String>, key: &str, varianc
 /// The whole datasheet of `set` with `release`'s definitions (the descriptor's `v`
 /// record when `None`).
 pub fn datasheet(set: &EmvaSet, release: Option<Release>) -> Result<Datasheet, HostError> {
+    // Counted from the descriptor before any image is decoded (issue 43: two levels of
+    // 16384 x 16384 images were decoded, 31-65 s, before this refusal).
+    let levels = set.levels.iter().filter(|l| l.series() == Some(super::descriptor::Series::Temporal) && matches!(l.kind, super::descriptor::LevelKind::Bright { .. })).count();
+    if levels < super::datasheet::MIN_LEVELS {
+        return Err(HostError::Ptc { path: set.path.clone(), source: super::datasheet::PtcError::TooFewLevels { levels } });
+    }
     datasheet_of(set, &photon_transfer(set)?, release)
 }
 

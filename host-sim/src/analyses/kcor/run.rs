@@ -81,6 +81,13 @@ pub struct Realization {
     pub rms_reduction: f64,
 }
 
+/// Creates `dir` and checks the two maps [`kcor_model`] writes there, before anything is
+/// computed.
+pub fn expect_figures(files: &mut crate::formats::outputs::Outputs, dir: &Path) -> Result<(), HostError> {
+    files.create_dir(dir)?;
+    files.expect(["kcor_raw.png", "kcor_lut.png"].map(|n| dir.join(n)))
+}
+
 /// Runs the model on ADC `p.adc` of `camera` and, with `out`, stages `kcor_raw.png` and
 /// `kcor_lut.png` in its directory (published by the caller). The LUT is the table of that ADC in `lut_file` (a
 /// LUT FITS or device image, e.g. from `dncal adc` on measured histograms) or, without
@@ -113,8 +120,7 @@ pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, real
         return Err(HostError::Argument { flag: "--realizations".into(), message: "need at least 1, and more than 1 only for the noisy LUT (not with --lut)".into() });
     }
     if let Some(o) = out.as_mut() {
-        o.files.create_dir(o.dir)?;
-        o.files.expect([o.at("kcor_raw.png"), o.at("kcor_lut.png")])?;
+        expect_figures(o.files, o.dir)?;
     }
     let noisy_table = |seed: u64| -> Result<Vec<u32>, HostError> {
         let w = to_core_weights(&noisy_weights(adc, p.lut_noise, seed)).map_err(|source| HostError::Weights { subject: crate::Subject::KcorLutWeights, source })?;

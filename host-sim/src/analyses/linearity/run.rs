@@ -56,6 +56,13 @@ impl Report for LinearitySummary {
 /// The files of [`linearity`]'s report, in its directory.
 const REPORT_FILES: [&str; 5] = ["coefficients.fits", "corrected.fits", "linearity_rms.png", "flat_image.png", "pixels_levels.png"];
 
+/// Creates `dir` and checks the files of [`linearity`]'s report there, before anything is
+/// computed.
+pub fn expect_report(files: &mut crate::formats::outputs::Outputs, dir: &Path) -> Result<(), HostError> {
+    files.create_dir(dir)?;
+    files.expect(REPORT_FILES.map(|n| dir.join(n)))
+}
+
 /// Analyzes `input`; with `out`, stages in its directory `coefficients.fits` (cube and
 /// MASK), `corrected.fits` (pixel-wise corrected normalized intensities, masked pixels
 /// filled) `linearity_rms.png` (Fig. 8), `flat_image.png` (Fig. 6) and
@@ -74,8 +81,7 @@ pub fn linearity_as(read_from: &Path, input: &Path, order: usize, flat: Option<u
         }
     }
     if let Some(o) = out.as_mut() {
-        o.files.create_dir(o.dir)?;
-        o.files.expect(REPORT_FILES.map(|n| o.dir.join(n)))?;
+        expect_report(o.files, o.dir)?;
     }
     stage(&format!("reading {}", input.display()));
     let set = read_linearity(read_from)?;

@@ -28,9 +28,16 @@ fn main() -> ExitCode {
         Ok(cli) => cli,
         Err(e) => return usage_error(e),
     };
+    // The outputs stay undoable until the report is on stdout: a report that cannot be
+    // written (`--json > /dev/full`) leaves no outputs either (issue 43).
+    let outputs = dncal_host::formats::outputs::hold();
     match run(cli) {
-        Ok(code) => code,
+        Ok(code) => {
+            outputs.commit();
+            code
+        }
         Err(e) => {
+            drop(outputs);
             // Bytes from files may be in it: escaped, never sent raw to the terminal.
             eprintln!("dncal: error: {}", dncal_host::infra::printable::printable(&e.to_string()));
             ExitCode::from(e.exit_code())

@@ -608,16 +608,18 @@ fn checksums_verified_while_reading_give_cfitsios_verdicts() {
         let mut bytes = clean.clone();
         bytes[at] ^= 1 << (at % 8);
         std::fs::write(&copy, &bytes).unwrap();
-        let (mut want, mut got) = (oracle(&copy), ours(&copy));
-        // cfitsio's verdict on a few damaged header bytes is not reproducible when other
-        // tests use cfitsio at the same time (seen once in a full run: byte 171 read as
-        // status 212 by one open and 205 by the next, alone always the same): asked again,
-        // up to three times, before the two are called different.
-        for _ in 0..3 {
-            if got == want {
-                break;
-            }
-            (want, got) = (oracle(&copy), ours(&copy));
+        // Where cfitsio cannot open the file at all, its status for some damaged cards
+        // depends on memory it did not initialize: byte 171 (`NAXIS   = (`...) gave 205
+        // ("string missing closing quote") from one call site and 212 ("illegal NAXIS
+        // keyword value") from the other, each every time, in a debug build only. Both
+        // are the refusal at open: compared as such.
+        let at_open = |m: &Option<String>| m.as_ref().map(|m| m.split(": cfitsio ").next().unwrap_or(m).to_string());
+        let (want, got) = (oracle(&copy), ours(&copy));
+        let unopened = |m: &Option<String>| m.as_ref().is_some_and(|m| m.contains(": not a readable FITS file: cfitsio "));
+        if unopened(&want) && unopened(&got) {
+            assert_eq!(at_open(&got), at_open(&want), "byte {at} (block {}) flipped", at / 2880);
+            damaged += 1;
+            continue;
         }
         assert_eq!(got, want, "byte {at} (block {}) flipped", at / 2880);
         damaged += 1;

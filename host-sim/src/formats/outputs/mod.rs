@@ -176,13 +176,26 @@ impl Outputs {
 
     /// Renames every written file over its target; on any failure puts everything back
     /// (see the module docs) and returns the error. Returns the targets published.
+    ///
+    /// While a [`Hold`] is held (the `dncal` command holds one until its report is on
+    /// stdout), the files are renamed into place but their backups and journal are kept:
+    /// [`Hold::commit`] finishes the set, dropping the hold puts the old files back.
     pub fn publish(mut self) -> Result<Vec<PathBuf>, HostError> {
         self.start_journal()?;
         for s in self.staged.iter_mut().filter(|s| s.state == State::Written) {
             let backup = publish_one(s)?;
             s.state = State::Published { backup };
         }
-        let mut published = Vec::new();
+        let published = self.staged.iter().filter(|s| matches!(s.state, State::Published { .. })).map(|s| s.target.clone()).collect();
+        match held().as_mut() {
+            Some(sets) => sets.push(self),
+            None => self.finish(),
+        }
+        Ok(published)
+    }
+
+    /// Ends a published set: backups and temporaries removed, the journal last.
+    fn finish(mut self) {
         for s in std::mem::take(&mut self.staged) {
             match s.state {
                 State::Published { backup } => {
@@ -191,7 +204,6 @@ impl Outputs {
                         let _ = std::fs::remove_file(&b.path);
                     }
                     sync_dir(&s.target);
-                    published.push(s.target);
                 }
                 _ => {
                     let _ = std::fs::remove_file(&s.tmp);
@@ -203,7 +215,6 @@ impl Outputs {
         if let Some(j) = self.journal.take() {
             j.remove();
         }
-        Ok(published)
     }
 
     /// Writes the journal of a set of two or more written files ([`journal`]) into every
@@ -288,6 +299,44 @@ impl Drop for Outputs {
             // Only if empty: anything else in it is not ours.
             let _ = std::fs::remove_dir(d);
         }
+    }
+}
+
+/// Sets published while a [`Hold`] is held, not yet finished; `None` without a hold.
+static HELD: std::sync::Mutex<Option<Vec<Outputs>>> = std::sync::Mutex::new(None);
+
+fn held() -> std::sync::MutexGuard<'static, Option<Vec<Outputs>>> {
+    HELD.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// Keeps every set published while it is held undoable (issue 43: `lut build ...
+/// --json > /dev/full` failed on stdout after its files were in place). [`Hold::commit`] once
+/// the report is written; dropped instead (an error), every set held is put back, the
+/// last published first. A run killed in between leaves journals, which the next run
+/// finishes forward.
+#[must_use = "dropping the hold puts the outputs back"]
+pub struct Hold(());
+
+/// Starts holding published sets ([`Hold`]).
+pub fn hold() -> Hold {
+    *held() = Some(Vec::new());
+    Hold(())
+}
+
+impl Hold {
+    /// Finishes every set held.
+    pub fn commit(self) {
+        let sets = held().take();
+        std::mem::forget(self);
+        sets.into_iter().flatten().for_each(Outputs::finish);
+    }
+}
+
+impl Drop for Hold {
+    fn drop(&mut self) {
+        let sets = held().take();
+        // Each set's own drop puts its files back.
+        sets.into_iter().flatten().rev().for_each(drop);
     }
 }
 
