@@ -8,7 +8,8 @@
 //! memory (`MemTotal` of `/proc/meminfo`; 8 GiB where that cannot be read), the address
 //! space and data limits (`RLIMIT_AS`, `RLIMIT_DATA`: `ulimit -v`, `prlimit`) less what
 //! the process already maps, and its cgroup's `memory.max` (v2, every level up to the
-//! root; v1's `memory.limit_in_bytes`) less what the cgroup already uses (issue 43: under
+//! root; v1's `memory.limit_in_bytes`) less what the cgroup already uses, all taken at the
+//! first check (issue 43: under
 //! `ulimit -v 4000000` the budget was 3/4 of 24 GiB, and a file declaring 9.6 GB aborted
 //! on allocation). The checks are estimates of the largest allocations of a step (the
 //! input's pixels as the command holds them, the per-pixel state of an analysis), not an
@@ -25,9 +26,13 @@ static LIMIT: AtomicU64 = AtomicU64::new(0);
 /// Used where the physical memory cannot be read.
 const FALLBACK: u64 = 8 << 30;
 
-/// 3/4 of the memory the process can have ([`room`]).
+/// 3/4 of the memory the process can have ([`room`]), taken once, at the first ask: a
+/// budget that moved with the process's own use would answer two asks of one step
+/// differently (the gzip count compares its limit with the budget to name which bound
+/// refused), and every ask would read `/proc` and the cgroup's files again.
 pub fn default_limit() -> u64 {
-    room() / 4 * 3
+    static DEFAULT: std::sync::OnceLock<u64> = std::sync::OnceLock::new();
+    *DEFAULT.get_or_init(|| room() / 4 * 3)
 }
 
 /// The memory the process can still have, bytes: the smallest of the physical memory (or
