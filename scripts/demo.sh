@@ -1,14 +1,24 @@
 #!/usr/bin/env bash
 # The main job: `dncal demo` on the built-in MV-D1024E camera. Simulates the calibration
 # ramps, builds the per-ADC LUTs, streams frames through the core against the float
-# reference and writes an HTML report with plots to ./dncal-demo (or -o DIR). Where the
-# K-Coronagraph's deployed tables are beside the project (../shared/data/kcor-luts), the
-# report also judges the paper's Fig. 5 on a real camera's ADCs (--kcor-tables).
+# reference and writes an HTML report with plots to ./dncal-demo (or -o DIR), relative to
+# the directory it is run from; the last line names the report by its absolute path.
+# Where the K-Coronagraph's deployed tables are beside the project
+# (../shared/data/kcor-luts), the report also judges the paper's Fig. 5 on a real
+# camera's ADCs (--kcor-tables).
+#
+# It builds the project exactly as scripts/test.sh does (`cargo test --release --workspace
+# --no-run`: the release profile, with the features the tests' dependencies add), so that
+# whichever of the two runs second compiles nothing; `cargo run -p dncal-host` would
+# resolve fewer features (serde, syn, rand...) and build 34 crates a second time.
 set -euo pipefail
-cd "$(dirname "$0")/.."
+root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+target="${CARGO_TARGET_DIR:-$root/target}"
 extra=()
-tables="$PWD/../shared/data/kcor-luts"
+tables="$root/../shared/data/kcor-luts"
 if [[ -d "$tables" && " $* " != *" --kcor-tables"* ]]; then
     extra=(--kcor-tables "$tables")
 fi
-exec cargo run --release --locked -p dncal-host --bin dncal -- demo "${extra[@]}" "$@"
+cargo test --release --workspace --locked --no-run --manifest-path "$root/Cargo.toml" 2>&1 \
+    | sed '/^  Executable /d' >&2
+exec "$target/release/dncal" demo "${extra[@]}" "$@"

@@ -4,8 +4,10 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/firmware.sh install
-# The FITS interchange tests open our files in astropy (the astronomers' reference reader).
-python3 -c "import astropy, numpy" 2>/dev/null || python3 -m pip install --quiet astropy numpy
+# The FITS interchange tests open our files in astropy (the astronomers' reference reader),
+# in a venv of its own under target/ (the tests also make it when missing): nothing goes
+# into the system Python.
+scripts/astropy-venv.sh >/dev/null
 # The EMVA 1288 reference implementation (emva1288 1.0.2, numpy<2) in a venv of its own,
 # the oracle of host-sim/tests/emva_reference.rs (the test also makes it when missing).
 scripts/emva-venv.sh >/dev/null
@@ -20,10 +22,11 @@ export DNCAL_REQUIRE_BROWSER=1
 # The architecture checks of docs/architecture.md: import cycles, string errors, labels in
 # path fields, the library reaching into the CLI; a count may fall, never rise.
 python3 scripts/arch_check.py --self-test --ratchet scripts/arch_baseline.json >/dev/null
-cargo test --workspace --locked
+# The release profile, built by the same command scripts/demo.sh builds with: whichever of
+# the two README commands runs second compiles nothing (the release profile keeps overflow
+# checks on, so an arithmetic overflow fails a test as it would in a debug build).
+cargo test --release --workspace --locked
 # The Python package: its wheel built into target/python-venv (maturin, numpy, dask... from
 # the registry) and its pytest suite, which compares it with the binary just tested.
-DNCAL_BIN="$PWD/target/debug/dncal" scripts/python.sh
-cargo clippy --workspace --all-targets --locked -- -D warnings
-# The core must also build with defmt on (as the firmware uses it) and stay warning-free.
-cargo build -p dncal-core --features defmt --locked
+DNCAL_BIN="$PWD/target/release/dncal" scripts/python.sh
+# Lints (clippy, the core with defmt) are CI's (.ci/run), run after these tests.

@@ -524,7 +524,7 @@ pub fn lookup<const CODES: usize>(table: &[LutEntry; CODES], raw: u16) -> (LutEn
 /// frame as a block at 0.94-1.02 of the plain LUT loop (median 0.99) with the OR in the
 /// loop, against 0.85-0.94 (median 0.90) with the pass before it. On the Cortex-M4 the
 /// exact loop is 6.25 instructions a pixel (7.25 while LLVM unrolled it four groups
-/// deep), against 7.0 plus 1.0 for the pass before (README, firmware).
+/// deep), against 7.0 plus 1.0 for the pass before (docs/firmware.md).
 fn add_line<A: Add, const N: usize, const CODES: usize>(
     luts: &LutSet<N, CODES>,
     first_column: u32,

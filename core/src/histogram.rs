@@ -67,7 +67,7 @@ impl<const N: usize, const CODES: usize> HistogramSet<N, CODES> {
     /// (no clamp, no bounds check, no count a pixel), and the span is walked as a head,
     /// whole groups of N columns in ADC order (no column arithmetic a pixel) and a tail.
     /// On the Cortex-M4 that took the pass from 15.8 instructions a pixel (20 once the
-    /// firmware stopped unrolling loops of unknown count) to 8.6 (README).
+    /// firmware stopped unrolling loops of unknown count) to 8.6 (docs/firmware.md).
     pub fn capture_line(&mut self, roi: &Roi, row: u16, first_column: u16, codes: &[u16]) -> u32 {
         if row < roi.rows.0 || row >= roi.rows.1 {
             return 0;

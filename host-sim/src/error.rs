@@ -144,11 +144,26 @@ pub enum ErrorKind {
     Tool,
 }
 
+/// An I/O error in the words of the rest of our messages: the system's text, its first
+/// letter lower-case, without Rust's ` (os error N)` (`no such file or directory`).
+fn io_text(e: &std::io::Error) -> String {
+    let text = e.to_string();
+    let text = match text.rfind(" (os error ") {
+        Some(i) if text.ends_with(')') => &text[..i],
+        _ => &text,
+    };
+    let mut chars = text.chars();
+    match (chars.next(), chars.next()) {
+        (Some(a), Some(b)) if a.is_ascii_uppercase() && b.is_ascii_lowercase() => a.to_ascii_lowercase().to_string() + &text[1..],
+        _ => text.to_string(),
+    }
+}
+
 /// Everything host-side work can fail with; each variant names the file or step.
 #[derive(Debug, thiserror::Error)]
 pub enum HostError {
     /// A file could not be read or written.
-    #[error("{path}: {source}")]
+    #[error("{path}: {}", io_text(source))]
     Io {
         /// The file.
         path: PathBuf,
@@ -328,7 +343,7 @@ pub enum HostError {
         source: crate::formats::fits::Fault,
     },
     /// Reading or writing something that is not a file failed (stdout, a rendering).
-    #[error("{subject}: {source}")]
+    #[error("{subject}: {}", io_text(source))]
     IoOf {
         /// What was read or written.
         subject: Subject,

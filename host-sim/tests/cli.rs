@@ -2,7 +2,7 @@
 //! bad input (a clear message naming the file, a nonzero exit, no panic, no output left
 //! behind and an existing output untouched).
 //!
-//! Bad FITS files are written by astropy (`python3`), the reference writer, so that the
+//! Bad FITS files are written by astropy (the project's venv, `support::python`), the reference writer, so that the
 //! files are exactly what a user's tools produce.
 
 mod support;
@@ -15,7 +15,7 @@ use serde_json::Value;
 use support::{assert_clean_failure, assert_usage_failure, dncal, listing, stdout_json};
 
 fn python(script: &str, dir: &Path) {
-    let out = Command::new("python3").arg("-c").arg(script).current_dir(dir).output().expect("python3 must be installed");
+    let out = support::python().arg("-c").arg(script).current_dir(dir).output().expect("the astropy venv's python runs");
     assert!(out.status.success(), "python failed (astropy installed?):\n{}", String::from_utf8_lossy(&out.stderr));
 }
 
@@ -275,6 +275,8 @@ fn emva_reads_the_real_measurement() {
     let text = String::from_utf8_lossy(&text.stdout);
     assert!(text.contains("Release 4.0 definitions"), "{text}");
     assert!(!text.contains("NaN") && !text.contains("inf"), "{text}");
+    // Without -o, the text says how to have the page (issue 44).
+    assert!(text.ends_with("(-o DIR writes this datasheet as DIR/datasheet.html with the standard's plots, and DIR/datasheet.json)\n"), "{text}");
 }
 
 #[test]
@@ -575,7 +577,7 @@ fn linearity_ranks_the_corrections_and_writes_fits() {
     // The same steps written apart in numpy and astropy (scripts/linearity_numpy.py:
     // numpy's lstsq, polyfit and a vectorized Newton) give the same numbers.
     let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scripts/linearity_numpy.py");
-    let out = Command::new("python3").arg(&script).arg("lin.fits").current_dir(d).output().expect("python3");
+    let out = support::python().arg(&script).arg("lin.fits").current_dir(d).output().expect("python3");
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let np: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     for (ours, theirs) in [("rms_raw_max", "raw"), ("rms_standard_max", "standard"), ("rms_pixelwise_max", "pixelwise")] {

@@ -11,6 +11,15 @@ use std::process::Command;
 use support::{assert_error, dncal_prompt as dncal, flat_histograms, listing};
 
 #[cfg(unix)]
+/// A missing or unreadable input is named in the system's words, without Rust's
+/// "(os error 2)" (issue 44).
+#[test]
+fn a_missing_input_is_said_in_plain_words() {
+    let d = tempfile::tempdir().unwrap();
+    assert_error(&dncal(&["lut", "inspect", "nothere.fits"], d.path()), "nothere.fits: no such file or directory");
+    assert_error(&dncal(&["diagnose", "gone/set.fits"], d.path()), "gone/set.fits: no such file or directory");
+}
+
 #[test]
 fn devices_and_fifos_given_as_inputs_are_refused_at_once() {
     let dir = tempfile::tempdir().unwrap();

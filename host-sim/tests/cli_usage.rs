@@ -19,6 +19,10 @@ fn assert_usage(args: &[&str], line: &str) {
 fn usage_errors_are_one_line_naming_the_help_to_read() {
     assert_usage(&["quantization", "--sigma", "abc"], "dncal: error: invalid value 'abc' for '--sigma <SIGMA>': invalid float literal (see dncal quantization --help)");
     assert_usage(&["bogus"], "dncal: error: unrecognized subcommand 'bogus' (see dncal --help)");
+    // A near miss gets clap's suggestion, on the same line (issue 44).
+    assert_usage(&["diagnoes", "x.fits"], "dncal: error: unrecognized subcommand 'diagnoes'; did you mean 'diagnose'? (see dncal --help)");
+    assert_usage(&["lut", "inspekt", "x.fits"], "dncal: error: unrecognized subcommand 'inspekt'; did you mean 'inspect'? (see dncal lut --help)");
+    assert_usage(&["diagnose", "--spil", "x.fits"], "dncal: error: unexpected argument '--spil' found; did you mean '--spill'? (see dncal diagnose --help)");
     assert_usage(&["lut", "build"], "dncal: error: the following required arguments were not provided: --out <OUT> <HIST> (see dncal lut build --help)");
     assert_usage(&["simulate", "histograms", "--bad"], "dncal: error: unexpected argument '--bad' found (see dncal simulate histograms --help)");
     assert_usage(&["completions", "tcsh"], "dncal: error: invalid value 'tcsh' for '<SHELL>' [possible values: bash, elvish, fish, powershell, zsh] (see dncal completions --help)");

@@ -3,11 +3,13 @@
 //! Both directions: files astropy wrote (`tests/fixtures/`, made by
 //! `scripts/make_fits_fixtures.py`) must read with every value equal to the formulas
 //! documented there, written out again here; files dncal writes must open in astropy
-//! (`python3`, checked with `verify('exception')`) with the shapes, dtypes, keys and values
+//! (the project's astropy venv, checked with `verify('exception')`) with the shapes, dtypes, keys and values
 //! of `docs/formats.md`.
 //!
-//! Needs astropy: `python3 -m pip install astropy numpy`. Without it these tests fail,
-//! on purpose; they do not skip.
+//! Needs Python 3 with venv and pip: `scripts/astropy-venv.sh` makes target/astropy-venv
+//! (astropy, numpy) when missing. Without it these tests fail, on purpose; they do not skip.
+
+mod support;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -144,15 +146,15 @@ print(json.dumps(out))
 "#;
 
 fn astropy_describe(path: &Path) -> Vec<Value> {
-    let out = Command::new("python3")
+    let out = support::python()
         .arg("-c")
         .arg(DESCRIBE)
         .arg(path)
         .output()
-        .expect("python3 must be installed to check FITS files against astropy");
+        .expect("the astropy venv's python runs");
     assert!(
         out.status.success(),
-        "astropy could not open {} (install it with `python3 -m pip install astropy numpy`):\n{}",
+        "astropy could not open {} (scripts/astropy-venv.sh makes its venv):\n{}",
         path.display(),
         String::from_utf8_lossy(&out.stderr)
     );
@@ -315,7 +317,7 @@ with fits.open(sys.argv[1]) as hdul:
 print(json.dumps(out))
 "#;
     let verify = |path: &Path| -> Vec<Value> {
-        let out = Command::new("python3").arg("-c").arg(VERIFY).arg(path).output().expect("python3 with astropy");
+        let out = support::python().arg("-c").arg(VERIFY).arg(path).output().expect("python3 with astropy");
         assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
         serde_json::from_slice::<Value>(&out.stdout).unwrap().as_array().unwrap().clone()
     };
@@ -365,7 +367,7 @@ fn astropy_reads_the_parameters_a_file_was_made_with() {
         .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     const HISTORY: &str = "import sys\nfrom astropy.io import fits\nprint(''.join(str(c) for c in fits.getheader(sys.argv[1])['HISTORY']))";
-    let py = Command::new("python3").arg("-c").arg(HISTORY).arg(dir.path().join("p.fits")).output().expect("python3 with astropy");
+    let py = support::python().arg("-c").arg(HISTORY).arg(dir.path().join("p.fits")).output().expect("python3 with astropy");
     assert!(py.status.success(), "{}", String::from_utf8_lossy(&py.stderr));
     // cfitsio continues a long record on further cards: joined, it is the record again.
     let history = String::from_utf8_lossy(&py.stdout).trim().to_string();
@@ -408,7 +410,7 @@ for path in sys.argv[1:]:
 print(json.dumps(out))
 "#;
     let files = ["lin.fits", "corr/coefficients.fits", "corr/corrected.fits", "h.fits"].map(|f| dir.path().join(f));
-    let py = Command::new("python3").arg("-c").arg(UNITS).args(&files).output().expect("python3 with astropy");
+    let py = support::python().arg("-c").arg(UNITS).args(&files).output().expect("python3 with astropy");
     assert!(py.status.success(), "{}", String::from_utf8_lossy(&py.stderr));
     let got: Value = serde_json::from_slice(&py.stdout).unwrap();
     let want = serde_json::json!({

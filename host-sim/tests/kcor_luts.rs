@@ -89,6 +89,56 @@ fn convert_goes_between_every_format_through_one_home() {
     assert_eq!((inspected["kind"].as_str(), inspected["bit_depth"].as_u64()), (Some("kcor-tables"), Some(12)));
 }
 
+/// `lut inspect` of a deployed K-Cor table (issue 44) names the response curve the four
+/// tables share and gives each ADC's offset with its cubic trend taken out: against numpy
+/// (polyfit of degree 3 over codes 150-4094 of the entries `lut inspect` reports, the
+/// largest |residual|, and the trend's departure from its chord) to 1e-6 DN; and, as a
+/// check of the whole reading, within 0.02 DN of the same fit on the deployed file's own
+/// values (our entries are code centres, the file's the codes' tops: half a code's DN
+/// error apart).
+#[test]
+fn inspect_names_the_kcor_tables_response_curve_and_takes_it_out() {
+    let Some(dir) = luts_dir() else { return };
+    let script = r#"
+import json, sys, numpy as np
+report, raw_spec = json.load(open(sys.argv[1])), sys.argv[2]
+k = np.arange(4096); sel = np.arange(150, 4095); x = k / 4095
+out = []
+for a, adc in enumerate(report["adcs"]):
+    fits = []
+    for e in (np.array(adc["entries"], dtype=float) / 2048,
+              np.fromfile(raw_spec.replace("{adc}", str(a)), dtype="<u4").astype(float) * 4095 / (2**23 - 1)):
+        c = np.polyfit(x[sel], e[sel], 3)
+        tr = np.polyval(c, x)
+        chord = tr[0] + (tr[-1] - tr[0]) * x
+        fits.append({"offset": float(np.abs(e[sel] - tr[sel]).max()), "bow": float(np.abs(tr - chord).max())})
+    out.append(fits)
+print(json.dumps(out))
+"#;
+    let tmp = tempfile::tempdir().unwrap();
+    for cam in CAMERAS {
+        let spec = dir.join(format!("Photonfocus_MV-D1024E_{cam}_adc{{adc}}_20131203.bin"));
+        let one = dir.join(format!("Photonfocus_MV-D1024E_{cam}_adc0_20131203.bin"));
+        let out = dncal(&["lut", "inspect", one.to_str().unwrap(), "--json"]);
+        let report_path = tmp.path().join(format!("{cam}.json"));
+        std::fs::write(&report_path, &out.stdout).unwrap();
+        let report = json(out, "lut inspect");
+        let py = support::python().arg("-c").arg(script).arg(&report_path).arg(&spec).output().unwrap();
+        let numpy = json(py, "numpy oracle");
+        let common = &report["common_trend"];
+        assert!(common["bow_dn"].as_f64().is_some_and(|b| (200.0..=262.0).contains(&b)), "camera {cam}: {common}");
+        for (a, (ours, theirs)) in report["adcs"].as_array().unwrap().iter().zip(numpy.as_array().unwrap()).enumerate() {
+            let (offset, bow) = (ours["detrended_max_abs_offset_dn"].as_f64().unwrap(), ours["trend_bow_dn"].as_f64().unwrap());
+            assert!((offset - theirs[0]["offset"].as_f64().unwrap()).abs() < 1e-6, "camera {cam} ADC {a}: {offset} vs {}", theirs[0]);
+            assert!((bow - theirs[0]["bow"].as_f64().unwrap()).abs() < 1e-6, "camera {cam} ADC {a}: bow {bow} vs {}", theirs[0]);
+            assert!((offset - theirs[1]["offset"].as_f64().unwrap()).abs() < 0.02, "camera {cam} ADC {a}: {offset} vs the file's {}", theirs[1]);
+            assert!(ours["max_abs_offset_dn"].as_f64().unwrap() > 150.0, "the raw offset is the response curve's: {}", ours["max_abs_offset_dn"]);
+        }
+        let text = String::from_utf8_lossy(&dncal(&["lut", "inspect", one.to_str().unwrap()]).stdout).into_owned();
+        assert!(text.contains("common trend: the 4 tables share a smooth response curve") && text.contains("DN with the trend taken out"), "{text}");
+    }
+}
+
 /// The same tables at the other scaling: the 2^22 and 2^23 files are two roundings of one
 /// table, so exporting the 23-bit import at 22 bits gives the 22-bit file to within one
 /// unit per entry (measured: not byte for byte).
@@ -182,7 +232,7 @@ for spec in sys.argv[1:]:
         out.append({"rms": 100 * r.std(), "offset": np.abs(o).max(), "bow": np.abs(tr - chord).max()})
 print(json.dumps(out))
 "#;
-    let py = Command::new("python3").arg("-c").arg(script).args(&specs).output().unwrap();
+    let py = support::python().arg("-c").arg(script).args(&specs).output().unwrap();
     let numpy = json(py, "numpy oracle");
     let adcs = report["adcs"].as_array().unwrap();
     assert_eq!(adcs.len(), 12);
@@ -448,7 +498,7 @@ for f in range(n):
     sums[f % s] += lut[adc[None, :], codes[f]]
 sums.astype("<u8").tofile(out)
 "#;
-    let py = Command::new("python3")
+    let py = support::python()
         .arg("-c")
         .arg(script)
         .arg(&spec)

@@ -112,7 +112,9 @@ impl Report for DemoSummary {
             let names: Vec<String> = d.diagnosis.findings.iter().map(|f| format!("{} (gain {:.2})", f.label(), f.gain)).collect();
             t += &format!("diagnose {what}: {}\n", if names.is_empty() { "no finding".to_string() } else { names.join(", ") });
         }
-        t + &format!("report: {}\n", self.report.display())
+        // Absolute, so that it opens from wherever the user (or scripts/demo.sh) ran it.
+        let report = std::path::absolute(&self.report).unwrap_or_else(|_| self.report.clone());
+        t + &format!("report: {}\n", report.display())
     }
 }
 

@@ -19,7 +19,6 @@ pub const DEADLINE: Duration = Duration::from_secs(600);
 /// How long a refusal may take ([`dncal_prompt`]): a bad input must be refused at once.
 pub const PROMPT: Duration = Duration::from_secs(60);
 
-/// `dncal args` started in `dir`, stdin closed, stdout and stderr captured.
 /// The K-Coronagraph's shared tables' folder; `DNCAL_KCOR_LUTS` overrides it. `None`
 /// (the test then says it skips) where it is absent.
 #[allow(dead_code)]
@@ -35,6 +34,20 @@ pub fn kcor_luts_dir() -> Option<PathBuf> {
     }
 }
 
+/// `python` of the project's astropy venv (target/astropy-venv, made by
+/// scripts/astropy-venv.sh when missing): astropy and numpy, never the system Python's.
+pub fn python() -> Command {
+    static PYTHON: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
+    let py = PYTHON.get_or_init(|| {
+        let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scripts/astropy-venv.sh");
+        let out = Command::new(&script).output().expect("scripts/astropy-venv.sh runs");
+        assert!(out.status.success(), "astropy-venv.sh failed:\n{}", String::from_utf8_lossy(&out.stderr));
+        PathBuf::from(String::from_utf8_lossy(&out.stdout).lines().last().expect("the venv's python path").trim())
+    });
+    Command::new(py)
+}
+
+/// `dncal args` started in `dir`, stdin closed, stdout and stderr captured.
 pub fn spawn(args: &[&str], dir: &Path) -> Child {
     Command::new(env!("CARGO_BIN_EXE_dncal"))
         .args(args)
@@ -128,6 +141,8 @@ fn assert_one_line_error(out: &Output, code: i32, names: &str, words: &str) {
     assert_eq!(out.status.code(), Some(code), "stderr: {stderr}");
     assert!(!stderr.contains("panicked"), "panic: {stderr}");
     assert!(stderr.starts_with("dncal: error: ") && stderr.lines().count() == 1, "{stderr}");
+    // The system's words, not Rust's (issue 44).
+    assert!(!stderr.contains("(os error"), "{stderr}");
     assert!(stderr.contains(names), "{stderr:?} should name {names}");
     assert!(stderr.to_lowercase().contains(&words.to_lowercase()), "{stderr:?} should say {words:?}");
 }

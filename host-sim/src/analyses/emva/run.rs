@@ -37,7 +37,12 @@ impl Serialize for EmvaSummary {
 
 impl Report for EmvaSummary {
     fn text(&self) -> String {
-        datasheet_text(&self.set, &self.sheet) + &wrote(&self.written)
+        let page = match self.written.is_empty() {
+            // Said where it helps: a user who ran without -o may not know there is a page.
+            true => "(-o DIR writes this datasheet as DIR/datasheet.html with the standard's plots, and DIR/datasheet.json)\n".to_string(),
+            false => wrote(&self.written),
+        };
+        datasheet_text(&self.set, &self.sheet) + &page
     }
 }
 

@@ -246,7 +246,7 @@ fn man_pages(out: Option<&Path>) -> Result<(), HostError> {
 /// `--help` explains: `dncal: error: invalid value 'abc' for '--sigma <SIGMA>': invalid
 /// float literal (see dncal quantization --help)`.
 fn usage_error(e: clap::Error) -> ExitCode {
-    use clap::error::ErrorKind;
+    use clap::error::{ContextKind, ContextValue, ErrorKind};
     if matches!(e.kind(), ErrorKind::DisplayHelp | ErrorKind::DisplayVersion) {
         let _ = e.print();
         return ExitCode::SUCCESS;
@@ -262,6 +262,13 @@ fn usage_error(e: clap::Error) -> ExitCode {
     let message: Vec<&str> = text.lines().take_while(|l| !l.trim().is_empty()).map(str::trim).collect();
     let message = message.join(" ");
     let message = message.trim_start_matches("error: ");
+    // clap's "tip: a similar subcommand exists" is below the blank line: kept, in one line.
+    let suggested = [ContextKind::SuggestedSubcommand, ContextKind::SuggestedArg].into_iter().find_map(|kind| match e.get(kind) {
+        Some(ContextValue::String(s)) => Some(vec![s.clone()]),
+        Some(ContextValue::Strings(v)) if !v.is_empty() => Some(v.clone()),
+        _ => None,
+    });
+    let tip = suggested.map_or(String::new(), |v| format!("; did you mean {}?", v.iter().map(|s| format!("'{s}'")).collect::<Vec<_>>().join(" or ")));
     // The subcommand path: the words of the command line that name subcommands.
     let mut cmd = command();
     let mut path = vec!["dncal".to_string()];
@@ -271,6 +278,6 @@ fn usage_error(e: clap::Error) -> ExitCode {
         path.push(sub.get_name().to_string());
         cmd = sub;
     }
-    eprintln!("dncal: error: {} (see {} --help)", dncal_host::infra::printable::printable(message), path.join(" "));
+    eprintln!("dncal: error: {}{} (see {} --help)", dncal_host::infra::printable::printable(message), dncal_host::infra::printable::printable(&tip), path.join(" "));
     ExitCode::from(2)
 }
