@@ -8,7 +8,6 @@
 mod support;
 
 use std::path::Path;
-use std::process::Command;
 
 use dncal_host::formats::fits::{read_histograms, read_lut};
 use serde_json::Value;

@@ -111,18 +111,39 @@ fn draw_axes<DB: DrawingBackend>(
 /// the data, never over it.
 const LEGEND_WIDTH: u32 = 250;
 
-/// Draws a legend entry per `(label, color, dashed)` in `area`, top down; labels wider than
+/// How a series of a line plot is drawn.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Stroke {
+    /// A solid line.
+    Line,
+    /// Dashes of `dash` pixels `gap` apart, `width` pixels wide.
+    Dashed { dash: u32, gap: u32, width: u32 },
+    /// A circle at each point, no line: measurements.
+    Markers,
+    /// A shaded band over an x range (the legend's swatch).
+    Band,
+}
+
+/// The dashed noise bands of [`dnl_inl_plot`], as their legend shows them.
+const NOISE_BAND: Stroke = Stroke::Dashed { dash: 5, gap: 3, width: 2 };
+
+/// The shade of a [`PlotStyle::x_band`]: light enough that lines and markers stay legible.
+const BAND: RGBColor = RGBColor(225, 225, 225);
+
+/// Draws a legend entry per `(label, color, stroke)` in `area`, top down; labels wider than
 /// the column are wrapped at spaces.
-fn draw_legend<DB: DrawingBackend>(area: &DrawingArea<DB, plotters::coord::Shift>, entries: &[(String, RGBColor, bool)], path: &Path) -> Result<(), HostError> {
+fn draw_legend<DB: DrawingBackend>(area: &DrawingArea<DB, plotters::coord::Shift>, entries: &[(String, RGBColor, Stroke)], path: &Path) -> Result<(), HostError> {
     let font = ("sans-serif", 13).into_font();
     let mut y = 18i32;
-    for (label, color, dashed) in entries {
+    for (label, color, stroke) in entries {
         let style = color.stroke_width(2);
-        if *dashed {
-            area.draw(&DashedPathElement::new(vec![(6, y), (30, y)], 5, 3, style)).map_err(|e| plot_err(path, e))?;
-        } else {
-            area.draw(&PathElement::new(vec![(6, y), (30, y)], style)).map_err(|e| plot_err(path, e))?;
+        match *stroke {
+            Stroke::Dashed { dash, gap, width } => area.draw(&DashedPathElement::new(vec![(6, y), (30, y)], dash, gap, color.stroke_width(width.max(2)))),
+            Stroke::Line => area.draw(&PathElement::new(vec![(6, y), (30, y)], style)),
+            Stroke::Markers => area.draw(&Circle::new((18, y), 3, color.filled())),
+            Stroke::Band => area.draw(&Rectangle::new([(6, y - 6), (30, y + 6)], BAND.filled())),
         }
+        .map_err(|e| plot_err(path, e))?;
         for line in wrap(label, 30) {
             area.draw(&Text::new(line, (36, y - 7), font.clone())).map_err(|e| plot_err(path, e))?;
             y += 16;
@@ -171,9 +192,44 @@ pub fn line_plot(out: &mut Outputs, path: &Path, title: &str, x_label: &str, y_l
 /// and its reference, as the paper's Fig. 8 draws each RMS and its random noise.
 #[allow(clippy::too_many_arguments)] // a figure's texts, its data and where it goes
 pub fn line_plot_paired(out: &mut Outputs, path: &Path, title: &str, x_label: &str, y_label: &str, series: &[Series], panels: usize, dashed_from: usize) -> Result<(), HostError> {
+    line_plot_styled(out, path, title, x_label, y_label, series, &PlotStyle { panels, dashed_from, ..PlotStyle::default() })
+}
+
+/// How [`line_plot_styled`] draws its series.
+#[derive(Debug, Clone, Default)]
+pub struct PlotStyle {
+    /// Panels stacked vertically: series `i` goes to panel `i % panels` (0 is taken as 1).
+    pub panels: usize,
+    /// Series from this index on are references, drawn dashed in the colors of the first
+    /// ones ([`line_plot_paired`]); `None` of them when it is at least the series' count
+    /// (0 here means none too: [`PlotStyle::default`] has no references).
+    pub dashed_from: usize,
+    /// Series drawn as markers (measurements), by index.
+    pub markers: Vec<usize>,
+    /// A shaded x range behind every panel, with its legend label (a fit's range).
+    pub x_band: Option<(f64, f64, String)>,
+}
+
+/// The dash of reference `k` (0 = the first reference) of `n`: each reference its own
+/// pattern, and all but the last drawn wider, so that references that coincide (Fig. 8's
+/// random floors of the standard and the pixel-wise correction lie on one curve) stay
+/// visible under one another.
+pub fn reference_stroke(k: usize, n: usize) -> Stroke {
+    const PATTERNS: [(u32, u32); 3] = [(6, 4), (2, 3), (10, 4)];
+    let (dash, gap) = PATTERNS[k % PATTERNS.len()];
+    Stroke::Dashed { dash, gap, width: if k + 1 < n { 2 } else { 1 } }
+}
+
+/// A line plot of `series` drawn as `style` says, staged in `out` as a PNG at `path`: one
+/// panel is 480 pixels high (a readable aspect for one curve family), several are 260
+/// each.
+#[allow(clippy::too_many_arguments)] // a figure's texts, its data and where it goes
+pub fn line_plot_styled(out: &mut Outputs, path: &Path, title: &str, x_label: &str, y_label: &str, series: &[Series], style: &PlotStyle) -> Result<(), HostError> {
     ensure_font();
-    let panels = panels.max(1);
-    let (width, height) = (1000u32 + LEGEND_WIDTH, 260 * panels as u32 + 60);
+    let panels = style.panels.max(1);
+    let dashed_from = if style.dashed_from == 0 { series.len() } else { style.dashed_from };
+    let panel_height = if panels == 1 { 480 } else { 260 };
+    let (width, height) = (1000u32 + LEGEND_WIDTH, panel_height * panels as u32 + 60);
     let mut rgb = vec![0u8; (width * height * 3) as usize];
     {
         let root = BitMapBackend::with_buffer(&mut rgb, (width, height)).into_drawing_area();
@@ -193,18 +249,35 @@ pub fn line_plot_paired(out: &mut Outputs, path: &Path, title: &str, x_label: &s
                 .y_label_area_size(70)
                 .build_cartesian_2d(xr.clone(), yr.clone())
                 .map_err(|e| plot_err(path, e))?;
-            draw_axes(&mut chart, (x_label, xr), (y_label, yr), 14, true, path)?;
-            // References (dashed) first, so that the measured curves are drawn over them.
-            let color_of = |i: usize| if i >= dashed_from { COLORS[(i - dashed_from) % COLORS.len()] } else { COLORS[i % COLORS.len()] };
-            for &(i, s) in mine.iter().filter(|(i, _)| *i >= dashed_from).chain(mine.iter().filter(|(i, _)| *i < dashed_from)) {
-                let points = s.points.iter().copied().filter(|(x, y)| x.is_finite() && y.is_finite());
-                if i >= dashed_from {
-                    chart.draw_series(DashedLineSeries::new(points, 6, 4, color_of(i).stroke_width(1))).map_err(|e| plot_err(path, e))?;
-                } else {
-                    chart.draw_series(LineSeries::new(points, color_of(i).stroke_width(1))).map_err(|e| plot_err(path, e))?;
+            draw_axes(&mut chart, (x_label, xr.clone()), (y_label, yr.clone()), 14, true, path)?;
+            if let Some((a, b, _)) = &style.x_band {
+                let (a, b) = (a.max(xr.start), b.min(xr.end));
+                if b > a {
+                    chart.draw_series(std::iter::once(Rectangle::new([(a, yr.start), (b, yr.end)], BAND.filled()))).map_err(|e| plot_err(path, e))?;
                 }
             }
-            let entries: Vec<(String, RGBColor, bool)> = mine.iter().map(|&(i, s)| (s.label.clone(), color_of(i), i >= dashed_from)).collect();
+            // References (dashed) first, so that the measured curves are drawn over them.
+            let n_refs = series.len().saturating_sub(dashed_from);
+            let color_of = |i: usize| if i >= dashed_from { COLORS[(i - dashed_from) % COLORS.len()] } else { COLORS[i % COLORS.len()] };
+            let stroke_of = |i: usize| match () {
+                _ if i >= dashed_from => reference_stroke(i - dashed_from, n_refs),
+                _ if style.markers.contains(&i) => Stroke::Markers,
+                _ => Stroke::Line,
+            };
+            for &(i, s) in mine.iter().filter(|(i, _)| *i >= dashed_from).chain(mine.iter().filter(|(i, _)| *i < dashed_from)) {
+                let points = s.points.iter().copied().filter(|(x, y)| x.is_finite() && y.is_finite());
+                let color = color_of(i);
+                match stroke_of(i) {
+                    Stroke::Dashed { dash, gap, width } => chart.draw_series(DashedLineSeries::new(points, dash, gap, color.stroke_width(width))).map(|_| ()),
+                    Stroke::Markers => chart.draw_series(points.map(|p| Circle::new(p, 3, color.filled()))).map(|_| ()),
+                    Stroke::Line | Stroke::Band => chart.draw_series(LineSeries::new(points, color.stroke_width(1))).map(|_| ()),
+                }
+                .map_err(|e| plot_err(path, e))?;
+            }
+            let mut entries: Vec<(String, RGBColor, Stroke)> = mine.iter().map(|&(i, s)| (s.label.clone(), color_of(i), stroke_of(i))).collect();
+            if let Some((_, _, label)) = &style.x_band {
+                entries.push((label.clone(), BAND, Stroke::Band));
+            }
             draw_legend(&legend, &entries, path)?;
         }
         root.present().map_err(|e| plot_err(path, e))?;
@@ -314,6 +387,35 @@ pub fn contour_segments(v: &[Vec<f64>], level: f64) -> Vec<[(f64, f64); 2]> {
         }
     }
     out
+}
+
+/// The values between `level`'s neighbours among `contours` (open at each end that has
+/// no neighbour): where a label of `level` can stand without covering another contour.
+pub fn contour_band(contours: &[f64], level: f64) -> (f64, f64) {
+    let below = contours.iter().copied().filter(|&c| c < level).fold(f64::NEG_INFINITY, f64::max);
+    let above = contours.iter().copied().filter(|&c| c > level).fold(f64::INFINITY, f64::min);
+    (below, above)
+}
+
+/// Whether a label box centred at grid point `at` (column, row), `half` cells either side,
+/// lies on cells that are all drawn (`drawn`) and all strictly inside `band`: every cell
+/// the box touches, all inside the grid (a one-cell line of another value, such as the
+/// K-Cor maps' Q = 0 row, is never skipped).
+pub fn label_fits(values: &[Vec<f64>], at: (f64, f64), half: (f64, f64), (lo, hi): (f64, f64), drawn: impl Fn(f64) -> bool) -> bool {
+    // Cell (c, r) covers c - 1/2 .. c + 1/2 (and r likewise): the box touches it when the
+    // intervals overlap.
+    let span = |centre: f64, half: f64| ((centre - half + 0.5).floor() as i64, (centre + half - 0.5).ceil() as i64);
+    let ((c0, c1), (r0, r1)) = (span(at.0, half.0), span(at.1, half.1));
+    if c0 < 0 || r0 < 0 || r1 as usize >= values.len() {
+        return false;
+    }
+    (r0..=r1).all(|r| {
+        let row = &values[r as usize];
+        (c1 as usize) < row.len() && (c0..=c1).all(|c| {
+            let x = row[c as usize];
+            drawn(x) && x > lo && x < hi
+        })
+    })
 }
 
 /// How a map's cell is drawn.
@@ -447,10 +549,21 @@ pub fn map_plot(out: &mut Outputs, path: &Path, map: &Map) -> Result<(), HostErr
             let mut candidates: Vec<(f64, f64)> = segs.iter().map(|[a, _]| *a).collect();
             candidates.sort_by(|a, b| (a.0 - target).abs().total_cmp(&(b.0 - target).abs()));
             let (w, h) = (8 * label.len() as i32 + 8, 20);
-            let spot = candidates.iter().map(|&(cx, cy)| chart.backend_coord(&(x0 + cx * dx, y0 + cy * dy))).find(|&(px, py)| {
+            // The box's half size in cells, from the chart's pixels per cell.
+            let (p0, p1) = (chart.backend_coord(&(x0, y0)), chart.backend_coord(&(x0 + dx, y0 + dy)));
+            let half = (f64::from(w) / 2.0 / f64::from((p1.0 - p0.0).abs().max(1)), f64::from(h) / 2.0 / f64::from((p1.1 - p0.1).abs().max(1)));
+            let band = contour_band(map.contours, level);
+            let drawn = |v: f64| matches!(shade(map, (lo, hi), v), Shade::Scale(_));
+            let free = |(px, py): (i32, i32)| {
                 let b = (px - w / 2, py - h / 2, px + w / 2, py + h / 2);
                 !placed.iter().any(|p| b.0 < p.2 && p.0 < b.2 && b.1 < p.3 && p.1 < b.3)
-            });
+            };
+            // Where it can, a label sits on its own band of values (never across another
+            // contour, on missing cells or over the map's edge); else where it is free.
+            let on_own_band = candidates.iter().find(|&&at| label_fits(map.values, at, half, band, drawn) && free(chart.backend_coord(&(x0 + at.0 * dx, y0 + at.1 * dy))));
+            let spot = on_own_band
+                .map(|&(cx, cy)| chart.backend_coord(&(x0 + cx * dx, y0 + cy * dy)))
+                .or_else(|| candidates.iter().map(|&(cx, cy)| chart.backend_coord(&(x0 + cx * dx, y0 + cy * dy))).find(|&p| free(p)));
             if let Some((px, py)) = spot {
                 let b = (px - w / 2, py - h / 2, px + w / 2, py + h / 2);
                 placed.push(b);
@@ -552,10 +665,10 @@ pub fn dnl_inl_plot(out: &mut Outputs, path: &Path, title: &str, dnl: &Series, n
             chart.draw_series(std::iter::once(label_at(*x, *y, label, BLACK))).map_err(|e| plot_err(path, e))?;
         }
         let entries = vec![
-            (dnl.label.clone(), COLORS[0], false),
-            (noise[0].label.clone(), COLORS[7], true),
-            (format!("named codes ({})", marks.named.len()), red, false),
-            (format!("missing codes ({}), crossed", marks.missing.len()), BLACK, false),
+            (dnl.label.clone(), COLORS[0], Stroke::Line),
+            (noise[0].label.clone(), COLORS[7], NOISE_BAND),
+            (format!("named codes ({})", marks.named.len()), red, Stroke::Line),
+            (format!("missing codes ({}), crossed", marks.missing.len()), BLACK, Stroke::Line),
         ];
         draw_legend(&legend, &entries, path)?;
         // Bottom: INL end-point and best-fit.
@@ -570,7 +683,7 @@ pub fn dnl_inl_plot(out: &mut Outputs, path: &Path, title: &str, dnl: &Series, n
         }
         chart.draw_series(LineSeries::new(a.iter().copied(), COLORS[1].stroke_width(1))).map_err(|e| plot_err(path, e))?;
         chart.draw_series(LineSeries::new(b.iter().copied(), COLORS[2].stroke_width(1))).map_err(|e| plot_err(path, e))?;
-        draw_legend(&legend, &[(inl[0].label.clone(), COLORS[1], false), (inl[1].label.clone(), COLORS[2], false), (inl_noise[0].label.clone(), COLORS[7], true)], path)?;
+        draw_legend(&legend, &[(inl[0].label.clone(), COLORS[1], Stroke::Line), (inl[1].label.clone(), COLORS[2], Stroke::Line), (inl_noise[0].label.clone(), COLORS[7], NOISE_BAND)], path)?;
         root.present().map_err(|e| plot_err(path, e))?;
     }
     write_png(out, path, &rgb, width, height)
@@ -677,6 +790,58 @@ mod tests {
             crate::formats::outputs::write_one(|out| map_plot(out, &path, &map)).unwrap();
             assert_eq!(&std::fs::read(&path).unwrap()[..4], b"\x89PNG");
         }
+    }
+
+    /// A label box may stand where every sampled cell is drawn and between the level's
+    /// neighbouring contours; not across another contour, on a missing cell or over the edge.
+    #[test]
+    fn a_contour_label_stands_only_on_its_own_band() {
+        // Values rise with the column: 0, 1, ..., 9 in every row.
+        let values: Vec<Vec<f64>> = (0..6).map(|_| (0..10).map(f64::from).collect()).collect();
+        let band = contour_band(&[2.5, 5.5, 8.5], 5.5);
+        assert_eq!(band, (2.5, 8.5));
+        let all = |_: f64| true;
+        assert!(label_fits(&values, (5.0, 2.5), (2.0, 1.0), band, all), "columns 3..7 lie within 2.5..8.5");
+        assert!(!label_fits(&values, (5.0, 2.5), (3.0, 1.0), band, all), "columns 2..8 cross 2.5");
+        assert!(!label_fits(&values, (5.0, 0.2), (1.0, 1.0), band, all), "the box reaches below row 0's edge at -0.5");
+        assert!(!label_fits(&values, (5.0, 2.5), (1.0, 1.0), band, |v| v != 6.0), "a cell not drawn");
+        // One row of zeros (not drawn) inside a tall box: never skipped between samples.
+        let mut lined = values.clone();
+        lined[2] = vec![0.0; 10];
+        assert!(!label_fits(&lined, (5.0, 3.0), (1.0, 1.6), band, |v| v != 0.0));
+        assert!(label_fits(&lined, (5.0, 4.0), (1.0, 1.0), band, |v| v != 0.0), "rows 3..5 only");
+        assert_eq!(contour_band(&[1e-10, 1e-9, 1e-8], 1e-10), (f64::NEG_INFINITY, 1e-9));
+    }
+
+    /// Fig. 8's two random floors coincide: the first one drawn (under the second) must
+    /// still show. Pixels of each reference's colour, read back from the PNG, with both
+    /// references on one curve against each drawn alone: the one beneath keeps at least
+    /// a third of its pixels.
+    #[test]
+    fn coinciding_references_stay_visible() {
+        let dir = tempfile::tempdir().unwrap();
+        let line = |y0: f64, slope: f64| Series { label: "s".into(), points: (0..40).map(|i| (f64::from(i) / 39.0, y0 + slope * f64::from(i) / 39.0)).collect() };
+        let count = |series: &[Series], color: RGBColor| -> usize {
+            let path = dir.path().join("f.png");
+            crate::formats::outputs::write_one(|out| line_plot_paired(out, &path, "t", "x", "y", series, 1, 2)).unwrap();
+            let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&path).unwrap()));
+            let mut reader = decoder.read_info().unwrap();
+            let mut buf = vec![0; reader.output_buffer_size()];
+            let info = reader.next_frame(&mut buf).unwrap();
+            // The plotting area only (left of the legend column).
+            let w = info.width as usize;
+            buf[..info.buffer_size()].chunks(3).enumerate().filter(|(i, p)| i % w < 1000 && p[0] == color.0 && p[1] == color.1 && p[2] == color.2).count()
+        };
+        // Measured series 0 has no points, so its colour in the plot is its reference's
+        // alone; series 1 spans the y range of both cases.
+        let empty = Series { label: "m0".into(), points: Vec::new() };
+        let apart = [empty, line(-3.0, -0.8), line(-3.5, 0.2), line(-3.1, 0.05)];
+        let beneath_alone = count(&apart, COLORS[0]);
+        let on_one_curve = [Series { label: "m0".into(), points: Vec::new() }, line(-3.0, -0.8), line(-3.5, 0.2), line(-3.5, 0.2)];
+        let beneath_under = count(&on_one_curve, COLORS[0]);
+        assert!(beneath_alone > 100, "{beneath_alone}");
+        assert!(beneath_under * 3 >= beneath_alone, "the reference beneath: {beneath_under} pixels of {beneath_alone}");
+        assert!(count(&on_one_curve, COLORS[1]) > 50);
     }
 
     #[test]

@@ -6,9 +6,9 @@
 
 use std::path::{Path, PathBuf};
 
-use super::{Datasheet, Release};
+use super::{Datasheet, PtcSummary, Release};
 use crate::formats::outputs::{html_escape as esc, html_figure, html_path, Outputs};
-use crate::formats::plots::{line_plot, Series};
+use crate::formats::plots::{line_plot, line_plot_styled, PlotStyle, Series};
 use crate::HostError;
 
 /// One datasheet row: value with unit, or the reason it has none.
@@ -45,31 +45,31 @@ pub fn write_datasheet(dir: &Path, descriptor: &Path, sheet: &Datasheet) -> Resu
     Ok(files)
 }
 
+/// The photon-transfer figure's data: the measured levels as markers (each one is a
+/// measurement; a line between them would be none), the gain's fit as a line, and the
+/// fit's range (the levels up to 70% of saturation the gain is fitted to) shaded.
+fn ptc_figure(t: &PtcSummary) -> ([Series; 2], PlotStyle) {
+    let points: Vec<(f64, f64)> = t.photon_transfer.clone();
+    let fitted = &t.photon_transfer[..t.gain_fit_levels.min(t.photon_transfer.len())];
+    let (fit_start, fit_end) = (fitted.first().map_or(0.0, |p| p.0), fitted.last().map_or(0.0, |p| p.0));
+    let offset = match t.release {
+        Release::R3 => 0.0,
+        Release::R4 => t.gain_offset_dn2,
+    };
+    let fit: Vec<(f64, f64)> = [0.0, fit_end].iter().map(|&x| (x, offset + t.gain_dn_per_e * x)).collect();
+    let series = [Series { label: "measured levels".into(), points }, Series { label: format!("K = {:.4} DN/e- over the fit range", t.gain_dn_per_e), points: fit }];
+    let band = format!("fit range: the {} levels up to 70% of saturation", fitted.len());
+    (series, PlotStyle { panels: 1, markers: vec![0], x_band: Some((fit_start, fit_end, band)), ..PlotStyle::default() })
+}
+
 /// Stages the datasheet's figures in `dir`: photon transfer, SNR, linearity and, where
 /// the set has the spatial images, the spectrograms and defect histograms.
 fn figures(staged: &mut Outputs, dir: &Path, sheet: &Datasheet) -> Result<Vec<PathBuf>, HostError> {
     let (t, s) = (&sheet.temporal, &sheet.spatial);
     let mut files = Vec::new();
     let ptc = dir.join("photon_transfer.png");
-    let points: Vec<(f64, f64)> = t.photon_transfer.iter().map(|p| (p.0, p.1)).collect();
-    let fit_end = t.photon_transfer.get(t.gain_fit_levels.saturating_sub(1)).map_or(0.0, |p| p.0);
-    let offset = match t.release {
-        Release::R3 => 0.0,
-        Release::R4 => t.gain_offset_dn2,
-    };
-    let fit: Vec<(f64, f64)> = [0.0, fit_end].iter().map(|&x| (x, offset + t.gain_dn_per_e * x)).collect();
-    line_plot(
-        staged,
-        &ptc,
-        "Photon transfer: temporal variance above dark against mean above dark",
-        "mean above dark (DN)",
-        "variance - dark variance (DN^2)",
-        &[
-            Series { label: "measured".into(), points },
-            Series { label: format!("K = {:.4} DN/e- over the fit range", t.gain_dn_per_e), points: fit },
-        ],
-        1,
-    )?;
+    let (series, style) = ptc_figure(t);
+    line_plot_styled(staged, &ptc, "Photon transfer: temporal variance above dark against mean above dark", "mean above dark (DN)", "variance - dark variance (DN^2)", &series, &style)?;
     files.push(ptc);
 
     let snr = dir.join("snr.png");
@@ -211,4 +211,29 @@ fn page_html(descriptor: &Path, sheet: &Datasheet, figures: &[PathBuf]) -> Strin
         }
     }
     html + "</body></html>\n"
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Issue 44: on the real CCD, the photon-transfer figure draws every level as a
+    /// marker, and its shaded fit range holds exactly the levels the gain was fitted to
+    /// (read from the figure's data: the points whose mean lies in the band).
+    #[test]
+    fn the_photon_transfer_figure_marks_its_levels_and_fit_range() {
+        let Some(real) = crate::analyses::emva::descriptor::tests::real_descriptor() else { return };
+        let set = crate::analyses::emva::read_descriptor(&real).unwrap();
+        let sheet = crate::analyses::emva::datasheet(&set, None).unwrap();
+        let t = &sheet.temporal;
+        let (series, style) = ptc_figure(t);
+        assert_eq!(style.markers, [0]);
+        assert_eq!(series[0].points.len(), t.photon_transfer.len());
+        let (a, b, label) = style.x_band.clone().unwrap();
+        let inside = series[0].points.iter().filter(|p| (a..=b).contains(&p.0)).count();
+        assert!(t.gain_fit_levels >= 10 && t.gain_fit_levels < t.photon_transfer.len(), "{}", t.gain_fit_levels);
+        assert_eq!(inside, t.gain_fit_levels, "levels in the band {a}..{b}");
+        assert!(label.contains(&format!("the {} levels", t.gain_fit_levels)), "{label}");
+        assert_eq!(series[1].points.last().unwrap().0, b, "the fit line ends where the range does");
+    }
 }

@@ -178,8 +178,13 @@ pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, real
 
 /// The paper's Figs. 4 and 5 as drawn: the magnitude `|dQ|` of the signed errors (a
 /// negative error is as large as a positive one), on one log scale for both maps (they
-/// are compared) from the largest `|dQ|` of either down six decades; a magnitude below
-/// that is drawn at the scale's bottom, only an error of exactly 0 in grey.
+/// are compared) from the largest `|dQ|` of either down to the smallest non-zero one
+/// but the 1% smallest ([`SCALE_PERCENTILE`]; at most six decades): the colours span the
+/// values the maps hold. A magnitude below the bottom is drawn at the bottom colour,
+/// only an error of exactly 0 in grey.
+/// The fraction of the maps' non-zero magnitudes left below the colour scale's bottom.
+const SCALE_PERCENTILE: f64 = 0.01;
+
 struct MagnitudeMaps {
     raw: Vec<Vec<f64>>,
     lut: Vec<Vec<f64>>,
@@ -190,8 +195,14 @@ impl MagnitudeMaps {
     fn of(r: &KcorResult) -> Self {
         let abs = |g: &[Vec<f64>]| -> Vec<Vec<f64>> { g.iter().map(|row| row.iter().map(|v| v.abs()).collect()).collect() };
         let (raw, lut) = (abs(&r.dq_raw), abs(&r.dq_lut));
-        let top = raw.iter().chain(&lut).flatten().copied().filter(|v| v.is_finite()).fold(0.0f64, f64::max);
-        MagnitudeMaps { raw, lut, range: (top > 0.0).then_some((top * 1e-6, top)) }
+        let mut nonzero: Vec<f64> = raw.iter().chain(&lut).flatten().copied().filter(|v| v.is_finite() && *v > 0.0).collect();
+        nonzero.sort_by(f64::total_cmp);
+        let range = match (nonzero.get((SCALE_PERCENTILE * nonzero.len() as f64) as usize), nonzero.last()) {
+            (Some(&bottom), Some(&top)) if top > bottom => Some((bottom.max(top * 1e-6), top)),
+            (_, Some(&top)) => Some((top * 1e-6, top)),
+            _ => None,
+        };
+        MagnitudeMaps { raw, lut, range }
     }
 
     /// The two maps with their file names.
@@ -205,7 +216,7 @@ impl MagnitudeMaps {
             values,
             x_range: (0.0, i_max),
             y_range,
-            scale_label: "|dQ| (B_sun), log scale from max |dQ|",
+            scale_label: "|dQ| (B_sun), log scale",
             log: true,
             contours: &[1e-8, 1e-9, 1e-10],
             range: self.range,
@@ -269,5 +280,25 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// Issue 44: the colour scale spans the values the maps hold. Its bottom is a value
+    /// of the maps (counted here, independently, from the signed grids): at most 1% of the
+    /// non-zero magnitudes lie below it, and it is above the smallest one where the
+    /// maps' range is wider than that percentile (the old scale reached six decades below
+    /// the top, 1e-14 under data from 1e-10).
+    #[test]
+    fn the_colour_scale_spans_the_maps_values() {
+        let camera = Camera::new(CameraConfig::default()).unwrap();
+        let r = kcor_model(&camera, &KcorParams { steps: 24, ..KcorParams::default() }, None, 1, None).unwrap().result;
+        let magnitudes: Vec<f64> = r.dq_raw.iter().chain(&r.dq_lut).flatten().filter(|v| v.is_finite() && **v != 0.0).map(|v| v.abs()).collect();
+        let smallest = magnitudes.iter().copied().fold(f64::INFINITY, f64::min);
+        let maps = MagnitudeMaps::of(&r);
+        let (lo, hi) = map_scale(&maps.maps(&r)[0].1);
+        let bottom = 10f64.powf(lo);
+        let below = magnitudes.iter().filter(|&&m| m < bottom * (1.0 - 1e-12)).count();
+        assert!(below as f64 <= 0.01 * magnitudes.len() as f64 + 1.0, "{below} of {} below the scale", magnitudes.len());
+        assert!(bottom > smallest, "bottom {bottom:e}, smallest {smallest:e}");
+        assert!(hi - lo < 6.0, "{} decades", hi - lo);
     }
 }
