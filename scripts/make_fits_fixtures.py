@@ -5,8 +5,7 @@ The files go to host-sim/tests/fixtures/ and are committed; host-sim/tests/fits_
 reads them and checks every value against the formulas below (written out again there,
 independently). Rerun after changing a formula:
 
-    python3 -m pip install astropy numpy
-    python3 scripts/make_fits_fixtures.py
+    "$(scripts/astropy-venv.sh | tail -n 1)" scripts/make_fits_fixtures.py
 
 Layouts are those of docs/formats.md. a = ADC (row), k = code (column), l = illumination
 level, r = frame row, c = frame column; all indices start at 0.

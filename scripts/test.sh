@@ -22,11 +22,11 @@ export DNCAL_REQUIRE_BROWSER=1
 # The architecture checks of docs/architecture.md: import cycles, string errors, labels in
 # path fields, the library reaching into the CLI; a count may fall, never rise.
 python3 scripts/arch_check.py --self-test --ratchet scripts/arch_baseline.json >/dev/null
-# The release profile, built by the same command scripts/demo.sh builds with: whichever of
-# the two README commands runs second compiles nothing (the release profile keeps overflow
-# checks on, so an arithmetic overflow fails a test as it would in a debug build).
-cargo test --release --workspace --locked
+# The `checked` profile (optimized, overflow checks on: Cargo.toml), built by the same
+# command scripts/demo.sh builds with: whichever of the two README commands runs second
+# compiles nothing.
+cargo test --profile checked --workspace --locked
 # The Python package: its wheel built into target/python-venv (maturin, numpy, dask... from
 # the registry) and its pytest suite, which compares it with the binary just tested.
-DNCAL_BIN="$PWD/target/release/dncal" scripts/python.sh
+DNCAL_BIN="$(realpath -m "${CARGO_TARGET_DIR:-target}")/checked/dncal" scripts/python.sh
 # Lints (clippy, the core with defmt) are CI's (.ci/run), run after these tests.

@@ -10,9 +10,9 @@ use std::process::Command;
 
 use support::{assert_error, dncal_prompt as dncal, flat_histograms, listing};
 
-#[cfg(unix)]
 /// A missing or unreadable input is named in the system's words, without Rust's
 /// "(os error 2)" (issue 44).
+#[cfg(unix)]
 #[test]
 fn a_missing_input_is_said_in_plain_words() {
     let d = tempfile::tempdir().unwrap();
@@ -20,6 +20,7 @@ fn a_missing_input_is_said_in_plain_words() {
     assert_error(&dncal(&["diagnose", "gone/set.fits"], d.path()), "gone/set.fits: no such file or directory");
 }
 
+#[cfg(unix)]
 #[test]
 fn devices_and_fifos_given_as_inputs_are_refused_at_once() {
     let dir = tempfile::tempdir().unwrap();

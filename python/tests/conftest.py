@@ -14,9 +14,9 @@ ROOT = pathlib.Path(__file__).resolve().parents[2]
 
 @pytest.fixture(scope="session")
 def dncal_bin():
-    path = pathlib.Path(os.environ.get("DNCAL_BIN", ROOT / "target" / "debug" / "dncal"))
+    path = pathlib.Path(os.environ.get("DNCAL_BIN", ROOT / "target" / "checked" / "dncal"))
     if not path.exists():
-        pytest.fail(f"no dncal binary at {path}: build it (cargo build -p dncal-host) or set DNCAL_BIN")
+        pytest.fail(f"no dncal binary at {path}: build it (cargo build --profile checked -p dncal-host) or set DNCAL_BIN")
     return path
 
 

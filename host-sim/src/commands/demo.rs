@@ -134,7 +134,7 @@ fn paper_claims(adc: &AdcReport, q: &SigmaReport, kcor: &KcorSummary, kcor_reduc
         width_rms_pct: adc.adcs.iter().map(|a| a.width_rms_pct).collect(),
         offset_p2p_dn: adc.adcs.iter().map(|a| a.offset_p2p_dn).collect(),
         real_offsets_dn: real.as_ref().map(|r| (REAL_CAMERA.to_string(), r.offsets_dn.0, r.offsets_dn.1)),
-        kcor_raw_real_bsun: real.as_ref().map(|r| r.kcor_raw_bsun),
+        kcor_raw_real_bsun: real.as_ref().map(|r| (r.kcor_adc, r.kcor_raw_bsun)),
         rms_raw_dn: adc.adcs.iter().map(|a| a.truth.as_ref().map(|t| t.rms_raw_dn)).collect(),
         rms_lut_dn: adc.adcs.iter().map(|a| a.truth.as_ref().map(|t| t.rms_lut_dn)).collect(),
         kcor_raw_bsun: kcor.result.max_abs_sys_err_bsun_raw,
@@ -171,9 +171,10 @@ struct RealMeasures {
     /// Least and largest |cumulative offset| of its four tables, their cubic response
     /// curve taken out, DN.
     offsets_dn: (f64, f64),
-    /// The K-Cor model's largest raw error with its ADCs, under the simulated run's
-    /// parameters, B_sun.
+    /// The K-Cor model's largest raw error with its ADC `kcor_adc`, under the simulated
+    /// run's parameters, B_sun.
     kcor_raw_bsun: f64,
+    kcor_adc: usize,
 }
 
 /// The largest |cumulative offset| of each of the real camera's four tables in `dir`,
@@ -269,7 +270,7 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
             // the simulated error is not the paper's.
             let raw = crate::analyses::kcor::run::kcor_model(real, &kp, None, 1, None);
             spin.finish_and_clear();
-            Some(RealMeasures { fig5: fig5?, offsets_dn: real_offsets(dir)?, kcor_raw_bsun: raw?.result.max_abs_sys_err_bsun_raw })
+            Some(RealMeasures { fig5: fig5?, offsets_dn: real_offsets(dir)?, kcor_raw_bsun: raw?.result.max_abs_sys_err_bsun_raw, kcor_adc: kp.adc })
         }
         _ => None,
     };

@@ -256,11 +256,12 @@ pub fn line_plot_styled(out: &mut Outputs, path: &Path, title: &str, x_label: &s
                     chart.draw_series(std::iter::once(Rectangle::new([(a, yr.start), (b, yr.end)], BAND.filled()))).map_err(|e| plot_err(path, e))?;
                 }
             }
-            // References (dashed) first, so that the measured curves are drawn over them.
-            let n_refs = series.len().saturating_sub(dashed_from);
+            // References (dashed) first, so that the measured curves are drawn over them;
+            // their dashes counted within this panel (the ones that can coincide).
+            let panel_refs: Vec<usize> = mine.iter().map(|&(i, _)| i).filter(|&i| i >= dashed_from).collect();
             let color_of = |i: usize| if i >= dashed_from { COLORS[(i - dashed_from) % COLORS.len()] } else { COLORS[i % COLORS.len()] };
             let stroke_of = |i: usize| match () {
-                _ if i >= dashed_from => reference_stroke(i - dashed_from, n_refs),
+                _ if i >= dashed_from => reference_stroke(panel_refs.iter().position(|&r| r == i).unwrap_or(0), panel_refs.len()),
                 _ if style.markers.contains(&i) => Stroke::Markers,
                 _ => Stroke::Line,
             };
@@ -821,9 +822,15 @@ mod tests {
     fn coinciding_references_stay_visible() {
         let dir = tempfile::tempdir().unwrap();
         let line = |y0: f64, slope: f64| Series { label: "s".into(), points: (0..40).map(|i| (f64::from(i) / 39.0, y0 + slope * f64::from(i) / 39.0)).collect() };
+        // As Fig. 8: three references, the last two (the standard's and the pixel-wise
+        // random floors) on one curve. The measured series have no points, so each colour
+        // in the plot is its reference's alone; the first reference holds the y range.
+        let empty = |label: &str| Series { label: label.into(), points: Vec::new() };
+        let apart = [empty("m0"), empty("m1"), empty("m2"), line(-3.9, 0.0), line(-3.5, 0.2), line(-3.1, 0.05)];
+        let on_one_curve = [empty("m0"), empty("m1"), empty("m2"), line(-3.9, 0.0), line(-3.5, 0.2), line(-3.5, 0.2)];
         let count = |series: &[Series], color: RGBColor| -> usize {
             let path = dir.path().join("f.png");
-            crate::formats::outputs::write_one(|out| line_plot_paired(out, &path, "t", "x", "y", series, 1, 2)).unwrap();
+            crate::formats::outputs::write_one(|out| line_plot_paired(out, &path, "t", "x", "y", series, 1, 3)).unwrap();
             let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&path).unwrap()));
             let mut reader = decoder.read_info().unwrap();
             let mut buf = vec![0; reader.output_buffer_size()];
@@ -832,16 +839,11 @@ mod tests {
             let w = info.width as usize;
             buf[..info.buffer_size()].chunks(3).enumerate().filter(|(i, p)| i % w < 1000 && p[0] == color.0 && p[1] == color.1 && p[2] == color.2).count()
         };
-        // Measured series 0 has no points, so its colour in the plot is its reference's
-        // alone; series 1 spans the y range of both cases.
-        let empty = Series { label: "m0".into(), points: Vec::new() };
-        let apart = [empty, line(-3.0, -0.8), line(-3.5, 0.2), line(-3.1, 0.05)];
-        let beneath_alone = count(&apart, COLORS[0]);
-        let on_one_curve = [Series { label: "m0".into(), points: Vec::new() }, line(-3.0, -0.8), line(-3.5, 0.2), line(-3.5, 0.2)];
-        let beneath_under = count(&on_one_curve, COLORS[0]);
+        let beneath_alone = count(&apart, COLORS[1]);
+        let beneath_under = count(&on_one_curve, COLORS[1]);
         assert!(beneath_alone > 100, "{beneath_alone}");
         assert!(beneath_under * 3 >= beneath_alone, "the reference beneath: {beneath_under} pixels of {beneath_alone}");
-        assert!(count(&on_one_curve, COLORS[1]) > 50);
+        assert!(count(&on_one_curve, COLORS[2]) * 3 >= count(&apart, COLORS[2]), "the reference on top");
     }
 
     #[test]

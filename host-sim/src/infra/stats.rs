@@ -113,6 +113,29 @@ pub fn lstsq(x: &[Vec<f64>], y: &[f64]) -> Option<Vec<f64>> {
     a.svd(true, true).solve(&b, 1e-10).ok().map(|s| s.iter().copied().collect())
 }
 
+/// The cubic trend of a table `y` of `y.len()` codes in `x = k / (codes - 1)`,
+/// `p0 + p1 x + p2 x^2 + p3 x^3`, least squares over the codes `fitted`: `None` when the
+/// fit fails or gives a value that is not finite. (The K-Cor tables' response curve,
+/// `lut inspect` and `adc --from-luts`.)
+pub fn cubic_fit(y: &[f64], fitted: std::ops::RangeInclusive<usize>) -> Option<[f64; 4]> {
+    let n = y.len();
+    let rows: Vec<Vec<f64>> = fitted.clone().filter(|&k| k < n).map(|k| (0..4).map(|p| cubic_x(k, n).powi(p)).collect()).collect();
+    let ys: Vec<f64> = fitted.filter(|&k| k < n).map(|k| y[k]).collect();
+    let c = lstsq(&rows, &ys).filter(|c| c.len() == 4 && c.iter().all(|v| v.is_finite()))?;
+    Some([c[0], c[1], c[2], c[3]])
+}
+
+/// `x = k / (codes - 1)` of [`cubic_fit`].
+pub fn cubic_x(k: usize, codes: usize) -> f64 {
+    k as f64 / (codes.max(2) - 1) as f64
+}
+
+/// The cubic `c` of [`cubic_fit`] at code k of `codes`.
+pub fn cubic_at(c: &[f64; 4], k: usize, codes: usize) -> f64 {
+    let x = cubic_x(k, codes);
+    c[0] + x * (c[1] + x * (c[2] + x * c[3]))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

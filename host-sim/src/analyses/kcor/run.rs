@@ -176,15 +176,15 @@ pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, real
     Ok(KcorSummary { result, lut_source, realizations, figures })
 }
 
+/// The fraction of the maps' non-zero magnitudes left below the colour scale's bottom.
+const SCALE_PERCENTILE: f64 = 0.01;
+
 /// The paper's Figs. 4 and 5 as drawn: the magnitude `|dQ|` of the signed errors (a
 /// negative error is as large as a positive one), on one log scale for both maps (they
 /// are compared) from the largest `|dQ|` of either down to the smallest non-zero one
 /// but the 1% smallest ([`SCALE_PERCENTILE`]; at most six decades): the colours span the
 /// values the maps hold. A magnitude below the bottom is drawn at the bottom colour,
 /// only an error of exactly 0 in grey.
-/// The fraction of the maps' non-zero magnitudes left below the colour scale's bottom.
-const SCALE_PERCENTILE: f64 = 0.01;
-
 struct MagnitudeMaps {
     raw: Vec<Vec<f64>>,
     lut: Vec<Vec<f64>>,

@@ -16,6 +16,7 @@ use serde::Serialize;
 
 use super::LutFormat;
 use crate::formats::report::Report;
+use crate::infra::stats::{cubic_at, cubic_fit, cubic_x};
 use crate::HostError;
 
 /// One ADC's table as `lut inspect` shows it.
@@ -163,33 +164,20 @@ struct Trend {
 impl Trend {
     fn of(dn: &[f64]) -> Trend {
         let n = dn.len();
-        let fitted = first_fitted(n)..n.saturating_sub(1);
-        let rows: Vec<Vec<f64>> = fitted.clone().map(|k| (0..4).map(|p| x_of(k, n).powi(p)).collect()).collect();
-        let ys: Vec<f64> = fitted.clone().map(|k| dn[k]).collect();
-        let Some(c) = crate::infra::stats::lstsq(&rows, &ys).filter(|c| c.len() == 4 && c.iter().all(|v| v.is_finite())) else {
+        let fitted = first_fitted(n)..=n.saturating_sub(2);
+        let Some(c) = cubic_fit(dn, fitted.clone()) else {
             return Trend { c: [f64::NAN; 4], bow_dn: f64::NAN, max_residual_dn: f64::NAN };
         };
-        let c = [c[0], c[1], c[2], c[3]];
         let bow_dn = (0..n).map(|k| (cubic_at(&c, k, n) - chord_at(&c, k, n)).abs()).fold(0.0, f64::max);
         let max_residual_dn = fitted.map(|k| (dn[k] - cubic_at(&c, k, n)).abs()).fold(0.0, f64::max);
         Trend { c, bow_dn, max_residual_dn }
     }
 }
 
-/// `x = k / (codes - 1)`.
-fn x_of(k: usize, codes: usize) -> f64 {
-    k as f64 / (codes.max(2) - 1) as f64
-}
-
-fn cubic_at(c: &[f64; 4], k: usize, codes: usize) -> f64 {
-    let x = x_of(k, codes);
-    c[0] + x * (c[1] + x * (c[2] + x * c[3]))
-}
-
-/// The straight line through the cubic's ends, at code k.
+/// The straight line through the cubic's ends, at code k of `codes`.
 fn chord_at(c: &[f64; 4], k: usize, codes: usize) -> f64 {
-    let (a, b) = (cubic_at(c, 0, codes), cubic_at(c, codes - 1, codes));
-    a + (b - a) * x_of(k, codes)
+    let (a, b) = (cubic_at(c, 0, codes), cubic_at(c, codes.saturating_sub(1), codes));
+    a + (b - a) * cubic_x(k, codes)
 }
 
 /// The response curve the tables share, where every table's trend bends by at least
@@ -197,7 +185,8 @@ fn chord_at(c: &[f64; 4], k: usize, codes: usize) -> f64 {
 /// differs from their mean by more than [`TREND_MAX_SPREAD`] of its bow.
 fn common_trend(adcs: &[InspectAdc], codes: usize) -> Option<CommonTrend> {
     let smooth = |a: &InspectAdc| a.trend_bow_dn >= TREND_MIN_BOW_DN && a.trend_bow_dn >= TREND_OVER_RESIDUAL * a.detrended_max_abs_offset_dn;
-    if adcs.is_empty() || !adcs.iter().all(smooth) {
+    // (One table has nothing to share a curve with.)
+    if adcs.len() < 2 || !adcs.iter().all(smooth) {
         return None;
     }
     let mean: [f64; 4] = std::array::from_fn(|p| adcs.iter().map(|a| a.trend_dn[p]).sum::<f64>() / adcs.len() as f64);

@@ -299,9 +299,7 @@ impl KcorTable {
         let unit = (KCOR_CODES - 1) as f64 / ((1u64 << table.bits) - 1) as f64;
         let t: Vec<f64> = table.entries.iter().map(|&e| e as f64 * unit).collect();
         let cal = FIRST_CALIBRATED..=LAST_CALIBRATED;
-        let rows: Vec<Vec<f64>> = cal.clone().map(|k| (0..4).map(|p| x(k).powi(p)).collect()).collect();
-        let ys: Vec<f64> = cal.clone().map(|k| t[k]).collect();
-        let c = crate::infra::stats::lstsq(&rows, &ys).map_or([0.0; 4], |c| [c[0], c[1], c[2], c[3]]);
+        let c = crate::infra::stats::cubic_fit(&t, cal.clone()).unwrap_or([0.0; 4]);
         let dn_error = (FIRST_CALIBRATED + 1..=LAST_CALIBRATED).map(|k| (t[k] - t[k - 1]) / (cubic(&c, k) - cubic(&c, k - 1)) - 1.0).collect();
         let offsets = cal.map(|k| t[k] - cubic(&c, k)).collect();
         Detrended { c, dn_error, offsets }
@@ -310,7 +308,7 @@ impl KcorTable {
 
 /// The cubic `c` at code k, DN.
 pub fn cubic(c: &[f64; 4], k: usize) -> f64 {
-    c[0] + c[1] * x(k) + c[2] * x(k).powi(2) + c[3] * x(k).powi(3)
+    crate::infra::stats::cubic_at(c, k, KCOR_CODES)
 }
 
 /// The code widths of a real ADC for the camera model: 1 outside the calibrated codes,
