@@ -823,11 +823,14 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let line = |y0: f64, slope: f64| Series { label: "s".into(), points: (0..40).map(|i| (f64::from(i) / 39.0, y0 + slope * f64::from(i) / 39.0)).collect() };
         // As Fig. 8: three references, the last two (the standard's and the pixel-wise
-        // random floors) on one curve. The measured series have no points, so each colour
-        // in the plot is its reference's alone; the first reference holds the y range.
+        // random floors) on one curve, against the same three lines apart (same slope, same
+        // axes: measured series 0 holds the y range). Measured series 1 and 2 have no
+        // points, so colours 1 and 2 in the plot are their references' alone.
         let empty = |label: &str| Series { label: label.into(), points: Vec::new() };
-        let apart = [empty("m0"), empty("m1"), empty("m2"), line(-3.9, 0.0), line(-3.5, 0.2), line(-3.1, 0.05)];
-        let on_one_curve = [empty("m0"), empty("m1"), empty("m2"), line(-3.9, 0.0), line(-3.5, 0.2), line(-3.5, 0.2)];
+        let range = Series { label: "m0".into(), points: vec![(0.0, -3.95), (1.0, -2.95)] };
+        let apart = [range, empty("m1"), empty("m2"), line(-3.9, 0.2), line(-3.5, 0.2), line(-3.2, 0.2)];
+        let range = Series { label: "m0".into(), points: vec![(0.0, -3.95), (1.0, -2.95)] };
+        let on_one_curve = [range, empty("m1"), empty("m2"), line(-3.9, 0.2), line(-3.5, 0.2), line(-3.5, 0.2)];
         let count = |series: &[Series], color: RGBColor| -> usize {
             let path = dir.path().join("f.png");
             crate::formats::outputs::write_one(|out| line_plot_paired(out, &path, "t", "x", "y", series, 1, 3)).unwrap();
