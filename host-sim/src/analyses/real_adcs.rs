@@ -23,7 +23,7 @@
 
 use serde::Serialize;
 
-use crate::formats::lut::kcor::{cubic, x, Detrended, KcorTable, FIRST_CALIBRATED, KCOR_CODES, LAST_CALIBRATED};
+use crate::formats::lut::kcor::{x, Detrended, KcorTable, FIRST_CALIBRATED, KCOR_CODES, LAST_CALIBRATED};
 use crate::infra::stats::lstsq;
 
 /// The stage models tried: the layout, most significant stage first (12 bits each), and
@@ -122,12 +122,10 @@ fn variance(v: &[f64]) -> f64 {
 pub fn characterize(table: &KcorTable, camera: &str, adc: usize) -> RealAdc {
     let cal: Vec<usize> = (FIRST_CALIBRATED..=LAST_CALIBRATED).collect();
     let Detrended { c, dn_error, offsets } = table.detrended();
-    let trend = |k: usize| cubic(&c, k);
     let mut worst: Vec<(usize, f64)> = dn_error.iter().enumerate().map(|(i, &r)| (i + FIRST_CALIBRATED + 1, 100.0 * r)).collect();
     worst.sort_by(|a, b| b.1.abs().total_cmp(&a.1.abs()));
     worst.truncate(5);
-    let (p0, p1) = (trend(0), trend(KCOR_CODES - 1));
-    let trend_bow_dn = (0..KCOR_CODES).map(|k| (trend(k) - (p0 + (p1 - p0) * x(k))).abs()).fold(0.0, f64::max);
+    let trend_bow_dn = crate::infra::stats::cubic_bow(&c, KCOR_CODES);
     let var_r = variance(&dn_error);
     let residues: Vec<Residue> = (1..=9)
         .map(|j| {

@@ -136,6 +136,13 @@ pub fn cubic_at(c: &[f64; 4], k: usize, codes: usize) -> f64 {
     c[0] + x * (c[1] + x * (c[2] + x * c[3]))
 }
 
+/// The cubic `c`'s largest departure from the straight line through its ends (codes 0
+/// and `codes - 1`), over all codes, DN: how far a response curve bends.
+pub fn cubic_bow(c: &[f64; 4], codes: usize) -> f64 {
+    let (a, b) = (cubic_at(c, 0, codes), cubic_at(c, codes.saturating_sub(1), codes));
+    (0..codes).map(|k| (cubic_at(c, k, codes) - (a + (b - a) * cubic_x(k, codes))).abs()).fold(0.0, f64::max)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

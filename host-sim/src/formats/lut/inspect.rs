@@ -16,7 +16,7 @@ use serde::Serialize;
 
 use super::LutFormat;
 use crate::formats::report::Report;
-use crate::infra::stats::{cubic_at, cubic_fit, cubic_x};
+use crate::infra::stats::{cubic_at, cubic_bow, cubic_fit};
 use crate::HostError;
 
 /// One ADC's table as `lut inspect` shows it.
@@ -62,10 +62,10 @@ const TREND_OVER_RESIDUAL: f64 = 10.0;
 /// ... and the ADCs' trends differ by at most this fraction of the bow.
 const TREND_MAX_SPREAD: f64 = 0.1;
 
-/// The first code of the trend fit: 150 of 4096 codes (the K-Cor recipe's flat start,
-/// `kcor::FIRST_CALIBRATED`), in proportion at other bit depths.
+/// The first code of the trend fit: the K-Cor recipe's flat start
+/// ([`super::kcor::FIRST_CALIBRATED`] of its 4096 codes), in proportion at other bit depths.
 pub fn first_fitted(codes: usize) -> usize {
-    150 * codes / 4096
+    super::kcor::FIRST_CALIBRATED * codes / super::kcor::KCOR_CODES
 }
 
 /// What `lut inspect` found.
@@ -168,16 +168,10 @@ impl Trend {
         let Some(c) = cubic_fit(dn, fitted.clone()) else {
             return Trend { c: [f64::NAN; 4], bow_dn: f64::NAN, max_residual_dn: f64::NAN };
         };
-        let bow_dn = (0..n).map(|k| (cubic_at(&c, k, n) - chord_at(&c, k, n)).abs()).fold(0.0, f64::max);
+        let bow_dn = cubic_bow(&c, n);
         let max_residual_dn = fitted.map(|k| (dn[k] - cubic_at(&c, k, n)).abs()).fold(0.0, f64::max);
         Trend { c, bow_dn, max_residual_dn }
     }
-}
-
-/// The straight line through the cubic's ends, at code k of `codes`.
-fn chord_at(c: &[f64; 4], k: usize, codes: usize) -> f64 {
-    let (a, b) = (cubic_at(c, 0, codes), cubic_at(c, codes.saturating_sub(1), codes));
-    a + (b - a) * cubic_x(k, codes)
 }
 
 /// The response curve the tables share, where every table's trend bends by at least
@@ -190,7 +184,7 @@ fn common_trend(adcs: &[InspectAdc], codes: usize) -> Option<CommonTrend> {
         return None;
     }
     let mean: [f64; 4] = std::array::from_fn(|p| adcs.iter().map(|a| a.trend_dn[p]).sum::<f64>() / adcs.len() as f64);
-    let bow_dn = (0..codes).map(|k| (cubic_at(&mean, k, codes) - chord_at(&mean, k, codes)).abs()).fold(0.0, f64::max);
+    let bow_dn = cubic_bow(&mean, codes);
     let spread_dn = adcs.iter().flat_map(|a| (0..codes).map(move |k| (cubic_at(&a.trend_dn, k, codes) - cubic_at(&mean, k, codes)).abs())).fold(0.0, f64::max);
     (spread_dn <= TREND_MAX_SPREAD * bow_dn).then_some(CommonTrend { bow_dn, spread_dn })
 }
