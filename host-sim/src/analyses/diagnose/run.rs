@@ -290,9 +290,9 @@ pub fn diagnose_as(read_from: &Path, input: &Path, params: &DiagnoseParams, mut 
                 return report(input, d, Some(model), out, ("level", "baseline (linear pixels): RMS over pixels"));
             }
         };
-        let spin = crate::infra::progress::spinner(&format!("diagnosing {} (histogram set, {} ADCs)", input.display(), hist.counts.len()));
+        // A stage line: the analysis counts its ADCs on a bar of its own.
+        crate::infra::progress::stage(&format!("diagnosing {} (histogram set, {} ADCs of {} codes)", input.display(), hist.counts.len(), 1u64 << hist.bit_depth));
         let d = diagnose_histograms(&hist, flatten, seed);
-        spin.finish_and_clear();
         let d = d.map_err(|source| HostError::Diagnose { path: input.into(), source })?;
         model = Some(extended_model(&hist, &d, flatten).map_err(|source| HostError::Diagnose { path: input.into(), source })?);
         d
