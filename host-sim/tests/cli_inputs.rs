@@ -280,6 +280,68 @@ fn values_no_camera_can_give_are_refused_naming_the_file() {
     assert_error(&dncal(&["kcor-model", "--lut", "zero.bin", "--steps", "8"], d), flat);
 }
 
+/// Issue 56: a linearity set whose `NADC` exceeds its columns (65, 1000 or 2e9 on 16)
+/// was analysed as one ADC per column, its numbers those of the valid set. `linearity`
+/// and `diagnose` refuse it on one line naming the file and both numbers, exit 1, nothing
+/// written; the same file with `NADC = 16` is analysed. `simulate linearity` refuses a
+/// ROI narrower than the camera's ADCs before simulating it.
+#[test]
+fn more_adcs_than_columns_are_refused_naming_both_numbers() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    assert!(dncal(&["simulate", "linearity", "--levels", "12", "--frames", "4", "--roi", "16x16+0+0", "-o", "lin.fits"], d).status.success());
+    let mut bytes = std::fs::read(d.join("lin.fits")).unwrap();
+    // The primary header's checksums blanked (they would no longer hold), NADC patched.
+    for key in ["CHECKSUM", "DATASUM"] {
+        let (at, _) = card(&bytes, 0, key);
+        bytes[at..at + 80].copy_from_slice(&[b' '; 80]);
+    }
+    let (nadc, four) = card(&bytes, 0, "NADC");
+    assert_eq!(four, 4);
+    for n in [16i64, 65, 1000, 2_000_000_000] {
+        bytes[nadc + 10..nadc + 30].copy_from_slice(format!("{n:>20}").as_bytes());
+        std::fs::write(d.join(format!("nadc{n}.fits")), &bytes).unwrap();
+    }
+    assert!(dncal(&["linearity", "nadc16.fits"], d).status.success());
+    assert!(dncal(&["diagnose", "nadc16.fits"], d).status.success());
+    for n in [65, 1000, 2_000_000_000] {
+        let line = format!("nadc{n}.fits: NADC = {n} but the frames have 16 columns; column c is read by ADC c mod NADC, so at most 16 ADCs");
+        for args in [&["linearity", &format!("nadc{n}.fits"), "-o", "out"][..], &["diagnose", &format!("nadc{n}.fits"), "-o", "out"]] {
+            assert_error(&dncal(args, d), &line);
+        }
+        assert!(!d.join("out").exists());
+    }
+    let line = "simulate linearity arguments: ROI 3x8 has 3 columns for the camera's 4 ADCs; a linearity set's column c is read by ADC c mod NADC, so it needs at least 4 columns";
+    assert_error(&dncal(&["simulate", "linearity", "--roi", "3x8+0+0", "--levels", "3", "--frames", "2", "-o", "narrow.fits"], d), line);
+    assert!(!d.join("narrow.fits").exists());
+}
+
+/// Issue 56: `kind = "ideal"` took any other key and ignored it (serde reads an
+/// internally tagged unit variant without its table), while the same key under `sar` or
+/// `pipelined` was refused. `simulate` and `stream` refuse it on one line naming the file,
+/// the line and the field, exit 1; the config without it runs. (Every table of the
+/// model: `config::tests::an_unknown_field_in_any_table_is_refused_naming_it`.)
+#[test]
+fn an_unknown_field_under_an_ideal_adc_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let camera = "width = 64\nheight = 16\n";
+    let ideal = "[[adc.architecture]]\nkind = \"ideal\"\n";
+    std::fs::write(d.join("ok.toml"), format!("{camera}{}", ideal.repeat(4))).unwrap();
+    assert!(dncal(&["stream", "--config", "ok.toml", "--frames", "1"], d).status.success());
+    for (name, extra) in [("weights.toml", "weight_error_lsb = [1.0]"), ("foo.toml", "foo = 1")] {
+        std::fs::write(d.join(name), format!("{camera}{ideal}{ideal}{ideal}{extra}\n{ideal}")).unwrap();
+        let field = extra.split(' ').next().unwrap();
+        for args in [&["simulate", "histograms", "--config", name, "-o", "h.fits"][..], &["simulate", "linearity", "--config", name, "--roi", "16x8+0+0", "-o", "l.fits"], &["stream", "--config", name, "--frames", "1"]] {
+            let out = dncal(args, d);
+            let stderr = String::from_utf8_lossy(&out.stderr);
+            assert!(stderr.starts_with(&format!("dncal: error: {name}: line ")) && stderr.contains(&format!("unknown field `{field}`")), "{args:?}: {stderr}");
+            assert_eq!((stderr.lines().count(), out.status.code()), (1, Some(1)), "{args:?}: {stderr}");
+        }
+        assert!(!d.join("h.fits").exists() && !d.join("l.fits").exists());
+    }
+}
+
 /// `dncal args` in `dir` under `ulimit -v kib` (the address-space limit, `RLIMIT_AS`).
 #[cfg(unix)]
 fn dncal_under_ulimit(kib: u64, args: &[&str], dir: &std::path::Path) -> std::process::Output {

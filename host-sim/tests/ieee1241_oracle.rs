@@ -199,7 +199,7 @@ fn a_set_written_by_adctoolbox_is_read_as_adctoolbox_reads_it() {
     for adc in 0..4usize {
         let named = findings.iter().any(|f| f["effect"] == "adc-dnl" && f["adc"] == adc as u64);
         if !named {
-            assert_eq!(model.adc.architecture[adc], dncal_host::model::camera::Architecture::Ideal);
+            assert_eq!(model.adc.architecture[adc], dncal_host::model::camera::Architecture::Ideal {});
             continue;
         }
         assert_eq!(arch[adc]["name"], "binary-weighted SAR", "ADC {adc}: {}", arch[adc]);

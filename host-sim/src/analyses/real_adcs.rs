@@ -219,7 +219,7 @@ pub fn architecture_model(camera: &str, adcs: &[RealAdc]) -> crate::model::camer
     c.adc.stage_error_lsb = vec![0.0];
     c.adc.architecture = adcs
         .iter()
-        .map(|a| a.stage_fits.iter().filter(|f| f.held_out_explained.is_finite()).max_by(|x, y| x.held_out_explained.total_cmp(&y.held_out_explained)).map_or(crate::model::camera::Architecture::Ideal, |f| f.architecture.clone()))
+        .map(|a| a.stage_fits.iter().filter(|f| f.held_out_explained.is_finite()).max_by(|x, y| x.held_out_explained.total_cmp(&y.held_out_explained)).map_or(crate::model::camera::Architecture::Ideal {}, |f| f.architecture.clone()))
         .collect();
     c
 }

@@ -133,6 +133,14 @@ fn check_roi(camera: &Camera, p: &LinearityParams) -> Result<(), HostError> {
             format!("ROI {w}x{h} at ({x0}, {y0}) must be non-empty and inside the {}x{} sensor, with >= 2 levels and >= 2 frames", camera.config.width, camera.config.height),
         ));
     }
+    // The set's column c is read by ADC c mod NADC: fewer columns than ADCs make a set the
+    // readers refuse (issue 56), so it is refused here, before the work.
+    if w < camera.config.n_adc {
+        return Err(HostError::invalid(
+            crate::Subject::SimulateLinearityArguments,
+            format!("ROI {w}x{h} has {w} columns for the camera's {} ADCs; a linearity set's column c is read by ADC c mod NADC, so it needs at least {} columns", camera.config.n_adc, camera.config.n_adc),
+        ));
+    }
     Ok(())
 }
 

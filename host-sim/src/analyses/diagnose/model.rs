@@ -31,7 +31,7 @@ pub fn extended_model(hist: &crate::formats::fits::AdcHistograms, d: &Diagnosis,
                     let refit = all.into_iter().flat_map(crate::analyses::ieee1241::architecture::candidates).find(|c| c.architecture.name() == arch.name);
                     refit.map_or_else(|| arch.architecture.clone(), |c| c.architecture)
                 }
-                None => crate::model::camera::Architecture::Ideal,
+                None => crate::model::camera::Architecture::Ideal {},
             })
             .collect();
         return Ok(c);

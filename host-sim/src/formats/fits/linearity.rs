@@ -97,6 +97,7 @@ pub fn write_linearity(path: &Path, set: &LinearitySet) -> Result<(), HostError>
 /// (same cube), `MASK` (uint8, when present) and `REFERENCE` (table, column `VOLTAGE`).
 pub fn stage_linearity(out: &mut Outputs, path: &Path, set: &LinearitySet) -> Result<(), HostError> {
     check_linearity(&set.view()).map_err(fault(path))?;
+    check_adc_columns(set.n_adc, set.width).map_err(fault(path))?;
     out.write(path, |tmp| {
         let cube = [set.levels, set.height, set.width];
         let mut fits = FitsWriter::create(tmp, path, ImageType::Double, &cube)?;
@@ -384,6 +385,8 @@ fn read_header(r: &mut FitsReader) -> Result<Header, HostError> {
     if width == 0 || height == 0 || levels == 0 {
         return Err(r.error(format!("the primary cube is {width} x {height} x {levels}: empty")));
     }
+    // Here, before any value is read: both readers refuse it first, and at once.
+    check_adc_columns(n_adc, width).map_err(|f| r.fault(f))?;
     let std_hdu = r.require_extension("STD", "per-pixel standard deviations")?;
     let std_image = r.image(std_hdu, "extension STD", 3)?;
     if std_image.naxes != image.naxes {
@@ -443,6 +446,18 @@ pub fn check_linearity<T: Sample>(s: &SetView<'_, T>) -> Result<(), Fault> {
         return Err(m);
     }
     check_reference(s.voltage, s.levels, s.mask, frame, s.width)
+}
+
+/// At most one ADC per column: column `c` is read by ADC `c mod NADC`, so a file whose
+/// `NADC` exceeds its columns names ADCs no column reads, and the analyses would size
+/// their per-ADC work by a count the data do not have. A file's rule (the reader's and
+/// the writer's), not [`check_linearity`]'s: a block of a larger set (`dncal.dask`) may
+/// be narrower than its ADCs.
+fn check_adc_columns(n_adc: usize, width: usize) -> Result<(), Fault> {
+    if n_adc > width {
+        return Err(Fault::AdcsBeyondColumns { n_adc, width });
+    }
+    Ok(())
 }
 
 /// [`check_frame`] of a header.

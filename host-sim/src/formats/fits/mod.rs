@@ -136,6 +136,10 @@ pub enum Fault {
     /// `NADC = 0`.
     #[error("no ADCs: NADC must be at least 1")]
     NoAdcs,
+    /// More ADCs than a frame has columns (issue 56: `NADC = 65` on 16 columns was read
+    /// as 16 ADCs of one column each, and `diagnose` sized its per-ADC tables by NADC).
+    #[error("NADC = {n_adc} but the frames have {width} columns; column c is read by ADC c mod NADC, so at most {width} ADCs")]
+    AdcsBeyondColumns { n_adc: usize, width: usize },
     /// `NFRAMES = 0`.
     #[error("NFRAMES must be at least 1")]
     NoFrames,

@@ -386,6 +386,46 @@ fn linearity_reader_rejects_bad_files() {
     assert!(open_linearity_rows(&path).unwrap().unwrap().check::<f32>().is_ok());
 }
 
+/// Issue 56: a set whose `NADC` exceeds its columns (65, 1000 or 2e9 on 16 or 64) was
+/// read as if each column were its own ADC. Both whole readers and the reader by rows
+/// refuse it in the same words, naming both numbers; `NADC` equal to the columns reads
+/// back the values written; the writer refuses what the readers refuse.
+#[test]
+fn linearity_sets_with_more_adcs_than_columns_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("lin.fits");
+    let (height, levels) = (2, 3);
+    for width in [16usize, 64] {
+        let cube = levels * height * width;
+        let mean: Vec<f64> = (0..cube).map(|i| 100.0 + 0.5 * i as f64).collect();
+        let with_adcs = |n_adc: i64| Parts {
+            keys: with(parts().keys, "NADC", Int(n_adc)),
+            cube: vec![levels, height, width],
+            mean: mean.clone(),
+            std: Some((vec![levels, height, width], vec![1.5; cube])),
+            mask: None,
+            reference: Some(("VOLTAGE", vec![0.0, 0.5, 1.0])),
+        };
+        for n_adc in [width as i64 + 1, 65, 1000, 2_000_000_000] {
+            write_parts(&path, &with_adcs(n_adc));
+            let expected = format!("NADC = {n_adc} but the frames have {width} columns; column c is read by ADC c mod NADC, so at most {width} ADCs");
+            assert_eq!(format_message(read_linearity(&path), &path), expected);
+            assert_eq!(format_message(read_linearity_as::<f32>(&path), &path), expected);
+            assert_eq!(by_rows(&path), format!("{}: {expected}", path.display()));
+        }
+        write_parts(&path, &with_adcs(width as i64));
+        let set = read_linearity(&path).unwrap();
+        assert_eq!((set.n_adc, set.width, &set.mean), (width, width, &mean));
+        assert!(open_linearity_rows(&path).unwrap().unwrap().check::<f32>().is_ok());
+        let written = dir.path().join("written.fits");
+        assert_rejects(write_linearity(&written, &LinearitySet { n_adc: width + 1, ..set.clone() }), &written, &format!("NADC = {} but the frames have {width} columns", width + 1));
+        assert!(!written.exists());
+        write_linearity(&written, &set).unwrap();
+        assert_eq!(read_linearity(&written).unwrap(), set);
+        std::fs::remove_file(&written).unwrap();
+    }
+}
+
 /// The refusal of a set opened by rows (at open or when its values are checked), as f32.
 fn by_rows(path: &Path) -> String {
     match open_linearity_rows(path) {

@@ -53,7 +53,7 @@ impl AdcTransfer {
 
     /// An ideal ADC of `bits` bits: `T_k = k - 1/2`.
     pub fn ideal(bits: u32) -> Self {
-        AdcTransfer { levels: super::architecture::Architecture::Ideal.levels(bits) }
+        AdcTransfer { levels: super::architecture::Architecture::Ideal {}.levels(bits) }
     }
 
     /// An ADC whose code k is `widths[k]` DN wide (codes 0 and top: open ends, their

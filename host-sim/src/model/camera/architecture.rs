@@ -15,8 +15,12 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
 pub enum Architecture {
-    /// `T_k = k - 1/2`.
-    Ideal,
+    /// `T_k = k - 1/2`. A struct variant without fields, not a unit one: serde reads an
+    /// internally tagged unit variant without looking at the rest of its table, so
+    /// `deny_unknown_fields` did not hold for it and `kind = "ideal"` beside
+    /// `weight_error_lsb = [1.0]` or a typo passed silently (issue 56); an empty struct
+    /// refuses every key but `kind`.
+    Ideal {},
     /// A binary-weighted successive-approximation ADC. Bit `b` (0 = LSB) weighs
     /// `W_b = 2^b + weight_error_lsb[b]` LSB; the conversion decides the bits from the
     /// top, setting bit `b` when `v >= P + W_b - 1/2` (`P`: the weights of the bits set
@@ -94,7 +98,7 @@ impl Architecture {
     /// Checks the shape and values for a `bits`-bit ADC.
     pub fn check(&self, bits: u32) -> Result<(), ArchitectureError> {
         match self {
-            Architecture::Ideal => Ok(()),
+            Architecture::Ideal {} => Ok(()),
             Architecture::Sar { weight_error_lsb: e } => {
                 let ok = e.len() == bits as usize && e.iter().enumerate().all(|(b, x)| x.is_finite() && (1u64 << b) as f64 + x > 0.0);
                 if ok { Ok(()) } else { Err(ArchitectureError::SarWeights) }
@@ -120,7 +124,7 @@ impl Architecture {
     pub fn levels(&self, bits: u32) -> Vec<f64> {
         let codes = 1usize << bits;
         match self {
-            Architecture::Ideal => (0..codes).map(|k| if k == 0 { f64::NEG_INFINITY } else { k as f64 - 0.5 }).collect(),
+            Architecture::Ideal {} => (0..codes).map(|k| if k == 0 { f64::NEG_INFINITY } else { k as f64 - 0.5 }).collect(),
             Architecture::Sar { weight_error_lsb } => {
                 let w: Vec<f64> = weight_error_lsb.iter().enumerate().map(|(b, e)| (1u64 << b) as f64 + e).collect();
                 let mut levels = vec![f64::NEG_INFINITY; codes];
@@ -155,7 +159,7 @@ impl Architecture {
     /// A short name: "ideal", "binary-weighted SAR", "pipelined 4+4+4 with sub-range gains".
     pub fn name(&self) -> String {
         match self {
-            Architecture::Ideal => "ideal".into(),
+            Architecture::Ideal {} => "ideal".into(),
             Architecture::Sar { .. } => "binary-weighted SAR".into(),
             Architecture::Pipelined { stage_bits, subrange_gain_error, .. } => {
                 let layout: Vec<String> = stage_bits.iter().map(u32::to_string).collect();
@@ -220,7 +224,7 @@ mod tests {
 
     #[test]
     fn an_ideal_sar_and_an_ideal_pipeline_are_the_ideal_adc() {
-        let ideal = Architecture::Ideal.levels(8);
+        let ideal = Architecture::Ideal {}.levels(8);
         assert_eq!(Architecture::Sar { weight_error_lsb: vec![0.0; 8] }.levels(8), ideal);
         let p = Architecture::Pipelined { stage_bits: vec![4, 4], offset_lsb: vec![vec![0.0; 16]; 2], subrange_gain_error: vec![0.0; 16] };
         p.check(8).unwrap();
@@ -271,7 +275,7 @@ mod tests {
         let h = Holder {
             architecture: vec![
                 Architecture::Sar { weight_error_lsb: vec![0.0, 0.5] },
-                Architecture::Ideal,
+                Architecture::Ideal {},
                 Architecture::Pipelined { stage_bits: vec![1, 1], offset_lsb: vec![vec![0.0, 0.1], vec![0.0, -0.1]], subrange_gain_error: vec![] },
             ],
         };
@@ -280,5 +284,12 @@ mod tests {
         assert_eq!(toml::from_str::<Holder>(&text).unwrap(), h);
         let bad = "[[architecture]]\nkind = \"sar\"\nweight_error = [0.0]\n";
         assert!(toml::from_str::<Holder>(bad).is_err());
+        // Issue 56: an ideal ADC's table took any other key and ignored it.
+        for extra in ["weight_error_lsb = [1.0]", "foo = 1"] {
+            let e = toml::from_str::<Holder>(&format!("[[architecture]]\nkind = \"ideal\"\n{extra}\n")).unwrap_err().to_string();
+            let field = extra.split(' ').next().unwrap();
+            assert!(e.contains(&format!("unknown field `{field}`")), "{extra}: {e}");
+        }
+        assert_eq!(toml::from_str::<Holder>("[[architecture]]\nkind = \"ideal\"\n").unwrap(), Holder { architecture: vec![Architecture::Ideal {}] });
     }
 }

@@ -389,6 +389,149 @@ mod tests {
         assert_eq!(source, Some(&e));
     }
 
+    /// A config with every table a camera config or model file has: the top level,
+    /// `[adc]`, `[bench]`, and one `[[adc.architecture]]` of each kind (3 ADCs of 4 bits).
+    /// Every field and kind is named below without `..`, so a new field or kind does not
+    /// compile until it is named here, where a new table is then to be filled in (a table
+    /// left empty or skipped when serialized would escape the walk below).
+    fn every_table() -> CameraConfig {
+        use super::super::architecture::Architecture;
+        let config = CameraConfig {
+            width: 8,
+            height: 4,
+            bits: 4,
+            n_adc: 3,
+            adc: AdcConfig {
+                stage_bits: vec![2, 2],
+                stage_error_lsb: vec![0.1, 0.05],
+                seed: 7,
+                widths: Vec::new(),
+                widths_from: None,
+                architecture: vec![
+                    Architecture::Ideal {},
+                    Architecture::Sar { weight_error_lsb: vec![0.0, 0.1, -0.2, 0.3] },
+                    Architecture::Pipelined { stage_bits: vec![2, 2], offset_lsb: vec![vec![0.0, 0.1, -0.1, 0.2], vec![0.0, 0.05, 0.0, -0.05]], subrange_gain_error: vec![0.0, 0.1, -0.1, 0.0] },
+                ],
+            },
+            bench: BenchConfig { illumination_change_rms: 1e-3, seed: 5 },
+            ..CameraConfig::default()
+        };
+        let CameraConfig { name: _, width: _, height: _, bits: _, n_adc: _, qe: _, full_well_e: _, gain_e_per_dn: _, read_noise_e: _, dark_e: _, offset_dn: _, prnu_rms: _, dsnu_rms_e: _, nonlinearity: _, pixel_nonlinearity_rms: _, bad_pixel_fraction: _, max_frame_rate_hz: _, adc, bench, seed: _ } = &config;
+        let AdcConfig { stage_bits: _, stage_error_lsb: _, seed: _, widths: _, widths_from: _, architecture } = adc;
+        let BenchConfig { illumination_change_rms: _, seed: _ } = bench;
+        let kinds: Vec<&str> = architecture.iter().map(|a| match a { Architecture::Ideal {} => "ideal", Architecture::Sar { .. } => "sar", Architecture::Pipelined { .. } => "pipelined" }).collect();
+        assert_eq!(kinds, ["ideal", "sar", "pipelined"], "one architecture of each kind");
+        config
+    }
+
+    /// One step of the way to a table in a TOML value: a key, or an index in an array.
+    #[derive(Debug, Clone)]
+    enum Step {
+        Key(String),
+        Index(usize),
+    }
+
+    /// Every table in `v` (`v` itself first where it is one), as the steps to it.
+    fn tables(v: &toml::Value, at: &mut Vec<Step>, out: &mut Vec<Vec<Step>>) {
+        match v {
+            toml::Value::Table(t) => {
+                out.push(at.clone());
+                for (k, child) in t {
+                    at.push(Step::Key(k.clone()));
+                    tables(child, at, out);
+                    at.pop();
+                }
+            }
+            toml::Value::Array(a) => {
+                for (i, child) in a.iter().enumerate() {
+                    at.push(Step::Index(i));
+                    tables(child, at, out);
+                    at.pop();
+                }
+            }
+            _ => {}
+        }
+    }
+
+    fn table_at<'a>(v: &'a mut toml::Value, steps: &[Step]) -> &'a mut toml::Table {
+        let v = steps.iter().fold(v, |v, step| match step {
+            Step::Key(k) => &mut v.as_table_mut().unwrap()[k],
+            Step::Index(i) => &mut v.as_array_mut().unwrap()[*i],
+        });
+        v.as_table_mut().unwrap()
+    }
+
+    /// `adc.architecture[1]`, or "the top level" for no steps.
+    fn path_text(steps: &[Step]) -> String {
+        let mut s = String::new();
+        for step in steps {
+            match step {
+                Step::Key(k) if s.is_empty() => s.push_str(k),
+                Step::Key(k) => s.push_str(&format!(".{k}")),
+                Step::Index(i) => s.push_str(&format!("[{i}]")),
+            }
+        }
+        if s.is_empty() { "the top level".into() } else { s }
+    }
+
+    /// Issue 56: `kind = "ideal"` took any other key and ignored it, while the same key
+    /// under `sar`, `pipelined` or at the top level was refused. Here every table of a
+    /// config with every table (serialized, then walked, so a table added to the model is
+    /// walked too) gets, one at a time, each key any other table has (with that table's
+    /// value, so the type is right and only the place is wrong: `weight_error_lsb` under
+    /// `ideal`, `stage_bits` under `sar`, `seed` under an architecture, `kind` at the top
+    /// level) and a made-up one; the config loader refuses each on one line naming the
+    /// file and the field. The config as serialized loads back equal.
+    #[test]
+    fn an_unknown_field_in_any_table_is_refused_naming_it() {
+        let config = every_table();
+        let value = toml::Value::try_from(&config).unwrap();
+        let mut all = Vec::new();
+        tables(&value, &mut Vec::new(), &mut all);
+        let mut names: Vec<String> = all.iter().map(|s| path_text(s)).collect();
+        names.sort();
+        // A table added to the model shows up here by itself; this list says it was seen.
+        assert_eq!(names, ["adc", "adc.architecture[0]", "adc.architecture[1]", "adc.architecture[2]", "bench", "the top level"]);
+        // Each key of any table, with its value there (the first table that has it).
+        let mut keys: std::collections::BTreeMap<String, toml::Value> = std::collections::BTreeMap::new();
+        for steps in &all {
+            for (k, v) in table_at(&mut value.clone(), steps).iter() {
+                keys.entry(k.clone()).or_insert_with(|| v.clone());
+            }
+        }
+        keys.insert("planted_field".into(), toml::Value::Integer(1));
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("cam.toml");
+        std::fs::write(&path, toml::to_string(&value).unwrap()).unwrap();
+        assert_eq!(CameraConfig::from_toml_file(&path).unwrap(), config);
+        let mut refused = std::collections::BTreeSet::new();
+        for steps in &all {
+            for (k, v) in &keys {
+                let mut planted = value.clone();
+                let table = table_at(&mut planted, steps);
+                if table.contains_key(k) {
+                    continue;
+                }
+                table.insert(k.clone(), v.clone());
+                let text = toml::to_string(&planted).unwrap();
+                std::fs::write(&path, &text).unwrap();
+                let where_ = path_text(steps);
+                let e = match CameraConfig::from_toml_file(&path) {
+                    Ok(_) => panic!("{k} in {where_} accepted:\n{text}"),
+                    Err(e) => e.to_string(),
+                };
+                assert!(e.starts_with(&format!("{}: ", path.display())) && e.contains(&format!("unknown field `{k}`")) && !e.contains('\n'), "{k} in {where_}: {e}");
+                refused.insert((where_, k.clone()));
+            }
+        }
+        // The issue's own cases were among them; 30 keys in all (20 at the top level, 5 in
+        // adc, 2 in bench, 1 to 4 in an architecture, the made-up one), 146 places.
+        for (table, key) in [("adc.architecture[0]", "weight_error_lsb"), ("adc.architecture[0]", "planted_field"), ("adc.architecture[1]", "stage_bits"), ("bench", "planted_field"), ("the top level", "kind")] {
+            assert!(refused.contains(&(table.to_string(), key.to_string())), "{key} in {table} not tried");
+        }
+        assert!(refused.len() >= 146, "{}", refused.len());
+    }
+
     #[test]
     fn sizes_and_electrons_beyond_physical_ranges_are_refused() {
         let e = CameraConfig { dark_e: 1e19, ..CameraConfig::default() }.validate().unwrap_err().to_string();
