@@ -387,3 +387,205 @@ fn a_report_that_cannot_be_written_leaves_no_outputs() {
         assert_eq!(snapshot(d), before, "--json {json}: outputs left");
     }
 }
+
+/// The subcommands `dncal --help` lists, at every depth, that take no subcommand of their
+/// own (`simulate histograms`, `adc`, ...).
+fn leaf_commands(path: &mut Vec<String>, leaves: &mut Vec<String>) {
+    let mut args: Vec<&str> = path.iter().map(String::as_str).collect();
+    args.push("--help");
+    let help = String::from_utf8(succeed(&args, Path::new(".")).stdout).unwrap();
+    // Each command a line of its own: its name indented by two spaces, then what it does.
+    let subs: Vec<String> = help
+        .split("\nCommands:\n")
+        .nth(1)
+        .map(|rest| rest.lines().take_while(|l| !l.trim().is_empty()).filter(|l| l.starts_with("  ") && !l.starts_with("   ")).filter_map(|l| l.split_whitespace().next()).filter(|n| *n != "help").map(String::from).collect())
+        .unwrap_or_default();
+    if subs.is_empty() {
+        leaves.push(path.join(" "));
+    }
+    for s in subs {
+        path.push(s);
+        leaf_commands(path, leaves);
+        path.pop();
+    }
+}
+
+/// A 12-bit EMVA 1288 set of `side` x `side` pixels of a linear camera (QE 0.5, K 0.25
+/// DN/e-, offset 50 DN, 2 DN read noise, shot noise as a normal law): a temporal pair
+/// dark and at each of `levels` photon levels up to 16000 photons, and a spatial series of
+/// `spatial` frames dark and at 8000 photons (the datasheet's nonuniformities,
+/// spectrograms and defect histograms).
+fn emva_set(dir: &Path, side: u32, levels: usize, spatial: usize) {
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal};
+    std::fs::create_dir_all(dir.join("images")).unwrap();
+    let mut rng = rand::rngs::StdRng::seed_from_u64(56);
+    let mut text = format!("v 3.1\nn 12 {side} {side}\n");
+    let temporal = std::iter::once(0.0).chain(support::photons(levels, 16000.0)).map(|p| (p, 2));
+    let mut image = 0;
+    for (p, frames) in temporal.chain([(0.0, spatial), (8000.0, spatial)]) {
+        text += &if p > 0.0 { format!("b 1000.0 {p}\n") } else { "d 1000.0\n".to_string() };
+        let electrons: f64 = 0.5 * p;
+        let noise = Normal::new(0.0, (4.0 + 0.0625 * electrons).sqrt()).unwrap();
+        for _ in 0..frames {
+            let codes: Vec<u16> = (0..side * side).map(|_| (50.0 + 0.25 * electrons + noise.sample(&mut rng)).round().clamp(0.0, 4095.0) as u16).collect();
+            let name = format!("img{image}.png");
+            image += 1;
+            support::write_png(&dir.join("images").join(&name), side, &codes);
+            text += &format!("i images\\{name}\n");
+        }
+    }
+    std::fs::write(dir.join("EMVA1288_Data.txt"), text).unwrap();
+}
+
+/// Every file under `dir`, relative to it, sorted.
+fn files_under(dir: &Path) -> Vec<String> {
+    let mut all: Vec<String> = support::snapshot(dir).into_iter().filter(|(_, bytes)| bytes.is_some()).map(|(p, _)| p.strip_prefix(dir).unwrap().to_string_lossy().into_owned()).collect();
+    all.sort();
+    all
+}
+
+/// One command that writes files, as [`every_command_refuses_an_output_it_cannot_write_before_any_work`] runs it.
+struct Case {
+    /// The subcommand, as `dncal --help` names it.
+    command: &'static str,
+    /// Its arguments (run in a directory of its own; the inputs are in `../in`).
+    args: Vec<&'static str>,
+    /// What `-o` names, and how: a file, a file prefix (`lut`) or a directory.
+    out: (&'static str, Out),
+    /// It computes for seconds: a refusal must take under a fifth of its run. (Otherwise,
+    /// a format's conversion or the manual pages, under a second.)
+    computes: bool,
+    /// Whether to run one of its files named only once found (a diagnosis's finding's
+    /// figure, `finding-K-EFFECT.png`): refused then, after the work. (Not the demo's: each
+    /// would be a whole demo.)
+    run_a_late_one: bool,
+}
+
+#[derive(Clone, Copy, PartialEq)]
+enum Out {
+    File,
+    Prefix,
+    Dir,
+}
+
+/// A file named only once the analysis finds it: a diagnosis's finding's figure.
+fn named_when_found(file: &str) -> bool {
+    Path::new(file).file_name().unwrap().to_string_lossy().starts_with("finding-")
+}
+
+/// Issue 56: `simulate histograms -o DIR/x.fits` with `x.fits` a directory was refused
+/// after 5-12 s of simulation. Every command that writes files (the list is `dncal
+/// --help`'s, and a command it adds fails this test until it has a case here or is
+/// listed as writing none) is run once as it is (timed, its files listed), then once with
+/// a directory at each file it wrote (and a file where its `-o` directory goes, a
+/// directory at a `lut` command's prefix): each is refused with exit 1 and one line
+/// naming the path, nothing left, in under a fifth of the command's own run (its inputs
+/// chosen so that it computes for seconds; a command with nothing to compute, a format's
+/// conversion or the manual pages, in under a second). The one exception, a file named
+/// only once the analysis finds it, is still refused cleanly, after the work. Before,
+/// `simulate histograms`, `emva -o`, `quantization --figure` and `adc`'s per-ADC figures
+/// were refused after their work.
+#[test]
+fn every_command_refuses_an_output_it_cannot_write_before_any_work() {
+    // Reports on stdout only.
+    let writes_none = ["lut inspect", "stream", "bench", "firmware-check", "completions"];
+    let root = tempfile::tempdir().unwrap();
+    let inputs = root.path().join("in");
+    std::fs::create_dir(&inputs).unwrap();
+    emva_set(&inputs.join("emva"), 768, 50, 24);
+    // A small linearity set for `diagnose` (its own case's set would take it minutes).
+    succeed(&["simulate", "linearity", "--roi", "64x64+480+480", "--frames", "32", "-o", "small.fits"], &inputs);
+    // In the order of their inputs: each case's outputs become the inputs of those after it.
+    let cases = [
+        Case { command: "simulate histograms", args: vec!["simulate", "histograms", "-o", "h.fits"], out: ("h.fits", Out::File), computes: true, run_a_late_one: false },
+        Case { command: "simulate linearity", args: vec!["simulate", "linearity", "--roi", "384x384+320+320", "--frames", "32", "-o", "lin.fits"], out: ("lin.fits", Out::File), computes: true, run_a_late_one: false },
+        Case { command: "lut build", args: vec!["lut", "build", "../in/h.fits", "-o", "cal"], out: ("cal", Out::Prefix), computes: false, run_a_late_one: false },
+        Case { command: "lut export", args: vec!["lut", "export", "../in/cal.fits", "--format", "kcor", "-o", "kc"], out: ("kc", Out::Prefix), computes: false, run_a_late_one: false },
+        Case { command: "lut import", args: vec!["lut", "import", "--kcor", "../in/kc", "-o", "imp"], out: ("imp", Out::Prefix), computes: false, run_a_late_one: false },
+        Case { command: "lut convert", args: vec!["lut", "convert", "../in/cal.fits", "--to", "image", "-o", "conv"], out: ("conv", Out::Prefix), computes: false, run_a_late_one: false },
+        Case { command: "adc", args: vec!["adc", "-o", "a"], out: ("a", Out::Dir), computes: true, run_a_late_one: false },
+        Case { command: "adc", args: vec!["adc", "--hist", "../in/h.fits", "-o", "a"], out: ("a", Out::Dir), computes: false, run_a_late_one: false },
+        Case { command: "adc", args: vec!["adc", "--from-luts", "../in/kc", "-o", "a"], out: ("a", Out::Dir), computes: true, run_a_late_one: false },
+        Case { command: "kcor-model", args: vec!["kcor-model", "--steps", "50", "-o", "k"], out: ("k", Out::Dir), computes: true, run_a_late_one: false },
+        Case { command: "linearity", args: vec!["linearity", "../in/lin.fits", "--held-out", "2,3,4,5,6", "-o", "L"], out: ("L", Out::Dir), computes: true, run_a_late_one: false },
+        Case { command: "diagnose", args: vec!["diagnose", "../in/h.fits", "../in/small.fits", "-o", "d"], out: ("d", Out::Dir), computes: true, run_a_late_one: true },
+        Case { command: "emva", args: vec!["emva", "../in/emva/EMVA1288_Data.txt", "-o", "ds"], out: ("ds", Out::Dir), computes: true, run_a_late_one: false },
+        Case { command: "fpga-size", args: vec!["fpga-size", "--size", "3072", "--lut", "../in/cal.fits", "-o", "hdl"], out: ("hdl", Out::Dir), computes: true, run_a_late_one: false },
+        Case { command: "quantization", args: vec!["quantization", "--sigma", "0.3", "--samples", "200000000", "--figure", "q.png"], out: ("q.png", Out::File), computes: true, run_a_late_one: false },
+        Case { command: "man", args: vec!["man", "-o", "pages"], out: ("pages", Out::Dir), computes: false, run_a_late_one: false },
+        Case { command: "demo", args: vec!["demo", "--frames", "1", "-o", "dm"], out: ("dm", Out::Dir), computes: true, run_a_late_one: false },
+    ];
+    let mut leaves = Vec::new();
+    leaf_commands(&mut Vec::new(), &mut leaves);
+    let mut covered: Vec<&str> = cases.iter().map(|c| c.command).chain(writes_none).collect();
+    covered.sort();
+    covered.dedup();
+    leaves.sort();
+    assert_eq!(leaves, covered, "every subcommand needs a case here (or, writing no file, a place in writes_none)");
+    for c in writes_none {
+        let mut args: Vec<&str> = c.split(' ').collect();
+        args.push("--help");
+        let help = String::from_utf8(succeed(&args, Path::new(".")).stdout).unwrap();
+        assert!(!help.contains("--out") && !help.contains("--figure"), "{c} has an output option: it needs a case");
+    }
+    let mut table = Vec::new();
+    for (n, case) in cases.iter().enumerate() {
+        let d = root.path().join(format!("case{n}"));
+        std::fs::create_dir(&d).unwrap();
+        let start = Instant::now();
+        succeed(&case.args, &d);
+        let normal = start.elapsed();
+        let written = files_under(&d);
+        assert!(!written.is_empty(), "{:?} wrote nothing", case.args);
+        // Kept as the inputs of later cases; the directory emptied for the refusals.
+        for f in &written {
+            let to = inputs.join(f);
+            std::fs::create_dir_all(to.parent().unwrap()).unwrap();
+            std::fs::rename(d.join(f), to).unwrap();
+        }
+        std::fs::remove_dir_all(&d).unwrap();
+        std::fs::create_dir(&d).unwrap();
+        if case.computes {
+            assert!(normal > Duration::from_secs(1), "{:?} took {normal:?}: too little work to tell a refusal before it from one after", case.args);
+        }
+        let limit = if case.computes { normal / 5 } else { Duration::from_secs(1) };
+        // Each obstacle: the path made a directory (or, `-o`'s directory, a file), and the
+        // start of the error line.
+        let (out, kind) = case.out;
+        let mut obstacles: Vec<(String, bool, String)> = written.iter().filter(|f| !named_when_found(f)).map(|f| (f.clone(), true, format!("{f}: {DIRECTORY}\n"))).collect();
+        match kind {
+            Out::Dir => obstacles.push((out.into(), false, format!("{out}: is not a directory; outputs go into it\n"))),
+            Out::Prefix => obstacles.push((out.into(), true, format!("{out}: names a directory; -o takes a file prefix OUT"))),
+            Out::File => assert_eq!(written, [out], "{:?}", case.args),
+        }
+        let mut slowest = Duration::ZERO;
+        for (path, as_dir, message) in &obstacles {
+            let p = d.join(path);
+            std::fs::create_dir_all(if *as_dir { &p } else { p.parent().unwrap() }).unwrap();
+            if !*as_dir {
+                std::fs::write(&p, "a file").unwrap();
+            }
+            let before = snapshot(&d);
+            let start = Instant::now();
+            let refused = support::dncal_prompt(&case.args, &d);
+            let took = start.elapsed();
+            assert_failed_and_untouched(&refused, message, &d, &before);
+            assert!(took < limit, "{:?} with {path} in the way: refused after {took:?}, its run takes {normal:?}", case.args);
+            slowest = slowest.max(took);
+            std::fs::remove_dir_all(&d).unwrap();
+            std::fs::create_dir(&d).unwrap();
+        }
+        let late: Vec<&String> = written.iter().filter(|f| named_when_found(f)).collect();
+        if let (true, Some(f)) = (case.run_a_late_one, late.first()) {
+            std::fs::create_dir_all(d.join(f)).unwrap();
+            let before = snapshot(&d);
+            let refused = dncal(&case.args, &d);
+            assert_failed_and_untouched(&refused, &format!("{f}: {DIRECTORY}\n"), &d, &before);
+            std::fs::remove_dir_all(&d).unwrap();
+            std::fs::create_dir(&d).unwrap();
+        }
+        table.push(format!("| `{}` | {:.2} s | {} | {:.3} s | {} |", case.args.join(" "), normal.as_secs_f64(), obstacles.len(), slowest.as_secs_f64(), late.len()));
+    }
+    eprintln!("| command | normal run | refusals | slowest refusal | files named when found |\n|---|---|---|---|---|\n{}", table.join("\n"));
+}

@@ -263,7 +263,8 @@ fn run_files(simulated: bool) -> impl Iterator<Item = &'static str> {
 /// the caller publishes them.
 pub fn run(camera: &Camera, hist: Option<&Path>, ramp: &RampParams, flatten: &FlattenParams, density: Density, out: OutDir<'_>) -> Result<(AdcReport, BuiltLuts), HostError> {
     let OutDir { files, dir: out_dir } = out;
-    expect_run(files, out_dir, hist.is_none(), None)?;
+    // Simulated, the histograms are the camera's ADCs': their figures named now too.
+    expect_run(files, out_dir, hist.is_none(), hist.is_none().then_some(camera.adcs.len()))?;
     let (histograms, source, truth) = match hist {
         Some(path) => (read_histograms_for_analysis(path)?, path.to_path_buf(), None),
         None => {
@@ -386,6 +387,13 @@ fn camera_label(path: &Path, adc: usize) -> String {
     stem.replace(&format!("_adc{adc}"), "").replace(&format!("adc{adc}"), "")
 }
 
+/// Creates `dir` and checks the files [`from_luts`] writes there whatever the cameras,
+/// before anything is read (each camera's own are named once its tables are found).
+pub fn expect_from_luts(files: &mut Outputs, dir: &Path) -> Result<(), HostError> {
+    files.create_dir(dir)?;
+    files.expect(["trends.png", "real_adcs.json"].map(|n| dir.join(n)))
+}
+
 /// `adc --from-luts SPEC ...`: characterizes the real ADCs of K-Cor tables
 /// ([`crate::analyses::real_adcs`]), one SPEC per camera (a prefix or a path with `{adc}`), with
 /// figures and `real_adcs.json` staged in `out`'s directory (published by the caller).
@@ -394,6 +402,7 @@ pub fn from_luts(specs: &[String], out: OutDir<'_>) -> Result<RealAdcsReport, Ho
     use crate::analyses::real_adcs::{characterize, correlation};
     use crate::formats::lut::kcor::FIRST_CALIBRATED;
     let OutDir { files: staged, dir: out_dir } = out;
+    expect_from_luts(staged, out_dir)?;
     let cameras: Vec<([PathBuf; 4], String)> = specs
         .iter()
         .map(|spec| crate::formats::lut::kcor::expand(spec).map(|f| {
@@ -401,9 +410,9 @@ pub fn from_luts(specs: &[String], out: OutDir<'_>) -> Result<RealAdcsReport, Ho
             (f, label)
         }))
         .collect::<Result<_, _>>()?;
-    staged.create_dir(out_dir)?;
+    // Each camera's files, named by its tables, before any is read.
     let per_camera = cameras.iter().flat_map(|(_, l)| [format!("{l}-dn-error.png"), format!("{l}-offsets.png"), format!("{l}-architecture.toml")]);
-    staged.expect(per_camera.chain(["trends.png".into(), "real_adcs.json".into()]).map(|n| out_dir.join(n)))?;
+    staged.expect(per_camera.map(|n| out_dir.join(n)))?;
     let mut adcs = Vec::new();
     let (mut figures, mut models) = (Vec::new(), Vec::new());
     for (files, label) in &cameras {

@@ -86,8 +86,7 @@ pub fn fpga_size(system: &System, states: u8, config: &Config, lut: Option<&Path
     let luts = match (lut, out) {
         (Some(lut), Some(out)) => {
             let luts = load_luts(lut)?;
-            staged.create_dir(out)?;
-            staged.expect((0..luts.tables().len()).map(|a| out.join(format!("lut_adc{a}.hex"))))?;
+            expect_readmemh(&mut staged, out)?;
             Some((luts, out))
         }
         _ => None,
@@ -103,6 +102,14 @@ pub fn fpga_size(system: &System, states: u8, config: &Config, lut: Option<&Path
     }
     staged.publish()?;
     Ok(FpgaSizeReport { fifo_depth: config.fifo_depth, mem_latency: config.mem_latency, sizing, states, readmemh: files })
+}
+
+/// Creates `dir` and checks the `$readmemh` files [`fpga_size`] writes there, one per table
+/// of the FPGA model's four ([`Mvd1024eLuts`]; a LUT of another count is refused), before
+/// anything is computed.
+pub fn expect_readmemh(files: &mut Outputs, dir: &Path) -> Result<(), HostError> {
+    files.create_dir(dir)?;
+    files.expect((0..4).map(|a| dir.join(format!("lut_adc{a}.hex"))))
 }
 
 /// The LUT `lut` (any format the LUT home reads) as the FPGA model's four 12-bit tables,

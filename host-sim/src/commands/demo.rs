@@ -200,6 +200,24 @@ fn real_fig5(camera: &Camera) -> Result<RealFig5, HostError> {
     Ok(RealFig5 { camera: REAL_CAMERA.into(), adc: p.adc, q_fraction: p.q_fraction, exposure_ms: p.exposure_s * 1e3, lut_noise: p.lut_noise, draws, median: crate::infra::stats::median(reductions), min, max })
 }
 
+/// Creates `out_dir` and checks every step's files in it, at every depth, before the first
+/// step (issue 43: a directory where `diagnose/model.toml` goes was found after 42 s of
+/// work): with `n_adc` (the camera's ADCs) known, each ADC's figures too. The figures of
+/// the diagnoses' findings are named only once found.
+pub fn expect_outputs(files: &mut Outputs, out_dir: &Path, n_adc: Option<usize>) -> Result<(), HostError> {
+    let at = |name: &str| out_dir.join(name);
+    files.create_dir(out_dir)?;
+    files.expect(["quantization.png", "linearity.fits", "summary.json", "report.html"].map(at))?;
+    crate::analyses::adc::expect_run(files, out_dir, true, n_adc)?;
+    crate::analyses::kcor::run::expect_figures(files, out_dir)?;
+    crate::analyses::linearity::run::expect_report(files, &at("linearity"))?;
+    for dir in ["diagnose", "diagnose-linearity"] {
+        crate::analyses::diagnose::run::expect_report(files, &at(dir))?;
+    }
+    // The diagnosis of the simulated histograms tests each ADC.
+    crate::analyses::diagnose::run::expect_adc_figures(files, &at("diagnose"), n_adc.unwrap_or(0))
+}
+
 /// Runs the demo into `out_dir` with `frames` streamed frames. Every file is published at
 /// the end, together, or none is ([`crate::formats::outputs`]); the steps that read an earlier
 /// step's file (the linearity analysis, the diagnoses) read it staged.
@@ -210,17 +228,8 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
     let start = Instant::now();
     let real = kcor_tables.map(real_camera).transpose()?;
     let mut files = Outputs::new();
-    files.create_dir(out_dir)?;
+    expect_outputs(&mut files, out_dir, Some(camera.adcs.len()))?;
     let at = |name: &str| out_dir.join(name);
-    files.expect(["quantization.png", "linearity.fits", "summary.json", "report.html"].map(at))?;
-    // Every step's files, at every depth, before the first step (issue 43: a directory
-    // where `diagnose/model.toml` goes was found after 42 s of work).
-    crate::analyses::adc::expect_run(&mut files, out_dir, true, Some(camera.adcs.len()))?;
-    crate::analyses::kcor::run::expect_figures(&mut files, out_dir)?;
-    crate::analyses::linearity::run::expect_report(&mut files, &at("linearity"))?;
-    for dir in ["diagnose", "diagnose-linearity"] {
-        crate::analyses::diagnose::run::expect_report(&mut files, &at(dir))?;
-    }
     // The staged contents of `target`, which an earlier step wrote.
     let staged = |files: &Outputs, target: &Path| files.staged(target).map(Path::to_path_buf).ok_or_else(|| HostError::Output { path: target.into(), fault: crate::formats::outputs::OutputFault::NotStaged });
 

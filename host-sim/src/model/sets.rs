@@ -11,7 +11,7 @@ use crate::model::camera::sample::frame_seed;
 use crate::model::camera::{Camera, CameraConfig};
 use crate::infra::progress::{bar, stage};
 use crate::formats::report::Report;
-use crate::formats::fits::{stage_linearity, write_histograms, AdcHistograms, LinearitySet};
+use crate::formats::fits::{stage_histograms, stage_linearity, AdcHistograms, LinearitySet};
 use crate::formats::outputs::Outputs;
 use crate::{HostError, Origin};
 
@@ -54,16 +54,20 @@ impl Report for HistogramSummary {
     }
 }
 
-/// Simulates the ramps of `ramp` and writes the summed per-ADC histograms.
+/// Simulates the ramps of `ramp` and writes the summed per-ADC histograms (the output
+/// checked first).
 pub fn simulate_histograms(camera: &Camera, ramp: &RampParams, output: PathBuf) -> Result<HistogramSummary, HostError> {
     let start = Instant::now();
+    let mut files = Outputs::new();
+    files.expect([&output])?;
     let levels: usize = ramp.ramp_levels.iter().sum();
     stage(&format!("simulating the calibration ramps ({levels} levels)"));
     let pb = bar(levels as u64, "ADC ramp histograms");
     let counts = camera.ramp_histograms(ramp, |n| pb.set_position(n));
     pb.finish_and_clear();
     let set = AdcHistograms { bit_depth: camera.config.bits, counts };
-    write_histograms(&output, &set)?;
+    stage_histograms(&mut files, &output, &set)?;
+    files.publish()?;
     Ok(HistogramSummary {
         counts_per_adc: set.counts.iter().map(|c| c.iter().sum()).collect(),
         n_adc: set.counts.len(),

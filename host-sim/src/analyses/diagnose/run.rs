@@ -178,25 +178,42 @@ pub struct DiagnoseParams {
 /// `out/0`, `out/1`, ... (several), all published together: a failure on the last input
 /// leaves no report of the first.
 pub fn diagnose_files(inputs: &[PathBuf], params: &DiagnoseParams, out: Option<&Path>) -> Result<Vec<DiagnoseSummary>, HostError> {
-    let several = inputs.len() > 1;
-    let dirs: Vec<Option<PathBuf>> = (0..inputs.len()).map(|i| out.map(|o| if several { o.join(i.to_string()) } else { o.to_path_buf() })).collect();
     let mut staged = Outputs::new();
-    for d in dirs.iter().flatten() {
-        expect_report(&mut staged, d)?;
+    if let Some(o) = out {
+        expect_reports(&mut staged, inputs.len(), o)?;
     }
     let mut all = Vec::new();
-    for (input, dir) in inputs.iter().zip(&dirs) {
+    for (i, input) in inputs.iter().enumerate() {
+        let dir = out.map(|o| report_dir(o, i, inputs.len()));
         all.push(diagnose(input, params, dir.as_deref().map(|d| OutDir::new(&mut staged, d)))?);
     }
     staged.publish()?;
     Ok(all)
 }
 
+/// Where the report of input `i` of `n` goes in `out`: `out` itself for one input,
+/// `out/0`, `out/1`, ... for several.
+fn report_dir(out: &Path, i: usize, n: usize) -> PathBuf {
+    if n > 1 { out.join(i.to_string()) } else { out.to_path_buf() }
+}
+
+/// [`expect_report`] for each of the `n` reports of [`diagnose_files`] in `out`.
+pub fn expect_reports(files: &mut Outputs, n: usize, out: &Path) -> Result<(), HostError> {
+    (0..n).try_for_each(|i| expect_report(files, &report_dir(out, i, n)))
+}
+
 /// The files every report of [`diagnose`] may write, checked and created (the directory)
-/// before anything is computed; the figures of the findings are named only once found.
+/// before anything is computed; a histogram set's test figures are named once the set is
+/// read, the figures of the findings only once found.
 pub fn expect_report(files: &mut Outputs, dir: &Path) -> Result<(), HostError> {
     files.create_dir(dir)?;
     files.expect(["residuals.png", "report.html", "model.toml", "codes.png"].map(|n| dir.join(n)))
+}
+
+/// The histogram test figure of each of `n_adc` ADCs a report in `dir` may write
+/// (`dnl_inl_adcA.png`), checked before the diagnosis computes.
+pub fn expect_adc_figures(files: &mut Outputs, dir: &Path, n_adc: usize) -> Result<(), HostError> {
+    files.expect((0..n_adc).map(|a| dir.join(format!("dnl_inl_adc{a}.png"))))
 }
 
 /// [`diagnose`] of the file at `read_from`, named `input` in the report: for a command
@@ -290,6 +307,9 @@ pub fn diagnose_as(read_from: &Path, input: &Path, params: &DiagnoseParams, mut 
                 return report(input, d, Some(model), out, ("level", "baseline (linear pixels): RMS over pixels"));
             }
         };
+        if let Some(o) = out.as_mut() {
+            expect_adc_figures(o.files, o.dir, hist.counts.len())?;
+        }
         // A stage line: the analysis counts its ADCs on a bar of its own.
         crate::infra::progress::stage(&format!("diagnosing {} (histogram set, {} ADCs of {} codes)", input.display(), hist.counts.len(), 1u64 << hist.bit_depth));
         let d = diagnose_histograms(&hist, flatten, seed);

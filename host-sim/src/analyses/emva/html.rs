@@ -26,14 +26,12 @@ fn log_counts(bins: &[f64], counts: &[u64]) -> Vec<(f64, f64)> {
     bins.iter().zip(counts).map(|(&b, &c)| (b, ((c + 1) as f64).log10())).collect()
 }
 
-/// Writes the datasheet of `descriptor` into `dir`, all files or none
-/// ([`crate::formats::outputs`]); returns the files written.
-pub fn write_datasheet(dir: &Path, descriptor: &Path, sheet: &Datasheet) -> Result<Vec<PathBuf>, HostError> {
-    let mut staged = Outputs::new();
-    staged.create_dir(dir)?;
-    let names = ["photon_transfer.png", "snr.png", "linearity.png", "spectrograms.png", "defect_histograms.png", "datasheet.html", "datasheet.json"];
-    staged.expect(names.map(|n| dir.join(n)))?;
-    let mut files = figures(&mut staged, dir, sheet)?;
+/// Stages the datasheet of `descriptor` in `dir` ([`expect_datasheet`] first), published
+/// by the caller with the rest: all files or none ([`crate::formats::outputs`]); returns
+/// the files staged.
+pub fn write_datasheet(staged: &mut Outputs, dir: &Path, descriptor: &Path, sheet: &Datasheet) -> Result<Vec<PathBuf>, HostError> {
+    expect_datasheet(staged, dir)?;
+    let mut files = figures(staged, dir, sheet)?;
     let page = dir.join("datasheet.html");
     staged.write_bytes(&page, page_html(descriptor, sheet, &files))?;
     files.push(page);
@@ -41,8 +39,16 @@ pub fn write_datasheet(dir: &Path, descriptor: &Path, sheet: &Datasheet) -> Resu
     let text = serde_json::to_string_pretty(sheet).map_err(|e| HostError::encode(json.clone(), e))?;
     staged.write_bytes(&json, text + "\n")?;
     files.push(json);
-    staged.publish()?;
     Ok(files)
+}
+
+/// Creates `dir` and checks every file [`write_datasheet`] may write there (the
+/// spectrograms and defect histograms only where the set has the spatial images), before
+/// anything is computed.
+pub fn expect_datasheet(files: &mut Outputs, dir: &Path) -> Result<(), HostError> {
+    files.create_dir(dir)?;
+    let names = ["photon_transfer.png", "snr.png", "linearity.png", "spectrograms.png", "defect_histograms.png", "datasheet.html", "datasheet.json"];
+    files.expect(names.map(|n| dir.join(n)))
 }
 
 /// The photon-transfer figure's data: the measured levels as markers (each one is a

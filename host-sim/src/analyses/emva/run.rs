@@ -49,15 +49,22 @@ impl Report for EmvaSummary {
 /// Reads the set of `descriptor`, computes its datasheet by `release`'s definitions
 /// (the descriptor's own by default) and, with `out`, writes the page into that folder.
 pub fn emva(descriptor: &Path, release: Option<Release>, out: Option<&Path>) -> Result<EmvaSummary, HostError> {
+    // The datasheet's files first: a directory where one goes is refused before the
+    // images are decoded.
+    let mut staged = crate::formats::outputs::Outputs::new();
+    if let Some(dir) = out {
+        crate::analyses::emva::html::expect_datasheet(&mut staged, dir)?;
+    }
     let set = read_descriptor(descriptor)?;
     let spin = crate::infra::progress::spinner(&format!("EMVA 1288 datasheet of {} ({} levels)", descriptor.display(), set.levels.len()));
     let sheet = datasheet(&set, release);
     spin.finish_and_clear();
     let sheet = sheet?;
     let written = match out {
-        Some(dir) => write_datasheet(dir, descriptor, &sheet)?,
+        Some(dir) => write_datasheet(&mut staged, dir, descriptor, &sheet)?,
         None => Vec::new(),
     };
+    staged.publish()?;
     Ok(EmvaSummary { sheet, written, set: Header { path: set.path, bits: set.bits, width: set.width, height: set.height } })
 }
 

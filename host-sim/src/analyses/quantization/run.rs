@@ -186,11 +186,14 @@ pub fn quantization(request: &Request) -> Result<QuantizationReport, HostError> 
     if sigma.is_none() && request.bias.is_none() && request.figure.is_none() {
         return Err(HostError::argument("quantization", "give --sigma (or --read-noise-e with --gain-e-per-dn), --bias or --figure"));
     }
-    // The answers first: a refused value leaves no figure behind.
+    // The figure's file checked before any work; a refused value leaves no figure behind.
+    let mut files = crate::formats::outputs::Outputs::new();
+    files.expect(&request.figure)?;
     let at_sigma = sigma.map(|s| at_sigma(s, request.samples, 1)).transpose()?;
     let for_bias = request.bias.map(for_bias).transpose()?;
     if let Some(path) = &request.figure {
-        crate::formats::outputs::write_one(|o| figure(o, path))?;
+        figure(&mut files, path)?;
     }
+    files.publish()?;
     Ok(QuantizationReport { at_sigma, for_bias, figure: request.figure.clone() })
 }

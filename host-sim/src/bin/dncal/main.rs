@@ -5,7 +5,7 @@
 mod cli;
 
 use std::io::Write;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use cli::{Cli, Cmd, ExportFormat, LutCmd, SimulateCmd};
@@ -19,7 +19,7 @@ use dncal_host::commands::demo;
 use dncal_host::formats::report::Report;
 use dncal_host::infra::progress;
 use dncal_host::model::sets as simulate;
-use dncal_host::formats::outputs::{staged, staged_in};
+use dncal_host::formats::outputs::{staged, staged_in, Hold, Outputs};
 use dncal_host::checks::streaming::StreamParams;
 use dncal_host::HostError;
 
@@ -31,7 +31,7 @@ fn main() -> ExitCode {
     // The outputs stay undoable until the report is on stdout: a report that cannot be
     // written (`--json > /dev/full`) leaves no outputs either (issue 43).
     let outputs = dncal_host::formats::outputs::hold();
-    match run(cli) {
+    match run(cli, &outputs) {
         Ok(code) => {
             outputs.commit();
             code
@@ -47,13 +47,16 @@ fn main() -> ExitCode {
 
 /// Runs the command and prints its report; the exit code is a failure where the command
 /// ran but its check did not pass (`stream`, `demo`, `firmware-check`).
-fn run(cli: Cli) -> Result<ExitCode, HostError> {
+fn run(cli: Cli, outputs: &Hold) -> Result<ExitCode, HostError> {
     if let Some(bytes) = cli.max_memory {
         dncal_host::infra::budget::set_limit(bytes);
     }
     progress::set_quiet(cli.quiet);
     // No output may replace an input (issue 43): compared for the whole run.
     let _inputs = dncal_host::formats::same_file::watch();
+    // Every file the command line names, checked (and claimed) before the command reads or
+    // computes anything (issue 56).
+    outputs.reserve(|files| declare_outputs(&cli.command, files))?;
     let passed = |ok: bool| if ok { ExitCode::SUCCESS } else { ExitCode::FAILURE };
     match cli.command {
         Cmd::Simulate { what: SimulateCmd::Histograms { camera, ramp, out, json } } => print(json, &simulate::simulate_histograms(&camera.camera()?, &ramp.params()?, out)?)?,
@@ -150,6 +153,44 @@ fn run(cli: Cli) -> Result<ExitCode, HostError> {
     Ok(ExitCode::SUCCESS)
 }
 
+/// Names the files `command` writes that its command line alone determines, for
+/// [`Hold::reserve`]: one check of every command's outputs, before it reads or computes
+/// anything (issue 56; each command names the same files again when it writes them, and
+/// takes over these claims). Files named by what an input holds are claimed by the
+/// command itself as soon as it has read that input, before it computes: one figure per
+/// ADC of `adc --hist`'s histogram set (of the camera's ADCs when simulated), the files of
+/// each camera of `adc --from-luts`, the histogram test figures of each histogram set
+/// `diagnose` reads; and the figure of each of a diagnosis's findings only once found.
+fn declare_outputs(command: &Cmd, files: &mut Outputs) -> Result<(), HostError> {
+    use dncal_host::formats::lut::{output_paths, LutFormat, LutOutputs};
+    let lut_pair = |files: &mut Outputs, out: &Path| {
+        let pair = LutOutputs::for_prefix(out)?;
+        files.expect([pair.fits, pair.image])
+    };
+    match command {
+        Cmd::Simulate { what: SimulateCmd::Histograms { out, .. } | SimulateCmd::Linearity { out, .. } } => files.expect([out]),
+        Cmd::Lut { what: LutCmd::Build { out, .. } | LutCmd::Import { out, .. } } => lut_pair(files, out),
+        Cmd::Lut { what: LutCmd::Export { format: ExportFormat::Kcor, out, .. } } => files.expect(output_paths(LutFormat::Kcor, Path::new(out))?),
+        Cmd::Lut { what: LutCmd::Convert { to, out, .. } } => files.expect(output_paths((*to).into(), out)?),
+        Cmd::Adc { from_luts, out, .. } if !from_luts.is_empty() => adc::expect_from_luts(files, out),
+        Cmd::Adc { hist, out, .. } => adc::expect_run(files, out, hist.is_none(), None),
+        Cmd::KcorModel { out, .. } => out.as_deref().map_or(Ok(()), |dir| kcor::expect_figures(files, dir)),
+        Cmd::Linearity { out, .. } => out.as_deref().map_or(Ok(()), |dir| linearity::expect_report(files, dir)),
+        Cmd::Diagnose { files: inputs, out, .. } => out.as_deref().map_or(Ok(()), |dir| diagnose::expect_reports(files, inputs.len(), dir)),
+        Cmd::Emva { out, .. } => out.as_deref().map_or(Ok(()), |dir| dncal_host::analyses::emva::html::expect_datasheet(files, dir)),
+        Cmd::FpgaSize { lut: Some(_), out: Some(dir), .. } => fpga::expect_readmemh(files, dir),
+        Cmd::FpgaSize { .. } => Ok(()),
+        Cmd::Quantization { figure, .. } => files.expect(figure),
+        Cmd::Man { out } => out.as_deref().map_or(Ok(()), |dir| {
+            files.create_dir(dir)?;
+            files.expect(man_pages_in(dir).into_iter().map(|(path, _)| path))
+        }),
+        Cmd::Demo { out, .. } => demo::expect_outputs(files, out, None),
+        // No files: reports on stdout only.
+        Cmd::Lut { what: LutCmd::Inspect { .. } } | Cmd::Stream { .. } | Cmd::FirmwareCheck { .. } | Cmd::Bench { .. } | Cmd::Completions { .. } => Ok(()),
+    }
+}
+
 /// The report as JSON (`--json`) or as its readable text, on stdout.
 fn print(json: bool, report: &(impl Report + ?Sized)) -> Result<(), HostError> {
     let out = if json {
@@ -220,25 +261,34 @@ fn man_pages(out: Option<&Path>) -> Result<(), HostError> {
         clap_mangen::Man::new(cmd.clone()).render(&mut page).map_err(|e| HostError::IoOf { subject: dncal_host::Subject::ManPage, source: e })?;
         Ok(page)
     }
-    let mut cmd = command();
-    cmd.build();
     let Some(dir) = out else {
+        let mut cmd = command();
+        cmd.build();
         return to_stdout(&render(&cmd)?);
     };
-    let mut files = dncal_host::formats::outputs::Outputs::new();
+    let mut files = Outputs::new();
     files.create_dir(dir)?;
-    // Each subcommand's page is named by its path (`dncal-lut-build.1`), as git's are.
-    fn walk(cmd: &clap::Command, name: String, dir: &Path, files: &mut dncal_host::formats::outputs::Outputs) -> Result<(), HostError> {
-        let named = cmd.clone().name(name.clone());
-        files.write_bytes(&dir.join(format!("{name}.1")), render(&named)?)?;
-        for sub in cmd.get_subcommands().filter(|s| s.get_name() != "help") {
-            walk(sub, format!("{name}-{}", sub.get_name()), dir, files)?;
-        }
-        Ok(())
+    for (path, cmd) in man_pages_in(dir) {
+        files.write_bytes(&path, render(&cmd)?)?;
     }
-    walk(&cmd, "dncal".into(), dir, &mut files)?;
     let written = files.publish()?;
     to_stdout(format!("wrote {} manual pages into {}\n", written.len(), dir.display()).as_bytes())
+}
+
+/// Every manual page `man -o DIR` writes: the command and each subcommand, named by its
+/// path (`DIR/dncal-lut-build.1`, as git's are), with the command it renders.
+fn man_pages_in(dir: &Path) -> Vec<(PathBuf, clap::Command)> {
+    fn walk(cmd: &clap::Command, name: String, dir: &Path, pages: &mut Vec<(PathBuf, clap::Command)>) {
+        pages.push((dir.join(format!("{name}.1")), cmd.clone().name(name.clone())));
+        for sub in cmd.get_subcommands().filter(|s| s.get_name() != "help") {
+            walk(sub, format!("{name}-{}", sub.get_name()), dir, pages);
+        }
+    }
+    let mut cmd = command();
+    cmd.build();
+    let mut pages = Vec::new();
+    walk(&cmd, "dncal".into(), dir, &mut pages);
+    pages
 }
 
 /// clap's help and version as clap prints them; its usage errors in the one-line format

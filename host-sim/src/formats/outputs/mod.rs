@@ -14,7 +14,10 @@
 //!
 //! Most failures are found before anything is computed: a target is checked when first
 //! named ([`Outputs::expect`]): it must not be a directory, device or FIFO, and its
-//! temporary is created at once, so an unwritable directory fails there too. A kill
+//! temporary is created at once, so an unwritable directory fails there too. The `dncal`
+//! command names every file its command line says it writes before the command reads or
+//! computes anything (issue 56: [`Hold::reserve`]); the set that later writes one takes
+//! over that claim. A kill
 //! cannot clean up; its temporaries (and, killed while publishing, its backups) carry its
 //! process id, and the next set that writes the same target removes those of processes
 //! no longer running.
@@ -245,6 +248,12 @@ impl Outputs {
         if let Some(i) = self.staged.iter().position(|s| s.target == target) {
             return Ok(i);
         }
+        // Claimed before the command started ([`Hold::reserve`]): checked, locked, its
+        // temporary made; now this set's.
+        if let Some(s) = take_reserved(target, self.pid) {
+            self.staged.push(s);
+            return Ok(self.staged.len() - 1);
+        }
         check_target(target)?;
         crate::formats::same_file::note_target(target)?;
         let (dir, prefix) = temp_prefix(target)?;
@@ -323,12 +332,52 @@ pub fn hold() -> Hold {
     Hold(())
 }
 
+/// The targets claimed by [`Hold::reserve`] and not yet taken over by a set; `None` when
+/// none were.
+static RESERVED: std::sync::Mutex<Option<Outputs>> = std::sync::Mutex::new(None);
+
+fn reserved() -> std::sync::MutexGuard<'static, Option<Outputs>> {
+    RESERVED.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// The claim of `target` made by [`Hold::reserve`], taken out of the reservation for a
+/// set of process `pid` (a test's simulated dead process takes none).
+fn take_reserved(target: &Path, pid: u32) -> Option<Staged> {
+    let mut reserved = reserved();
+    let set = reserved.as_mut().filter(|r| r.pid == pid)?;
+    let i = set.staged.iter().position(|s| s.target == target)?;
+    Some(set.staged.remove(i))
+}
+
 impl Hold {
+    /// Claims, before the command reads or computes anything, the targets and directories
+    /// `declare` names ([`Outputs::expect`], [`Outputs::create_dir`]: the same checks,
+    /// locks and temporaries as any set's) and keeps them claimed while the hold is held:
+    /// the set that later names one of them takes its claim over. An error leaves nothing
+    /// (the claims of `declare` are undone). What no set took over is released when the
+    /// hold ends: its temporaries removed, and the directories it created with them if the
+    /// hold is dropped (if committed, they stay, as a published set's do).
+    pub fn reserve(&self, declare: impl FnOnce(&mut Outputs) -> Result<(), HostError>) -> Result<(), HostError> {
+        let mut set = Outputs::new();
+        declare(&mut set)?;
+        let mut reserved = reserved();
+        match reserved.as_mut() {
+            Some(r) => {
+                r.staged.append(&mut set.staged);
+                r.created_dirs.append(&mut set.created_dirs);
+            }
+            None => *reserved = Some(set),
+        }
+        Ok(())
+    }
+
     /// Finishes every set held.
     pub fn commit(self) {
         let sets = held().take();
         std::mem::forget(self);
         sets.into_iter().flatten().for_each(Outputs::finish);
+        let unused = reserved().take();
+        unused.into_iter().for_each(Outputs::finish);
     }
 }
 
@@ -337,6 +386,9 @@ impl Drop for Hold {
         let sets = held().take();
         // Each set's own drop puts its files back.
         sets.into_iter().flatten().rev().for_each(drop);
+        // Then the claims no set took over, and the directories made for them (empty now).
+        let unused = reserved().take();
+        drop(unused);
     }
 }
 
