@@ -191,8 +191,10 @@ fn sizes_over_the_memory_budget_are_refused_before_allocating() {
     let out = dncal(&["lut", "inspect", "bomb.fits.gz"], d);
     assert_error(&out, &format!("bomb.fits.gz: the primary HDU declares its header, data and heap (PCOUNT) to end at byte {}; the file inflates to {} bytes (truncated?)", 2880 + (2 * 4000 * 4000usize).div_ceil(2880) * 2880, 2880 + (16 << 20) + 300_000));
 
-    // An image's pixels: 4000 x 4000 as 8-byte values (the histogram reader's u64) is
-    // 122 MiB, refused by a budget of 64 MiB before cfitsio reads them. A plain file.
+    // A histogram set of 4000 ADCs of 4096 codes: `lut build` refuses it from its header
+    // (the core takes at most 8 ADCs), and `diagnose` its counts as read (24 bytes a
+    // count) and their analysis (104), 2 GiB, by a budget of 64 MiB, both before cfitsio
+    // reads a count (issue 56). A plain file.
     let cards = ["SIMPLE  =                    T", "BITPIX  =                    8", "NAXIS   =                    2", "NAXIS1  =                 4096", "NAXIS2  =                 4000", "BITDEPTH=                   12", "NADC    =                 4000", "ADCMAP  = 'COLMOD'", "END"];
     let mut plain: Vec<u8> = cards.iter().flat_map(|c| format!("{c:<80}").into_bytes()).collect();
     plain.resize(2880, b' ');
@@ -200,22 +202,31 @@ fn sizes_over_the_memory_budget_are_refused_before_allocating() {
     plain.resize(plain.len().div_ceil(2880) * 2880, 0);
     std::fs::write(d.join("wide.fits"), &plain).unwrap();
     let out = dncal(&["--max-memory", "64M", "lut", "build", "wide.fits", "-o", "cal"], d);
-    assert_error(&out, "wide.fits: the primary HDU (4096 x 4000 pixels as 8-byte values) needs about 125.0 MiB, more than the memory budget of 64.0 MiB (--max-memory)");
+    assert_error(&out, "wide.fits: 4000 ADCs of 4096 codes: the core is built for 1, 2, 4 or 8 ADCs of 8, 10, 12 or 14 bits (8 ADCs up to 12 bits)");
+    let out = dncal(&["--max-memory", "64M", "diagnose", "wide.fits"], d);
+    assert_error(&out, "wide.fits: diagnosing the histogram set of 4000 ADCs of 4096 codes (the counts as read 375.0 MiB + their analysis 1.6 GiB) needs about 2.0 GiB, more than the memory budget of 64.0 MiB (--max-memory)");
 
-    // A linearity set's analysis: 16 x 8 pixels x 12 levels need 24 x 12 + 256 = 544
-    // bytes per pixel with the corrected cube the outputs write, 68 KiB; without
-    // outputs no cube, 16 x 12 + 256 = 448 bytes per pixel, 56 KiB.
+    // A linearity set of 16 x 8 pixels x 12 levels, counted from its header before either
+    // cube is read (issue 56): the cubes (16 bytes a value, 24 KiB), the corrected cube
+    // the outputs write (8 bytes a value, 12 KiB) and the fits (152 + 8 (order + 1) bytes
+    // a pixel, 24 KiB), 60 KiB; without outputs no corrected cube, and the fits 8 bytes a
+    // pixel more on each thread (a level's row of scratch): the message's last part
+    // depends on the machine.
     support::small_linearity(d, "lin.fits");
-    let out = dncal(&["linearity", "lin.fits", "--max-memory", "64K", "-o", "lin_out"], d);
-    assert_error(&out, "lin.fits: the pixel-wise analysis (the corrected cube and the fits) needs about 68.0 KiB, more than the memory budget of 64.0 KiB (--max-memory)");
-    let out = dncal(&["linearity", "lin.fits", "--max-memory", "48K"], d);
-    assert_error(&out, "lin.fits: the pixel-wise analysis (the fits) needs about 56.0 KiB, more than the memory budget of 48.0 KiB (--max-memory)");
-    let out = dncal(&["linearity", "lin.fits", "--max-memory", "64K", "--json"], d);
+    let out = dncal(&["linearity", "lin.fits", "--max-memory", "56K", "-o", "lin_out"], d);
+    assert_error(&out, "lin.fits: linearity of 16 x 8 pixels x 12 levels (the two cubes as read 24.0 KiB + the corrected cube 12.0 KiB + the fits 24.0 KiB) needs about 60.0 KiB, more than the memory budget of 56.0 KiB (--max-memory)");
+    let out = dncal(&["linearity", "lin.fits", "--max-memory", "40K"], d);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.starts_with("dncal: error: lin.fits: linearity of 16 x 8 pixels x 12 levels (the two cubes as read 24.0 KiB + the fits ") && stderr.ends_with(", more than the memory budget of 40.0 KiB (--max-memory)\n"), "{stderr}");
+    assert_eq!((out.status.code(), stderr.lines().count()), (Some(1), 1));
+    let out = dncal(&["linearity", "lin.fits", "--max-memory", "128K", "--json"], d);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     // diagnose: 341 bytes per pixel beyond the set, 42.6 KiB (spilling its records would
-    // take more here: a block of each kind per thread).
+    // take more here: a block of each kind per thread), and the illumination fit's sums
+    // and fields, 1.6 MiB (65 tasks' sums of 12 levels x 2 halves x 64 bins of 16 bytes,
+    // and 16; 15 modes), refused before the set is read by rows.
     let out = dncal(&["diagnose", "lin.fits", "--max-memory", "40K"], d);
-    assert_error(&out, "lin.fits: diagnosing each pixel (about 341 bytes per pixel beyond the set) needs about 42.6 KiB, more than the memory budget of 40.0 KiB (--max-memory)");
+    assert_error(&out, "lin.fits: diagnosing the linearity set of 16 x 8 pixels x 12 levels by rows (the per-pixel records 42.6 KiB + the illumination fit 1.6 MiB) needs about 1.7 MiB, more than the memory budget of 40.0 KiB (--max-memory)");
 
     // A camera config: 4096 x 4096 pixels of 17 bytes or more (gain, dark, state and the
     // nonlinearity terms) is more than 256 MiB.

@@ -13,7 +13,7 @@ use crate::model::camera::{Camera, AdcTransfer};
 use crate::analyses::lut::build::{build_luts, summarize, AdcLutSummary, BuiltLuts};
 use crate::infra::progress::{bar, stage};
 use crate::formats::report::Report;
-use crate::formats::fits::{read_histograms_for_analysis, stage_histograms, AdcHistograms};
+use crate::formats::fits::{read_histograms_for_analysis_planned, stage_histograms, AdcHistograms};
 use crate::analyses::flatten::{cumulative_offsets, FlattenParams};
 use crate::analyses::ieee1241::{analyse_set, AdcLinearity, Density};
 use crate::formats::plots::{line_plot, line_plot_paired, Series};
@@ -266,7 +266,7 @@ pub fn run(camera: &Camera, hist: Option<&Path>, ramp: &RampParams, flatten: &Fl
     // Simulated, the histograms are the camera's ADCs': their figures named now too.
     expect_run(files, out_dir, hist.is_none(), hist.is_none().then_some(camera.adcs.len()))?;
     let (histograms, source, truth) = match hist {
-        Some(path) => (read_histograms_for_analysis(path)?, path.to_path_buf(), None),
+        Some(path) => (read_histograms_for_analysis_planned(path, |shape| crate::analyses::lut::build::plan_luts(path, shape))?, path.to_path_buf(), None),
         None => {
             let levels: usize = ramp.ramp_levels.iter().sum();
             stage(&format!("simulating the calibration ramps ({levels} levels)"));

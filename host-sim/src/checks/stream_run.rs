@@ -9,7 +9,7 @@ use dncal_core::Weight;
 use crate::model::camera::Camera;
 use crate::analyses::lut::build::build_luts;
 use crate::infra::progress::{bar, stage};
-use crate::formats::fits::read_histograms_for_analysis;
+use crate::formats::fits::read_histograms_for_analysis_planned;
 use crate::analyses::flatten::{to_core_weights, FlattenParams};
 use crate::checks::streaming::{run_stream, StreamParams, StreamReport};
 use crate::infra::roi::RoiSpec;
@@ -72,13 +72,17 @@ pub enum StreamInputFault {
 pub fn stream(camera: &Camera, hist: Option<&Path>, flatten: &FlattenParams, params: &StreamParams) -> Result<StreamReport, HostError> {
     let weights = match hist {
         Some(path) => {
-            let h = read_histograms_for_analysis(path)?;
-            if h.counts.len() != camera.config.n_adc || h.bit_depth != camera.config.bits {
-                return Err(HostError::StreamInput {
-                    path: path.into(),
-                    fault: StreamInputFault::Adcs { adcs: h.counts.len(), bits: h.bit_depth, camera_adcs: camera.config.n_adc, camera_bits: camera.config.bits },
-                });
-            }
+            // The camera's ADCs and bits, the core's, and the memory budget, from the
+            // header before the counts are read.
+            let h = read_histograms_for_analysis_planned(path, |shape| {
+                if shape.n_adc != camera.config.n_adc || shape.bit_depth != camera.config.bits {
+                    return Err(HostError::StreamInput {
+                        path: path.into(),
+                        fault: StreamInputFault::Adcs { adcs: shape.n_adc, bits: shape.bit_depth, camera_adcs: camera.config.n_adc, camera_bits: camera.config.bits },
+                    });
+                }
+                crate::analyses::lut::build::plan_luts(path, shape)
+            })?;
             build_luts(&h, flatten, path)?.weights
         }
         None => oracle_weights(camera)?,

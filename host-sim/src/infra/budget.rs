@@ -15,6 +15,13 @@
 //! input's pixels as the command holds them, the per-pixel state of an analysis), not an
 //! accounting of every byte: a command may use somewhat more than what it checked, never
 //! an order of magnitude more.
+//!
+//! A command that reads a set checks its whole need at once, before its first large read
+//! ([`Need`], issue 56): `linearity`, `emva`, `diagnose`, `lut build`, `adc --hist` and
+//! `stream --hist` sum, from the file's header or the descriptor, everything they will
+//! hold at the same time (the set as read, the analysis beside it, the file cfitsio holds
+//! inflated), each part measured (`host-sim/tests/cli_budget.rs` runs each command under
+//! a budget below its need, and just above it).
 
 use std::sync::atomic::{AtomicU64, Ordering};
 
@@ -138,6 +145,61 @@ pub fn fits(bytes: u64) -> bool {
     bytes <= limit()
 }
 
+/// What a command will hold at once, part by part, counted from its input's header (or
+/// descriptor) before its first large read and checked as one total (issue 56: checked
+/// step by step, `linearity` read both cubes of a 512 x 512 x 41 set, 180 MB, before its
+/// analysis was refused by a budget of 100 MiB, and `emva` ran to its end at 67 MB under
+/// 1.2 MiB, only each image's decoding checked). The per-step checks stay beside it, for
+/// callers that hold their data already.
+#[derive(Debug, Clone, Default)]
+pub struct Need {
+    /// What needs the memory and its bytes, in the order the message lists them.
+    parts: Vec<(String, u64)>,
+}
+
+impl Need {
+    /// Nothing yet.
+    pub fn new() -> Self {
+        Need::default()
+    }
+
+    /// `bytes` more, for `what` (a part of 0 bytes is left out of the message).
+    pub fn with(mut self, what: impl Into<String>, bytes: u64) -> Self {
+        if bytes > 0 {
+            self.parts.push((what.into(), bytes));
+        }
+        self
+    }
+
+    /// Every part together, bytes (saturating: sizes read from a file may be absurd).
+    pub fn total(&self) -> u64 {
+        self.parts.iter().fold(0u64, |t, (_, b)| t.saturating_add(*b))
+    }
+
+    /// `Ok` where the total fits the budget, else [`HostError::OverBudget`] naming `origin`,
+    /// `subject` and each part with its size: `l.fits: linearity of 512 x 512 pixels x 41
+    /// levels (the two cubes as read 164.0 MiB + the fits 50.0 MiB) needs about 214.0 MiB,
+    /// more than the memory budget of 100.0 MiB (--max-memory)`.
+    pub fn check(&self, origin: impl Into<crate::Origin>, subject: &str) -> Result<(), HostError> {
+        self.check_within(origin.into(), subject, limit())
+    }
+
+    /// [`Need::check`] against a budget of `limit` bytes.
+    fn check_within(&self, origin: crate::Origin, subject: &str, limit: u64) -> Result<(), HostError> {
+        let (bytes, parts): (u64, Vec<String>) = (self.total(), self.parts.iter().map(|(what, bytes)| format!("{what} {}", human(*bytes))).collect());
+        if bytes > limit {
+            return Err(HostError::OverBudget { origin, what: format!("{subject} ({})", parts.join(" + ")), bytes, limit });
+        }
+        Ok(())
+    }
+}
+
+/// The threads a command's parallel steps run on (rayon's pool): what a step holds per
+/// task in flight is held this many times at once.
+pub fn threads() -> u64 {
+    rayon::current_num_threads().max(1) as u64
+}
+
 /// `count` items of `size` bytes each, saturating (a size read from a file may be absurd).
 pub fn bytes_of(count: u64, size: u64) -> u64 {
     count.saturating_mul(size)
@@ -227,6 +289,18 @@ mod tests {
             }
             Err(_) => assert!(default_limit() <= FALLBACK),
         }
+    }
+
+    #[test]
+    fn a_need_is_checked_as_its_total_and_names_its_parts() {
+        let need = Need::new().with("the cubes", 3 << 20).with("nothing", 0).with("the fits", 1 << 20);
+        assert_eq!(need.total(), 4 << 20);
+        assert_eq!(Need::new().with("a", u64::MAX).with("b", 1).total(), u64::MAX);
+        // Each part alone fits 3.5 MiB; together they do not.
+        let x = || crate::Origin::from(std::path::Path::new("x.fits"));
+        let e = need.check_within(x(), "linearity", 7 << 19).unwrap_err().to_string();
+        assert_eq!(e, "x.fits: linearity (the cubes 3.0 MiB + the fits 1.0 MiB) needs about 4.0 MiB, more than the memory budget of 3.5 MiB (--max-memory)");
+        assert!(need.check_within(x(), "linearity", 4 << 20).is_ok());
     }
 
     #[test]

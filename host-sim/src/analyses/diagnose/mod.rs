@@ -25,6 +25,7 @@ pub use cubes::blocks_of;
 pub use defects::{diagnose_defects, DefectOutcome};
 pub use histograms::{diagnose_histograms, AdcArchitecture, ArchitectureScore};
 pub use linearity::{diagnose_linearity, diagnose_linearity_rows, diagnose_linearity_spilled};
+pub(crate) use linearity::illumination_bytes;
 pub use ptc::diagnose_ptc;
 pub use records::{spilled_blocks, RECORD_BYTES, RESIDENT_BYTES};
 

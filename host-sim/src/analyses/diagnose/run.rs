@@ -8,7 +8,7 @@ use serde::Serialize;
 
 use crate::analyses::diagnose::model::{extended_model, linearity_model, ptc_model};
 use crate::analyses::diagnose::{diagnose_code_density, diagnose_histograms, diagnose_linearity, diagnose_linearity_rows, diagnose_ptc, Diagnosis, Effect, Finding};
-use crate::formats::fits::{open_linearity_rows, read_histograms_for_analysis, read_linearity_as};
+use crate::formats::fits::{open_linearity_rows, read_histograms_for_analysis_planned, read_linearity_planned, HistogramShape, READ_BYTES_PER_COUNT};
 use crate::formats::outputs::{html_figure, OutDir, Outputs};
 use crate::formats::report::Report;
 use crate::analyses::flatten::FlattenParams;
@@ -70,9 +70,10 @@ fn spill_records(np: u64, beside: u64, asked: bool, limit: u64) -> bool {
 
 /// Whether a set of `np` pixels and `levels` levels that can be read by rows is, rather
 /// than held: where rows are asked for, or where the set held (as `f32`) does not fit
-/// beside the records, spilled if that is what makes it fit.
-fn read_by_rows(np: u64, levels: u64, rows_asked: bool, spill_asked: bool, limit: u64) -> bool {
-    let set = crate::infra::budget::bytes_of(np.saturating_mul(levels), 8);
+/// beside the records and `beside` bytes more (the illumination fit's sums), the records
+/// spilled if that is what makes it fit.
+fn read_by_rows(np: u64, levels: u64, beside: u64, rows_asked: bool, spill_asked: bool, limit: u64) -> bool {
+    let set = crate::infra::budget::bytes_of(np.saturating_mul(levels), 8).saturating_add(beside);
     rows_asked || state(np, spill_records(np, set, spill_asked, limit)).saturating_add(set) > limit
 }
 
@@ -84,16 +85,14 @@ fn read_by_rows(np: u64, levels: u64, rows_asked: bool, spill_asked: bool, limit
 /// records go to temporary files where they would not fit beside the rest, or `spill`
 /// says so: the same diagnosis again.
 fn diagnose_linearity_file(read_from: &Path, input: &Path, block_rows: Option<usize>, spill: bool) -> Result<(Diagnosis, crate::model::camera::CameraConfig), HostError> {
-    use crate::infra::budget::{bytes_of, check, limit};
-    use crate::analyses::diagnose::{RECORD_BYTES, RESIDENT_BYTES};
+    use crate::infra::budget::{bytes_of, limit, Need};
+    use crate::formats::fits::LinearityShape;
     let spill_if = |np: u64, beside: u64| spill_records(np, beside, spill, limit());
-    let what = |spilled: bool| {
-        if spilled {
-            format!("diagnosing each pixel (its records spilled to temporary files, a block of each kind per thread in memory, and the mask's {RESIDENT_BYTES} byte per pixel where the set has one)")
-        } else {
-            format!("diagnosing each pixel (about {} bytes per pixel beyond the set)", RESIDENT_BYTES + RECORD_BYTES)
-        }
-    };
+    let records = |spilled: bool| if spilled { "the mask and the blocks of the spilled records" } else { "the per-pixel records" };
+    // The illumination fit's sums and fields: set by the frame's size and the levels,
+    // whatever the pixels (up to 57 MiB at 41 levels), held or by rows.
+    let grid = |[w, h, l]: [usize; 3]| crate::analyses::diagnose::illumination_bytes(w, h, l);
+    let subject = |[w, h, l]: [usize; 3], how: &str| format!("diagnosing the linearity set of {w} x {h} pixels x {l} levels{how}");
     let spin = |[w, h, l]: [usize; 3], how: &str| crate::infra::progress::spinner(&format!("diagnosing {} (linearity set, {w} x {h} pixels, {l} levels{how})", input.display()));
     let failed = |source| HostError::Diagnose { path: input.into(), source };
     let spilling = |spilled: bool| if spilled { ", its records spilled" } else { "" };
@@ -103,14 +102,23 @@ fn diagnose_linearity_file(read_from: &Path, input: &Path, block_rows: Option<us
     let opened = open_linearity_rows(read_from)?;
     let by_rows = opened.filter(|o| {
         let [w, h, l] = o.shape();
-        read_by_rows((w * h) as u64, l as u64, block_rows.is_some(), spill, limit())
+        read_by_rows((w * h) as u64, l as u64, grid(o.shape()), block_rows.is_some(), spill, limit())
     });
     let Some(opened) = by_rows else {
-        let set = read_linearity_as::<f32>(read_from)?;
+        // Held (a compressed file, scaled cubes, or a set that fits): the set, the state,
+        // the illumination fit and the file cfitsio holds inflated counted together from
+        // the header, before the cubes are read.
+        let plan = |shape: &LinearityShape| {
+            let dims = [shape.width, shape.height, shape.levels];
+            let (np, set) = (shape.pixels(), bytes_of(shape.values(), 8));
+            let spill = spill_if(np, set.saturating_add(grid(dims)));
+            Need::new().with("the set as f32", set).with(records(spill), state(np, spill)).with("the illumination fit", grid(dims)).with("the file decompressed", shape.resident).check(input, &subject(dims, ""))
+        };
+        let set = read_linearity_planned::<f32>(read_from, plan)?;
+        let dims = [set.width, set.height, set.levels];
         let np = (set.width * set.height) as u64;
-        let spill = spill_if(np, bytes_of(np * set.levels as u64, 8));
-        check(read_from, &what(spill), state(np, spill))?;
-        let s = spin([set.width, set.height, set.levels], spilling(spill));
+        let spill = spill_if(np, bytes_of(np * set.levels as u64, 8).saturating_add(grid(dims)));
+        let s = spin(dims, spilling(spill));
         let d = if spill { crate::analyses::diagnose::diagnose_linearity_spilled(&set, 0.01) } else { diagnose_linearity(&set, 0.01) }.map_err(failed);
         s.finish_and_clear();
         let d = d?;
@@ -119,12 +127,14 @@ fn diagnose_linearity_file(read_from: &Path, input: &Path, block_rows: Option<us
     };
     let shape = opened.shape();
     let np = (shape[0] * shape[1]) as u64;
-    // Blocks of 8 MiB, or what the budget leaves after the state.
-    let blocks = |spilled: bool| crate::analyses::diagnose::blocks_of::<f32>(shape, block_rows, limit().saturating_sub(state(np, spilled)));
-    let spill = spill_if(np, blocks(false).1);
-    check(read_from, &what(spill), state(np, spill))?;
+    let fixed = grid(shape);
+    // Blocks of 8 MiB, or what the budget leaves after the state and the illumination fit.
+    let blocks = |spilled: bool| crate::analyses::diagnose::blocks_of::<f32>(shape, block_rows, limit().saturating_sub(state(np, spilled)).saturating_sub(fixed));
+    let spill = spill_if(np, blocks(false).1.saturating_add(fixed));
+    let need = Need::new().with(records(spill), state(np, spill)).with("the illumination fit", fixed);
+    need.check(input, &subject(shape, " by rows"))?;
     let (rows, blocks) = blocks(spill);
-    check(read_from, &format!("{} and the blocks of {rows} rows of its threads", what(spill)), state(np, spill).saturating_add(blocks))?;
+    need.with(format!("the blocks of {rows} rows of its threads"), blocks).check(input, &subject(shape, " by rows"))?;
     let set = opened.check::<f32>()?;
     let s = spin(shape, &format!(", read by blocks of {rows} rows{}", spilling(spill)));
     let d = diagnose_linearity_rows(&set, Some(rows), spill, 0.01);
@@ -132,6 +142,52 @@ fn diagnose_linearity_file(read_from: &Path, input: &Path, block_rows: Option<us
     let d = d.map_err(failed)?;
     let model = linearity_model(&set, &d);
     Ok((d, model))
+}
+
+/// Bytes per count the diagnosis of a histogram set holds beside the counts read: each
+/// ADC's halves, flattening, IEEE 1241 test, residuals and architectures, kept for the
+/// report (measured: about 78 bytes a count beside the counts, 102 with them, from 4 to
+/// 1024 ADCs of 4096 codes; counted with room, 104).
+pub const HISTOGRAM_BYTES_PER_COUNT: u64 = 104;
+
+/// What `diagnose` of a histogram set of `shape` holds, from its header: the counts as
+/// read, their analysis ([`HISTOGRAM_BYTES_PER_COUNT`]) and the file cfitsio holds
+/// inflated where it is compressed.
+fn histograms_need(shape: &HistogramShape) -> crate::infra::budget::Need {
+    use crate::infra::budget::bytes_of;
+    crate::infra::budget::Need::new()
+        .with("the counts as read", bytes_of(shape.counts(), READ_BYTES_PER_COUNT))
+        .with("their analysis", bytes_of(shape.counts(), HISTOGRAM_BYTES_PER_COUNT))
+        .with("the file decompressed", shape.resident)
+}
+
+/// Bytes per pixel `diagnose` of an EMVA set holds beyond the datasheet's: the defect
+/// flags and the columns kept (1 each), and while the second half's defect map is made,
+/// the first's (flags and scores, 9).
+pub const EMVA_DEFECT_BYTES_PER_PIXEL: u64 = 16;
+
+/// Bytes per pixel and thread `diagnose` of an EMVA set holds beyond the datasheet's: the
+/// frames each thread decodes in its steps (the photon transfer twice, the code
+/// histograms, the halves of the spatial series), 2 or 4 bytes a pixel each, and what the
+/// allocator keeps of them per thread. Measured on the real CCD, the diagnosis' peak less
+/// the datasheet's: 4 MB on 1 thread, then 3.5 MB (11.5 bytes a pixel) more a thread up to
+/// 8 (here 12).
+pub const EMVA_THREAD_BYTES_PER_PIXEL: u64 = 12;
+
+/// What `diagnose` of the EMVA set `set` holds at most at once, from its descriptor before
+/// any frame is decoded: the datasheet's ([`crate::analyses::emva::sheet::need`]; the
+/// defect maps of each half of the spatial series are made as the datasheet's is), the
+/// defect flags and maps beside it, the frames its other steps decode on each thread, and
+/// the frames' code histograms (two halves, a histogram of `2^bits` codes per column
+/// class for each thread and its reduction).
+fn emva_need(set: &crate::analyses::emva::EmvaSet) -> crate::infra::budget::Need {
+    use crate::infra::budget::{bytes_of, threads};
+    let pixels = (set.width as u64).saturating_mul(set.height as u64);
+    let classes = if set.width >= 2 * INTERLEAVED_ADCS { INTERLEAVED_ADCS as u64 } else { 1 };
+    crate::analyses::emva::sheet::need(set)
+        .with("the defect flags and maps", bytes_of(pixels, EMVA_DEFECT_BYTES_PER_PIXEL))
+        .with(format!("the frames of its other steps ({} threads)", threads()), bytes_of(pixels, EMVA_THREAD_BYTES_PER_PIXEL * threads()))
+        .with("the code histograms", bytes_of(2 * threads() + 2, classes * (8u64 << set.bits)))
 }
 
 /// Whether `input` is an EMVA descriptor (text with an `n` record) rather than FITS (which
@@ -229,6 +285,7 @@ pub fn diagnose_as(read_from: &Path, input: &Path, params: &DiagnoseParams, mut 
     let model: Option<crate::model::camera::CameraConfig>;
     let diagnosis = if is_descriptor {
         let set = crate::analyses::emva::read_descriptor(read_from)?;
+        emva_need(&set).check(input, &format!("diagnosing the EMVA 1288 set of {} x {} pixels", set.width, set.height))?;
         let spin = crate::infra::progress::spinner(&format!("diagnosing {} (EMVA 1288 set: photon transfer, code density)", input.display()));
         let points = crate::analyses::emva::photon_transfer(&set)?;
         // The frames' code density: all columns as one ADC, then the columns of each of
@@ -292,8 +349,11 @@ pub fn diagnose_as(read_from: &Path, input: &Path, params: &DiagnoseParams, mut 
         spin.finish_and_clear();
         d
     } else {
-        let hist = match read_histograms_for_analysis(read_from) {
+        let plan = |shape: &HistogramShape| histograms_need(shape).check(input, &format!("diagnosing the histogram set of {} ADCs of {} codes", shape.n_adc, shape.codes));
+        let hist = match read_histograms_for_analysis_planned(read_from, plan) {
             Ok(h) => h,
+            // A histogram set too large for the budget: not read again as a linearity set.
+            Err(e @ HostError::OverBudget { .. }) => return Err(e),
             Err(e) => {
                 // Not a histogram set: a linearity set, or the histogram reader's error (the
                 // linearity reader's where the file says it is a linearity set: its fault,
@@ -505,14 +565,14 @@ mod tests {
         // 2048 x 2048 x 41: the set held is 1.31 GiB, its records held 1.33 GiB.
         // 2 GiB: the set is held and its records spilled.
         assert!(spill_records(np, np * 41 * 8, false, 2 * gib));
-        assert!(!read_by_rows(np, 41, false, false, 2 * gib));
+        assert!(!read_by_rows(np, 41, 0, false, false, 2 * gib));
         // 3 GiB: both held.
         assert!(!spill_records(np, np * 41 * 8, false, 3 * gib));
-        assert!(!read_by_rows(np, 41, false, false, 3 * gib));
+        assert!(!read_by_rows(np, 41, 0, false, false, 3 * gib));
         // 1 GiB: the set alone does not fit; by rows.
-        assert!(read_by_rows(np, 41, false, false, gib));
+        assert!(read_by_rows(np, 41, 0, false, false, gib));
         // Asked for, whatever fits.
-        assert!(read_by_rows(np, 41, true, false, 3 * gib) && spill_records(np, 0, true, 3 * gib));
+        assert!(read_by_rows(np, 41, 0, true, false, 3 * gib) && spill_records(np, 0, true, 3 * gib));
         // 64 pixels in 40 KiB: beside 16 KiB, their records held (21.3 KiB) fit; beside
         // 30 KiB they do not, but spilled they would take more (the blocks): held (and
         // refused by the budget).

@@ -124,7 +124,45 @@ pub fn datasheet(set: &EmvaSet, release: Option<Release>) -> Result<Datasheet, H
     if levels < super::datasheet::MIN_LEVELS {
         return Err(HostError::Ptc { path: set.path.clone(), source: super::datasheet::PtcError::TooFewLevels { levels } });
     }
+    need(set).check(&set.path, &format!("the EMVA 1288 datasheet of {} x {} pixels", set.width, set.height))?;
     datasheet_of(set, &photon_transfer(set)?, release)
+}
+
+/// Bytes per pixel the spatial part of the datasheet holds beside the two series' sums
+/// ([`datasheet_of`]): the averaged and high-pass images it forms (the dark and bright
+/// sums again, their means, the bright above dark, their absolute deviations, 8 each), or
+/// while the defect pixels are found, their map ([`super::spatial::defect_map`]: the dark
+/// mean and its selection copy, the response, each pixel's value and neighbourhood
+/// median, scores and flags). Measured on the real CCD (640 x 480), the datasheet's peak
+/// less the binary's own (10.7 MB): 103 bytes a pixel on 1 thread to 125 on 8, Release
+/// 3.1 or 4.0, 71 to 93 of them beside the sums; counted with room, 104 (136 in all).
+pub const SPATIAL_WORK_BYTES_PER_PIXEL: u64 = 104;
+
+/// Bytes per pixel of the photon transfer ([`photon_transfer`]): per thread one level's
+/// two frames, each as codes (2) and, for the one being decoded, the decoder's buffer (2).
+pub fn transfer_bytes_per_pixel(threads: u64) -> u64 {
+    6 * threads
+}
+
+/// What [`datasheet`] of `set` holds at most at once, from its descriptor before any
+/// frame is decoded: the photon transfer's frames, or, where the set has a spatial
+/// series, the larger of its two series loaded ([`super::spatial::load_bytes_per_pixel`]
+/// each) and their sums with the spatial analysis ([`SPATIAL_WORK_BYTES_PER_PIXEL`]).
+/// The datasheet itself (a value a quantity, spectrograms of a row's or a column's
+/// length, histograms of 256 bins) is small beside it, and so are the page and plots of
+/// `-o` (fixed sizes).
+pub fn need(set: &EmvaSet) -> crate::infra::budget::Need {
+    use crate::infra::budget::{bytes_of, threads};
+    let pixels = (set.width as u64).saturating_mul(set.height as u64);
+    let t = threads();
+    let spatial = set.levels.iter().any(|l| l.series() == Some(super::descriptor::Series::Spatial));
+    let transfer = bytes_of(pixels, transfer_bytes_per_pixel(t));
+    let series = if spatial { bytes_of(pixels, (2 * super::spatial::load_bytes_per_pixel(t)).max(32 + SPATIAL_WORK_BYTES_PER_PIXEL)) } else { 0 };
+    let need = crate::infra::budget::Need::new();
+    match series > transfer {
+        true => need.with("the spatial series and their analysis", series),
+        false => need.with(format!("the photon transfer's frames ({t} levels at once)"), transfer),
+    }
 }
 
 /// The datasheet of `set` from its photon-transfer `points` ([`photon_transfer`]), for a

@@ -8,7 +8,7 @@ use serde::Serialize;
 
 use crate::infra::progress::{spinner, stage};
 use crate::formats::report::{wrote, Report};
-use crate::formats::fits::{read_linearity, SetView, stage_cube, stage_pixel_correction, PixelCorrection};
+use crate::formats::fits::{read_linearity_planned, LinearityShape, SetView, stage_cube, stage_pixel_correction, PixelCorrection};
 use crate::analyses::linearity::{analyze_unsaturated, LinearityError, check_flat_level, example_row, unsaturated_levels, Cube, LinearityReport, PixelResults, MAX_ORDER};
 use crate::analyses::linearity::{held_out::HeldOut, paper_fig8::Fig8};
 use crate::formats::plots::{level_lines_plot, line_plot_paired, map_plot, Map, Series};
@@ -84,10 +84,11 @@ pub fn linearity_as(read_from: &Path, input: &Path, order: usize, flat: Option<u
         expect_report(o.files, o.dir)?;
     }
     stage(&format!("reading {}", input.display()));
-    let set = read_linearity(read_from)?;
     // The corrected cube only for the outputs: without them the report needs its
     // statistics alone.
     let cube = if out.is_some() { Cube::Keep } else { Cube::Skip };
+    // The whole run's memory from the header, before either cube is read.
+    let set = read_linearity_planned(read_from, |shape| need(shape, order, cube, held_out).check(input, &format!("linearity of {} x {} pixels x {} levels", shape.width, shape.height, shape.levels)))?;
     let (report, px, analysis_s) = fit(&set.view(), &Origin::File(input.into()), order, flat, cube)?;
     let held_out = if held_out.is_empty() { Vec::new() } else { super::held_out::held_out(&set.view(), &report, &px.mask, &super::unsaturated_levels(&set.view()), held_out) };
     let paper_fig8 = super::paper_fig8::compare(&report);
@@ -171,6 +172,49 @@ pub fn linearity_as(read_from: &Path, input: &Path, order: usize, flat: Option<u
     Ok(LinearitySummary { input: input.into(), report, analysis_s, paper_fig8, held_out, outputs })
 }
 
+/// Bytes per pixel of the fits at pixel-wise order `order` beside the cubes ([`fit`]): its
+/// unsaturated levels (8), coefficients (8 (order + 1)), residual and flat signal (16),
+/// mask (1), corrections at the dark and the flat (16), the three corrections' ends at
+/// both (96), the medians' selections and the allocator's rounding, and with
+/// [`Cube::Skip`] one level's row of scratch per thread (8 each; [`Cube::Keep`] writes
+/// into the cube instead). Measured at order 4 on 256 x 256 and 512 x 512 sets of 41
+/// levels: 186 bytes a pixel beyond the cubes, either way, on 2 threads (here 192 and
+/// 208).
+pub fn fit_bytes_per_pixel(order: usize, cube: Cube) -> u64 {
+    let scratch = match cube {
+        Cube::Keep => 0,
+        Cube::Skip => 8 * crate::infra::budget::threads(),
+    };
+    152 + 8 * (order as u64 + 1) + scratch
+}
+
+/// Bytes per pixel of `--held-out`'s scoring beside the cubes, one order at a time after
+/// the fits ([`super::held_out::held_out`]): the fitted coefficients and mask kept (8
+/// (order + 1) + 1), the unsaturated levels (8), and each pixel's row of residuals, one
+/// value a level (8 `levels` and 56 for its vector and the allocator). Measured at order 4,
+/// 41 levels, orders 3 to 6 held out: 417 bytes a pixel beyond the cubes (here 433).
+pub fn held_out_bytes_per_pixel(order: usize, levels: usize) -> u64 {
+    8 * (order as u64 + 1) + 9 + 8 * levels as u64 + 56
+}
+
+/// What `linearity` of a set of `shape` holds at most at once, from its header: both
+/// cubes as read (f64), the corrected cube where the outputs write it, and the larger of
+/// the fits and `held_out`'s scoring, with the file cfitsio holds inflated where it is
+/// compressed. Measured on a 512 x 512 x 41 set on 2 threads, the peak less the binary's
+/// own (12 MiB) is 0.98 of it (`host-sim/tests/cli_budget.rs`).
+pub fn need(shape: &LinearityShape, order: usize, cube: Cube, held_out: &[usize]) -> crate::infra::budget::Need {
+    use crate::infra::budget::bytes_of;
+    let (np, values) = (shape.pixels(), shape.values());
+    let fits = bytes_of(np, fit_bytes_per_pixel(order, cube));
+    let scores = if held_out.is_empty() { 0 } else { bytes_of(np, held_out_bytes_per_pixel(order, shape.levels)) };
+    let corrected = if cube == Cube::Keep { bytes_of(values, 8) } else { 0 };
+    crate::infra::budget::Need::new()
+        .with("the two cubes as read", bytes_of(values, 16))
+        .with("the corrected cube", corrected)
+        .with(if scores > fits { "the held-out scores" } else { "the fits" }, fits.max(scores))
+        .with("the file decompressed", shape.resident)
+}
+
 /// What the fit needs of a set's reference and levels, before any pixel: at least
 /// `order + 3` levels, voltages finite, not negative, not all zero, and at least
 /// `order + 3` of them distinct (to [`DISTINCT`] of the largest): equal voltages leave
@@ -234,10 +278,11 @@ pub const MIN_SPAN_DN: f64 = 1.0;
 /// analysis' wall time, seconds.
 pub fn fit(set: &SetView, origin: &Origin, order: usize, flat: Option<usize>, cube: Cube) -> Result<(LinearityReport, PixelResults, f64), HostError> {
     // The fits and their work space, and the corrected cube (f64 per pixel and level)
-    // where it is kept.
+    // where it is kept, beside the set its caller holds already (`linearity` counts the
+    // set too, from its header: [`need`]).
     let (per_pixel, what) = match cube {
-        Cube::Keep => (24 * set.levels as u64 + 256, "the pixel-wise analysis (the corrected cube and the fits)"),
-        Cube::Skip => (16 * set.levels as u64 + 256, "the pixel-wise analysis (the fits)"),
+        Cube::Keep => (8 * set.levels as u64 + fit_bytes_per_pixel(order, cube), "the pixel-wise analysis (the corrected cube and the fits)"),
+        Cube::Skip => (fit_bytes_per_pixel(order, cube), "the pixel-wise analysis (the fits)"),
     };
     crate::infra::budget::check(origin.clone(), what, crate::infra::budget::bytes_of((set.width * set.height) as u64, per_pixel))?;
     check_plan(set.voltage, order).and_then(|()| check_values(set)).map_err(|source| HostError::Linearity { origin: origin.clone(), source })?;

@@ -79,6 +79,30 @@ pub fn build_luts(hist: &AdcHistograms, params: &FlattenParams, source: impl Int
     Ok(BuiltLuts { flattened, weights, tables, image })
 }
 
+/// Bytes per count that building a set's LUTs holds beside the counts read: each ADC's
+/// flattening (its spline and running median, the weights), the IEEE 1241 test of every
+/// ADC (`lut build`, `adc`) and the core's tables, weights and device image (measured:
+/// 115 bytes a count from 1 to 8 ADCs of 4096 codes; counted with room, 232).
+pub const LUT_BYTES_PER_COUNT: u64 = 232;
+
+/// What a command that builds LUTs from a histogram set (`lut build`, `adc --hist`,
+/// `stream --hist`) asks of the set's header before reading its counts: ADCs and codes
+/// the core is built for (1024 ADCs were read, 191 MB, before this refusal), then the
+/// counts read and the LUTs built within the memory budget, `path` named in either
+/// refusal.
+pub fn plan_luts(path: &std::path::Path, shape: &crate::formats::fits::HistogramShape) -> Result<(), HostError> {
+    fn supported<const N: usize, const CODES: usize>() -> Result<(), HostError> {
+        Ok(())
+    }
+    crate::dispatch_lut_dims!(shape.n_adc, shape.codes, path, supported())?;
+    let counts = shape.counts();
+    crate::infra::budget::Need::new()
+        .with("the counts as read", crate::infra::budget::bytes_of(counts, crate::formats::fits::READ_BYTES_PER_COUNT))
+        .with("the flattening, the IEEE 1241 test and the tables", crate::infra::budget::bytes_of(counts, LUT_BYTES_PER_COUNT))
+        .with("the file decompressed", shape.resident)
+        .check(path, &format!("building the LUTs of {} ADCs of {} codes", shape.n_adc, shape.codes))
+}
+
 /// One ADC's summary from its flattening and its core table.
 pub fn summarize(adc: usize, f: &Flattened, table: &[u32]) -> AdcLutSummary {
     let n = f.weights.len();

@@ -15,7 +15,7 @@ use serde::Serialize;
 use crate::analyses::flatten::FlattenParams;
 use crate::analyses::lut::build::{build_luts, AdcLutSummary};
 use crate::formats::report::Report;
-use crate::formats::fits::read_histograms_for_analysis;
+use crate::formats::fits::read_histograms_for_analysis_planned;
 use crate::formats::lut::{self, kcor, LutFormat, LutOutputs};
 use crate::formats::outputs::Outputs;
 use crate::HostError;
@@ -68,7 +68,7 @@ impl Report for BuildSummary {
 pub fn build(input: &Path, output: &Path, params: &FlattenParams) -> Result<BuildSummary, HostError> {
     let out = LutOutputs::for_prefix(output)?;
     let mut files = out.expect()?;
-    let hist = read_histograms_for_analysis(input)?;
+    let hist = read_histograms_for_analysis_planned(input, |shape| crate::analyses::lut::build::plan_luts(input, shape))?;
     let built = build_luts(&hist, params, input)?;
     let linearity = crate::analyses::ieee1241::analyse_set(&hist, crate::analyses::ieee1241::Density::Smooth, params, input)?;
     lut::write(&mut files, &built.lut(), LutFormat::Fits, std::slice::from_ref(&out.fits), None, input)?;

@@ -191,16 +191,23 @@ fn declare_outputs(command: &Cmd, files: &mut Outputs) -> Result<(), HostError> 
     }
 }
 
-/// The report as JSON (`--json`) or as its readable text, on stdout.
+/// The report as JSON (`--json`) or as its readable text, on stdout. The JSON is written
+/// as it is serialized, never held: it grows with the input (a histogram set's residuals
+/// and tests, 116 bytes a count: 122 MB for 256 ADCs), and held whole it doubled the peak
+/// of `diagnose --json` beyond what the memory budget counts (issue 56). It is serialized
+/// into nothing first, so that a report that does not serialize leaves stdout empty.
 fn print(json: bool, report: &(impl Report + ?Sized)) -> Result<(), HostError> {
-    let out = if json {
-        let mut s = serde_json::to_string_pretty(report).map_err(|e| HostError::invalid(dncal_host::Subject::Stdout, e.to_string()))?;
-        s.push('\n');
-        s
-    } else {
-        report.text()
-    };
-    to_stdout(out.as_bytes())
+    if !json {
+        return to_stdout(report.text().as_bytes());
+    }
+    serde_json::to_writer_pretty(std::io::sink(), report).map_err(|e| HostError::invalid(dncal_host::Subject::Stdout, e.to_string()))?;
+    let mut out = std::io::BufWriter::new(std::io::stdout().lock());
+    // Serialized once already: what fails now is the writing (the original I/O error).
+    let written = serde_json::to_writer_pretty(&mut out, report).map_err(std::io::Error::from).and_then(|()| out.write_all(b"\n")).and_then(|()| out.flush());
+    match written {
+        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(HostError::IoOf { subject: dncal_host::Subject::Stdout, source: e }),
+        _ => Ok(()),
+    }
 }
 
 /// Writes `bytes` to stdout; a closed pipe (`dncal ... | head`) is the reader's choice,

@@ -55,7 +55,15 @@ pub const MAX_HISTOGRAM_TOTAL: u64 = 1 << 53;
 /// also refuses an ADC whose counts add up to more than [`MAX_HISTOGRAM_TOTAL`]. The
 /// format itself holds any `u64` count, and [`read_histograms`] reads them all.
 pub fn read_histograms_for_analysis(path: &Path) -> Result<AdcHistograms, HostError> {
-    let h = read_histograms(path)?;
+    read_histograms_for_analysis_planned(path, |_| Ok(()))
+}
+
+/// [`read_histograms_for_analysis`], calling `plan` with the set's shape once its header
+/// is read and before any count is: a command refuses there, from the header alone, a
+/// set it cannot analyze (the core's ADCs and codes) or whose counts and analysis
+/// together would not fit its memory budget.
+pub fn read_histograms_for_analysis_planned(path: &Path, plan: impl FnOnce(&HistogramShape) -> Result<(), HostError>) -> Result<AdcHistograms, HostError> {
+    let h = read_histograms_planned(path, plan)?;
     for (adc, counts) in h.counts.iter().enumerate() {
         if counts.iter().try_fold(0u64, |t, &c| t.checked_add(c).filter(|&t| t <= MAX_HISTOGRAM_TOTAL)).is_none() {
             return Err(HostError::Format {
@@ -71,11 +79,43 @@ pub fn read_histograms_for_analysis(path: &Path) -> Result<AdcHistograms, HostEr
 /// unsigned data); rejects float images, negative counts, a shape other than `NADC` x
 /// `2^BITDEPTH`, missing or invalid keys, and LUT files (which carry `FRACBITS`).
 pub fn read_histograms(path: &Path) -> Result<AdcHistograms, HostError> {
+    read_histograms_planned(path, |_| Ok(()))
+}
+
+/// What a histogram set's header says it will take to hold, before any count is read.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct HistogramShape {
+    /// Bits per code (`BITDEPTH`).
+    pub bit_depth: u32,
+    /// ADCs (`NADC`).
+    pub n_adc: usize,
+    /// Codes per ADC (`2^BITDEPTH`).
+    pub codes: usize,
+    /// Bytes cfitsio holds of the file itself while it is read: a compressed file's
+    /// inflated size (0 for a plain file).
+    pub resident: u64,
+}
+
+impl HistogramShape {
+    /// Counts of the set (ADCs x codes).
+    pub fn counts(&self) -> u64 {
+        (self.n_adc as u64).saturating_mul(self.codes as u64)
+    }
+}
+
+/// Bytes the reader holds per count at once: the image as cfitsio reads it (`i64`), the
+/// counts converted (`u64`) and split into one row per ADC.
+pub const READ_BYTES_PER_COUNT: u64 = 24;
+
+/// [`read_histograms`], calling `plan` with the set's shape once its header is read and
+/// before any count is (see [`read_histograms_for_analysis_planned`]).
+pub fn read_histograms_planned(path: &Path, plan: impl FnOnce(&HistogramShape) -> Result<(), HostError>) -> Result<AdcHistograms, HostError> {
     let mut r = FitsReader::open(path)?;
     r.expect_kind(FileKind::Histograms)?;
     let (bit_depth, n_adc, codes) = r.adc_keys()?;
     let image = r.image(0, PRIMARY, 2)?;
     r.check_adc_image_shape(&image, codes, n_adc, bit_depth)?;
+    plan(&HistogramShape { bit_depth, n_adc, codes, resident: r.resident() })?;
     let flat: Vec<u64> = r
         .integer_pixels(&image, "histogram counts")?
         .convert()

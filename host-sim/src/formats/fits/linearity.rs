@@ -189,10 +189,48 @@ pub fn read_linearity_as<T: Sample>(path: &Path) -> Result<LinearitySet<T>, Host
 where
     Vec<T>: ReadImage,
 {
+    read_linearity_planned(path, |_| Ok(()))
+}
+
+/// What a linearity set's header says it will take to hold, before any of its values is
+/// read: what a command checks its whole need against ([`read_linearity_planned`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LinearityShape {
+    /// Columns.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// Levels.
+    pub levels: usize,
+    /// Bytes cfitsio holds of the file itself while it is read: a compressed file's
+    /// inflated size (0 for a plain file).
+    pub resident: u64,
+}
+
+impl LinearityShape {
+    /// Pixels of a frame.
+    pub fn pixels(&self) -> u64 {
+        (self.width as u64).saturating_mul(self.height as u64)
+    }
+
+    /// Values of one cube (pixels x levels).
+    pub fn values(&self) -> u64 {
+        self.pixels().saturating_mul(self.levels as u64)
+    }
+}
+
+/// [`read_linearity_as`], calling `plan` with the set's shape once its header is read and
+/// before any of its values is: a command refuses there, from the header alone, a set
+/// whose reading and analysis together would not fit its memory budget.
+pub fn read_linearity_planned<T: Sample>(path: &Path, plan: impl FnOnce(&LinearityShape) -> Result<(), HostError>) -> Result<LinearitySet<T>, HostError>
+where
+    Vec<T>: ReadImage,
+{
     // The two cubes are most of the file: their checksums wait until they are read, in
     // the same pass.
     let mut r = FitsReader::open_deferring(path)?;
     let h = read_header(&mut r)?;
+    plan(&LinearityShape { width: h.width, height: h.height, levels: h.levels, resident: r.resident() })?;
     let mean: Vec<T> = r.float_pixels(&h.cubes[0])?;
     let std: Vec<T> = r.float_pixels(&h.cubes[1])?;
     let (voltage, mask) = read_reference(&mut r, &h)?;

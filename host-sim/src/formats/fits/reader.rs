@@ -138,6 +138,11 @@ pub(super) struct FitsReader<'a> {
     len: u64,
     /// The size a gzip file inflates to, where it is one.
     inflated: Option<u64>,
+    /// Bytes cfitsio holds of the file itself: a compressed file inflated into memory at
+    /// open (a gzip file's counted size, a zip file's declared size; 0 where a compress-
+    /// or pack-compressed file declares none), 0 for a plain file (read through cfitsio's
+    /// buffers of a few KiB).
+    resident: u64,
     /// The file itself, where it is not compressed: large float images are read from it
     /// directly ([`super::direct`]).
     raw: Option<std::fs::File>,
@@ -220,6 +225,12 @@ impl<'a> FitsReader<'a> {
         Self::open_with(path, Some(DEFER_BYTES))
     }
 
+    /// Bytes cfitsio holds of the file itself while it is open (a compressed file's
+    /// inflated size; 0 for a plain file): a part of what a command reading it needs.
+    pub(super) fn resident(&self) -> u64 {
+        self.resident
+    }
+
     /// Opens `path`; with `defer`, float images of at least that many data bytes are
     /// verified as they are read ([`FitsReader::open_deferring`]).
     pub(super) fn open_with(path: &'a Path, defer: Option<u64>) -> Result<Self, HostError> {
@@ -237,7 +248,9 @@ impl<'a> FitsReader<'a> {
         let mut len = if plain { size } else { size.saturating_mul(1100) };
         // (`Some` exactly for a gzip file: inflated, counted, its true size.)
         let mut inflated = None;
+        let mut resident = 0;
         if let Some(declared) = declared_uncompressed_size(&mut plain_file, size).map_err(|e| HostError::io(path, e))? {
+            resident = declared;
             if declared > len {
                 return Err(format_error(path, format!(
                     "a compressed file of {size} bytes whose header declares {declared} bytes uncompressed, more than it can hold; cfitsio would allocate them at once"
@@ -249,7 +262,7 @@ impl<'a> FitsReader<'a> {
                 // declarations are then held to (issue 43: a 1.2 MB file declaring 9.6 GB
                 // of counts was allocated from that declaration).
                 let n = check_gzip_inflates_within(&mut plain_file, path, len.min(crate::infra::budget::limit()))?;
-                (len, inflated) = (n, Some(n));
+                (len, inflated, resident) = (n, Some(n), n);
             }
         }
         if plain {
@@ -262,7 +275,8 @@ impl<'a> FitsReader<'a> {
         let name = CfitsioName::for_reading(path)?;
         let file = FitsFile::open(&name.name).map_err(|e| fits_error(path, "not a readable FITS file", &e))?;
         let raw = plain.then_some(plain_file);
-        let mut reader = FitsReader { file, _name: name, path, len, inflated, raw, deferred: Vec::new() };
+        let resident = if plain { 0 } else { resident };
+        let mut reader = FitsReader { file, _name: name, path, len, inflated, resident, raw, deferred: Vec::new() };
         reader.check_declared_sizes(plain)?;
         reader.verify_checksums(defer)?;
         Ok(reader)

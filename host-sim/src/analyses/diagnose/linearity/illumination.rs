@@ -70,20 +70,41 @@ struct Grid {
     basis: [Vec<DVector<f64>>; 2],
 }
 
+/// The bins a side and the highest cosine orders of the grid of a `width x height` set
+/// with `levels` levels, or `None` where it is too small for a smooth field to be told
+/// from its bins.
+fn sizes(width: usize, height: usize, levels: usize) -> Option<((usize, usize), (usize, usize))> {
+    // The sums are 16 bytes a bin, level and half of the rows, per task.
+    let most = BUDGET / (levels.max(1) * 2 * 16 * crate::analyses::diagnose::TASKS);
+    let side = BINS.min(most.isqrt());
+    // (Each bin needs rows of both parities.)
+    let (bx, by) = (side.min(width), side.min(height / 2));
+    // (At most half as many modes as bins a side, so that the fit has bins to spare.)
+    let (kx, ky) = (ORDER.min(bx.saturating_sub(1) / 2), ORDER.min(by.saturating_sub(1) / 2));
+    (kx > 0 && ky > 0).then_some(((bx, by), (kx, ky)))
+}
+
+/// Bytes [`illumination_change`] holds at once for a `width x height` set of `levels`
+/// levels, whatever its pixels: the bins' sums of every task and their total (16 bytes a
+/// bin, level and half of the rows each; at most [`BUDGET`] over the tasks), each level's
+/// two halves' normal matrices and vectors, fields and the variances they add at each
+/// bin, the modes' means over each bin, and the cosines (measured: 56 MB of a 64 x 64 x
+/// 41 set's 59 MB peak beyond the binary's own; here 57 MiB).
+pub(crate) fn grid_bytes(width: usize, height: usize, levels: usize) -> u64 {
+    let Some(((bx, by), (kx, ky))) = sizes(width, height, levels) else { return 0 };
+    let (bins, modes, levels) = ((bx * by) as u64, ((kx + 1) * (ky + 1) - 1) as u64, levels as u64);
+    let sums = (crate::analyses::diagnose::TASKS as u64 + 1) * levels * 2 * (bins * 16 + 16);
+    let halves = levels * 2 * 8 * (modes * modes + 4 * modes + bins);
+    let basis = 2 * bins * modes * 8;
+    let cosines = 8 * ((kx + 1) * width + (ky + 1) * height) as u64;
+    sums + halves + basis + cosines
+}
+
 impl Grid {
     /// The grid of a `width x height` set with `levels` levels, or `None` where it is too
     /// small for a smooth field to be told from its bins.
     fn new(width: usize, height: usize, levels: usize) -> Option<Grid> {
-        // The sums are 16 bytes a bin, level and half of the rows, per task.
-        let most = BUDGET / (levels.max(1) * 2 * 16 * crate::analyses::diagnose::TASKS);
-        let side = BINS.min(most.isqrt());
-        // (Each bin needs rows of both parities.)
-        let (bx, by) = (side.min(width), side.min(height / 2));
-        // (At most half as many modes as bins a side, so that the fit has bins to spare.)
-        let (kx, ky) = (ORDER.min(bx.saturating_sub(1) / 2), ORDER.min(by.saturating_sub(1) / 2));
-        if kx == 0 || ky == 0 {
-            return None;
-        }
+        let ((bx, by), (kx, ky)) = sizes(width, height, levels)?;
         let orders: Vec<(usize, usize)> = (0..=ky).flat_map(|q| (0..=kx).map(move |p| (p, q))).filter(|&(p, q)| p + q > 0).collect();
         let pi = std::f64::consts::PI;
         let cosines = |orders: usize, n: usize| -> Vec<Vec<f64>> { (0..=orders).map(|k| (0..n).map(|x| (pi * k as f64 * (x as f64 + 0.5) / n as f64).cos()).collect()).collect() };

@@ -78,6 +78,7 @@ mod adc_apart;
 mod camera;
 mod curves;
 mod illumination;
+pub(crate) use illumination::grid_bytes as illumination_bytes;
 mod level_stage;
 mod pixel_fits;
 mod populations;
