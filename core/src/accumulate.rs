@@ -782,7 +782,7 @@ mod tests {
         assert_eq!(c.accumulate_line(0, &[4096, 4096, 0, 0]).unwrap().out_of_range_codes, 2);
         assert_eq!(c.accumulate_line(1, &[4096, 0, 4096, 0]).unwrap().out_of_range_codes, 2);
         c.end_frame().unwrap();
-        let (top, zero) = (LutEntry::ideal(4095).to_bits(), LutEntry::ideal(0).to_bits());
+        let (top, zero) = (LutEntry::ideal::<4096>(4095).to_bits(), LutEntry::ideal::<4096>(0).to_bits());
         assert_eq!(c.sums().state(0).unwrap(), [top, top, zero, zero, top, zero, top, zero]);
     }
 
@@ -804,8 +804,8 @@ mod tests {
         assert_eq!(c.status().rejected_lines, 3);
         assert_eq!(c.status().incomplete_frames, 1);
         assert_eq!(c.status().out_of_range_codes, 2);
-        let top = LutEntry::ideal(4095).to_bits();
-        assert_eq!(c.sums().state(1).unwrap()[..4], [LutEntry::ideal(0).to_bits(), top, top, top]);
+        let top = LutEntry::ideal::<4096>(4095).to_bits();
+        assert_eq!(c.sums().state(1).unwrap()[..4], [LutEntry::ideal::<4096>(0).to_bits(), top, top, top]);
         assert!(c.sums().state(0).unwrap().iter().all(|&s| s == 0));
         assert_eq!(c.sums().frames(1).get(), 1);
     }

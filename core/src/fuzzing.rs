@@ -18,7 +18,7 @@
 //! lengths (xorshift). The rest is the image stream.
 
 use crate::image::{image_len, HEADER_LEN, MAGIC, VERSION};
-use crate::lut::{FRAC_BITS, LUT_ENTRY_LIMIT};
+use crate::lut::LUT_ENTRY_LIMIT;
 use crate::{CoreError, LutBanks, LutSet, StagingState};
 
 /// Bytes before the image stream in a `lut_image_chunks` input.
@@ -123,7 +123,10 @@ pub fn reference_entries<const N: usize, const CODES: usize>(image: &[u8]) -> Re
     let mut header = [0u8; HEADER_LEN];
     header[..4].copy_from_slice(&MAGIC);
     header[4..6].copy_from_slice(&VERSION.to_le_bytes());
-    header[6..9].copy_from_slice(&[bits, N as u8, FRAC_BITS as u8]);
+    // Written out here rather than asked of the core: 23-bit entries, 11 fractional bits
+    // up to 12-bit codes and the rest of the 23 above.
+    let frac = if bits <= 12 { 11 } else { 23 - bits };
+    header[6..9].copy_from_slice(&[bits, N as u8, frac]);
     header[12..].copy_from_slice(&count.to_le_bytes());
     if image[..HEADER_LEN] != header {
         return Err("header");

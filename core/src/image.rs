@@ -23,7 +23,7 @@
 use crc::{Crc, Digest, CRC_32_ISO_HDLC};
 
 use crate::adc::CodeCount;
-use crate::lut::{check_entry, LutEntry, FRAC_BITS};
+use crate::lut::{check_entry, LutEntry};
 use crate::{CoreError, LutSet};
 
 /// Magic bytes at the start of every image.
@@ -48,7 +48,7 @@ fn header<const N: usize, const CODES: usize>() -> [u8; HEADER_LEN] {
     h[4..6].copy_from_slice(&VERSION.to_le_bytes());
     h[6] = CodeCount::<CODES>::BITS as u8;
     h[7] = N as u8;
-    h[8] = FRAC_BITS as u8;
+    h[8] = LutSet::<N, CODES>::FRAC_BITS as u8;
     h[12..16].copy_from_slice(&((N * CODES) as u32).to_le_bytes());
     h
 }
@@ -166,7 +166,7 @@ impl<const N: usize, const CODES: usize> ImageLoader<N, CODES> {
         if version != VERSION {
             return Err(CoreError::ImageVersion { version });
         }
-        if h[6] as u32 != CodeCount::<CODES>::BITS || h[7] as usize != N || h[8] as u32 != FRAC_BITS {
+        if h[6] as u32 != CodeCount::<CODES>::BITS || h[7] as usize != N || h[8] as u32 != LutSet::<N, CODES>::FRAC_BITS {
             return Err(CoreError::ImageLayout { bits: h[6], adcs: h[7], frac_bits: h[8] });
         }
         if h[9..12] != [0, 0, 0] {

@@ -52,7 +52,7 @@ pub use banks::{LutBanks, StagingState};
 pub use error::{CoreError, LinkFault, LinkStep};
 pub use histogram::{HistogramSet, Roi};
 pub use image::{encode_image, image_len, ImageLoader};
-pub use lut::{units_to_dn, weight_nearest, LutEntry, LutSet, Weight, FRAC_BITS, HALF_UNIT_DN, LUT_ENTRY_LIMIT, UNITS_PER_DN, WEIGHT_FRAC_BITS};
+pub use lut::{frac_bits, half_unit_dn, units_per_dn, units_to_dn, weight_nearest, LutEntry, LutSet, Weight, LUT_ENTRY_BITS, LUT_ENTRY_LIMIT, WEIGHT_FRAC_BITS};
 pub use noise::{NoiseEstimator, NoiseReport};
 pub use stream::StreamHeader;
 

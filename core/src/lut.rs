@@ -5,17 +5,28 @@
 //! smooth illumination ramp estimates `w_j`, de Wijn 2018 section 4), then code `k`
 //! covers the analog interval from `sum_{j<k} w_j` to `sum_{j<=k} w_j` DN above the
 //! bottom of code 0, and the best single value for it is the interval's center. The
-//! entry is that center in units of 2^-11 DN:
+//! entry is that center in units of 2^-F DN, `F` the set's fractional bits
+//! ([`frac_bits`]: 11 up to 12-bit ADCs, `23 - B` for B = 13..=16 bits):
 //!
 //! ```text
-//! entry_k = RNE( 2^11 * ( sum_{j<k} w_j + w_k / 2 ) )
+//! entry_k = RNE( 2^F * ( sum_{j<k} w_j + w_k / 2 ) )
 //! ```
 //!
 //! with `RNE` round-half-to-even, evaluated exactly in integers: the weights are
 //! [`Weight`] values (unsigned, 24 fractional bits), so with `n_k = 2 sum_{j<k} w_j + w_k`
-//! counted in units of 2^-24, `entry_k = RNE(n_k / 2^14)`. An ideal ADC (`w_j = 1`)
-//! gives `entry_k = (k + 1/2) 2^11`. The host's float reference reproduces every entry
+//! counted in units of 2^-24, `entry_k = RNE(n_k / 2^(25 - F))`. An ideal ADC (`w_j = 1`)
+//! gives `entry_k = (k + 1/2) 2^F`. The host's float reference reproduces every entry
 //! from this rule, bit for bit.
+//!
+//! ## Why the fractional bits depend on the depth
+//! The paper's entries are 23 bits so that 512 frames sum into 32 bits; for its 12-bit
+//! ADCs that leaves 11 fractional bits. A 14-bit ADC's top code is 2^14 DN, so with 11
+//! fractional bits its entries would need 25 bits and no table could be loaded; the 23-bit
+//! width (and with it the 512 exact frames) is what the accumulators rely on, so deeper
+//! ADCs give up fractional bits instead: 9 at 14 bits, 7 at 16 bits (an entry rounded to
+//! 2^-8 DN at most, against DN errors of a few hundredths of a DN). Shallower ADCs keep
+//! 11: their entries' range is smaller still, and one scale for every set up to 12 bits
+//! keeps their images and files as they were.
 //!
 //! ## Why the center and not the paper's inclusive sum
 //! The paper's table returns `sum_{j<=k} w_j`, the *top* of code k. For a 12-bit ADC
@@ -31,33 +42,63 @@
 //! Every table is non-decreasing and every entry is below 2^23 ([`LUT_ENTRY_LIMIT`]), so
 //! 512 frames of any entries sum below 2^32 (see [`crate::accumulate`]).
 
-use fixed::types::{U21F11, U8F24};
+use fixed::types::U8F24;
 
 use crate::adc::CodeCount;
 use crate::error::Quantity;
 use crate::CoreError;
 
-/// Fractional bits of a LUT entry: the table adds 11 bits of resolution below one DN.
-pub const FRAC_BITS: u32 = 11;
+/// Every LUT entry is strictly below this: 2^23 raw units (the paper's 12 integer + 11
+/// fractional bits; `B` integer and `23 - B` fractional bits above 12 bits).
+pub const LUT_ENTRY_LIMIT: u32 = 1 << 23;
 
-/// LUT units (of an entry, or of a sum of entries) per DN: 2^11. The host converts with
-/// [`units_to_dn`] and this, never with its own constant.
-pub const UNITS_PER_DN: f64 = (1u32 << FRAC_BITS) as f64;
+/// The width of an entry in bits: 23, so that [`crate::accumulate::EXACT_FRAMES`] = 512
+/// frames of any entries sum below 2^32.
+pub const LUT_ENTRY_BITS: u32 = LUT_ENTRY_LIMIT.trailing_zeros();
 
-/// A value in LUT units (an entry's bits, or a sum of entries such as the corrector's
-/// 32-bit sums) in DN. Exact: the scale is a power of two.
-#[inline]
-pub fn units_to_dn(units: u64) -> f64 {
-    units as f64 / UNITS_PER_DN
+/// Fractional bits of the LUT entries of a `bits`-bit ADC: 11 up to 12 bits (the table
+/// adds 11 bits of resolution below one DN), `23 - bits` above, so that the top code's
+/// entry stays below 2^23 (module documentation). `None` above 16 bits, the widest code
+/// the core reads.
+pub const fn frac_bits(bits: u32) -> Option<u32> {
+    match bits {
+        0..=12 => Some(11),
+        13..=16 => Some(LUT_ENTRY_BITS - bits),
+        _ => None,
+    }
 }
 
-/// Half a LUT unit, DN (2^-12): the most an entry rounded to the nearest unit departs from
-/// its exact value, so a sum of N frames' entries departs from the exact (f64) sum by at
-/// most N times this. The host's bit-exactness checks take their bound from here.
-pub const HALF_UNIT_DN: f64 = 0.5 / UNITS_PER_DN;
+/// The fractional bits of `bits`-bit entries, for the bit depths the core reads (a
+/// const context: a depth above 16 bits fails to compile where it is a constant).
+const fn frac_bits_of(bits: u32) -> u32 {
+    match frac_bits(bits) {
+        Some(f) => f,
+        None => panic!("the core reads codes of at most 16 bits"),
+    }
+}
 
-/// Every LUT entry is strictly below this: 2^23 raw units (12 integer + 11 fractional bits).
-pub const LUT_ENTRY_LIMIT: u32 = 1 << 23;
+/// LUT units (of an entry, or of a sum of entries) per DN for a `bits`-bit ADC: 2^11 up
+/// to 12 bits, 2^(23 - bits) above. The host converts with [`units_to_dn`] and this,
+/// never with its own constant. `None` above 16 bits.
+pub fn units_per_dn(bits: u32) -> Option<f64> {
+    frac_bits(bits).map(|f| (1u32 << f) as f64)
+}
+
+/// A value in LUT units of a `bits`-bit set (an entry's bits, or a sum of entries such as
+/// the corrector's 32-bit sums) in DN. Exact: the scale is a power of two. `None` above
+/// 16 bits.
+#[inline]
+pub fn units_to_dn(units: u64, bits: u32) -> Option<f64> {
+    units_per_dn(bits).map(|u| units as f64 / u)
+}
+
+/// Half a LUT unit of a `bits`-bit set, DN (2^-12 up to 12 bits, 2^-8 at 16 bits): the
+/// most an entry rounded to the nearest unit departs from its exact value, so a sum of N
+/// frames' entries departs from the exact (f64) sum by at most N times this. The host's
+/// bit-exactness checks take their bound from here. `None` above 16 bits.
+pub fn half_unit_dn(bits: u32) -> Option<f64> {
+    units_per_dn(bits).map(|u| 0.5 / u)
+}
 
 /// A per-code weight: the normalized code width in DN (1.0 for an ideal code), unsigned
 /// with 24 fractional bits, 0 to just under 256.
@@ -77,51 +118,40 @@ pub fn weight_nearest(dn: f64) -> Option<Weight> {
         None
     }
 }
-/// `n_k` is in units of 2^-24 and counts twice the interval's center; one entry unit is
-/// 2^-11 DN, so `entry = n_k / 2^(24 - 11 + 1)`.
-const ENTRY_SHIFT: u32 = WEIGHT_FRAC_BITS - FRAC_BITS + 1;
-
-/// One LUT entry: a corrected value in DN, 11 fractional bits, always below 2^23 raw units.
+/// One LUT entry: a corrected value in units of 2^-F DN (`F` the fractional bits of its
+/// set's depth, [`frac_bits`]), always below 2^23 raw units. The entry holds its units
+/// only; the scale is the set's ([`LutSet::FRAC_BITS`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Default)]
 #[repr(transparent)]
-pub struct LutEntry(U21F11);
+pub struct LutEntry(u32);
 
 impl LutEntry {
-    /// The entry of an ideal code `k`: `k + 1/2` DN.
-    pub const fn ideal(code: u16) -> Self {
-        LutEntry(U21F11::from_bits(((code as u32) << FRAC_BITS) | (1 << (FRAC_BITS - 1))))
+    /// The entry of an ideal code `k` of a `CODES`-code ADC: `k + 1/2` DN.
+    pub const fn ideal<const CODES: usize>(code: u16) -> Self {
+        let f = frac_bits_of(CodeCount::<CODES>::BITS);
+        LutEntry(((code as u32) << f) | (1 << (f - 1)))
     }
 
-    /// An entry from raw bits (units of 2^-11 DN), or `None` at or above 2^23.
+    /// An entry from raw bits (LUT units), or `None` at or above 2^23.
     pub const fn from_bits(bits: u32) -> Option<Self> {
         if bits < LUT_ENTRY_LIMIT {
-            Some(LutEntry(U21F11::from_bits(bits)))
+            Some(LutEntry(bits))
         } else {
             None
         }
     }
 
-    /// Raw bits, units of 2^-11 DN; always below 2^23.
+    /// Raw bits, LUT units; always below 2^23.
     #[inline]
     pub const fn to_bits(self) -> u32 {
-        self.0.to_bits()
-    }
-
-    /// The entry as a fixed-point number of DN.
-    pub const fn to_fixed(self) -> U21F11 {
         self.0
-    }
-
-    /// The entry in DN (exact).
-    pub fn to_dn(self) -> f64 {
-        units_to_dn(self.to_bits() as u64)
     }
 }
 
 #[cfg(feature = "defmt")]
 impl defmt::Format for LutEntry {
     fn format(&self, f: defmt::Formatter) {
-        defmt::write!(f, "{=u32}/2048 DN", self.to_bits())
+        defmt::write!(f, "{=u32} LUT units", self.to_bits())
     }
 }
 
@@ -151,13 +181,21 @@ impl<const N: usize, const CODES: usize> core::fmt::Debug for LutSet<N, CODES> {
 }
 
 impl<const N: usize, const CODES: usize> LutSet<N, CODES> {
+    /// Fractional bits of this set's entries ([`frac_bits`] of its depth): 11 up to 12
+    /// bits, 9 at 14, 7 at 16.
+    pub const FRAC_BITS: u32 = frac_bits_of(CodeCount::<CODES>::BITS);
+
+    /// `n_k` is in units of 2^-24 and counts twice the interval's center; one entry unit
+    /// is 2^-F DN, so `entry = n_k / 2^(24 - F + 1)`.
+    const ENTRY_SHIFT: u32 = WEIGHT_FRAC_BITS - Self::FRAC_BITS + 1;
+
     /// The tables of an ideal ADC: code `k` reads `k + 1/2` DN. The datapath boots with
     /// these so it corrects nothing, and changes nothing, until a calibration is loaded.
     pub fn ideal() -> Self {
         let () = CodeCount::<CODES>::VALID;
         let mut table = [LutEntry::default(); CODES];
         for (k, e) in table.iter_mut().enumerate() {
-            *e = LutEntry::ideal(k as u16);
+            *e = LutEntry::ideal::<CODES>(k as u16);
         }
         LutSet { tables: [table; N] }
     }
@@ -188,7 +226,7 @@ impl<const N: usize, const CODES: usize> LutSet<N, CODES> {
         // Monotonic by construction: n_{k+1} - n_k = w_k + w_{k+1} >= 0 and rounding is
         // monotonic, so the last entry is the largest and the only one to range-check.
         let below_last: u64 = weights[..CODES - 1].iter().map(|w| w.to_bits() as u64).sum();
-        let last = round_half_even_shift(2 * below_last + weights[CODES - 1].to_bits() as u64, ENTRY_SHIFT);
+        let last = round_half_even_shift(2 * below_last + weights[CODES - 1].to_bits() as u64, Self::ENTRY_SHIFT);
         if last >= LUT_ENTRY_LIMIT as u64 {
             return Err(CoreError::EntryOutOfRange {
                 adc: adc as u16,
@@ -200,7 +238,7 @@ impl<const N: usize, const CODES: usize> LutSet<N, CODES> {
         for (entry, w) in table.iter_mut().zip(weights) {
             let w = w.to_bits() as u64;
             // Cannot fail: bounded by `last` above.
-            *entry = LutEntry(U21F11::from_bits(round_half_even_shift(2 * below + w, ENTRY_SHIFT) as u32));
+            *entry = LutEntry(round_half_even_shift(2 * below + w, Self::ENTRY_SHIFT) as u32);
             below += w;
         }
         Ok(())
@@ -212,7 +250,7 @@ impl<const N: usize, const CODES: usize> LutSet<N, CODES> {
         for (adc, (table, raw)) in set.tables.iter_mut().zip(bits).enumerate() {
             validate_table(adc, raw.iter().copied())?;
             for (e, &b) in table.iter_mut().zip(raw) {
-                *e = LutEntry(U21F11::from_bits(b));
+                *e = LutEntry(b);
             }
         }
         Ok(set)
@@ -233,6 +271,22 @@ impl<const N: usize, const CODES: usize> LutSet<N, CODES> {
     /// Bits per code of this set.
     pub const fn bits() -> u32 {
         CodeCount::<CODES>::BITS
+    }
+
+    /// LUT units per DN of this set: 2^[`Self::FRAC_BITS`].
+    pub const UNITS_PER_DN: f64 = (1u32 << Self::FRAC_BITS) as f64;
+
+    /// Half a LUT unit of this set, DN: see [`half_unit_dn`].
+    pub const HALF_UNIT_DN: f64 = 0.5 / Self::UNITS_PER_DN;
+
+    /// An entry of this set in DN (exact: the scale is a power of two).
+    pub fn entry_dn(entry: LutEntry) -> f64 {
+        Self::units_to_dn(entry.0 as u64)
+    }
+
+    /// A value in this set's LUT units (a sum of its entries) in DN, exactly.
+    pub fn units_to_dn(units: u64) -> f64 {
+        units as f64 / Self::UNITS_PER_DN
     }
 
     /// Raw write access for the image loader, which keeps the set private until it has
@@ -266,21 +320,70 @@ pub(crate) fn check_entry(adc: usize, code: usize, previous: u32, bits: u32) -> 
 
 #[cfg(test)]
 mod tests {
-    use super::{units_to_dn, LutEntry, HALF_UNIT_DN, UNITS_PER_DN};
+    use super::{frac_bits, half_unit_dn, units_per_dn, units_to_dn, LutEntry};
 
     #[test]
     fn entries_and_sums_read_in_dn_exactly() {
         // An ideal code k reads k + 1/2 DN; a sum of 512 top entries is 512 times the
         // entry, with no rounding (2^-11 is a power of two and the sums fit f64's 53 bits).
         for k in [0u16, 1, 1000, 4095] {
-            assert_eq!(LutEntry::ideal(k).to_dn(), k as f64 + 0.5);
+            assert_eq!(LutSet::<1, 4096>::entry_dn(LutEntry::ideal::<4096>(k)), k as f64 + 0.5);
         }
         let top = LutEntry::from_bits((1 << 23) - 1).unwrap();
-        assert_eq!(units_to_dn(512 * top.to_bits() as u64), 512.0 * top.to_dn());
-        assert_eq!(units_to_dn(u32::MAX as u64) * UNITS_PER_DN, u32::MAX as f64);
-        assert_eq!(top.to_dn(), ((1u32 << 23) - 1) as f64 / 2048.0);
+        let top_dn = LutSet::<1, 4096>::entry_dn(top);
+        assert_eq!(units_to_dn(512 * top.to_bits() as u64, 12), Some(512.0 * top_dn));
+        assert_eq!(units_to_dn(u32::MAX as u64, 12).unwrap() * units_per_dn(12).unwrap(), u32::MAX as f64);
+        assert_eq!(top_dn, ((1u32 << 23) - 1) as f64 / 2048.0);
         // Half a unit: 2^-12 DN, exactly.
-        assert_eq!(HALF_UNIT_DN, 1.0 / 4096.0);
+        assert_eq!(half_unit_dn(12), Some(1.0 / 4096.0));
+    }
+
+    /// The scale by depth, from the 23-bit entry and the paper's 11 fractional bits at 12
+    /// bits: 11 at and below 12 bits, one fewer for each bit above, none beyond 16 bits;
+    /// the ideal top code of every depth the core reads is below 2^23, and with 11
+    /// fractional bits a 14-bit one would not be (16383.5 x 2048 = 33,553,408).
+    #[test]
+    fn deeper_adcs_give_up_fractional_bits_to_stay_in_23_bits() {
+        let expected = [(1, 11), (8, 11), (10, 11), (12, 11), (13, 10), (14, 9), (15, 8), (16, 7)];
+        for (bits, f) in expected {
+            assert_eq!(frac_bits(bits), Some(f), "{bits} bits");
+            assert_eq!(units_per_dn(bits), Some((1u32 << f) as f64));
+        }
+        assert_eq!((frac_bits(17), units_to_dn(1, 17), half_unit_dn(32)), (None, None, None));
+        assert_eq!(LutSet::<1, 16384>::FRAC_BITS, 9);
+        assert_eq!(LutSet::<1, 65536>::FRAC_BITS, 7);
+        assert_eq!(LutEntry::ideal::<16384>(16383).to_bits(), 16383 * 512 + 256);
+        assert_eq!(LutEntry::ideal::<65536>(65535).to_bits(), 65535 * 128 + 64);
+        assert!(LutEntry::ideal::<65536>(65535).to_bits() < LUT_ENTRY_LIMIT);
+        assert_eq!(LutSet::<1, 65536>::entry_dn(LutEntry::ideal::<65536>(40000)), 40000.5);
+        assert!(16383.5 * 2048.0 >= LUT_ENTRY_LIMIT as f64);
+    }
+
+    /// A 14- and a 16-bit table from weights on the 2^-24 grid against the f64 rule with
+    /// their own scale (exact sums, so f64 round-half-even must agree bit for bit), and
+    /// the range check at 16 bits where it is at 12: weights averaging just above 1 DN
+    /// overflow the top entry.
+    #[test]
+    fn deep_tables_match_a_float_cumulative_sum() {
+        extern crate std;
+        use std::vec::Vec;
+        fn check<const CODES: usize>() {
+            let weights: Vec<Weight> = (0..CODES).map(|k| Weight::from_bits(0x0100_0000 + (k as u32 * 7919 % 200_000) - 100_000)).collect();
+            let mut set = std::boxed::Box::new(LutSet::<1, CODES>::ideal());
+            set.set_from_weights(0, &weights).unwrap();
+            let scale = (1u32 << LutSet::<1, CODES>::FRAC_BITS) as f64;
+            let mut below = 0.0f64;
+            for (k, w) in weights.iter().enumerate() {
+                let wk = w.to_num::<f64>();
+                let center = (below + wk / 2.0) * scale;
+                assert_eq!(set.tables()[0][k].to_bits() as f64, center.round_ties_even(), "{CODES} codes, code {k}");
+                below += wk;
+            }
+            let wide: Vec<Weight> = (0..CODES).map(|_| w(1.0 + 1.0 / 1024.0)).collect();
+            assert!(matches!(set.set_from_weights(0, &wide), Err(CoreError::EntryOutOfRange { .. })));
+        }
+        check::<16384>();
+        check::<65536>();
     }
 
     use super::*;
@@ -384,7 +487,7 @@ mod tests {
         extern crate std;
         let set = LutSet::<4, 4096>::ideal();
         assert_eq!(set.table(3), Some(&set.tables()[3]));
-        assert_eq!(set.table(3).unwrap()[7], LutEntry::ideal(7));
+        assert_eq!(set.table(3).unwrap()[7], LutEntry::ideal::<4096>(7));
         assert_eq!(set.table(4), None);
         assert_eq!((LutSet::<4, 4096>::bits(), LutSet::<1, 32>::bits()), (12, 5));
         assert_eq!(std::format!("{set:?}"), "LutSet<4 ADCs, 4096 codes>");

@@ -352,7 +352,7 @@ pub enum HostError {
         source: std::io::Error,
     },
     /// A LUT set or camera of a shape the core is not built for.
-    #[error("{origin}: {n_adc} ADCs of {codes} codes: the core is built for 1, 2, 4 or 8 ADCs of 8, 10, 12 or 14 bits (8 ADCs up to 12 bits)")]
+    #[error("{origin}: {n_adc} ADCs of {codes} codes: the core is built for 1, 2, 4 or 8 ADCs of 8, 10, 12, 14 or 16 bits (8 ADCs up to 12 bits)")]
     UnsupportedDims {
         /// Whose shape.
         origin: Origin,

@@ -74,6 +74,14 @@ impl PyLut {
         self.lut.bit_depth()
     }
 
+    /// LUT units per DN of these tables, the core's for their depth: 2048 up to 12 bits,
+    /// `2^(23 - bit_depth)` above (512 at 14 bits, 128 at 16), so that every entry stays
+    /// below 2^23 and 512 frames sum into 32 bits.
+    #[getter]
+    fn units_per_dn(&self) -> f64 {
+        dncal_host::infra::dims::units_per_dn(1usize << self.lut.bit_depth())
+    }
+
     /// ADCs.
     #[getter]
     fn adcs(&self) -> usize {

@@ -93,3 +93,20 @@ def test_bad_luts_raise_the_clis_message(tmp_path):
     garbage.write_bytes(b"not a LUT at all" * 10)
     with pytest.raises(dncal.InputError, match="garbage.fits"):
         dncal.read_lut(garbage)
+
+
+@pytest.mark.parametrize("bits,units", [(12, 2048), (14, 512), (16, 128)])
+def test_deep_tables_have_their_own_scale(bits, units):
+    # Ideal ADCs at 10^4 counts a code: every entry is its code's centre, k + 1/2 DN,
+    # within the counts' noise, on the depth's scale (23-bit entries: 11 fractional
+    # bits up to 12-bit codes, 23 - bits above; 2^-11 DN at 16 bits would need 27 bits).
+    rng = np.random.default_rng(bits)
+    counts = rng.poisson(1e4, (2, 1 << bits)).astype(np.uint64)
+    lut = dncal.build_luts(counts)
+    assert lut.bit_depth == bits and lut.units_per_dn == units
+    assert lut.entries.max() < 2**23
+    k = np.arange(1 << bits)
+    offset = lut.entries / units - (k + 0.5)
+    # A random walk of widths 1% rms each, tied at both ends: sqrt(codes) / 200 DN rms.
+    assert np.sqrt(np.mean(offset**2)) < 0.01 * np.sqrt(1 << bits)
+    assert abs(lut.entries[0, (1 << bits) // 2] / units - ((1 << bits) // 2 + 0.5)) < 0.03 * np.sqrt(1 << bits)

@@ -133,7 +133,7 @@ pub fn correction_errors(truth: &[AdcTransfer], tables: &[Vec<u32>], codes: std:
             let centers = adc.centers();
             let x: Vec<f64> = codes.clone().map(|k| centers[k]).collect();
             let raw: Vec<f64> = codes.clone().map(|k| k as f64).collect();
-            let lut: Vec<f64> = codes.clone().map(|k| dncal_core::units_to_dn(table[k].into())).collect();
+            let lut: Vec<f64> = codes.clone().map(|k| crate::infra::dims::units_to_dn(table[k].into(), table.len())).collect();
             // The error of a mapping m is m(k) - truth(k) after matching offset and gain:
             // fit m against the truth and keep the residuals.
             (detrend(&x, &raw), detrend(&x, &lut))
@@ -209,7 +209,7 @@ pub fn characterize(source: &Path, hist: &AdcHistograms, density: Density, luts:
     let mut offset_series = Vec::new();
     let mut truth_series = Vec::new();
     for (a, t) in luts.tables.iter().enumerate() {
-        let lut_offset: Vec<f64> = (0..codes).map(|k| dncal_core::units_to_dn(t[k].into()) - (k as f64 + 0.5)).collect();
+        let lut_offset: Vec<f64> = (0..codes).map(|k| crate::infra::dims::units_to_dn(t[k].into(), t.len()) - (k as f64 + 0.5)).collect();
         offset_series.push(Series { label: format!("ADC {a}: LUT"), points: range.clone().map(|k| (k as f64, lut_offset[k])).collect() });
         if let Some(truth) = truth {
             let true_offset: Vec<f64> = truth[a].centers().iter().enumerate().map(|(k, c)| c - (k as f64 + 0.5)).collect();
@@ -327,7 +327,7 @@ mod tests {
                 let mut below = 0.0;
                 w.iter()
                     .map(|wk| {
-                        let e = ((below + wk / 2.0) * dncal_core::UNITS_PER_DN).round() as u32;
+                        let e = ((below + wk / 2.0) * crate::infra::dims::units_per_dn(w.len())).round() as u32;
                         below += wk;
                         e
                     })

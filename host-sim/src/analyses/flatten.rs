@@ -821,7 +821,7 @@ mod tests {
         // Entry rounding is 2^-12 DN; quantizing the weights adds at most 2^-25 per code.
         let tolerance_dn = 2f64.powi(-12) + CODES as f64 * 2f64.powi(-25);
         for (k, (e, o)) in lut.tables()[0].iter().zip(&offsets).enumerate() {
-            let lut_offset = e.to_dn() - (k as f64 + 0.5);
+            let lut_offset = LutSet::<1, CODES>::entry_dn(*e) - (k as f64 + 0.5);
             assert!((lut_offset - o).abs() <= tolerance_dn, "code {k}: {lut_offset} vs {o}");
         }
         assert_eq!(lut.tables()[0][CODES - 1].to_bits(), (2 * CODES as u32 - 1) << 10, "top entry 4095.5 DN");

@@ -19,7 +19,7 @@
 use std::time::Instant;
 
 use dncal_core::driver::Datapath;
-use dncal_core::{encode_image, image_len, CoreError, Corrector, Geometry, LutBanks, Mvd1024eLuts, Weight};
+use dncal_core::{encode_image, image_len, CoreError, Corrector, Geometry, LutBanks, LutSet, Mvd1024eLuts, Weight};
 use dncal_fpga_model::faults::SplitMix64;
 use rayon::prelude::*;
 use serde::Serialize;
@@ -571,7 +571,7 @@ fn check_counters(corrector: &Corrector<'_, N, CODES>, seg: &Segment, refs: &Ref
 fn check_core_sums(sums: &[u32], refs: &References, shape: &str, report: &mut SoakReport) {
     for (s, &streamed) in refs.frames.iter().enumerate() {
         let range = refs.range(s);
-        let bound = streamed as f64 * dncal_core::HALF_UNIT_DN + 1e-9;
+        let bound = streamed as f64 * LutSet::<N, CODES>::HALF_UNIT_DN + 1e-9;
         for ((&got, &q), &f) in sums[range.clone()].iter().zip(&refs.quantized[range.clone()]).zip(&refs.centers[range]) {
             let want = q.min(u32::MAX as u64);
             if got as u64 != want {
@@ -581,7 +581,7 @@ fn check_core_sums(sums: &[u32], refs: &References, shape: &str, report: &mut So
             if q > u32::MAX as u64 {
                 report.saturated_sums += 1;
             } else {
-                let err = (dncal_core::units_to_dn(got.into()) - f).abs();
+                let err = (LutSet::<N, CODES>::units_to_dn(got.into()) - f).abs();
                 report.max_abs_err_dn = report.max_abs_err_dn.max(err);
                 if err > bound {
                     report.out_of_bound += 1;

@@ -339,12 +339,12 @@ fn run_typed<const N: usize, const CODES: usize>(
     }
     let status = core.status();
     let frames_max = (0..p.states).map(|s| core.frames(s).get()).max().unwrap_or(0);
-    let bound_dn = frames_max as f64 * dncal_core::HALF_UNIT_DN;
+    let bound_dn = frames_max as f64 * LutSet::<N, CODES>::HALF_UNIT_DN;
     let check = core
         .spans()
         .into_par_iter()
         .flat_map(|(at, sums)| sums.par_iter().zip(&ref_q[at..at + sums.len()]).zip(&ref_f[at..at + sums.len()]))
-        .fold(Check::default, |c, ((&s, &q), &f)| c.with(s, q, (dncal_core::units_to_dn(s.into()) - f).abs(), bound_dn))
+        .fold(Check::default, |c, ((&s, &q), &f)| c.with(s, q, (LutSet::<N, CODES>::units_to_dn(s.into()) - f).abs(), bound_dn))
         .reduce(Check::default, Check::merge);
     drop(core);
     let pixels = p.frames as u64 * (w * h) as u64;
@@ -406,7 +406,7 @@ mod tests {
         assert_eq!(r.pixels, 12 * 90 * 20);
         assert_eq!(r.mismatches, 0);
         assert_eq!(r.out_of_bound, 0);
-        assert!(r.max_abs_err_dn <= 3.0 * dncal_core::HALF_UNIT_DN, "{}", r.max_abs_err_dn);
+        assert!(r.max_abs_err_dn <= 3.0 * dncal_core::LutSet::<4, 4096>::HALF_UNIT_DN, "{}", r.max_abs_err_dn);
         assert!(r.max_abs_err_dn > 0.0, "entries are rounded, so some error must show");
     }
 

@@ -33,18 +33,51 @@ macro_rules! dispatch_lut_dims {
             (1, 1024) => $f::<1, 1024>($($arg),*),
             (1, 4096) => $f::<1, 4096>($($arg),*),
             (1, 16384) => $f::<1, 16384>($($arg),*),
+            (1, 65536) => $f::<1, 65536>($($arg),*),
             (2, 256) => $f::<2, 256>($($arg),*),
             (2, 1024) => $f::<2, 1024>($($arg),*),
             (2, 4096) => $f::<2, 4096>($($arg),*),
             (2, 16384) => $f::<2, 16384>($($arg),*),
+            (2, 65536) => $f::<2, 65536>($($arg),*),
             (4, 256) => $f::<4, 256>($($arg),*),
             (4, 1024) => $f::<4, 1024>($($arg),*),
             (4, 4096) => $f::<4, 4096>($($arg),*),
             (4, 16384) => $f::<4, 16384>($($arg),*),
+            (4, 65536) => $f::<4, 65536>($($arg),*),
             (8, 256) => $f::<8, 256>($($arg),*),
             (8, 1024) => $f::<8, 1024>($($arg),*),
             (8, 4096) => $f::<8, 4096>($($arg),*),
             (n_adc, codes) => Err($crate::HostError::UnsupportedDims { origin: $crate::Origin::from($origin), n_adc, codes }),
         }
     };
+}
+
+/// LUT units per DN of tables of `codes` codes: the core's scale for that depth
+/// ([`dncal_core::units_per_dn`]: 2^11 up to 12 bits, 2^(23 - bits) above). Every table
+/// the host holds has passed [`lut_set`] or was built for a supported depth, so the core
+/// has a scale for it; beyond 16 bits the 23-bit rule is continued rather than a panic.
+pub fn units_per_dn(codes: usize) -> f64 {
+    let bits = codes.trailing_zeros();
+    dncal_core::units_per_dn(bits).unwrap_or_else(|| 2f64.powi(dncal_core::LUT_ENTRY_BITS as i32 - bits as i32))
+}
+
+/// A value in LUT units of tables of `codes` codes (an entry or a sum of entries) in DN,
+/// exactly (the scale is a power of two).
+pub fn units_to_dn(units: u64, codes: usize) -> f64 {
+    units as f64 / units_per_dn(codes)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::units_to_dn;
+
+    /// The host's scale is the core's for every depth it dispatches to.
+    #[test]
+    fn the_scale_is_the_cores_for_every_depth() {
+        assert_eq!(units_to_dn(2048, 4096), 1.0);
+        assert_eq!(units_to_dn(2048, 256), 1.0);
+        assert_eq!(units_to_dn(512, 16384), 1.0);
+        assert_eq!(units_to_dn(128, 65536), 1.0);
+        assert_eq!(units_to_dn(64, 1 << 17), 1.0);
+    }
 }

@@ -36,9 +36,16 @@ impl ReferenceLut {
         ReferenceLut { centers }
     }
 
-    /// The entries the core's rounding rule gives: `RNE(2^11 c_k)`, as integers.
+    /// The entries the core's rounding rule gives: `RNE(2^F c_k)` with `F` the fractional
+    /// bits of the tables' depth (11 up to 12 bits), as integers.
     pub fn quantized(&self) -> Vec<Vec<u64>> {
-        self.centers.iter().map(|t| t.iter().map(|&c| (c * dncal_core::UNITS_PER_DN).round_ties_even() as u64).collect()).collect()
+        self.centers
+            .iter()
+            .map(|t| {
+                let unit = crate::infra::dims::units_per_dn(t.len());
+                t.iter().map(|&c| (c * unit).round_ties_even() as u64).collect()
+            })
+            .collect()
     }
 
     /// The tables the checks sum: [`Self::quantized`] beside the centres.

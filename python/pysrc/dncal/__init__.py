@@ -15,7 +15,9 @@ fixed-point core and the host library, not a re-implementation), the same messag
   :func:`camera_config`, so a notebook can plant an effect and look for it.
 - :mod:`dncal.dask`: the per-pixel work of sensors larger than one machine.
 
-Units: LUT entries and sums are in 2^-11 DN (divide by 2048 for DN); code widths in DN.
+Units: LUT entries and sums are in 2^-11 DN up to 12-bit codes (divide by 2048 for DN),
+2^-(23 - bits) DN above (14 bits: 512 a DN, 16 bits: 128; ``Lut.units_per_dn``); code
+widths in DN.
 """
 
 import json as _json
@@ -29,7 +31,8 @@ from ._dncal import Corrector, Lut, __version__, build_luts, memory_budget, read
 from . import _dncal
 from .errors import DncalError, DncalIOError, InputError, OverBudgetError, ToolError
 
-#: LUT entries and sums per DN.
+#: LUT entries and sums per DN, for codes of up to 12 bits (deeper tables have fewer
+#: fractional bits: ``Lut.units_per_dn``).
 UNITS_PER_DN = 2048
 
 

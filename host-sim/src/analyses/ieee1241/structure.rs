@@ -392,6 +392,11 @@ fn period_score(period: usize, first: usize, keep: &[usize], d: &[f64], sigma: &
         s / n.max(1) as f64
     };
     let (mean_a, mean_b) = (half_mean(0), half_mean(1));
+    // Codes differ beyond the counts' noise in ways no period describes (every code its
+    // own width): that spread is in each class-half mean too, `extra / n`, and the null
+    // of no pattern has it, so it is counted with the noise (without it a 16-bit ADC of
+    // independent widths at 100 counts a code had its z inflated ninefold).
+    let extra = residual_excess(keep.iter().enumerate().map(|(j, &i)| ((first + i) % period, d[j], sigma[i] * sigma[i])), period);
     let (mut cross, mut var, mut classes) = (0.0, 0.0, 0usize);
     for c in &acc {
         let [(sa, na, va), (sb, nb, vb)] = *c;
@@ -400,13 +405,36 @@ fn period_score(period: usize, first: usize, keep: &[usize], d: &[f64], sigma: &
         }
         let (ma, mb) = (sa / na as f64 - mean_a, sb / nb as f64 - mean_b);
         cross += ma * mb;
-        var += (va / (na * na) as f64) * (vb / (nb * nb) as f64);
+        var += (va / (na * na) as f64 + extra / na as f64) * (vb / (nb * nb) as f64 + extra / nb as f64);
         classes += 1;
     }
     let z = if var > 0.0 { cross / var.sqrt() } else { 0.0 };
     let pattern = if classes > 0 { (cross / classes as f64).max(0.0) } else { 0.0 };
     let explained = if total > 0.0 { (pattern / total).min(1.0) } else { 0.0 };
     PeriodScore { period, z, pattern_rms_lsb: pattern.sqrt(), explained }
+}
+
+/// The variance of the codes' DNL about their class's mean beyond their own noise, LSB^2
+/// (a random effect: what makes codes of one class differ when each has its own width),
+/// from `(class, dnl, noise variance)` of each code over `classes` classes: `sum_c
+/// sum_{i in c} ((d_i - m_c)^2 - v_i (n_c - 1) / n_c) / sum_c n_c` over the classes of two
+/// codes or more (`m_c` the class's plain mean; the factor takes out the mean's own share
+/// of the noise), 0 when the codes scatter no more than their noise.
+fn residual_excess(codes: impl Iterator<Item = (usize, f64, f64)> + Clone, classes: usize) -> f64 {
+    let mut sums = vec![(0.0f64, 0usize); classes];
+    for (c, d, _) in codes.clone() {
+        sums[c].0 += d;
+        sums[c].1 += 1;
+    }
+    let (mut excess, mut n) = (0.0, 0usize);
+    for (c, d, v) in codes {
+        let (s, nc) = sums[c];
+        if nc >= 2 {
+            excess += (d - s / nc as f64).powi(2) - v * (nc - 1) as f64 / nc as f64;
+            n += 1;
+        }
+    }
+    if n > 0 { (excess / n as f64).max(0.0) } else { 0.0 }
 }
 
 /// Carry depth of code `k`: the bit the transition `k -> k + 1` flips up.
@@ -417,8 +445,21 @@ fn carry_depth(k: usize) -> u32 {
 /// The SAR fit by carry depth (module documentation); None with fewer than two depths.
 fn sar_fit(bits: u32, first: usize, dnl: &[f64], sigma: &[f64]) -> Option<SarFit> {
     let depths = bits as usize;
-    let w: Vec<f64> = sigma.iter().map(|s| 1.0 / (s * s).max(1e-300)).collect();
     let depth = |i: usize| (carry_depth(first + i) as usize).min(depths - 1);
+    // Each code's noise variance (a code `1 + dnl` LSB wide has that many times a
+    // mean-width code's variance).
+    let noise = |i: usize| sigma[i] * sigma[i] * (1.0 + dnl[i]).max(0.01);
+    // Codes of one depth differ beyond their noise when each code has its own width (a
+    // real ADC's, or a random one's): that spread is in every depth's mean, and two
+    // codes of one depth (bit 14 of a 16-bit ADC) agree by chance half the time, so it
+    // counts as noise in the means, their variances and the halves' agreement. Without
+    // it a 16-bit ADC of independent widths (sd 0.29 LSB) at 100 counts a code had its
+    // two bit-14 codes, 0.5 LSB wide of the mean by chance, named a weight error at 5.6
+    // sigma and "explained". A SAR's own codes do not differ within a depth: 0 there.
+    let extra = residual_excess((0..dnl.len()).map(|i| (depth(i), dnl[i], noise(i))), depths);
+    let w: Vec<f64> = sigma.iter().map(|s| 1.0 / (s * s + extra).max(1e-300)).collect();
+    // The held-out score is of the DNL beyond the counts' noise alone.
+    let w_noise: Vec<f64> = sigma.iter().map(|s| 1.0 / (s * s).max(1e-300)).collect();
     // Per depth and half (alternate codes of the depth): sum of w d and of w; and per
     // depth the variance sum of the weighted mean, `sum w^2 var_i`, with each code's own
     // noise (a code `w` LSB wide has `w` times a mean-width code's variance: the bit-9
@@ -435,7 +476,7 @@ fn sar_fit(bits: u32, first: usize, dnl: &[f64], sigma: &[f64]) -> Option<SarFit
         a.0 += w[i] * dnl[i];
         a.1 += w[i];
         a.2 += 1;
-        var_sum[t] += w[i] * (1.0 + dnl[i]).max(0.01);
+        var_sum[t] += w[i] * w[i] * (noise(i) + extra);
     }
     if seen.iter().filter(|&&n| n > 0).count() < 2 {
         return None;
@@ -448,8 +489,8 @@ fn sar_fit(bits: u32, first: usize, dnl: &[f64], sigma: &[f64]) -> Option<SarFit
         let (mut before, mut after, mut n) = (0.0, 0.0, 0usize);
         for i in 0..dnl.len() {
             if let Some(p) = predict(i) {
-                before += w[i] * dnl[i] * dnl[i];
-                after += w[i] * (dnl[i] - p).powi(2);
+                before += w_noise[i] * dnl[i] * dnl[i];
+                after += w_noise[i] * (dnl[i] - p).powi(2);
                 n += 1;
             }
         }

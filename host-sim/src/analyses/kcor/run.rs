@@ -138,9 +138,9 @@ pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, real
         }
         None => noisy_table(p.seed)?,
     };
-    let mut luts: Vec<Vec<f64>> = vec![entries.iter().map(|&e| dncal_core::units_to_dn(e.into())).collect()];
+    let mut luts: Vec<Vec<f64>> = vec![entries.iter().map(|&e| crate::infra::dims::units_to_dn(e.into(), entries.len())).collect()];
     for r in 1..realizations as u64 {
-        luts.push(noisy_table(p.seed.wrapping_add(r))?.iter().map(|&e| dncal_core::units_to_dn(e.into())).collect());
+        luts.push(noisy_table(p.seed.wrapping_add(r))?.iter().map(|&e| crate::infra::dims::units_to_dn(e.into(), entries.len())).collect());
     }
     let lut_refs: Vec<&[f64]> = luts.iter().map(|l| l.as_slice()).collect();
     let mut results = run_luts(camera, adc, &lut_refs, p);

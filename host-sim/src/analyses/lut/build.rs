@@ -28,7 +28,7 @@ pub struct AdcLutSummary {
     pub max_abs_offset_dn: f64,
     /// Smallest and largest weight of the inner codes.
     pub weight_range: (f64, f64),
-    /// Top entry, units of 2^-11 DN (must be below 2^23).
+    /// Top entry, LUT units: 2^-11 DN up to 12-bit codes, `dncal_core::frac_bits` (must be below 2^23).
     pub top_entry: u32,
 }
 

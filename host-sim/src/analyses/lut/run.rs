@@ -88,7 +88,7 @@ pub struct ImportSummary {
     pub lut_fits: PathBuf,
     /// The device image written.
     pub device_image: PathBuf,
-    /// Per ADC: our top entry (units of 2^-11 DN) and the largest difference between our
+    /// Per ADC: our top entry (LUT units: 2^-11 DN up to 12-bit codes, `dncal_core::frac_bits`) and the largest difference between our
     /// entry (a code's center) and the K-Cor value of the code (its top), in DN.
     pub adcs: Vec<ImportedAdc>,
 }
@@ -108,7 +108,7 @@ impl Report for ImportSummary {
 pub struct ImportedAdc {
     /// ADC index.
     pub adc: usize,
-    /// Our top entry, units of 2^-11 DN.
+    /// Our top entry, LUT units: 2^-11 DN up to 12-bit codes, `dncal_core::frac_bits`.
     pub top_entry: u32,
     /// Largest |K-Cor value - our entry - half the code's step|, DN: what rounding to
     /// 2^-11 DN loses (below 2^-12 DN plus the weights' grid).
@@ -136,7 +136,7 @@ pub fn import_kcor(specs: &[String], output: &Path) -> Result<ImportSummary, Hos
             let max_rounding_dn = (0..t.entries.len())
                 .map(|k| {
                     let step = if k == 0 { t.entries[0] as f64 * unit } else { steps[k - 1] };
-                    (t.entries[k] as f64 * unit - step / 2.0 - dncal_core::units_to_dn(o[k].into())).abs()
+                    (t.entries[k] as f64 * unit - step / 2.0 - crate::infra::dims::units_to_dn(o[k].into(), o.len())).abs()
                 })
                 .fold(0.0, f64::max);
             let step_range = (steps.iter().cloned().fold(f64::INFINITY, f64::min), steps.iter().cloned().fold(f64::NEG_INFINITY, f64::max));

@@ -6,7 +6,8 @@ use super::*;
 /// Per-ADC lookup tables as exchanged; the core validates them again when it loads them.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct LutTables {
-    /// Fractional bits of every entry; must be [`dncal_core::FRAC_BITS`] (11).
+    /// Fractional bits of every entry; must be the core's for the tables' depth
+    /// ([`dncal_core::frac_bits`]: 11 up to 12 bits, `23 - bits` above).
     pub frac_bits: u32,
     /// `tables[adc][code]`: corrected value of `code` in units of 2^-frac_bits DN.
     pub tables: Vec<Vec<u32>>,
@@ -57,16 +58,24 @@ pub fn stage_lut(out: &mut Outputs, path: &Path, lut: &LutTables) -> Result<(), 
     })
 }
 
+/// The fractional bits of the LUT entries of `bit_depth`-bit codes: the core's
+/// ([`dncal_core::frac_bits`]), and beyond the 16 bits it reads the same 23-bit rule
+/// continued (such files are refused for their depth, not their scale).
+pub fn lut_frac_bits(bit_depth: u32) -> u32 {
+    dncal_core::frac_bits(bit_depth).unwrap_or_else(|| dncal_core::LUT_ENTRY_BITS.saturating_sub(bit_depth))
+}
+
 /// Reads LUTs. Accepts any integer image whose values fit in 32 unsigned bits; rejects a
 /// shape other than `NADC` x `2^BITDEPTH`, missing or invalid keys, and `FRACBITS` other
-/// than [`dncal_core::FRAC_BITS`].
+/// than the core's for `BITDEPTH` ([`lut_frac_bits`]).
 pub fn read_lut(path: &Path) -> Result<LutTables, HostError> {
     let mut r = FitsReader::open(path)?;
     r.expect_kind(FileKind::Lut)?;
     let (bit_depth, n_adc, codes) = r.adc_keys()?;
     let frac_bits = r.required_int(0, PRIMARY, "FRACBITS")?;
-    if frac_bits != i64::from(FRAC_BITS) {
-        return Err(r.error(format!("FRACBITS = {frac_bits}, dncal LUT entries have {FRAC_BITS} fractional bits")));
+    let expected = lut_frac_bits(bit_depth);
+    if frac_bits != i64::from(expected) {
+        return Err(r.error(format!("FRACBITS = {frac_bits}, dncal LUT entries of {bit_depth}-bit codes have {expected} fractional bits")));
     }
     let image = r.image(0, PRIMARY, 2)?;
     r.check_adc_image_shape(&image, codes, n_adc, bit_depth)?;
@@ -96,17 +105,18 @@ pub fn read_lut(path: &Path) -> Result<LutTables, HostError> {
             Some(flat.chunks(codes).map(<[u32]>::to_vec).collect())
         }
     };
-    Ok(LutTables { frac_bits: FRAC_BITS, tables, weights, kcor_bits })
+    Ok(LutTables { frac_bits: expected, tables, weights, kcor_bits })
 }
 
 /// A LUT set's bit depth, from its table length, after checking it is writable.
 pub(super) fn check_lut(lut: &LutTables) -> Result<u32, Fault> {
-    if lut.frac_bits != FRAC_BITS {
-        return Err(Fault::FracBits(lut.frac_bits));
-    }
     let codes = lut.tables.first().map_or(0, Vec::len);
     if !codes.is_power_of_two() {
         return Err(Fault::TableLength(codes));
+    }
+    let expected = lut_frac_bits(codes.trailing_zeros());
+    if lut.frac_bits != expected {
+        return Err(Fault::FracBits { got: lut.frac_bits, bits: codes.trailing_zeros(), expected });
     }
     let bit_depth = codes.trailing_zeros();
     check_tables(bit_depth, &lut.tables, "entries")?;

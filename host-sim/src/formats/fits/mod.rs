@@ -10,7 +10,8 @@
 //!   deviation (DN) at each illumination level, the reference photodiode voltage (V) of
 //!   each level (level 0 is dark), and optionally the known-bad pixels.
 //! - **LUT file** ([`LutTables`]): per ADC, the corrected value of every code in units of
-//!   2^-11 DN ([`dncal_core::FRAC_BITS`] fractional bits), unsigned 32-bit.
+//!   2^-FRACBITS DN (11 fractional bits up to 12-bit codes, `23 - BITDEPTH` above:
+//!   [`dncal_core::frac_bits`]), unsigned 32-bit.
 //!
 //! All three record `ADCMAP = 'COLMOD'`: column `c` is read by ADC `c mod NADC`, as on the
 //! PhotonFocus MV-D1024E.
@@ -40,7 +41,6 @@
 
 use std::path::Path;
 
-use dncal_core::FRAC_BITS;
 use fitsio::errors::Error as FitsioError;
 use fitsio::hdu::{FitsHdu, HduInfo};
 use fitsio::headers::WritesKey;
@@ -169,8 +169,8 @@ pub enum Fault {
     #[error("mask value {value} at row {row}, column {column} is not 0 or 1")]
     MaskValue { value: u8, row: usize, column: usize },
     /// LUT entries of another fixed-point format.
-    #[error("{0} fractional bits; dncal LUT entries have {FRAC_BITS}")]
-    FracBits(u32),
+    #[error("{got} fractional bits; dncal LUT entries of {bits}-bit codes have {expected}")]
+    FracBits { got: u32, bits: u32, expected: u32 },
     /// LUT tables whose length is not a power of two.
     #[error("tables of {0} entries; a table has 2^bits entries")]
     TableLength(usize),

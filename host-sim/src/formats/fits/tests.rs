@@ -104,7 +104,7 @@ fn lut() -> LutTables {
         (0..4u32).map(|a| (0..8u32).map(|k| (2 * k + 1) * 1024 + a).collect()).collect();
     tables[3][7] = u32::MAX;
     tables[0][0] = 0;
-    LutTables { frac_bits: FRAC_BITS, tables, weights: None, kcor_bits: None }
+    LutTables { frac_bits: 11, tables, weights: None, kcor_bits: None }
 }
 
 #[test]

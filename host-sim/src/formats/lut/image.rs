@@ -13,9 +13,9 @@ use crate::{HostError, Origin};
 /// The first bytes of every device image.
 pub const MAGIC: &[u8] = &dncal_core::image::MAGIC;
 
-/// The largest device image the core loads (4 ADCs of 14 bits); a longer file is not
+/// The largest device image the core loads (4 ADCs of 16 bits); a longer file is not
 /// read whole.
-const DEVICE_IMAGE_LIMIT: crate::formats::input::SizeLimit = crate::formats::input::SizeLimit { what: "device image", bytes: image_len::<4, 16384>() as u64 };
+const DEVICE_IMAGE_LIMIT: crate::formats::input::SizeLimit = crate::formats::input::SizeLimit { what: "device image", bytes: image_len::<4, 65536>() as u64 };
 
 /// Reads the device image `path`: the core validates it (header, CRC, every entry) as it
 /// loads it into a staging bank and activates it, and the tables are the active bank's.
@@ -50,7 +50,7 @@ pub fn encode_set<const N: usize, const CODES: usize>(set: &LutSet<N, CODES>) ->
     Ok(image)
 }
 
-/// The device image of per-ADC `tables` (entries, units of 2^-11 DN), which the core
+/// The device image of per-ADC `tables` (entries, LUT units: 2^-11 DN up to 12-bit codes, `dncal_core::frac_bits`), which the core
 /// validates first; `source` names the input in errors.
 pub fn encode(tables: &[Vec<u32>], source: impl Into<Origin>) -> Result<Vec<u8>, HostError> {
     let source = source.into();

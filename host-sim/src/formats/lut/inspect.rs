@@ -24,7 +24,7 @@ use crate::HostError;
 pub struct InspectAdc {
     /// ADC index.
     pub adc: usize,
-    /// Entries, units of 2^-11 DN.
+    /// Entries, LUT units: 2^-11 DN up to 12-bit codes, `dncal_core::frac_bits`.
     pub entries: Vec<u32>,
     /// Step between consecutive entries in DN: the mean width of two adjacent codes,
     /// the normalized histogram as the table sees it.
@@ -108,7 +108,7 @@ impl Report for InspectSummary {
                 t += "  code      entry          DN     step   offset\n";
                 for k in 0..a.entries.len() {
                     let step = if k == 0 { f64::NAN } else { a.step_dn[k - 1] };
-                    t += &format!("  {k:4} {:10} {:11.5} {:8.5} {:+8.5}\n", a.entries[k], dncal_core::units_to_dn(a.entries[k].into()), step, a.cumulative_offset_dn[k]);
+                    t += &format!("  {k:4} {:10} {:11.5} {:8.5} {:+8.5}\n", a.entries[k], crate::infra::dims::units_to_dn(a.entries[k].into(), a.entries.len()), step, a.cumulative_offset_dn[k]);
                 }
             }
         }
@@ -132,7 +132,7 @@ fn tables(tables: Vec<Vec<u32>>) -> (Vec<InspectAdc>, Option<CommonTrend>) {
         .into_iter()
         .enumerate()
         .map(|(adc, entries)| {
-            let dn: Vec<f64> = entries.iter().map(|&e| dncal_core::units_to_dn(e.into())).collect();
+            let dn: Vec<f64> = entries.iter().map(|&e| crate::infra::dims::units_to_dn(e.into(), entries.len())).collect();
             let step_dn: Vec<f64> = dn.windows(2).map(|p| p[1] - p[0]).collect();
             let cumulative_offset_dn: Vec<f64> = dn.iter().enumerate().map(|(k, v)| v - (k as f64 + 0.5)).collect();
             let Trend { c: trend_dn, bow_dn: trend_bow_dn, max_residual_dn: detrended_max_abs_offset_dn } = Trend::of(&dn);

@@ -59,7 +59,7 @@ impl fmt::Display for LutFormat {
 /// A LUT set as every format holds it.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Lut {
-    /// `tables[adc][code]`: the core's entries, units of 2^-11 DN, validated by the core.
+    /// `tables[adc][code]`: the core's entries, LUT units: 2^-11 DN up to 12-bit codes, `dncal_core::frac_bits`, validated by the core.
     pub tables: Vec<Vec<u32>>,
     /// The per-code weights (code widths, 2^-24 DN) the tables were built from, where the
     /// file carries them (a LUT FITS with `WEIGHTS`, the K-Cor tables); a device image
@@ -79,7 +79,7 @@ impl Lut {
     /// The LUT FITS contents.
     pub fn fits_tables(&self) -> LutTables {
         let weights = self.weights.as_ref().map(|w| w.iter().map(|w| w.iter().map(|x| x.to_bits()).collect()).collect());
-        LutTables { frac_bits: dncal_core::FRAC_BITS, tables: self.tables.clone(), weights, kcor_bits: self.kcor_bits }
+        LutTables { frac_bits: crate::formats::fits::lut_frac_bits(self.bit_depth()), tables: self.tables.clone(), weights, kcor_bits: self.kcor_bits }
     }
 
     /// Bits per code.
@@ -195,7 +195,7 @@ pub fn write(files: &mut Outputs, lut: &Lut, format: LutFormat, paths: &[PathBuf
     }
 }
 
-/// The core's LUT entries (units of 2^-11 DN) and device image for per-ADC `weights`;
+/// The core's LUT entries (LUT units: 2^-11 DN up to 12-bit codes, `dncal_core::frac_bits`) and device image for per-ADC `weights`;
 /// `source` names the input in errors.
 pub fn tables_from_weights(weights: &[Vec<Weight>], source: &Origin) -> Result<(Vec<Vec<u32>>, Vec<u8>), HostError> {
     let codes = weights.first().map_or(0, Vec::len);
