@@ -387,7 +387,7 @@ fn lut_build_and_adc_are_refused_from_the_header_and_run_within_their_need() {
         let base = run(&[args, &["h4.fits", "-o", out, "--json"]].concat(), d);
         assert_eq!(base.code, Some(0), "{base:?}");
         let wide = run(&[args, &["h256.fits", "-o", "wide"]].concat(), d);
-        assert_eq!((wide.code, wide.stderr.as_str()), (Some(1), "dncal: error: h256.fits: 256 ADCs of 4096 codes: the core is built for 1, 2, 4 or 8 ADCs of 8, 10, 12 or 14 bits (8 ADCs up to 12 bits)\n"));
+        assert_eq!((wide.code, wide.stderr.as_str()), (Some(1), "dncal: error: h256.fits: 256 ADCs of 4096 codes: the core is built for 1, 2, 4 or 8 ADCs of 8, 10, 12, 14 or 16 bits (8 ADCs up to 12 bits)\n"));
         // Its 8 MiB of counts were never read.
         assert!(wide.peak < base.peak + (4 << 20), "{args:?}: peak {:.1} MiB, the binary's own {:.1} MiB", wide.mib(), base.mib());
         let refused = run(&[&["--max-memory", "2M"], args, &["h8.fits", "-o", "small"]].concat(), d);

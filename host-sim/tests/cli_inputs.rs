@@ -202,7 +202,7 @@ fn sizes_over_the_memory_budget_are_refused_before_allocating() {
     plain.resize(plain.len().div_ceil(2880) * 2880, 0);
     std::fs::write(d.join("wide.fits"), &plain).unwrap();
     let out = dncal(&["--max-memory", "64M", "lut", "build", "wide.fits", "-o", "cal"], d);
-    assert_error(&out, "wide.fits: 4000 ADCs of 4096 codes: the core is built for 1, 2, 4 or 8 ADCs of 8, 10, 12 or 14 bits (8 ADCs up to 12 bits)");
+    assert_error(&out, "wide.fits: 4000 ADCs of 4096 codes: the core is built for 1, 2, 4 or 8 ADCs of 8, 10, 12, 14 or 16 bits (8 ADCs up to 12 bits)");
     let out = dncal(&["--max-memory", "64M", "diagnose", "wide.fits"], d);
     assert_error(&out, "wide.fits: diagnosing the histogram set of 4000 ADCs of 4096 codes (the counts as read 375.0 MiB + their analysis 1.6 GiB) needs about 2.0 GiB, more than the memory budget of 64.0 MiB (--max-memory)");
 

@@ -470,13 +470,13 @@ fn lut_reader_and_writer_reject_bad_tables() {
     image_file(&p, ImageType::Double, &[2, 4], &[0.5f64; 8], &k());
     assert_rejects(read_lut(&p), &p, "floating-point image");
     image_file(&p, ImageType::Long, &[2, 4], &[0; 8], &with(k(), "FRACBITS", Int(12)));
-    assert_rejects(read_lut(&p), &p, "FRACBITS = 12, dncal LUT entries have 11 fractional bits");
+    assert_rejects(read_lut(&p), &p, "FRACBITS = 12, dncal LUT entries of 2-bit codes have 11 fractional bits");
     image_file(&p, ImageType::Long, &[2, 8], &[0; 16], &k());
     assert_rejects(read_lut(&p), &p, "NAXIS1 = 8 codes, BITDEPTH = 2 needs 2^2 = 4");
 
     let w = dir.path().join("w.fits");
     let bad_frac = LutTables { frac_bits: 12, ..lut() };
-    assert_rejects(write_lut(&w, &bad_frac), &w, "12 fractional bits; dncal LUT entries have 11");
+    assert_rejects(write_lut(&w, &bad_frac), &w, "12 fractional bits; dncal LUT entries of 3-bit codes have 11");
     let odd = LutTables { frac_bits: 11, tables: vec![vec![0; 6]], weights: None, kcor_bits: None };
     assert_rejects(write_lut(&w, &odd), &w, "tables of 6 entries");
     let one_code = LutTables { frac_bits: 11, tables: vec![vec![0; 1]], weights: None, kcor_bits: None };
