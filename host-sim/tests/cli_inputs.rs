@@ -8,7 +8,7 @@ mod support;
 
 use std::process::Command;
 
-use support::{assert_error, dncal_prompt as dncal, flat_histograms, listing};
+use support::{assert_clean_failure, assert_error, dncal_prompt as dncal, flat_histograms, listing};
 
 /// A missing or unreadable input is named in the system's words, without Rust's
 /// "(os error 2)" (issue 44).
@@ -325,6 +325,17 @@ fn more_adcs_than_columns_are_refused_naming_both_numbers() {
     let line = "simulate linearity arguments: ROI 3x8 has 3 columns for the camera's 4 ADCs; a linearity set's column c is read by ADC c mod NADC, so it needs at least 4 columns";
     assert_error(&dncal(&["simulate", "linearity", "--roi", "3x8+0+0", "--levels", "3", "--frames", "2", "-o", "narrow.fits"], d), line);
     assert!(!d.join("narrow.fits").exists());
+    // A set records ADCMAP = 'COLMOD': from column 5 of a 4-ADC camera its column 0 would
+    // be ADC 1's, and every column credited to the wrong ADC.
+    let line = "simulate linearity arguments: ROI 16x8 at (5, 0) starts at column 5, which ADC 1 reads; a linearity set's column c is read by ADC c mod NADC, so the ROI must start at a multiple of the camera's 4 ADCs (4 or 8)";
+    assert_error(&dncal(&["simulate", "linearity", "--roi", "16x8+5+0", "--levels", "3", "--frames", "2", "-o", "shifted.fits"], d), line);
+    assert!(!d.join("shifted.fits").exists());
+    assert!(dncal(&["simulate", "linearity", "--roi", "16x8+4+0", "--levels", "3", "--frames", "2", "-o", "aligned.fits"], d).status.success());
+    // A camera whose ADCs outnumber its columns has ADCs that read no pixel.
+    std::fs::write(d.join("few.toml"), "width = 3\nheight = 8\nn_adc = 4\n").unwrap();
+    let out = dncal(&["simulate", "histograms", "--config", "few.toml", "-o", "few.fits"], d);
+    assert_clean_failure(&out, "few.toml", "n_adc = 4 ADCs on width = 3 columns");
+    assert!(!d.join("few.fits").exists());
 }
 
 /// Issue 56: `kind = "ideal"` took any other key and ignored it (serde reads an

@@ -145,6 +145,17 @@ fn check_roi(camera: &Camera, p: &LinearityParams) -> Result<(), HostError> {
             format!("ROI {w}x{h} has {w} columns for the camera's {} ADCs; a linearity set's column c is read by ADC c mod NADC, so it needs at least {} columns", camera.config.n_adc, camera.config.n_adc),
         ));
     }
+    // The set records ADCMAP = 'COLMOD' (its column c read by ADC c mod NADC), which
+    // holds only if its first column is the sensor's column of ADC 0: from x0 = 5 on a
+    // 4-ADC camera, every column would have been credited to the wrong ADC.
+    let n = camera.config.n_adc;
+    if x0 % n != 0 {
+        let below = x0 / n * n;
+        return Err(HostError::invalid(
+            crate::Subject::SimulateLinearityArguments,
+            format!("ROI {w}x{h} at ({x0}, {y0}) starts at column {x0}, which ADC {} reads; a linearity set's column c is read by ADC c mod NADC, so the ROI must start at a multiple of the camera's {n} ADCs ({below} or {})", x0 % n, below + n),
+        ));
+    }
     Ok(())
 }
 

@@ -584,7 +584,8 @@ pub(crate) enum SimulateCmd {
         /// Frames per level.
         #[arg(long, default_value_t = 256)]
         frames: u32,
-        /// ROI as WIDTHxHEIGHT+COLUMN+ROW (default: 128x128 at the sensor center).
+        /// ROI as WIDTHxHEIGHT+COLUMN+ROW (default: 128x128 at the sensor center); COLUMN a
+        /// multiple of the camera's ADCs, so that the set's column c is ADC c mod NADC's.
         #[arg(long)]
         roi: Option<RoiSpec>,
         /// Seed of the frames.

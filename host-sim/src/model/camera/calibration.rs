@@ -259,10 +259,14 @@ pub struct LinearityParams {
 
 impl LinearityParams {
     /// The paper's set: 41 levels to 1.02 x saturation, 256 frames, here on a region of
-    /// up to 128 x 128 pixels at the sensor center; 1e-5 V per photon; seed 41.
+    /// up to 128 x 128 pixels at the sensor center (its first column the nearest below
+    /// of ADC 0, so that the set's columns keep `ADCMAP = 'COLMOD'`); 1e-5 V per photon;
+    /// seed 41.
     pub fn paper(camera: &Camera) -> Self {
         let (w, h) = (camera.config.width.min(128), camera.config.height.min(128));
-        LinearityParams { levels: 41, frames: 256, roi: ((camera.config.width - w) / 2, (camera.config.height - h) / 2, w, h), overshoot: 1.02, volts_per_photon: 1e-5, seed: 41 }
+        let n = camera.config.n_adc.max(1);
+        let x0 = (camera.config.width - w) / 2 / n * n;
+        LinearityParams { levels: 41, frames: 256, roi: (x0, (camera.config.height - h) / 2, w, h), overshoot: 1.02, volts_per_photon: 1e-5, seed: 41 }
     }
 }
 

@@ -250,6 +250,11 @@ impl CameraConfig {
         if self.n_adc > 255 || self.width > 65_535 || self.height > 65_535 {
             return Err(ConfigError::Dimensions);
         }
+        // Column c is read by ADC c mod n_adc: with fewer columns some ADCs read nothing,
+        // and their histograms, LUTs and statistics would be of no pixel.
+        if self.n_adc > self.width {
+            return Err(ConfigError::AdcsAboveColumns { n_adc: self.n_adc, width: self.width });
+        }
         // Physical ranges, so that a typo cannot ask for memory no machine has (issue 18:
         // dark_e = 1e19 made kcor-model ask for 607 GB; a 65535 x 65535 sensor aborted).
         if self.width * self.height > MAX_PIXELS {
@@ -323,6 +328,8 @@ pub enum ConfigError {
     #[error("bad_pixel_fraction must be <= 1, got {fraction}")]
     BadPixelFraction { fraction: f64 },
     /// ADCs or a side beyond the 8- and 16-bit registers.
+    #[error("n_adc = {n_adc} ADCs on width = {width} columns: column c is read by ADC c mod n_adc, so every ADC needs a column (n_adc <= width)")]
+    AdcsAboveColumns { n_adc: usize, width: usize },
     #[error("at most 255 ADCs and 65535 x 65535 pixels")]
     Dimensions,
     /// A sensor larger than the model holds in memory.
