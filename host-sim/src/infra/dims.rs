@@ -52,13 +52,18 @@ macro_rules! dispatch_lut_dims {
     };
 }
 
-/// LUT units per DN of tables of `codes` codes: the core's scale for that depth
-/// ([`dncal_core::units_per_dn`]: 2^11 up to 12 bits, 2^(23 - bits) above). Every table
-/// the host holds has passed [`lut_set`] or was built for a supported depth, so the core
-/// has a scale for it; beyond 16 bits the 23-bit rule is continued rather than a panic.
+/// The fractional bits of the LUT entries of `bit_depth`-bit codes: the core's
+/// ([`dncal_core::frac_bits`]: 11 up to 12 bits, `23 - bits` above), and beyond the 16
+/// bits it reads the same 23-bit rule continued rather than a panic (files of such depths
+/// are refused for their depth, not their scale).
+pub fn lut_frac_bits(bit_depth: u32) -> u32 {
+    dncal_core::frac_bits(bit_depth).unwrap_or_else(|| dncal_core::LUT_ENTRY_BITS.saturating_sub(bit_depth))
+}
+
+/// LUT units per DN of tables of `codes` codes: 2^[`lut_frac_bits`] of their depth. Every
+/// table the host holds has passed [`lut_set`] or was built for a supported depth.
 pub fn units_per_dn(codes: usize) -> f64 {
-    let bits = codes.trailing_zeros();
-    dncal_core::units_per_dn(bits).unwrap_or_else(|| 2f64.powi(dncal_core::LUT_ENTRY_BITS as i32 - bits as i32))
+    (1u64 << lut_frac_bits(codes.trailing_zeros())) as f64
 }
 
 /// A value in LUT units of tables of `codes` codes (an entry or a sum of entries) in DN,

@@ -58,22 +58,15 @@ pub fn stage_lut(out: &mut Outputs, path: &Path, lut: &LutTables) -> Result<(), 
     })
 }
 
-/// The fractional bits of the LUT entries of `bit_depth`-bit codes: the core's
-/// ([`dncal_core::frac_bits`]), and beyond the 16 bits it reads the same 23-bit rule
-/// continued (such files are refused for their depth, not their scale).
-pub fn lut_frac_bits(bit_depth: u32) -> u32 {
-    dncal_core::frac_bits(bit_depth).unwrap_or_else(|| dncal_core::LUT_ENTRY_BITS.saturating_sub(bit_depth))
-}
-
 /// Reads LUTs. Accepts any integer image whose values fit in 32 unsigned bits; rejects a
 /// shape other than `NADC` x `2^BITDEPTH`, missing or invalid keys, and `FRACBITS` other
-/// than the core's for `BITDEPTH` ([`lut_frac_bits`]).
+/// than the core's for `BITDEPTH` ([`crate::infra::dims::lut_frac_bits`]).
 pub fn read_lut(path: &Path) -> Result<LutTables, HostError> {
     let mut r = FitsReader::open(path)?;
     r.expect_kind(FileKind::Lut)?;
     let (bit_depth, n_adc, codes) = r.adc_keys()?;
     let frac_bits = r.required_int(0, PRIMARY, "FRACBITS")?;
-    let expected = lut_frac_bits(bit_depth);
+    let expected = crate::infra::dims::lut_frac_bits(bit_depth);
     if frac_bits != i64::from(expected) {
         return Err(r.error(format!("FRACBITS = {frac_bits}, dncal LUT entries of {bit_depth}-bit codes have {expected} fractional bits")));
     }
@@ -114,11 +107,11 @@ pub(super) fn check_lut(lut: &LutTables) -> Result<u32, Fault> {
     if !codes.is_power_of_two() {
         return Err(Fault::TableLength(codes));
     }
-    let expected = lut_frac_bits(codes.trailing_zeros());
-    if lut.frac_bits != expected {
-        return Err(Fault::FracBits { got: lut.frac_bits, bits: codes.trailing_zeros(), expected });
-    }
     let bit_depth = codes.trailing_zeros();
+    let expected = crate::infra::dims::lut_frac_bits(bit_depth);
+    if lut.frac_bits != expected {
+        return Err(Fault::FracBits { got: lut.frac_bits, bits: bit_depth, expected });
+    }
     check_tables(bit_depth, &lut.tables, "entries")?;
     if let Some(w) = &lut.weights {
         if w.len() != lut.tables.len() {

@@ -79,7 +79,7 @@ impl Lut {
     /// The LUT FITS contents.
     pub fn fits_tables(&self) -> LutTables {
         let weights = self.weights.as_ref().map(|w| w.iter().map(|w| w.iter().map(|x| x.to_bits()).collect()).collect());
-        LutTables { frac_bits: crate::formats::fits::lut_frac_bits(self.bit_depth()), tables: self.tables.clone(), weights, kcor_bits: self.kcor_bits }
+        LutTables { frac_bits: crate::infra::dims::lut_frac_bits(self.bit_depth()), tables: self.tables.clone(), weights, kcor_bits: self.kcor_bits }
     }
 
     /// Bits per code.
