@@ -279,7 +279,7 @@ pub fn analysis_histograms(bytes: &[u8]) -> bool {
         return true;
     }
     use crate::formats::report::Report;
-    match crate::analyses::lut::run::build(&path, &dir.path().join("cal"), &Default::default()) {
+    match crate::analyses::lut::run::build(&path, &dir.path().join("cal"), &Default::default(), None) {
         Ok(s) => assert_finite_text("lut build", &s.text()),
         Err(e) => assert_one_line(&e),
     }

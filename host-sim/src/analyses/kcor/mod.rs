@@ -257,17 +257,22 @@ pub fn run_luts(camera: &Camera, adc: &AdcTransfer, luts: &[&[f64]], p: &KcorPar
     let calibrate = |o: f64, d: f64, f: f64| (o - d) / (f - d) * flat_state_bsun;
     let i_grid: Vec<f64> = (0..=n).map(|i| i as f64 * delta).collect();
     let q_grid: Vec<f64> = (0..=2 * n).map(|j| (j as f64 - n as f64) * delta_q).collect();
+    // The states that do not see Q (U's, half of them) depend on I alone: their readouts,
+    // the costly part, once per I rather than once per cell (the same state values, so
+    // the same numbers).
+    let i_only: Vec<Vec<Option<Vec<f64>>>> = i_grid.par_iter().map(|&iv| MODULATION.iter().map(|row| (row[1] == 0.0).then(|| readout(row[0] * iv).0)).collect()).collect();
     // Per grid point and per readout (raw, then the LUTs): (dQ, |dI|); NaN where |Q| > I.
     let cells: Vec<Vec<Vec<(f64, f64)>>> = q_grid
         .par_iter()
         .map(|&qv| {
             i_grid
                 .iter()
-                .map(|&iv| {
+                .zip(&i_only)
+                .map(|(&iv, cached)| {
                     if qv.abs() > iv * (1.0 + 1e-12) {
                         return vec![(f64::NAN, f64::NAN); m + 1];
                     }
-                    let o: Vec<Vec<f64>> = MODULATION.iter().map(|row| readout(row[0] * iv + row[1] * qv).0).collect();
+                    let o: Vec<Vec<f64>> = MODULATION.iter().zip(cached).map(|(row, c)| c.clone().unwrap_or_else(|| readout(row[0] * iv + row[1] * qv).0)).collect();
                     (0..=m)
                         .map(|r| {
                             let s = [0, 1, 2, 3].map(|k| calibrate(o[k][r], dark[r], flat[r]));

@@ -81,6 +81,113 @@ pub struct Realization {
     pub rms_reduction: f64,
 }
 
+/// One LUT's Fig. 5 figure beside what its counts allow (issue 57): the reduction of the
+/// largest |dQ| with this LUT, and the same with "limit" LUTs, the ADC's true widths
+/// with the counts' own relative noise per code (`p.lut_noise`, `1/sqrt(counts per
+/// code)`), median over several draws (one draw's reduction scatters by +-30%).
+#[derive(Debug, Clone, Serialize)]
+pub struct AgainstLimit {
+    /// Raw over LUT, max |dQ|.
+    pub reduction: f64,
+    /// The limit's reduction, median over the draws.
+    pub limit_reduction: f64,
+    /// Each draw's reduction (seeds `p.seed`, `p.seed + 1`, ...).
+    pub limit_draws: Vec<f64>,
+    /// Relative noise per code of the limit's widths.
+    pub lut_noise: f64,
+    /// `reduction / limit_reduction`: 1 is all the counts allow.
+    pub ratio_to_limit: f64,
+}
+
+/// [`AgainstLimit`] of `table` (core entries of ADC `p.adc` of `camera`, e.g. a LUT
+/// built from its ramps) with `draws` limit LUTs, in one pass of the model (the
+/// readouts' distributions are shared by all the LUTs).
+pub fn against_limit(camera: &Camera, p: &KcorParams, table: &[u32], draws: usize) -> Result<AgainstLimit, HostError> {
+    let adc = camera.adcs.get(p.adc).ok_or_else(|| HostError::Argument { flag: "--adc".into(), message: format!("ADC {} does not exist; the camera has {}", p.adc, camera.adcs.len()) })?;
+    if table.len() != adc.codes() || draws == 0 || !(p.lut_noise >= 0.0) {
+        return Err(HostError::argument("LUT against the limit", format!("{} entries for an ADC of {} codes, {draws} draws, noise {}", table.len(), adc.codes(), p.lut_noise)));
+    }
+    if !(crate::analyses::kcor::signal_room_e(camera, adc) >= camera.config.gain_e_per_dn) {
+        return Err(HostError::invalid(crate::Subject::CameraConfig, format!("the dark level leaves ADC {} no room for a signal: no Fig. 5 figure", p.adc)));
+    }
+    let to_dn = |t: &[u32]| -> Vec<f64> { t.iter().map(|&e| crate::infra::dims::units_to_dn(e.into(), t.len())).collect() };
+    let mut luts = vec![to_dn(table)];
+    for r in 0..draws as u64 {
+        let w = to_core_weights(&noisy_weights(adc, p.lut_noise, p.seed.wrapping_add(r))).map_err(|source| HostError::Weights { subject: crate::Subject::KcorLutWeights, source })?;
+        luts.push(to_dn(&tables_from_weights(&[w], &crate::Subject::KcorLutWeights.into())?.0.remove(0)));
+    }
+    let refs: Vec<&[f64]> = luts.iter().map(|l| l.as_slice()).collect();
+    let results = run_luts(camera, adc, &refs, p);
+    let limit_draws: Vec<f64> = results[1..].iter().map(|r| r.reduction).collect();
+    let limit_reduction = crate::infra::stats::median(limit_draws.clone());
+    let reduction = results[0].reduction;
+    Ok(AgainstLimit { reduction, limit_reduction, limit_draws, lut_noise: p.lut_noise, ratio_to_limit: reduction / limit_reduction })
+}
+
+/// ADC `adc`'s table of the LUT file `path` (any format), validated as the core loads
+/// it and refused unless it has `codes` entries.
+fn table_of(path: &Path, adc: usize, codes: usize) -> Result<Vec<u32>, HostError> {
+    let (_, lut) = crate::formats::lut::read(path)?;
+    crate::formats::lut::validate(&lut, path)?;
+    let table = lut.tables.into_iter().nth(adc).ok_or_else(|| HostError::lut(path, LutFault::NoTableForAdc { adc }))?;
+    if table.len() != codes {
+        return Err(HostError::lut(path, LutFault::CodesDiffer { codes: table.len(), camera_codes: codes }));
+    }
+    Ok(table)
+}
+
+/// `kcor-model --lut L --limit-from H`: the model's run with the LUT, and the LUT beside
+/// the limit of the counts of the histogram set `H` it was built from.
+#[derive(Debug, Serialize)]
+pub struct WithLimit {
+    /// The run with the LUT.
+    #[serde(flatten)]
+    pub summary: KcorSummary,
+    /// The histogram set whose counts set the limit's noise.
+    pub limit_from: PathBuf,
+    /// The LUT's reduction beside the limit's.
+    pub against_limit: AgainstLimit,
+}
+
+impl Report for WithLimit {
+    fn text(&self) -> String {
+        let a = &self.against_limit;
+        self.summary.text()
+            + &format!(
+                "the counts of {} allow {:.1}x (true widths with {:.3}% noise a code, 1/sqrt(counts), median of {} draws): this LUT reaches {:.2} of that limit\n",
+                self.limit_from.display(),
+                a.limit_reduction,
+                100.0 * a.lut_noise,
+                a.limit_draws.len(),
+                a.ratio_to_limit
+            )
+    }
+}
+
+/// Draws of the limit's LUT that `kcor-model --limit-from` takes the median of.
+pub const LIMIT_DRAWS: usize = 5;
+
+/// [`kcor_model`] with the LUT in `lut_file`, and [`against_limit`] with the noise of the
+/// counts of `hist` (the histogram set the LUT was built from: its ADC `p.adc`, mean
+/// counts over codes 150 to the one below the top), [`LIMIT_DRAWS`] draws.
+pub fn kcor_model_with_limit(camera: &Camera, p: &KcorParams, lut_file: &Path, hist: &Path, out: Option<OutDir<'_>>) -> Result<WithLimit, HostError> {
+    let adc = camera.adcs.get(p.adc).ok_or_else(|| HostError::Argument { flag: "--adc".into(), message: format!("ADC {} does not exist; the camera has {}", p.adc, camera.adcs.len()) })?;
+    let set = crate::formats::fits::read_histograms(hist)?;
+    let counts = set.counts.get(p.adc).ok_or_else(|| HostError::argument("--limit-from", format!("{} holds {} ADCs: no ADC {}", hist.display(), set.n_adc(), p.adc)))?;
+    if counts.len() != adc.codes() {
+        return Err(HostError::argument("--limit-from", format!("{} has {} codes per ADC, the camera's ADC {} has {}", hist.display(), counts.len(), p.adc, adc.codes())));
+    }
+    let codes = 150.min(counts.len() - 2)..counts.len() - 1;
+    let per_code = counts[codes.clone()].iter().map(|&c| c as f64).sum::<f64>() / codes.len() as f64;
+    if !(per_code >= 1.0) {
+        return Err(HostError::argument("--limit-from", format!("{}: {per_code:.3} counts a code in ADC {} over codes {}..{}: no limit to set", hist.display(), p.adc, codes.start, codes.end)));
+    }
+    let table = table_of(lut_file, p.adc, adc.codes())?;
+    let summary = kcor_model(camera, p, Some(lut_file), 1, out)?;
+    let against_limit = against_limit(camera, &KcorParams { lut_noise: 1.0 / per_code.sqrt(), ..p.clone() }, &table, LIMIT_DRAWS)?;
+    Ok(WithLimit { summary, limit_from: hist.into(), against_limit })
+}
+
 /// Creates `dir` and checks the two maps [`kcor_model`] writes there, before anything is
 /// computed.
 pub fn expect_figures(files: &mut crate::formats::outputs::Outputs, dir: &Path) -> Result<(), HostError> {
@@ -127,15 +234,7 @@ pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, real
         Ok(tables_from_weights(&[w], &crate::Subject::KcorLutWeights.into())?.0.remove(0))
     };
     let entries: Vec<u32> = match lut_file {
-        Some(path) => {
-            let (_, lut) = crate::formats::lut::read(path)?;
-            crate::formats::lut::validate(&lut, path)?;
-            let table = lut.tables.into_iter().nth(p.adc).ok_or_else(|| HostError::lut(path, LutFault::NoTableForAdc { adc: p.adc }))?;
-            if table.len() != adc.codes() {
-                return Err(HostError::lut(path, LutFault::CodesDiffer { codes: table.len(), camera_codes: adc.codes() }));
-            }
-            table
-        }
+        Some(path) => table_of(path, p.adc, adc.codes())?,
         None => noisy_table(p.seed)?,
     };
     let mut luts: Vec<Vec<f64>> = vec![entries.iter().map(|&e| crate::infra::dims::units_to_dn(e.into(), entries.len())).collect()];

@@ -36,6 +36,10 @@ pub struct BuildSummary {
     /// The IEEE 1241 histogram test of each ADC (smooth density, the flattening's
     /// parameters): DNL, INL, missing and worst codes, the resolution of the counts.
     pub linearity: Vec<crate::analyses::ieee1241::AdcLinearity>,
+    /// With `--truth CONFIG` (the camera the histograms were simulated with), each LUT
+    /// against its true ADC: code values and the paper's Fig. 5 beside the limit.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub truth: Vec<crate::analyses::adc::TruthComparison>,
 }
 
 impl Report for BuildSummary {
@@ -59,22 +63,45 @@ impl Report for BuildSummary {
                     );
                 }
             }
+            if let Some(c) = self.truth.get(a.adc) {
+                t += &c.text("  ");
+            }
         }
         t
     }
 }
 
 /// `lut build HIST -o OUT`.
-pub fn build(input: &Path, output: &Path, params: &FlattenParams) -> Result<BuildSummary, HostError> {
+///
+/// With `truth` (a camera config: the camera the histograms were simulated with, e.g.
+/// `[adc] widths_from = "kcor:..."`), each LUT is also compared with its true ADC and
+/// judged by the paper's Fig. 5 beside the limit its counts allow; a camera whose ADCs
+/// or bits differ from the set's is refused, naming both files, before anything is
+/// written.
+pub fn build(input: &Path, output: &Path, params: &FlattenParams, truth: Option<&Path>) -> Result<BuildSummary, HostError> {
     let out = LutOutputs::for_prefix(output)?;
     let mut files = out.expect()?;
+    let camera = match truth {
+        Some(path) => Some(crate::model::sets::camera_from(crate::model::camera::CameraConfig::from_toml_file(path)?, path.into())?),
+        None => None,
+    };
     let hist = read_histograms_for_analysis_planned(input, |shape| crate::analyses::lut::build::plan_luts(input, shape))?;
+    if let (Some(camera), Some(path)) = (&camera, truth) {
+        let (adcs, bits) = (camera.adcs.len(), camera.config.bits);
+        if adcs != hist.n_adc() || bits != hist.bit_depth {
+            return Err(HostError::argument(
+                "--truth",
+                format!("{} is a camera of {adcs} ADCs of {bits} bits, but {} holds {} ADCs of {} bits", path.display(), input.display(), hist.n_adc(), hist.bit_depth),
+            ));
+        }
+    }
     let built = build_luts(&hist, params, input)?;
     let linearity = crate::analyses::ieee1241::analyse_set(&hist, crate::analyses::ieee1241::Density::Smooth, params, input)?;
+    let truth = camera.map(|c| crate::analyses::adc::judge_against(&c, &hist, &built, params)).unwrap_or_default();
     lut::write(&mut files, &built.lut(), LutFormat::Fits, std::slice::from_ref(&out.fits), None, input)?;
     files.write_bytes(&out.image, &built.image)?;
     files.publish()?;
-    Ok(BuildSummary { input: input.into(), lut_fits: out.fits, device_image: out.image, adcs: built.summaries(), linearity })
+    Ok(BuildSummary { input: input.into(), lut_fits: out.fits, device_image: out.image, adcs: built.summaries(), linearity, truth })
 }
 
 /// What `lut import --kcor` read and wrote.

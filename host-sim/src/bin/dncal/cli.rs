@@ -168,6 +168,11 @@ pub(crate) struct FlattenArgs {
     /// shared, 21 paper).
     #[arg(long)]
     pub(crate) median_window: Option<usize>,
+    /// With the shared recipe: below this code the illumination's spline follows the
+    /// ADCs' per-code median histogram instead of their mean (default: the recipe's,
+    /// 300 shared; 0 for none). docs/kcor-luts.md says why.
+    #[arg(long)]
+    pub(crate) median_of_adcs_below: Option<usize>,
     /// Lowest codes set to 1.
     #[arg(long, default_value_t = FlattenParams::default().fixed_low_codes)]
     pub(crate) fixed_low_codes: usize,
@@ -183,6 +188,7 @@ impl FlattenArgs {
         FlattenParams {
             spline_points: self.spline_points.unwrap_or(base.spline_points),
             median_window: self.median_window.unwrap_or(base.median_window),
+            median_of_adcs_below: self.median_of_adcs_below.unwrap_or(base.median_of_adcs_below),
             fixed_low_codes: self.fixed_low_codes,
             set_last_to_one: !self.keep_last,
             ..base
@@ -349,6 +355,11 @@ pub(crate) enum Cmd {
         /// LUT to apply (any format: LUT FITS, device image, K-Cor table; default: the true widths with --lut-noise).
         #[arg(long)]
         lut: Option<PathBuf>,
+        /// With --lut: the histogram set the LUT was built from. Also runs the limit its
+        /// counts allow (the true widths with 1/sqrt(counts) noise a code, median of 5
+        /// draws) and says how much of it the LUT reaches.
+        #[arg(long, requires = "lut", value_name = "H.fits")]
+        limit_from: Option<PathBuf>,
         /// Largest |Q| of the grid as a fraction of the brightest I.
         #[arg(long, default_value_t = KcorParams::default().q_fraction)]
         q_fraction: f64,
@@ -611,6 +622,11 @@ pub(crate) enum LutCmd {
         out: PathBuf,
         #[command(flatten)]
         flatten: FlattenArgs,
+        /// The camera the histograms were simulated with (TOML, e.g. `[adc] widths_from =
+        /// "kcor:..."`): also compare each LUT with its true ADC and judge it by the
+        /// paper's Fig. 5 (|Q| <= 0.01 I_max) beside the limit its counts allow.
+        #[arg(long, value_name = "TOML")]
+        truth: Option<PathBuf>,
         /// Print a JSON summary on stdout.
         #[arg(long)]
         json: bool,

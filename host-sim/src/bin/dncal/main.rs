@@ -69,7 +69,7 @@ fn run(cli: Cli, outputs: &Hold) -> Result<ExitCode, HostError> {
             });
             print(json, &simulate::simulate_linearity(&cam, &LinearityParams { levels, frames, roi, seed, ..paper }, out)?)?;
         }
-        Cmd::Lut { what: LutCmd::Build { hist, out, flatten, json } } => print(json, &lut::build(&hist, &out, &flatten.params())?)?,
+        Cmd::Lut { what: LutCmd::Build { hist, out, flatten, truth, json } } => print(json, &lut::build(&hist, &out, &flatten.params(), truth.as_deref())?)?,
         Cmd::Lut { what: LutCmd::Import { kcor, out, json } } => print(json, &lut::import_kcor(&kcor, &out)?)?,
         Cmd::Lut { what: LutCmd::Export { lut: file, format: ExportFormat::Kcor, out, bits, json } } => print(json, &lut::export_kcor(&file, &out, bits)?)?,
         Cmd::Lut { what: LutCmd::Convert { lut: file, to, out, bits, json } } => print(json, &lut::convert(&file, to.into(), &out, bits)?)?,
@@ -87,13 +87,22 @@ fn run(cli: Cli, outputs: &Hold) -> Result<ExitCode, HostError> {
             let (cam, ramp) = (camera.camera()?, ramp.params()?);
             print(json, &staged_in(&out, |o| adc::run(&cam, hist.as_deref(), &ramp, &flatten.params(), density.density(), o))?.0)?;
         }
-        Cmd::KcorModel { camera, adc, exposure_ms, steps, lut_noise, lut, q_fraction, seed, realizations, out, json } => {
+        Cmd::KcorModel { camera, adc, exposure_ms, steps, lut_noise, lut, limit_from, q_fraction, seed, realizations, out, json } => {
             let cam = camera.camera()?;
             let p = dncal_host::analyses::kcor::KcorParams { adc, exposure_s: exposure_ms * 1e-3, steps, lut_noise, q_fraction, seed, ..Default::default() };
             let spin = progress::spinner(&format!("K-Coronagraph model: ADC {adc}, {steps} steps of the Stokes map, {realizations} realization(s)"));
-            let s = staged(out.as_deref(), |o| kcor::kcor_model(&cam, &p, lut.as_deref(), realizations, o));
-            spin.finish_and_clear();
-            print(json, &s?)?;
+            match (lut.as_deref(), limit_from.as_deref()) {
+                (Some(l), Some(h)) => {
+                    let s = staged(out.as_deref(), |o| kcor::kcor_model_with_limit(&cam, &p, l, h, o));
+                    spin.finish_and_clear();
+                    print(json, &s?)?;
+                }
+                _ => {
+                    let s = staged(out.as_deref(), |o| kcor::kcor_model(&cam, &p, lut.as_deref(), realizations, o));
+                    spin.finish_and_clear();
+                    print(json, &s?)?;
+                }
+            }
         }
         Cmd::Linearity { file, order, flat_level, held_out, out, json } => print(json, &staged(out.as_deref(), |o| linearity::linearity(&file, order, flat_level, &held_out, o))?)?,
         Cmd::Diagnose { files, flatten, seed, block_rows, spill, out, json } => match &diagnose::diagnose_files(&files, &diagnose::DiagnoseParams { flatten: flatten.params_or(Recipe::Paper), seed, block_rows: block_rows.map(|r| usize::try_from(r).unwrap_or(usize::MAX)), spill }, out.as_deref())?[..] {
