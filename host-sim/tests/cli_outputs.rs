@@ -507,7 +507,7 @@ fn every_command_refuses_an_output_it_cannot_write_before_any_work() {
         Case { command: "adc", args: vec!["adc", "-o", "a"], out: ("a", Out::Dir), computes: true, run_a_late_one: false },
         Case { command: "adc", args: vec!["adc", "--hist", "../in/h.fits", "-o", "a"], out: ("a", Out::Dir), computes: false, run_a_late_one: false },
         Case { command: "adc", args: vec!["adc", "--from-luts", "../in/kc", "-o", "a"], out: ("a", Out::Dir), computes: true, run_a_late_one: false },
-        Case { command: "kcor-model", args: vec!["kcor-model", "--steps", "50", "-o", "k"], out: ("k", Out::Dir), computes: true, run_a_late_one: false },
+        Case { command: "kcor-model", args: vec!["kcor-model", "--steps", "80", "-o", "k"], out: ("k", Out::Dir), computes: true, run_a_late_one: false },
         Case { command: "linearity", args: vec!["linearity", "../in/lin.fits", "--held-out", "2,3,4,5,6", "-o", "L"], out: ("L", Out::Dir), computes: true, run_a_late_one: false },
         Case { command: "diagnose", args: vec!["diagnose", "../in/h.fits", "../in/small.fits", "-o", "d"], out: ("d", Out::Dir), computes: true, run_a_late_one: true },
         Case { command: "emva", args: vec!["emva", "../in/emva/EMVA1288_Data.txt", "-o", "ds"], out: ("ds", Out::Dir), computes: true, run_a_late_one: false },

@@ -386,7 +386,7 @@ fn histograms_of_real_adcs_are_diagnosed_and_their_widths_recovered() {
 /// The default recipe's Fig. 5 reduction (|Q| <= 0.01 I_max, `kcor-model --lut` of
 /// `dncal adc`'s LUT) on the twelve real ADCs, measured with the median of the ADCs
 /// below code 300 (issue 57; the mean alone gave 1.3/1.3/2.9/4.5, 1.2/1.5/4.1/5.5 and
-/// 2.0/2.6/4.6/6.7; the paper's recipe 4.3-10.7).
+/// 2.0/2.6/4.6/6.7; the paper's recipe 2.8-10.7).
 const FIG5_SHARED: [(&str, [f64; 4]); 3] = [("08888", [3.4, 3.2, 8.6, 13.8]), ("11461", [3.0, 3.7, 12.0, 16.8]), ("13889", [4.4, 5.5, 7.9, 11.3])];
 
 /// The LUT recipes on the twelve real ADCs (docs/kcor-luts.md, "The recipe's error"):
@@ -397,7 +397,7 @@ const FIG5_SHARED: [(&str, [f64; 4]); 3] = [("08888", [3.4, 3.2, 8.6, 13.8]), ("
 /// `--recipe paper`, is worse than no LUT on camera 11461's ADC 0 (measured 0.141 against
 /// 0.076 raw). The paper's Fig. 5 figure of the default LUT is pinned to 10%
 /// ([`FIG5_SHARED`], a deterministic run) and set beside the limit (true widths with the
-/// counts' own noise, median of 5 draws): measured 0.26-0.43 of it, where the target of
+/// counts' own noise, median of 5 draws): measured 0.26-0.44 of it, where the target of
 /// issue 57 is 0.5.
 #[test]
 fn the_shared_recipe_beats_the_raw_codes_on_every_real_adc() {
@@ -422,8 +422,6 @@ fn the_shared_recipe_beats_the_raw_codes_on_every_real_adc() {
             eprintln!("{camera} ADC {adc}: raw {raw:.4} DN, shared {rms:.4} DN; Fig. 5 {reduction:.2}x, limit {limit:.2}x (noise {noise:.5}): {ratio:.2} of it");
             assert!(rms < 0.065 && rms < raw, "{camera} ADC {adc}: shared {rms} DN, raw {raw} DN");
             assert!((noise * counts.sqrt() - 1.0).abs() < 1e-9, "{camera} ADC {adc}: limit noise {noise} for {counts} counts a code");
-            assert_eq!(fig5["limit_draws"].as_array().unwrap().len(), 5);
-            assert!((ratio - reduction / limit).abs() < 1e-12);
             assert!((reduction / pinned[adc] - 1.0).abs() < 0.1, "{camera} ADC {adc}: Fig. 5 {reduction}x where {}x was measured", pinned[adc]);
             // Measured 0.26-0.44 of the limit (docs/kcor-luts.md).
             assert!((0.2..0.6).contains(&ratio), "{camera} ADC {adc}: {ratio} of the limit {limit}x");

@@ -18,7 +18,7 @@ use crate::analyses::flatten::{cumulative_offsets, FlattenParams};
 use crate::analyses::ieee1241::{analyse_set, AdcLinearity, Density};
 use crate::formats::plots::{line_plot, line_plot_paired, Series};
 use crate::formats::outputs::{OutDir, Outputs};
-use crate::analyses::kcor::run::{against_limit, AgainstLimit};
+use crate::analyses::kcor::run::{against_limit, counts_noise, AgainstLimit, LIMIT_DRAWS};
 use crate::analyses::kcor::KcorParams;
 use crate::HostError;
 
@@ -57,6 +57,10 @@ pub struct TruthComparison {
     /// (docs/kcor-luts.md: it ranked two recipes backwards).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fig5: Option<AgainstLimit>,
+    /// Why there is no `fig5` where it was asked for (the K-Cor model cannot run this
+    /// camera, or the counts are under one a code).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fig5_error: Option<String>,
 }
 
 impl TruthComparison {
@@ -77,13 +81,12 @@ impl TruthComparison {
                 f.ratio_to_limit
             );
         }
+        if let Some(e) = &self.fig5_error {
+            t += &format!("{indent}Fig. 5 not judged: {e}\n");
+        }
         t
     }
 }
-
-/// Draws of the limit LUT whose median [`fig5_against_limit`] reports: one draw's
-/// reduction scatters by about 30% (docs/kcor-luts.md).
-pub const FIG5_LIMIT_DRAWS: usize = 5;
 
 /// The largest |Q| of [`fig5_against_limit`], as a fraction of the brightest I: the
 /// paper's small-Q case, where a LUT matters most (docs/paper.md, Fig. 5).
@@ -93,16 +96,18 @@ pub const FIG5_Q_FRACTION: f64 = 0.01;
 /// |Q| <= 0.01 I_max, `kcor-model`'s defaults otherwise) of each ADC's table in `luts`,
 /// beside the limit: the camera's true widths with the relative noise of the counts the
 /// LUT was built from, `1/sqrt(mean counts per code)` over `codes`, median of
-/// [`FIG5_LIMIT_DRAWS`] draws.
-pub fn fig5_against_limit(camera: &Camera, hist: &AdcHistograms, luts: &BuiltLuts, codes: std::ops::Range<usize>) -> Result<Vec<AgainstLimit>, HostError> {
+/// [`LIMIT_DRAWS`] draws. Per ADC, an error where the model cannot run or the counts
+/// are under one a code.
+pub fn fig5_against_limit(camera: &Camera, hist: &AdcHistograms, luts: &BuiltLuts, codes: std::ops::Range<usize>) -> Vec<Result<AgainstLimit, HostError>> {
     luts.tables
         .iter()
         .zip(&hist.counts)
         .enumerate()
         .map(|(adc, (table, counts))| {
-            let per_code = counts[codes.clone()].iter().map(|&c| c as f64).sum::<f64>() / codes.len().max(1) as f64;
-            let p = KcorParams { adc, q_fraction: FIG5_Q_FRACTION, lut_noise: 1.0 / per_code.max(1.0).sqrt(), ..KcorParams::default() };
-            against_limit(camera, &p, table, FIG5_LIMIT_DRAWS)
+            let noise = counts_noise(counts, codes.clone())
+                .ok_or_else(|| HostError::argument("Fig. 5 limit", format!("ADC {adc}: under one count a code over codes {}..{}", codes.start, codes.end)))?;
+            let p = KcorParams { adc, q_fraction: FIG5_Q_FRACTION, lut_noise: noise, ..KcorParams::default() };
+            against_limit(camera, &p, table, LIMIT_DRAWS)
         })
         .collect()
 }
@@ -204,23 +209,30 @@ pub fn compare_to_truth(truth: &[AdcTransfer], luts: &BuiltLuts, codes: std::ops
         .map(|((adc, f), (raw, lut))| {
             let w = adc.normalized_widths();
             let werr: Vec<f64> = codes.clone().map(|k| f.weights[k] - w[k]).collect();
-            TruthComparison { width_err_rms_dn: rms(&werr), rms_raw_dn: rms(raw), max_raw_dn: max_abs(raw), rms_lut_dn: rms(lut), max_lut_dn: max_abs(lut), fig5: None }
+            TruthComparison { width_err_rms_dn: rms(&werr), rms_raw_dn: rms(raw), max_raw_dn: max_abs(raw), rms_lut_dn: rms(lut), max_lut_dn: max_abs(lut), fig5: None, fig5_error: None }
         })
         .collect()
 }
 
 /// The truth of `luts` from `camera` (the camera the histograms were simulated with):
-/// [`compare_to_truth`] and, where the K-Cor model runs, [`fig5_against_limit`] (its
-/// failure is said, not fatal: the LUTs stand without it).
+/// [`compare_to_truth`] with, per ADC, [`fig5_against_limit`] or why not (`fig5_error`:
+/// the LUTs stand without it).
 pub fn judge_against(camera: &Camera, hist: &AdcHistograms, luts: &BuiltLuts, flatten: &FlattenParams) -> Vec<TruthComparison> {
     let codes = calibrated_codes(1usize << hist.bit_depth, flatten);
     let mut comparisons = compare_to_truth(&camera.adcs, luts, codes.clone());
-    stage(&format!("judging the LUTs by the paper's Fig. 5 at |Q| <= {FIG5_Q_FRACTION} I_max, beside the limit"));
-    match fig5_against_limit(camera, hist, luts, codes) {
-        Ok(figures) => comparisons.iter_mut().zip(figures).for_each(|(c, f)| c.fig5 = Some(f)),
-        Err(e) => stage(&format!("Fig. 5 not judged: {e}")),
-    }
+    add_fig5(&mut comparisons, camera, hist, luts, codes);
     comparisons
+}
+
+/// Fills each comparison's `fig5` (or `fig5_error`).
+fn add_fig5(comparisons: &mut [TruthComparison], camera: &Camera, hist: &AdcHistograms, luts: &BuiltLuts, codes: std::ops::Range<usize>) {
+    stage(&format!("judging the LUTs by the paper's Fig. 5 at |Q| <= {FIG5_Q_FRACTION} I_max, beside the limit"));
+    for (c, f) in comparisons.iter_mut().zip(fig5_against_limit(camera, hist, luts, codes)) {
+        match f {
+            Ok(f) => c.fig5 = Some(f),
+            Err(e) => c.fig5_error = Some(e.to_string()),
+        }
+    }
 }
 
 /// Statistics and figures for `luts` built from the histograms `hist` at `source`, with
@@ -361,8 +373,11 @@ pub fn run(camera: &Camera, hist: Option<&Path>, ramp: &RampParams, flatten: &Fl
     files.write_bytes(&out_dir.join("lut.bin"), &luts.image)?;
     let mut report = characterize(&source, &histograms, density, &luts, flatten, truth, OutDir::new(files, out_dir))?;
     if truth.is_some() {
-        for (a, judged) in report.adcs.iter_mut().zip(judge_against(camera, &histograms, &luts, flatten)) {
-            a.truth = Some(judged);
+        // characterize compared the code values; Fig. 5 needs the camera.
+        let mut judged: Vec<TruthComparison> = report.adcs.iter().filter_map(|a| a.truth.clone()).collect();
+        add_fig5(&mut judged, camera, &histograms, &luts, calibrated_codes(1usize << histograms.bit_depth, flatten));
+        for (a, j) in report.adcs.iter_mut().zip(judged) {
+            a.truth = Some(j);
         }
     }
     Ok((report, luts))

@@ -41,7 +41,8 @@
 //! period). [`flatten_set`] with [`Illumination::Shared`] fits one density, a 20-point
 //! spline and no median, to the four ADCs' mean histogram: their DN errors are
 //! independent and average down there, the illumination is common. On the K-Cor ADCs:
-//! 0.031-0.059 DN rms. Its weakness: isolated large jumps at the same codes in every ADC
+//! 0.028-0.062 DN rms (below code 300 the spline follows the ADCs' per-code median:
+//! [`FlattenParams::median_of_adcs_below`]). Its weakness: isolated large jumps at the same codes in every ADC
 //! (the default synthetic ADC's major transitions) leak into the spline over a knot
 //! interval, where the paper's median ignores them (0.084-0.088 DN against the paper's
 //! 0.039-0.088 on the default camera).
@@ -117,7 +118,8 @@ pub struct FlattenParams {
     /// With a shared illumination of three or more ADCs: below this code the density's
     /// spline is fitted to the per-code **median** of the ADCs' scaled histograms instead
     /// of their mean, and scaled to meet the mean's spline at this code. 300 in the
-    /// shared recipe; 0 (or anything at or below the first fitted code) for none.
+    /// shared recipe; 0 (or anything at or below the first fitted code) for none; at or
+    /// beyond the last fitted code, the median's spline everywhere.
     ///
     /// Why: the ramps' first few levels leave a real ripple in the light there (about 1%
     /// over codes 145-200 on the paper's ramps), and at the same codes every real K-Cor
@@ -127,8 +129,8 @@ pub struct FlattenParams {
     /// codes 150 and 200: the largest local error of the LUT, which sets the paper's
     /// Fig. 5 figure. The median of four ignores one ADC's wide code. Measured on the
     /// twelve K-Cor ADCs (docs/kcor-luts.md, issue 57): Fig. 5 at |Q| <= 0.01 I_max
-    /// 0.26-0.43 of the limit where the mean alone gives 0.10-0.16, the code-centre rms
-    /// unchanged (28-63 mDN); the median everywhere raises that rms to 59-173 mDN (the
+    /// 0.26-0.44 of the limit where the mean alone gives 0.10-0.16, the code-centre rms
+    /// unchanged (28-62 mDN); the median everywhere raises that rms to 59-173 mDN (the
     /// median of four skewed widths drifts).
     pub median_of_adcs_below: usize,
 }
@@ -151,11 +153,12 @@ pub enum Recipe {
     /// The paper's: each ADC alone, a 50-point spline, a 21-code running median.
     Paper,
     /// dncal's default for LUTs: one illumination for all ADCs (their mean
-    /// histogram), a 20-point spline, no running median. On the twelve real K-Cor ADCs
-    /// it puts the LUT's code values within 0.031-0.059 DN rms of the true centres where
-    /// the paper's gives 0.035-0.140 (`docs/kcor-luts.md`, "The recipe's error"); not
-    /// the 0.03 DN issue 42 asks for, which a single ramp set cannot reach there (the
-    /// same page measures why).
+    /// histogram, their per-code median below code 300), a 20-point spline, no running
+    /// median. On the twelve real K-Cor ADCs it puts the LUT's code values within
+    /// 0.028-0.062 DN rms of the true centres where the paper's gives 0.035-0.140
+    /// (`docs/kcor-luts.md`, "The recipe's error"), and reduces the paper's Fig. 5 error
+    /// at |Q| <= 0.01 I_max 3.0-16.8x (the paper's recipe 2.8-10.7x; the limit the
+    /// counts allow 8.5-42x, "What Fig. 5 at small Q sees").
     Shared,
 }
 
@@ -192,7 +195,9 @@ impl FlattenParams {
         match self.illumination {
             Illumination::PerAdc => format!("each ADC alone with a {}-point spline and {median} (de Wijn 2018, section 4)", self.spline_points),
             Illumination::Shared => {
-                let below = if self.median_of_adcs_below > self.fixed_low_codes { format!(" (their per-code median below code {})", self.median_of_adcs_below) } else { String::new() };
+                // As flatten_set applies it (with three ADCs or more, and unless the fit
+                // starts above it; the trim may move the start).
+                let below = if self.median_of_adcs_below > self.fixed_low_codes { format!(" (with 3 ADCs or more, their per-code median below code {})", self.median_of_adcs_below) } else { String::new() };
                 format!(
                     "with one illumination for all ADCs, a {}-point spline through their mean histogram{below} and {median} (dncal's recipe, not the paper's: docs/kcor-luts.md; --recipe paper for the paper's)",
                     self.spline_points
@@ -413,8 +418,12 @@ pub fn flatten_set(hists: &[Vec<u64>], p: &FlattenParams) -> Result<Vec<Flattene
     let mut spline = positive_spline(&mean, p, fit.start).map_err(|e| (None, e))?;
     let join = p.median_of_adcs_below.saturating_sub(fit.start).min(fit.len() - 1);
     if join > 0 && hists.len() >= 3 {
-        let per_code_median: Vec<f64> = fit.clone().map(|k| median_of(hists.iter().zip(&scales).map(|(h, s)| h[k] as f64 * s).collect())).collect();
-        let low = positive_spline(&per_code_median, p, fit.start).map_err(|e| (None, e))?;
+        let per_code_median: Vec<f64> = fit.clone().map(|k| crate::infra::stats::median(hists.iter().zip(&scales).map(|(h, s)| h[k] as f64 * s))).collect();
+        let low = fit_uniform_cubic_spline(&per_code_median, p.spline_points).map_err(|e| (None, e))?;
+        // Only the codes up to the join are used: only they must be positive.
+        if let Some((i, &value)) = low[..=join].iter().enumerate().find(|(_, s)| s.is_nan() || **s <= 0.0) {
+            return Err((None, FlattenError::SplineNotPositive { code: fit.start + i, value }));
+        }
         let meet = spline[join] / low[join];
         for (s, l) in spline[..join].iter_mut().zip(&low) {
             *s = l * meet;
@@ -511,12 +520,6 @@ fn running_median_over(y: &[f64], spline: &[f64], p: &FlattenParams, first: usiz
     Ok(median)
 }
 
-/// The median of a few values (the mean of the middle two for an even count), as numpy's.
-fn median_of(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 { v[n / 2] } else { (v[n / 2 - 1] + v[n / 2]) / 2.0 }
-}
 
 /// Steps 2 to 5 for one ADC: its counts over the fitted codes divided by the density
 /// `spline * median`, the fixed codes set to 1, the scale that zeroes the top offset.
@@ -1186,9 +1189,13 @@ mod tests {
             assert!(spread < 1e-12, "ADC {a}: the widths above the join differ by more than a scale ({spread})");
         }
         assert!(worst_with < 0.4 * worst_without, "median below 300: {worst_with} DN, mean only {worst_without} DN");
-        // The joined spline meets the mean's at the join.
-        let join = 300 - with[0].fit_codes.start;
-        let s = &with[0].spline[with[0].fit_codes.clone()];
-        assert!(((s[join - 1] - s[join]) / s[join]).abs() < 1e-3, "a step at the join: {} -> {}", s[join - 1], s[join]);
+        // From the join up the density is the mean's spline itself (scaled to the ADC's
+        // counts alike in both), below it the median's: they differ by the join code.
+        for a in 0..4 {
+            let (sw, so) = (&with[a].spline, &without[a].spline);
+            let r: Vec<f64> = (298..303).map(|k| sw[k] / so[k]).collect();
+            assert!(r[2..].iter().all(|x| (x / r[2] - 1.0).abs() < 1e-12), "ADC {a}: not the mean's spline from code 300: {r:?}");
+            assert!((r[1] / r[2] - 1.0).abs() > 1e-9, "ADC {a}: code 299 is the mean's spline too: {r:?}");
+        }
     }
 }

@@ -103,18 +103,13 @@ pub struct AgainstLimit {
 /// built from its ramps) with `draws` limit LUTs, in one pass of the model (the
 /// readouts' distributions are shared by all the LUTs).
 pub fn against_limit(camera: &Camera, p: &KcorParams, table: &[u32], draws: usize) -> Result<AgainstLimit, HostError> {
-    let adc = camera.adcs.get(p.adc).ok_or_else(|| HostError::Argument { flag: "--adc".into(), message: format!("ADC {} does not exist; the camera has {}", p.adc, camera.adcs.len()) })?;
-    if table.len() != adc.codes() || draws == 0 || !(p.lut_noise >= 0.0) {
-        return Err(HostError::argument("LUT against the limit", format!("{} entries for an ADC of {} codes, {draws} draws, noise {}", table.len(), adc.codes(), p.lut_noise)));
+    let adc = checked_adc(camera, p)?;
+    if table.len() != adc.codes() || draws == 0 {
+        return Err(HostError::argument("LUT against the limit", format!("{} entries for an ADC of {} codes, {draws} draws", table.len(), adc.codes())));
     }
-    if !(crate::analyses::kcor::signal_room_e(camera, adc) >= camera.config.gain_e_per_dn) {
-        return Err(HostError::invalid(crate::Subject::CameraConfig, format!("the dark level leaves ADC {} no room for a signal: no Fig. 5 figure", p.adc)));
-    }
-    let to_dn = |t: &[u32]| -> Vec<f64> { t.iter().map(|&e| crate::infra::dims::units_to_dn(e.into(), t.len())).collect() };
-    let mut luts = vec![to_dn(table)];
+    let mut luts = vec![table_dn(table)];
     for r in 0..draws as u64 {
-        let w = to_core_weights(&noisy_weights(adc, p.lut_noise, p.seed.wrapping_add(r))).map_err(|source| HostError::Weights { subject: crate::Subject::KcorLutWeights, source })?;
-        luts.push(to_dn(&tables_from_weights(&[w], &crate::Subject::KcorLutWeights.into())?.0.remove(0)));
+        luts.push(table_dn(&noisy_table(adc, p.lut_noise, p.seed.wrapping_add(r))?));
     }
     let refs: Vec<&[f64]> = luts.iter().map(|l| l.as_slice()).collect();
     let results = run_luts(camera, adc, &refs, p);
@@ -164,43 +159,41 @@ impl Report for WithLimit {
     }
 }
 
-/// Draws of the limit's LUT that `kcor-model --limit-from` takes the median of.
+/// Draws of the limit's LUT whose median [`AgainstLimit`] reports (`adc`, `lut build
+/// --truth`, `kcor-model --limit-from`): one draw's reduction scatters by about 30%.
 pub const LIMIT_DRAWS: usize = 5;
 
+/// The relative noise per code of widths measured from `counts` over `codes`:
+/// `1/sqrt(mean counts per code)`, or `None` below one count a code (no limit to set).
+pub fn counts_noise(counts: &[u64], codes: std::ops::Range<usize>) -> Option<f64> {
+    let per_code = counts.get(codes.clone())?.iter().map(|&c| c as f64).sum::<f64>() / codes.len().max(1) as f64;
+    (per_code >= 1.0).then(|| 1.0 / per_code.sqrt())
+}
+
 /// [`kcor_model`] with the LUT in `lut_file`, and [`against_limit`] with the noise of the
-/// counts of `hist` (the histogram set the LUT was built from: its ADC `p.adc`, mean
-/// counts over codes 150 to the one below the top), [`LIMIT_DRAWS`] draws.
+/// counts of `hist` (the histogram set the LUT was built from: its ADC `p.adc` over the
+/// codes a default `lut build` calibrates, as `adc` takes them), [`LIMIT_DRAWS`] draws.
+/// The LUT runs through the model twice (once for the figures, once beside the limit's
+/// draws).
 pub fn kcor_model_with_limit(camera: &Camera, p: &KcorParams, lut_file: &Path, hist: &Path, out: Option<OutDir<'_>>) -> Result<WithLimit, HostError> {
-    let adc = camera.adcs.get(p.adc).ok_or_else(|| HostError::Argument { flag: "--adc".into(), message: format!("ADC {} does not exist; the camera has {}", p.adc, camera.adcs.len()) })?;
+    let adc = checked_adc(camera, p)?;
+    let codes = crate::analyses::adc::calibrated_codes(adc.codes(), &crate::analyses::flatten::FlattenParams::default());
     let set = crate::formats::fits::read_histograms(hist)?;
     let counts = set.counts.get(p.adc).ok_or_else(|| HostError::argument("--limit-from", format!("{} holds {} ADCs: no ADC {}", hist.display(), set.n_adc(), p.adc)))?;
     if counts.len() != adc.codes() {
         return Err(HostError::argument("--limit-from", format!("{} has {} codes per ADC, the camera's ADC {} has {}", hist.display(), counts.len(), p.adc, adc.codes())));
     }
-    let codes = 150.min(counts.len() - 2)..counts.len() - 1;
-    let per_code = counts[codes.clone()].iter().map(|&c| c as f64).sum::<f64>() / codes.len() as f64;
-    if !(per_code >= 1.0) {
-        return Err(HostError::argument("--limit-from", format!("{}: {per_code:.3} counts a code in ADC {} over codes {}..{}: no limit to set", hist.display(), p.adc, codes.start, codes.end)));
-    }
+    let noise = counts_noise(counts, codes.clone())
+        .ok_or_else(|| HostError::argument("--limit-from", format!("{}: under one count a code in ADC {} over codes {}..{}: no limit to set", hist.display(), p.adc, codes.start, codes.end)))?;
     let table = table_of(lut_file, p.adc, adc.codes())?;
     let summary = kcor_model(camera, p, Some(lut_file), 1, out)?;
-    let against_limit = against_limit(camera, &KcorParams { lut_noise: 1.0 / per_code.sqrt(), ..p.clone() }, &table, LIMIT_DRAWS)?;
+    let against_limit = against_limit(camera, &KcorParams { lut_noise: noise, ..p.clone() }, &table, LIMIT_DRAWS)?;
     Ok(WithLimit { summary, limit_from: hist.into(), against_limit })
 }
 
-/// Creates `dir` and checks the two maps [`kcor_model`] writes there, before anything is
-/// computed.
-pub fn expect_figures(files: &mut crate::formats::outputs::Outputs, dir: &Path) -> Result<(), HostError> {
-    files.create_dir(dir)?;
-    files.expect(["kcor_raw.png", "kcor_lut.png"].map(|n| dir.join(n)))
-}
-
-/// Runs the model on ADC `p.adc` of `camera` and, with `out`, stages `kcor_raw.png` and
-/// `kcor_lut.png` in its directory (published by the caller). The LUT is the table of that ADC in `lut_file` (a
-/// LUT FITS or device image, e.g. from `dncal adc` on measured histograms) or, without
-/// it, the paper's: the ADC's true widths with `p.lut_noise` relative noise per code, in
-/// `realizations` draws (seeds `p.seed`, `p.seed + 1`, ...; the figures show the first).
-pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, realizations: usize, mut out: Option<OutDir<'_>>) -> Result<KcorSummary, HostError> {
+/// ADC `p.adc` of `camera`, once `p` is a grid the model can run and the camera leaves
+/// that ADC room for a signal above dark.
+fn checked_adc<'a>(camera: &'a Camera, p: &KcorParams) -> Result<&'a crate::model::camera::AdcTransfer, HostError> {
     let adc = camera.adcs.get(p.adc).ok_or_else(|| HostError::Argument { flag: "--adc".into(), message: format!("ADC {} does not exist; the camera has {}", p.adc, camera.adcs.len()) })?;
     if !(p.exposure_s > 0.0 && p.exposure_s.is_finite() && p.fill > 0.0 && p.fill <= 1.0 && p.lut_noise >= 0.0 && p.flat_fraction > 0.0 && p.flat_fraction <= 1.0 && p.q_fraction > 0.0 && p.q_fraction <= 1.0) {
         return Err(HostError::argument("--exposure-ms / --q-fraction / --lut-noise", "need exposure > 0, 0 < fill <= 1, 0 < flat fraction <= 1, 0 < q fraction <= 1 and LUT noise >= 0"));
@@ -223,23 +216,48 @@ pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, real
             ),
         ));
     }
+    Ok(adc)
+}
+
+/// The paper's LUT of `adc`: its true widths with `noise` relative noise per code (seed
+/// `seed`), through the core's rounding.
+fn noisy_table(adc: &crate::model::camera::AdcTransfer, noise: f64, seed: u64) -> Result<Vec<u32>, HostError> {
+    let w = to_core_weights(&noisy_weights(adc, noise, seed)).map_err(|source| HostError::Weights { subject: crate::Subject::KcorLutWeights, source })?;
+    Ok(tables_from_weights(&[w], &crate::Subject::KcorLutWeights.into())?.0.remove(0))
+}
+
+/// A table's entries in DN.
+fn table_dn(table: &[u32]) -> Vec<f64> {
+    table.iter().map(|&e| crate::infra::dims::units_to_dn(e.into(), table.len())).collect()
+}
+
+/// Creates `dir` and checks the two maps [`kcor_model`] writes there, before anything is
+/// computed.
+pub fn expect_figures(files: &mut crate::formats::outputs::Outputs, dir: &Path) -> Result<(), HostError> {
+    files.create_dir(dir)?;
+    files.expect(["kcor_raw.png", "kcor_lut.png"].map(|n| dir.join(n)))
+}
+
+/// Runs the model on ADC `p.adc` of `camera` and, with `out`, stages `kcor_raw.png` and
+/// `kcor_lut.png` in its directory (published by the caller). The LUT is the table of that ADC in `lut_file` (a
+/// LUT FITS or device image, e.g. from `dncal adc` on measured histograms) or, without
+/// it, the paper's: the ADC's true widths with `p.lut_noise` relative noise per code, in
+/// `realizations` draws (seeds `p.seed`, `p.seed + 1`, ...; the figures show the first).
+pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, realizations: usize, mut out: Option<OutDir<'_>>) -> Result<KcorSummary, HostError> {
+    let adc = checked_adc(camera, p)?;
     if realizations == 0 || (realizations > 1 && lut_file.is_some()) {
         return Err(HostError::Argument { flag: "--realizations".into(), message: "need at least 1, and more than 1 only for the noisy LUT (not with --lut)".into() });
     }
     if let Some(o) = out.as_mut() {
         expect_figures(o.files, o.dir)?;
     }
-    let noisy_table = |seed: u64| -> Result<Vec<u32>, HostError> {
-        let w = to_core_weights(&noisy_weights(adc, p.lut_noise, seed)).map_err(|source| HostError::Weights { subject: crate::Subject::KcorLutWeights, source })?;
-        Ok(tables_from_weights(&[w], &crate::Subject::KcorLutWeights.into())?.0.remove(0))
-    };
     let entries: Vec<u32> = match lut_file {
         Some(path) => table_of(path, p.adc, adc.codes())?,
-        None => noisy_table(p.seed)?,
+        None => noisy_table(adc, p.lut_noise, p.seed)?,
     };
-    let mut luts: Vec<Vec<f64>> = vec![entries.iter().map(|&e| crate::infra::dims::units_to_dn(e.into(), entries.len())).collect()];
+    let mut luts: Vec<Vec<f64>> = vec![table_dn(&entries)];
     for r in 1..realizations as u64 {
-        luts.push(noisy_table(p.seed.wrapping_add(r))?.iter().map(|&e| crate::infra::dims::units_to_dn(e.into(), entries.len())).collect());
+        luts.push(table_dn(&noisy_table(adc, p.lut_noise, p.seed.wrapping_add(r))?));
     }
     let lut_refs: Vec<&[f64]> = luts.iter().map(|l| l.as_slice()).collect();
     let mut results = run_luts(camera, adc, &lut_refs, p);

@@ -357,7 +357,8 @@ pub(crate) enum Cmd {
         lut: Option<PathBuf>,
         /// With --lut: the histogram set the LUT was built from. Also runs the limit its
         /// counts allow (the true widths with 1/sqrt(counts) noise a code, median of 5
-        /// draws) and says how much of it the LUT reaches.
+        /// draws) and says how much of it the LUT reaches, at this run's --q-fraction
+        /// (0.01 for the figure `adc` and `lut build --truth` print).
         #[arg(long, requires = "lut", value_name = "H.fits")]
         limit_from: Option<PathBuf>,
         /// Largest |Q| of the grid as a fraction of the brightest I.

@@ -90,6 +90,9 @@ fn run(cli: Cli, outputs: &Hold) -> Result<ExitCode, HostError> {
         Cmd::KcorModel { camera, adc, exposure_ms, steps, lut_noise, lut, limit_from, q_fraction, seed, realizations, out, json } => {
             let cam = camera.camera()?;
             let p = dncal_host::analyses::kcor::KcorParams { adc, exposure_s: exposure_ms * 1e-3, steps, lut_noise, q_fraction, seed, ..Default::default() };
+            if limit_from.is_some() && realizations > 1 {
+                return Err(HostError::argument("--realizations", "more than 1 only for the noisy LUT (not with --lut or --limit-from)"));
+            }
             let spin = progress::spinner(&format!("K-Coronagraph model: ADC {adc}, {steps} steps of the Stokes map, {realizations} realization(s)"));
             match (lut.as_deref(), limit_from.as_deref()) {
                 (Some(l), Some(h)) => {
