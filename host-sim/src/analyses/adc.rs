@@ -201,11 +201,15 @@ pub fn correction_errors(truth: &[AdcTransfer], tables: &[Vec<u32>], codes: std:
 /// Each ADC's LUT in `luts` against its true ADC in `truth` over `codes`: widths and
 /// code values (Fig. 5 is left to [`fig5_against_limit`], which needs the camera).
 pub fn compare_to_truth(truth: &[AdcTransfer], luts: &BuiltLuts, codes: std::ops::Range<usize>) -> Vec<TruthComparison> {
-    let errors = correction_errors(truth, &luts.tables, codes.clone());
+    comparisons_from(truth, luts, codes.clone(), &correction_errors(truth, &luts.tables, codes))
+}
+
+/// [`compare_to_truth`] with the code-value errors [`correction_errors`] already gave.
+fn comparisons_from(truth: &[AdcTransfer], luts: &BuiltLuts, codes: std::ops::Range<usize>, errors: &[(Vec<f64>, Vec<f64>)]) -> Vec<TruthComparison> {
     truth
         .iter()
         .zip(&luts.flattened)
-        .zip(&errors)
+        .zip(errors)
         .map(|((adc, f), (raw, lut))| {
             let w = adc.normalized_widths();
             let werr: Vec<f64> = codes.clone().map(|k| f.weights[k] - w[k]).collect();
@@ -220,14 +224,14 @@ pub fn compare_to_truth(truth: &[AdcTransfer], luts: &BuiltLuts, codes: std::ops
 pub fn judge_against(camera: &Camera, hist: &AdcHistograms, luts: &BuiltLuts, flatten: &FlattenParams) -> Vec<TruthComparison> {
     let codes = calibrated_codes(1usize << hist.bit_depth, flatten);
     let mut comparisons = compare_to_truth(&camera.adcs, luts, codes.clone());
-    add_fig5(&mut comparisons, camera, hist, luts, codes);
+    add_fig5(comparisons.iter_mut(), camera, hist, luts, codes);
     comparisons
 }
 
 /// Fills each comparison's `fig5` (or `fig5_error`).
-fn add_fig5(comparisons: &mut [TruthComparison], camera: &Camera, hist: &AdcHistograms, luts: &BuiltLuts, codes: std::ops::Range<usize>) {
+fn add_fig5<'a>(comparisons: impl Iterator<Item = &'a mut TruthComparison>, camera: &Camera, hist: &AdcHistograms, luts: &BuiltLuts, codes: std::ops::Range<usize>) {
     stage(&format!("judging the LUTs by the paper's Fig. 5 at |Q| <= {FIG5_Q_FRACTION} I_max, beside the limit"));
-    for (c, f) in comparisons.iter_mut().zip(fig5_against_limit(camera, hist, luts, codes)) {
+    for (c, f) in comparisons.zip(fig5_against_limit(camera, hist, luts, codes)) {
         match f {
             Ok(f) => c.fig5 = Some(f),
             Err(e) => c.fig5_error = Some(e.to_string()),
@@ -250,7 +254,7 @@ pub fn characterize(source: &Path, hist: &AdcHistograms, density: Density, luts:
     let range = calibrated_codes(codes, flatten);
     let at = |name: &str| out_dir.join(name);
     let errors = truth.map(|t| correction_errors(t, &luts.tables, range.clone()));
-    let mut comparisons = truth.map(|t| compare_to_truth(t, luts, range.clone())).map(Vec::into_iter);
+    let mut comparisons = truth.zip(errors.as_deref()).map(|(t, e)| comparisons_from(t, luts, range.clone(), e).into_iter());
     let mut adcs = Vec::new();
     for (a, (f, table)) in luts.flattened.iter().zip(&luts.tables).enumerate() {
         let offsets = cumulative_offsets(&f.weights);
@@ -374,11 +378,7 @@ pub fn run(camera: &Camera, hist: Option<&Path>, ramp: &RampParams, flatten: &Fl
     let mut report = characterize(&source, &histograms, density, &luts, flatten, truth, OutDir::new(files, out_dir))?;
     if truth.is_some() {
         // characterize compared the code values; Fig. 5 needs the camera.
-        let mut judged: Vec<TruthComparison> = report.adcs.iter().filter_map(|a| a.truth.clone()).collect();
-        add_fig5(&mut judged, camera, &histograms, &luts, calibrated_codes(1usize << histograms.bit_depth, flatten));
-        for (a, j) in report.adcs.iter_mut().zip(judged) {
-            a.truth = Some(j);
-        }
+        add_fig5(report.adcs.iter_mut().filter_map(|a| a.truth.as_mut()), camera, &histograms, &luts, calibrated_codes(1usize << histograms.bit_depth, flatten));
     }
     Ok((report, luts))
 }
