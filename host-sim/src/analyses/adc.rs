@@ -175,11 +175,6 @@ fn figure_list(figures: &[PathBuf]) -> String {
     figures.iter().map(|f| f.display().to_string()).collect::<Vec<_>>().join(", ")
 }
 
-/// The calibrated codes: from the fixed low codes to the one below the top.
-pub fn calibrated_codes(codes: usize, flatten: &FlattenParams) -> std::ops::Range<usize> {
-    flatten.fixed_low_codes.min(codes - 2)..codes - 1
-}
-
 /// Errors of the raw and the LUT code values against the true centers, detrended, over
 /// `codes`.
 pub fn correction_errors(truth: &[AdcTransfer], tables: &[Vec<u32>], codes: std::ops::Range<usize>) -> Vec<(Vec<f64>, Vec<f64>)> {
@@ -222,7 +217,7 @@ fn comparisons_from(truth: &[AdcTransfer], luts: &BuiltLuts, codes: std::ops::Ra
 /// [`compare_to_truth`] with, per ADC, [`fig5_against_limit`] or why not (`fig5_error`:
 /// the LUTs stand without it).
 pub fn judge_against(camera: &Camera, hist: &AdcHistograms, luts: &BuiltLuts, flatten: &FlattenParams) -> Vec<TruthComparison> {
-    let codes = calibrated_codes(1usize << hist.bit_depth, flatten);
+    let codes = flatten.calibrated_codes(1usize << hist.bit_depth);
     let mut comparisons = compare_to_truth(&camera.adcs, luts, codes.clone());
     add_fig5(comparisons.iter_mut(), camera, hist, luts, codes);
     comparisons
@@ -251,7 +246,7 @@ pub fn characterize(source: &Path, hist: &AdcHistograms, density: Density, luts:
     if codes < 4 {
         return Err(HostError::Format { path: source.into(), message: format!("{codes} codes are too few to characterize") });
     }
-    let range = calibrated_codes(codes, flatten);
+    let range = flatten.calibrated_codes(codes);
     let at = |name: &str| out_dir.join(name);
     let errors = truth.map(|t| correction_errors(t, &luts.tables, range.clone()));
     let mut comparisons = truth.zip(errors.as_deref()).map(|(t, e)| comparisons_from(t, luts, range.clone(), e).into_iter());
@@ -378,7 +373,7 @@ pub fn run(camera: &Camera, hist: Option<&Path>, ramp: &RampParams, flatten: &Fl
     let mut report = characterize(&source, &histograms, density, &luts, flatten, truth, OutDir::new(files, out_dir))?;
     if truth.is_some() {
         // characterize compared the code values; Fig. 5 needs the camera.
-        add_fig5(report.adcs.iter_mut().filter_map(|a| a.truth.as_mut()), camera, &histograms, &luts, calibrated_codes(1usize << histograms.bit_depth, flatten));
+        add_fig5(report.adcs.iter_mut().filter_map(|a| a.truth.as_mut()), camera, &histograms, &luts, flatten.calibrated_codes(1usize << histograms.bit_depth));
     }
     Ok((report, luts))
 }

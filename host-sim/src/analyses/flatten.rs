@@ -189,6 +189,12 @@ impl Default for FlattenParams {
 }
 
 impl FlattenParams {
+    /// The codes a LUT built with these parameters calibrates, of an ADC with `codes`
+    /// codes: from the fixed low codes to the one below the top (the top code is open).
+    pub fn calibrated_codes(&self, codes: usize) -> std::ops::Range<usize> {
+        self.fixed_low_codes.min(codes - 2)..codes - 1
+    }
+
     /// How the density is taken, in words for a report.
     pub fn describe(&self) -> String {
         let median = if self.median_window == 1 { "no running median".to_string() } else { format!("a {}-code running median", self.median_window) };

@@ -177,7 +177,7 @@ pub fn counts_noise(counts: &[u64], codes: std::ops::Range<usize>) -> Option<f64
 /// draws).
 pub fn kcor_model_with_limit(camera: &Camera, p: &KcorParams, lut_file: &Path, hist: &Path, out: Option<OutDir<'_>>) -> Result<WithLimit, HostError> {
     let adc = checked_adc(camera, p)?;
-    let codes = crate::analyses::adc::calibrated_codes(adc.codes(), &crate::analyses::flatten::FlattenParams::default());
+    let codes = crate::analyses::flatten::FlattenParams::default().calibrated_codes(adc.codes());
     let set = crate::formats::fits::read_histograms(hist)?;
     let counts = set.counts.get(p.adc).ok_or_else(|| HostError::argument("--limit-from", format!("{} holds {} ADCs: no ADC {}", hist.display(), set.n_adc(), p.adc)))?;
     if counts.len() != adc.codes() {
