@@ -43,7 +43,13 @@ fn demo_calibrates_streams_and_reports() {
     // ratio, and where it does not reproduce the paper, a cause with the same model's
     // ratios at less LUT noise (measured in the run).
     let claims = s["paper"].as_array().unwrap();
-    assert_eq!(claims.len(), 9 + usize::from(tables.is_some()), "{claims:?}");
+    assert_eq!(claims.len(), 10 + usize::from(tables.is_some()), "{claims:?}");
+    // Issue 57: Fig. 5 of the LUT the run built from its ramps, judged beside the limit its
+    // counts allow, as `adc` measured it on ADC 3.
+    let ramps = claims.iter().find(|c| c["paper"].as_str().unwrap().starts_with("a LUT built from the calibration ramps")).unwrap();
+    let f3 = &s["adc"]["adcs"][3]["truth"]["fig5"];
+    let want = format!("{:.1}x with this run's LUT from its ramps; the ramps' counts allow {:.1}x", f3["reduction"].as_f64().unwrap(), f3["limit_reduction"].as_f64().unwrap());
+    assert!(ramps["ours"].as_str().unwrap().contains(&want), "{ramps} against {f3}");
     let verdicts = ["agrees", "same-order", "does-not-reproduce"];
     assert!(claims.iter().all(|c| verdicts.contains(&c["verdict"].as_str().unwrap())), "{claims:?}");
     let fig5 = claims.iter().find(|c| c["section"] == "4, Fig. 5").unwrap();
@@ -56,7 +62,7 @@ fn demo_calibrates_streams_and_reports() {
     // On the real camera's ADC (docs/paper.md: 5.8x, 4.2-8.7 over 20 draws at 1 ms
     // frames, |Q| <= 0.01 I_max), named, with the verdict of its median.
     if tables.is_some() {
-        let real = claims.iter().filter(|c| c["section"] == "4, Fig. 5").nth(1).unwrap();
+        let real = claims.iter().find(|c| c["section"] == "4, Fig. 5" && c["ours"].as_str().unwrap().starts_with("real K-Cor")).unwrap();
         let ours = real["ours"].as_str().unwrap();
         assert!(ours.starts_with("real K-Cor camera 13889, ADC 3, |Q| <= 0.01 I_max, 1 ms frames: "), "{real}");
         let median: f64 = ours.split(": ").nth(1).unwrap().split('x').next().unwrap().parse().unwrap();
@@ -501,10 +507,10 @@ fn adc_characterizes_simulated_and_measured_histograms() {
         // Poisson noise of ~5e5 counts per code is 0.14%; the widths match to 0.5%.
         assert!(t["width_err_rms_dn"].as_f64().unwrap() < 0.005, "{a}");
         assert!(t["rms_lut_dn"].as_f64().unwrap() < t["rms_raw_dn"].as_f64().unwrap(), "{a}");
-        // The default ADCs have a DN error of a few percent (2.4-3.0% rms; the real K-Cor
-        // ADCs 2.2-4.7%, docs/kcor-luts.md).
+        // The default ADCs have the real K-Cor ADCs' DN error, 2.2-4.7% rms per code
+        // (docs/model.md); the histograms measure it through their own noise.
         let pct = a["width_rms_pct"].as_f64().unwrap();
-        assert!((1.0..5.0).contains(&pct), "{pct}");
+        assert!((2.0..5.0).contains(&pct), "{pct}");
     }
     for f in ["histograms.png", "histograms_zoom.png", "offsets.png", "correction_error.png", "histograms.fits", "lut.fits", "lut.bin"] {
         assert!(d.join("sim").join(f).exists(), "{f}");
@@ -535,9 +541,15 @@ fn kcor_model_reports_raw_and_lut_errors() {
     // 1 DN of error in one state is bsun_per_dn of Q; the DN error is a fraction of a DN.
     let per_dn = s["bsun_per_dn"].as_f64().unwrap();
     assert!(raw > 0.05 * per_dn && raw < 2.0 * per_dn, "{raw} vs {per_dn}");
-    // A perfect LUT (no histogram noise) leaves only the 2^-12 DN rounding of its entries.
-    let p = stdout_json(&dncal(&["kcor-model", "--steps", "20", "--lut-noise", "0", "--json"], d));
+    // A perfect LUT (no histogram noise) on the stage model's ADCs leaves only the 2^-12 DN
+    // rounding of its entries. On the nested pipeline's, whose narrow codes are 40% narrow,
+    // code centres also carry the bias of a code's mean within it (-f' w^3 / 12 per code
+    // under a signal density f, about 1e-3 DN): still 500x less than the raw error.
+    std::fs::write(d.join("stages.toml"), "[adc]\nmodel = \"stages\"\nseed = 13890\n").unwrap();
+    let p = stdout_json(&dncal(&["kcor-model", "--config", "stages.toml", "--steps", "20", "--lut-noise", "0", "--json"], d));
     assert!(p["max_abs_sys_err_bsun_lut"].as_f64().unwrap() < 4.0 * 2f64.powi(-12) * per_dn, "{p}");
+    let p = stdout_json(&dncal(&["kcor-model", "--steps", "20", "--lut-noise", "0", "--json"], d));
+    assert!(p["reduction"].as_f64().unwrap() > 500.0, "{p}");
     for f in ["kcor_raw.png", "kcor_lut.png"] {
         assert_eq!(&std::fs::read(d.join("k").join(f)).unwrap()[..4], b"\x89PNG");
     }
@@ -642,7 +654,7 @@ with fits.open('out/corrected.fits') as h:
 fn diagnose_names_dnl_in_simulated_histograms_and_nothing_in_ideal_ones() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    std::fs::write(d.join("ideal.toml"), "[adc]\nstage_bits = [3, 3, 3, 3]\nstage_error_lsb = [0.0, 0.0, 0.0, 0.0]\nseed = 1\n").unwrap();
+    std::fs::write(d.join("ideal.toml"), "[adc]\nmodel = \"stages\"\nstage_bits = [3, 3, 3, 3]\nstage_error_lsb = [0.0, 0.0, 0.0, 0.0]\nseed = 1\n").unwrap();
     // The paper's ramps (130..139 levels) for the clean set: fewer levels leave lumps in
     // the illumination that a careful diagnosis rightly reports.
     for (cfg, file) in [(None, "dnl.fits"), (Some("ideal.toml"), "ideal.fits")] {
@@ -815,7 +827,7 @@ fn diagnose_names_hidden_linearity_effects_blind() {
 fn diagnose_recovers_the_simulated_cameras_nonlinearity() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    std::fs::write(d.join("ideal.toml"), "[adc]\nstage_error_lsb = [0.0, 0.0, 0.0, 0.0]\n").unwrap();
+    std::fs::write(d.join("ideal.toml"), "[adc]\nmodel = \"stages\"\nstage_error_lsb = [0.0, 0.0, 0.0, 0.0]\n").unwrap();
     let out = dncal(&["simulate", "linearity", "--config", "ideal.toml", "--roi", "64x64+480+480", "-o", "lin.fits"], d);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let s = stdout_json(&dncal(&["diagnose", "lin.fits", "--json", "-o", "rep"], d));

@@ -493,7 +493,8 @@ fn every_command_refuses_an_output_it_cannot_write_before_any_work() {
     let root = tempfile::tempdir().unwrap();
     let inputs = root.path().join("in");
     std::fs::create_dir(&inputs).unwrap();
-    emva_set(&inputs.join("emva"), 768, 50, 24);
+    // (768 x 768 ran 0.5-0.7 s on an idle 2-core machine, under the case's 1 s floor.)
+    emva_set(&inputs.join("emva"), 1024, 50, 32);
     // A small linearity set for `diagnose` (its own case's set would take it minutes).
     succeed(&["simulate", "linearity", "--roi", "64x64+480+480", "--frames", "32", "-o", "small.fits"], &inputs);
     // In the order of their inputs: each case's outputs become the inputs of those after it.

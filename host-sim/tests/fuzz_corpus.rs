@@ -216,7 +216,7 @@ fn write_seeds(corpus: &Path) {
 
     let c = dir("camera_toml");
     std::fs::write(c.join("seed-default.toml"), toml::to_string(&CameraConfig::default()).unwrap()).unwrap();
-    std::fs::write(c.join("seed-small.toml"), "name = \"small\"\nwidth = 16\nheight = 8\nbits = 4\nn_adc = 2\n\n[adc]\nstage_bits = [2, 2]\nstage_error_lsb = [0.1, 0.05]\n").unwrap();
+    std::fs::write(c.join("seed-small.toml"), "name = \"small\"\nwidth = 16\nheight = 8\nbits = 4\nn_adc = 2\n\n[adc]\nmodel = \"stages\"\nstage_bits = [2, 2]\nstage_error_lsb = [0.1, 0.05]\n").unwrap();
     let widths = CameraConfig {
         width: 8,
         height: 4,
@@ -224,7 +224,7 @@ fn write_seeds(corpus: &Path) {
         n_adc: 2,
         nonlinearity: vec![],
         pixel_nonlinearity_rms: vec![],
-        adc: dncal_host::model::camera::AdcConfig { stage_bits: vec![1, 1], stage_error_lsb: vec![0.0, 0.0], seed: 1, widths: vec![vec![1.0, 0.9, 1.1, 1.0]; 2], widths_from: None, architecture: vec![] },
+        adc: dncal_host::model::camera::AdcConfig { stage_bits: vec![1, 1], stage_error_lsb: vec![0.0, 0.0], seed: 1, widths: vec![vec![1.0, 0.9, 1.1, 1.0]; 2], ..dncal_host::model::camera::AdcConfig::stages() },
         ..CameraConfig::default()
     };
     std::fs::write(c.join("seed-model-widths.toml"), toml::to_string(&widths).unwrap()).unwrap();

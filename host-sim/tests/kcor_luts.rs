@@ -572,3 +572,98 @@ sums.astype("<u8").tofile(out)
     let differing = sums.iter().zip(&theirs).filter(|(&a, &b)| a as u64 != b).count();
     assert_eq!(differing, 0, "{differing} of {} sums differ from numpy", sums.len());
 }
+
+/// Issue 57, item 4: the built-in camera's ADCs (the nested pipeline) have the real ADCs'
+/// statistics, not the tables' values. The twelve shared ADCs' statistics, as
+/// `adc --from-luts` reports them, are first checked against numpy's (an implementation
+/// of docs/model.md's definitions written apart from ours); then the median of the
+/// built-in camera's four ADCs is held within 25% of the twelve's median on each, each
+/// ADC inside the twelve's range, with the same period and ADCs as independent as the real
+/// ones. The stage model of before
+/// (jumps at the same binary boundaries in every ADC) fails the same check.
+#[test]
+fn the_built_in_adcs_have_the_real_adcs_statistics() {
+    use dncal_host::analyses::width_statistics::WidthStatistics;
+    use dncal_host::model::camera::{AdcConfig, Camera, CameraConfig};
+    let Some(dir) = luts_dir() else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let specs: Vec<String> = CAMERAS.iter().map(|c| dir.join(format!("Photonfocus_MV-D1024E_{c}_adc{{adc}}_20131203.bin")).to_string_lossy().into_owned()).collect();
+    let mut args = vec!["adc".to_string()];
+    for s in &specs {
+        args.extend(["--from-luts".to_string(), s.clone()]);
+    }
+    args.extend(["-o".to_string(), tmp.path().join("out").to_string_lossy().into_owned(), "--json".to_string()]);
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let report = json(dncal(&args), "adc --from-luts");
+    let script = r#"
+import json, sys, numpy as np
+out = []
+for spec in sys.argv[1:]:
+    for a in range(4):
+        e = np.fromfile(spec.replace("{adc}", str(a)), dtype="<u4").astype(float) * 4095 / (2**23 - 1)
+        x = np.arange(4096) / 4095; sel = np.arange(150, 4095)
+        tr = np.polyval(np.polyfit(x[sel], e[sel], 3), x)
+        r = (np.diff(e) / np.diff(tr) - 1)[150:4094]
+        r = r - r.mean(); k = np.arange(151, 4095); sd = r.std()
+        def explained(m):
+            means = np.array([r[k % m == q].mean() for q in range(m)])
+            return means[k % m].var() / r.var()
+        o = np.cumsum(r); i = np.arange(len(o))
+        o = o - np.polyval(np.polyfit(i, o, 1), i)
+        fold = np.array([o[k % 128 == q].mean() for q in range(128)])
+        out.append({"rms_pct": 100 * sd, "narrow_spacing_codes": len(r) / max(np.sum(r < -3 * sd), 1),
+                    "period_codes": next((2**j for j in range(1, 10) if explained(2**j) >= 0.5), None),
+                    "sawtooth_dn": np.ptp(fold), "offsets_p2p_dn": np.ptp(o), "share_256": explained(256)})
+print(json.dumps(out))
+"#;
+    let numpy = json(support::python().arg("-c").arg(script).args(&specs).output().unwrap(), "numpy oracle");
+    let adcs = report["adcs"].as_array().unwrap();
+    assert_eq!(adcs.len(), 12);
+    let mut real = Vec::new();
+    for (ours, theirs) in adcs.iter().zip(numpy.as_array().unwrap()) {
+        let s = &ours["statistics"];
+        assert_eq!(s["period_codes"], theirs["period_codes"], "{}", ours["camera"]);
+        for key in ["rms_pct", "narrow_spacing_codes", "sawtooth_dn", "offsets_p2p_dn", "share_256"] {
+            let (a, b) = (s[key].as_f64().unwrap(), theirs[key].as_f64().unwrap());
+            assert!((a - b).abs() <= 1e-9 * b.abs().max(1.0), "{} ADC {}: {key} {a} against numpy's {b}", ours["camera"], ours["adc"]);
+        }
+        let table = dncal_host::formats::lut::kcor::KcorTable::read(Path::new(&specs[real.len() / 4].replace("{adc}", &(real.len() % 4).to_string()))).unwrap();
+        real.push(WidthStatistics::of(&table.detrended().dn_error, 151));
+    }
+    let real_median = WidthStatistics::median(&real);
+    assert_eq!(serde_json::to_value(real_median).unwrap(), report["median_statistics"]);
+    // The real ADCs are independent: their mean correlation within a camera is 0.004.
+    assert!(report["mean_correlation_same_camera"].as_f64().unwrap().abs() < 0.05, "{report}");
+    let judge = |adc: AdcConfig| -> Result<(), String> {
+        let camera = Camera::new(CameraConfig { adc, ..CameraConfig::default() }).unwrap();
+        let stats: Vec<WidthStatistics> = camera.adcs.iter().map(|a| WidthStatistics::of_widths(&a.widths(), 151..=4094)).collect();
+        let model = WidthStatistics::median(&stats);
+        let mut wrong = Vec::new();
+        // Each ADC inside the real ADCs' range on each statistic but the period.
+        for (adc, s) in stats.iter().enumerate() {
+            for (i, (name, v)) in s.named().into_iter().enumerate().filter(|&(i, _)| i != 2) {
+                let (lo, hi) = real.iter().map(|r| r.named()[i].1).fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| (a.min(x), b.max(x)));
+                if !(lo..=hi).contains(&v) {
+                    wrong.push(format!("ADC {adc}: {name} {v:.3} outside the real {lo:.3}-{hi:.3}"));
+                }
+            }
+        }
+        if model.period_codes != real_median.period_codes {
+            wrong.push(format!("period {:?} against {:?}", model.period_codes, real_median.period_codes));
+        }
+        for ((name, m), (_, r)) in model.named().into_iter().zip(real_median.named()) {
+            if (m / r - 1.0).abs() > 0.25 {
+                wrong.push(format!("{name} {m:.3} against the real median {r:.3}"));
+            }
+        }
+        let r: Vec<Vec<f64>> = camera.adcs.iter().map(|a| a.widths()[151..=4094].to_vec()).collect();
+        let pairs: Vec<f64> = (0..4).flat_map(|i| (i + 1..4).map(move |j| (i, j))).map(|(i, j)| dncal_host::analyses::real_adcs::correlation(&r[i], &r[j])).collect();
+        let mean_corr = pairs.iter().sum::<f64>() / pairs.len() as f64;
+        if mean_corr.abs() > 0.1 {
+            wrong.push(format!("mean correlation between ADCs {mean_corr:.3}"));
+        }
+        if wrong.is_empty() { Ok(()) } else { Err(wrong.join("; ")) }
+    };
+    judge(AdcConfig::default()).unwrap_or_else(|e| panic!("the built-in camera's ADCs: {e}"));
+    assert!(judge(AdcConfig::stages()).is_err(), "the stage model passed: the check cannot tell ADCs apart");
+}

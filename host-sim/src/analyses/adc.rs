@@ -72,13 +72,15 @@ impl TruthComparison {
         );
         if let Some(f) = &self.fig5 {
             t += &format!(
-                "{indent}Fig. 5 (|Q| <= {} I_max): {:.1}x less error with this LUT; the counts allow {:.1}x (true widths with {:.3}% noise a code, median of {}): {:.2} of the limit\n",
+                "{indent}Fig. 5 (|Q| <= {} I_max): {:.1}x less error with this LUT; the counts allow {:.1}x (true widths with {:.3}% noise a code, median of {}): {:.2} of the limit; {:.1}x with codes below {} at one, as the LUT has them\n",
                 FIG5_Q_FRACTION,
                 f.reduction,
                 f.limit_reduction,
                 100.0 * f.lut_noise,
                 f.limit_draws.len(),
-                f.ratio_to_limit
+                f.ratio_to_limit,
+                f.limit_fixed_low_reduction,
+                f.fixed_low_codes
             );
         }
         if let Some(e) = &self.fig5_error {
@@ -107,7 +109,7 @@ pub fn fig5_against_limit(camera: &Camera, hist: &AdcHistograms, luts: &BuiltLut
             let noise = counts_noise(counts, codes.clone())
                 .ok_or_else(|| HostError::argument("Fig. 5 limit", format!("ADC {adc}: under one count a code over codes {}..{}", codes.start, codes.end)))?;
             let p = KcorParams { adc, q_fraction: FIG5_Q_FRACTION, lut_noise: noise, ..KcorParams::default() };
-            against_limit(camera, &p, table, LIMIT_DRAWS)
+            against_limit(camera, &p, table, LIMIT_DRAWS, codes.start)
         })
         .collect()
 }
@@ -454,6 +456,9 @@ pub struct RealAdcsReport {
     pub figures: Vec<PathBuf>,
     /// Camera models written, one per camera (`CAMERA-architecture.toml`).
     pub models: Vec<PathBuf>,
+    /// The median over the ADCs of each width statistic (what the built-in camera's
+    /// nested-pipeline ADCs are held to, docs/model.md).
+    pub median_statistics: crate::analyses::width_statistics::WidthStatistics,
 }
 
 impl Report for RealAdcsReport {
@@ -464,6 +469,14 @@ impl Report for RealAdcsReport {
             let period = a.period_codes.map_or("-".to_string(), |p| p.to_string());
             t += &format!("{:36} {:3}  {:6.2} %  {:8.3} DN  {:7.1} DN  {period:>6}  {}\n", a.camera, a.adc, a.dn_error_rms_pct, a.offset_max_dn, a.trend_bow_dn, fits.join(" "));
         }
+        t += "width statistics (docs/model.md)     ADC  rms/code  narrow every  sawtooth  offsets p2p  share at mod 256\n";
+        let line = |label: &str, adc: String, s: &crate::analyses::width_statistics::WidthStatistics| {
+            format!("{label:36} {adc:>3}  {:6.2} %  {:8.1} codes  {:5.3} DN  {:8.3} DN  {:8.2}\n", s.rms_pct, s.narrow_spacing_codes, s.sawtooth_dn, s.offsets_p2p_dn, s.share_256)
+        };
+        for a in &self.adcs {
+            t += &line(&a.camera, a.adc.to_string(), &a.statistics);
+        }
+        t += &line("median", "-".into(), &self.median_statistics);
         if let (Some(s), Some(o)) = (self.mean_correlation_same_camera, self.mean_correlation_other_cameras) {
             t += &format!("DN-error correlation: {s:.3} between ADCs of one camera, {o:.3} across cameras\n");
         }
@@ -549,7 +562,9 @@ pub fn from_luts(specs: &[String], out: OutDir<'_>) -> Result<RealAdcsReport, Ho
         let v: Vec<f64> = (0..n).flat_map(|i| (0..n).map(move |j| (i, j))).filter(|&(i, j)| i < j && (adcs[i].camera == adcs[j].camera) == same).map(|(i, j)| correlation_matrix[i][j]).collect();
         (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
     };
+    let statistics: Vec<_> = adcs.iter().map(|a| a.statistics).collect();
     let report = RealAdcsReport {
+        median_statistics: crate::analyses::width_statistics::WidthStatistics::median(&statistics),
         mean_correlation_same_camera: mean_of(true),
         mean_correlation_other_cameras: mean_of(false),
         correlation: correlation_matrix,

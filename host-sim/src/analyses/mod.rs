@@ -16,3 +16,4 @@ pub mod lut;
 pub mod paper_claims;
 pub mod quantization;
 pub mod real_adcs;
+pub mod width_statistics;

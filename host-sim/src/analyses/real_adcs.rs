@@ -24,6 +24,7 @@
 use serde::Serialize;
 
 use crate::formats::lut::kcor::{x, Detrended, KcorTable, FIRST_CALIBRATED, KCOR_CODES, LAST_CALIBRATED};
+use crate::analyses::width_statistics::{residue_explained, WidthStatistics};
 use crate::infra::stats::lstsq;
 
 /// The stage models tried: the layout, most significant stage first (12 bits each), and
@@ -98,6 +99,8 @@ pub struct RealAdc {
     pub period_codes: Option<usize>,
     /// Stage-model fits.
     pub stage_fits: Vec<StageFit>,
+    /// The statistics a model ADC is compared by ([`WidthStatistics`]).
+    pub statistics: WidthStatistics,
     /// The DN error by code, `r_k` for k in 151..=4094 (for plots and comparisons).
     #[serde(skip)]
     pub dn_error: Vec<f64>,
@@ -130,15 +133,7 @@ pub fn characterize(table: &KcorTable, camera: &str, adc: usize) -> RealAdc {
     let residues: Vec<Residue> = (1..=9)
         .map(|j| {
             let m = 1usize << j;
-            let codes: Vec<usize> = (FIRST_CALIBRATED + 1..=LAST_CALIBRATED).collect();
-            let means: Vec<f64> = (0..m)
-                .map(|q| {
-                    let v: Vec<f64> = codes.iter().zip(&dn_error).filter(|(k, _)| *k % m == q).map(|(_, r)| *r).collect();
-                    mean(&v)
-                })
-                .collect();
-            let fitted: Vec<f64> = codes.iter().map(|k| means[k % m]).collect();
-            Residue { modulus: m, explained: variance(&fitted) / var_r, chance: (m - 1) as f64 / (codes.len() - 1) as f64 }
+            Residue { modulus: m, explained: residue_explained(&dn_error, FIRST_CALIBRATED + 1, m), chance: (m - 1) as f64 / (dn_error.len() - 1) as f64 }
         })
         .collect();
     // A fixed random half of the codes for the held-out score (a 64-bit LCG, so the split
@@ -204,6 +199,7 @@ pub fn characterize(table: &KcorTable, camera: &str, adc: usize) -> RealAdc {
         period_codes: residues.iter().find(|r| r.explained >= 0.5).map(|r| r.modulus),
         residues,
         stage_fits,
+        statistics: WidthStatistics::of(&dn_error, FIRST_CALIBRATED + 1),
         dn_error,
         offsets,
     }
@@ -215,8 +211,7 @@ pub fn characterize(table: &KcorTable, camera: &str, adc: usize) -> RealAdc {
 pub fn architecture_model(camera: &str, adcs: &[RealAdc]) -> crate::model::camera::CameraConfig {
     let mut c = crate::model::camera::CameraConfig { bits: KCOR_CODES.trailing_zeros(), n_adc: adcs.len(), ..Default::default() };
     c.name = format!("{camera}: the stage models fitted to its K-Cor tables by dncal adc --from-luts");
-    c.adc.stage_bits = vec![c.bits];
-    c.adc.stage_error_lsb = vec![0.0];
+    c.adc = crate::model::camera::AdcConfig::ideal(c.bits);
     c.adc.architecture = adcs
         .iter()
         .map(|a| a.stage_fits.iter().filter(|f| f.held_out_explained.is_finite()).max_by(|x, y| x.held_out_explained.total_cmp(&y.held_out_explained)).map_or(crate::model::camera::Architecture::Ideal {}, |f| f.architecture.clone()))

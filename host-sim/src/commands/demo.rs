@@ -145,6 +145,11 @@ fn paper_claims(adc: &AdcReport, q: &SigmaReport, kcor: &KcorSummary, kcor_reduc
         level_noise: finite_range(&calibrated(&l.rms_random_level_only)),
         propagated_noise: finite_range(&calibrated(&l.rms_random)),
         kcor_real: real.map(|r| r.fig5),
+        // The K-Cor model's ADC (the paper's 4th).
+        fig5_ramps: {
+            let i = adc.adcs.len().min(4).saturating_sub(1);
+            adc.adcs.get(i).and_then(|a| a.truth.as_ref()?.fig5.clone()).map(|f| (i, f))
+        },
         // (The paper's statement "pixel-wise below 1e-3" read on the other bench's set.)
         pixelwise_max_perfect_bench: (other.illumination_change_rms == 0.0).then(|| other.paper_fig8.statements.iter().find(|s| s.paper.starts_with("pixel-wise: \"below 1e-3")).map_or(f64::NAN, |s| s.range().1)),
     })

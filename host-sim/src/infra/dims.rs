@@ -72,6 +72,20 @@ pub fn units_to_dn(units: u64, codes: usize) -> f64 {
     units as f64 / units_per_dn(codes)
 }
 
+/// Scales the inner codes of `w` (all but the first and last) to sum to their number:
+/// the normalization of LUT weights, with the open end codes left as they are.
+pub fn normalize_inner(w: &mut [f64]) {
+    let n = w.len();
+    if n < 3 {
+        return;
+    }
+    let inner: f64 = w[1..n - 1].iter().sum();
+    let scale = (n - 2) as f64 / inner;
+    for x in &mut w[1..n - 1] {
+        *x *= scale;
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::units_to_dn;

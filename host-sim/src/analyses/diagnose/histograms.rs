@@ -478,7 +478,7 @@ mod tests {
         for seed in 0..24u64 {
             let hidden = gen.random_range(0..4usize);
             let amp = gen.random_range(0.025..0.1);
-            let cfg = AdcConfig { stage_bits: vec![4, 3, 3], stage_error_lsb: vec![amp, amp / 2.0, amp / 4.0], seed: 1000 + seed, ..Default::default() };
+            let cfg = AdcConfig { stage_bits: vec![4, 3, 3], stage_error_lsb: vec![amp, amp / 2.0, amp / 4.0], seed: 1000 + seed, ..AdcConfig::stages() };
             let adcs: Vec<AdcTransfer> = (0..4).map(|i| if i == hidden { AdcTransfer::from_config(&cfg, 10, i).unwrap() } else { AdcTransfer::ideal(10) }).collect();
             let h = measure(&adcs, 20_000.0, seed);
             let d = diagnose_histograms(&h, &params(10), seed).unwrap();
@@ -572,7 +572,7 @@ mod tests {
         e[9] = 8.0;
         e[10] = 6.5;
         let sar = AdcTransfer::from_architecture(&Architecture::Sar { weight_error_lsb: e }, 12).unwrap();
-        let cfg = AdcConfig { stage_bits: vec![4, 4, 4], stage_error_lsb: vec![0.3, 0.15, 0.08], seed: 77, ..Default::default() };
+        let cfg = AdcConfig { stage_bits: vec![4, 4, 4], stage_error_lsb: vec![0.3, 0.15, 0.08], seed: 77, ..AdcConfig::stages() };
         let pipelined = AdcTransfer::from_config(&cfg, 12, 0).unwrap();
         for seed in 0..3u64 {
             let adcs = vec![AdcTransfer::ideal(12), sar.clone(), pipelined.clone(), AdcTransfer::ideal(12)];

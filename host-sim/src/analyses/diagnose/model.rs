@@ -19,8 +19,7 @@ pub fn extended_model(hist: &crate::formats::fits::AdcHistograms, d: &Diagnosis,
     let adopted = |adc: usize| d.adc_architecture.as_ref().and_then(|v| v.get(adc)).and_then(Option::as_ref).filter(|a| a.adopted);
     let mut c = crate::model::camera::CameraConfig { bits: hist.bit_depth, n_adc: hist.counts.len(), ..Default::default() };
     c.name = "model extended by dncal diagnose".into();
-    c.adc.stage_bits = vec![hist.bit_depth];
-    c.adc.stage_error_lsb = vec![0.0];
+    c.adc = crate::model::camera::AdcConfig::ideal(hist.bit_depth);
     if (0..hist.counts.len()).any(dnl) && (0..hist.counts.len()).all(|a| !dnl(a) || adopted(a).is_some()) {
         c.adc.architecture = (0..hist.counts.len())
             .map(|adc| match adopted(adc) {
@@ -110,8 +109,7 @@ pub fn linearity_model(set: &impl crate::formats::fits::LinearityKeys, d: &Diagn
     let (bit_depth, n_adc, [width, height, _]) = (set.bit_depth(), set.n_adc(), set.shape());
     let mut c = crate::model::camera::CameraConfig { bits: bit_depth, n_adc, width, height, ..Default::default() };
     c.name = "linearity set, model extended by dncal diagnose".into();
-    c.adc.stage_bits = vec![bit_depth];
-    c.adc.stage_error_lsb = vec![0.0];
+    c.adc = crate::model::camera::AdcConfig::ideal(bit_depth);
     // (A linearity set measures the bench's pattern change: none unless it was found.)
     c.bench.illumination_change_rms = 0.0;
     apply_measured(c, d)
@@ -139,8 +137,7 @@ pub fn ptc_model(set: &crate::analyses::emva::EmvaSet, sheet: &crate::analyses::
     c.name = "EMVA 1288 set, model extended by dncal diagnose".into();
     // (A photon-transfer set does not measure the linearity bench's pattern change.)
     c.bench.illumination_change_rms = 0.0;
-    c.adc.stage_bits = vec![set.bits];
-    c.adc.stage_error_lsb = vec![0.0];
+    c.adc = crate::model::camera::AdcConfig::ideal(set.bits);
     if d.findings.iter().any(|f| f.effect == Effect::AdcDnl) {
         if let Some(cd) = &d.code_density {
             c.adc.widths = vec![cd.widths.clone()];

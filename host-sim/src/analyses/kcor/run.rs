@@ -97,26 +97,38 @@ pub struct AgainstLimit {
     pub lut_noise: f64,
     /// `reduction / limit_reduction`: 1 is all the counts allow.
     pub ratio_to_limit: f64,
+    /// The codes below which the LUT's recipe leaves the widths at one (the paper's first
+    /// 150: the ramps' histograms there hold the dark pedestal, not a smooth light).
+    pub fixed_low_codes: usize,
+    /// The limit with those codes at one too, median over as many draws: what the counts
+    /// allow a recipe that does not calibrate them. Far below `limit_reduction` where the
+    /// ADC's DN error below `fixed_low_codes` is what the small-Q states read (their dark
+    /// level is there).
+    pub limit_fixed_low_reduction: f64,
 }
 
 /// [`AgainstLimit`] of `table` (core entries of ADC `p.adc` of `camera`, e.g. a LUT
-/// built from its ramps) with `draws` limit LUTs, in one pass of the model (the
+/// built from its ramps with its codes below `fixed_low_codes` left at one) with `draws`
+/// limit LUTs, and as many with those codes at one, in one pass of the model (the
 /// readouts' distributions are shared by all the LUTs).
-pub fn against_limit(camera: &Camera, p: &KcorParams, table: &[u32], draws: usize) -> Result<AgainstLimit, HostError> {
+pub fn against_limit(camera: &Camera, p: &KcorParams, table: &[u32], draws: usize, fixed_low_codes: usize) -> Result<AgainstLimit, HostError> {
     let adc = checked_adc(camera, p)?;
     if table.len() != adc.codes() || draws == 0 {
         return Err(HostError::argument("LUT against the limit", format!("{} entries for an ADC of {} codes, {draws} draws", table.len(), adc.codes())));
     }
     let mut luts = vec![table_dn(table)];
-    for r in 0..draws as u64 {
-        luts.push(table_dn(&noisy_table(adc, p.lut_noise, p.seed.wrapping_add(r))?));
+    for fixed in [0, fixed_low_codes] {
+        for r in 0..draws as u64 {
+            luts.push(table_dn(&noisy_table(adc, p.lut_noise, p.seed.wrapping_add(r), fixed)?));
+        }
     }
     let refs: Vec<&[f64]> = luts.iter().map(|l| l.as_slice()).collect();
     let results = run_luts(camera, adc, &refs, p);
-    let limit_draws: Vec<f64> = results[1..].iter().map(|r| r.reduction).collect();
+    let limit_draws: Vec<f64> = results[1..=draws].iter().map(|r| r.reduction).collect();
     let limit_reduction = crate::infra::stats::median(limit_draws.clone());
+    let limit_fixed_low_reduction = crate::infra::stats::median(results[draws + 1..].iter().map(|r| r.reduction));
     let reduction = results[0].reduction;
-    Ok(AgainstLimit { reduction, limit_reduction, limit_draws, lut_noise: p.lut_noise, ratio_to_limit: reduction / limit_reduction })
+    Ok(AgainstLimit { reduction, limit_reduction, limit_draws, lut_noise: p.lut_noise, ratio_to_limit: reduction / limit_reduction, fixed_low_codes, limit_fixed_low_reduction })
 }
 
 /// ADC `adc`'s table of the LUT file `path` (any format), validated as the core loads
@@ -131,7 +143,8 @@ fn table_of(path: &Path, adc: usize, codes: usize) -> Result<Vec<u32>, HostError
     Ok(table)
 }
 
-/// `kcor-model --lut L --limit-from H`: the model's run with the LUT, and the LUT beside
+/// `kcor-model --lut L --limit-from H`: the model's run with the LUT (taken as built with
+/// the default 150 fixed low codes: a LUT file does not say its recipe), and the LUT beside
 /// the limit of the counts of the histogram set `H` it was built from.
 #[derive(Debug, Serialize)]
 pub struct WithLimit {
@@ -187,7 +200,7 @@ pub fn kcor_model_with_limit(camera: &Camera, p: &KcorParams, lut_file: &Path, h
         .ok_or_else(|| HostError::argument("--limit-from", format!("{}: under one count a code in ADC {} over codes {}..{}: no limit to set", hist.display(), p.adc, codes.start, codes.end)))?;
     let table = table_of(lut_file, p.adc, adc.codes())?;
     let summary = kcor_model(camera, p, Some(lut_file), 1, out)?;
-    let against_limit = against_limit(camera, &KcorParams { lut_noise: noise, ..p.clone() }, &table, LIMIT_DRAWS)?;
+    let against_limit = against_limit(camera, &KcorParams { lut_noise: noise, ..p.clone() }, &table, LIMIT_DRAWS, codes.start)?;
     Ok(WithLimit { summary, limit_from: hist.into(), against_limit })
 }
 
@@ -220,9 +233,20 @@ fn checked_adc<'a>(camera: &'a Camera, p: &KcorParams) -> Result<&'a crate::mode
 }
 
 /// The paper's LUT of `adc`: its true widths with `noise` relative noise per code (seed
-/// `seed`), through the core's rounding.
-fn noisy_table(adc: &crate::model::camera::AdcTransfer, noise: f64, seed: u64) -> Result<Vec<u32>, HostError> {
-    let w = to_core_weights(&noisy_weights(adc, noise, seed)).map_err(|source| HostError::Weights { subject: crate::Subject::KcorLutWeights, source })?;
+/// `seed`), those below code `fixed_low` at one (then normalized as a recipe's are),
+/// through the core's rounding.
+fn noisy_table(adc: &crate::model::camera::AdcTransfer, noise: f64, seed: u64, fixed_low: usize) -> Result<Vec<u32>, HostError> {
+    let mut w = noisy_weights(adc, noise, seed);
+    let n = w.len();
+    if fixed_low > 0 && fixed_low < n - 1 {
+        // As the recipe leaves them (flatten.rs, step 5): the low codes and the top at
+        // exactly one, the others scaled so that all sum to the number of codes.
+        w.iter_mut().take(fixed_low).for_each(|x| *x = 1.0);
+        let fitted: f64 = w[fixed_low..n - 1].iter().sum();
+        let scale = (n - fixed_low - 1) as f64 / fitted;
+        w[fixed_low..n - 1].iter_mut().for_each(|x| *x *= scale);
+    }
+    let w = to_core_weights(&w).map_err(|source| HostError::Weights { subject: crate::Subject::KcorLutWeights, source })?;
     Ok(tables_from_weights(&[w], &crate::Subject::KcorLutWeights.into())?.0.remove(0))
 }
 
@@ -253,11 +277,11 @@ pub fn kcor_model(camera: &Camera, p: &KcorParams, lut_file: Option<&Path>, real
     }
     let entries: Vec<u32> = match lut_file {
         Some(path) => table_of(path, p.adc, adc.codes())?,
-        None => noisy_table(adc, p.lut_noise, p.seed)?,
+        None => noisy_table(adc, p.lut_noise, p.seed, 0)?,
     };
     let mut luts: Vec<Vec<f64>> = vec![table_dn(&entries)];
     for r in 1..realizations as u64 {
-        luts.push(table_dn(&noisy_table(adc, p.lut_noise, p.seed.wrapping_add(r))?));
+        luts.push(table_dn(&noisy_table(adc, p.lut_noise, p.seed.wrapping_add(r), 0)?));
     }
     let lut_refs: Vec<&[f64]> = luts.iter().map(|l| l.as_slice()).collect();
     let mut results = run_luts(camera, adc, &lut_refs, p);

@@ -31,10 +31,19 @@ pub struct AdcTransfer {
 }
 
 impl AdcTransfer {
+    /// The ADC number `index` of a camera, drawn from `config.model` with seed
+    /// `config.seed + index`.
+    pub fn from_model(config: &AdcConfig, bits: u32, index: usize) -> Result<Self, ConfigError> {
+        match config.model {
+            super::config::AdcModel::Stages => Self::from_config(config, bits, index),
+            super::config::AdcModel::Nested => Self::from_widths(&config.nested.widths(bits, adc_seed(config.seed, index))),
+        }
+    }
+
     /// The ADC number `index` of a camera: stage errors drawn from `config` with seed
     /// `config.seed + index`. Fails if a code would have zero or negative width.
     pub fn from_config(config: &AdcConfig, bits: u32, index: usize) -> Result<Self, ConfigError> {
-        let mut rng = StdRng::seed_from_u64(config.seed.wrapping_add(index as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+        let mut rng = StdRng::seed_from_u64(adc_seed(config.seed, index));
         let mut stage_errors = Vec::new();
         for (&b, &sigma) in config.stage_bits.iter().zip(&config.stage_error_lsb) {
             let normal = Normal::new(0.0, sigma).map_err(|_| ConfigError::StageErrors)?;
@@ -152,19 +161,13 @@ impl AdcTransfer {
     }
 }
 
-/// Scales the inner codes of `w` (all but the first and last) to sum to their number:
-/// the normalization of LUT weights, with the open end codes left as they are.
-pub fn normalize_inner(w: &mut [f64]) {
-    let n = w.len();
-    if n < 3 {
-        return;
-    }
-    let inner: f64 = w[1..n - 1].iter().sum();
-    let scale = (n - 2) as f64 / inner;
-    for x in &mut w[1..n - 1] {
-        *x *= scale;
-    }
+/// The seed of ADC `index` of a camera whose ADCs have seed `seed`.
+fn adc_seed(seed: u64, index: usize) -> u64 {
+    seed.wrapping_add(index as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
 }
+
+/// Re-exported from its home, where the model and the analyses both reach it.
+pub use crate::infra::dims::normalize_inner;
 
 #[cfg(test)]
 mod widths_tests {
@@ -200,7 +203,7 @@ mod tests {
 
     #[test]
     fn stage_errors_shift_levels_by_digit() {
-        let cfg = AdcConfig { stage_bits: vec![2, 2], stage_error_lsb: vec![0.1, 0.05], seed: 7, ..Default::default() };
+        let cfg = AdcConfig { stage_bits: vec![2, 2], stage_error_lsb: vec![0.1, 0.05], seed: 7, ..AdcConfig::stages() };
         let adc = AdcTransfer::from_config(&cfg, 4, 0).unwrap();
         // E(k) = e_hi[k / 4] + e_lo[k % 4] with e_hi[0] = e_lo[0] = 0, so every level
         // error is the sum of the errors of its high-digit-only and low-digit-only codes.
@@ -228,7 +231,7 @@ mod tests {
 
     #[test]
     fn too_large_errors_are_rejected() {
-        let cfg = AdcConfig { stage_bits: vec![2, 2], stage_error_lsb: vec![3.0, 3.0], seed: 1, ..Default::default() };
+        let cfg = AdcConfig { stage_bits: vec![2, 2], stage_error_lsb: vec![3.0, 3.0], seed: 1, ..AdcConfig::stages() };
         assert!(AdcTransfer::from_config(&cfg, 4, 0).is_err());
     }
 }

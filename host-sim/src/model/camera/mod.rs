@@ -22,12 +22,13 @@ pub mod architecture;
 pub mod calibration;
 pub mod config;
 pub mod exact;
+pub mod nested;
 pub mod pixels;
 pub mod sample;
 
 pub use adc::AdcTransfer;
 pub use architecture::Architecture;
-pub use config::{AdcConfig, CameraConfig, ConfigError};
+pub use config::{AdcConfig, AdcModel, CameraConfig, ConfigError};
 pub use pixels::{PixelMaps, PixelState};
 
 /// A camera: its configuration, one ADC per ADC index, and its pixel maps.
@@ -41,14 +42,14 @@ pub struct Camera {
 }
 
 impl Camera {
-    /// Builds the camera of `config` (validated): ADCs from the stage errors, pixel maps
-    /// from the seed.
+    /// Builds the camera of `config` (validated): ADCs from the fitted architectures, the
+    /// measured widths, or drawn from the ADC model; pixel maps from the seed.
     pub fn new(config: CameraConfig) -> Result<Self, ConfigError> {
         config.validate()?;
         let adcs = if !config.adc.architecture.is_empty() {
             config.adc.architecture.iter().map(|a| AdcTransfer::from_architecture(a, config.bits)).collect::<Result<Vec<_>, _>>()?
         } else if config.adc.widths.is_empty() {
-            (0..config.n_adc).map(|a| AdcTransfer::from_config(&config.adc, config.bits, a)).collect::<Result<Vec<_>, _>>()?
+            (0..config.n_adc).map(|a| AdcTransfer::from_model(&config.adc, config.bits, a)).collect::<Result<Vec<_>, _>>()?
         } else {
             config.adc.widths.iter().map(|w| AdcTransfer::from_widths(w)).collect::<Result<Vec<_>, _>>()?
         };
