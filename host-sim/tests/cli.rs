@@ -48,7 +48,7 @@ fn demo_calibrates_streams_and_reports() {
     // counts allow, as `adc` measured it on ADC 3.
     let ramps = claims.iter().find(|c| c["paper"].as_str().unwrap().starts_with("a LUT built from the calibration ramps")).unwrap();
     let f3 = &s["adc"]["adcs"][3]["truth"]["fig5"];
-    let want = format!("{:.1}x with this run's LUT from its ramps; the ramps' counts allow {:.1}x", f3["reduction"].as_f64().unwrap(), f3["limit_reduction"].as_f64().unwrap());
+    let want = format!("{:.1}x with this run's LUT from its ramps; the counts allow {:.1}x", f3["reduction"].as_f64().unwrap(), f3["limit_reduction"].as_f64().unwrap());
     assert!(ramps["ours"].as_str().unwrap().contains(&want), "{ramps} against {f3}");
     let verdicts = ["agrees", "same-order", "does-not-reproduce"];
     assert!(claims.iter().all(|c| verdicts.contains(&c["verdict"].as_str().unwrap())), "{claims:?}");

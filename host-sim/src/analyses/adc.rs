@@ -71,17 +71,7 @@ impl TruthComparison {
             self.width_err_rms_dn, self.rms_raw_dn, self.rms_lut_dn, self.max_raw_dn, self.max_lut_dn
         );
         if let Some(f) = &self.fig5 {
-            t += &format!(
-                "{indent}Fig. 5 (|Q| <= {} I_max): {:.1}x less error with this LUT; the counts allow {:.1}x (true widths with {:.3}% noise a code, median of {}): {:.2} of the limit; {:.1}x with codes below {} at one, as the LUT has them\n",
-                FIG5_Q_FRACTION,
-                f.reduction,
-                f.limit_reduction,
-                100.0 * f.lut_noise,
-                f.limit_draws.len(),
-                f.ratio_to_limit,
-                f.limit_fixed_low_reduction,
-                f.fixed_low_codes
-            );
+            t += &format!("{indent}Fig. 5 (|Q| <= {FIG5_Q_FRACTION} I_max): {:.1}x less error with this LUT; {}\n", f.reduction, f.limit_text());
         }
         if let Some(e) = &self.fig5_error {
             t += &format!("{indent}Fig. 5 not judged: {e}\n");

@@ -264,17 +264,7 @@ pub fn claims(m: &Measured) -> Vec<Claim> {
         rows.push(row(
             "4, Fig. 5",
             "a LUT built from the calibration ramps reduces the error by about an order of magnitude",
-            format!(
-                "ADC {adc}, |Q| <= {} I_max: {:.1}x with this run's LUT from its ramps; the ramps' counts allow {:.1}x ({:.2}% noise per code, median of {} draws): {:.2} of the limit; {:.1}x with codes below {} at one, as the LUT has them",
-                crate::analyses::adc::FIG5_Q_FRACTION,
-                f.reduction,
-                f.limit_reduction,
-                100.0 * f.lut_noise,
-                f.limit_draws.len(),
-                f.ratio_to_limit,
-                f.limit_fixed_low_reduction,
-                f.fixed_low_codes
-            ),
+            format!("ADC {adc}, |Q| <= {} I_max: {:.1}x with this run's LUT from its ramps; {}", crate::analyses::adc::FIG5_Q_FRACTION, f.reduction, f.limit_text()),
             if ok { Verdict::Agrees } else { Verdict::DoesNotReproduce },
             (!ok).then(|| {
                 if f.limit_reduction < 5.0 {
@@ -391,7 +381,7 @@ mod tests {
         assert!(claims(&paper_like()).iter().all(|r| !r.paper.starts_with("a LUT built from the calibration ramps")));
         let good = row(limit(11.3, 42.3));
         assert_eq!(good.verdict, Verdict::Agrees);
-        assert_eq!(good.ours, "ADC 3, |Q| <= 0.01 I_max: 11.3x with this run's LUT from its ramps; the ramps' counts allow 42.3x (0.14% noise per code, median of 5 draws): 0.27 of the limit; 38.1x with codes below 150 at one, as the LUT has them");
+        assert_eq!(good.ours, "ADC 3, |Q| <= 0.01 I_max: 11.3x with this run's LUT from its ramps; the counts allow 42.3x (true widths with 0.140% noise a code, median of 5): 0.27 of the limit; 38.1x with codes below 150 at one, as the LUT has them");
         let recipe = row(limit(4.7, 21.9));
         assert_eq!(recipe.verdict, Verdict::DoesNotReproduce);
         assert!(recipe.cause.as_deref().unwrap().starts_with("the recipe: it reaches 0.24 of the 19.7x the counts allow a recipe that leaves the codes below 150 at one"), "{recipe:?}");

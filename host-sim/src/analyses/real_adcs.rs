@@ -25,7 +25,7 @@ use serde::Serialize;
 
 use crate::formats::lut::kcor::{x, Detrended, KcorTable, FIRST_CALIBRATED, KCOR_CODES, LAST_CALIBRATED};
 use crate::analyses::width_statistics::{residue_explained, WidthStatistics};
-use crate::infra::stats::lstsq;
+use crate::infra::stats::{lstsq, mean, variance};
 
 /// The stage models tried: the layout, most significant stage first (12 bits each), and
 /// whether each sub-range of the first stage has its own **inter-stage gain** (a slope
@@ -107,15 +107,6 @@ pub struct RealAdc {
     /// The cumulative offsets `o_k`, k in 150..=4094.
     #[serde(skip)]
     pub offsets: Vec<f64>,
-}
-
-fn mean(v: &[f64]) -> f64 {
-    v.iter().sum::<f64>() / v.len() as f64
-}
-
-fn variance(v: &[f64]) -> f64 {
-    let m = mean(v);
-    v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / v.len() as f64
 }
 
 

@@ -21,7 +21,9 @@
 //! The independence of a camera's ADCs is the correlation of their `r`
 //! ([`crate::analyses::real_adcs::correlation`]).
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
+
+use crate::infra::stats::{mean, variance};
 
 /// The sawtooth's fold, codes: the real ADCs' usual period.
 pub const SAWTOOTH_FOLD: usize = 128;
@@ -31,7 +33,7 @@ pub const SHARE_MODULUS: usize = 256;
 pub const NARROW_SDS: f64 = 3.0;
 
 /// One ADC's width statistics (module documentation).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct WidthStatistics {
     /// RMS relative width error, %.
     pub rms_pct: f64,
@@ -59,15 +61,6 @@ pub fn residue_explained(r: &[f64], first_code: usize, m: usize) -> f64 {
     let means: Vec<f64> = sum.iter().zip(&count).map(|(s, &c)| if c == 0 { 0.0 } else { s / c as f64 }).collect();
     let fitted: Vec<f64> = (0..r.len()).map(|i| means[(first_code + i) % m]).collect();
     variance(&fitted) / variance(r)
-}
-
-fn mean(v: &[f64]) -> f64 {
-    v.iter().sum::<f64>() / v.len() as f64
-}
-
-fn variance(v: &[f64]) -> f64 {
-    let m = mean(v);
-    v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / v.len() as f64
 }
 
 impl WidthStatistics {

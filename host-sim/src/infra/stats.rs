@@ -46,6 +46,18 @@ pub fn robust(v: &[f64]) -> (f64, f64) {
     (centre, 1.4826 * upper_median(v.iter().map(|x| (x - centre).abs())))
 }
 
+/// Mean of `v`; NaN for an empty slice.
+pub fn mean(v: &[f64]) -> f64 {
+    v.iter().sum::<f64>() / v.len() as f64
+}
+
+/// Variance of `v` about its mean, divided by the count (numpy's `var`, ddof 0); NaN for
+/// an empty slice.
+pub fn variance(v: &[f64]) -> f64 {
+    let m = mean(v);
+    v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / v.len() as f64
+}
+
 /// Mean of the squares of `v`; 0 for an empty slice.
 pub fn mean_sq(v: &[f64]) -> f64 {
     v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64

@@ -107,6 +107,22 @@ pub struct AgainstLimit {
     pub limit_fixed_low_reduction: f64,
 }
 
+impl AgainstLimit {
+    /// The limit in words, for every report that shows one: "the counts allow Mx (...):
+    /// R of the limit; Kx with codes below N at one, as the LUT has them".
+    pub fn limit_text(&self) -> String {
+        format!(
+            "the counts allow {:.1}x (true widths with {:.3}% noise a code, median of {}): {:.2} of the limit; {:.1}x with codes below {} at one, as the LUT has them",
+            self.limit_reduction,
+            100.0 * self.lut_noise,
+            self.limit_draws.len(),
+            self.ratio_to_limit,
+            self.limit_fixed_low_reduction,
+            self.fixed_low_codes
+        )
+    }
+}
+
 /// [`AgainstLimit`] of `table` (core entries of ADC `p.adc` of `camera`, e.g. a LUT
 /// built from its ramps with its codes below `fixed_low_codes` left at one) with `draws`
 /// limit LUTs, and as many with those codes at one, in one pass of the model (the
