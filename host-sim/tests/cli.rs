@@ -43,7 +43,7 @@ fn demo_calibrates_streams_and_reports() {
     // ratio, and where it does not reproduce the paper, a cause with the same model's
     // ratios at less LUT noise (measured in the run).
     let claims = s["paper"].as_array().unwrap();
-    assert_eq!(claims.len(), 10 + usize::from(tables.is_some()), "{claims:?}");
+    assert_eq!(claims.len(), 10 + 2 * usize::from(tables.is_some()), "{claims:?}");
     // Issue 57: Fig. 5 of the LUT the run built from its ramps, judged beside the limit its
     // counts allow, as `adc` measured it on ADC 3.
     let ramps = claims.iter().find(|c| c["paper"].as_str().unwrap().starts_with("a LUT built from the calibration ramps")).unwrap();
@@ -68,6 +68,16 @@ fn demo_calibrates_streams_and_reports() {
         let median: f64 = ours.split(": ").nth(1).unwrap().split('x').next().unwrap().parse().unwrap();
         assert!((4.5..7.5).contains(&median), "{real}");
         assert_eq!(real["verdict"] == "agrees", median >= 5.0, "{real}");
+        // Issue 57: the run's ramps through the same camera's ADCs, its recipe's LUT on ADC
+        // 3 beside the limit (docs/kcor-luts.md: 11.3x against 42.3x, 0.27 of it, by
+        // `adc --config` with the tables as widths and `kcor-model --lut`).
+        let ramps = claims.iter().find(|c| c["paper"].as_str().unwrap().starts_with("on the paper's camera, a LUT built from the calibration ramps")).unwrap();
+        let ours = ramps["ours"].as_str().unwrap();
+        let number = |after: &str| -> f64 { ours.split(after).nth(1).unwrap().split('x').next().unwrap().parse().unwrap() };
+        let (reduction, limit) = (number("I_max: "), number("the counts allow "));
+        assert!(ours.contains("through real K-Cor camera 13889's ADCs"), "{ramps}");
+        assert!((8.0..15.0).contains(&reduction) && (25.0..60.0).contains(&limit), "{ramps}");
+        assert_eq!(ramps["verdict"] == "agrees", reduction >= 5.0, "{ramps}");
     }
     let page = std::fs::read_to_string(folder.join("report.html")).unwrap();
     assert!(page.find("The paper's claims, measured").unwrap() < page.find("Streaming through the core").unwrap(), "the claims table leads the report");

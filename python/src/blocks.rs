@@ -182,26 +182,34 @@ fn tally<'py>(py: Python<'py>, counter: &[u64], visit: impl FnOnce(&mut dyn FnMu
     })
 }
 
-/// A block's tally of its flat signal (the search's set 0) and fit residual (set 1).
+/// A block's tally of its flat signal by cell of the 2 x 2 period (the search's sets 0-3,
+/// `(row mod 2) * 2 + column mod 2` of the whole frame: the block starts at row `r0`,
+/// column `c0`) and fit residual (set 4).
 #[pyfunction]
-fn _lin_mask_tally<'py>(py: Python<'py>, counter: Vec<u64>, signal: &Bound<'py, PyAny>, resid: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
+fn _lin_mask_tally<'py>(py: Python<'py>, counter: Vec<u64>, signal: &Bound<'py, PyAny>, resid: &Bound<'py, PyAny>, r0: usize, c0: usize) -> PyResult<Bound<'py, PyAny>> {
     let s = arrays::view::<f64, Ix2>(signal, "signal", "(rows, cols)")?;
     let r = arrays::view::<f64, Ix2>(resid, "resid", "(rows, cols)")?;
+    let w = s.shape()[1].max(1);
     let (s, r) = (s.as_slice()?, r.as_slice()?);
     tally(py, &counter, |f| {
-        for (q, values) in [s, r].into_iter().enumerate() {
-            for &v in values {
-                f(2 * q, v);
-                f(2 * q + 1, v);
-            }
+        for (p, &v) in s.iter().enumerate() {
+            let q = ((r0 + p / w) % 2) * 2 + (c0 + p % w) % 2;
+            f(2 * q, v);
+            f(2 * q + 1, v);
+        }
+        for &v in r {
+            f(8, v);
+            f(9, v);
         }
     })
 }
 
-/// A block's mask reasons, uint8 (rows, cols), given the medians.
+/// A block's mask reasons, uint8 (rows, cols), given the medians (the signal's by cell of
+/// the frame's 2 x 2 period; the block starts at `origin`, row and column).
 #[pyfunction]
-#[pyo3(signature = (signal, resid, input, median_signal, median_resid))]
-fn _lin_mask<'py>(py: Python<'py>, signal: &Bound<'py, PyAny>, resid: &Bound<'py, PyAny>, input: Option<&Bound<'py, PyAny>>, median_signal: f64, median_resid: f64) -> PyResult<Bound<'py, PyArray2<u8>>> {
+#[pyo3(signature = (signal, resid, input, median_signal, median_resid, origin))]
+fn _lin_mask<'py>(py: Python<'py>, signal: &Bound<'py, PyAny>, resid: &Bound<'py, PyAny>, input: Option<&Bound<'py, PyAny>>, median_signal: [f64; 4], median_resid: f64, origin: (usize, usize)) -> PyResult<Bound<'py, PyArray2<u8>>> {
+    let (r0, c0) = origin;
     let s = arrays::view::<f64, Ix2>(signal, "signal", "(rows, cols)")?;
     let r = arrays::view::<f64, Ix2>(resid, "resid", "(rows, cols)")?;
     let k = input.map(|i| arrays::view::<u8, Ix2>(i, "mask", "(rows, cols)")).transpose()?;
@@ -211,7 +219,9 @@ fn _lin_mask<'py>(py: Python<'py>, signal: &Bound<'py, PyAny>, resid: &Bound<'py
         }
     }
     let shape = (s.shape()[0], s.shape()[1]);
-    let m = mask_of(s.as_slice()?, r.as_slice()?, k.as_ref().map(|k| k.as_slice()).transpose()?, MaskRule { signal: median_signal, resid: median_resid });
+    // The frame's cells as the block's own (it starts at row r0, column c0).
+    let signal = std::array::from_fn(|k| median_signal[((r0 + k / 2) % 2) * 2 + (c0 + k % 2) % 2]);
+    let m = mask_of(s.as_slice()?, r.as_slice()?, k.as_ref().map(|k| k.as_slice()).transpose()?, MaskRule { signal, width: shape.1, resid: median_resid });
     arrays::new(py, shape, m)
 }
 

@@ -56,6 +56,23 @@ def test_blocks_equal_the_in_memory_fit_on_threads(sets):
     run(sets, chunks=(40, 5))
 
 
+def test_a_colour_filters_channels_are_judged_alike_by_blocks(sets):
+    """Issue 58: each pixel's low-signal test is against the median of its cell of the
+    2 x 2 period (a Bayer red at 0.45 of the green median was masked, a quarter of the
+    sensor). Blocks of 13 x 17 start on odd rows and columns: their cells are the frame's."""
+    mean, std, voltage, frames, mask = planted(sets)
+    response = np.array([[1.23, 0.99], [0.55, 1.23]])
+    cell = np.tile(response, (mean.shape[1] // 2, mean.shape[2] // 2))
+    bayer = mean[0] + (mean - mean[0]) * cell
+    want = dncal.fit_linearity(bayer, std, voltage, frames, mask=mask)
+    plain = dncal.fit_linearity(mean, std, voltage, frames, mask=mask)
+    # The same pixels masked as without the filter (none of the red channel for it).
+    assert np.array_equal(want.mask != 0, plain.mask != 0)
+    c = (mean.shape[0], 13, 17)
+    got = dd.fit_linearity(da.from_array(bayer, chunks=c), da.from_array(std, chunks=c), voltage, frames, mask=mask)
+    same(got, want)
+
+
 def test_on_a_local_cluster_of_two_processes(sets):
     distributed = pytest.importorskip("distributed")
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, distributed.Client(cluster):

@@ -91,17 +91,17 @@ pub const FIG5_Q_FRACTION: f64 = 0.01;
 /// [`LIMIT_DRAWS`] draws. Per ADC, an error where the model cannot run or the counts
 /// are under one a code.
 pub fn fig5_against_limit(camera: &Camera, hist: &AdcHistograms, luts: &BuiltLuts, codes: std::ops::Range<usize>) -> Vec<Result<AgainstLimit, HostError>> {
-    luts.tables
-        .iter()
-        .zip(&hist.counts)
-        .enumerate()
-        .map(|(adc, (table, counts))| {
-            let noise = counts_noise(counts, codes.clone())
-                .ok_or_else(|| HostError::argument("Fig. 5 limit", format!("ADC {adc}: under one count a code over codes {}..{}", codes.start, codes.end)))?;
-            let p = KcorParams { adc, q_fraction: FIG5_Q_FRACTION, lut_noise: noise, ..KcorParams::default() };
-            against_limit(camera, &p, table, LIMIT_DRAWS, codes.start)
-        })
-        .collect()
+    (0..luts.tables.len()).map(|adc| fig5_of_adc(camera, hist, luts, adc, codes.clone())).collect()
+}
+
+/// [`fig5_against_limit`] of ADC `adc` alone.
+pub fn fig5_of_adc(camera: &Camera, hist: &AdcHistograms, luts: &BuiltLuts, adc: usize, codes: std::ops::Range<usize>) -> Result<AgainstLimit, HostError> {
+    let (Some(table), Some(counts)) = (luts.tables.get(adc), hist.counts.get(adc)) else {
+        return Err(HostError::argument("Fig. 5 limit", format!("ADC {adc}: the LUTs have {} ADCs", luts.tables.len())));
+    };
+    let noise = counts_noise(counts, codes.clone()).ok_or_else(|| HostError::argument("Fig. 5 limit", format!("ADC {adc}: under one count a code over codes {}..{}", codes.start, codes.end)))?;
+    let p = KcorParams { adc, q_fraction: FIG5_Q_FRACTION, lut_noise: noise, ..KcorParams::default() };
+    against_limit(camera, &p, table, LIMIT_DRAWS, codes.start)
 }
 
 /// What the DN error of one ADC looks like (the paper's Fig. 3), and against the truth.

@@ -90,10 +90,10 @@ pub struct Measured {
     /// Fig. 5 on a real camera's ADC (the K-Coronagraph's deployed tables), where the run
     /// had them.
     pub kcor_real: Option<RealFig5>,
-    /// Fig. 5 with the LUT this run built from its calibration ramps, beside the limit
-    /// the ramps' counts allow, at |Q| <= [`crate::analyses::adc::FIG5_Q_FRACTION`] I_max:
-    /// (ADC, the comparison), the paper's ADC (the 4th) where the run had it.
-    pub fig5_ramps: Option<(usize, crate::analyses::kcor::run::AgainstLimit)>,
+    /// Fig. 5 with a LUT built from this run's calibration ramps, beside the limit the
+    /// ramps' counts allow, at |Q| <= [`crate::analyses::adc::FIG5_Q_FRACTION`] I_max:
+    /// this run's camera first, then a real camera's ADCs where the run had their tables.
+    pub fig5_ramps: Vec<RampsFig5>,
     /// Linearity: the pixel-wise largest RMS of the same camera on a perfect bench (no
     /// pattern change between levels), where the run recorded one.
     pub pixelwise_max_perfect_bench: Option<f64>,
@@ -118,6 +118,17 @@ pub struct RealFig5 {
     pub median: f64,
     pub min: f64,
     pub max: f64,
+}
+
+/// Fig. 5 of a LUT the recipe built from calibration ramps, beside its limit.
+#[derive(Debug, Clone, Serialize)]
+pub struct RampsFig5 {
+    /// The real K-Cor camera (its serial number) whose ADCs the ramps went through; `None`
+    /// for the run's own camera.
+    pub real_camera: Option<String>,
+    /// The ADC judged (the paper's: index 3).
+    pub adc: usize,
+    pub fig5: crate::analyses::kcor::run::AgainstLimit,
 }
 
 /// Smallest and largest of `v`; NaN for both when `v` is empty or any value is not
@@ -259,12 +270,19 @@ pub fn claims(m: &Measured) -> Vec<Claim> {
     }
     // The LUT from the ramps, judged by the paper's "order of magnitude" and by the
     // share of what its own counts allow: the cause names which of the two falls short.
-    if let Some((adc, f)) = &m.fig5_ramps {
+    for RampsFig5 { real_camera, adc, fig5: f } in &m.fig5_ramps {
         let ok = f.reduction >= 5.0;
+        let (paper, lut) = match real_camera {
+            None => ("a LUT built from the calibration ramps reduces the error by about an order of magnitude".to_string(), "this run's LUT from its ramps".to_string()),
+            Some(c) => (
+                "on the paper's camera, a LUT built from the calibration ramps reduces the error by about an order of magnitude".to_string(),
+                format!("the LUT from this run's ramps through real K-Cor camera {c}'s ADCs"),
+            ),
+        };
         rows.push(row(
             "4, Fig. 5",
-            "a LUT built from the calibration ramps reduces the error by about an order of magnitude",
-            format!("ADC {adc}, |Q| <= {} I_max: {:.1}x with this run's LUT from its ramps; {}", crate::analyses::adc::FIG5_Q_FRACTION, f.reduction, f.limit_text()),
+            &paper,
+            format!("ADC {adc}, |Q| <= {} I_max: {:.1}x with {lut}; {}", crate::analyses::adc::FIG5_Q_FRACTION, f.reduction, f.limit_text()),
             if ok { Verdict::Agrees } else { Verdict::DoesNotReproduce },
             (!ok).then(|| {
                 if f.limit_reduction < 5.0 {
@@ -358,7 +376,7 @@ mod tests {
             level_noise: (1.4e-4, 3.3e-4),
             propagated_noise: (1.8e-4, 6.1e-4),
             kcor_real: None,
-            fig5_ramps: None,
+            fig5_ramps: vec![],
             pixelwise_max_perfect_bench: None,
         }
     }
@@ -377,7 +395,7 @@ mod tests {
             fixed_low_codes: 150,
             limit_fixed_low_reduction: 0.9 * limit_reduction,
         };
-        let row = |f| claims(&Measured { fig5_ramps: Some((3, f)), ..paper_like() }).into_iter().find(|r| r.paper.starts_with("a LUT built from the calibration ramps")).unwrap();
+        let row = |f| claims(&Measured { fig5_ramps: vec![RampsFig5 { real_camera: None, adc: 3, fig5: f }], ..paper_like() }).into_iter().find(|r| r.paper.starts_with("a LUT built from the calibration ramps")).unwrap();
         assert!(claims(&paper_like()).iter().all(|r| !r.paper.starts_with("a LUT built from the calibration ramps")));
         let good = row(limit(11.3, 42.3));
         assert_eq!(good.verdict, Verdict::Agrees);
@@ -390,6 +408,16 @@ mod tests {
         let low = row(crate::analyses::kcor::run::AgainstLimit { limit_fixed_low_reduction: 2.2, ..limit(1.3, 13.8) });
         assert!(low.cause.as_deref().unwrap().starts_with("the codes below 150, which the recipe leaves at one"), "{low:?}");
         assert!(low.cause.as_deref().unwrap().ends_with("to 2.2x of the 13.8x"), "{low:?}");
+        // With a real camera's ADCs, a second row names the camera and is judged alike.
+        let both = claims(&Measured {
+            fig5_ramps: vec![RampsFig5 { real_camera: None, adc: 3, fig5: limit(1.3, 13.8) }, RampsFig5 { real_camera: Some("13889".into()), adc: 3, fig5: limit(11.3, 42.3) }],
+            ..paper_like()
+        });
+        let ramps: Vec<&Claim> = both.iter().filter(|r| r.paper.contains("a LUT built from the calibration ramps")).collect();
+        assert_eq!(ramps.len(), 2);
+        assert_eq!((ramps[0].verdict, ramps[1].verdict), (Verdict::DoesNotReproduce, Verdict::Agrees));
+        assert!(ramps[1].paper.starts_with("on the paper's camera"), "{:?}", ramps[1]);
+        assert!(ramps[1].ours.starts_with("ADC 3, |Q| <= 0.01 I_max: 11.3x with the LUT from this run's ramps through real K-Cor camera 13889's ADCs; the counts allow 42.3x"), "{:?}", ramps[1]);
     }
 
     /// A pixel-wise residual just above 1e-3 because of the bench's pattern says so, with

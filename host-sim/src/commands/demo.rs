@@ -20,7 +20,7 @@ use crate::analyses::kcor::run::KcorSummary;
 use crate::analyses::linearity::run::LinearitySummary;
 use crate::analyses::quantization::run::SigmaReport;
 use crate::analyses::kcor::KcorParams;
-use crate::analyses::paper_claims::{claims, finite_range, Claim, Measured, RealFig5, Verdict};
+use crate::analyses::paper_claims::{claims, finite_range, Claim, Measured, RampsFig5, RealFig5, Verdict};
 use crate::model::camera::Camera;
 use crate::analyses::adc::AdcReport;
 use crate::infra::progress::{bar, stage};
@@ -125,6 +125,7 @@ fn paper_claims(adc: &AdcReport, q: &SigmaReport, kcor: &KcorSummary, kcor_reduc
     let calibrated = |v: &[f64]| -> Vec<f64> { v.iter().enumerate().filter(|&(k, _)| k != 0 && k != l.gain_level).map(|(_, &x)| x).collect() };
     let max = |v: &[f64]| finite_range(&calibrated(v)).1;
     let best_improvement = l.rms_standard.iter().zip(&l.rms_pixelwise).map(|(s, p)| s / p).filter(|r| r.is_finite()).fold(0.0, f64::max);
+    let real_ramps = real.as_ref().map(|r| RampsFig5 { real_camera: Some(REAL_CAMERA.to_string()), adc: r.ramps_adc, fig5: r.ramps_fig5.clone() });
     claims(&Measured {
         sigma_for_bias_001_dn: crate::analyses::quantization::sigma_for_bias(0.01).unwrap_or(f64::NAN),
         camera_sigma_dn: q.sigma,
@@ -145,10 +146,11 @@ fn paper_claims(adc: &AdcReport, q: &SigmaReport, kcor: &KcorSummary, kcor_reduc
         level_noise: finite_range(&calibrated(&l.rms_random_level_only)),
         propagated_noise: finite_range(&calibrated(&l.rms_random)),
         kcor_real: real.map(|r| r.fig5),
-        // The K-Cor model's ADC (the paper's 4th).
+        // The K-Cor model's ADC (the paper's 4th), then the real camera's.
         fig5_ramps: {
             let i = adc.adcs.len().min(4).saturating_sub(1);
-            adc.adcs.get(i).and_then(|a| a.truth.as_ref()?.fig5.clone()).map(|f| (i, f))
+            let own = adc.adcs.get(i).and_then(|a| a.truth.as_ref()?.fig5.clone()).map(|fig5| RampsFig5 { real_camera: None, adc: i, fig5 });
+            own.into_iter().chain(real_ramps).collect()
         },
         // (The paper's statement "pixel-wise below 1e-3" read on the other bench's set.)
         pixelwise_max_perfect_bench: (other.illumination_change_rms == 0.0).then(|| other.paper_fig8.statements.iter().find(|s| s.paper.starts_with("pixel-wise: \"below 1e-3")).map_or(f64::NAN, |s| s.range().1)),
@@ -173,6 +175,10 @@ fn real_camera(dir: &Path) -> Result<Camera, HostError> {
 struct RealMeasures {
     /// Fig. 5 ([`real_fig5`]).
     fig5: RealFig5,
+    /// Fig. 5 of the LUT the run's recipe builds from its ramps through these ADCs, on ADC
+    /// `ramps_adc`, beside the limit ([`real_fig5_ramps`]).
+    ramps_fig5: crate::analyses::kcor::run::AgainstLimit,
+    ramps_adc: usize,
     /// Least and largest |cumulative offset| of its four tables, their cubic response
     /// curve taken out, DN.
     offsets_dn: (f64, f64),
@@ -203,6 +209,16 @@ fn real_fig5(camera: &Camera) -> Result<RealFig5, HostError> {
     let reductions: Vec<f64> = run.realizations.iter().map(|r| r.reduction).collect();
     let (min, max) = finite_range(&reductions);
     Ok(RealFig5 { camera: REAL_CAMERA.into(), adc: p.adc, q_fraction: p.q_fraction, exposure_ms: p.exposure_s * 1e3, lut_noise: p.lut_noise, draws, median: crate::infra::stats::median(reductions), min, max })
+}
+
+/// The run's calibration ramps (`ramp`) through the real camera's ADCs, the LUTs of the
+/// run's recipe (`flatten`) built from them, and Fig. 5 of ADC `adc`'s table beside the
+/// limit its counts allow, as `dncal adc --config` with `widths_from` the tables measures
+/// it (docs/kcor-luts.md).
+fn real_fig5_ramps(camera: &Camera, dir: &Path, ramp: &RampParams, flatten: &FlattenParams, adc: usize) -> Result<crate::analyses::kcor::run::AgainstLimit, HostError> {
+    let hist = crate::formats::fits::AdcHistograms { bit_depth: camera.config.bits, counts: camera.ramp_histograms(ramp, |_| {}) };
+    let luts = crate::analyses::lut::build::build_luts(&hist, flatten, dir.join(REAL_TABLES))?;
+    crate::analyses::adc::fig5_of_adc(camera, &hist, &luts, adc, flatten.calibrated_codes(1usize << hist.bit_depth))
 }
 
 /// Creates `out_dir` and checks every step's files in it, at every depth, before the first
@@ -284,7 +300,10 @@ pub fn demo(camera: &Camera, out_dir: &Path, ramp: &RampParams, flatten: &Flatte
             // the simulated error is not the paper's.
             let raw = crate::analyses::kcor::run::kcor_model(real, &kp, None, 1, None);
             spin.finish_and_clear();
-            Some(RealMeasures { fig5: fig5?, offsets_dn: real_offsets(dir)?, kcor_raw_bsun: raw?.result.max_abs_sys_err_bsun_raw, kcor_adc: kp.adc })
+            let spin = crate::infra::progress::spinner("the ramps' LUT on a real camera's ADCs, beside its limit");
+            let ramps_fig5 = real_fig5_ramps(real, dir, ramp, flatten, kp.adc);
+            spin.finish_and_clear();
+            Some(RealMeasures { fig5: fig5?, offsets_dn: real_offsets(dir)?, kcor_raw_bsun: raw?.result.max_abs_sys_err_bsun_raw, kcor_adc: kp.adc, ramps_fig5: ramps_fig5?, ramps_adc: kp.adc })
         }
         _ => None,
     };

@@ -59,6 +59,10 @@ pub enum Hidden {
     /// the sensor): [`crate::model::camera::calibration::illumination_change`], the
     /// camera model's `[bench] illumination_change_rms`.
     IlluminationChange { rms: f64 },
+    /// A colour filter array: the pixel at row `r`, column `c` responds `response[(r mod
+    /// 2) * 2 + c mod 2]` times (a Bayer filter: one diagonal's two cells alike). Not in
+    /// [`pick`]: diagnose names it `cfa-pattern`.
+    Cfa { response: [f64; 4] },
 }
 
 /// (What `diagnose` should name for each is `Hidden::expected`, in
@@ -105,11 +109,15 @@ pub struct Plant {
     /// Draw every frame and round it to a code (slow: for low-noise sets, where the
     /// sufficient statistics' Gaussian shortcut does not hold).
     pub quantized: bool,
+    /// The reference of level 0 as a fraction of the largest: 0 is a dark level; above,
+    /// a set without one (a consumer camera's shortest exposure), the levels spread
+    /// evenly from there.
+    pub reference_start: f64,
 }
 
 impl Default for Plant {
     fn default() -> Self {
-        Plant { width: 64, height: 64, n_adc: 4, levels: 41, frames: 256, full_dn: 3600.0, gain_e_per_dn: 44.0, read_dn: 4.0, prnu: 0.01, dsnu_dn: 1.0, offset_dn: 60.0, excess_noise: 0.0, quantized: false }
+        Plant { width: 64, height: 64, n_adc: 4, levels: 41, frames: 256, full_dn: 3600.0, gain_e_per_dn: 44.0, read_dn: 4.0, prnu: 0.01, dsnu_dn: 1.0, offset_dn: 60.0, excess_noise: 0.0, quantized: false, reference_start: 0.0 }
     }
 }
 
@@ -162,6 +170,7 @@ pub fn linearity_set(plant: &Plant, hidden: &[Hidden], seed: u64) -> LinearitySe
     let (mut subtle, mut subtle_dn) = (0, 0.0);
     let mut loss = 0.0;
     let mut pattern: Option<(f64, u64)> = None;
+    let mut cfa: Option<[f64; 4]> = None;
     for e in hidden {
         match *e {
             Hidden::GlobalNonlinearity { c2: c } => c2.iter_mut().for_each(|v| *v += c),
@@ -173,13 +182,15 @@ pub fn linearity_set(plant: &Plant, hidden: &[Hidden], seed: u64) -> LinearitySe
             Hidden::SubtleBad { count, dn } => (subtle, subtle_dn) = (count, dn),
             Hidden::ChargeLoss { dn } => loss = dn,
             Hidden::IlluminationChange { rms } => pattern = Some((rms, rng.random())),
+            Hidden::Cfa { response } => cfa = Some(response),
             Hidden::LevelErrors { rel_rms, offset_dn } => {
                 light.iter_mut().for_each(|v| *v = rel_rms * unit.sample(&mut rng));
                 black.iter_mut().for_each(|v| *v = offset_dn * unit.sample(&mut rng));
             }
         }
     }
-    let gain: Vec<f64> = (0..np).map(|_| 1.0 + plant.prnu * unit.sample(&mut rng)).collect();
+    let channel = |p: usize| cfa.map_or(1.0, |r| r[((p / w) % 2) * 2 + (p % w) % 2]);
+    let gain: Vec<f64> = (0..np).map(|p| channel(p) * (1.0 + plant.prnu * unit.sample(&mut rng))).collect();
     let dark: Vec<f64> = (0..np).map(|_| plant.dsnu_dn * unit.sample(&mut rng)).collect();
     // Bad pixels: distinct, each dead, hot or kinked.
     let mut kind = vec![0u8; np];
@@ -204,10 +215,11 @@ pub fn linearity_set(plant: &Plant, hidden: &[Hidden], seed: u64) -> LinearitySe
         }
     }
     let chi = ChiSquared::new(f64::from(plant.frames - 1)).expect("frames > 1");
+    let reference = |l: usize| plant.reference_start + (1.0 - plant.reference_start) * l as f64 / (nl - 1) as f64;
     let n = f64::from(plant.frames);
     let (mut mean, mut std) = (vec![0.0; nl * np], vec![0.0; nl * np]);
     for l in 0..nl {
-        let x = l as f64 / (nl - 1) as f64 * (1.0 + light[l]);
+        let x = reference(l) * (1.0 + light[l]);
         let change = pattern.map(|(rms, seed)| crate::model::camera::calibration::illumination_change(rms, w, h, seed, l));
         for p in 0..np {
             let a = (p % w) % plant.n_adc;
@@ -251,7 +263,7 @@ pub fn linearity_set(plant: &Plant, hidden: &[Hidden], seed: u64) -> LinearitySe
         levels: nl,
         mean,
         std,
-        voltage: (0..nl).map(|l| 2.5 * l as f64 / (nl - 1) as f64).collect(),
+        voltage: (0..nl).map(|l| 2.5 * reference(l)).collect(),
         mask: None,
     }
 }

@@ -5,6 +5,7 @@
 //! [`codes`] (the code density of its frames) and [`defects`] (the defect pixels of its
 //! spatial series), [`linearity`] (linearity sets).
 
+mod channels;
 mod codes;
 mod cubes;
 mod defects;
@@ -105,6 +106,9 @@ pub enum Effect {
     LevelErrors,
     /// The light's spatial pattern changing between levels, unseen by the reference.
     IlluminationChange,
+    /// A response that repeats in rows and columns together with a small period: a colour
+    /// filter array (each channel's response relative to their mean).
+    CfaPattern,
     /// Pixels the model cannot follow (hot, dead, kinked).
     BadPixels,
     /// A noise larger than the frames' spread says, alike everywhere.
@@ -143,6 +147,7 @@ impl crate::model::hidden::Hidden {
             Hidden::SubtleBad { .. } => Effect::Unexplained,
             Hidden::ChargeLoss { .. } => Effect::LowSignalNonlinearity,
             Hidden::IlluminationChange { .. } => Effect::IlluminationChange,
+            Hidden::Cfa { .. } => Effect::CfaPattern,
         };
         (effect, self.adc())
     }
@@ -153,13 +158,13 @@ impl Effect {
     pub fn in_model(self) -> InModel {
         match self {
             Effect::AdcDnl | Effect::GlobalNonlinearity | Effect::PixelNonlinearity | Effect::BadPixels | Effect::InsufficientNoise | Effect::IlluminationChange => InModel::Yes,
-            Effect::AdcMismatch | Effect::Unexplained | Effect::LowSignalNonlinearity => InModel::NotYet,
+            Effect::AdcMismatch | Effect::Unexplained | Effect::LowSignalNonlinearity | Effect::CfaPattern => InModel::NotYet,
             Effect::LevelErrors | Effect::ExcessNoise => InModel::OfTheMeasurement,
         }
     }
 
     /// Every effect, in the catalog's order.
-    pub const ALL: [Effect; 11] = [
+    pub const ALL: [Effect; 12] = [
         Effect::AdcDnl,
         Effect::AdcMismatch,
         Effect::GlobalNonlinearity,
@@ -167,6 +172,7 @@ impl Effect {
         Effect::LowSignalNonlinearity,
         Effect::LevelErrors,
         Effect::IlluminationChange,
+        Effect::CfaPattern,
         Effect::BadPixels,
         Effect::ExcessNoise,
         Effect::InsufficientNoise,
@@ -183,6 +189,7 @@ impl Effect {
             Effect::LowSignalNonlinearity => "low-signal-nonlinearity",
             Effect::LevelErrors => "level-errors",
             Effect::IlluminationChange => "illumination-change",
+            Effect::CfaPattern => "cfa-pattern",
             Effect::BadPixels => "bad-pixels",
             Effect::ExcessNoise => "excess-noise",
             Effect::InsufficientNoise => "insufficient-noise",
@@ -379,6 +386,12 @@ pub struct Measured {
     /// Relative rms of the light's pattern change between levels (`illumination-change`),
     /// at the levels above 20% of the top signal.
     pub illumination_change_rms: Option<f64>,
+    /// A colour filter's response pattern (`cfa-pattern`); `prnu_rms` is then within a
+    /// channel.
+    pub cfa: Option<channels::CfaResponse>,
+    /// Where the set has no dark level (level 0 not at zero reference): what stands in for
+    /// it; `offset_dn` is then the response's intercept.
+    pub no_dark: Option<linearity::NoDark>,
 }
 
 /// `insufficient-noise` when a noise of `sigma_dn` ("{what} {sigma_dn} DN") leaves a
@@ -517,10 +530,11 @@ mod effect_tests {
             Effect::LowSignalNonlinearity => 4,
             Effect::LevelErrors => 5,
             Effect::IlluminationChange => 6,
-            Effect::BadPixels => 7,
-            Effect::ExcessNoise => 8,
-            Effect::InsufficientNoise => 9,
-            Effect::Unexplained => 10,
+            Effect::CfaPattern => 7,
+            Effect::BadPixels => 8,
+            Effect::ExcessNoise => 9,
+            Effect::InsufficientNoise => 10,
+            Effect::Unexplained => 11,
         };
         assert!(Effect::ALL.iter().enumerate().all(|(i, &e)| index(e) == i));
     }

@@ -58,11 +58,28 @@ pub(super) struct Pixels<'a, T: Sample> {
     fitted: Fitted,
     /// Where the records kept per pixel go ([`super::records`]).
     keep: Keep,
+    /// A colour filter's response pattern, where the diagnosis found one: each pixel's
+    /// gain meets its own channel's population ([`Pixels::response`]).
+    cfa: Option<super::channels::CfaResponse>,
 }
 
 impl<'a, T: Sample> Pixels<'a, T> {
     pub fn new(set: &'a SetView<'a, T>, x: Vec<f64>, kappa: f64, bias2: Vec<f64>, valid: Records<u16>, fitted: Fitted, keep: Keep) -> Self {
-        Pixels { set, x, kappa, bias2, valid, fitted, keep }
+        Pixels { set, x, kappa, bias2, valid, fitted, keep, cfa: None }
+    }
+
+    /// Sets the colour filter's pattern that [`Pixels::response`] divides gains by.
+    pub fn set_cfa(&mut self, cfa: Option<super::channels::CfaResponse>) {
+        self.cfa = cfa;
+    }
+
+    /// The relative response of pixel `i`'s colour channel (1 without a colour filter):
+    /// a gain divided by it is comparable across channels.
+    pub fn response(&self, i: usize) -> f64 {
+        self.cfa.as_ref().map_or(1.0, |c| {
+            let (col, row) = self.position(i);
+            c.at(col, row)
+        })
     }
 
     /// The index into the set's pixels of pixel `i`.

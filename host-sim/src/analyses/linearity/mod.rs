@@ -13,8 +13,9 @@
 //!   upper half of the range (clipping below the top code); it and every level above are
 //!   left out for that pixel.
 //! - *Masked* pixels: the set's `MASK`, pixels whose signal at the gain level is below half
-//!   the median, and pixels whose own 4th-order fit leaves an rms residual above 10 times
-//!   the median (anomalous trends: dead, hot, stuck pixels). Masked pixels are left out
+//!   the median of their cell of a 2 x 2 period (a colour filter's channel: issue 58),
+//!   and pixels whose own 4th-order fit leaves an rms residual above 10 times the median
+//!   (anomalous trends: dead, hot, stuck pixels). Masked pixels are left out
 //!   of every statistic and replaced in corrected images by the mean of their good
 //!   neighbours (8-connected).
 //!
@@ -326,8 +327,8 @@ pub fn analyze_unsaturated(set: &SetView, order: usize, flat: Option<usize>, val
     let plan = Plan::new(set.voltage, set.bit_depth, set.n_frames, order, flat);
     let np = set.width * set.height;
     let fits = plan.fit(set, valid);
-    let (signal, resid) = rayon::join(|| median(fits.signal.iter().copied()), || median(fits.resid.iter().copied()));
-    let mask = fits.mask(set.mask, MaskRule { signal, resid });
+    let (signal, resid) = rayon::join(|| stages::cell_medians(&fits.signal, set.width), || median(fits.resid.iter().copied()));
+    let mask = fits.mask(set.mask, MaskRule { signal, width: set.width, resid });
     let good = mask.iter().filter(|&&m| m == 0).count();
     if good == 0 {
         return Err(LinearityError::AllMasked { pixels: np, order: plan.order });
@@ -478,6 +479,26 @@ mod tests {
         assert!(px_kept.coeffs.iter().zip(&px_skipped.coeffs).all(|(a, b)| a.to_bits() == b.to_bits()));
         assert_eq!(px_kept.corrected.map(|c| c.len()), Some(41 * np));
         assert!(px_skipped.corrected.is_none());
+    }
+
+    #[test]
+    fn a_colour_filters_channels_are_not_masked() {
+        // Issue 58: a Bayer red at 0.45 of the green median was "low signal", a quarter
+        // of the sensor masked; each channel now meets its own median. Dead pixels are
+        // still masked.
+        use crate::model::hidden::{linearity_set, Hidden, Plant};
+        let plant = Plant { full_dn: 2800.0, ..Plant::default() };
+        let set = linearity_set(&plant, &[Hidden::Cfa { response: [1.23, 0.99, 0.55, 1.23] }], 58);
+        assert_eq!(analyze(&set, PIXEL_ORDER).unwrap().0.masked_pixels, 0);
+        let mut dead = set.clone();
+        let np = dead.width * dead.height;
+        // One pixel of the red cell (row 1, column 0) at a third of its channel's signal.
+        let p = dead.width;
+        for l in 0..dead.levels {
+            dead.mean[l * np + p] = dead.mean[p] + (set.mean[l * np + p] - set.mean[p]) / 3.0;
+        }
+        let (r, px) = analyze(&dead, PIXEL_ORDER).unwrap();
+        assert_eq!((r.masked_pixels, px.mask[p] & reason::LOW != 0), (1, true));
     }
 
     #[test]

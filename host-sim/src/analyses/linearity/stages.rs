@@ -62,11 +62,16 @@ pub struct Fits {
     pub signal: Vec<f64>,
 }
 
-/// The mask's two global medians (stage 1's reduction), DN.
+/// The mask's medians (stage 1's reduction), DN.
 #[derive(Debug, Clone, Copy)]
 pub struct MaskRule {
-    /// Median over all pixels of the flat's signal.
-    pub signal: f64,
+    /// Median of the flat's signal over the pixels of each cell of a 2 x 2 period,
+    /// `(row mod 2) * 2 + column mod 2`: a colour filter's channel (a Bayer red at 0.45 of
+    /// the green median was masked as "low signal", a quarter of the sensor: issue 58);
+    /// on a monochrome sensor the four are the median's value within noise.
+    pub signal: [f64; 4],
+    /// Columns of the set (for the cell of a pixel).
+    pub width: usize,
     /// Median over all pixels of the fit residual.
     pub resid: f64,
 }
@@ -278,9 +283,17 @@ impl Fits {
     }
 }
 
+/// The median of `signal` (a `width`-column image, row-major) over each cell of a 2 x 2
+/// period, `(row mod 2) * 2 + column mod 2` (NaN for a cell without pixels, which no
+/// pixel then asks for).
+pub fn cell_medians(signal: &[f64], width: usize) -> [f64; 4] {
+    let w = width.max(1);
+    std::array::from_fn(|k| crate::infra::stats::median(signal.iter().enumerate().filter(|(p, _)| ((p / w) % 2) * 2 + (p % w) % 2 == k).map(|(_, &v)| v)))
+}
+
 /// Why each pixel is left out ([`reason`] bits), from its flat's `signal` and fit
 /// residual `resid` ([`Fits`]): flagged in the `input` mask, a signal at the flat below
-/// half the median, no fit, or a fit residual beyond 10 times the median.
+/// half the median of its cell of the 2 x 2 period, no fit, or a fit residual beyond 10 times the median.
 pub fn mask_of(signal: &[f64], resid: &[f64], input: Option<&[u8]>, rule: MaskRule) -> Vec<u8> {
     (0..signal.len())
         .into_par_iter()
@@ -290,7 +303,8 @@ pub fn mask_of(signal: &[f64], resid: &[f64], input: Option<&[u8]>, rule: MaskRu
                 m |= reason::INPUT;
             }
             let s = signal[p];
-            if s.is_nan() || s < 0.5 * rule.signal {
+            let w = rule.width.max(1);
+            if s.is_nan() || s < 0.5 * rule.signal[((p / w) % 2) * 2 + (p % w) % 2] {
                 m |= reason::LOW;
             }
             if resid[p].is_nan() {

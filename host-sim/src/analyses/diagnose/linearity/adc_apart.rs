@@ -151,7 +151,8 @@ pub(super) fn adc_maps<T: Sample>(s: &Scoring<'_, T>, curve_for: &(dyn Fn(usize)
         let i = good.index(j);
         let all = px.all(i, common);
         let start = fits.at(i).line(0).map_or(vec![0.0; 2], |l| l.to_vec());
-        fit_and_score(curve_for(i), &start, &all, &[]).map_or([f64::NAN; 2], |s| [s.params[0], s.params[1]])
+        // (The gain per colour channel: each against its own channel's population.)
+        fit_and_score(curve_for(i), &start, &all, &[]).map_or([f64::NAN; 2], |s| [s.params[0], s.params[1] / px.response(i)])
     });
     for (k, what) in [(0usize, "offset"), (1, "gain")] {
         let values = |j: usize, f: &mut dyn FnMut(usize, bool, f64)| {

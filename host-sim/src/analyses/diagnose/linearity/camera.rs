@@ -63,10 +63,23 @@ pub(super) fn quantization_floor<T: Sample>(set: &SetView<'_, T>, n: usize, pixe
 /// pixels' even-level and odd-level quartics (their noises are independent, so the
 /// covariance over pixels is the spread of the true terms alone).
 ///
-/// Also the median dark noise, DN (the good pixels' temporal deviation at level 0).
+/// A set whose level 0 is not at zero reference ([`DARK_REFERENCE`]) has no dark level
+/// (issue 58: a consumer camera's series of exposures, level 0 the shortest, read as dark
+/// gave its mean for the offset and its shot noise for read noise): each pixel's dark is
+/// then its even-level line's intercept at zero reference, the offset their median with
+/// its standard error, the signals are over that intercept (level 0 included), the read
+/// noise is the photon transfer's intercept only where it stands 2 standard errors above
+/// zero (else its upper bound is given), and DSNU is not measured ([`NoDark`]).
+///
+/// Also the median dark noise, DN (the good pixels' temporal deviation at level 0; without
+/// a dark level the read noise where measured, else level 0's deviation, an upper bound).
 pub(super) fn measure_camera<T: Sample>(scoring: &Scoring<'_, T>, n_frames: u32, bad: usize) -> (Measured, f64) {
     let (px, good, fits, top) = (scoring.px, &scoring.good, scoring.fits, scoring.top);
     let levels = px.x.len();
+    let has_dark = px.x.first().is_some_and(|&x| x.abs() <= DARK_REFERENCE);
+    // A pixel's dark level: its level 0, or without a dark level its line's intercept.
+    let dark_of = |i: usize, level0: f64| if has_dark { level0 } else { fits.at(i).line(0).map_or(f64::NAN, |l| l[0]) };
+    let first = usize::from(has_dark);
     // The median of `s^2` is `sigma^2` times the median of `chi^2_(N-1) / (N-1)`,
     // `(1 - 2 / (9 (N-1)))^3` (Wilson-Hilferty): 0.26% low at 256 frames, and the gain
     // with it.
@@ -75,23 +88,23 @@ pub(super) fn measure_camera<T: Sample>(scoring: &Scoring<'_, T>, n_frames: u32,
     let n_adc = px.n_adc();
     // The medians over the good pixels, exact, in passes over them ([`crate::infra::select`]):
     // cell 0 the dark level, 1 the dark frames' variance of a mean, 2 the signal at the
-    // last unsaturated level, then per level from 1 the signal and the frames' variance,
-    // and last the dark frames' deviation.
-    let (dark_cell, noise_cell, full_cell, signal_cell, var_cell) = (0, 1, 2, |l: usize| 1 + 2 * l, |l: usize| 2 + 2 * l);
-    let dark_std_cell = 2 * levels + 1;
+    // last unsaturated level, then per level the signal and the frames' variance, and
+    // last the dark frames' deviation.
+    let (dark_cell, noise_cell, full_cell, signal_cell, var_cell) = (0, 1, 2, |l: usize| 3 + 2 * l, |l: usize| 4 + 2 * l);
+    let dark_std_cell = 2 * levels + 3;
     let nf = f64::from(n_frames.max(1));
-    let medians = crate::infra::select::upper_medians(good.len(), 2 * levels + 2, &|j, f| {
+    let medians = crate::infra::select::upper_medians(good.len(), 2 * levels + 4, &|j, f| {
         let i = good.index(j);
         let valid = px.valid(i);
         px.with_levels(i, |at| {
-            let dark = at.mean(0);
+            let dark = dark_of(i, at.mean(0));
             f(dark_cell, dark);
             f(noise_cell, at.std(0).powi(2) / nf);
             f(dark_std_cell, at.std(0));
             if valid > 1 {
                 f(full_cell, at.mean(valid - 1) - dark);
             }
-            for l in 1..valid.min(levels) {
+            for l in first..valid.min(levels) {
                 f(signal_cell(l), at.mean(l) - dark);
                 f(var_cell(l), at.std(l).powi(2));
             }
@@ -101,7 +114,7 @@ pub(super) fn measure_camera<T: Sample>(scoring: &Scoring<'_, T>, n_frames: u32,
     let dark = medians[dark_cell];
     let mut on = vec![0usize; levels];
     good.iter().for_each(|i| on[..px.valid(i as usize).min(levels)].iter_mut().for_each(|n| *n += 1));
-    for l in 1..levels {
+    for l in first..levels {
         if on[l] * 2 < good.len() {
             break;
         }
@@ -112,22 +125,34 @@ pub(super) fn measure_camera<T: Sample>(scoring: &Scoring<'_, T>, n_frames: u32,
         s.push(signal);
         v.push(medians[var_cell(l)] / median_chi2);
     }
-    let (gain, read) = if s.len() >= 3 {
+    let (gain, read, read_bound) = if s.len() >= 3 {
         let (a, b, _) = crate::analyses::emva::fit_line(&s, &v);
-        ((b > 0.0).then(|| 1.0 / b), Some((a - 1.0 / 12.0).max(0.0).sqrt()))
+        let read2 = a - 1.0 / 12.0;
+        // Without a dark level the intercept is an extrapolation: kept where it is bounded
+        // away from zero.
+        let se = intercept_se(&s, &v, a, b);
+        if has_dark || read2 > 2.0 * se {
+            ((b > 0.0).then(|| 1.0 / b), Some(read2.max(0.0).sqrt()), None)
+        } else {
+            ((b > 0.0).then(|| 1.0 / b), None, Some((read2 + 2.0 * se).max(0.0).sqrt()))
+        }
     } else {
-        (None, None)
+        (None, None, None)
     };
     // DSNU from the dark frames themselves, less their own noise; PRNU from the signal at
     // the level nearest half scale (fitted intercepts and slopes would absorb part of each
     // pixel's own curvature: they read 2.1 DN of DSNU where the camera had 0.9).
     let d_noise = medians[noise_cell] / median_chi2;
-    let half = s.iter().enumerate().min_by(|a, b| (a.1 - 0.5 * s.last().copied().unwrap_or(0.0) / 0.7).abs().total_cmp(&(b.1 - 0.5 * s.last().copied().unwrap_or(0.0) / 0.7).abs())).map_or(1, |(j, _)| j + 1);
+    let half = s.iter().enumerate().min_by(|a, b| (a.1 - 0.5 * s.last().copied().unwrap_or(0.0) / 0.7).abs().total_cmp(&(b.1 - 0.5 * s.last().copied().unwrap_or(0.0) / 0.7).abs())).map_or(1, |(j, _)| j + first);
     // Per good pixel its dark mean and its signal at `half` (NaN past its unsaturated
     // levels: left out), kept as records for the passes of the selections.
     let own = Records::from_fn(px.keep(), good.len(), |j| {
         let i = good.index(j);
-        px.with_levels(i, |at| [at.mean(0), if half < px.valid(i) { at.mean(half) - at.mean(0) } else { f64::NAN }])
+        // (The signal per colour channel: PRNU within a channel.)
+        px.with_levels(i, |at| {
+            let dark = dark_of(i, at.mean(0));
+            [dark, if half < px.valid(i) { (at.mean(half) - dark) / px.response(i) } else { f64::NAN }]
+        })
     });
     // Pixel-to-pixel spreads about each pixel's own ADC's median: an ADC offset or gain is
     // an `adc-mismatch`, not DSNU or PRNU.
@@ -158,11 +183,60 @@ pub(super) fn measure_camera<T: Sample>(scoring: &Scoring<'_, T>, n_frames: u32,
         // (Those unsaturated at the last level are all but the saturated.)
         saturated: (good.len() - on.last().copied().unwrap_or(good.len())) * 2 > good.len(),
         prnu_rms: Some(gs / gm),
-        dsnu_dn: Some((d_scatter.powi(2) - d_noise).max(0.0).sqrt()),
+        // (Without dark frames the intercepts' spread holds their fits' errors: not DSNU.)
+        dsnu_dn: has_dark.then(|| (d_scatter.powi(2) - d_noise).max(0.0).sqrt()),
         pixel_b2_rms_per_dn: (n > 10.0).then(|| cov.max(0.0).sqrt()),
         bad_fraction: Some(bad as f64 / px.len().max(1) as f64),
         // (Measured by `illumination-change`, where it is found.)
         illumination_change_rms: None,
+        cfa: None,
+        no_dark: (!has_dark).then(|| NoDark { reference: px.x[0], offset_se_dn: 1.2533 * d_scatter / (good.len().max(1) as f64).sqrt(), read_bound_dn: read_bound }),
     };
-    (measured, medians[dark_std_cell])
+    let noise = if has_dark { medians[dark_std_cell] } else { read.unwrap_or(medians[dark_std_cell]) };
+    (measured, noise)
+}
+
+/// The largest reference of a level 0 that is a dark level, as a fraction of the largest
+/// (a photodiode's dark reading is not exactly zero).
+pub const DARK_REFERENCE: f64 = 1e-3;
+
+/// What a set without a dark level gives of its dark ([`measure_camera`]).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct NoDark {
+    /// Level 0's reference over the largest.
+    pub reference: f64,
+    /// Standard error of the offset (the median of the pixels' intercepts: `1.2533 sd /
+    /// sqrt(n)`), DN; the intercepts' extrapolation below level 0 is not in it.
+    pub offset_se_dn: f64,
+    /// Where the photon transfer's intercept does not bound the read noise: its upper
+    /// bound (intercept plus 2 standard errors), DN.
+    pub read_bound_dn: Option<f64>,
+}
+
+impl NoDark {
+    /// The note a diagnosis gives.
+    pub fn note(&self, offset_dn: Option<f64>, read_dn: Option<f64>) -> String {
+        let offset = offset_dn.map_or("not measured".to_string(), |o| format!("{o:.2} +- {:.2} DN", self.offset_se_dn));
+        let read = match (read_dn, self.read_bound_dn) {
+            (Some(r), _) => format!("read noise {r:.2} DN from the photon transfer's intercept"),
+            (None, Some(b)) => format!("read noise not bounded by the data (below {b:.2} DN at 2 standard errors)"),
+            (None, None) => "read noise not measured".to_string(),
+        };
+        format!(
+            "dark level: none in this set (level 0's reference is {:.3} of the largest, not zero): the offset is each pixel's response extrapolated to zero reference, median {offset}; {read}; DSNU and the dark frames' noise are not measured",
+            self.reference
+        )
+    }
+}
+
+/// Standard error of the intercept `a` of the least-squares line `y = a + b x`.
+fn intercept_se(x: &[f64], y: &[f64], a: f64, b: f64) -> f64 {
+    let n = x.len() as f64;
+    if n < 3.0 {
+        return f64::INFINITY;
+    }
+    let mx = x.iter().sum::<f64>() / n;
+    let sxx: f64 = x.iter().map(|v| (v - mx).powi(2)).sum();
+    let res2: f64 = x.iter().zip(y).map(|(x, y)| (y - a - b * x).powi(2)).sum::<f64>() / (n - 2.0);
+    (res2 * (1.0 / n + mx * mx / sxx)).sqrt()
 }

@@ -326,3 +326,94 @@ fn the_measured_pattern_goes_into_the_model() {
     let d = diagnose_linearity(&clean, 0.01).unwrap();
     assert_eq!(crate::analyses::diagnose::model::linearity_model(&clean, &d).bench.illumination_change_rms, 0.0);
 }
+
+/// Issue 58: a colour filter (the consumer camera's Bayer responses: one channel at 0.55
+/// of the mean, the green pair at 1.23) is `cfa-pattern` with each channel's response
+/// within 2% of the planted one (relative to their mean), and nothing else: no channel
+/// called bad, no ADC mismatch from ADCs that read different colours, PRNU within a
+/// channel as planted. With true bad pixels beside it, those are found (their count, not
+/// a quarter of the sensor). With one ADC (a consumer camera) and with four.
+#[test]
+fn a_colour_filter_is_a_pattern_not_bad_pixels() {
+    let planted = [1.23, 0.99, 0.55, 1.23];
+    let unit = planted.iter().sum::<f64>() / 4.0;
+    for seed in 0..4u64 {
+        let n_adc = if seed % 2 == 0 { 1 } else { 4 };
+        // (Full scale lowered so that the green pair stays below the top code.)
+        let plant = Plant { n_adc, full_dn: 2800.0, ..Plant::default() };
+        for bad in [0usize, 12] {
+            let mut hidden = vec![Hidden::Cfa { response: planted }];
+            if bad > 0 {
+                hidden.push(Hidden::BadPixels { count: bad });
+            }
+            let d = diagnose_linearity(&linearity_set(&plant, &hidden, 5800 + seed), 0.01).unwrap();
+            let mut got = names(&d);
+            got.sort();
+            let want: Vec<&str> = if bad > 0 { vec!["bad-pixels", "cfa-pattern"] } else { vec!["cfa-pattern"] };
+            assert_eq!(got, want, "seed {seed}, {n_adc} ADCs, {bad} bad: {:#?}", d.findings);
+            let cfa = d.measured.cfa.as_ref().expect("the pattern is measured");
+            assert_eq!(cfa.period, 2);
+            for (k, (r, p)) in cfa.response.iter().zip(planted).enumerate() {
+                assert!((r / (p / unit) - 1.0).abs() < 0.02, "seed {seed}: cell {k}: {r} against {}", p / unit);
+            }
+            if bad > 0 {
+                let f = d.findings.iter().find(|f| f.effect == Effect::BadPixels).unwrap();
+                let count = f.count.unwrap();
+                assert!((bad - 2..=bad + 2).contains(&count), "seed {seed}: {count} bad pixels of {bad}: {f:#?}");
+            }
+            let prnu = d.measured.prnu_rms.unwrap();
+            assert!((prnu / plant.prnu - 1.0).abs() < 0.1, "seed {seed}: PRNU {prnu} within a channel against {}", plant.prnu);
+            let f = d.findings.iter().find(|f| f.effect == Effect::CfaPattern).unwrap();
+            assert!(f.detail.contains("a Bayer filter's green, layout GxxG"), "{}", f.detail);
+        }
+    }
+}
+
+/// The null of `cfa-pattern`: no pattern named on clean sets, nor where the columns
+/// alone (an ADC's gain) or the rows alone differ, which a colour filter does not explain.
+#[test]
+fn columns_or_rows_alone_are_not_a_colour_filter() {
+    for seed in 0..6u64 {
+        let hidden: Vec<Hidden> = match seed % 3 {
+            0 => vec![],
+            1 => vec![Hidden::AdcGain { adc: 1, rel: 0.03 }],
+            // Even and odd rows apart by 4% (a two-sided readout): rows alone.
+            _ => vec![Hidden::Cfa { response: [1.02, 1.02, 0.98, 0.98] }],
+        };
+        let d = diagnose_linearity(&linearity_set(&Plant::default(), &hidden, 5900 + seed), 0.01).unwrap();
+        assert!(d.findings.iter().all(|f| f.effect != Effect::CfaPattern), "seed {seed} {hidden:?}: {:#?}", d.findings);
+        assert!(d.measured.cfa.is_none());
+    }
+}
+
+/// Issue 58: a set whose level 0 is not dark (the shortest of a series of exposures, at
+/// 10% and 30% of the largest) says so, and its offset is the response's intercept at
+/// zero reference, the planted 60 DN within 3 of its standard errors (and not level 0's
+/// mean, 420 DN above it at 10%); the gain within 2%; the read noise either within 10%
+/// of the planted 4 DN or withheld with a bound above it; no DSNU. A set with a dark
+/// level gives no such note.
+#[test]
+fn a_set_without_a_dark_level_says_so_and_fits_the_offset() {
+    for (seed, start) in [(0u64, 0.1), (1, 0.3), (2, 0.1)] {
+        let plant = Plant { reference_start: start, ..Plant::default() };
+        let d = diagnose_linearity(&linearity_set(&plant, &[], 5810 + seed), 0.01).unwrap();
+        let m = &d.measured;
+        let nd = m.no_dark.as_ref().unwrap_or_else(|| panic!("start {start}: no note: {m:?}"));
+        assert!((nd.reference - start).abs() < 1e-12);
+        let offset = m.offset_dn.unwrap();
+        assert!((offset - plant.offset_dn).abs() < 3.0 * nd.offset_se_dn + 0.05, "start {start}: offset {offset} +- {}", nd.offset_se_dn);
+        assert!(nd.offset_se_dn < 0.5, "{nd:?}");
+        let g = m.gain_e_per_dn.unwrap();
+        assert!((g / plant.gain_e_per_dn - 1.0).abs() < 0.02, "start {start}: gain {g}");
+        match (m.read_noise_dn, nd.read_bound_dn) {
+            (Some(r), None) => assert!((r / plant.read_dn - 1.0).abs() < 0.1, "start {start}: read {r}"),
+            (None, Some(b)) => assert!(b > plant.read_dn, "start {start}: bound {b}"),
+            other => panic!("start {start}: {other:?}"),
+        }
+        assert_eq!(m.dsnu_dn, None);
+        assert!(d.not_tested.iter().any(|n| n.starts_with("dark level: none in this set")), "{:?}", d.not_tested);
+        assert!(d.findings.is_empty(), "start {start}: {:#?}", d.findings);
+    }
+    let d = diagnose_linearity(&linearity_set(&Plant::default(), &[], 5813), 0.01).unwrap();
+    assert!(d.measured.no_dark.is_none() && d.not_tested.is_empty(), "{:?}", d.not_tested);
+}

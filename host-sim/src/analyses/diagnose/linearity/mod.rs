@@ -76,6 +76,8 @@
 
 mod adc_apart;
 mod camera;
+mod cfa;
+pub use camera::NoDark;
 mod curves;
 mod illumination;
 pub(crate) use illumination::grid_bytes as illumination_bytes;
@@ -252,7 +254,11 @@ fn diagnose_kept<T: Sample>(set: &SetView<'_, T>, keep: Keep, accuracy_dn: f64) 
 /// hand each other their held-out scores (each accepted model is the next one's
 /// baseline), and the assembly of the report.
 fn diagnose_set<T: Sample>(set: &SetView<'_, T>, keep: Keep, accuracy_dn: f64) -> Result<Diagnosis, DiagnoseError> {
-    let (px, n_adc) = prepare(set, keep)?;
+    let (mut px, n_adc) = prepare(set, keep)?;
+    // A colour filter's pattern first: every later population is per channel.
+    let cfa::CfaStage { response: cfa, finding: cfa_finding } = cfa::cfa_stage(&px);
+    px.set_cfa(cfa.clone());
+    let px = px;
     let (nl, top) = (set.levels, ((1u64 << set.bit_depth) - 1) as f64);
     let adc_of = |i: usize| px.adc(i);
     // Shared parameters (curves, population medians) are estimated on the pixels of even
@@ -263,6 +269,8 @@ fn diagnose_set<T: Sample>(set: &SetView<'_, T>, keep: Keep, accuracy_dn: f64) -
     // Errors every pixel shares at a level (the light off the reference, the black level
     // off) first: found, they are taken out of every pixel's means before any model.
     let LevelStage { term: levels_term, accepted: level_accepted, mut findings } = level_stage(&px, nl);
+    // (Named first: found before the level term, on the raw means.)
+    findings.splice(0..0, cfa_finding);
     let level_common: Option<&dyn Common> = (level_accepted || levels_term.per_adc.is_some()).then_some(&levels_term as &dyn Common);
     // Then the light's pattern changing between levels, held out by rows.
     let pattern = illumination_change(&px, level_common, &levels_term, &levels_term.signal);
@@ -415,10 +423,12 @@ fn diagnose_set<T: Sample>(set: &SetView<'_, T>, keep: Keep, accuracy_dn: f64) -
     // Noise: the dark level's temporal noise against the quantization bias.
     let (mut measured, dark_noise) = measure_camera(&s, set.n_frames, stage.bad_count());
     measured.illumination_change_rms = pattern_rms;
+    measured.cfa = cfa;
     findings.extend(insufficient_noise("median dark noise", dark_noise, accuracy_dn));
     findings.extend(remainder(&s, &current, tcur, unattributed(final_params)));
+    let not_tested = measured.no_dark.iter().map(|n| n.note(measured.offset_dn, measured.read_noise_dn)).collect();
     Ok(Diagnosis {
-        not_tested: Vec::new(),
+        not_tested,
         measured,
         code_density: None,
         code_residuals: None,

@@ -165,9 +165,9 @@ impl Population {
         (own(&self.dark_adc, self.dark_pop.0), own(&self.gain_adc, self.gain_pop.0))
     }
 
-    /// Why a pixel of fits `f` (of ADC `adc`) is bad on one half of its levels (0 even,
-    /// 1 odd).
-    fn bad_in(&self, f: &PixelFits, adc: usize, half: usize) -> Option<BadPixel> {
+    /// Why a pixel of fits `f` (of ADC `adc`, its colour channel's relative response
+    /// `response`) is bad on one half of its levels (0 even, 1 odd).
+    fn bad_in(&self, f: &PixelFits, adc: usize, response: f64, half: usize) -> Option<BadPixel> {
         let tail = |chi2: f64, dof: usize| dof > 0 && ChiSquared::new(dof as f64).map(|c| c.sf(chi2) < 1e-6).unwrap_or(false);
         let (Some(q), Some(l)) = (f.quartic(half), f.line(half)) else { return Some(BadPixel::Stuck) };
         let points = usize::from(f.points[half]);
@@ -178,7 +178,8 @@ impl Population {
             return Some(BadPixel::Shape);
         }
         let (dark_own, g_own) = self.own(adc);
-        if !(l[1] > 0.5 * g_own && l[1] < 1.5 * g_own) {
+        let gain = l[1] / response;
+        if !(gain > 0.5 * g_own && gain < 1.5 * g_own) {
             return Some(BadPixel::Gain);
         }
         if (l[0] - dark_own).abs() > 10.0 * self.dark_pop.1.max(1e-9) {
@@ -209,7 +210,7 @@ impl PixelStage {
         let [(dark_adc, dark_c, dark_s), (gain_adc, gain_c, gain_s)] = populations(n, n_adc, &|i, f| {
             if let Some(l) = fits.at(i).line(0).filter(|_| px.estimating(i)) {
                 f(0, px.adc(i), l[0]);
-                f(1, px.adc(i), l[1]);
+                f(1, px.adc(i), l[1] / px.response(i));
             }
         });
         let pop = Population { dark_pop: (dark_c, dark_s), gain_pop: (gain_c, gain_s), dark_adc, gain_adc };
@@ -218,9 +219,9 @@ impl PixelStage {
         // "bad pixels" with a 3 DN ADC offset and 0.2 DN of DSNU): on the even levels (for
         // the held-out bad-pixel score) and on both.
         let flags = Records::from_fn(px.keep(), n, |i| {
-            let (f, adc) = (fits.at(i), px.adc(i));
-            let even = pop.bad_in(&f, adc, 0);
-            Flags { even, both: even.filter(|_| pop.bad_in(&f, adc, 1).is_some()) }
+            let (f, adc, response) = (fits.at(i), px.adc(i), px.response(i));
+            let even = pop.bad_in(&f, adc, response, 0);
+            Flags { even, both: even.filter(|_| pop.bad_in(&f, adc, response, 1).is_some()) }
         });
         PixelStage { fits, pop, flags }
     }
@@ -259,7 +260,7 @@ impl PixelStage {
             let f = fits.at(i);
             match (&f.line(1), &f.quartic(0)) {
                 (Some(l), Some(q)) => {
-                    let z = [(l[0] - dark_own) / dark_pop.1.max(1e-9), (l[1] - gain_own) / gain_pop.1.max(1e-9)];
+                    let z = [(l[0] - dark_own) / dark_pop.1.max(1e-9), (l[1] / px.response(i) - gain_own) / gain_pop.1.max(1e-9)];
                     (z[0] * z[0] + z[1] * z[1] + q.held_sq, 2 + usize::from(q.held_n))
                 }
                 // Stuck: its raw dark level against the population.

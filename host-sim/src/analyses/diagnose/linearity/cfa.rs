@@ -1,0 +1,371 @@
+//! `cfa-pattern`: a response that repeats with a small period in rows and columns
+//! together, as a colour filter array makes it (issue 58). Found before any other test,
+//! because every later step compares a pixel's gain with a population: a Bayer filter's
+//! red channel at 0.55 of the mean read as a quarter of the sensor dead (200-500 sigma
+//! `bad-pixels` on a consumer camera), and column ADCs that each read one colour more
+//! than another as an `adc-mismatch`. Found, the pattern divides every pixel's gain
+//! before it meets a population (each channel against its own: PRNU within a channel,
+//! defects against the channel's pixels).
+//!
+//! ## The test
+//! Each pixel's signal `s = m_L - m_0` at a level `L` below saturation for most pixels
+//! (70% of the median pixel's unsaturated levels; a difference of two levels, so a level
+//! 0 that is not dark does not matter). For each period `P` of [`PERIODS`], the pixels
+//! fall into `P x P` classes by `(row mod P, column mod P)`; a class's response is its
+//! median signal over the mean of the classes' medians, with standard error
+//! `1.2533 sd / sqrt(n)` (`sd`: 1.4826 MAD within the class). Only the **interaction**
+//! of rows and columns is tested (the classes less their row means and column means):
+//! a pattern of columns alone is what column ADCs (`adc-mismatch`) or column amplifiers
+//! make, one of rows alone what a two-sided readout makes, and neither is a colour
+//! filter. A Bayer filter's interaction is `(2G - R - B) / 4`, 0.23 of the mean on the
+//! consumer camera of issue 58.
+//!
+//! **Held out by pixels**: the rows fall into two halves by `(row / P) mod 2` (each half
+//! holds every class); the pattern found on one half is the template the other is
+//! projected on, `z = sum I_A I_B / (sd_B sqrt(sum I_A^2))`, which is N(0, 1) when the
+//! held-out half has no pattern, whatever the first half found. Accepted when both ways
+//! round give `z > 5`. A larger period that is a multiple (4 of 2, 6 of 2 and 3) is taken
+//! only where what it adds to the smaller one's pattern passes the same test.
+//!
+//! ## What it cannot tell apart
+//! With column ADCs the pattern's column part and a gain difference between the ADCs of
+//! even and odd columns are the same data: the channels' responses carry it, and
+//! `adc-mismatch` of gain compares the ADCs within one column parity only.
+
+use super::*;
+use crate::analyses::diagnose::channels::CfaResponse;
+use crate::infra::select::robust;
+
+/// The periods tested, rows and columns alike: Bayer (2), the 3 x 3 halves of an X-Trans
+/// filter (3, 6), quad-Bayer (4).
+pub(super) const PERIODS: [usize; 4] = [2, 3, 4, 6];
+
+/// Per class of one period and one set of pixels: median, robust spread (signal units)
+/// and count.
+#[derive(Debug, Clone)]
+struct Classes {
+    median: Vec<f64>,
+    sd: Vec<f64>,
+    n: Vec<usize>,
+}
+
+impl Classes {
+    /// The classes' mean median: the unit of the responses.
+    fn unit(&self) -> f64 {
+        crate::infra::stats::mean(&self.median)
+    }
+
+    /// Responses relative to the classes' mean.
+    fn response(&self) -> Vec<f64> {
+        let u = self.unit();
+        self.median.iter().map(|m| m / u).collect()
+    }
+
+    /// The pooled standard error of one class's response (`1.2533 sd / sqrt(n)`, its
+    /// variance averaged over the classes).
+    fn pooled_se(&self) -> f64 {
+        let u = self.unit();
+        let v: Vec<f64> = self
+            .sd
+            .iter()
+            .zip(&self.n)
+            .map(|(s, &n)| (1.2533 * s / u).powi(2) / n.max(1) as f64)
+            .collect();
+        crate::infra::stats::mean(&v).sqrt()
+    }
+}
+
+/// The interaction of rows and columns of a `p x p` table: `t - row mean - column mean +
+/// mean`.
+fn interaction(t: &[f64], p: usize) -> Vec<f64> {
+    let row = |r: usize| (0..p).map(|c| t[r * p + c]).sum::<f64>() / p as f64;
+    let col = |c: usize| (0..p).map(|r| t[r * p + c]).sum::<f64>() / p as f64;
+    let all = t.iter().sum::<f64>() / (p * p) as f64;
+    (0..p * p)
+        .map(|k| t[k] - row(k / p) - col(k % p) + all)
+        .collect()
+}
+
+/// `t` of period `small` repeated over a `big x big` table.
+fn alias(t: &[f64], small: usize, big: usize) -> Vec<f64> {
+    (0..big * big)
+        .map(|k| t[((k / big) % small) * small + (k % big) % small])
+        .collect()
+}
+
+/// The held-out projection `z` of `b`'s table on the template `a` (module documentation),
+/// `se_b` the standard error of one of `b`'s entries. Zero for a template without
+/// structure.
+fn projection(a: &[f64], b: &[f64], se_b: f64) -> f64 {
+    let norm = a.iter().map(|x| x * x).sum::<f64>().sqrt();
+    if norm <= 0.0 || se_b <= 0.0 || !norm.is_finite() {
+        return 0.0;
+    }
+    a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>() / (se_b * norm)
+}
+
+/// Both ways round: the smaller `z`.
+fn held_out(a: &[f64], b: &[f64], se_a: f64, se_b: f64) -> f64 {
+    projection(a, b, se_b).min(projection(b, a, se_a))
+}
+
+/// The outcome of [`cfa_stage`].
+pub(super) struct CfaStage {
+    /// The pattern, where one was found.
+    pub response: Option<CfaResponse>,
+    /// Its finding.
+    pub finding: Option<Finding>,
+}
+
+/// The class statistics of every period of [`PERIODS`] for the halves (0, 1) and all
+/// pixels (2): index `[period][set]`. `signal(i)` is pixel `i`'s signal (NaN: left out).
+fn classes<T: Sample>(px: &Pixels<T>, signal: &(dyn Fn(usize) -> f64 + Sync)) -> Vec<[Classes; 3]> {
+    let offsets: Vec<usize> = PERIODS
+        .iter()
+        .scan(0, |o, &p| {
+            let at = *o;
+            *o += 3 * p * p;
+            Some(at)
+        })
+        .collect();
+    let cells = offsets.last().copied().unwrap_or(0) + 3 * PERIODS[PERIODS.len() - 1].pow(2);
+    let cell_of = |i: usize, k: usize, set: usize| {
+        let (c, r) = px.position(i);
+        let p = PERIODS[k];
+        offsets[k] + set * p * p + (r % p) * p + c % p
+    };
+    let half_of = |i: usize, k: usize| (px.position(i).1 / PERIODS[k]) % 2;
+    let stats = robust(px.len(), cells, &|i, f| {
+        let s = signal(i);
+        for k in 0..PERIODS.len() {
+            f(cell_of(i, k, half_of(i, k)), s);
+            f(cell_of(i, k, 2), s);
+        }
+    });
+    let mut counts = vec![0usize; cells];
+    for i in 0..px.len() {
+        if signal(i).is_finite() {
+            for k in 0..PERIODS.len() {
+                counts[cell_of(i, k, half_of(i, k))] += 1;
+                counts[cell_of(i, k, 2)] += 1;
+            }
+        }
+    }
+    PERIODS
+        .iter()
+        .enumerate()
+        .map(|(k, &p)| {
+            std::array::from_fn(|set| {
+                let range = offsets[k] + set * p * p..offsets[k] + (set + 1) * p * p;
+                Classes {
+                    median: stats[range.clone()].iter().map(|s| s.0).collect(),
+                    sd: stats[range.clone()].iter().map(|s| s.1).collect(),
+                    n: counts[range].to_vec(),
+                }
+            })
+        })
+        .collect()
+}
+
+/// The level whose signal the test reads: 70% of the median pixel's unsaturated levels
+/// (at least 1); `None` where the median pixel has fewer than two.
+fn signal_level<T: Sample>(px: &Pixels<T>) -> Option<usize> {
+    let valid =
+        crate::infra::select::upper_medians(px.len(), 1, &|i, f| f(0, px.valid(i) as f64))[0];
+    (valid >= 2.0).then(|| ((0.7 * (valid - 1.0)) as usize).max(1))
+}
+
+/// Finds a colour filter's response pattern in `px` (module documentation).
+pub(super) fn cfa_stage<T: Sample>(px: &Pixels<T>) -> CfaStage {
+    let none = CfaStage {
+        response: None,
+        finding: None,
+    };
+    let Some(level) = signal_level(px) else {
+        return none;
+    };
+    let signal = |i: usize| {
+        if level < px.valid(i) {
+            px.with_levels(i, |at| at.mean(level) - at.mean(0))
+        } else {
+            f64::NAN
+        }
+    };
+    let (width, height) = px.size();
+    let all = classes(px, &signal);
+    // Per period: its held-out z (NaN where the sensor holds fewer than two periods of
+    // rows a half, or a class is empty).
+    let z_of = |k: usize| -> f64 {
+        let [a, b, _] = &all[k];
+        let p = PERIODS[k];
+        if width < 2 * p || height < 4 * p || a.n.iter().chain(&b.n).any(|&n| n < 2) {
+            return f64::NAN;
+        }
+        held_out(
+            &interaction(&a.response(), p),
+            &interaction(&b.response(), p),
+            a.pooled_se(),
+            b.pooled_se(),
+        )
+    };
+    let z: Vec<f64> = (0..PERIODS.len()).map(z_of).collect();
+    let Some(mut k) = (0..PERIODS.len()).find(|&k| z[k] > SIGNIFICANCE) else {
+        return none;
+    };
+    let mut significance = z[k];
+    // A multiple of the period where what it adds stands out, held out alike.
+    for m in k + 1..PERIODS.len() {
+        let (p, big) = (PERIODS[k], PERIODS[m]);
+        if big % p != 0 || !z[m].is_finite() {
+            continue;
+        }
+        let [a, b, _] = &all[m];
+        let [sa, sb, _] = &all[k];
+        let extra = |c: &Classes, s: &Classes| -> Vec<f64> {
+            c.response()
+                .iter()
+                .zip(alias(&s.response(), p, big))
+                .map(|(x, y)| x - y)
+                .collect()
+        };
+        let added = held_out(&extra(a, sa), &extra(b, sb), a.pooled_se(), b.pooled_se());
+        if added > SIGNIFICANCE {
+            (k, significance) = (m, z[m]);
+        }
+    }
+    let [a, b, whole] = &all[k];
+    let p = PERIODS[k];
+    let response = whole.response();
+    let prnu_within: Vec<f64> = whole
+        .sd
+        .iter()
+        .zip(&whole.median)
+        .map(|(s, m)| s / m)
+        .collect();
+    // The held-out spread of the responses in units of the pixels' own scatter: half B
+    // about one population, then about half A's classes.
+    let pooled_sd = {
+        let u = b.unit();
+        crate::infra::stats::mean(&b.sd.iter().map(|s| (s / u).powi(2)).collect::<Vec<_>>()).sqrt()
+    };
+    let (ra, rb) = (a.response(), b.response());
+    let before = (1.0
+        + crate::infra::stats::mean(&rb.iter().map(|x| (x - 1.0).powi(2)).collect::<Vec<_>>())
+            / pooled_sd.powi(2))
+    .sqrt();
+    let after = (1.0
+        + crate::infra::stats::mean(
+            &rb.iter()
+                .zip(&ra)
+                .map(|(x, y)| (x - y).powi(2))
+                .collect::<Vec<_>>(),
+        ) / pooled_sd.powi(2))
+    .sqrt();
+    let cells: Vec<String> = response
+        .iter()
+        .enumerate()
+        .map(|(c, r)| format!("({}, {}) {r:.3}", c / p, c % p))
+        .collect();
+    let within: Vec<f64> = prnu_within.iter().map(|v| 100.0 * v).collect();
+    let overall = {
+        let u = whole.unit();
+        100.0
+            * crate::infra::stats::mean(
+                &whole
+                    .sd
+                    .iter()
+                    .zip(&response)
+                    .map(|(s, r)| (s / u).powi(2) + (r - 1.0).powi(2))
+                    .collect::<Vec<_>>(),
+            )
+            .sqrt()
+    };
+    let bayer = (p == 2)
+        .then(|| bayer_text(&response, &whole.pooled_se()))
+        .flatten()
+        .unwrap_or_default();
+    let finding = finding(
+        Effect::CfaPattern,
+        None,
+        significance,
+        before,
+        after,
+        format!(
+            "a {p} x {p} pattern of response in rows and columns together (a colour filter array), held out by rows: cells (row, column mod {p}) {} of their mean{bayer}; PRNU within a channel {:.2}-{:.2}% against {overall:.1}% over all pixels (level {level}, its means' noise included). Each pixel's gain meets its own channel's population from here (defects, PRNU, ADC offsets and gains)",
+            cells.join(", "),
+            within.iter().cloned().fold(f64::INFINITY, f64::min),
+            within.iter().cloned().fold(f64::NEG_INFINITY, f64::max),
+        ),
+    );
+    CfaStage {
+        response: Some(CfaResponse {
+            period: p,
+            response,
+            prnu_within,
+        }),
+        finding: Some(finding),
+    }
+}
+
+/// For a 2 x 2 pattern whose one diagonal's two cells respond alike (within 5 standard
+/// errors and 2%) and differ from both others: the Bayer arrangement it has, with "G" on
+/// that diagonal (which of the other two is red the response cannot say).
+fn bayer_text(r: &[f64], se: &f64) -> Option<String> {
+    let alike =
+        |a: f64, b: f64| (a - b).abs() <= (5.0 * se * std::f64::consts::SQRT_2).max(0.02 * a.abs());
+    let (main, anti) = (alike(r[0], r[3]), alike(r[1], r[2]));
+    let (g, others) = match (main, anti) {
+        (true, false) => ((r[0] + r[3]) / 2.0, [r[1], r[2]]),
+        (false, true) => ((r[1] + r[2]) / 2.0, [r[0], r[3]]),
+        _ => return None,
+    };
+    let layout = if main {
+        "GxxG (GRBG or GBRG)"
+    } else {
+        "xGGx (RGGB or BGGR)"
+    };
+    Some(format!("; one diagonal's two cells respond alike ({g:.3}, a Bayer filter's green, layout {layout}), the others {:.3} and {:.3}", others[0], others[1]))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The interaction of a Bayer table is `(2G - R - B) / 4` with alternating signs; a
+    /// table of rows plus columns has none.
+    #[test]
+    fn the_interaction_of_a_bayer_table_is_its_green_excess() {
+        let (g, r, b) = (1.23, 0.55, 0.99);
+        let i = interaction(&[g, b, r, g], 2);
+        let want = (2.0 * g - r - b) / 4.0;
+        for (k, s) in [1.0, -1.0, -1.0, 1.0].iter().enumerate() {
+            assert!((i[k] - s * want).abs() < 1e-12, "{i:?}");
+        }
+        let separable: Vec<f64> = (0..9)
+            .map(|k| [0.1, 0.5, -0.2][k / 3] + [1.0, 2.0, 4.0][k % 3])
+            .collect();
+        assert!(interaction(&separable, 3).iter().all(|v| v.abs() < 1e-12));
+    }
+
+    /// The projection is the template's unit vector dotted with the other half in units
+    /// of its standard error: a half equal to the template gives |I| / se.
+    #[test]
+    fn the_projection_is_the_matched_filter() {
+        let a = [0.1, -0.1, -0.1, 0.1];
+        assert!((projection(&a, &a, 0.01) - 20.0).abs() < 1e-9);
+        assert!((projection(&a, &[0.1, 0.1, -0.1, -0.1], 0.01)).abs() < 1e-12);
+        assert_eq!(projection(&[0.0; 4], &a, 0.01), 0.0);
+        assert_eq!(
+            alias(&[1.0, 2.0, 3.0, 4.0], 2, 4),
+            vec![1.0, 2.0, 1.0, 2.0, 3.0, 4.0, 3.0, 4.0, 1.0, 2.0, 1.0, 2.0, 3.0, 4.0, 3.0, 4.0]
+        );
+    }
+
+    #[test]
+    fn a_bayer_diagonal_is_named_and_a_flat_table_is_not() {
+        assert!(bayer_text(&[1.23, 0.99, 0.55, 1.23], &0.001)
+            .is_some_and(|t| t.contains("GxxG") && t.contains("1.230")));
+        assert!(bayer_text(&[0.55, 1.23, 1.23, 0.99], &0.001).is_some_and(|t| t.contains("xGGx")));
+        assert!(bayer_text(&[1.0, 1.0, 1.0, 1.0], &0.001).is_none());
+    }
+}
