@@ -157,8 +157,8 @@ impl Effect {
     /// Whether `model.toml` carries this effect.
     pub fn in_model(self) -> InModel {
         match self {
-            Effect::AdcDnl | Effect::GlobalNonlinearity | Effect::PixelNonlinearity | Effect::BadPixels | Effect::InsufficientNoise | Effect::IlluminationChange => InModel::Yes,
-            Effect::AdcMismatch | Effect::Unexplained | Effect::LowSignalNonlinearity | Effect::CfaPattern => InModel::NotYet,
+            Effect::AdcDnl | Effect::GlobalNonlinearity | Effect::PixelNonlinearity | Effect::BadPixels | Effect::InsufficientNoise | Effect::IlluminationChange | Effect::CfaPattern => InModel::Yes,
+            Effect::AdcMismatch | Effect::Unexplained | Effect::LowSignalNonlinearity => InModel::NotYet,
             Effect::LevelErrors | Effect::ExcessNoise => InModel::OfTheMeasurement,
         }
     }

@@ -49,7 +49,7 @@ pub fn extended_model(hist: &crate::formats::fits::AdcHistograms, d: &Diagnosis,
 }
 
 /// `base` with what `d` measured and accepted: conversion gain, read noise, dark level,
-/// DSNU, PRNU, full well (1.1 times the full scale, in electrons), bad pixels, the shared response
+/// DSNU, PRNU, a colour filter's cells, full well (1.1 times the full scale, in electrons), bad pixels, the shared response
 /// curve (`y = S + b2 S^2 + ...` DN becomes the camera's `a_k = b_k (FW / G)^(k-1)` of
 /// `y/FW = x + a2 x^2 + ...`) and, with `pixel-nonlinearity`, the spread of `a2`. What
 /// the data do not measure keeps `base`'s value.
@@ -82,6 +82,11 @@ pub fn apply_measured(mut c: crate::model::camera::CameraConfig, d: &Diagnosis) 
     }
     if let Some(b) = m.bad_fraction {
         c.bad_pixel_fraction = b;
+    }
+    // A colour filter's cells as measured (the PRNU above is then within a channel, as
+    // the model applies it: cell times `1 + PRNU`).
+    if let Some(cfa) = &m.cfa {
+        c.cfa = Some(crate::model::camera::config::CfaConfig { period: cfa.period, cells: cfa.response.clone(), bayer: None });
     }
     if let Some(r) = m.illumination_change_rms {
         c.bench.illumination_change_rms = r.min(crate::model::camera::config::MAX_ILLUMINATION_CHANGE_RMS);

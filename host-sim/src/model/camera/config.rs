@@ -119,6 +119,50 @@ pub struct BenchConfig {
     pub seed: u64,
 }
 
+/// A colour filter array over the sensor (issue 58): each pixel's response is its cell's
+/// times its own gain (`1 + PRNU`). `dncal diagnose` writes what `cfa-pattern` measured;
+/// `simulate linearity` writes `bayer` as the FITS `BAYERPAT` keyword.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CfaConfig {
+    /// Pixels a period, rows and columns (2 for a Bayer filter; at most [`MAX_CFA_PERIOD`]).
+    pub period: usize,
+    /// Each cell's relative response, row-major: cell `(row mod period) * period + column
+    /// mod period` of the sensor (dimensionless; the consumer camera of issue 58 had 1.23,
+    /// 0.99, 0.55, 1.23).
+    pub cells: Vec<f64>,
+    /// The Bayer layout's name (`RGGB`, `GRBG`, `GBRG`, `BGGR`: the colours of the first
+    /// two rows' first two pixels), where known; a label, the responses are `cells`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bayer: Option<String>,
+}
+
+/// The largest colour filter period a camera model takes (an X-Trans filter's is 6).
+pub const MAX_CFA_PERIOD: usize = 8;
+
+impl CfaConfig {
+    /// The response of the pixel at `column`, `row` of the sensor.
+    pub fn at(&self, column: usize, row: usize) -> f64 {
+        let p = self.period.max(1);
+        self.cells.get((row % p) * p + column % p).copied().unwrap_or(1.0)
+    }
+
+    fn check(&self) -> Result<(), ConfigError> {
+        if !(1..=MAX_CFA_PERIOD).contains(&self.period) || self.cells.len() != self.period * self.period {
+            return Err(ConfigError::CfaCells { period: self.period, cells: self.cells.len() });
+        }
+        if let Some(v) = self.cells.iter().find(|v| !(v.is_finite() && **v > 0.0)) {
+            return Err(ConfigError::NotPositive { field: "cfa.cells", value: *v });
+        }
+        if let Some(b) = &self.bayer {
+            if !(self.period == 2 && ["RGGB", "GRBG", "GBRG", "BGGR"].contains(&b.as_str())) {
+                return Err(ConfigError::Bayer { bayer: b.clone(), period: self.period });
+            }
+        }
+        Ok(())
+    }
+}
+
 /// The bench's pattern change that brings our Fig. 8 nearest the paper's text (issue 42,
 /// `docs/paper.md`): the default bench.
 pub const PAPER_ILLUMINATION_CHANGE_RMS: f64 = 3e-4;
@@ -192,6 +236,9 @@ pub struct CameraConfig {
     pub adc: AdcConfig,
     /// The lab bench the calibration sets are recorded on.
     pub bench: BenchConfig,
+    /// A colour filter array, where the sensor has one (`[cfa]`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cfa: Option<CfaConfig>,
     /// Seed of the pixel maps (PRNU, DSNU, nonlinearity, bad pixels).
     pub seed: u64,
 }
@@ -218,6 +265,7 @@ impl Default for CameraConfig {
             max_frame_rate_hz: 150.0,
             adc: AdcConfig::default(),
             bench: BenchConfig::default(),
+            cfa: None,
             seed: 2018,
         }
     }
@@ -318,6 +366,9 @@ impl CameraConfig {
         if self.width * self.height > MAX_PIXELS {
             return Err(ConfigError::Sensor { width: self.width, height: self.height });
         }
+        if let Some(c) = &self.cfa {
+            c.check()?;
+        }
         for (name, v) in [("full_well_e", self.full_well_e), ("dark_e", self.dark_e), ("read_noise_e", self.read_noise_e), ("dsnu_rms_e", self.dsnu_rms_e)] {
             if v > MAX_ELECTRONS {
                 return Err(ConfigError::Electrons { field: name, value: v });
@@ -407,6 +458,12 @@ pub enum ConfigError {
     AdcsAboveColumns { n_adc: usize, width: usize },
     #[error("at most 255 ADCs and 65535 x 65535 pixels")]
     Dimensions,
+    /// A colour filter whose cells are not `period x period`.
+    #[error("cfa: period {period} needs period x period cells (period 1 to {MAX_CFA_PERIOD}); {cells} given")]
+    CfaCells { period: usize, cells: usize },
+    /// A Bayer name that is not one or not of a 2 x 2 filter.
+    #[error("cfa.bayer = {bayer:?}: one of RGGB, GRBG, GBRG, BGGR, for period 2 (the period is {period})")]
+    Bayer { bayer: String, period: usize },
     /// A sensor larger than the model holds in memory.
     #[error("width x height = {width} x {height} exceeds {MAX_PIXELS} pixels (8192 x 8192), the largest sensor the model holds in memory")]
     Sensor { width: usize, height: usize },
@@ -504,9 +561,11 @@ mod tests {
                 ],
             },
             bench: BenchConfig { illumination_change_rms: 1e-3, seed: 5 },
+            cfa: Some(CfaConfig { period: 2, cells: vec![1.2, 1.0, 0.6, 1.2], bayer: Some("GBRG".into()) }),
             ..CameraConfig::default()
         };
-        let CameraConfig { name: _, width: _, height: _, bits: _, n_adc: _, qe: _, full_well_e: _, gain_e_per_dn: _, read_noise_e: _, dark_e: _, offset_dn: _, prnu_rms: _, dsnu_rms_e: _, nonlinearity: _, pixel_nonlinearity_rms: _, bad_pixel_fraction: _, max_frame_rate_hz: _, adc, bench, seed: _ } = &config;
+        let CameraConfig { name: _, width: _, height: _, bits: _, n_adc: _, qe: _, full_well_e: _, gain_e_per_dn: _, read_noise_e: _, dark_e: _, offset_dn: _, prnu_rms: _, dsnu_rms_e: _, nonlinearity: _, pixel_nonlinearity_rms: _, bad_pixel_fraction: _, max_frame_rate_hz: _, adc, bench, cfa, seed: _ } = &config;
+        let Some(CfaConfig { period: _, cells: _, bayer: _ }) = cfa else { unreachable!("set above") };
         let AdcConfig { model: _, nested: _, stage_bits: _, stage_error_lsb: _, seed: _, widths: _, widths_from: _, architecture } = adc;
         let BenchConfig { illumination_change_rms: _, seed: _ } = bench;
         let kinds: Vec<&str> = architecture.iter().map(|a| match a { Architecture::Ideal {} => "ideal", Architecture::Sar { .. } => "sar", Architecture::Pipelined { .. } => "pipelined" }).collect();
@@ -581,7 +640,7 @@ mod tests {
         let mut names: Vec<String> = all.iter().map(|s| path_text(s)).collect();
         names.sort();
         // A table added to the model shows up here by itself; this list says it was seen.
-        assert_eq!(names, ["adc", "adc.architecture[0]", "adc.architecture[1]", "adc.architecture[2]", "adc.nested", "bench", "the top level"]);
+        assert_eq!(names, ["adc", "adc.architecture[0]", "adc.architecture[1]", "adc.architecture[2]", "adc.nested", "bench", "cfa", "the top level"]);
         // Each key of any table, with its value there (the first table that has it).
         let mut keys: std::collections::BTreeMap<String, toml::Value> = std::collections::BTreeMap::new();
         for steps in &all {

@@ -53,8 +53,11 @@ impl PixelMaps {
                 let mut dark = Vec::with_capacity(w);
                 let mut nl = Vec::with_capacity(w * terms);
                 let mut state = Vec::with_capacity(w);
-                for _ in 0..w {
-                    gain.push(1.0 + prnu.sample(&mut rng));
+                for col in 0..w {
+                    // (A colour filter's cell scales the pixel's own gain; the draws are
+                    // the same with or without one.)
+                    let cell = config.cfa.as_ref().map_or(1.0, |c| c.at(col, row));
+                    gain.push(cell * (1.0 + prnu.sample(&mut rng)));
                     dark.push((config.dark_e + dsnu.sample(&mut rng)).max(0.0));
                     for (m, &a) in config.nonlinearity.iter().enumerate() {
                         let rms = config.pixel_nonlinearity_rms.get(m).copied().unwrap_or(0.0);
