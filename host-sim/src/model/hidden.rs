@@ -215,7 +215,8 @@ pub fn linearity_set(plant: &Plant, hidden: &[Hidden], seed: u64) -> LinearitySe
         }
     }
     let chi = ChiSquared::new(f64::from(plant.frames - 1)).expect("frames > 1");
-    let reference = |l: usize| plant.reference_start + (1.0 - plant.reference_start) * l as f64 / (nl - 1) as f64;
+    // (At a dark level 0, `l / (nl - 1)` as it always was: the same sets, bit for bit.)
+    let reference = |l: usize| if plant.reference_start == 0.0 { l as f64 / (nl - 1) as f64 } else { plant.reference_start + (1.0 - plant.reference_start) * l as f64 / (nl - 1) as f64 };
     let n = f64::from(plant.frames);
     let (mut mean, mut std) = (vec![0.0; nl * np], vec![0.0; nl * np]);
     for l in 0..nl {
@@ -263,7 +264,7 @@ pub fn linearity_set(plant: &Plant, hidden: &[Hidden], seed: u64) -> LinearitySe
         levels: nl,
         mean,
         std,
-        voltage: (0..nl).map(|l| 2.5 * reference(l)).collect(),
+        voltage: (0..nl).map(|l| if plant.reference_start == 0.0 { 2.5 * l as f64 / (nl - 1) as f64 } else { 2.5 * reference(l) }).collect(),
         mask: None,
     }
 }

@@ -120,8 +120,8 @@ pub struct BenchConfig {
 }
 
 /// A colour filter array over the sensor (issue 58): each pixel's response is its cell's
-/// times its own gain (`1 + PRNU`). `dncal diagnose` writes what `cfa-pattern` measured;
-/// `simulate linearity` writes `bayer` as the FITS `BAYERPAT` keyword.
+/// times its own gain (`1 + PRNU`). `dncal diagnose` writes what `cfa-pattern` measured.
+/// (`bayer` is a label: not yet written as the FITS `BAYERPAT` keyword.)
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CfaConfig {

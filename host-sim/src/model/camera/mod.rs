@@ -3,7 +3,7 @@
 //! For pixel `i` in column `c` receiving `N_p` photons in a frame:
 //!
 //! ```text
-//! mean signal     mu_i = QE N_p g_i + d_i           g_i = 1 + N(0, prnu_rms)   (PRNU)
+//! mean signal     mu_i = QE N_p g_i + d_i           g_i = f_i (1 + N(0, prnu_rms))   (PRNU; f_i the [cfa] cell's response, else 1)
 //!                                                   d_i = dark_e + N(0, dsnu_rms_e), >= 0 (DSNU)
 //! photoelectrons  n    ~ Poisson(mu_i),  clipped at the full well FW
 //! nonlinearity    y    = FW p_i(n / FW),  p_i(x) = x + sum_m a_{m,i} x^m   (m = 2, 3, ...)

@@ -269,8 +269,6 @@ fn diagnose_set<T: Sample>(set: &SetView<'_, T>, keep: Keep, accuracy_dn: f64) -
     // Errors every pixel shares at a level (the light off the reference, the black level
     // off) first: found, they are taken out of every pixel's means before any model.
     let LevelStage { term: levels_term, accepted: level_accepted, mut findings } = level_stage(&px, nl);
-    // (Named first: found before the level term, on the raw means.)
-    findings.splice(0..0, cfa_finding);
     let level_common: Option<&dyn Common> = (level_accepted || levels_term.per_adc.is_some()).then_some(&levels_term as &dyn Common);
     // Then the light's pattern changing between levels, held out by rows.
     let pattern = illumination_change(&px, level_common, &levels_term, &levels_term.signal);
@@ -426,6 +424,9 @@ fn diagnose_set<T: Sample>(set: &SetView<'_, T>, keep: Keep, accuracy_dn: f64) -
     measured.cfa = cfa;
     findings.extend(insufficient_noise("median dark noise", dark_noise, accuracy_dn));
     findings.extend(remainder(&s, &current, tcur, unattributed(final_params)));
+    // (The colour filter is named first: found before the level term, on the raw means,
+    // and tested on maps, not on the residuals' scale.)
+    findings.splice(0..0, cfa_finding);
     let not_tested = measured.no_dark.iter().map(|n| n.note(measured.offset_dn, measured.read_noise_dn)).collect();
     Ok(Diagnosis {
         not_tested,
