@@ -235,7 +235,7 @@ pub(super) fn cfa_stage<T: Sample>(px: &Pixels<T>) -> CfaStage {
     // 3% off).
     for m in k + 1..PERIODS.len() {
         let (p, big) = (PERIODS[k], PERIODS[m]);
-        if big % p != 0 || !(z[m] > SIGNIFICANCE) {
+        if big % p != 0 || z[m].is_nan() || z[m] <= SIGNIFICANCE {
             continue;
         }
         let [a, b, _] = &all[m];
