@@ -7,7 +7,8 @@ user would write them: the baseline `dncal bench` times the command against.
 Prints one JSON line: the largest RMS of the three corrections and the seconds taken.
 Same rules as dncal: saturated levels left out per pixel, a pixel-wise polynomial of
 ORDER (default 4) in the reference x = V / max V fitted by least squares on each
-pixel's unsaturated levels, masks (low signal, no fit, a residual 10x the median), the
+pixel's unsaturated levels, masks (low signal, no fit, a residual 10x the median; the medians
+per cell of the 2 x 2 period), the
 standard correction (a global cubic x(m / top) through the median good pixel), the
 pixel-wise inversion by Newton's method, dark and gain at the level nearest half the
 maximum reference, and the RMS per level. Vectorized over pixels (one least-squares
@@ -62,9 +63,14 @@ def main():
 
     signal = m[g] - m[0]
     masked = np.zeros(npx, dtype=bool) if mask_in is None else mask_in.reshape(-1).copy()
-    masked |= ~np.isfinite(signal) | (signal < 0.5 * np.nanmedian(signal))
+    # Each pixel against the median of its cell of the 2 x 2 period (a colour filter's
+    # channel): cell (row mod 2) * 2 + column mod 2.
+    r_, c_ = np.indices((rows, cols))
+    cell = ((r_ % 2) * 2 + c_ % 2).reshape(-1)
+    per_cell = lambda v: np.array([np.nanmedian(v[cell == k]) if (cell == k).any() else np.nan for k in range(4)])[cell]
+    masked |= ~np.isfinite(signal) | (signal < 0.5 * per_cell(signal))
     masked |= ~np.isfinite(resid)
-    masked |= resid > 10.0 * max(np.nanmedian(resid), 1e-12)
+    masked |= resid > 10.0 * np.maximum(per_cell(resid), 1e-12)
     good = ~masked
 
     # Standard correction: a global cubic x(m / top) through the median good pixel.

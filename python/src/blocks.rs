@@ -182,9 +182,9 @@ fn tally<'py>(py: Python<'py>, counter: &[u64], visit: impl FnOnce(&mut dyn FnMu
     })
 }
 
-/// A block's tally of its flat signal by cell of the 2 x 2 period (the search's sets 0-3,
-/// `(row mod 2) * 2 + column mod 2` of the whole frame: the block starts at row `r0`,
-/// column `c0`) and fit residual (set 4).
+/// A block's tally of its flat signal (the search's sets 0-3) and fit residual (sets 4-7)
+/// by cell of the 2 x 2 period (`(row mod 2) * 2 + column mod 2` of the whole frame: the
+/// block starts at row `r0`, column `c0`).
 #[pyfunction]
 fn _lin_mask_tally<'py>(py: Python<'py>, counter: Vec<u64>, signal: &Bound<'py, PyAny>, resid: &Bound<'py, PyAny>, r0: usize, c0: usize) -> PyResult<Bound<'py, PyAny>> {
     let s = arrays::view::<f64, Ix2>(signal, "signal", "(rows, cols)")?;
@@ -192,14 +192,12 @@ fn _lin_mask_tally<'py>(py: Python<'py>, counter: Vec<u64>, signal: &Bound<'py, 
     let w = s.shape()[1].max(1);
     let (s, r) = (s.as_slice()?, r.as_slice()?);
     tally(py, &counter, |f| {
-        for (p, &v) in s.iter().enumerate() {
-            let q = ((r0 + p / w) % 2) * 2 + (c0 + p % w) % 2;
-            f(2 * q, v);
-            f(2 * q + 1, v);
-        }
-        for &v in r {
-            f(8, v);
-            f(9, v);
+        for (set, values) in [s, r].into_iter().enumerate() {
+            for (p, &v) in values.iter().enumerate() {
+                let q = 4 * set + ((r0 + p / w) % 2) * 2 + (c0 + p % w) % 2;
+                f(2 * q, v);
+                f(2 * q + 1, v);
+            }
         }
     })
 }
@@ -208,7 +206,7 @@ fn _lin_mask_tally<'py>(py: Python<'py>, counter: Vec<u64>, signal: &Bound<'py, 
 /// the frame's 2 x 2 period; the block starts at `origin`, row and column).
 #[pyfunction]
 #[pyo3(signature = (signal, resid, input, median_signal, median_resid, origin))]
-fn _lin_mask<'py>(py: Python<'py>, signal: &Bound<'py, PyAny>, resid: &Bound<'py, PyAny>, input: Option<&Bound<'py, PyAny>>, median_signal: [f64; 4], median_resid: f64, origin: (usize, usize)) -> PyResult<Bound<'py, PyArray2<u8>>> {
+fn _lin_mask<'py>(py: Python<'py>, signal: &Bound<'py, PyAny>, resid: &Bound<'py, PyAny>, input: Option<&Bound<'py, PyAny>>, median_signal: [f64; 4], median_resid: [f64; 4], origin: (usize, usize)) -> PyResult<Bound<'py, PyArray2<u8>>> {
     let (r0, c0) = origin;
     let s = arrays::view::<f64, Ix2>(signal, "signal", "(rows, cols)")?;
     let r = arrays::view::<f64, Ix2>(resid, "resid", "(rows, cols)")?;
@@ -220,8 +218,8 @@ fn _lin_mask<'py>(py: Python<'py>, signal: &Bound<'py, PyAny>, resid: &Bound<'py
     }
     let shape = (s.shape()[0], s.shape()[1]);
     // The frame's cells as the block's own (it starts at row r0, column c0).
-    let signal = std::array::from_fn(|k| median_signal[((r0 + k / 2) % 2) * 2 + (c0 + k % 2) % 2]);
-    let m = mask_of(s.as_slice()?, r.as_slice()?, k.as_ref().map(|k| k.as_slice()).transpose()?, MaskRule { signal, width: shape.1, resid: median_resid });
+    let own = |frame: [f64; 4]| -> [f64; 4] { std::array::from_fn(|k| frame[((r0 + k / 2) % 2) * 2 + (c0 + k % 2) % 2]) };
+    let m = mask_of(s.as_slice()?, r.as_slice()?, k.as_ref().map(|k| k.as_slice()).transpose()?, MaskRule { signal: own(median_signal), width: shape.1, resid: own(median_resid) });
     arrays::new(py, shape, m)
 }
 

@@ -277,10 +277,10 @@ def fit_linearity(mean, std, voltage, frames: int, *, order: int = 4, flat_level
     # The mask's medians, then each block's mask (kept).
     passes = [0]
     with _step("mask medians", passes):
-        # (The flat's signal by cell of the 2 x 2 period, a colour filter's channels, then the residual.)
-        med, _ = _medians(5, lambda w: [dask.delayed(lambda w, f, r, c: _dncal._lin_mask_tally(w, _f(f)[3], _f(f)[2], r, c))(w, f, int(r0[i]), int(c0[j])) for f, (i, j) in zip(fits, grid)], passes)
+        # (The flat's signal, then the residual, by cell of the 2 x 2 period: a colour filter's channels.)
+        med, _ = _medians(8, lambda w: [dask.delayed(lambda w, f, r, c: _dncal._lin_mask_tally(w, _f(f)[3], _f(f)[2], r, c))(w, f, int(r0[i]), int(c0[j])) for f, (i, j) in zip(fits, grid)], passes)
     mask_fn = dask.delayed(lambda f, k, s, r, i, j: _dncal._lin_mask(_f(f)[3], _f(f)[2], None if k is None else _c(k, np.uint8), s, r, (i, j)), pure=True)
-    masks = dask.persist(*[mask_fn(f, None if kb is None else kb[i][j], [float(m) for m in med[:4]], float(med[4]), int(r0[i]), int(c0[j])) for f, (i, j) in zip(fits, grid)])
+    masks = dask.persist(*[mask_fn(f, None if kb is None else kb[i][j], [float(m) for m in med[:4]], [float(m) for m in med[4:]], int(r0[i]), int(c0[j])) for f, (i, j) in zip(fits, grid)])
     (good,) = dask.compute(dask.delayed(sum)([dask.delayed(lambda m: int(np.count_nonzero(m == 0)))(m) for m in masks]))
     if good == 0:
         _dncal._lin_global(keys, [], [], 0, rows * cols)  # raises AllMasked, as the in-memory fit does

@@ -15,7 +15,7 @@
 //! - *Masked* pixels: the set's `MASK`, pixels whose signal at the gain level is below half
 //!   the median of their cell of a 2 x 2 period (a colour filter's channel: issue 58),
 //!   and pixels whose own 4th-order fit leaves an rms residual above 10 times the median
-//!   (anomalous trends: dead, hot, stuck pixels). Masked pixels are left out
+//!   of their cell (anomalous trends: dead, hot, stuck pixels). Masked pixels are left out
 //!   of every statistic and replaced in corrected images by the mean of their good
 //!   neighbours (8-connected).
 //!
@@ -327,7 +327,7 @@ pub fn analyze_unsaturated(set: &SetView, order: usize, flat: Option<usize>, val
     let plan = Plan::new(set.voltage, set.bit_depth, set.n_frames, order, flat);
     let np = set.width * set.height;
     let fits = plan.fit(set, valid);
-    let (signal, resid) = rayon::join(|| stages::cell_medians(&fits.signal, set.width), || median(fits.resid.iter().copied()));
+    let (signal, resid) = rayon::join(|| stages::cell_medians(&fits.signal, set.width), || stages::cell_medians(&fits.resid, set.width));
     let mask = fits.mask(set.mask, MaskRule { signal, width: set.width, resid });
     let good = mask.iter().filter(|&&m| m == 0).count();
     if good == 0 {

@@ -72,8 +72,10 @@ pub struct MaskRule {
     pub signal: [f64; 4],
     /// Columns of the set (for the cell of a pixel).
     pub width: usize,
-    /// Median over all pixels of the fit residual.
-    pub resid: f64,
+    /// Median of the fit residual over each cell, as `signal` (a channel's residual
+    /// scales with its signal: a Bayer green at 1.23 of the mean crossed 10 times the
+    /// median of all).
+    pub resid: [f64; 4],
 }
 
 /// Whether pixel `p` counts in level `l`'s statistics: good and unsaturated there.
@@ -293,7 +295,7 @@ pub fn cell_medians(signal: &[f64], width: usize) -> [f64; 4] {
 
 /// Why each pixel is left out ([`reason`] bits), from its flat's `signal` and fit
 /// residual `resid` ([`Fits`]): flagged in the `input` mask, a signal at the flat below
-/// half the median of its cell of the 2 x 2 period, no fit, or a fit residual beyond 10 times the median.
+/// half the median of its cell of the 2 x 2 period, no fit, or a fit residual beyond 10 times its cell's median.
 pub fn mask_of(signal: &[f64], resid: &[f64], input: Option<&[u8]>, rule: MaskRule) -> Vec<u8> {
     (0..signal.len())
         .into_par_iter()
@@ -304,12 +306,13 @@ pub fn mask_of(signal: &[f64], resid: &[f64], input: Option<&[u8]>, rule: MaskRu
             }
             let s = signal[p];
             let w = rule.width.max(1);
-            if s.is_nan() || s < 0.5 * rule.signal[((p / w) % 2) * 2 + (p % w) % 2] {
+            let cell = ((p / w) % 2) * 2 + (p % w) % 2;
+            if s.is_nan() || s < 0.5 * rule.signal[cell] {
                 m |= reason::LOW;
             }
             if resid[p].is_nan() {
                 m |= reason::UNFIT;
-            } else if resid[p] > 10.0 * rule.resid.max(1e-12) {
+            } else if resid[p] > 10.0 * rule.resid[cell].max(1e-12) {
                 m |= reason::TREND;
             }
             m
