@@ -66,8 +66,12 @@ def test_a_colour_filters_channels_are_judged_alike_by_blocks(sets):
     bayer = mean[0] + (mean - mean[0]) * cell
     want = dncal.fit_linearity(bayer, std, voltage, frames, mask=mask)
     plain = dncal.fit_linearity(mean, std, voltage, frames, mask=mask)
-    # The same pixels masked as without the filter (none of the red channel for it).
-    assert np.array_equal(want.mask != 0, plain.mask != 0)
+    # The same pixels masked for low signal or a residual as without the filter (none of
+    # the red channel for it); the green's top levels saturate sooner (too few levels to
+    # fit, a different reason), the red's later.
+    low_or_trend = np.uint8(2 | 4)
+    assert np.array_equal(want.mask & low_or_trend, plain.mask & low_or_trend)
+    assert want.report["masked_pixels"] <= plain.report["masked_pixels"] + 5
     c = (mean.shape[0], 13, 17)
     got = dd.fit_linearity(da.from_array(bayer, chunks=c), da.from_array(std, chunks=c), voltage, frames, mask=mask)
     same(got, want)
