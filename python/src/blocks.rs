@@ -7,6 +7,7 @@
 use dncal_host::analyses::linearity::stages::{counted_means, fill_cube, mask_of, MaskRule, Plan, STATISTICS};
 use dncal_host::analyses::linearity::{check_flat_counts, unsaturated_levels, Cube, LinearityError, MAX_ORDER};
 use dncal_host::analyses::linearity::run::check_plan;
+use dncal_host::model::camera::config::cfa_cell;
 use dncal_host::formats::fits::{check_linearity, SetView};
 use dncal_host::infra::exact_sum::{ExactRms, ExactSum, LIMBS};
 use dncal_host::infra::select::{median_rank, medians_of, Counter, Selection, Tally, BINS};
@@ -194,7 +195,7 @@ fn _lin_mask_tally<'py>(py: Python<'py>, counter: Vec<u64>, signal: &Bound<'py, 
     tally(py, &counter, |f| {
         for (set, values) in [s, r].into_iter().enumerate() {
             for (p, &v) in values.iter().enumerate() {
-                let q = 4 * set + ((r0 + p / w) % 2) * 2 + (c0 + p % w) % 2;
+                let q = 4 * set + cfa_cell(c0 + p % w, r0 + p / w, 2);
                 f(2 * q, v);
                 f(2 * q + 1, v);
             }
@@ -218,7 +219,7 @@ fn _lin_mask<'py>(py: Python<'py>, signal: &Bound<'py, PyAny>, resid: &Bound<'py
     }
     let shape = (s.shape()[0], s.shape()[1]);
     // The frame's cells as the block's own (it starts at row r0, column c0).
-    let own = |frame: [f64; 4]| -> [f64; 4] { std::array::from_fn(|k| frame[((r0 + k / 2) % 2) * 2 + (c0 + k % 2) % 2]) };
+    let own = |frame: [f64; 4]| -> [f64; 4] { std::array::from_fn(|k| frame[cfa_cell(c0 + k % 2, r0 + k / 2, 2)]) };
     let m = mask_of(s.as_slice()?, r.as_slice()?, k.as_ref().map(|k| k.as_slice()).transpose()?, MaskRule { signal: own(median_signal), width: shape.1, resid: own(median_resid) });
     arrays::new(py, shape, m)
 }

@@ -189,7 +189,7 @@ pub fn linearity_set(plant: &Plant, hidden: &[Hidden], seed: u64) -> LinearitySe
             }
         }
     }
-    let channel = |p: usize| cfa.map_or(1.0, |r| r[((p / w) % 2) * 2 + (p % w) % 2]);
+    let channel = |p: usize| cfa.map_or(1.0, |r| r[crate::model::camera::config::cfa_cell(p % w, p / w, 2)]);
     let gain: Vec<f64> = (0..np).map(|p| channel(p) * (1.0 + plant.prnu * unit.sample(&mut rng))).collect();
     let dark: Vec<f64> = (0..np).map(|_| plant.dsnu_dn * unit.sample(&mut rng)).collect();
     // Bad pixels: distinct, each dead, hot or kinked.

@@ -23,8 +23,7 @@ pub struct CfaResponse {
 impl CfaResponse {
     /// The response of the pixel at `column`, `row` (1 where the table has no such cell).
     pub fn at(&self, column: usize, row: usize) -> f64 {
-        let p = self.period.max(1);
-        self.response.get((row % p) * p + column % p).copied().unwrap_or(1.0)
+        self.response.get(crate::model::camera::config::cfa_cell(column, row, self.period)).copied().unwrap_or(1.0)
     }
 }
 

@@ -290,7 +290,7 @@ impl Fits {
 /// pixel then asks for).
 pub fn cell_medians(signal: &[f64], width: usize) -> [f64; 4] {
     let w = width.max(1);
-    std::array::from_fn(|k| crate::infra::stats::median(signal.iter().enumerate().filter(|(p, _)| ((p / w) % 2) * 2 + (p % w) % 2 == k).map(|(_, &v)| v)))
+    std::array::from_fn(|k| crate::infra::stats::median(signal.iter().enumerate().filter(|(p, _)| crate::model::camera::config::cfa_cell(p % w, p / w, 2) == k).map(|(_, &v)| v)))
 }
 
 /// Why each pixel is left out ([`reason`] bits), from its flat's `signal` and fit
@@ -306,7 +306,7 @@ pub fn mask_of(signal: &[f64], resid: &[f64], input: Option<&[u8]>, rule: MaskRu
             }
             let s = signal[p];
             let w = rule.width.max(1);
-            let cell = ((p / w) % 2) * 2 + (p % w) % 2;
+            let cell = crate::model::camera::config::cfa_cell(p % w, p / w, 2);
             if s.is_nan() || s < 0.5 * rule.signal[cell] {
                 m |= reason::LOW;
             }

@@ -137,14 +137,22 @@ pub struct CfaConfig {
     pub bayer: Option<String>,
 }
 
+/// The cell of a colour filter of period `period` (rows and columns; 0 taken as 1) that
+/// the pixel at `column`, `row` lies in, row-major: `(row mod period) * period + column
+/// mod period`. The one indexing of the model's `[cfa]`, of what `cfa-pattern` measures
+/// and of `dncal linearity`'s 2 x 2 mask medians.
+pub fn cfa_cell(column: usize, row: usize, period: usize) -> usize {
+    let p = period.max(1);
+    (row % p) * p + column % p
+}
+
 /// The largest colour filter period a camera model takes (an X-Trans filter's is 6).
 pub const MAX_CFA_PERIOD: usize = 8;
 
 impl CfaConfig {
     /// The response of the pixel at `column`, `row` of the sensor.
     pub fn at(&self, column: usize, row: usize) -> f64 {
-        let p = self.period.max(1);
-        self.cells.get((row % p) * p + column % p).copied().unwrap_or(1.0)
+        self.cells.get(cfa_cell(column, row, self.period)).copied().unwrap_or(1.0)
     }
 
     fn check(&self) -> Result<(), ConfigError> {

@@ -147,7 +147,7 @@ fn classes<T: Sample>(px: &Pixels<T>, signal: &(dyn Fn(usize) -> f64 + Sync)) ->
     let cell_of = |i: usize, k: usize, set: usize| {
         let (c, r) = px.position(i);
         let p = PERIODS[k];
-        offsets[k] + set * p * p + (r % p) * p + c % p
+        offsets[k] + set * p * p + crate::model::camera::config::cfa_cell(c, r, p)
     };
     let half_of = |i: usize, k: usize| (px.position(i).1 / PERIODS[k]) % 2;
     let stats = robust(px.len(), cells, &|i, f| {
