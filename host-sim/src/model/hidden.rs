@@ -6,7 +6,9 @@
 //! mean of `N` Gaussian frames is `Normal(mu, var / N)` and their sample variance is
 //! `var chi^2_(N-1) / (N-1)`, independent of it, which is exactly what averaging `N`
 //! frames gives. `var` is read noise, shot noise and one code's quantization
-//! (`r^2 + S / K + 1/12` DN^2); with 4 DN of read noise the mean of quantized frames is
+//! (`r^2 + S / K + 1/12` DN^2 for a linear camera; the shot noise through the slope of
+//! the pixel's response and both through the ADC's, `h'^2 (r^2 + G'^2 S / K) + 1/12`,
+//! where they bend); with 4 DN of read noise the mean of quantized frames is
 //! unbiased to far below its noise (`crate::analyses::quantization`).
 //!
 //! The camera, in DN: pixel `p` on ADC `a` (column mod 4) at reference `x` reads
@@ -63,6 +65,11 @@ pub enum Hidden {
     /// 2) * 2 + c mod 2]` times (a Bayer filter: one diagonal's two cells alike). Not in
     /// [`pick`]: diagnose names it `cfa-pattern`.
     Cfa { response: [f64; 4] },
+    /// The light of each frame off its level's by `rms` (relative, drawn per frame and
+    /// alike for every pixel: a source that flickers, a shutter that jitters): the
+    /// frames' means carry it as a level error, their spread as a variance `rms^2 S^2`
+    /// over the photon transfer. Not in [`pick`]: diagnose names it `light-jitter`.
+    LightJitter { rms: f64 },
 }
 
 /// (What `diagnose` should name for each is `Hidden::expected`, in
@@ -171,6 +178,7 @@ pub fn linearity_set(plant: &Plant, hidden: &[Hidden], seed: u64) -> LinearitySe
     let mut loss = 0.0;
     let mut pattern: Option<(f64, u64)> = None;
     let mut cfa: Option<[f64; 4]> = None;
+    let mut jitter = 0.0;
     for e in hidden {
         match *e {
             Hidden::GlobalNonlinearity { c2: c } => c2.iter_mut().for_each(|v| *v += c),
@@ -183,6 +191,7 @@ pub fn linearity_set(plant: &Plant, hidden: &[Hidden], seed: u64) -> LinearitySe
             Hidden::ChargeLoss { dn } => loss = dn,
             Hidden::IlluminationChange { rms } => pattern = Some((rms, rng.random())),
             Hidden::Cfa { response } => cfa = Some(response),
+            Hidden::LightJitter { rms } => jitter = rms,
             Hidden::LevelErrors { rel_rms, offset_dn } => {
                 light.iter_mut().for_each(|v| *v = rel_rms * unit.sample(&mut rng));
                 black.iter_mut().for_each(|v| *v = offset_dn * unit.sample(&mut rng));
@@ -219,36 +228,63 @@ pub fn linearity_set(plant: &Plant, hidden: &[Hidden], seed: u64) -> LinearitySe
     let reference = |l: usize| if plant.reference_start == 0.0 { l as f64 / (nl - 1) as f64 } else { plant.reference_start + (1.0 - plant.reference_start) * l as f64 / (nl - 1) as f64 };
     let n = f64::from(plant.frames);
     let (mut mean, mut std) = (vec![0.0; nl * np], vec![0.0; nl * np]);
+    // Below `N - 1` degrees of freedom, what is left of a pixel's frames' spread beside
+    // the jitter's direction (with jitter only).
+    let rest = (jitter > 0.0 && plant.frames > 2).then(|| ChiSquared::new(f64::from(plant.frames - 2)).expect("frames > 2"));
     for l in 0..nl {
-        let x = reference(l) * (1.0 + light[l]);
+        // The light of each frame relative to the level's (with jitter): their mean, and
+        // their deviations' length `sqrt(sum (e_f - mean)^2)`.
+        let frames: Vec<f64> = if jitter > 0.0 { (0..plant.frames).map(|_| jitter * unit.sample(&mut rng)).collect() } else { Vec::new() };
+        let e_mean = if frames.is_empty() { 0.0 } else { frames.iter().sum::<f64>() / n };
+        let e_len = frames.iter().map(|e| (e - e_mean).powi(2)).sum::<f64>().sqrt();
+        let x_level = reference(l) * (1.0 + light[l]);
         let change = pattern.map(|(rms, seed)| crate::model::camera::calibration::illumination_change(rms, w, h, seed, l));
         for p in 0..np {
             let a = (p % w) % plant.n_adc;
-            let x = change.as_ref().map_or(x, |c| x * (1.0 + c[p]));
-            let s_lin = if kind[p] == 1 { 0.0 } else { gain[p] * plant.full_dn * x };
-            let s = s_lin * (1.0 + c2[p] * s_lin / top) - loss * (1.0 - (-s_lin / 100.0).exp());
-            let mut v = plant.offset_dn + black[l] + dark[p] + s;
-            if jumpy[p] {
-                v += subtle_dn * unit.sample(&mut rng);
-            }
-            if kind[p] == 3 && l >= kink[p].0 {
-                v += kink[p].1;
-            }
-            let code = adc_gain[a] * v * (1.0 + adc_bend[a] * v / top) + adc_offset[a];
-            let var = plant.read_dn.powi(2) + s.max(0.0) / plant.gain_e_per_dn + 1.0 / 12.0;
+            let x_p = change.as_ref().map_or(x_level, |c| x_level * (1.0 + c[p]));
+            let extra = if jumpy[p] { subtle_dn * unit.sample(&mut rng) } else { 0.0 };
+            // The pixel's code and signal at a light `e` off the level's (relative).
+            let respond = |e: f64| {
+                let x = x_p * (1.0 + e);
+                let s_lin = if kind[p] == 1 { 0.0 } else { gain[p] * plant.full_dn * x };
+                let s = s_lin * (1.0 + c2[p] * s_lin / top) - loss * (1.0 - (-s_lin / 100.0).exp());
+                let mut v = plant.offset_dn + black[l] + dark[p] + s + extra;
+                if kind[p] == 3 && l >= kink[p].0 {
+                    v += kink[p].1;
+                }
+                (adc_gain[a] * v * (1.0 + adc_bend[a] * v / top) + adc_offset[a], s_lin, v)
+            };
+            let (code, s_lin, v) = respond(e_mean);
+            // The noise where it arises, carried through the slopes after it: the shot
+            // noise of the pixel's charge through its own response's slope, with the read
+            // noise through the ADC's (a nonlinearity of the conversion bends the photon
+            // transfer too: `var = f'(N)^2 N`).
+            let (slope_s, slope_adc) = (1.0 + 2.0 * c2[p] * s_lin / top - loss * (-s_lin / 100.0).exp() / 100.0, adc_gain[a] * (1.0 + 2.0 * adc_bend[a] * v / top));
+            let var = slope_adc * slope_adc * (plant.read_dn.powi(2) + slope_s * slope_s * s_lin.max(0.0) / plant.gain_e_per_dn) + 1.0 / 12.0;
             let i = l * np + p;
             if kind[p] == 2 {
                 (mean[i], std[i]) = (top, 0.0);
             } else if plant.quantized {
                 let sd = (var - 1.0 / 12.0).max(0.0).sqrt();
                 let (mut s1, mut s2) = (0.0, 0.0);
-                for _ in 0..plant.frames {
-                    let q = (code + sd * unit.sample(&mut rng)).round().clamp(0.0, top);
+                for f in 0..plant.frames as usize {
+                    let c = frames.get(f).map_or(code, |&e| respond(e).0);
+                    let q = (c + sd * unit.sample(&mut rng)).round().clamp(0.0, top);
                     s1 += q;
                     s2 += q * q;
                 }
                 mean[i] = s1 / n;
                 std[i] = ((s2 - s1 * s1 / n) / (n - 1.0)).max(0.0).sqrt();
+            } else if let Some(rest) = &rest {
+                // The frames `c(e_f) + n_f` to first order in the jitter, `c + A e_f + n_f`
+                // with `A` the code's slope in `e`: their mean `c(mean e) + mean n`, their
+                // sum of squares `(A |e - mean e| + sd z)^2 + sd^2 chi^2_(N-2)` (the
+                // noise's part along the jitter's direction, and the rest).
+                let slope = (respond(e_mean + 1e-4).0 - respond(e_mean - 1e-4).0) / 2e-4;
+                let sd = var.sqrt();
+                mean[i] = (code + (var * (1.0 + plant.excess_noise) / n).sqrt() * unit.sample(&mut rng)).min(top);
+                let along = slope * e_len + sd * unit.sample(&mut rng);
+                std[i] = ((along * along + var * rest.sample(&mut rng)) / (n - 1.0)).sqrt();
             } else {
                 mean[i] = (code + (var * (1.0 + plant.excess_noise) / n).sqrt() * unit.sample(&mut rng)).min(top);
                 std[i] = (var * chi.sample(&mut rng) / (n - 1.0)).sqrt();

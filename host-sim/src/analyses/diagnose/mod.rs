@@ -104,6 +104,9 @@ pub enum Effect {
     LowSignalNonlinearity,
     /// Errors of the measurement every pixel shares at a level (light, black level).
     LevelErrors,
+    /// The light of each frame off its level's, alike for every pixel (a flicker, a
+    /// shutter's jitter): the frames' spread holds more than the sensor's noise.
+    LightJitter,
     /// The light's spatial pattern changing between levels, unseen by the reference.
     IlluminationChange,
     /// A response that repeats in rows and columns together with a small period: a colour
@@ -148,6 +151,7 @@ impl crate::model::hidden::Hidden {
             Hidden::ChargeLoss { .. } => Effect::LowSignalNonlinearity,
             Hidden::IlluminationChange { .. } => Effect::IlluminationChange,
             Hidden::Cfa { .. } => Effect::CfaPattern,
+            Hidden::LightJitter { .. } => Effect::LightJitter,
         };
         (effect, self.adc())
     }
@@ -159,18 +163,19 @@ impl Effect {
         match self {
             Effect::AdcDnl | Effect::GlobalNonlinearity | Effect::PixelNonlinearity | Effect::BadPixels | Effect::InsufficientNoise | Effect::IlluminationChange | Effect::CfaPattern => InModel::Yes,
             Effect::AdcMismatch | Effect::Unexplained | Effect::LowSignalNonlinearity => InModel::NotYet,
-            Effect::LevelErrors | Effect::ExcessNoise => InModel::OfTheMeasurement,
+            Effect::LevelErrors | Effect::LightJitter | Effect::ExcessNoise => InModel::OfTheMeasurement,
         }
     }
 
     /// Every effect, in the catalog's order.
-    pub const ALL: [Effect; 12] = [
+    pub const ALL: [Effect; 13] = [
         Effect::AdcDnl,
         Effect::AdcMismatch,
         Effect::GlobalNonlinearity,
         Effect::PixelNonlinearity,
         Effect::LowSignalNonlinearity,
         Effect::LevelErrors,
+        Effect::LightJitter,
         Effect::IlluminationChange,
         Effect::CfaPattern,
         Effect::BadPixels,
@@ -188,6 +193,7 @@ impl Effect {
             Effect::PixelNonlinearity => "pixel-nonlinearity",
             Effect::LowSignalNonlinearity => "low-signal-nonlinearity",
             Effect::LevelErrors => "level-errors",
+            Effect::LightJitter => "light-jitter",
             Effect::IlluminationChange => "illumination-change",
             Effect::CfaPattern => "cfa-pattern",
             Effect::BadPixels => "bad-pixels",
@@ -392,6 +398,9 @@ pub struct Measured {
     /// Where the set has no dark level (level 0 not at zero reference): what stands in for
     /// it; `offset_dn` is then the response's intercept.
     pub no_dark: Option<linearity::NoDark>,
+    /// The light's relative rms from frame to frame within a level (`light-jitter`), where
+    /// it is found: the gain is then the photon transfer's with its term, or withheld.
+    pub light_jitter_rms: Option<f64>,
 }
 
 /// `insufficient-noise` when a noise of `sigma_dn` ("{what} {sigma_dn} DN") leaves a
@@ -529,12 +538,13 @@ mod effect_tests {
             Effect::PixelNonlinearity => 3,
             Effect::LowSignalNonlinearity => 4,
             Effect::LevelErrors => 5,
-            Effect::IlluminationChange => 6,
-            Effect::CfaPattern => 7,
-            Effect::BadPixels => 8,
-            Effect::ExcessNoise => 9,
-            Effect::InsufficientNoise => 10,
-            Effect::Unexplained => 11,
+            Effect::LightJitter => 6,
+            Effect::IlluminationChange => 7,
+            Effect::CfaPattern => 8,
+            Effect::BadPixels => 9,
+            Effect::ExcessNoise => 10,
+            Effect::InsufficientNoise => 11,
+            Effect::Unexplained => 12,
         };
         assert!(Effect::ALL.iter().enumerate().all(|(i, &e)| index(e) == i));
     }

@@ -82,6 +82,20 @@ impl<'a, T: Sample> Pixels<'a, T> {
         })
     }
 
+    /// The colour filter's cells (1 without one): [`Pixels::cell`] is below it.
+    pub fn cells(&self) -> usize {
+        self.cfa.as_ref().map_or(1, |c| c.response.len().max(1))
+    }
+
+    /// The colour filter's cell of pixel `i` (`crate::model::camera::config::cfa_cell`;
+    /// 0 without a filter).
+    pub fn cell(&self, i: usize) -> usize {
+        self.cfa.as_ref().map_or(0, |c| {
+            let (col, row) = self.position(i);
+            crate::model::camera::config::cfa_cell(col, row, c.period).min(c.response.len().saturating_sub(1))
+        })
+    }
+
     /// The index into the set's pixels of pixel `i`.
     pub fn index(&self, i: usize) -> usize {
         self.fitted.index(i)

@@ -34,8 +34,10 @@ fn measured_camera_parameters_are_the_planted_ones() {
     for seed in 0..3 {
         let hidden = [Hidden::AdcOffset { adc: 1, dn: 3.0 }, Hidden::AdcGain { adc: 2, rel: 0.03 }];
         let m = diagnose_linearity(&linearity_set(&plant, &hidden, 600 + seed), 0.01).unwrap().measured;
+        // (ADC 2's gain 3% high makes its pixels' e-/DN 3% low: the camera's one gain,
+        // over all the pixels, is within 1.5% of the others'.)
         let g = m.gain_e_per_dn.unwrap();
-        assert!((g / plant.gain_e_per_dn - 1.0).abs() < 0.01, "seed {seed}: gain {g}");
+        assert!((g / plant.gain_e_per_dn - 1.0).abs() < 0.015, "seed {seed}: gain {g}");
         let r = m.read_noise_dn.unwrap();
         assert!((r - plant.read_dn).abs() < 0.05, "seed {seed}: read noise {r}");
         let p = m.prnu_rms.unwrap();
@@ -471,4 +473,37 @@ fn a_camera_models_colour_filter_comes_back_from_its_set() {
     // (A pixel of the red cell, row 1 column 0, against one of the green: their ratio.)
     let ratio = rebuilt.pixels.gain[rebuilt.config.width] / rebuilt.pixels.gain[0];
     assert!((ratio / (measured.response[2] / measured.response[0]) - 1.0).abs() < 0.1, "{ratio}");
+}
+
+/// Issue 58: a light that jitters from frame to frame (alike for every pixel) is named
+/// `light-jitter` with its size within 20%, and nothing of the sensor is named (the
+/// jitter's part of the means is the light's `level-errors`); the gain is the planted one
+/// within 3% where the photon transfer with the jitter's term bounds it to 1%, else
+/// withheld with the reason. A straight photon transfer read the jitter as a gain far
+/// too low.
+#[test]
+fn a_jittering_light_is_the_lights_and_the_gain_survives_it() {
+    // (Planted jitter, frames a level.)
+    let cases = [(0.0015, 256u32), (0.01, 64), (0.03, 16), (0.0015, 256), (0.02, 8)];
+    let mut bounded = 0;
+    for (seed, &(rms, frames)) in cases.iter().enumerate() {
+        let plant = Plant { frames, ..Plant::default() };
+        let d = diagnose_linearity(&linearity_set(&plant, &[Hidden::LightJitter { rms }], 5900 + seed as u64), 0.01).unwrap();
+        let mut got = names(&d);
+        got.retain(|n| n != "level-errors");
+        assert_eq!(got, vec!["light-jitter"], "seed {seed}, jitter {rms}: {:#?}", d.findings);
+        let m = &d.measured;
+        let j = m.light_jitter_rms.unwrap();
+        assert!((j / rms - 1.0).abs() < 0.2, "seed {seed}: jitter {j} for {rms}");
+        let f = d.findings.iter().find(|f| f.effect == Effect::LightJitter).unwrap();
+        match m.gain_e_per_dn {
+            Some(g) => {
+                assert!((g / plant.gain_e_per_dn - 1.0).abs() < 0.03, "seed {seed}: gain {g}: {}", f.detail);
+                bounded += 1;
+            }
+            None => assert!(f.detail.contains("the gain is withheld"), "{}", f.detail),
+        }
+    }
+    // (The smallest jitter leaves the gain bounded: both ways are tested.)
+    assert!(bounded >= 1 && bounded < cases.len(), "{bounded} gains of {}", cases.len());
 }

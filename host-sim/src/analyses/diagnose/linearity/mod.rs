@@ -80,6 +80,7 @@ mod cfa;
 pub use camera::NoDark;
 mod curves;
 mod illumination;
+mod transfer;
 pub(crate) use illumination::grid_bytes as illumination_bytes;
 mod level_stage;
 mod pixel_fits;
@@ -419,7 +420,10 @@ fn diagnose_set<T: Sample>(set: &SetView<'_, T>, keep: Keep, accuracy_dn: f64) -
     findings.extend(adc_findings.into_iter().flatten());
     findings.extend(stage.finding(&px));
     // Noise: the dark level's temporal noise against the quantization bias.
-    let (mut measured, dark_noise) = measure_camera(&s, set.n_frames, stage.bad_count());
+    let (mut measured, dark_noise, jitter) = measure_camera(&s, set.n_frames, stage.bad_count(), global_accepted.then_some(global));
+    // The light's jitter is of the measurement, found in the frames' spread: after the
+    // level term, which takes what it does to the means.
+    findings.extend(jitter.as_ref().map(|j| j.finding()));
     measured.illumination_change_rms = pattern_rms;
     measured.cfa = cfa;
     findings.extend(insufficient_noise("median dark noise", dark_noise, accuracy_dn));
