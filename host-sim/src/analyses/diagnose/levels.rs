@@ -424,6 +424,43 @@ fn adc_departures(adc_est: &[Vec<[(f64, f64); 2]>], est: &[[(f64, f64); 2]], adc
         .collect()
 }
 
+/// Per level, the pixels' mean colour-channel response ([`Pixels::response`]) weighted
+/// by `1 / sigma^2` of their points as the term's means weigh them, over all the pixels
+/// with a quartic and per ADC (`[a * levels + l]`); all 1 without a colour filter.
+fn mean_response<T: Sample>(px: &Pixels<T>, fits: &Records<LevelFit>, levels: usize, n_adc: usize) -> (Vec<f64>, Vec<f64>) {
+    if px.cells() == 1 {
+        return (vec![1.0; levels], vec![1.0; levels * n_adc]);
+    }
+    let n = px.len();
+    // Sums of `w` and `w r` per level (first `levels`) and per ADC and level, in chunks
+    // summed in a fixed order ([`super::TASKS`]).
+    let chunk = n.div_ceil(super::TASKS).max(1);
+    let parts: Vec<Vec<(f64, f64)>> = (0..n.div_ceil(chunk))
+        .into_par_iter()
+        .map(|c| {
+            let mut acc = vec![(0.0, 0.0); levels * (1 + n_adc)];
+            for i in c * chunk..((c + 1) * chunk).min(n) {
+                if fits.at(i).quartic.is_none() {
+                    continue;
+                }
+                let (r, a) = (px.response(i), px.adc(i));
+                for p in px.all(i, None).iter().filter(|p| p.level < levels && p.sigma > 0.0) {
+                    let w = 1.0 / (p.sigma * p.sigma);
+                    for k in [p.level, levels + a * levels + p.level] {
+                        acc[k] = (acc[k].0 + w, acc[k].1 + w * r);
+                    }
+                }
+            }
+            acc
+        })
+        .collect();
+    let mean = |k: usize| {
+        let (w, wr) = parts.iter().fold((0.0, 0.0), |(w, wr), p| (w + p[k].0, wr + p[k].1));
+        if w > 0.0 { wr / w } else { 1.0 }
+    };
+    ((0..levels).map(mean).collect(), (0..levels * n_adc).map(|k| mean(levels + k)).collect())
+}
+
 /// Estimates the common per-level term from every pixel's levels, the pixels of even rows
 /// against those of odd rows ([`Pixels::estimating`]). Levels with `skip[l]` take no part
 /// in the pixels' fits or in the tests: their term is what the fits of the others leave
@@ -435,18 +472,29 @@ pub(super) fn level_term<T: Sample>(px: &Pixels<T>, skip: &[bool]) -> LevelTerm 
     let skipped = |l: usize| skip.get(l).copied().unwrap_or(false);
     let quartic = Response::Poly(4);
     let fits = pixel_fits(px, skip);
-    // The pixels' local slopes at each level.
+    // The pixels' local slopes at each level, each over its colour channel's response:
+    // one population (a colour filter's channels are not its outliers).
     // (Medians by exact selection in passes over the pixels' fits: [`crate::infra::select`].)
-    let slope_median = crate::infra::select::upper_medians(n, x.len(), &|i, f| {
+    let slope_norm = crate::infra::select::upper_medians(n, x.len(), &|i, f| {
         if let Some(q) = fits.at(i).quartic {
-            x.iter().enumerate().for_each(|(l, &xl)| f(l, slope(&q, xl)));
+            let r = px.response(i);
+            x.iter().enumerate().for_each(|(l, &xl)| f(l, slope(&q, xl) / r));
         }
     });
-    // Per level, each ADC's median slope ratio.
+    // The term is a mean of residuals that scale with each pixel's slope, so its light's
+    // part goes with the channels' mean response, weighted as the term's means weigh the
+    // pixels: the median slope is the channel-free median times it (a median over a Bayer
+    // filter's channels fell on one of them, and two ADCs' terms departed from the common
+    // one as `adc-dnl`). 1 without a filter.
+    let (response_all, response_adc) = mean_response(px, &fits, levels, n_adc);
+    let slope_median: Vec<f64> = slope_norm.iter().enumerate().map(|(l, m)| m * response_all.get(l).copied().unwrap_or(1.0)).collect();
+    // Per level, each ADC's median slope ratio, channel-free, times its channels' mean
+    // response over all the pixels'.
     let ratios = crate::infra::select::upper_medians(n, levels * n_adc, &|i, f| {
-        let (q, a) = (fits.at(i).quartic, px.adc(i));
-        (0..levels).for_each(|l| f(l * n_adc + a, slope_over(q.as_ref(), x[l], slope_median[l])));
+        let (q, a, r) = (fits.at(i).quartic, px.adc(i), px.response(i));
+        (0..levels).for_each(|l| f(l * n_adc + a, slope_over(q.as_ref(), x[l], slope_norm[l]) / r));
     });
+    let ratios: Vec<f64> = (0..levels * n_adc).map(|k| ratios[k] * response_adc[(k % n_adc) * levels + k / n_adc] / response_all[k / n_adc]).collect();
     let adc_ratio: Vec<Vec<f64>> = (0..n_adc).map(|a| (0..levels).map(|l| Some(ratios[l * n_adc + a]).filter(|r| r.is_finite()).unwrap_or(1.0)).collect()).collect();
     // Each pixel's quartic residuals on all its levels, recomputed per pass: (level,
     // residual DN, sigma DN, the quartic's signal there above its dark).

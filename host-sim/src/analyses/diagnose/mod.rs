@@ -349,8 +349,9 @@ pub struct Diagnosis {
     /// dark for a linear signal `S` DN: `[b2, b3, ...]` (for the model file).
     #[serde(skip)]
     pub curve_per_dn: Option<Vec<f64>>,
-    /// Camera parameters the data measure (for the model file).
-    #[serde(skip)]
+    /// Camera parameters the data measure (for the model file, and in the JSON: the
+    /// gain, the light's jitter, a colour filter's cells, what stands in for a missing
+    /// dark level; those not measured are left out).
     pub measured: Measured,
     /// Tests the data could not carry, and why (a finding not tested is not a finding
     /// absent).
@@ -368,38 +369,50 @@ pub struct Diagnosis {
 
 /// Camera parameters a diagnosis measured on the way, each `None` when the data do not
 /// say (the model file keeps the default camera's value then).
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone, Default, Serialize)]
 pub struct Measured {
     /// Conversion gain, e- per DN (from the noise: variance against signal).
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub gain_e_per_dn: Option<f64>,
     /// Temporal read noise at dark, DN.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub read_noise_dn: Option<f64>,
     /// Dark level, DN.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub offset_dn: Option<f64>,
     /// Largest signal above dark before saturation, DN.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub full_scale_dn: Option<f64>,
     /// Whether the data reached saturation (else `full_scale_dn` is only the brightest
     /// level: a lower bound of the full well).
     pub saturated: bool,
     /// Pixel-to-pixel gain spread, relative rms.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub prnu_rms: Option<f64>,
     /// Pixel-to-pixel dark spread, DN rms.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub dsnu_dn: Option<f64>,
     /// Pixel-to-pixel rms of the quadratic term `b2` of the response per DN.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub pixel_b2_rms_per_dn: Option<f64>,
     /// Fraction of pixels found bad.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub bad_fraction: Option<f64>,
     /// Relative rms of the light's pattern change between levels (`illumination-change`),
     /// at the levels above 20% of the top signal.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub illumination_change_rms: Option<f64>,
     /// A colour filter's response pattern (`cfa-pattern`); `prnu_rms` is then within a
     /// channel.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub cfa: Option<channels::CfaResponse>,
     /// Where the set has no dark level (level 0 not at zero reference): what stands in for
     /// it; `offset_dn` is then the response's intercept.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub no_dark: Option<linearity::NoDark>,
     /// The light's relative rms from frame to frame within a level (`light-jitter`), where
     /// it is found: the gain is then the photon transfer's with its term, or withheld.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub light_jitter_rms: Option<f64>,
 }
 

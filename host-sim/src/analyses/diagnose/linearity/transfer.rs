@@ -140,7 +140,7 @@ pub(super) fn photon_transfer<T: Sample>(scoring: &Scoring<'_, T>, n_frames: u32
             let mut lin = s;
             for _ in 0..8 {
                 let (g, d) = bend(lin);
-                if !(d > 0.0) {
+                if d.is_nan() || d <= 0.0 {
                     break;
                 }
                 lin -= (g - s) / d;
@@ -307,7 +307,7 @@ fn fit(points: &[Point], model: Model, spread: f64) -> Option<Fit> {
         let b = nalgebra::DVector::from_iterator(points.len(), points.iter().zip(&sigma).map(|(q, s)| q.v / s));
         // Columns scaled to unit norm, so that the normal matrix is well conditioned.
         let norm: Vec<f64> = (0..p).map(|c| a.column(c).norm()).collect();
-        if norm.iter().any(|s| !(*s > 0.0)) {
+        if norm.iter().any(|s| s.is_nan() || *s <= 0.0) {
             return None;
         }
         let a = nalgebra::DMatrix::from_fn(points.len(), p, |r, c| a[(r, c)] / norm[c]);
