@@ -230,7 +230,8 @@ pub fn linearity_set(plant: &Plant, hidden: &[Hidden], seed: u64) -> LinearitySe
     let (mut mean, mut std) = (vec![0.0; nl * np], vec![0.0; nl * np]);
     // Below `N - 1` degrees of freedom, what is left of a pixel's frames' spread beside
     // the jitter's direction (with jitter only).
-    let rest = (jitter > 0.0 && plant.frames > 2).then(|| ChiSquared::new(f64::from(plant.frames - 2)).expect("frames > 2"));
+    // (With two frames nothing is left: `chi^2_0` is 0.)
+    let rest = (jitter > 0.0).then(|| (plant.frames > 2).then(|| ChiSquared::new(f64::from(plant.frames - 2)).expect("frames > 2")));
     for l in 0..nl {
         // The light of each frame relative to the level's (with jitter): their mean, and
         // their deviations' length `sqrt(sum (e_f - mean)^2)`.
@@ -284,7 +285,8 @@ pub fn linearity_set(plant: &Plant, hidden: &[Hidden], seed: u64) -> LinearitySe
                 let sd = var.sqrt();
                 mean[i] = (code + (var * (1.0 + plant.excess_noise) / n).sqrt() * unit.sample(&mut rng)).min(top);
                 let along = slope * e_len + sd * unit.sample(&mut rng);
-                std[i] = ((along * along + var * rest.sample(&mut rng)) / (n - 1.0)).sqrt();
+                let left = rest.as_ref().map_or(0.0, |c| c.sample(&mut rng));
+                std[i] = ((along * along + var * left) / (n - 1.0)).sqrt();
             } else {
                 mean[i] = (code + (var * (1.0 + plant.excess_noise) / n).sqrt() * unit.sample(&mut rng)).min(top);
                 std[i] = (var * chi.sample(&mut rng) / (n - 1.0)).sqrt();

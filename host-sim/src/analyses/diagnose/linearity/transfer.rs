@@ -46,7 +46,7 @@ pub(super) struct LightJitter {
     pub rms: f64,
     /// Its standard error.
     pub rms_se: f64,
-    /// The held-out paired test's statistic, the smaller of both ways round.
+    /// The jitter's term over its standard error in the model on all the levels.
     pub significance: f64,
     /// Held-out residuals of the frames' variance, rms in their noise: without and with
     /// the jitter.
@@ -104,7 +104,7 @@ pub(super) fn photon_transfer<T: Sample>(scoring: &Scoring<'_, T>, n_frames: u32
     let top = scoring.top;
     let (px, good) = (scoring.px, &scoring.good);
     let (levels, cells) = (px.x.len(), px.cells());
-    let dof = f64::from(n_frames.max(4)) - 1.0;
+    let dof = f64::from(n_frames.max(2)) - 1.0;
     let median_chi2 = (1.0 - 2.0 / (9.0 * dof)).powi(3);
     // Per level and cell: the median signal, the median variance.
     let at = |l: usize, k: usize| 2 * (l * cells + k);
@@ -189,11 +189,13 @@ pub(super) fn photon_transfer<T: Sample>(scoring: &Scoring<'_, T>, n_frames: u32
     }
     // The gain: where the channels' signals differ within a level (a colour filter), each
     // level's jitter on its own (what the frames of that level drew), else the model's.
-    let per_level = (cells > 1).then(|| fit(&points, Model::PerLevel, spread)).flatten().filter(|f| f.coef[1] > 0.0);
+    // (With a filter the common-jitter model's errors are too small, its channels sharing
+    // each level's draw: where each level's own fails, the gain is withheld.)
+    let per_level = (cells > 1).then(|| fit(&points, Model::PerLevel, spread)).flatten();
     let for_gain = per_level.as_ref().unwrap_or(&all);
     // (Where the jitter swamps the shot noise the slope may come out at or below zero:
     // not bounded at all.)
-    let gain_rel_se = if for_gain.coef[1] > 0.0 { for_gain.var[1].sqrt() / for_gain.coef[1] } else { f64::INFINITY };
+    let gain_rel_se = if for_gain.coef[1] > 0.0 && (cells == 1 || per_level.is_some()) { for_gain.var[1].sqrt() / for_gain.coef[1] } else { f64::INFINITY };
     let rms = j.sqrt();
     // Variance over the straight signal at the faintest and the brightest levels.
     let (lo, hi) = (points.iter().map(|p| p.level).min()?, points.iter().map(|p| p.level).max()?);
