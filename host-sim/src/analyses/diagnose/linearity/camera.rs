@@ -75,7 +75,7 @@ pub(super) fn quantization_floor<T: Sample>(set: &SetView<'_, T>, n: usize, pixe
 /// Also the median dark noise, DN (the good pixels' temporal deviation at level 0; without
 /// a dark level the read noise where measured, else level 0's deviation, an upper bound).
 ///
-/// Where the frames' spread holds the light's jitter ([`super::jitter`]), the gain and
+/// Where the frames' spread holds the light's jitter ([`super::transfer`]), the gain and
 /// read noise are those of the photon transfer with its term (the gain withheld where
 /// that leaves it uncertain by more than 1%, with a note), and the jitter's finding is
 /// returned with the notes.
@@ -86,11 +86,7 @@ pub(super) fn measure_camera<T: Sample>(scoring: &Scoring<'_, T>, n_frames: u32,
     // A pixel's dark level: its level 0, or without a dark level its line's intercept.
     let dark_of = |i: usize, level0: f64| if has_dark { level0 } else { fits.at(i).line(0).map_or(f64::NAN, |l| l[0]) };
     let first = usize::from(has_dark);
-    // The median of `s^2` is `sigma^2` times the median of `chi^2_(N-1) / (N-1)`,
-    // `(1 - 2 / (9 (N-1)))^3` (Wilson-Hilferty): 0.26% low at 256 frames, and the gain
-    // with it.
-    let dof = f64::from(n_frames.max(2)) - 1.0;
-    let median_chi2 = (1.0 - 2.0 / (9.0 * dof)).powi(3);
+    let median_chi2 = median_chi2(n_frames);
     let n_adc = px.n_adc();
     // The medians over the good pixels, exact, in passes over them ([`crate::infra::select`]):
     // cell 0 the dark level, 1 the dark frames' variance of a mean, 2 the signal at the
@@ -136,26 +132,19 @@ pub(super) fn measure_camera<T: Sample>(scoring: &Scoring<'_, T>, n_frames: u32,
     // points.
     let transfer = photon_transfer(scoring, n_frames, first, 0.7 * (top - dark), curve, &dark_of);
     let jitter = transfer.as_ref().and_then(|t| t.jitter.clone());
-    let (gain, read, read_bound) = if let Some(t) = &transfer {
-        let read2 = t.intercept - 1.0 / 12.0;
-        if has_dark || read2 > 2.0 * t.intercept_se {
-            (t.gain, Some(read2.max(0.0).sqrt()), None)
-        } else {
-            (t.gain, None, Some((read2 + 2.0 * t.intercept_se).max(0.0).sqrt()))
-        }
+    // Without a dark level the intercept is an extrapolation: the read noise is kept
+    // where it is bounded away from zero, else its upper bound is given.
+    let read_of = |intercept: f64, se: f64| {
+        let read2 = intercept - 1.0 / 12.0;
+        if has_dark || read2 > 2.0 * se { (Some(read2.max(0.0).sqrt()), None) } else { (None, Some((read2 + 2.0 * se).max(0.0).sqrt())) }
+    };
+    let (gain, (read, read_bound)) = if let Some(t) = &transfer {
+        (t.gain, read_of(t.intercept, t.intercept_se))
     } else if s.len() >= 3 {
         let (a, b, _) = crate::analyses::emva::fit_line(&s, &v);
-        let read2 = a - 1.0 / 12.0;
-        // Without a dark level the intercept is an extrapolation: kept where it is bounded
-        // away from zero.
-        let se = intercept_se(&s, &v, a, b);
-        if has_dark || read2 > 2.0 * se {
-            ((b > 0.0).then(|| 1.0 / b), Some(read2.max(0.0).sqrt()), None)
-        } else {
-            ((b > 0.0).then(|| 1.0 / b), None, Some((read2 + 2.0 * se).max(0.0).sqrt()))
-        }
+        ((b > 0.0).then(|| 1.0 / b), read_of(a, intercept_se(&s, &v, a, b)))
     } else {
-        (None, None, None)
+        (None, (None, None))
     };
     // DSNU from the dark frames themselves, less their own noise; PRNU from the signal at
     // the level nearest half scale (fitted intercepts and slopes would absorb part of each
@@ -223,6 +212,14 @@ pub(super) fn measure_camera<T: Sample>(scoring: &Scoring<'_, T>, n_frames: u32,
     };
     let noise = if has_dark { medians[dark_std_cell] } else { read.unwrap_or(medians[dark_std_cell]) };
     (measured, noise, jitter)
+}
+
+/// The median of `chi^2_(N-1) / (N-1)` for `n_frames` frames, `(1 - 2 / (9 (N-1)))^3`
+/// (Wilson-Hilferty): the median of `s^2` is `sigma^2` times it (taken as 1 it read the
+/// variance 0.26% low at 256 frames, and the gain with it).
+pub(super) fn median_chi2(n_frames: u32) -> f64 {
+    let dof = f64::from(n_frames.max(2)) - 1.0;
+    (1.0 - 2.0 / (9.0 * dof)).powi(3)
 }
 
 /// The largest reference of a level 0 that is a dark level, as a fraction of the largest

@@ -105,7 +105,7 @@ pub(super) fn photon_transfer<T: Sample>(scoring: &Scoring<'_, T>, n_frames: u32
     let (px, good) = (scoring.px, &scoring.good);
     let (levels, cells) = (px.x.len(), px.cells());
     let dof = f64::from(n_frames.max(2)) - 1.0;
-    let median_chi2 = (1.0 - 2.0 / (9.0 * dof)).powi(3);
+    let median_chi2 = super::camera::median_chi2(n_frames);
     // Per level and cell: the median signal, the median variance.
     let at = |l: usize, k: usize| 2 * (l * cells + k);
     let medians = crate::infra::select::upper_medians(good.len(), 2 * levels * cells, &|j, f| {
