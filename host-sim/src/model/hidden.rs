@@ -70,6 +70,11 @@ pub enum Hidden {
     /// frames' means carry it as a level error, their spread as a variance `rms^2 S^2`
     /// over the photon transfer. Not in [`pick`]: diagnose names it `light-jitter`.
     LightJitter { rms: f64 },
+    /// The levels taken as two series (the odd levels the second: a consumer camera's
+    /// exposure series at two apertures, interleaved in reference), the second's light
+    /// `1 + rel` times what the reference says (daylight that drifted between them, an
+    /// aperture off its marked value). Not in [`pick`]: diagnose names it `level-errors`.
+    SeriesDrift { rel: f64 },
 }
 
 /// (What `diagnose` should name for each is `Hidden::expected`, in
@@ -179,6 +184,7 @@ pub fn linearity_set(plant: &Plant, hidden: &[Hidden], seed: u64) -> LinearitySe
     let mut pattern: Option<(f64, u64)> = None;
     let mut cfa: Option<[f64; 4]> = None;
     let mut jitter = 0.0;
+    let mut series = 0.0;
     for e in hidden {
         match *e {
             Hidden::GlobalNonlinearity { c2: c } => c2.iter_mut().for_each(|v| *v += c),
@@ -192,6 +198,7 @@ pub fn linearity_set(plant: &Plant, hidden: &[Hidden], seed: u64) -> LinearitySe
             Hidden::IlluminationChange { rms } => pattern = Some((rms, rng.random())),
             Hidden::Cfa { response } => cfa = Some(response),
             Hidden::LightJitter { rms } => jitter = rms,
+            Hidden::SeriesDrift { rel } => series = rel,
             Hidden::LevelErrors { rel_rms, offset_dn } => {
                 light.iter_mut().for_each(|v| *v = rel_rms * unit.sample(&mut rng));
                 black.iter_mut().for_each(|v| *v = offset_dn * unit.sample(&mut rng));
@@ -238,7 +245,7 @@ pub fn linearity_set(plant: &Plant, hidden: &[Hidden], seed: u64) -> LinearitySe
         let frames: Vec<f64> = if jitter > 0.0 { (0..plant.frames).map(|_| jitter * unit.sample(&mut rng)).collect() } else { Vec::new() };
         let e_mean = if frames.is_empty() { 0.0 } else { frames.iter().sum::<f64>() / n };
         let e_len = frames.iter().map(|e| (e - e_mean).powi(2)).sum::<f64>().sqrt();
-        let x_level = reference(l) * (1.0 + light[l]);
+        let x_level = reference(l) * (1.0 + light[l]) * if l % 2 == 1 { 1.0 + series } else { 1.0 };
         let change = pattern.map(|(rms, seed)| crate::model::camera::calibration::illumination_change(rms, w, h, seed, l));
         for p in 0..np {
             let a = (p % w) % plant.n_adc;

@@ -46,12 +46,15 @@ pub(super) struct SetView<'a, T: Sample> {
     pub width: usize,
     /// Rows per frame.
     pub height: usize,
-    /// Illumination levels; level 0 is dark.
+    /// Illumination levels read (those of the file from [`SetView::skip_levels`] on);
+    /// level 0 is dark where its reference is zero.
     pub levels: usize,
     /// Reference photodiode voltage of each level in V.
     pub voltage: &'a [f64],
     /// Known bad pixels, 1 = bad.
     pub mask: Option<&'a [u8]>,
+    /// The file's levels left out below level 0 ([`SetView::skip_levels`]).
+    skip: usize,
     cubes: Cubes<'a, T>,
 }
 
@@ -78,41 +81,43 @@ struct Block<T> {
     bytes: Vec<u8>,
 }
 
-/// The levels of one pixel: level `l` at `l * stride + at` of each cube.
+/// The levels of one pixel: level `l` at `(skip + l) * stride + at` of each cube.
 #[derive(Clone, Copy)]
 pub(super) struct Levels<'b, T> {
     mean: &'b [T],
     std: &'b [T],
     stride: usize,
     at: usize,
+    skip: usize,
 }
 
 impl<T: Sample> Levels<'_, T> {
     /// The mean at `level`, DN.
     pub fn mean(&self, level: usize) -> f64 {
-        self.mean[level * self.stride + self.at].into()
+        self.mean[(self.skip + level) * self.stride + self.at].into()
     }
 
     /// The frames' standard deviation at `level`, DN.
     pub fn std(&self, level: usize) -> f64 {
-        self.std[level * self.stride + self.at].into()
+        self.std[(self.skip + level) * self.stride + self.at].into()
     }
 }
 
 /// Some rows of a set: pixel `p` of the frame (in `rows`) at `level` is at
-/// `level * stride + p - offset` of each cube.
+/// `(skip + level) * stride + p - offset` of each cube.
 pub(super) struct Rows<'b, T> {
     pub rows: Range<usize>,
     mean: &'b [T],
     std: &'b [T],
     stride: usize,
     offset: usize,
+    skip: usize,
 }
 
 impl<T: Sample> Rows<'_, T> {
     /// The levels of pixel `p` of the frame, a pixel of these rows.
     pub fn pixel(&self, p: usize) -> Levels<'_, T> {
-        Levels { mean: self.mean, std: self.std, stride: self.stride, at: p - self.offset }
+        Levels { mean: self.mean, std: self.std, stride: self.stride, at: p - self.offset, skip: self.skip }
     }
 }
 
@@ -128,6 +133,7 @@ impl<'a, T: Sample> SetView<'a, T> {
             levels: set.levels,
             voltage: &set.voltage,
             mask: set.mask.as_deref(),
+            skip: 0,
             cubes: Cubes::Held { mean: &set.mean, std: &set.std },
         }
     }
@@ -146,8 +152,19 @@ impl<'a, T: Sample> SetView<'a, T> {
             levels: file.levels,
             voltage: &file.voltage,
             mask: file.mask.as_deref(),
+            skip: 0,
             cubes: Cubes::Rows { file, rows, slots: (0..=rayon::current_num_threads()).map(|_| empty()).collect(), failed: Mutex::new(None) },
         }
+    }
+
+    /// The view from the file's level `k` on (its levels below left out: levels the
+    /// camera clipped at code 0, [`super::linearity::clip`]); level `l` of the view is
+    /// the file's `k + l`. Levels already left out count: `k` is the view's.
+    pub fn skip_levels(&mut self, k: usize) {
+        let k = k.min(self.levels);
+        self.skip += k;
+        self.levels -= k;
+        self.voltage = &self.voltage[k..];
     }
 
     /// Pixels per frame.
@@ -159,21 +176,21 @@ impl<'a, T: Sample> SetView<'a, T> {
     /// `f` running for another pixel of the same thread, the pixel alone is read.)
     pub fn with_pixel<R>(&self, p: usize, f: impl FnOnce(Levels<'_, T>) -> R) -> R {
         let (file, failed) = match &self.cubes {
-            Cubes::Held { mean, std } => return f(Levels { mean, std, stride: self.frame(), at: p }),
+            Cubes::Held { mean, std } => return f(Levels { mean, std, stride: self.frame(), at: p, skip: self.skip }),
             Cubes::Rows { file, failed, .. } => (file, failed),
         };
         let row = p / self.width;
         let mut f = Some(f);
-        let held = self.with_block(row, |b| f.take().map(|f| f(Levels { mean: &b.mean, std: &b.std, stride: b.rows * self.width, at: p - b.first * self.width })));
+        let held = self.with_block(row, |b| f.take().map(|f| f(Levels { mean: &b.mean, std: &b.std, stride: b.rows * self.width, at: p - b.first * self.width, skip: self.skip })));
         if let Some(Some(r)) = held {
             return r;
         }
         let mut one = Block { first: row, rows: 1, mean: Vec::new(), std: Vec::new(), bytes: Vec::new() };
         if let Err(e) = file.read_pixel(p, &mut one.mean, &mut one.std, &mut one.bytes) {
-            Self::fail(failed, &mut one, self.levels, format!("reading pixel {p} of the set: {e}"));
+            Self::fail(failed, &mut one, self.skip + self.levels, format!("reading pixel {p} of the set: {e}"));
         }
         let f = f.take().expect("with_block did not call f: it returned None");
-        f(Levels { mean: &one.mean, std: &one.std, stride: 1, at: 0 })
+        f(Levels { mean: &one.mean, std: &one.std, stride: 1, at: 0, skip: self.skip })
     }
 
     /// `f` of the block holding `row`, read into the calling thread's slot; `None` where
@@ -204,7 +221,7 @@ impl<'a, T: Sample> SetView<'a, T> {
     /// (which every fit leaves out) and the first failure recorded.
     fn read_block(&self, file: &LinearityRows, failed: &Mutex<Option<String>>, span: Range<usize>, block: &mut Block<T>) {
         if let Err(e) = file.read_rows(span.clone(), &mut block.mean, &mut block.std, &mut block.bytes) {
-            Self::fail(failed, block, self.levels * self.width * span.len(), format!("reading rows {} to {} of the set: {e}", span.start, span.end - 1));
+            Self::fail(failed, block, (self.skip + self.levels) * self.width * span.len(), format!("reading rows {} to {} of the set: {e}", span.start, span.end - 1));
         }
     }
 
@@ -226,9 +243,9 @@ impl<'a, T: Sample> SetView<'a, T> {
             .into_par_iter()
             .map(|b| {
                 let span = b * rows..((b + 1) * rows).min(self.height);
-                let of = |b: &Block<T>| f(&Rows { rows: span.clone(), mean: &b.mean, std: &b.std, stride: b.rows * self.width, offset: b.first * self.width });
+                let of = |b: &Block<T>| f(&Rows { rows: span.clone(), mean: &b.mean, std: &b.std, stride: b.rows * self.width, offset: b.first * self.width, skip: self.skip });
                 match &self.cubes {
-                    Cubes::Held { mean, std } => f(&Rows { rows: span.clone(), mean, std, stride: self.frame(), offset: 0 }),
+                    Cubes::Held { mean, std } => f(&Rows { rows: span.clone(), mean, std, stride: self.frame(), offset: 0, skip: self.skip }),
                     // The block holding the span's first row is the span (spans are
                     // blocks); where the thread's slot is in use, a block of its own.
                     Cubes::Rows { file, failed, .. } => self.with_block(span.start, of).unwrap_or_else(|| {

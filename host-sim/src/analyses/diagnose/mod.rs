@@ -102,6 +102,9 @@ pub enum Effect {
     PixelNonlinearity,
     /// A departure confined to the lowest signals (charge loss, an offset).
     LowSignalNonlinearity,
+    /// A black level the camera subtracted and clipped at code 0: the darkest levels'
+    /// means raised, their spread lowered.
+    BlackLevelClipped,
     /// Errors of the measurement every pixel shares at a level (light, black level).
     LevelErrors,
     /// The light of each frame off its level's, alike for every pixel (a flicker, a
@@ -146,7 +149,7 @@ impl crate::model::hidden::Hidden {
             Hidden::PixelNonlinearity { .. } => Effect::PixelNonlinearity,
             Hidden::AdcGain { .. } | Hidden::AdcOffset { .. } | Hidden::AdcCurvature { .. } => Effect::AdcMismatch,
             Hidden::BadPixels { .. } => Effect::BadPixels,
-            Hidden::LevelErrors { .. } => Effect::LevelErrors,
+            Hidden::LevelErrors { .. } | Hidden::SeriesDrift { .. } => Effect::LevelErrors,
             Hidden::SubtleBad { .. } => Effect::Unexplained,
             Hidden::ChargeLoss { .. } => Effect::LowSignalNonlinearity,
             Hidden::IlluminationChange { .. } => Effect::IlluminationChange,
@@ -161,19 +164,20 @@ impl Effect {
     /// Whether `model.toml` carries this effect.
     pub fn in_model(self) -> InModel {
         match self {
-            Effect::AdcDnl | Effect::GlobalNonlinearity | Effect::PixelNonlinearity | Effect::BadPixels | Effect::InsufficientNoise | Effect::IlluminationChange | Effect::CfaPattern => InModel::Yes,
+            Effect::AdcDnl | Effect::GlobalNonlinearity | Effect::PixelNonlinearity | Effect::BadPixels | Effect::InsufficientNoise | Effect::IlluminationChange | Effect::CfaPattern | Effect::BlackLevelClipped => InModel::Yes,
             Effect::AdcMismatch | Effect::Unexplained | Effect::LowSignalNonlinearity => InModel::NotYet,
             Effect::LevelErrors | Effect::LightJitter | Effect::ExcessNoise => InModel::OfTheMeasurement,
         }
     }
 
     /// Every effect, in the catalog's order.
-    pub const ALL: [Effect; 13] = [
+    pub const ALL: [Effect; 14] = [
         Effect::AdcDnl,
         Effect::AdcMismatch,
         Effect::GlobalNonlinearity,
         Effect::PixelNonlinearity,
         Effect::LowSignalNonlinearity,
+        Effect::BlackLevelClipped,
         Effect::LevelErrors,
         Effect::LightJitter,
         Effect::IlluminationChange,
@@ -192,6 +196,7 @@ impl Effect {
             Effect::GlobalNonlinearity => "global-nonlinearity",
             Effect::PixelNonlinearity => "pixel-nonlinearity",
             Effect::LowSignalNonlinearity => "low-signal-nonlinearity",
+            Effect::BlackLevelClipped => "black-level-clipped",
             Effect::LevelErrors => "level-errors",
             Effect::LightJitter => "light-jitter",
             Effect::IlluminationChange => "illumination-change",
@@ -414,6 +419,10 @@ pub struct Measured {
     /// it is found: the gain is then the photon transfer's with its term, or withheld.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub light_jitter_rms: Option<f64>,
+    /// Where the level errors' light part is two groups of levels (two exposure series
+    /// that disagree): the brighter group's light over the dimmer's, less 1.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub light_series_step: Option<f64>,
 }
 
 /// `insufficient-noise` when a noise of `sigma_dn` ("{what} {sigma_dn} DN") leaves a
@@ -550,14 +559,15 @@ mod effect_tests {
             Effect::GlobalNonlinearity => 2,
             Effect::PixelNonlinearity => 3,
             Effect::LowSignalNonlinearity => 4,
-            Effect::LevelErrors => 5,
-            Effect::LightJitter => 6,
-            Effect::IlluminationChange => 7,
-            Effect::CfaPattern => 8,
-            Effect::BadPixels => 9,
-            Effect::ExcessNoise => 10,
-            Effect::InsufficientNoise => 11,
-            Effect::Unexplained => 12,
+            Effect::BlackLevelClipped => 5,
+            Effect::LevelErrors => 6,
+            Effect::LightJitter => 7,
+            Effect::IlluminationChange => 8,
+            Effect::CfaPattern => 9,
+            Effect::BadPixels => 10,
+            Effect::ExcessNoise => 11,
+            Effect::InsufficientNoise => 12,
+            Effect::Unexplained => 13,
         };
         assert!(Effect::ALL.iter().enumerate().all(|(i, &e)| index(e) == i));
     }

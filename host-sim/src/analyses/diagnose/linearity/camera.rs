@@ -7,7 +7,7 @@ use crate::analyses::diagnose::cubes::SetView;
 use crate::analyses::diagnose::records::Records;
 use super::scoring::Scoring;
 use crate::analyses::diagnose::Measured;
-use super::transfer::{photon_transfer, LightJitter};
+use super::transfer::{median_chi2, photon_transfer, LightJitter};
 use super::populations::populations;
 use crate::formats::fits::Sample;
 
@@ -209,17 +209,10 @@ pub(super) fn measure_camera<T: Sample>(scoring: &Scoring<'_, T>, n_frames: u32,
         cfa: None,
         no_dark: (!has_dark).then(|| NoDark { reference: px.x[0], offset_se_dn: 1.2533 * d_scatter / (good.len().max(1) as f64).sqrt(), read_bound_dn: read_bound }),
         light_jitter_rms: jitter.as_ref().map(|j| j.rms),
+        light_series_step: None,
     };
     let noise = if has_dark { medians[dark_std_cell] } else { read.unwrap_or(medians[dark_std_cell]) };
     (measured, noise, jitter)
-}
-
-/// The median of `chi^2_(N-1) / (N-1)` for `n_frames` frames, `(1 - 2 / (9 (N-1)))^3`
-/// (Wilson-Hilferty): the median of `s^2` is `sigma^2` times it (taken as 1 it read the
-/// variance 0.26% low at 256 frames, and the gain with it).
-pub(super) fn median_chi2(n_frames: u32) -> f64 {
-    let dof = f64::from(n_frames.max(2)) - 1.0;
-    (1.0 - 2.0 / (9.0 * dof)).powi(3)
 }
 
 /// The largest reference of a level 0 that is a dark level, as a fraction of the largest

@@ -476,13 +476,17 @@ mod tests {
     fn the_modes_are_orthogonal_over_the_bins() {
         let g = Grid::new(64, 64, 41).unwrap();
         assert_eq!((g.bx, g.by, g.modes()), (24, 24, 120));
-        // Pixel by pixel, the modes are the 2-D DCT-II's: orthogonal.
+        // Pixel by pixel, the modes are the 2-D DCT-II's: orthogonal. (Each mode's value
+        // at every pixel once: evaluated afresh for every pair, this test took minutes.)
+        let values: Vec<Vec<f64>> = (0..g.modes())
+            .map(|p| {
+                let e_p = DVector::from_fn(g.modes(), |k, _| f64::from(u8::from(k == p)));
+                (0..64).flat_map(|y| (0..64).map(move |x| (x, y))).map(|(x, y)| g.at(&e_p, x, y)).collect()
+            })
+            .collect();
         for p in 0..g.modes() {
             for q in 0..g.modes() {
-                let dot: f64 = (0..64).flat_map(|y| (0..64).map(move |x| (x, y))).map(|(x, y)| {
-                    let (e_p, e_q) = (DVector::from_fn(g.modes(), |k, _| f64::from(u8::from(k == p))), DVector::from_fn(g.modes(), |k, _| f64::from(u8::from(k == q))));
-                    g.at(&e_p, x, y) * g.at(&e_q, x, y)
-                }).sum();
+                let dot: f64 = values[p].iter().zip(&values[q]).map(|(a, b)| a * b).sum();
                 if p == q {
                     assert!(dot > 0.2 * 4096.0, "mode {p}: {dot}");
                 } else {

@@ -2,7 +2,7 @@
 //! per ADC `adc-dnl`), measured first: found, they are taken out of every pixel's means
 //! before any model of the response ([`crate::analyses::diagnose::levels`] measures the term).
 
-use crate::analyses::diagnose::levels::{held_out_rms, level_term, wald, Block, LevelTerm, Shape};
+use crate::analyses::diagnose::levels::{held_out_rms, level_term, wald, Block, LevelTerm, Series, Shape};
 use crate::analyses::diagnose::points::Pixels;
 use crate::analyses::diagnose::{Effect, Finding, SIGNIFICANCE};
 use super::{finding, with_residuals};
@@ -14,6 +14,9 @@ pub(super) struct LevelStage {
     pub(super) term: LevelTerm,
     pub(super) accepted: bool,
     pub(super) findings: Vec<Finding>,
+    /// Where `level-errors` was named and its light part is two series that disagree,
+    /// the step its finding gives ([`LevelTerm::series`]).
+    pub(super) series: Option<Series>,
 }
 
 /// Measures and names the errors every pixel of `px` shares at its `nl` levels.
@@ -22,6 +25,7 @@ pub(super) fn level_stage<T: Sample>(px: &Pixels<T>, nl: usize) -> LevelStage {
     // off) first: found, they are taken out of every pixel's means before any model.
     let mut levels_term = level_term(px, &vec![false; nl]);
     let mut findings = Vec::new();
+    let mut series = None;
     let accepted = |t: &LevelTerm| {
         let (before, after) = held_out_rms(&t.by_level);
         t.significance > SIGNIFICANCE && after < before
@@ -46,7 +50,7 @@ pub(super) fn level_stage<T: Sample>(px: &Pixels<T>, nl: usize) -> LevelStage {
         // (A term taken per ADC without its `adc-dnl` finding would hide the ADCs.)
         if skipped.per_adc.is_none() {
             let low_finding = if let Shape::LowSignal { .. } = levels_term.shape {
-                Some(level_finding(&levels_term))
+                Some(level_finding(&levels_term, &mut series))
             } else {
                 let sig = wald(&skipped, px, &|_| true, Block::Levels(&low));
                 let (before, after) = held_out_rms(&skipped.skipped_by_level);
@@ -73,14 +77,14 @@ pub(super) fn level_stage<T: Sample>(px: &Pixels<T>, nl: usize) -> LevelStage {
                     // re-review found the whole test skipped).
                     let above = (count(&guard) > count(&low) && nl - count(&guard) >= 11).then(|| level_term(px, &guard));
                     let level_errors = above.filter(|t| t.per_adc.is_none()).unwrap_or(skipped);
-                    let named_errors = (accepted(&level_errors) && level_errors.shape == Shape::Random).then(|| level_finding(&level_errors));
+                    let named_errors = (accepted(&level_errors) && level_errors.shape == Shape::Random).then(|| level_finding(&level_errors, &mut series));
                     let found = named_errors.is_some();
                     findings.push(low_finding);
                     findings.extend(named_errors);
                     (level_errors, found)
                 }
                 None => {
-                    findings.push(level_finding(&levels_term));
+                    findings.push(level_finding(&levels_term, &mut series));
                     (skipped, true)
                 }
             };
@@ -109,19 +113,25 @@ pub(super) fn level_stage<T: Sample>(px: &Pixels<T>, nl: usize) -> LevelStage {
         )));
     }
     if !handled && level_accepted && levels_term.per_adc.is_none() {
-        findings.push(level_finding(&levels_term));
+        findings.push(level_finding(&levels_term, &mut series));
     }
-    LevelStage { term: levels_term, accepted: level_accepted, findings }
+    LevelStage { term: levels_term, accepted: level_accepted, findings, series }
 }
 
 /// The common level term's finding, named by its shape: random errors of the
-/// measurement, or a response every pixel shares that no quartic follows.
-pub(super) fn level_finding(term: &LevelTerm) -> Finding {
+/// measurement (`series` then set to the two series they are, where they are), or a
+/// response every pixel shares that no quartic follows.
+pub(super) fn level_finding(term: &LevelTerm, series: &mut Option<Series>) -> Finding {
     let (before, after) = held_out_rms(&term.by_level);
     let (effect, detail) = match term.shape {
         Shape::Random => (Effect::LevelErrors, format!(
-            "every pixel is off alike at some levels, beyond any smooth response, uncorrelated from level to level and spread over the range: light {:.2e} rms (relative) off the reference detector and black level {:.3} DN rms (odd rows' level residuals against the even rows' estimate); taken out of every pixel's means (the light's part scaled by each pixel's local slope, the black level's by its ADC's); their smooth part cannot be told from a shared nonlinearity: a shared curve takes it, and is named only if it stands out against the level errors too",
-            term.light_rel, term.black_dn
+            "every pixel is off alike at some levels, beyond any smooth response, uncorrelated from level to level and spread over the range: light {:.2e} rms (relative) off the reference detector and black level {:.3} DN rms (odd rows' level residuals against the even rows' estimate){}; taken out of every pixel's means (the light's part scaled by each pixel's local slope, the black level's by its ADC's); their smooth part cannot be told from a shared nonlinearity: a shared curve takes it, and is named only if it stands out against the level errors too",
+            term.light_rel,
+            term.black_dn,
+            {
+                *series = term.series();
+                series.as_ref().map_or(String::new(), |s| s.text())
+            },
         )),
         Shape::LowSignal { share } => (Effect::LowSignalNonlinearity, format!(
             "every pixel departs alike from any smooth response at the lowest signals: {:.0}% of the agreement between even and odd rows lies in the lowest 10% of the range (an offset or a charge loss); taken out of every pixel's means",

@@ -77,6 +77,7 @@
 mod adc_apart;
 mod camera;
 mod cfa;
+pub(super) mod clip;
 pub use camera::NoDark;
 mod curves;
 mod illumination;
@@ -210,7 +211,7 @@ fn baseline(base: &Scores, n_adc: usize) -> Baseline {
 /// Diagnoses a linearity set held in memory; `accuracy_dn` is the averaging accuracy the
 /// `insufficient-noise` check asks for.
 pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) -> Result<Diagnosis, DiagnoseError> {
-    diagnose_kept(&SetView::held(set), Keep::held(), accuracy_dn)
+    diagnose_kept(&mut SetView::held(set), Keep::held(), accuracy_dn)
 }
 
 /// [`diagnose_linearity`] with the per-pixel records (each pixel's fits, its scores
@@ -218,7 +219,7 @@ pub fn diagnose_linearity<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) ->
 /// of each per thread in memory ([`super::records`]). The same diagnosis, number for
 /// number.
 pub fn diagnose_linearity_spilled<T: Sample>(set: &LinearitySet<T>, accuracy_dn: f64) -> Result<Diagnosis, DiagnoseError> {
-    diagnose_kept(&SetView::held(set), Keep::spilled(), accuracy_dn)
+    diagnose_kept(&mut SetView::held(set), Keep::spilled(), accuracy_dn)
 }
 
 /// [`diagnose_linearity`] of a set read from its file by blocks of `rows` rows (`None`:
@@ -226,8 +227,8 @@ pub fn diagnose_linearity_spilled<T: Sample>(set: &LinearitySet<T>, accuracy_dn:
 /// values is a block per thread, the file is read once a pass. The same diagnosis,
 /// number for number, as of the set held as `f32`.
 pub fn diagnose_linearity_rows(file: &LinearityRows, rows: Option<usize>, spill: bool, accuracy_dn: f64) -> Result<Diagnosis, DiagnoseError> {
-    let set = SetView::<f32>::rows(file, rows);
-    let d = diagnose_kept(&set, if spill { Keep::spilled() } else { Keep::held() }, accuracy_dn);
+    let mut set = SetView::<f32>::rows(file, rows);
+    let d = diagnose_kept(&mut set, if spill { Keep::spilled() } else { Keep::held() }, accuracy_dn);
     match set.failed() {
         Some(message) => Err(DiagnoseError::Read { message }),
         None => d.map(|d| Diagnosis { block_rows: set.block_rows(), ..d }),
@@ -236,8 +237,31 @@ pub fn diagnose_linearity_rows(file: &LinearityRows, rows: Option<usize>, spill:
 
 /// [`diagnose_set`] with its records kept as `keep` says; a failed spill file ends it
 /// with that failure.
-fn diagnose_kept<T: Sample>(set: &SetView<'_, T>, keep: Keep, accuracy_dn: f64) -> Result<Diagnosis, DiagnoseError> {
-    let d = diagnose_set(set, keep.clone(), accuracy_dn);
+///
+/// A black level clipped at code 0 first ([`clip`]): named, and where its clipped levels
+/// come first in the file and at least [`MIN_AFTER_CLIP`] levels of 11 distinct
+/// references are left, the set diagnosed from the first level that is not clipped.
+fn diagnose_kept<T: Sample>(set: &mut SetView<'_, T>, keep: Keep, accuracy_dn: f64) -> Result<Diagnosis, DiagnoseError> {
+    let clip = clip::clip_of(set);
+    let clip_finding = clip.as_ref().map(|c| {
+        let left = set.levels - c.leading;
+        let distinct = crate::analyses::linearity::run::distinct_voltages(&set.voltage[c.leading..]);
+        let why = if c.leading < c.clipped_levels() {
+            Err("the clipped levels are not the first in the file")
+        } else if left < MIN_AFTER_CLIP || distinct < 11 {
+            Err("too few levels would be left")
+        } else {
+            Ok(())
+        };
+        if why.is_ok() {
+            set.skip_levels(c.leading);
+        }
+        c.finding(why)
+    });
+    let d = diagnose_set(set, keep.clone(), accuracy_dn).map(|mut d| {
+        d.findings.splice(0..0, clip_finding);
+        d
+    });
     if keep.spills() {
         super::records::release();
     }
@@ -254,6 +278,10 @@ fn diagnose_kept<T: Sample>(set: &SetView<'_, T>, keep: Keep, accuracy_dn: f64) 
 /// stays here is the shared response (ADC curvature, `global-nonlinearity`), whose steps
 /// hand each other their held-out scores (each accepted model is the next one's
 /// baseline), and the assembly of the report.
+/// The fewest levels a set left after its clipped levels are taken out is diagnosed on
+/// (of the held-out split's 12, with one to spare).
+const MIN_AFTER_CLIP: usize = 13;
+
 fn diagnose_set<T: Sample>(set: &SetView<'_, T>, keep: Keep, accuracy_dn: f64) -> Result<Diagnosis, DiagnoseError> {
     let (mut px, n_adc) = prepare(set, keep)?;
     // A colour filter's pattern first: every later population is per channel.
@@ -269,7 +297,7 @@ fn diagnose_set<T: Sample>(set: &SetView<'_, T>, keep: Keep, accuracy_dn: f64) -
     let estimating = |i: usize| px.estimating(i);
     // Errors every pixel shares at a level (the light off the reference, the black level
     // off) first: found, they are taken out of every pixel's means before any model.
-    let LevelStage { term: levels_term, accepted: level_accepted, mut findings } = level_stage(&px, nl);
+    let LevelStage { term: levels_term, accepted: level_accepted, mut findings, series } = level_stage(&px, nl);
     let level_common: Option<&dyn Common> = (level_accepted || levels_term.per_adc.is_some()).then_some(&levels_term as &dyn Common);
     // Then the light's pattern changing between levels, held out by rows.
     let pattern = illumination_change(&px, level_common, &levels_term, &levels_term.signal);
@@ -425,6 +453,7 @@ fn diagnose_set<T: Sample>(set: &SetView<'_, T>, keep: Keep, accuracy_dn: f64) -
     // level term, which takes what it does to the means.
     findings.extend(jitter.as_ref().map(|j| j.finding()));
     measured.illumination_change_rms = pattern_rms;
+    measured.light_series_step = series.map(|s| s.step);
     measured.cfa = cfa;
     findings.extend(insufficient_noise("median dark noise", dark_noise, accuracy_dn));
     findings.extend(remainder(&s, &current, tcur, unattributed(final_params)));
