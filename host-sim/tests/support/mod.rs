@@ -37,26 +37,41 @@ pub fn kcor_luts_dir() -> Option<PathBuf> {
 /// `python` of the project's astropy venv (target/astropy-venv, made by
 /// scripts/astropy-venv.sh when missing): astropy and numpy, never the system Python's.
 pub fn python() -> Command {
+    Command::new(python_path())
+}
+
+/// The path of the astropy venv's `python` (see [`python`]).
+pub fn python_path() -> &'static Path {
     static PYTHON: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
-    let py = PYTHON.get_or_init(|| {
+    PYTHON.get_or_init(|| {
         let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scripts/astropy-venv.sh");
         let out = Command::new(&script).output().expect("scripts/astropy-venv.sh runs");
         assert!(out.status.success(), "astropy-venv.sh failed:\n{}", String::from_utf8_lossy(&out.stderr));
         PathBuf::from(String::from_utf8_lossy(&out.stdout).lines().last().expect("the venv's python path").trim())
-    });
-    Command::new(py)
+    })
+}
+
+/// `dncal args` in `dir`, stdin closed, stdout and stderr to be captured.
+fn command(args: &[&str], dir: &Path) -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_dncal"));
+    c.args(args).current_dir(dir).stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped());
+    c
 }
 
 /// `dncal args` started in `dir`, stdin closed, stdout and stderr captured.
 pub fn spawn(args: &[&str], dir: &Path) -> Child {
-    Command::new(env!("CARGO_BIN_EXE_dncal"))
-        .args(args)
-        .current_dir(dir)
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("dncal runs")
+    command(args, dir).spawn().expect("dncal runs")
+}
+
+/// Runs `dncal args` in `dir` as a user of the astropy venv would (its `bin` first on
+/// `PATH`, so the `python3` dncal starts has numpy and astropy whatever the system's
+/// Python holds), killed after [`DEADLINE`].
+pub fn dncal_in_venv(args: &[&str], dir: &Path) -> Output {
+    let bin = python_path().parent().expect("the venv's bin folder");
+    let path = std::env::join_paths(std::iter::once(bin.to_path_buf()).chain(std::env::split_paths(&std::env::var_os("PATH").unwrap_or_default()))).expect("a PATH");
+    let mut c = command(args, dir);
+    c.env("PATH", path);
+    wait_within(c.spawn().expect("dncal runs"), args, DEADLINE)
 }
 
 /// Runs `dncal args` in `dir`, killed after [`DEADLINE`]. Its stdout and stderr are read
@@ -72,8 +87,12 @@ pub fn dncal_prompt(args: &[&str], dir: &Path) -> Output {
 
 /// Runs `dncal args` in `dir`, killed after `limit`.
 pub fn dncal_within(args: &[&str], dir: &Path, limit: Duration) -> Output {
+    wait_within(spawn(args, dir), args, limit)
+}
+
+/// Waits for a started `dncal args`, killed after `limit`.
+fn wait_within(mut child: Child, args: &[&str], limit: Duration) -> Output {
     use std::io::Read;
-    let mut child = spawn(args, dir);
     let drain = |mut pipe: Box<dyn Read + Send>| {
         std::thread::spawn(move || {
             let mut bytes = Vec::new();

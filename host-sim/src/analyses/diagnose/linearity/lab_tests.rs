@@ -565,7 +565,26 @@ fn a_black_level_clipped_at_zero_is_named_and_its_levels_left_out() {
         }
         let d = diagnose_linearity(&linearity_set(&consumer, &[], 6210 + seed), 0.01).unwrap();
         assert!(d.findings.is_empty(), "seed {seed}, black level at 60 DN: {:#?}", d.findings);
+        if seed == 1 {
+            // The levels in the file brightest first: named, not left out (only a prefix
+            // of the file can be), and said so.
+            let mut reversed = set.clone();
+            let np = set.width * set.height;
+            for (l, r) in (0..set.levels).rev().enumerate() {
+                reversed.mean[l * np..(l + 1) * np].copy_from_slice(&set.mean[r * np..(r + 1) * np]);
+                reversed.std[l * np..(l + 1) * np].copy_from_slice(&set.std[r * np..(r + 1) * np]);
+                reversed.voltage[l] = set.voltage[r];
+            }
+            let d = diagnose_linearity(&reversed, 0.01).unwrap();
+            let f = d.findings.iter().find(|f| f.effect == Effect::BlackLevelClipped).unwrap_or_else(|| panic!("reversed: {:#?}", d.findings));
+            assert!(f.detail.contains(&format!("level {} (the dimmest)", set.levels - 1)) && f.detail.contains("they are not left out (the clipped levels are not the first in the file)"), "{}", f.detail);
+        }
     }
+    // Signed data (a dark subtracted, nothing clipped: the means of the dark level spread
+    // about 0, below it too) are not clipped.
+    let signed = Plant { offset_dn: 0.0, gain_e_per_dn: 2.5, read_dn: 2.0, frames: 8, ..Plant::default() };
+    let d = diagnose_linearity(&linearity_set(&signed, &[], 6220), 0.01).unwrap();
+    assert!(d.findings.iter().all(|f| f.effect != Effect::BlackLevelClipped), "{:#?}", d.findings);
 }
 
 /// Issue 58: a consumer camera's two exposure series interleaved in reference, the second's
