@@ -20,7 +20,7 @@ fn set(side: usize, levels: usize) -> LinearitySet {
             mean[l * np + p] = 100.0 + g * (3400.0 * x - 150.0 * x * x + 40.0 * x.powi(3) - 12.0 * x.powi(4));
         }
     }
-    LinearitySet { bit_depth: 12, n_adc: 4, n_frames: 256, width: side, height: side, levels, std: vec![2.0; levels * np], mean, voltage: (0..levels).map(|l| l as f64).collect(), mask: None }
+    LinearitySet { bit_depth: 12, n_adc: 4, n_frames: 256, width: side, height: side, levels, std: vec![2.0; levels * np], mean, voltage: (0..levels).map(|l| l as f64).collect(), mask: None, keys: Default::default() }
 }
 
 /// The plain way: a least-squares solve per pixel.

@@ -129,7 +129,7 @@ out = []
 with fits.open(sys.argv[1]) as hdul:
     hdul.verify("exception")
     for hdu in hdul:
-        keys = ("BITPIX", "NAXIS", "BZERO", "BSCALE", "BITDEPTH", "NADC", "ADCMAP", "FRACBITS", "KCORBITS", "NFRAMES", "BUNIT", "EXTNAME")
+        keys = ("BITPIX", "NAXIS", "BZERO", "BSCALE", "BITDEPTH", "NADC", "ADCMAP", "FRACBITS", "KCORBITS", "NFRAMES", "BUNIT", "EXTNAME", "BAYERPAT", "XBAYROFF", "YBAYROFF", "ROWORDER")
         d = {"name": hdu.name, "class": type(hdu).__name__, "header": {k: hdu.header[k] for k in keys if k in hdu.header}}
         if isinstance(hdu, fits.BinTableHDU):
             d["columns"] = {
@@ -257,6 +257,7 @@ fn astropy_opens_our_linearity_set_levels_by_rows_by_columns() {
         std: (0..cube).map(|i| 0.3 + 0.01 * i as f64).collect(),
         voltage: (0..levels).map(|l| 0.1 * l as f64).collect(),
         mask: Some((0..width * height).map(|i| u8::from(i % 6 == 2)).collect()),
+        keys: dncal_host::formats::fits::SetKeys { bayer: Some(dncal_host::formats::bayer::Bayer::Gbrg), reference: dncal_host::formats::fits::Reference::Exposure },
     };
     write_linearity(&path, &set).unwrap();
     let hdus = astropy_describe(&path);
@@ -268,6 +269,8 @@ fn astropy_opens_our_linearity_set_levels_by_rows_by_columns() {
     assert_eq!(p["header"]["BITPIX"], -64);
     assert_eq!(p["header"]["NFRAMES"], 32);
     assert_eq!(p["header"]["BUNIT"], "DN");
+    // The colour layout as the Bayer convention's keys.
+    assert_eq!((&p["header"]["BAYERPAT"], &p["header"]["XBAYROFF"], &p["header"]["YBAYROFF"], &p["header"]["ROWORDER"]), (&serde_json::json!("GBRG"), &serde_json::json!(0), &serde_json::json!(0), &serde_json::json!("TOP-DOWN")));
     assert_adc_keys(p, 12, 4);
     assert_eq!(p["shape"], serde_json::json!([4, 3, 5]), "astropy's shape is (levels, rows, columns)");
     assert_eq!(p["dtype"], "float64");
@@ -289,10 +292,11 @@ fn astropy_opens_our_linearity_set_levels_by_rows_by_columns() {
 
     let reference = by_name("REFERENCE");
     assert_eq!(reference["class"], "BinTableHDU");
-    let voltage = &reference["columns"]["VOLTAGE"];
+    // (A relative exposure, t / N^2, in its own column: a photodiode's would be VOLTAGE, V.)
+    let voltage = &reference["columns"]["EXPOSURE"];
     // cfitsio writes TFORM '1D', astropy 'D': both one float64 per row.
-    assert!(matches!(voltage["format"].as_str(), Some("D" | "1D")), "VOLTAGE format {}", voltage["format"]);
-    assert_eq!(voltage["unit"], "V");
+    assert!(matches!(voltage["format"].as_str(), Some("D" | "1D")), "EXPOSURE format {}", voltage["format"]);
+    assert_eq!(voltage["unit"], "s");
     assert_eq!(voltage["dtype"], "float64");
     assert_close(&json_f64(&voltage["values"]), &set.voltage, "voltage");
 }
@@ -326,7 +330,7 @@ print(json.dumps(out))
     write_histograms(&h, &AdcHistograms { bit_depth: 3, counts: vec![vec![5; 8]; 3] }).unwrap();
     write_lut(&l, &LutTables { frac_bits: 11, tables: vec![(0..16u32).map(|k| 2048 * k + 1024).collect(); 2], weights: Some(vec![vec![1 << 24; 16]; 2]), kcor_bits: None }).unwrap();
     let n = 5 * 3 * 4;
-    let set = LinearitySet { bit_depth: 12, n_adc: 4, n_frames: 32, width: 5, height: 3, levels: 4, mean: (0..n).map(|i| i as f64).collect(), std: vec![1.0; n], voltage: vec![0.0, 1.0, 2.0, 3.0], mask: Some(vec![0; 15]) };
+    let set = LinearitySet { bit_depth: 12, n_adc: 4, n_frames: 32, width: 5, height: 3, levels: 4, mean: (0..n).map(|i| i as f64).collect(), std: vec![1.0; n], voltage: vec![0.0, 1.0, 2.0, 3.0], mask: Some(vec![0; 15]), keys: Default::default() };
     write_linearity(&s, &set).unwrap();
     for (path, hdus) in [(&h, 1), (&l, 2), (&s, 4)] {
         let v = verify(path);

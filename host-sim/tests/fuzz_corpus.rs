@@ -180,6 +180,7 @@ fn write_seeds(corpus: &Path) {
         std: (0..n).map(|i| 1.0 + 0.25 * i as f64).collect(),
         voltage: vec![0.0, 0.5, 1.0],
         mask: Some(vec![0, 1, 0, 0, 0, 0, 1, 0]),
+        keys: Default::default(),
     };
     write_linearity(&l.join("seed-with-mask.fits"), &set).unwrap();
     write_linearity(&l.join("seed-no-mask.fits"), &LinearitySet { mask: None, ..set }).unwrap();

@@ -115,6 +115,7 @@ fn fit_linearity<'py>(
         std: s.as_slice()?,
         voltage: v.as_slice()?,
         mask: mask.as_ref().map(|k| k.as_slice()).transpose()?,
+        keys: Default::default(),
     };
     check_linearity(&set).map_err(|fault| raise("InputError", format!("linearity set: {fault}")))?;
     let cube = if keep_corrected { Cube::Keep } else { Cube::Skip };

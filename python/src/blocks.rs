@@ -40,7 +40,7 @@ impl Keys {
 
     /// A block's view of `(levels, rows, cols)` arrays.
     fn view<'b>(&'b self, mean: &'b [f64], std: &'b [f64], height: usize, width: usize) -> SetView<'b> {
-        SetView { bit_depth: self.2, n_adc: self.3, n_frames: self.1, width, height, levels: self.0.len(), mean, std, voltage: &self.0, mask: None }
+        SetView { bit_depth: self.2, n_adc: self.3, n_frames: self.1, width, height, levels: self.0.len(), mean, std, voltage: &self.0, mask: None, keys: Default::default() }
     }
 }
 
@@ -238,7 +238,7 @@ fn counted_of<'a>(mean: &'a numpy::PyReadonlyArray3<'_, f64>, mask: &'a numpy::P
         return Err(PyValueError::new_err(format!("block: mean {:?}, mask {:?}, unsaturated levels {:?}, {} voltages", mean.shape(), mask.shape(), valid.shape(), voltage.len())));
     }
     let mean = mean.as_slice()?;
-    let set = SetView { bit_depth: 1, n_adc: 1, n_frames: 1, width, height, levels, mean, std: mean, voltage, mask: None };
+    let set = SetView { bit_depth: 1, n_adc: 1, n_frames: 1, width, height, levels, mean, std: mean, voltage, mask: None, keys: Default::default() };
     Ok(Counted { set, mask: mask.as_slice()?, valid: valid.as_slice()?.iter().map(|&n| n as usize).collect() })
 }
 

@@ -311,5 +311,6 @@ pub fn linearity_set(plant: &Plant, hidden: &[Hidden], seed: u64) -> LinearitySe
         std,
         voltage: (0..nl).map(|l| if plant.reference_start == 0.0 { 2.5 * l as f64 / (nl - 1) as f64 } else { 2.5 * reference(l) }).collect(),
         mask: None,
+        keys: Default::default(),
     }
 }

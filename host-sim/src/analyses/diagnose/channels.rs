@@ -18,6 +18,10 @@ pub struct CfaResponse {
     /// relative to the cell's own response (PRNU within the channel, with the noise of
     /// the level's means).
     pub prnu_within: Vec<f64>,
+    /// The Bayer layout the file declares (`BAYERPAT`), where the pattern is 2 x 2: a
+    /// label of the cells, carried into the model.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub bayer: Option<crate::formats::bayer::Bayer>,
 }
 
 impl CfaResponse {

@@ -53,6 +53,8 @@ pub(super) struct SetView<'a, T: Sample> {
     pub voltage: &'a [f64],
     /// Known bad pixels, 1 = bad.
     pub mask: Option<&'a [u8]>,
+    /// What the file says of its pixels beyond their values (a Bayer layout).
+    pub keys: crate::formats::fits::SetKeys,
     /// The file's levels left out below level 0 ([`SetView::skip_levels`]).
     skip: usize,
     cubes: Cubes<'a, T>,
@@ -133,6 +135,7 @@ impl<'a, T: Sample> SetView<'a, T> {
             levels: set.levels,
             voltage: &set.voltage,
             mask: set.mask.as_deref(),
+            keys: set.keys,
             skip: 0,
             cubes: Cubes::Held { mean: &set.mean, std: &set.std },
         }
@@ -152,6 +155,7 @@ impl<'a, T: Sample> SetView<'a, T> {
             levels: file.levels,
             voltage: &file.voltage,
             mask: file.mask.as_deref(),
+            keys: file.keys,
             skip: 0,
             cubes: Cubes::Rows { file, rows, slots: (0..=rayon::current_num_threads()).map(|_| empty()).collect(), failed: Mutex::new(None) },
         }

@@ -419,10 +419,18 @@ pub struct Measured {
     /// it is found: the gain is then the photon transfer's with its term, or withheld.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub light_jitter_rms: Option<f64>,
+    /// The light's relative rms off the reference from level to level (`level-errors`),
+    /// where that is named: a shutter's and an aperture's errors on a series given as
+    /// exposure, a source that drifted beside a photodiode that did not see it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub light_level_rms: Option<f64>,
     /// Where the level errors' light part is two groups of levels (two exposure series
     /// that disagree): the brighter group's light over the dimmer's, less 1.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub light_series_step: Option<f64>,
+    /// What the linearity set's reference measures (a photodiode's voltage or a relative
+    /// exposure): carried into the model's `[bench] reference`.
+    pub reference: crate::formats::fits::Reference,
 }
 
 /// `insufficient-noise` when a noise of `sigma_dn` ("{what} {sigma_dn} DN") leaves a

@@ -86,11 +86,21 @@ pub fn apply_measured(mut c: crate::model::camera::CameraConfig, d: &Diagnosis) 
     // A colour filter's cells as measured (the PRNU above is then within a channel, as
     // the model applies it: cell times `1 + PRNU`).
     if let Some(cfa) = &m.cfa {
-        c.cfa = Some(crate::model::camera::config::CfaConfig { period: cfa.period, cells: cfa.response.clone(), bayer: None });
+        c.cfa = Some(crate::model::camera::config::CfaConfig { period: cfa.period, cells: cfa.response.clone(), bayer: cfa.bayer });
     }
     if let Some(r) = m.illumination_change_rms {
         c.bench.illumination_change_rms = r.min(crate::model::camera::config::MAX_ILLUMINATION_CHANGE_RMS);
     }
+    // The light's errors as the bench's, so that a set simulated from the model has them
+    // (a consumer camera's series: its shutter's and aperture's errors, its jitter).
+    let light = |r: f64| r.min(crate::model::camera::config::MAX_LIGHT_ERROR_RMS);
+    if let Some(r) = m.light_level_rms {
+        c.bench.level_error_rms = light(r);
+    }
+    if let Some(r) = m.light_jitter_rms {
+        c.bench.frame_jitter_rms = light(r);
+    }
+    c.bench.reference = m.reference;
     let scale = c.full_well_e / g;
     c.nonlinearity = d.curve_per_dn.as_ref().map_or(Vec::new(), |b| b.iter().enumerate().map(|(k, b)| b * scale.powi(k as i32 + 1)).collect());
     c.pixel_nonlinearity_rms = match (m.pixel_b2_rms_per_dn, d.findings.iter().any(|f| f.effect == Effect::PixelNonlinearity)) {

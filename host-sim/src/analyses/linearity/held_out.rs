@@ -94,7 +94,7 @@ mod tests {
         let pix: Vec<(f64, f64)> = (0..w * h).map(|_| (1.0 + 0.01 * n.sample(&mut rng), 0.03 * n.sample(&mut rng))).collect();
         let x = |l: usize| l as f64 / (nl - 1) as f64;
         let mean: Vec<f64> = (0..nl).flat_map(|l| pix.iter().map(move |&(g, b)| (l, g, b))).map(|(l, g, b)| 100.0 + 3000.0 * g * (x(l) + b * x(l).powi(k))).map(|m| m + 0.05 * n.sample(&mut rng)).collect();
-        LinearitySet { bit_depth: 12, n_adc: 4, n_frames: 256, width: w, height: h, levels: nl, std: vec![0.8; mean.len()], mean, voltage: (0..nl).map(x).collect(), mask: None }
+        LinearitySet { bit_depth: 12, n_adc: 4, n_frames: 256, width: w, height: h, levels: nl, std: vec![0.8; mean.len()], mean, voltage: (0..nl).map(x).collect(), mask: None, keys: Default::default() }
     }
 
     fn scores(s: &LinearitySet) -> Vec<HeldOut> {

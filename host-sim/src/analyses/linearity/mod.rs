@@ -361,7 +361,7 @@ mod tests {
                 mean[l * np + p] = poly(&a(p), x);
             }
         }
-        LinearitySet { bit_depth: 12, n_adc: 4, n_frames: 256, width: w, height: h, levels, std: vec![2.0; levels * np], mean, voltage: (0..levels).map(|l| 0.01 * l as f64).collect(), mask: None }
+        LinearitySet { bit_depth: 12, n_adc: 4, n_frames: 256, width: w, height: h, levels, std: vec![2.0; levels * np], mean, voltage: (0..levels).map(|l| 0.01 * l as f64).collect(), mask: None, keys: Default::default() }
     }
 
     fn coefficients(p: usize) -> [f64; 5] {

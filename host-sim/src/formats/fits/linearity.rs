@@ -51,6 +51,57 @@ pub struct LinearitySet<T: Sample = f64> {
     pub voltage: Vec<f64>,
     /// Known bad pixels, `mask[row * width + column]`, 1 = bad, 0 = good.
     pub mask: Option<Vec<u8>>,
+    /// What the file says of its pixels beyond their values (optional keys).
+    pub keys: SetKeys,
+}
+
+/// What a linearity set says of itself beyond its shape and values: optional keys, each
+/// a label the analyses report and carry, none of them changing a number measured.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct SetKeys {
+    /// The Bayer layout of a colour sensor's pixels from the set's first stored pixel
+    /// (`BAYERPAT`, with `XBAYROFF`, `YBAYROFF` and `ROWORDER` applied as read:
+    /// [`crate::formats::bayer`]).
+    pub bayer: Option<crate::formats::bayer::Bayer>,
+    /// What the reference column measures ([`Reference`]).
+    pub reference: Reference,
+}
+
+/// What a linearity set's reference measures: the light each level received, up to a
+/// scale no analysis of a linearity set uses (the fits take `x = reference / its
+/// largest`), so either kind gives the same numbers; what differs is what the reference
+/// can be wrong by, which the reports say.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Reference {
+    /// A reference photodiode's voltage beside the sensor (column `VOLTAGE`, V): it sees
+    /// the light itself, so it follows a source that drifts (the paper's bench).
+    #[default]
+    Photodiode,
+    /// A relative exposure (column `EXPOSURE`, s: exposure time over the f-number
+    /// squared, `t / N^2`), what a camera's own series gives: right only as far as the
+    /// shutter and the aperture keep their marked values and the light stays put, so
+    /// level errors of a few percent are the rule (issue 58), and it says nothing of the
+    /// photons a pixel received (no absolute quantum efficiency).
+    Exposure,
+}
+
+impl Reference {
+    /// Its column in extension `REFERENCE`.
+    pub fn column(self) -> &'static str {
+        match self {
+            Reference::Photodiode => "VOLTAGE",
+            Reference::Exposure => "EXPOSURE",
+        }
+    }
+
+    /// Its column's unit (`TUNIT1`).
+    pub fn unit(self) -> &'static str {
+        match self {
+            Reference::Photodiode => "V",
+            Reference::Exposure => "s",
+        }
+    }
 }
 
 /// A linearity set borrowed: what the analysis and the checks read, from a
@@ -68,6 +119,7 @@ pub struct SetView<'a, T: Sample = f64> {
     pub std: &'a [T],
     pub voltage: &'a [f64],
     pub mask: Option<&'a [u8]>,
+    pub keys: SetKeys,
 }
 
 impl<T: Sample> LinearitySet<T> {
@@ -84,6 +136,7 @@ impl<T: Sample> LinearitySet<T> {
             std: &self.std,
             voltage: &self.voltage,
             mask: self.mask.as_deref(),
+            keys: self.keys,
         }
     }
 }
@@ -104,6 +157,7 @@ pub fn stage_linearity(out: &mut Outputs, path: &Path, set: &LinearitySet) -> Re
         fits.adc_keys(set.bit_depth, set.n_adc)?;
         fits.key("NFRAMES", (i64::from(set.n_frames), "frames averaged per illumination level"))?;
         fits.key("BUNIT", ("DN", "mean of the frames at each level"))?;
+        write_keys(&mut fits, &set.keys)?;
         fits.image(&set.mean)?;
         fits.add_image("STD", ImageType::Double, &cube)?;
         fits.key("BUNIT", ("DN", "standard deviation of the frames"))?;
@@ -114,9 +168,46 @@ pub fn stage_linearity(out: &mut Outputs, path: &Path, set: &LinearitySet) -> Re
         }
         // Last, so that a file cut at an HDU boundary lacks a required HDU rather than
         // reading as a valid set without its (optional) mask.
-        fits.add_table("REFERENCE", "VOLTAGE", "V", &set.voltage)?;
+        fits.add_table("REFERENCE", set.keys.reference.column(), set.keys.reference.unit(), &set.voltage)?;
         fits.finish()
     })
+}
+
+/// The optional keys of the primary HDU. A Bayer layout is written as the convention's
+/// four keys, from the first stored pixel (`XBAYROFF = YBAYROFF = 0`) of rows stored from
+/// the top (`ROWORDER = 'TOP-DOWN'`), so that Siril or PixInsight read the same layout.
+fn write_keys(fits: &mut FitsWriter, keys: &SetKeys) -> Result<(), HostError> {
+    if let Some(b) = keys.bayer {
+        fits.key("BAYERPAT", (b.name().to_string(), "colour filter layout from the first stored pixel"))?;
+        fits.key("XBAYROFF", (0i64, "Bayer layout's column offset"))?;
+        fits.key("YBAYROFF", (0i64, "Bayer layout's row offset"))?;
+        fits.key("ROWORDER", ("TOP-DOWN".to_string(), "first stored row is the top"))?;
+    }
+    Ok(())
+}
+
+/// The optional keys of a set whose frames have `height` rows (`BAYERPAT` where present:
+/// its offsets, of either sign, taken modulo 2; `ROWORDER = 'BOTTOM-UP'` starts the layout
+/// at the last stored row).
+fn read_keys(r: &mut FitsReader, height: usize) -> Result<SetKeys, HostError> {
+    let Some(name) = r.key::<String>(0, PRIMARY, "BAYERPAT")? else {
+        return Ok(SetKeys::default());
+    };
+    let layout = crate::formats::bayer::Bayer::parse(&name).map_err(|e| r.error(format!("key BAYERPAT: {e}")))?;
+    let mut offset = [0usize; 2];
+    for (o, key) in offset.iter_mut().zip(["XBAYROFF", "YBAYROFF"]) {
+        *o = r.int_key(0, PRIMARY, key)?.unwrap_or(0).rem_euclid(2) as usize;
+    }
+    let bottom_up = match r.key::<String>(0, PRIMARY, "ROWORDER")?.map(|s| s.trim().to_ascii_uppercase()) {
+        None => false,
+        Some(o) if o == "TOP-DOWN" => false,
+        Some(o) if o == "BOTTOM-UP" => true,
+        Some(o) => return Err(r.error(format!("key ROWORDER = {o:?}: TOP-DOWN or BOTTOM-UP"))),
+    };
+    // Stored from the bottom, stored row k is row `height - 1 - k` as shown: of a period
+    // of two rows, the same as starting `height - 1` rows on.
+    let rows = offset[1] + if bottom_up { (height + 1) % 2 } else { 0 };
+    Ok(SetKeys { bayer: Some(layout.shifted(offset[0], rows)), ..SetKeys::default() })
 }
 
 /// The pixel-wise correction as written: see [`stage_pixel_correction`].
@@ -233,9 +324,10 @@ where
     plan(&LinearityShape { width: h.width, height: h.height, levels: h.levels, resident: r.resident() })?;
     let mean: Vec<T> = r.float_pixels(&h.cubes[0])?;
     let std: Vec<T> = r.float_pixels(&h.cubes[1])?;
-    let (voltage, mask) = read_reference(&mut r, &h)?;
-    let Header { bit_depth, n_adc, n_frames, width, height, levels, .. } = h;
-    let set = LinearitySet { bit_depth, n_adc, n_frames, width, height, levels, mean, std, voltage, mask };
+    let (voltage, mask, reference) = read_reference(&mut r, &h)?;
+    let Header { bit_depth, n_adc, n_frames, width, height, levels, keys, .. } = h;
+    let keys = SetKeys { reference, ..keys };
+    let set = LinearitySet { bit_depth, n_adc, n_frames, width, height, levels, mean, std, voltage, mask, keys };
     check_linearity(&set.view()).map_err(|f| r.fault(f))?;
     r.finish()?;
     Ok(set)
@@ -263,6 +355,8 @@ pub struct LinearityRows {
     pub voltage: Vec<f64>,
     /// Known bad pixels, `mask[row * width + column]`, 1 = bad, 0 = good.
     pub mask: Option<Vec<u8>>,
+    /// What the file says of its pixels beyond their values.
+    pub keys: SetKeys,
     path: std::path::PathBuf,
     /// The mean and the standard-deviation cube.
     cubes: [StoredFloats; 2],
@@ -369,7 +463,7 @@ impl RowsToCheck<'_> {
         let never = |_: T| false;
         let [mean_bad, _] = r.scan_floats::<T>(&h.cubes[0], &at[0], [&not_a_mean, &never])?;
         let [std_bad, std_negative] = r.scan_floats::<T>(&h.cubes[1], &at[1], [&not_finite, &negative])?;
-        let (voltage, mask) = read_reference(&mut r, &h)?;
+        let (voltage, mask, reference) = read_reference(&mut r, &h)?;
         let (frame, _) = check_shape(&h).map_err(|f| r.fault(f))?;
         if let Some(f) = value_fault(mean_bad, std_bad, std_negative, frame, h.width, h.bit_depth) {
             return Err(r.fault(f));
@@ -377,8 +471,9 @@ impl RowsToCheck<'_> {
         check_reference(&voltage, h.levels, mask.as_deref(), frame, h.width).map_err(|f| r.fault(f))?;
         let path = r.path().to_path_buf();
         r.finish()?;
-        let Header { bit_depth, n_adc, n_frames, width, height, levels, .. } = h;
-        Ok(LinearityRows { bit_depth, n_adc, n_frames, width, height, levels, voltage, mask, path, cubes: at })
+        let Header { bit_depth, n_adc, n_frames, width, height, levels, keys, .. } = h;
+        let keys = SetKeys { reference, ..keys };
+        Ok(LinearityRows { bit_depth, n_adc, n_frames, width, height, levels, voltage, mask, keys, path, cubes: at })
     }
 }
 
@@ -406,6 +501,7 @@ struct Header {
     width: usize,
     height: usize,
     levels: usize,
+    keys: SetKeys,
     /// The primary cube (means) and extension `STD`.
     cubes: [ImageHeader; 2],
 }
@@ -434,15 +530,34 @@ fn read_header(r: &mut FitsReader) -> Result<Header, HostError> {
             shape_text(&image.naxes)
         )));
     }
-    Ok(Header { bit_depth, n_adc, n_frames, width, height, levels, cubes: [image, std_image] })
+    let keys = read_keys(r, height)?;
+    Ok(Header { bit_depth, n_adc, n_frames, width, height, levels, keys, cubes: [image, std_image] })
 }
+
+/// A set's reference values, its mask where it has one, and what the reference is.
+type ReferenceAndMask = (Vec<f64>, Option<Vec<u8>>, Reference);
 
 /// The reference voltages (extension `REFERENCE`) and the mask (`MASK`, where present)
 /// of a set whose header is `h`.
-fn read_reference(r: &mut FitsReader, h: &Header) -> Result<(Vec<f64>, Option<Vec<u8>>), HostError> {
+fn read_reference(r: &mut FitsReader, h: &Header) -> Result<ReferenceAndMask, HostError> {
     let (width, height, levels) = (h.width, h.height, h.levels);
     let ref_hdu = r.require_extension("REFERENCE", "reference voltages")?;
-    let voltage = r.column_f64(ref_hdu, "extension REFERENCE", "VOLTAGE")?;
+    // A photodiode's voltage where the table has one, else a relative exposure (looked
+    // for only where the voltage's reader found no such column, so that every other
+    // fault of the table is refused as it was).
+    let label = "extension REFERENCE";
+    let missing = |e: &HostError, column: &str| matches!(e, HostError::Format { message, .. } if message.ends_with(&format!("has no column {column}")));
+    let (voltage, reference) = match r.column_f64(ref_hdu, label, Reference::Photodiode.column()) {
+        Ok(v) => (v, Reference::Photodiode),
+        Err(e) if missing(&e, Reference::Photodiode.column()) => match r.column_f64(ref_hdu, label, Reference::Exposure.column()) {
+            Ok(v) => (v, Reference::Exposure),
+            Err(e) if missing(&e, Reference::Exposure.column()) => {
+                return Err(r.error(format!("the {label} has no column VOLTAGE (a reference photodiode's voltage, V) or EXPOSURE (a relative exposure, t / N^2)")));
+            }
+            Err(e) => return Err(e),
+        },
+        Err(e) => return Err(e),
+    };
     if voltage.len() != levels {
         return Err(r.error(format!("extension REFERENCE has {} rows, the cube has {levels} levels", voltage.len())));
     }
@@ -462,7 +577,7 @@ fn read_reference(r: &mut FitsReader, h: &Header) -> Result<(Vec<f64>, Option<Ve
             Some(mask)
         }
     };
-    Ok((voltage, mask))
+    Ok((voltage, mask, reference))
 }
 
 /// Everything a linearity set must satisfy, whether about to be written or just read.

@@ -96,6 +96,7 @@ fn linearity(mask: bool) -> LinearitySet {
         std,
         voltage: vec![0.0, 0.5, 1.0, 1.5],
         mask: mask.then(|| (0..width * height).map(|i| u8::from(i % 4 == 1)).collect()),
+        keys: Default::default(),
     }
 }
 
@@ -235,6 +236,74 @@ fn linearity_round_trips_with_and_without_mask() {
     }
 }
 
+/// A colour sensor's layout goes out as the convention's four keys and comes back; a
+/// region of interest from an odd column has the layout shifted.
+#[test]
+fn a_bayer_layout_round_trips_as_bayerpat() {
+    use crate::formats::bayer::Bayer;
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("lin.fits");
+    for b in Bayer::ALL {
+        let set = LinearitySet { keys: SetKeys { bayer: Some(b), ..SetKeys::default() }, ..linearity(false) };
+        write_linearity(&p, &set).unwrap();
+        assert_eq!(read_linearity(&p).unwrap(), set);
+    }
+}
+
+/// A relative exposure goes out as column `EXPOSURE` and comes back as one; a table
+/// written by another with `EXPOSURE` (any case) is read so.
+#[test]
+fn an_exposure_reference_round_trips_as_its_column() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("lin.fits");
+    let set = LinearitySet { keys: SetKeys { reference: Reference::Exposure, ..SetKeys::default() }, ..linearity(true) };
+    write_linearity(&path, &set).unwrap();
+    assert_eq!(read_linearity(&path).unwrap(), set);
+    let mut p = parts();
+    p.reference = Some(("exposure", vec![0.0, 1e-3, 2e-3, 4e-3]));
+    write_parts(&path, &p);
+    let read = read_linearity(&path).unwrap();
+    assert_eq!((read.keys.reference, read.voltage), (Reference::Exposure, vec![0.0, 1e-3, 2e-3, 4e-3]));
+}
+
+/// `BAYERPAT` as others write it: offsets shift the layout (of either sign, modulo 2),
+/// `ROWORDER = 'BOTTOM-UP'` starts it at the last stored row (on 3 rows, the first's
+/// parity; on 4, the other's); a layout or row order that is none is refused naming the
+/// file and the key.
+#[test]
+fn bayerpat_is_read_with_its_offsets_and_row_order() {
+    use crate::formats::bayer::Bayer;
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("lin.fits");
+    let read = |extra: Vec<(&'static str, Key)>, rows: usize| {
+        let mut p = parts();
+        for (name, value) in extra {
+            p.keys = with(p.keys, name, value);
+        }
+        if rows != 3 {
+            let (levels, width) = (4, 5);
+            let n = levels * rows * width;
+            p.cube = vec![levels, rows, width];
+            p.mean = (0..n).map(|i| 100.0 + 0.25 * i as f64).collect();
+            p.std = Some((vec![levels, rows, width], vec![1.0; n]));
+            p.mask = None;
+        }
+        write_parts(&path, &p);
+        read_linearity(&path).map(|s| s.keys.bayer)
+    };
+    assert_eq!(read(vec![], 3).unwrap(), None);
+    assert_eq!(read(vec![("BAYERPAT", Str("rggb"))], 3).unwrap(), Some(Bayer::Rggb));
+    assert_eq!(read(vec![("BAYERPAT", Str("RGGB")), ("XBAYROFF", Int(1))], 3).unwrap(), Some(Bayer::Grbg));
+    assert_eq!(read(vec![("BAYERPAT", Str("RGGB")), ("YBAYROFF", Int(-1))], 3).unwrap(), Some(Bayer::Gbrg));
+    assert_eq!(read(vec![("BAYERPAT", Str("RGGB")), ("XBAYROFF", Int(1)), ("YBAYROFF", Int(1))], 3).unwrap(), Some(Bayer::Bggr));
+    assert_eq!(read(vec![("BAYERPAT", Str("RGGB")), ("ROWORDER", Str("TOP-DOWN"))], 4).unwrap(), Some(Bayer::Rggb));
+    assert_eq!(read(vec![("BAYERPAT", Str("RGGB")), ("ROWORDER", Str("BOTTOM-UP"))], 3).unwrap(), Some(Bayer::Rggb));
+    assert_eq!(read(vec![("BAYERPAT", Str("RGGB")), ("ROWORDER", Str("BOTTOM-UP"))], 4).unwrap(), Some(Bayer::Gbrg));
+    assert_rejects(read(vec![("BAYERPAT", Str("RGBG"))], 3), &path, "key BAYERPAT: \"RGBG\" is not a Bayer layout: one of RGGB, GRBG, GBRG, BGGR");
+    assert_rejects(read(vec![("BAYERPAT", Str("RGGB")), ("ROWORDER", Str("LEFT"))], 3), &path, "key ROWORDER = \"LEFT\": TOP-DOWN or BOTTOM-UP");
+    assert_rejects(read(vec![("BAYERPAT", Str("RGGB")), ("XBAYROFF", Float(0.5))], 3), &path, "key XBAYROFF of the primary HDU is 0.5, not an integer");
+}
+
 #[test]
 fn linearity_writer_rejects_bad_sets_and_writes_nothing() {
     let dir = tempfile::tempdir().unwrap();
@@ -314,7 +383,7 @@ fn linearity_reader_rejects_bad_files() {
     let cases: [(Edit, &str); 17] = [
         (|p| p.std = None, "missing extension STD"),
         (|p| p.reference = None, "missing extension REFERENCE"),
-        (|p| p.reference = Some(("VOLTS", vec![0.0; 4])), "the extension REFERENCE has no column VOLTAGE"),
+        (|p| p.reference = Some(("VOLTS", vec![0.0; 4])), "the extension REFERENCE has no column VOLTAGE (a reference photodiode's voltage, V) or EXPOSURE (a relative exposure, t / N^2)"),
         (
             |p| p.reference = Some(("VOLTAGE", vec![0.0; 3])),
             "extension REFERENCE has 3 rows, the cube has 4 levels",

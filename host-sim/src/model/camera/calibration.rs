@@ -289,6 +289,22 @@ pub struct LinearityData {
     pub mask: Vec<u8>,
 }
 
+/// The light's errors at linearity level `level` of the bench (`[bench] level_error_rms`,
+/// `frame_jitter_rms`): the level's relative error and each of its `frames` frames'
+/// relative jitter, normal, drawn from (`bench.seed`, `level`) apart from the pattern
+/// change's draws; all zero on a bench without them (the draws are then not made, so a
+/// set without them is the set it was before they existed).
+pub fn light_errors(bench: &super::config::BenchConfig, level: usize, frames: usize) -> (f64, Vec<f64>) {
+    if bench.level_error_rms == 0.0 && bench.frame_jitter_rms == 0.0 {
+        return (0.0, vec![0.0; frames]);
+    }
+    let mut rng = StdRng::seed_from_u64(bench.seed ^ 0x4C49_4748_5400_0000 ^ (level as u64 + 1).wrapping_mul(0xD1B5_4A32_D192_ED03));
+    let mut normal = || -> f64 { rand_distr::StandardNormal.sample(&mut rng) };
+    let level_error = bench.level_error_rms * normal();
+    let jitter = (0..frames).map(|_| bench.frame_jitter_rms * normal()).collect();
+    (level_error, jitter)
+}
+
 impl Camera {
     /// Records a linearity set by sampling `p.frames` frames at each level. `progress`
     /// gets the number of levels done.
@@ -299,13 +315,15 @@ impl Camera {
         let per_level: Vec<(Vec<f64>, Vec<f64>)> = (0..p.levels)
             .into_par_iter()
             .map(|level| {
-                let photons = sat * level as f64 / (p.levels - 1).max(1) as f64;
                 let bench = &self.config.bench;
+                let (level_error, jitter) = light_errors(bench, level, p.frames as usize);
+                let nominal = sat * level as f64 / (p.levels - 1).max(1) as f64 * (1.0 + level_error);
                 let change = (bench.illumination_change_rms > 0.0).then(|| illumination_change(bench.illumination_change_rms, w, h, bench.seed, level));
                 // Welford per pixel over the frames.
                 let mut mean = vec![0.0; w * h];
                 let mut m2 = vec![0.0; w * h];
                 for f in 0..p.frames {
+                    let photons = nominal * (1.0 + jitter[f as usize]);
                     let seed = p.seed ^ ((level as u64) << 40) ^ ((f as u64) << 8);
                     for y in 0..h {
                         let line = match &change {

@@ -115,13 +115,28 @@ pub struct BenchConfig {
     /// unchanged. The default is the paper's bench ([`PAPER_ILLUMINATION_CHANGE_RMS`]),
     /// which `diagnose` names (`illumination-change`); 0 is a perfect bench.
     pub illumination_change_rms: f64,
+    /// Each linearity level's light off what its reference says, relative rms (a shutter
+    /// off its marked time, an aperture off its marked f-number, daylight that drifted
+    /// between exposures: 1-5% on the consumer camera of issue 58; 0 on the paper's bench,
+    /// whose photodiode sees the light itself): level `l` receives `N_l (1 + e_l)`, `e_l`
+    /// normal, drawn per level from `seed`. `diagnose` names it `level-errors`.
+    pub level_error_rms: f64,
+    /// Each frame's light off its level's, relative rms (a source that flickers, a shutter
+    /// that jitters: 1-5% on the consumer camera): frame `f` of level `l` receives `N_l (1 +
+    /// e_l) (1 + j_lf)`, `j_lf` normal, alike for every pixel. `diagnose` names it
+    /// `light-jitter`.
+    pub frame_jitter_rms: f64,
+    /// What the set's reference column measures: `"photodiode"` (the light, `VOLTAGE`) or
+    /// `"exposure"` (exposure time over f-number squared, `EXPOSURE`: a consumer camera's
+    /// series, where `level_error_rms` is the shutter's and the aperture's errors).
+    pub reference: crate::formats::fits::Reference,
     /// Seed of the patterns.
     pub seed: u64,
 }
 
 /// A colour filter array over the sensor (issue 58): each pixel's response is its cell's
 /// times its own gain (`1 + PRNU`). `dncal diagnose` writes what `cfa-pattern` measured.
-/// (`bayer` is a label: not yet written as the FITS `BAYERPAT` keyword.)
+/// `simulate linearity` writes `bayer` as the set's FITS `BAYERPAT` (of the region read).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CfaConfig {
@@ -131,10 +146,10 @@ pub struct CfaConfig {
     /// mod period` of the sensor (dimensionless; the consumer camera of issue 58 had 1.23,
     /// 0.99, 0.55, 1.23).
     pub cells: Vec<f64>,
-    /// The Bayer layout's name (`RGGB`, `GRBG`, `GBRG`, `BGGR`: the colours of the first
-    /// two rows' first two pixels), where known; a label, the responses are `cells`.
+    /// The Bayer layout (`RGGB`, `GRBG`, `GBRG`, `BGGR`: the colours of the first two
+    /// rows' first two pixels), where known; a label, the responses are `cells`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub bayer: Option<String>,
+    pub bayer: Option<crate::formats::bayer::Bayer>,
 }
 
 /// The cell of a colour filter of period `period` (rows and columns; 0 taken as 1) that
@@ -162,14 +177,17 @@ impl CfaConfig {
         if let Some(v) = self.cells.iter().find(|v| !(v.is_finite() && **v > 0.0)) {
             return Err(ConfigError::NotPositive { field: "cfa.cells", value: *v });
         }
-        if let Some(b) = &self.bayer {
-            if !(self.period == 2 && ["RGGB", "GRBG", "GBRG", "BGGR"].contains(&b.as_str())) {
-                return Err(ConfigError::Bayer { bayer: b.clone(), period: self.period });
+        if let Some(b) = self.bayer {
+            if self.period != 2 {
+                return Err(ConfigError::Bayer { bayer: b, period: self.period });
             }
         }
         Ok(())
     }
 }
+
+/// The largest relative rms of the light's level errors and frame jitter a model takes.
+pub const MAX_LIGHT_ERROR_RMS: f64 = 0.2;
 
 /// The bench's pattern change that brings our Fig. 8 nearest the paper's text (issue 42,
 /// `docs/paper.md`): the default bench.
@@ -181,7 +199,7 @@ pub const MAX_ILLUMINATION_CHANGE_RMS: f64 = 0.1;
 
 impl Default for BenchConfig {
     fn default() -> Self {
-        BenchConfig { illumination_change_rms: PAPER_ILLUMINATION_CHANGE_RMS, seed: 735 }
+        BenchConfig { illumination_change_rms: PAPER_ILLUMINATION_CHANGE_RMS, level_error_rms: 0.0, frame_jitter_rms: 0.0, reference: crate::formats::fits::Reference::Photodiode, seed: 735 }
     }
 }
 
@@ -340,6 +358,8 @@ impl CameraConfig {
             ("dsnu_rms_e", self.dsnu_rms_e),
             ("bad_pixel_fraction", self.bad_pixel_fraction),
             ("bench.illumination_change_rms", self.bench.illumination_change_rms),
+            ("bench.level_error_rms", self.bench.level_error_rms),
+            ("bench.frame_jitter_rms", self.bench.frame_jitter_rms),
         ];
         for (name, v) in non_negative {
             if !(v.is_finite() && v >= 0.0) {
@@ -357,6 +377,11 @@ impl CameraConfig {
         }
         if self.bench.illumination_change_rms > MAX_ILLUMINATION_CHANGE_RMS {
             return Err(ConfigError::IlluminationChange { rms: self.bench.illumination_change_rms });
+        }
+        for (field, rms) in [("bench.level_error_rms", self.bench.level_error_rms), ("bench.frame_jitter_rms", self.bench.frame_jitter_rms)] {
+            if rms > MAX_LIGHT_ERROR_RMS {
+                return Err(ConfigError::LightError { field, rms });
+            }
         }
         if self.bad_pixel_fraction > 1.0 {
             return Err(ConfigError::BadPixelFraction { fraction: self.bad_pixel_fraction });
@@ -443,6 +468,15 @@ pub enum ConfigError {
         /// The value given.
         rms: f64,
     },
+    /// The light's errors beyond what a relative model holds (a normal draw of 20% rms
+    /// is negative one time in 3.5 million).
+    #[error("{field} = {rms}: at most 0.2 (relative, rms; a consumer camera's series is off by 0.01-0.05)")]
+    LightError {
+        /// The field.
+        field: &'static str,
+        /// The value given.
+        rms: f64,
+    },
     /// A quantity that must be positive is not.
     #[error("{field} must be positive and finite, got {value}")]
     NotPositive { field: &'static str, value: f64 },
@@ -469,9 +503,9 @@ pub enum ConfigError {
     /// A colour filter whose cells are not `period x period`.
     #[error("cfa: period {period} needs period x period cells (period 1 to {MAX_CFA_PERIOD}); {cells} given")]
     CfaCells { period: usize, cells: usize },
-    /// A Bayer name that is not one or not of a 2 x 2 filter.
-    #[error("cfa.bayer = {bayer:?}: one of RGGB, GRBG, GBRG, BGGR, for period 2 (the period is {period})")]
-    Bayer { bayer: String, period: usize },
+    /// A Bayer layout on a filter that is not 2 x 2.
+    #[error("cfa.bayer = \"{bayer}\" is a 2 x 2 layout: it needs period 2 (the period is {period})")]
+    Bayer { bayer: crate::formats::bayer::Bayer, period: usize },
     /// A sensor larger than the model holds in memory.
     #[error("width x height = {width} x {height} exceeds {MAX_PIXELS} pixels (8192 x 8192), the largest sensor the model holds in memory")]
     Sensor { width: usize, height: usize },
@@ -568,14 +602,14 @@ mod tests {
                     Architecture::Pipelined { stage_bits: vec![2, 2], offset_lsb: vec![vec![0.0, 0.1, -0.1, 0.2], vec![0.0, 0.05, 0.0, -0.05]], subrange_gain_error: vec![0.0, 0.1, -0.1, 0.0] },
                 ],
             },
-            bench: BenchConfig { illumination_change_rms: 1e-3, seed: 5 },
-            cfa: Some(CfaConfig { period: 2, cells: vec![1.2, 1.0, 0.6, 1.2], bayer: Some("GBRG".into()) }),
+            bench: BenchConfig { illumination_change_rms: 1e-3, level_error_rms: 0.02, frame_jitter_rms: 0.01, reference: crate::formats::fits::Reference::Exposure, seed: 5 },
+            cfa: Some(CfaConfig { period: 2, cells: vec![1.2, 1.0, 0.6, 1.2], bayer: Some(crate::formats::bayer::Bayer::Gbrg) }),
             ..CameraConfig::default()
         };
         let CameraConfig { name: _, width: _, height: _, bits: _, n_adc: _, qe: _, full_well_e: _, gain_e_per_dn: _, read_noise_e: _, dark_e: _, offset_dn: _, prnu_rms: _, dsnu_rms_e: _, nonlinearity: _, pixel_nonlinearity_rms: _, bad_pixel_fraction: _, max_frame_rate_hz: _, adc, bench, cfa, seed: _ } = &config;
         let Some(CfaConfig { period: _, cells: _, bayer: _ }) = cfa else { unreachable!("set above") };
         let AdcConfig { model: _, nested: _, stage_bits: _, stage_error_lsb: _, seed: _, widths: _, widths_from: _, architecture } = adc;
-        let BenchConfig { illumination_change_rms: _, seed: _ } = bench;
+        let BenchConfig { illumination_change_rms: _, level_error_rms: _, frame_jitter_rms: _, reference: _, seed: _ } = bench;
         let kinds: Vec<&str> = architecture.iter().map(|a| match a { Architecture::Ideal {} => "ideal", Architecture::Sar { .. } => "sar", Architecture::Pipelined { .. } => "pipelined" }).collect();
         assert_eq!(kinds, ["ideal", "sar", "pipelined"], "one architecture of each kind");
         config

@@ -210,6 +210,9 @@ pub(super) fn measure_camera<T: Sample>(scoring: &Scoring<'_, T>, n_frames: u32,
         no_dark: (!has_dark).then(|| NoDark { reference: px.x[0], offset_se_dn: 1.2533 * d_scatter / (good.len().max(1) as f64).sqrt(), read_bound_dn: read_bound }),
         light_jitter_rms: jitter.as_ref().map(|j| j.rms),
         light_series_step: None,
+        // (Set with the level term's finding, and from the set's keys.)
+        light_level_rms: None,
+        reference: Default::default(),
     };
     let noise = if has_dark { medians[dark_std_cell] } else { read.unwrap_or(medians[dark_std_cell]) };
     (measured, noise, jitter)

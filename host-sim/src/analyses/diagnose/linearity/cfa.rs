@@ -41,6 +41,7 @@
 
 use super::*;
 use crate::analyses::diagnose::channels::CfaResponse;
+use crate::formats::bayer::Bayer;
 use crate::infra::select::robust;
 
 /// The periods tested, rows and columns alike: Bayer (2), the 3 x 3 halves of an X-Trans
@@ -130,6 +131,8 @@ pub(super) struct CfaStage {
     pub response: Option<CfaResponse>,
     /// Its finding.
     pub finding: Option<Finding>,
+    /// Where the file declares a Bayer layout and no pattern was found: what that means.
+    pub note: Option<String>,
 }
 
 /// The class statistics of every period of [`PERIODS`] for the halves (0, 1) and all
@@ -190,14 +193,17 @@ fn signal_level<T: Sample>(px: &Pixels<T>) -> Option<usize> {
     (valid >= 2.0).then(|| ((0.7 * (valid - 1.0)) as usize).max(1))
 }
 
-/// Finds a colour filter's response pattern in `px` (module documentation).
-pub(super) fn cfa_stage<T: Sample>(px: &Pixels<T>) -> CfaStage {
-    let none = CfaStage {
+/// Finds a colour filter's response pattern in `px` (module documentation); `declared`
+/// is the file's Bayer layout (`BAYERPAT`), which names the cells' colours and is checked
+/// against the cells that respond alike, never used to find the pattern.
+pub(super) fn cfa_stage<T: Sample>(px: &Pixels<T>, declared: Option<Bayer>) -> CfaStage {
+    let none = |why: &str| CfaStage {
         response: None,
         finding: None,
+        note: declared.map(|b| format!("cfa-pattern: the file declares a {b} colour filter (BAYERPAT), but {why}: every pixel meets the whole sensor's population, not its colour's")),
     };
     let Some(level) = signal_level(px) else {
-        return none;
+        return none("the median pixel has fewer than two levels below saturation to read the channels' responses on");
     };
     let signal = |i: usize| {
         if level < px.valid(i) {
@@ -225,7 +231,11 @@ pub(super) fn cfa_stage<T: Sample>(px: &Pixels<T>) -> CfaStage {
     };
     let z: Vec<f64> = (0..PERIODS.len()).map(z_of).collect();
     let Some(mut k) = (0..PERIODS.len()).find(|&k| z[k] > SIGNIFICANCE) else {
-        return none;
+        let why = match z[0] {
+            z if z.is_finite() => format!("its channels respond alike (a 2 x 2 pattern held out by rows at z = {z:.1}, below {SIGNIFICANCE}; white light through filters of equal response, or a monochrome sensor)"),
+            _ => "the set is too small to hold out a 2 x 2 pattern (two periods of rows a half)".into(),
+        };
+        return none(&why);
     };
     let mut significance = z[k];
     // A multiple of the period where what it adds stands out, held out alike: the
@@ -301,10 +311,11 @@ pub(super) fn cfa_stage<T: Sample>(px: &Pixels<T>) -> CfaStage {
             )
             .sqrt()
     };
-    let bayer = (p == 2)
-        .then(|| bayer_text(&response, &whole.pooled_se()))
-        .flatten()
-        .unwrap_or_default();
+    let bayer = match (p, declared) {
+        (2, Some(b)) => declared_text(b, &response, whole.pooled_se()),
+        (_, Some(b)) => format!("; the file declares a 2 x 2 {b} layout (BAYERPAT), but the pattern's period is {p}"),
+        _ => (p == 2).then(|| bayer_text(&response, &whole.pooled_se())).flatten().unwrap_or_default(),
+    };
     let finding = finding(
         Effect::CfaPattern,
         None,
@@ -323,18 +334,43 @@ pub(super) fn cfa_stage<T: Sample>(px: &Pixels<T>) -> CfaStage {
             period: p,
             response,
             prnu_within,
+            bayer: declared.filter(|_| p == 2),
         }),
         finding: Some(finding),
+        note: None,
     }
+}
+
+/// Whether two responses are alike: within 5 standard errors of their difference
+/// (`se` one response's) and 2% of the first.
+fn alike(a: f64, b: f64, se: f64) -> bool {
+    (a - b).abs() <= (5.0 * se * std::f64::consts::SQRT_2).max(0.02 * a.abs())
+}
+
+/// The declared layout's colours of a 2 x 2 pattern's cells, and whether the cells that
+/// respond alike are its greens: where the other diagonal's are and the greens are not,
+/// the layout is off by a row or a column (an offset or a row order the file did not
+/// state, or a region read from an odd row).
+fn declared_text(b: Bayer, r: &[f64], se: f64) -> String {
+    let colours: Vec<String> = (0..4).map(|k| format!("{} {:.3}", b.colour(k).name(), r[k])).collect();
+    let [g0, g1] = b.greens();
+    let [o0, o1] = if g0 == 0 { [1, 2] } else { [0, 3] };
+    let verdict = match (alike(r[g0], r[g1], se), alike(r[o0], r[o1], se)) {
+        (true, false) => "its greens respond alike, as a Bayer filter's do".to_string(),
+        (false, true) => format!(
+            "but the cells that respond alike are the other diagonal ({:.3} and {:.3}), not its greens: the layout is off by a row or a column (an offset or a row order the file does not state?)",
+            r[o0], r[o1]
+        ),
+        _ => "the responses do not say which diagonal is green".to_string(),
+    };
+    format!("; the file declares {b} (BAYERPAT): {}; {verdict}", colours.join(", "))
 }
 
 /// For a 2 x 2 pattern whose one diagonal's two cells respond alike (within 5 standard
 /// errors and 2%) and differ from both others: the Bayer arrangement it has, with "G" on
 /// that diagonal (which of the other two is red the response cannot say).
 fn bayer_text(r: &[f64], se: &f64) -> Option<String> {
-    let alike =
-        |a: f64, b: f64| (a - b).abs() <= (5.0 * se * std::f64::consts::SQRT_2).max(0.02 * a.abs());
-    let (main, anti) = (alike(r[0], r[3]), alike(r[1], r[2]));
+    let (main, anti) = (alike(r[0], r[3], *se), alike(r[1], r[2], *se));
     let (g, others) = match (main, anti) {
         (true, false) => ((r[0] + r[3]) / 2.0, [r[1], r[2]]),
         (false, true) => ((r[1] + r[2]) / 2.0, [r[0], r[3]]),
@@ -388,5 +424,17 @@ mod tests {
             .is_some_and(|t| t.contains("GxxG") && t.contains("1.230")));
         assert!(bayer_text(&[0.55, 1.23, 1.23, 0.99], &0.001).is_some_and(|t| t.contains("xGGx")));
         assert!(bayer_text(&[1.0, 1.0, 1.0, 1.0], &0.001).is_none());
+    }
+
+    /// A declared layout names each cell's colour; its greens alike is a Bayer filter, the
+    /// other diagonal alike instead is a layout off by a row or column.
+    #[test]
+    fn a_declared_layout_is_named_and_checked() {
+        let r = [1.23, 0.99, 0.55, 1.23];
+        let right = declared_text(Bayer::Gbrg, &r, 0.001);
+        assert!(right.contains("green 1.230, blue 0.990, red 0.550, green 1.230") && right.contains("its greens respond alike"), "{right}");
+        let off = declared_text(Bayer::Rggb, &r, 0.001);
+        assert!(off.contains("red 1.230") && off.contains("the other diagonal (1.230 and 1.230)"), "{off}");
+        assert!(declared_text(Bayer::Rggb, &[1.0; 4], 0.001).contains("do not say which diagonal"));
     }
 }

@@ -454,12 +454,16 @@ fn a_set_without_a_dark_level_says_so_and_fits_the_offset() {
 fn a_camera_models_colour_filter_comes_back_from_its_set() {
     use crate::model::camera::{config::CfaConfig, Camera, CameraConfig};
     let cells = vec![1.2, 1.0, 0.6, 1.2];
-    let config = CameraConfig { cfa: Some(CfaConfig { period: 2, cells: cells.clone(), bayer: Some("GBRG".into()) }), bad_pixel_fraction: 0.0, ..CameraConfig::default() };
+    let config = CameraConfig { cfa: Some(CfaConfig { period: 2, cells: cells.clone(), bayer: Some(crate::formats::bayer::Bayer::Gbrg) }), bad_pixel_fraction: 0.0, ..CameraConfig::default() };
     let camera = Camera::new(config.clone()).unwrap();
     let p = crate::model::camera::calibration::LinearityParams { overshoot: 0.8, ..crate::model::camera::calibration::LinearityParams::paper(&camera) };
     let set = crate::model::sets::linearity_set_of(&camera, &p).unwrap();
+    // The set's layout is the sensor's from the region's first pixel.
+    let layout = crate::formats::bayer::Bayer::Gbrg.shifted(p.roi.0, p.roi.1);
+    assert_eq!(set.keys.bayer, Some(layout));
     let d = diagnose_linearity(&set, 0.01).unwrap();
-    assert!(d.findings.iter().any(|f| f.effect == Effect::CfaPattern), "{:#?}", d.findings);
+    let f = d.findings.iter().find(|f| f.effect == Effect::CfaPattern).unwrap_or_else(|| panic!("{:#?}", d.findings));
+    assert!(f.detail.contains(&format!("the file declares {layout} (BAYERPAT)")) && f.detail.contains("its greens respond alike"), "{}", f.detail);
     assert!(d.findings.iter().all(|f| f.effect != Effect::BadPixels && f.effect != Effect::AdcMismatch), "{:#?}", d.findings);
     let measured = d.measured.cfa.clone().unwrap();
     let unit = cells.iter().sum::<f64>() / 4.0;
@@ -470,11 +474,84 @@ fn a_camera_models_colour_filter_comes_back_from_its_set() {
     assert!((prnu / config.prnu_rms - 1.0).abs() < 0.1, "PRNU {prnu}");
     let model = crate::analyses::diagnose::model::linearity_model(&set, &d);
     let carried = model.cfa.clone().expect("the model carries the filter");
-    assert_eq!((carried.period, &carried.cells), (2, &measured.response));
+    assert_eq!((carried.period, &carried.cells, carried.bayer), (2, &measured.response, Some(layout)));
+    // A layout declared a column off is said to be so; one declared on a monochrome
+    // sensor is a note, not a finding.
+    let off = LinearitySet { keys: crate::formats::fits::SetKeys { bayer: Some(layout.shifted(1, 0)), ..set.keys }, ..set.clone() };
+    let d_off = diagnose_linearity(&off, 0.01).unwrap();
+    let f = d_off.findings.iter().find(|f| f.effect == Effect::CfaPattern).unwrap();
+    assert!(f.detail.contains("not its greens: the layout is off by a row or a column"), "{}", f.detail);
+    let mono = LinearitySet { keys: set.keys, ..linearity_set(&Plant::default(), &[], 5817) };
+    let d_mono = diagnose_linearity(&mono, 0.01).unwrap();
+    assert!(d_mono.findings.is_empty(), "{:#?}", d_mono.findings);
+    assert!(d_mono.not_tested.iter().any(|n| n.starts_with(&format!("cfa-pattern: the file declares a {layout} colour filter (BAYERPAT), but its channels respond alike"))), "{:?}", d_mono.not_tested);
     let rebuilt = Camera::new(model).unwrap();
     // (A pixel of the red cell, row 1 column 0, against one of the green: their ratio.)
     let ratio = rebuilt.pixels.gain[rebuilt.config.width] / rebuilt.pixels.gain[0];
     assert!((ratio / (measured.response[2] / measured.response[0]) - 1.0).abs() < 0.1, "{ratio}");
+}
+
+/// Issue 58, a consumer camera's series as a camera model gives it: the reference a
+/// relative exposure (`[bench] reference = "exposure"`, written as `EXPOSURE`), each
+/// level's light off it by 2% rms (the shutter, the aperture) and each frame's by 1%
+/// (`level_error_rms`, `frame_jitter_rms`), simulated as `simulate linearity` does and
+/// diagnosed over ten seeds on a sensor without effects of its own (32 frames a level):
+/// both named as the light's on every seed, the level errors' size within 20% of what no
+/// quartic takes of the drawn errors and the jitter's within 20% of the planted; the note
+/// that no absolute QE follows; the model file carries the bench. Nothing else named on 8
+/// of the 10: on 2 an ADC's curvature or term departs (a false `adc-mismatch`,
+/// `adc-dnl`), the known limit of level errors this large (docs/diagnose.md).
+#[test]
+fn an_exposure_series_with_shutter_errors_and_jitter_is_the_lights() {
+    use crate::formats::fits::Reference;
+    use crate::model::camera::{calibration::light_errors, Camera, CameraConfig};
+    let mut with_others = 0;
+    for seed in 0..10u64 {
+        // (A sensor without effects of its own: ideal ADCs, a straight response, no bad
+        // pixels.)
+        let mut config = CameraConfig { bad_pixel_fraction: 0.0, nonlinearity: vec![], pixel_nonlinearity_rms: vec![], ..CameraConfig::default() };
+        config.adc = crate::model::camera::AdcConfig::ideal(config.bits);
+        config.bench.illumination_change_rms = 0.0;
+        config.bench.level_error_rms = 0.02;
+        config.bench.frame_jitter_rms = 0.01;
+        config.bench.reference = Reference::Exposure;
+        config.bench.seed = 900 + seed;
+        let camera = Camera::new(config.clone()).unwrap();
+        let paper = crate::model::camera::calibration::LinearityParams::paper(&camera);
+        let (x0, y0, _, _) = paper.roi;
+        let p = crate::model::camera::calibration::LinearityParams { frames: 32, overshoot: 0.8, roi: (x0, y0, 64, 64), seed: 41 + seed, ..paper };
+        let set = crate::model::sets::linearity_set_of(&camera, &p).unwrap();
+        assert_eq!(set.keys.reference, Reference::Exposure);
+        // (The oracle of the size: the errors the camera drew, in DN at each level's light
+        // `x`, less the quartic in `x` that fits them best (no analysis can tell that part
+        // from the response), back over `x`, at the levels above 10% of the light, scaled
+        // up by the projection's `L / (L - 5)`; the per-frame jitter's mean adds its part.)
+        let nl = p.levels;
+        let x: Vec<f64> = (0..nl).map(|l| l as f64 / (nl - 1) as f64).collect();
+        let dn: Vec<f64> = (0..nl).map(|l| light_errors(&config.bench, l, p.frames as usize)).map(|(e, j)| e + j.iter().sum::<f64>() / j.len() as f64).zip(&x).map(|(e, x)| e * x).collect();
+        let a = nalgebra::DMatrix::from_fn(nl, 5, |i, k| x[i].powi(k as i32));
+        let fit = a.clone().svd(true, true).solve(&nalgebra::DVector::from_vec(dn.clone()), 1e-12).unwrap();
+        let left = nalgebra::DVector::from_vec(dn) - a * fit;
+        let rel: Vec<f64> = (0..nl).filter(|&l| x[l] > 0.1).map(|l| left[l] / x[l]).collect();
+        let drawn_rms = crate::infra::stats::rms(&rel) * (nl as f64 / (nl as f64 - 5.0)).sqrt();
+        let d = diagnose_linearity(&set, 0.01).unwrap();
+        let got = names(&d);
+        assert!(got.contains(&"level-errors".to_string()) && got.contains(&"light-jitter".to_string()), "seed {seed}: {:#?}", d.findings);
+        let others: Vec<&String> = got.iter().filter(|n| *n != "level-errors" && *n != "light-jitter").collect();
+        // (The known limit, docs/diagnose.md: beside level errors this large an ADC's
+        // term or curvature sometimes departs; measured 2 seeds of these 10.)
+        assert!(others.iter().all(|n| n.starts_with("adc-mismatch") || n.starts_with("adc-dnl")), "seed {seed}: {got:?}");
+        with_others += usize::from(!others.is_empty());
+        let m = &d.measured;
+        let (level, jitter) = (m.light_level_rms.unwrap(), m.light_jitter_rms.unwrap());
+        assert!((level / drawn_rms - 1.0).abs() < 0.2, "seed {seed}: level errors {level} against {drawn_rms} drawn");
+        assert!((jitter / 0.01 - 1.0).abs() < 0.2, "seed {seed}: jitter {jitter}");
+        assert_eq!(m.reference, Reference::Exposure);
+        assert!(d.not_tested.iter().any(|n| n == super::EXPOSURE_NOTE), "{:?}", d.not_tested);
+        let model = crate::analyses::diagnose::model::linearity_model(&set, &d);
+        assert_eq!((model.bench.reference, model.bench.level_error_rms, model.bench.frame_jitter_rms), (Reference::Exposure, level, jitter));
+    }
+    assert!(with_others <= 2, "{with_others} of 10 seeds name an ADC effect the sensor does not have");
 }
 
 /// Issue 58: a light that jitters from frame to frame (alike for every pixel) is named

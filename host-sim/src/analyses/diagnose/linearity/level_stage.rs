@@ -17,7 +17,23 @@ pub(super) struct LevelStage {
     /// Where `level-errors` was named and its light part is two series that disagree,
     /// the step its finding gives ([`LevelTerm::series`]).
     pub(super) series: Option<Series>,
+    /// Where `level-errors` was named: the relative rms of its light part, as its
+    /// finding gives it.
+    pub(super) light_rel: Option<f64>,
 }
+
+/// What a `level-errors` finding measured, for [`Measured`](crate::analyses::diagnose::Measured).
+#[derive(Default)]
+pub(super) struct Named {
+    series: Option<Series>,
+    light_rel: Option<f64>,
+}
+
+/// The light's part of level errors beside ADCs' own terms is named above this `z` of its
+/// variance: a variance estimated from `L` levels has a relative standard error of
+/// `sqrt(2 / L)` at best, so its `z` stays below `sqrt(L / 2)` (4.5 at 41 levels) however
+/// large the errors; 3 is one chance in 740 for a normal estimate with none.
+const LIGHT_Z: f64 = 3.0;
 
 /// Measures and names the errors every pixel of `px` shares at its `nl` levels.
 pub(super) fn level_stage<T: Sample>(px: &Pixels<T>, nl: usize) -> LevelStage {
@@ -25,7 +41,7 @@ pub(super) fn level_stage<T: Sample>(px: &Pixels<T>, nl: usize) -> LevelStage {
     // off) first: found, they are taken out of every pixel's means before any model.
     let mut levels_term = level_term(px, &vec![false; nl]);
     let mut findings = Vec::new();
-    let mut series = None;
+    let mut named = Named::default();
     let accepted = |t: &LevelTerm| {
         let (before, after) = held_out_rms(&t.by_level);
         t.significance > SIGNIFICANCE && after < before
@@ -50,7 +66,7 @@ pub(super) fn level_stage<T: Sample>(px: &Pixels<T>, nl: usize) -> LevelStage {
         // (A term taken per ADC without its `adc-dnl` finding would hide the ADCs.)
         if skipped.per_adc.is_none() {
             let low_finding = if let Shape::LowSignal { .. } = levels_term.shape {
-                Some(level_finding(&levels_term, &mut series))
+                Some(level_finding(&levels_term, &mut named))
             } else {
                 let sig = wald(&skipped, px, &|_| true, Block::Levels(&low));
                 let (before, after) = held_out_rms(&skipped.skipped_by_level);
@@ -77,14 +93,14 @@ pub(super) fn level_stage<T: Sample>(px: &Pixels<T>, nl: usize) -> LevelStage {
                     // re-review found the whole test skipped).
                     let above = (count(&guard) > count(&low) && nl - count(&guard) >= 11).then(|| level_term(px, &guard));
                     let level_errors = above.filter(|t| t.per_adc.is_none()).unwrap_or(skipped);
-                    let named_errors = (accepted(&level_errors) && level_errors.shape == Shape::Random).then(|| level_finding(&level_errors, &mut series));
+                    let named_errors = (accepted(&level_errors) && level_errors.shape == Shape::Random).then(|| level_finding(&level_errors, &mut named));
                     let found = named_errors.is_some();
                     findings.push(low_finding);
                     findings.extend(named_errors);
                     (level_errors, found)
                 }
                 None => {
-                    findings.push(level_finding(&levels_term, &mut series));
+                    findings.push(level_finding(&levels_term, &mut named));
                     (skipped, true)
                 }
             };
@@ -112,16 +128,20 @@ pub(super) fn level_stage<T: Sample>(px: &Pixels<T>, nl: usize) -> LevelStage {
             format!("ADC {a}'s pixels are off alike at some levels, unlike the other ADCs' (its departure from the common level term agrees between even and odd rows at {t:.1} standard deviations): the ADC's integral nonlinearity (DN error) at the codes its pixels read, which a linearity set sees only as level means; its own term is taken out of its pixels' means"),
         )));
     }
-    if !handled && level_accepted && levels_term.per_adc.is_none() {
-        findings.push(level_finding(&levels_term, &mut series));
+    // Beside the ADCs' own terms the common term holds their mean DN error too, which a
+    // level's code sets, not its light: the light's part is named where it stands out
+    // alone (its variance over its standard error above [`LIGHT_Z`]). A camera with the
+    // K-Cor ADCs' statistics and no light error gave 0 there; 0.2% light errors, 4.4.
+    if !handled && level_accepted && (levels_term.per_adc.is_none() || (levels_term.light_z() > LIGHT_Z && levels_term.shape == Shape::Random)) {
+        findings.push(level_finding(&levels_term, &mut named));
     }
-    LevelStage { term: levels_term, accepted: level_accepted, findings, series }
+    LevelStage { term: levels_term, accepted: level_accepted, findings, series: named.series, light_rel: named.light_rel }
 }
 
 /// The common level term's finding, named by its shape: random errors of the
-/// measurement (`series` then set to the two series they are, where they are), or a
+/// measurement (`named` then holds its light part and the two series it is, where it is), or a
 /// response every pixel shares that no quartic follows.
-pub(super) fn level_finding(term: &LevelTerm, series: &mut Option<Series>) -> Finding {
+pub(super) fn level_finding(term: &LevelTerm, named: &mut Named) -> Finding {
     let (before, after) = held_out_rms(&term.by_level);
     let (effect, detail) = match term.shape {
         Shape::Random => (Effect::LevelErrors, format!(
@@ -129,8 +149,11 @@ pub(super) fn level_finding(term: &LevelTerm, series: &mut Option<Series>) -> Fi
             term.light_rel,
             term.black_dn,
             {
-                *series = term.series();
-                series.as_ref().map_or(String::new(), |s| s.text())
+                named.light_rel = Some(term.light_rel);
+                named.series = term.series();
+                let series = &named.series;
+                let adcs = if term.per_adc.is_some() { "; beside the ADCs' own terms (taken out per ADC), whose mean DN error the black level's part also holds" } else { "" };
+                format!("{}{adcs}", series.as_ref().map_or(String::new(), |s| s.text()))
             },
         )),
         Shape::LowSignal { share } => (Effect::LowSignalNonlinearity, format!(

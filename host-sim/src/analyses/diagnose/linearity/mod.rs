@@ -278,6 +278,9 @@ fn diagnose_kept<T: Sample>(set: &mut SetView<'_, T>, keep: Keep, accuracy_dn: f
 /// stays here is the shared response (ADC curvature, `global-nonlinearity`), whose steps
 /// hand each other their held-out scores (each accepted model is the next one's
 /// baseline), and the assembly of the report.
+/// What a set whose reference is a relative exposure (`EXPOSURE`, `t / N^2`) cannot say.
+pub const EXPOSURE_NOTE: &str = "absolute quantum efficiency: the reference is a relative exposure (EXPOSURE, t / N^2), not a measure of the light, so it says nothing of the photons a pixel received; gain, noise and linearity need only the light's ratios, and the shutter's, the aperture's and the source's errors are the light's (level-errors, light-jitter), named with their sizes";
+
 /// The fewest levels a set left after its clipped levels are taken out is diagnosed on
 /// (of the held-out split's 12, with one to spare).
 const MIN_AFTER_CLIP: usize = 13;
@@ -285,7 +288,7 @@ const MIN_AFTER_CLIP: usize = 13;
 fn diagnose_set<T: Sample>(set: &SetView<'_, T>, keep: Keep, accuracy_dn: f64) -> Result<Diagnosis, DiagnoseError> {
     let (mut px, n_adc) = prepare(set, keep)?;
     // A colour filter's pattern first: every later population is per channel.
-    let cfa::CfaStage { response: cfa, finding: cfa_finding } = cfa::cfa_stage(&px);
+    let cfa::CfaStage { response: cfa, finding: cfa_finding, note: cfa_note } = cfa::cfa_stage(&px, set.keys.bayer);
     px.set_cfa(cfa.clone());
     let px = px;
     let (nl, top) = (set.levels, ((1u64 << set.bit_depth) - 1) as f64);
@@ -297,7 +300,7 @@ fn diagnose_set<T: Sample>(set: &SetView<'_, T>, keep: Keep, accuracy_dn: f64) -
     let estimating = |i: usize| px.estimating(i);
     // Errors every pixel shares at a level (the light off the reference, the black level
     // off) first: found, they are taken out of every pixel's means before any model.
-    let LevelStage { term: levels_term, accepted: level_accepted, mut findings, series } = level_stage(&px, nl);
+    let LevelStage { term: levels_term, accepted: level_accepted, mut findings, series, light_rel } = level_stage(&px, nl);
     let level_common: Option<&dyn Common> = (level_accepted || levels_term.per_adc.is_some()).then_some(&levels_term as &dyn Common);
     // Then the light's pattern changing between levels, held out by rows.
     let pattern = illumination_change(&px, level_common, &levels_term, &levels_term.signal);
@@ -454,13 +457,16 @@ fn diagnose_set<T: Sample>(set: &SetView<'_, T>, keep: Keep, accuracy_dn: f64) -
     findings.extend(jitter.as_ref().map(|j| j.finding()));
     measured.illumination_change_rms = pattern_rms;
     measured.light_series_step = series.map(|s| s.step);
+    measured.light_level_rms = light_rel;
+    measured.reference = set.keys.reference;
     measured.cfa = cfa;
     findings.extend(insufficient_noise("median dark noise", dark_noise, accuracy_dn));
     findings.extend(remainder(&s, &current, tcur, unattributed(final_params)));
     // (The colour filter is named first: found before the level term, on the raw means,
     // and tested on maps, not on the residuals' scale.)
     findings.splice(0..0, cfa_finding);
-    let not_tested = measured.no_dark.iter().map(|n| n.note(measured.offset_dn, measured.read_noise_dn)).collect();
+    let exposure = (set.keys.reference == crate::formats::fits::Reference::Exposure).then(|| EXPOSURE_NOTE.to_string());
+    let not_tested = measured.no_dark.iter().map(|n| n.note(measured.offset_dn, measured.read_noise_dn)).chain(cfa_note).chain(exposure).collect();
     Ok(Diagnosis {
         not_tested,
         measured,
@@ -526,6 +532,7 @@ mod tests {
             std: set.std.iter().map(|&v| v as f32).collect(),
             voltage: set.voltage.clone(),
             mask: set.mask.clone(),
+            keys: set.keys,
         };
         let (wide, narrow) = (diagnose_linearity(&set, 0.01).unwrap(), diagnose_linearity(&narrow, 0.01).unwrap());
         assert!(!wide.findings.is_empty(), "{hidden:?}: nothing found");
