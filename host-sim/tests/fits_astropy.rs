@@ -257,7 +257,7 @@ fn astropy_opens_our_linearity_set_levels_by_rows_by_columns() {
         std: (0..cube).map(|i| 0.3 + 0.01 * i as f64).collect(),
         voltage: (0..levels).map(|l| 0.1 * l as f64).collect(),
         mask: Some((0..width * height).map(|i| u8::from(i % 6 == 2)).collect()),
-        keys: dncal_host::formats::fits::SetKeys { bayer: Some(dncal_host::formats::bayer::Bayer::Gbrg), reference: dncal_host::formats::fits::Reference::Exposure },
+        keys: dncal_host::formats::fits::SetKeys { bayer: Some(dncal_host::formats::bayer::Bayer::Gbrg), reference: dncal_host::formats::fits::Reference::Exposure, bayer_unread: false },
     };
     write_linearity(&path, &set).unwrap();
     let hdus = astropy_describe(&path);

@@ -178,7 +178,7 @@ pub fn linearity_set_of(camera: &Camera, p: &LinearityParams) -> Result<Linearit
         std: data.std,
         voltage: data.voltage,
         mask: Some(data.mask),
-        keys: crate::formats::fits::SetKeys { bayer: camera.config.cfa.as_ref().and_then(|c| c.bayer).map(|b| b.shifted(p.roi.0, p.roi.1)), reference: camera.config.bench.reference },
+        keys: crate::formats::fits::SetKeys { bayer: camera.config.cfa.as_ref().and_then(|c| c.bayer).map(|b| b.shifted(p.roi.0, p.roi.1)), reference: camera.config.bench.reference, bayer_unread: false },
     })
 }
 

@@ -263,13 +263,6 @@ impl LevelTerm {
         }
     }
 
-    /// The light's relative variance over its standard error (0 where it was not
-    /// estimated).
-    pub fn light_z(&self) -> f64 {
-        let se = self.tau_cov[1][1].max(0.0).sqrt();
-        if se > 0.0 { self.light_rel.powi(2) / se } else { 0.0 }
-    }
-
     /// The light's share of the variance at level `l`.
     fn light_share(&self, l: usize) -> f64 {
         let s = self.signal.get(l).copied().unwrap_or(0.0);

@@ -63,6 +63,10 @@ pub struct SetKeys {
     /// (`BAYERPAT`, with `XBAYROFF`, `YBAYROFF` and `ROWORDER` applied as read:
     /// [`crate::formats::bayer`]).
     pub bayer: Option<crate::formats::bayer::Bayer>,
+    /// Whether the file declares a colour layout this does not read as a 2 x 2 one (an
+    /// X-Trans filter's 36 letters, an unknown `ROWORDER`): not an error, the keys are
+    /// labels; `bayer` is then `None` and `diagnose` says the colours are not named.
+    pub bayer_unread: bool,
     /// What the reference column measures ([`Reference`]).
     pub reference: Reference,
 }
@@ -186,14 +190,19 @@ fn write_keys(fits: &mut FitsWriter, keys: &SetKeys) -> Result<(), HostError> {
     Ok(())
 }
 
-/// The optional keys of a set whose frames have `height` rows (`BAYERPAT` where present:
-/// its offsets, of either sign, taken modulo 2; `ROWORDER = 'BOTTOM-UP'` starts the layout
-/// at the last stored row).
+/// The optional keys of a set whose frames have `height` rows (`BAYERPAT` where present
+/// and not blank: its offsets, of either sign, taken modulo 2; `ROWORDER = 'BOTTOM-UP'`
+/// starts the layout at the last stored row). A layout that is none of the four 2 x 2
+/// ones, or a row order that is neither, is [`SetKeys::bayer_unread`], not an error: the
+/// set's numbers do not depend on them (an X-Trans camera's files must still read).
 fn read_keys(r: &mut FitsReader, height: usize) -> Result<SetKeys, HostError> {
-    let Some(name) = r.key::<String>(0, PRIMARY, "BAYERPAT")? else {
+    let Some(name) = r.key::<String>(0, PRIMARY, "BAYERPAT")?.filter(|n| !n.trim().is_empty()) else {
         return Ok(SetKeys::default());
     };
-    let layout = crate::formats::bayer::Bayer::parse(&name).map_err(|e| r.error(format!("key BAYERPAT: {e}")))?;
+    let unread = SetKeys { bayer_unread: true, ..SetKeys::default() };
+    let Ok(layout) = crate::formats::bayer::Bayer::parse(&name) else {
+        return Ok(unread);
+    };
     let mut offset = [0usize; 2];
     for (o, key) in offset.iter_mut().zip(["XBAYROFF", "YBAYROFF"]) {
         *o = r.int_key(0, PRIMARY, key)?.unwrap_or(0).rem_euclid(2) as usize;
@@ -202,7 +211,7 @@ fn read_keys(r: &mut FitsReader, height: usize) -> Result<SetKeys, HostError> {
         None => false,
         Some(o) if o == "TOP-DOWN" => false,
         Some(o) if o == "BOTTOM-UP" => true,
-        Some(o) => return Err(r.error(format!("key ROWORDER = {o:?}: TOP-DOWN or BOTTOM-UP"))),
+        Some(_) => return Ok(unread),
     };
     // Stored from the bottom, stored row k is row `height - 1 - k` as shown: of a period
     // of two rows, the same as starting `height - 1` rows on.

@@ -268,8 +268,9 @@ fn an_exposure_reference_round_trips_as_its_column() {
 
 /// `BAYERPAT` as others write it: offsets shift the layout (of either sign, modulo 2),
 /// `ROWORDER = 'BOTTOM-UP'` starts it at the last stored row (on 3 rows, the first's
-/// parity; on 4, the other's); a layout or row order that is none is refused naming the
-/// file and the key.
+/// parity; on 4, the other's); a layout or row order that is none is read as declared and
+/// unread (an X-Trans camera's files read); an offset that is not an integer is refused
+/// naming the file and the key.
 #[test]
 fn bayerpat_is_read_with_its_offsets_and_row_order() {
     use crate::formats::bayer::Bayer;
@@ -299,8 +300,16 @@ fn bayerpat_is_read_with_its_offsets_and_row_order() {
     assert_eq!(read(vec![("BAYERPAT", Str("RGGB")), ("ROWORDER", Str("TOP-DOWN"))], 4).unwrap(), Some(Bayer::Rggb));
     assert_eq!(read(vec![("BAYERPAT", Str("RGGB")), ("ROWORDER", Str("BOTTOM-UP"))], 3).unwrap(), Some(Bayer::Rggb));
     assert_eq!(read(vec![("BAYERPAT", Str("RGGB")), ("ROWORDER", Str("BOTTOM-UP"))], 4).unwrap(), Some(Bayer::Gbrg));
-    assert_rejects(read(vec![("BAYERPAT", Str("RGBG"))], 3), &path, "key BAYERPAT: \"RGBG\" is not a Bayer layout: one of RGGB, GRBG, GBRG, BGGR");
-    assert_rejects(read(vec![("BAYERPAT", Str("RGGB")), ("ROWORDER", Str("LEFT"))], 3), &path, "key ROWORDER = \"LEFT\": TOP-DOWN or BOTTOM-UP");
+    // (Labels the numbers do not depend on: an X-Trans layout, a blank one, an unknown
+    // row order read, the first two as declared and unread.)
+    let unread = |extra: Vec<(&'static str, Key)>| {
+        read(extra, 3).unwrap();
+        read_linearity(&path).unwrap().keys
+    };
+    let xtrans = unread(vec![("BAYERPAT", Str("GGRGGBGGBGGRBRGRBGGGBGGRGGRGGBRBGBRG"))]);
+    assert_eq!((xtrans.bayer, xtrans.bayer_unread), (None, true));
+    assert!(unread(vec![("BAYERPAT", Str("RGGB")), ("ROWORDER", Str("LEFT"))]).bayer_unread);
+    assert_eq!(unread(vec![("BAYERPAT", Str("  "))]), SetKeys::default());
     assert_rejects(read(vec![("BAYERPAT", Str("RGGB")), ("XBAYROFF", Float(0.5))], 3), &path, "key XBAYROFF of the primary HDU is 0.5, not an integer");
 }
 

@@ -329,12 +329,15 @@ pub(super) fn cfa_stage<T: Sample>(px: &Pixels<T>, declared: Option<Bayer>) -> C
             within.iter().cloned().fold(f64::NEG_INFINITY, f64::max),
         ),
     );
+    let carried = declared.filter(|b| p == 2 && greens_alike(*b, &response, whole.pooled_se()));
     CfaStage {
         response: Some(CfaResponse {
             period: p,
             response,
             prnu_within,
-            bayer: declared.filter(|_| p == 2),
+            // (Carried into the model only where its greens are the cells alike: a layout
+            // the pixels say is off would be written out again as BAYERPAT.)
+            bayer: carried,
         }),
         finding: Some(finding),
         note: None,
@@ -345,6 +348,13 @@ pub(super) fn cfa_stage<T: Sample>(px: &Pixels<T>, declared: Option<Bayer>) -> C
 /// (`se` one response's) and 2% of the first.
 fn alike(a: f64, b: f64, se: f64) -> bool {
     (a - b).abs() <= (5.0 * se * std::f64::consts::SQRT_2).max(0.02 * a.abs())
+}
+
+/// Whether the declared layout's greens respond alike and its other diagonal does not.
+fn greens_alike(b: Bayer, r: &[f64], se: f64) -> bool {
+    let [g0, g1] = b.greens();
+    let [o0, o1] = if g0 == 0 { [1, 2] } else { [0, 3] };
+    alike(r[g0], r[g1], se) && !alike(r[o0], r[o1], se)
 }
 
 /// The declared layout's colours of a 2 x 2 pattern's cells, and whether the cells that

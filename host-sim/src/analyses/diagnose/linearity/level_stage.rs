@@ -29,12 +29,6 @@ pub(super) struct Named {
     light_rel: Option<f64>,
 }
 
-/// The light's part of level errors beside ADCs' own terms is named above this `z` of its
-/// variance: a variance estimated from `L` levels has a relative standard error of
-/// `sqrt(2 / L)` at best, so its `z` stays below `sqrt(L / 2)` (4.5 at 41 levels) however
-/// large the errors; 3 is one chance in 740 for a normal estimate with none.
-const LIGHT_Z: f64 = 3.0;
-
 /// Measures and names the errors every pixel of `px` shares at its `nl` levels.
 pub(super) fn level_stage<T: Sample>(px: &Pixels<T>, nl: usize) -> LevelStage {
     // Errors every pixel shares at a level (the light off the reference, the black level
@@ -129,10 +123,11 @@ pub(super) fn level_stage<T: Sample>(px: &Pixels<T>, nl: usize) -> LevelStage {
         )));
     }
     // Beside the ADCs' own terms the common term holds their mean DN error too, which a
-    // level's code sets, not its light: the light's part is named where it stands out
-    // alone (its variance over its standard error above [`LIGHT_Z`]). A camera with the
-    // K-Cor ADCs' statistics and no light error gave 0 there; 0.2% light errors, 4.4.
-    if !handled && level_accepted && (levels_term.per_adc.is_none() || (levels_term.light_z() > LIGHT_Z && levels_term.shape == Shape::Random)) {
+    // level's code sets, not its light: not named the light's there. (Naming it where
+    // its variance grows as the signal squared, z > 3, was tried and reverted after an
+    // independent review: ADC errors that grow with the code passed it on 4 of 12 sets
+    // without any light error; the light's part common to every ADC is the next test.)
+    if !handled && level_accepted && levels_term.per_adc.is_none() {
         findings.push(level_finding(&levels_term, &mut named));
     }
     LevelStage { term: levels_term, accepted: level_accepted, findings, series: named.series, light_rel: named.light_rel }

@@ -466,7 +466,8 @@ fn diagnose_set<T: Sample>(set: &SetView<'_, T>, keep: Keep, accuracy_dn: f64) -
     // and tested on maps, not on the residuals' scale.)
     findings.splice(0..0, cfa_finding);
     let exposure = (set.keys.reference == crate::formats::fits::Reference::Exposure).then(|| EXPOSURE_NOTE.to_string());
-    let not_tested = measured.no_dark.iter().map(|n| n.note(measured.offset_dn, measured.read_noise_dn)).chain(cfa_note).chain(exposure).collect();
+    let unread = set.keys.bayer_unread.then(|| "cfa-pattern: the file declares a colour layout (BAYERPAT) that is not one of the four 2 x 2 Bayer layouts, or a ROWORDER that is neither TOP-DOWN nor BOTTOM-UP (an X-Trans filter's 6 x 6?): the cells' colours are not named; the pattern is found from the pixels alone".to_string());
+    let not_tested = measured.no_dark.iter().map(|n| n.note(measured.offset_dn, measured.read_noise_dn)).chain(cfa_note).chain(exposure).chain(unread).collect();
     Ok(Diagnosis {
         not_tested,
         measured,
