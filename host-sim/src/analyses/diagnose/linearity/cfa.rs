@@ -350,11 +350,17 @@ fn alike(a: f64, b: f64, se: f64) -> bool {
     (a - b).abs() <= (5.0 * se * std::f64::consts::SQRT_2).max(0.02 * a.abs())
 }
 
+/// Of the declared layout's two diagonals: whether its greens respond alike, whether the
+/// other diagonal's cells do, and those cells.
+fn diagonals(b: Bayer, r: &[f64], se: f64) -> (bool, bool, [usize; 2]) {
+    let [g0, g1] = b.greens();
+    let other = if g0 == 0 { [1, 2] } else { [0, 3] };
+    (alike(r[g0], r[g1], se), alike(r[other[0]], r[other[1]], se), other)
+}
+
 /// Whether the declared layout's greens respond alike and its other diagonal does not.
 fn greens_alike(b: Bayer, r: &[f64], se: f64) -> bool {
-    let [g0, g1] = b.greens();
-    let [o0, o1] = if g0 == 0 { [1, 2] } else { [0, 3] };
-    alike(r[g0], r[g1], se) && !alike(r[o0], r[o1], se)
+    matches!(diagonals(b, r, se), (true, false, _))
 }
 
 /// The declared layout's colours of a 2 x 2 pattern's cells, and whether the cells that
@@ -363,11 +369,9 @@ fn greens_alike(b: Bayer, r: &[f64], se: f64) -> bool {
 /// state, or a region read from an odd row).
 fn declared_text(b: Bayer, r: &[f64], se: f64) -> String {
     let colours: Vec<String> = (0..4).map(|k| format!("{} {:.3}", b.colour(k).name(), r[k])).collect();
-    let [g0, g1] = b.greens();
-    let [o0, o1] = if g0 == 0 { [1, 2] } else { [0, 3] };
-    let verdict = match (alike(r[g0], r[g1], se), alike(r[o0], r[o1], se)) {
-        (true, false) => "its greens respond alike, as a Bayer filter's do".to_string(),
-        (false, true) => format!(
+    let verdict = match diagonals(b, r, se) {
+        (true, false, _) => "its greens respond alike, as a Bayer filter's do".to_string(),
+        (false, true, [o0, o1]) => format!(
             "but the cells that respond alike are the other diagonal ({:.3} and {:.3}), not its greens: the layout is off by a row or a column (an offset or a row order the file does not state?)",
             r[o0], r[o1]
         ),
