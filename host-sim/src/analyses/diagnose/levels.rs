@@ -29,6 +29,11 @@
 //! level's variance its noise plus the level-error variance measured here, and the bend
 //! terms `x^2 .. x^4` accepted by a Wald test. The variance of the level errors is read
 //! from `E[c_e c_o]` against the signal: `tau^2 = tau_black^2 + tau_light^2 S^2`.
+//!
+//! Every fit and mean here weighs a pixel's means by its frame variance smoothed over its
+//! levels ([`Pixels::all_smoothed`]), not by each mean's own: the means carry the level
+//! errors, which can be several times their noise, and each pixel's noisy weights gave
+//! each pixel a different share of them.
 
 use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
@@ -88,19 +93,24 @@ pub(super) struct LevelTerm {
     pub by_level: AdcResiduals,
     pub adc_by_level: Vec<AdcResiduals>,
     pub skipped_by_level: AdcResiduals,
-    /// The levels that took no part in the fits and tests (their term extrapolated).
-    pub skip: Vec<bool>,
+    /// The levels that took no part in the fits and tests (their term extrapolated), or
+    /// with a term over all levels, those left out of the shared bend's test ([`wald`]).
+    pub(super) skip: Vec<bool>,
     /// The level errors' spread: light (relative, rms) and black level (DN, rms), and the
     /// covariance of the estimates of their squares (black^2 in DN^2, light^2).
     pub light_rel: f64,
     pub black_dn: f64,
     tau_cov: [[f64; 2]; 2],
-    /// Each pixel's quartic and line over all its levels (index into the caller's pixels;
-    /// held or spilled), the reference per level, and per level the median over pixels
-    /// of their slopes there, DN per reference unit: a level's error moves a pixel's mean
-    /// by its local slope (the light's part) or its ADC's (the black level's), and an ADC
-    /// that bends changes its slope along the range (one gain per pixel left a 1% bend
-    /// beside large level errors reading as `adc-dnl` in 8 of 12 sets).
+    /// Each pixel's quartic, quadratic and line over all its levels (index into the
+    /// caller's pixels; held or spilled), the reference per level, and per level the
+    /// median over pixels of their quadratics' slopes there, DN per reference unit: a
+    /// level's error moves a pixel's mean by its local slope (the light's part) or its
+    /// ADC's (the black level's), and an ADC that bends changes its slope along the range
+    /// (one gain per pixel left a 1% bend beside large level errors reading as `adc-dnl`
+    /// in 8 of 12 sets). A quadratic's slope, not the quartic's: at the ends of the range
+    /// the quartic's is about 5 times noisier (its slope's variance there goes as
+    /// `sum_k (2k + 1) (k (k + 1) / 2)^2` over its degrees, 1,200 against 48), and 2%
+    /// light errors taken out through it left 4-7% more than the noise.
     fits: Records<LevelFit>,
     x: Vec<f64>,
     slope_median: Vec<f64>,
@@ -131,7 +141,7 @@ fn slope(q: &[f64; 5], x: f64) -> f64 {
     q[1] + x * (2.0 * q[2] + x * (3.0 * q[3] + x * 4.0 * q[4]))
 }
 
-/// A quartic's slope at `x` over the median slope `m` there (1 where either is unknown).
+/// A polynomial's slope at `x` over the median slope `m` there (1 where either is unknown).
 fn slope_over(q: Option<&[f64; 5]>, x: f64, m: f64) -> f64 {
     let r = q.map_or(f64::NAN, |q| slope(q, x) / m);
     if r.is_finite() && m > 0.0 { r } else { 1.0 }
@@ -245,8 +255,8 @@ impl LevelTerm {
         Some(Series { step, step_se, high, low, within })
     }
 
-    /// The slope at `level` of a pixel's own quartic `q` over the median pixel's there (1
-    /// where either is unknown).
+    /// The slope at `level` of a pixel's own quadratic `q` (as a quartic's coefficients)
+    /// over the median pixel's there (1 where either is unknown).
     pub fn slope_ratio(&self, q: Option<&[f64; 5]>, level: usize) -> f64 {
         let (Some(&x), Some(&m)) = (self.x.get(level), self.slope_median.get(level)) else { return 1.0 };
         slope_over(q, x, m)
@@ -287,12 +297,12 @@ fn quadratic_form(v: [f64; 2], c: &[[f64; 2]; 2]) -> f64 {
 }
 
 impl Common for LevelTerm {
-    /// The pixel's quartic through all its levels (its slopes scale the light's part).
+    /// The pixel's quadratic through all its levels (its slopes scale the light's part).
     fn shape(&self, i: usize) -> Option<[f64; 5]> {
-        self.fits.at(i).quartic
+        self.fits.at(i).slopes
     }
 
-    /// `(c, var)` at `level` for a pixel on `adc` of quartic `shape`, from the estimating
+    /// `(c, var)` at `level` for a pixel on `adc` of quadratic `shape`, from the estimating
     /// pixels, when there is one: the ADC's own where the ADCs differ; the light's share
     /// scaled by the pixel's slope there against the pixels the term came from (a fixed
     /// DN amount left an ADC with 3% more gain a residual that read as `adc-dnl`).
@@ -326,26 +336,31 @@ struct Clipped {
 }
 
 /// A pixel's fits through its levels, where it has them: its quartic `sum_k q_k x^k`
-/// (whose slopes scale the light's part of the term) and its straight line (dark DN, DN
-/// per reference unit; [`wald`] tests what the lines leave). Both or neither.
+/// (whose residuals the term is made of), its quadratic (whose slopes scale the light's
+/// part of the term) and its straight line (dark DN, DN per reference unit; [`wald`]
+/// tests what the lines leave). All or none.
 #[derive(Debug, Clone, Copy)]
 struct LevelFit {
     quartic: Option<[f64; 5]>,
+    /// The quadratic as a quartic's coefficients (the last two 0).
+    slopes: Option<[f64; 5]>,
     line: Option<[f64; 2]>,
 }
 
 impl Record for LevelFit {
-    const BYTES: usize = 1 + 7 * 8;
-    const LOST: LevelFit = LevelFit { quartic: None, line: None };
+    const BYTES: usize = 1 + 10 * 8;
+    const LOST: LevelFit = LevelFit { quartic: None, slopes: None, line: None };
     fn put(&self, out: &mut Put<'_>) {
-        out.u8(u8::from(self.quartic.is_some()) | u8::from(self.line.is_some()) << 1);
-        self.quartic.unwrap_or([f64::NAN; 5]).into_iter().chain(self.line.unwrap_or([f64::NAN; 2])).for_each(|v| out.f64(v));
+        out.u8(u8::from(self.quartic.is_some()) | u8::from(self.line.is_some()) << 1 | u8::from(self.slopes.is_some()) << 2);
+        let slopes = self.slopes.unwrap_or([f64::NAN; 5]);
+        self.quartic.unwrap_or([f64::NAN; 5]).into_iter().chain(slopes[..3].iter().copied()).chain(self.line.unwrap_or([f64::NAN; 2])).for_each(|v| out.f64(v));
     }
     fn take(from: &mut Take<'_>) -> Self {
         let fitted = from.u8();
         let quartic = [(); 5].map(|_| from.f64());
+        let slopes = [from.f64(), from.f64(), from.f64(), 0.0, 0.0];
         let line = [from.f64(), from.f64()];
-        LevelFit { quartic: (fitted & 1 == 1).then_some(quartic), line: (fitted & 2 == 2).then_some(line) }
+        LevelFit { quartic: (fitted & 1 == 1).then_some(quartic), slopes: (fitted & 4 == 4).then_some(slopes), line: (fitted & 2 == 2).then_some(line) }
     }
 }
 
@@ -410,11 +425,16 @@ fn clipped_means(n: usize, cells: usize, visit: &Visit) -> Vec<Clipped> {
 /// Per pixel: its quartic and its straight line through its levels not skipped (`skip`).
 fn pixel_fits<T: Sample>(px: &Pixels<T>, skip: &[bool]) -> Records<LevelFit> {
     let skipped = |l: usize| skip.get(l).copied().unwrap_or(false);
-    let (quartic, line) = (Response::Poly(4), Response::Poly(1));
+    let (quartic, quadratic, line) = (Response::Poly(4), Response::Poly(2), Response::Poly(1));
     Records::from_fn(px.keep(), px.len(), |i| {
-        let used: Vec<Point> = px.all(i, None).into_iter().filter(|p| !skipped(p.level)).collect();
-        match (fit_and_score(quartic, &[0.0; 5], &used, &[]), fit_and_score(line, &[0.0; 2], &used, &[])) {
-            (Some(q), Some(l)) => LevelFit { quartic: q.params.get(..5).and_then(|p| p.try_into().ok()), line: Some([l.params[0], l.params[1]]) },
+        let all = px.all_smoothed(i);
+        let used: Vec<Point> = all.iter().copied().filter(|p| !skipped(p.level)).collect();
+        match (fit_and_score(quartic, &[0.0; 5], &used, &[]), fit_and_score(quadratic, &[0.0; 3], &all, &[]), fit_and_score(line, &[0.0; 2], &used, &[])) {
+            (Some(q), Some(s), Some(l)) => LevelFit {
+                quartic: q.params.get(..5).and_then(|p| p.try_into().ok()),
+                slopes: s.params.get(..3).map(|p| [p[0], p[1], p[2], 0.0, 0.0]),
+                line: Some([l.params[0], l.params[1]]),
+            },
             _ => LevelFit::LOST,
         }
     })
@@ -551,7 +571,7 @@ fn mean_response<T: Sample>(px: &Pixels<T>, fits: &Records<LevelFit>, levels: us
                     continue;
                 }
                 let (r, a) = (px.response(i), px.adc(i));
-                for p in px.all(i, None).iter().filter(|p| p.level < levels && p.sigma > 0.0) {
+                for p in px.all_smoothed(i).iter().filter(|p| p.level < levels && p.sigma > 0.0) {
                     let w = 1.0 / (p.sigma * p.sigma);
                     for k in [p.level, levels + a * levels + p.level] {
                         acc[k] = (acc[k].0 + w, acc[k].1 + w * r);
@@ -583,7 +603,7 @@ pub(super) fn level_term<T: Sample>(px: &Pixels<T>, skip: &[bool]) -> LevelTerm 
     // one population (a colour filter's channels are not its outliers).
     // (Medians by exact selection in passes over the pixels' fits: [`crate::infra::select`].)
     let slope_norm = crate::infra::select::upper_medians(n, x.len(), &|i, f| {
-        if let Some(q) = fits.at(i).quartic {
+        if let Some(q) = fits.at(i).slopes {
             let r = px.response(i);
             x.iter().enumerate().for_each(|(l, &xl)| f(l, slope(&q, xl) / r));
         }
@@ -598,7 +618,7 @@ pub(super) fn level_term<T: Sample>(px: &Pixels<T>, skip: &[bool]) -> LevelTerm 
     // Per level, each ADC's median slope ratio, channel-free, times its channels' mean
     // response over all the pixels'.
     let ratios = crate::infra::select::upper_medians(n, levels * n_adc, &|i, f| {
-        let (q, a, r) = (fits.at(i).quartic, px.adc(i), px.response(i));
+        let (q, a, r) = (fits.at(i).slopes, px.adc(i), px.response(i));
         (0..levels).for_each(|l| f(l * n_adc + a, slope_over(q.as_ref(), x[l], slope_norm[l]) / r));
     });
     let ratios: Vec<f64> = (0..levels * n_adc).map(|k| ratios[k] * response_adc[(k % n_adc) * levels + k / n_adc] / response_all[k / n_adc]).collect();
@@ -609,7 +629,7 @@ pub(super) fn level_term<T: Sample>(px: &Pixels<T>, skip: &[bool]) -> LevelTerm 
         let Some(q) = &fits.at(i).quartic else { return };
         let mut grad = [0.0; 5];
         let at0 = quartic.eval(q, 0.0, &mut grad);
-        for p in px.all(i, None).iter().filter(|p| p.level < levels) {
+        for p in px.all_smoothed(i).iter().filter(|p| p.level < levels) {
             let v = quartic.eval(q, p.x, &mut grad);
             f(p.level, p.y - v, p.sigma, v - at0);
         }
@@ -707,7 +727,7 @@ pub(super) fn wald<T: Sample>(term: &LevelTerm, px: &Pixels<T>, sel: &(dyn Fn(us
     let per = clipped_means(px.len(), n_adc * levels, &|i, f| {
         let Some(p) = term.fits.at(i).line.filter(|_| sel(i)) else { return };
         let mut grad = [0.0; 2];
-        for q in px.all(i, None).iter().filter(|q| q.level < levels) {
+        for q in px.all_smoothed(i).iter().filter(|q| q.level < levels) {
             f(group(i) * levels + q.level, q.y - line.eval(&p, q.x, &mut grad), q.sigma);
         }
     });
@@ -810,9 +830,10 @@ mod tests {
     #[test]
     fn level_fits_read_back_as_written() {
         let q = [1.0, -0.0, 2.5e-300, -7.0, f64::MAX];
-        for f in [LevelFit { quartic: Some(q), line: Some([3.0, -4.0]) }, LevelFit::LOST, LevelFit { quartic: None, line: Some([0.5, 0.25]) }] {
+        let s = [4.0, -1e-300, 9.5, 0.0, 0.0];
+        for f in [LevelFit { quartic: Some(q), slopes: Some(s), line: Some([3.0, -4.0]) }, LevelFit::LOST, LevelFit { quartic: None, slopes: None, line: Some([0.5, 0.25]) }, LevelFit { quartic: None, slopes: Some(s), line: None }] {
             let back = super::super::records::round_trip(f);
-            let bits = |f: LevelFit| (f.quartic.map(|q| q.map(f64::to_bits)), f.line.map(|l| l.map(f64::to_bits)));
+            let bits = |f: LevelFit| (f.quartic.map(|q| q.map(f64::to_bits)), f.slopes.map(|q| q.map(f64::to_bits)), f.line.map(|l| l.map(f64::to_bits)));
             assert_eq!(bits(back), bits(f));
         }
     }

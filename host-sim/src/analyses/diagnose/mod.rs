@@ -18,6 +18,7 @@ mod records;
 mod points;
 mod ptc;
 mod scores;
+mod smooth_noise;
 mod tasks;
 pub mod run;
 

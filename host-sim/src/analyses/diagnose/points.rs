@@ -152,6 +152,28 @@ impl<'a, T: Sample> Pixels<'a, T> {
     /// where one is given (its variance added to the noise, and the rounding of the
     /// mean's value type: [`Sample::rounding_var`]).
     pub fn halves(&self, i: usize, common: Option<&dyn Common>) -> (Vec<Point>, Vec<Point>) {
+        self.points(i, common, false)
+    }
+
+    /// All levels of pixel `i`: the even ones, then the odd ones.
+    pub fn all(&self, i: usize, common: Option<&dyn Common>) -> Vec<Point> {
+        let (mut ev, od) = self.halves(i, common);
+        ev.extend(od);
+        ev
+    }
+
+    /// [`Pixels::all`] without a term, each mean's noise from the pixel's frame variance
+    /// smoothed over its levels ([`super::smooth_noise`]): the weights of the fits to
+    /// means that carry the level errors, which their own noisy variances share out
+    /// unevenly between pixels. Each smoothed variance carries its own `d / (d - 2)` for
+    /// its degrees of freedom in place of `kappa`.
+    pub fn all_smoothed(&self, i: usize) -> Vec<Point> {
+        let (mut ev, od) = self.points(i, None, true);
+        ev.extend(od);
+        ev
+    }
+
+    fn points(&self, i: usize, common: Option<&dyn Common>, smoothed: bool) -> (Vec<Point>, Vec<Point>) {
         let set = self.set;
         let p = self.index(i);
         let valid = usize::from(self.valid.at(p));
@@ -161,11 +183,19 @@ impl<'a, T: Sample> Pixels<'a, T> {
         let shape = common.and_then(|t| t.shape(i));
         let mut halves = (Vec::with_capacity(valid.div_ceil(2)), Vec::with_capacity(valid / 2));
         set.with_pixel(p, |at| {
+            // The noise of each mean: `kappa s^2 / N`, or the smoothed variance over `N`.
+            let smooth = smoothed.then(|| {
+                let mean: Vec<f64> = (0..valid).map(|l| at.mean(l)).collect();
+                let mut var: Vec<f64> = (0..valid).map(|l| at.std(l).powi(2)).collect();
+                super::smooth_noise::smooth_variance(&mean, &mut var, set.n_frames);
+                var
+            });
             let pts = (0..valid)
                 .map(|l| {
                     let (c, v) = common.and_then(|t| t.at(l, i, adc, shape.as_ref())).unwrap_or((0.0, 0.0));
                     let (m, s) = (at.mean(l), at.std(l));
-                    Point { level: l, x: self.x[l], y: m - c, sigma: ((self.kappa * s * s / n).max(floor) + self.bias2[l] + v + T::rounding_var(m)).sqrt() }
+                    let noise = smooth.as_ref().map_or(self.kappa * s * s / n, |var| var[l] / n);
+                    Point { level: l, x: self.x[l], y: m - c, sigma: (noise.max(floor) + self.bias2[l] + v + T::rounding_var(m)).sqrt() }
                 })
                 .filter(|q| q.x.is_finite() && q.y.is_finite() && q.sigma.is_finite());
             for q in pts {
@@ -173,13 +203,6 @@ impl<'a, T: Sample> Pixels<'a, T> {
             }
         });
         halves
-    }
-
-    /// All levels of pixel `i`: the even ones, then the odd ones.
-    pub fn all(&self, i: usize, common: Option<&dyn Common>) -> Vec<Point> {
-        let (mut ev, od) = self.halves(i, common);
-        ev.extend(od);
-        ev
     }
 
     /// `f` of the levels of pixel `i` ([`SetView::with_pixel`]).

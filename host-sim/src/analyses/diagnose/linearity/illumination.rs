@@ -17,9 +17,9 @@
 //! the reference at every pixel; each round gives the field the rest). A pixel's means then
 //! lose `S phi_l(x, y)` of the field the **other** half of the rows fitted, and gain that
 //! fit's variance: the field that corrects a pixel is fitted without it. (The signal `S`
-//! it is scaled by is the pixel's quartic through all its levels, as for the level term's
+//! it is scaled by is the pixel's quadratic through all its levels, as for the level term's
 //! light part: a leverage of the pixel's own held-out levels on its correction of order
-//! the field times 5 / 41. And an even-row pixel is corrected with the odd rows' field, so
+//! the field times 3 / 41. And an even-row pixel is corrected with the odd rows' field, so
 //! the shared curves estimated on even rows afterwards carry that much of the odd rows.)
 //!
 //! The test: the two halves' fields agree beyond their noise, `T = sum_l f_e . A_o f_o`
@@ -219,7 +219,7 @@ pub(super) struct Pattern<'a, T: Sample> {
     px: &'a Pixels<'a, T>,
     /// The level term, where one was found.
     level: Option<&'a dyn Common>,
-    /// The pixels' quartics through all their levels (the level term's).
+    /// The pixels' quadratics through all their levels (the level term's).
     shapes: &'a dyn Common,
     grid: Grid,
     /// Per level, the field fitted on (even, odd) rows.
@@ -245,13 +245,13 @@ impl<T: Sample> Pattern<'_, T> {
         Some((self.grid.at(&field.f, x, y) - mean, var))
     }
 
-    /// The pattern's change of pixel `i`'s mean at `level`, DN, for its quartic `shape`.
+    /// The pattern's change of pixel `i`'s mean at `level`, DN, for its quadratic `shape`.
     fn field_dn(&self, level: usize, i: usize, shape: Option<&[f64; 5]>) -> f64 {
         let dn = self.change(level, i).map_or(0.0, |c| c.0 * self.signal(level, shape));
         if dn.is_finite() { dn } else { 0.0 }
     }
 
-    /// A pixel's signal at `level` (its quartic `shape` above its dark level), DN.
+    /// A pixel's signal at `level` (its quadratic `shape` above its dark level), DN.
     fn signal(&self, level: usize, shape: Option<&[f64; 5]>) -> f64 {
         let x = self.px.x.get(level).copied().unwrap_or(f64::NAN);
         shape.map_or(0.0, |q| q[1..].iter().rev().fold(0.0, |acc, a| acc * x + a) * x)
@@ -264,7 +264,7 @@ impl<T: Sample> Common for Pattern<'_, T> {
     }
 
     /// The level term's `(c, var)` and the pattern's: the relative change times the pixel's
-    /// signal there (its quartic above its dark level).
+    /// signal there (its quadratic above its dark level).
     fn at(&self, level: usize, i: usize, adc: usize, shape: Option<&[f64; 5]>) -> Option<(f64, f64)> {
         let (c, v) = self.level.and_then(|t| t.at(level, i, adc, shape)).unwrap_or((0.0, 0.0));
         let signal = self.signal(level, shape);
@@ -300,7 +300,7 @@ impl<T: Sample> Found<'_, T> {
 }
 
 /// Measures the light's pattern per level on `px` (less the level term `level` where one
-/// was found; the quartics of `shapes`; `signal` the mean signal per level, DN) and tests
+/// was found; the quadratics of `shapes`; `signal` the mean signal per level, DN) and tests
 /// it; `None` where the set is too small for it or nothing stands out.
 pub(super) fn illumination_change<'a, T: Sample>(px: &'a Pixels<'a, T>, level: Option<&'a dyn Common>, shapes: &'a dyn Common, signal: &[f64]) -> Option<Found<'a, T>> {
     let (w, h) = px.size();
