@@ -422,7 +422,9 @@ fn clipped_means(n: usize, cells: usize, visit: &Visit) -> Vec<Clipped> {
         .collect()
 }
 
-/// Per pixel: its quartic and its straight line through its levels not skipped (`skip`).
+/// Per pixel, weighed by its smoothed variances: its quartic and its straight line
+/// through its levels not skipped (`skip`), and its quadratic through all its levels (its
+/// slopes are taken at every level, the skipped ones too).
 fn pixel_fits<T: Sample>(px: &Pixels<T>, skip: &[bool]) -> Records<LevelFit> {
     let skipped = |l: usize| skip.get(l).copied().unwrap_or(false);
     let (quartic, quadratic, line) = (Response::Poly(4), Response::Poly(2), Response::Poly(1));
