@@ -7,6 +7,7 @@ use std::path::PathBuf;
 use dncal_host::analyses::emva::run::emva as emva_sheet;
 use dncal_host::model::camera::calibration::{LinearityParams, RampParams};
 use dncal_host::model::camera::{Camera, CameraConfig};
+use dncal_host::formats::fits::Reference;
 use dncal_host::model::sets::{camera_from, frames_of, linearity_set_of};
 use dncal_host::Subject;
 use numpy::{PyArray1, PyArray2, PyArray3};
@@ -31,9 +32,12 @@ fn camera_json(camera: Option<PathBuf>) -> PyResult<String> {
     serde_json::to_string(&cam.config).map_err(|e| pyo3::exceptions::PyValueError::new_err(e.to_string()))
 }
 
-/// `dncal simulate linearity`'s set in memory: (mean (levels, rows, cols) DN, std, voltage
-/// (levels,) V, mask uint8 (rows, cols), frames, bit_depth, n_adc). `roi` is (width,
-/// height, column, row), default the paper's region.
+/// `dncal simulate linearity`'s set in memory: (mean (levels, rows, cols) DN, std, reference
+/// (levels,): V, or s where it is an exposure, mask uint8 (rows, cols), frames, bit_depth,
+/// n_adc, the colour layout from the region's first pixel (`BAYERPAT`: "GBRG", ...) or
+/// None, what the reference measures ("photodiode" or "exposure")), as the FITS file
+/// `dncal simulate linearity` writes says. `roi` is (width, height, column, row), default
+/// the paper's region.
 #[pyfunction]
 #[pyo3(signature = (levels = 41, frames = 256, roi = None, seed = 41, camera = None))]
 #[allow(clippy::type_complexity)]
@@ -44,7 +48,7 @@ fn simulate_linearity<'py>(
     roi: Option<(usize, usize, usize, usize)>,
     seed: u64,
     camera: Option<PathBuf>,
-) -> PyResult<(Bound<'py, PyArray3<f64>>, Bound<'py, PyArray3<f64>>, Bound<'py, PyArray1<f64>>, Bound<'py, PyArray2<u8>>, u32, u32, usize)> {
+) -> PyResult<(Bound<'py, PyArray3<f64>>, Bound<'py, PyArray3<f64>>, Bound<'py, PyArray1<f64>>, Bound<'py, PyArray2<u8>>, u32, u32, usize, Option<String>, &'static str)> {
     let cam = self::camera(camera)?;
     let paper = LinearityParams::paper(&cam);
     let roi = roi.map_or(paper.roi, |(w, h, x, y)| (x, y, w, h));
@@ -59,6 +63,11 @@ fn simulate_linearity<'py>(
         set.n_frames,
         set.bit_depth,
         set.n_adc,
+        set.keys.bayer.map(|b| b.to_string()),
+        match set.keys.reference {
+            Reference::Photodiode => "photodiode",
+            Reference::Exposure => "exposure",
+        },
     ))
 }
 

@@ -27,6 +27,25 @@ def test_simulate_linearity_is_the_clis_set(sets, cli):
     assert s.fit().report == {k: v for k, v in theirs.items() if k not in CLI_ONLY}
 
 
+def test_simulate_linearity_says_what_the_files_keys_say(tmp_path, cli):
+    """A colour camera whose series has a relative exposure for a reference: the set in
+    memory carries the layout and the reference's kind the CLI's file declares
+    (``BAYERPAT``, the reference column's name), the layout shifted to the region read out
+    (from an odd row, GBRG reads as RGGB); the default camera carries neither."""
+    cfg = tmp_path / "colour.toml"
+    cfg.write_text('[cfa]\nperiod = 2\ncells = [1.23, 0.99, 0.55, 1.23]\nbayer = "GBRG"\n\n[bench]\nreference = "exposure"\n')
+    for row, want in ((200, "GBRG"), (201, "RGGB")):
+        s = dncal.simulate_linearity(levels=8, frames=4, roi=(16, 8, 100, row), camera=cfg)
+        out = tmp_path / f"r{row}.fits"
+        cli("simulate", "linearity", "--config", cfg, "--roi", f"16x8+100+{row}", "--levels", "8", "--frames", "4", "-o", out)
+        with fits.open(out) as f:
+            assert (s.bayer, f[0].header["BAYERPAT"]) == (want, want)
+            assert s.reference == "exposure" and f["REFERENCE"].columns.names == ["EXPOSURE"]
+            assert np.array_equal(s.voltage, f["REFERENCE"].data["EXPOSURE"])
+    plain = dncal.simulate_linearity(levels=8, frames=4, roi=(16, 8, 100, 200))
+    assert (plain.bayer, plain.reference) == (None, "photodiode")
+
+
 def test_simulate_histograms_are_the_clis_counts(sets):
     counts, bits = dncal.read_histograms(sets / "h.fits")
     got = dncal.simulate_histograms()

@@ -94,7 +94,8 @@ class LinearitySet:
     mean: _np.ndarray
     #: Per-pixel standard deviation of the frames, float64 (levels, rows, cols), DN.
     std: _np.ndarray
-    #: Reference photodiode voltage per level, float64 (levels,), V.
+    #: The reference per level, float64 (levels,): the photodiode's voltage, V, or where
+    #: ``reference`` is ``"exposure"`` the exposure time over the f-number squared, s.
     voltage: _np.ndarray
     #: Pixels the camera model knows to be bad (hot, dead), uint8 (rows, cols), 1 = bad.
     mask: _np.ndarray
@@ -104,6 +105,12 @@ class LinearitySet:
     bit_depth: int
     #: ADCs (column c read by ADC c mod n_adc).
     n_adc: int
+    #: The colour filter's layout from the set's first pixel (FITS ``BAYERPAT``: "RGGB",
+    #: "GRBG", "GBRG" or "BGGR"), None for a monochrome sensor.
+    bayer: Optional[str] = None
+    #: What the reference measures: "photodiode" (the light, column ``VOLTAGE``) or
+    #: "exposure" (a camera's own relative exposure, column ``EXPOSURE``).
+    reference: str = "photodiode"
 
     def fit(self, **options) -> "LinearityFit":
         """:func:`fit_linearity` of this set (``order``, ``flat_level``, ``keep_corrected``)."""

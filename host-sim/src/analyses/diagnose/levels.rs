@@ -42,6 +42,7 @@ use statrs::distribution::ContinuousCDF;
 use super::pixel_fit::{fit_and_score, Point, Response};
 use super::points::{Common, Pixels};
 use super::records::{Put, Record, Records, Take};
+use super::smooth_noise::NoiseFit;
 use crate::formats::fits::Sample;
 use super::AdcResiduals;
 
@@ -338,29 +339,37 @@ struct Clipped {
 /// A pixel's fits through its levels, where it has them: its quartic `sum_k q_k x^k`
 /// (whose residuals the term is made of), its quadratic (whose slopes scale the light's
 /// part of the term) and its straight line (dark DN, DN per reference unit; [`wald`]
-/// tests what the lines leave). All or none.
+/// tests what the lines leave), all or none; and its frame variance over its levels, by
+/// which each pass weighs its means ([`Pixels::all_smoothed`]).
 #[derive(Debug, Clone, Copy)]
 struct LevelFit {
     quartic: Option<[f64; 5]>,
     /// The quadratic as a quartic's coefficients (the last two 0).
     slopes: Option<[f64; 5]>,
     line: Option<[f64; 2]>,
+    noise: NoiseFit,
 }
 
+/// Bytes a pixel's level fits take held (the budget's `RECORD_BYTES` counts them).
+#[cfg(test)]
+pub(super) const LEVEL_FIT_BYTES: usize = std::mem::size_of::<LevelFit>();
+
 impl Record for LevelFit {
-    const BYTES: usize = 1 + 10 * 8;
-    const LOST: LevelFit = LevelFit { quartic: None, slopes: None, line: None };
+    const BYTES: usize = 1 + 10 * 8 + NoiseFit::BYTES;
+    const LOST: LevelFit = LevelFit { quartic: None, slopes: None, line: None, noise: NoiseFit::NONE };
     fn put(&self, out: &mut Put<'_>) {
         out.u8(u8::from(self.quartic.is_some()) | u8::from(self.line.is_some()) << 1 | u8::from(self.slopes.is_some()) << 2);
         let slopes = self.slopes.unwrap_or([f64::NAN; 5]);
         self.quartic.unwrap_or([f64::NAN; 5]).into_iter().chain(slopes[..3].iter().copied()).chain(self.line.unwrap_or([f64::NAN; 2])).for_each(|v| out.f64(v));
+        self.noise.put(out);
     }
     fn take(from: &mut Take<'_>) -> Self {
         let fitted = from.u8();
         let quartic = [(); 5].map(|_| from.f64());
         let slopes = [from.f64(), from.f64(), from.f64(), 0.0, 0.0];
         let line = [from.f64(), from.f64()];
-        LevelFit { quartic: (fitted & 1 == 1).then_some(quartic), slopes: (fitted & 4 == 4).then_some(slopes), line: (fitted & 2 == 2).then_some(line) }
+        let noise = NoiseFit::take(from);
+        LevelFit { quartic: (fitted & 1 == 1).then_some(quartic), slopes: (fitted & 4 == 4).then_some(slopes), line: (fitted & 2 == 2).then_some(line), noise }
     }
 }
 
@@ -429,13 +438,15 @@ fn pixel_fits<T: Sample>(px: &Pixels<T>, skip: &[bool]) -> Records<LevelFit> {
     let skipped = |l: usize| skip.get(l).copied().unwrap_or(false);
     let (quartic, quadratic, line) = (Response::Poly(4), Response::Poly(2), Response::Poly(1));
     Records::from_fn(px.keep(), px.len(), |i| {
-        let all = px.all_smoothed(i);
+        let noise = px.noise_fit(i);
+        let all = px.all_smoothed(i, &noise);
         let used: Vec<Point> = all.iter().copied().filter(|p| !skipped(p.level)).collect();
         match (fit_and_score(quartic, &[0.0; 5], &used, &[]), fit_and_score(quadratic, &[0.0; 3], &all, &[]), fit_and_score(line, &[0.0; 2], &used, &[])) {
             (Some(q), Some(s), Some(l)) => LevelFit {
                 quartic: q.params.get(..5).and_then(|p| p.try_into().ok()),
                 slopes: s.params.get(..3).map(|p| [p[0], p[1], p[2], 0.0, 0.0]),
                 line: Some([l.params[0], l.params[1]]),
+                noise,
             },
             _ => LevelFit::LOST,
         }
@@ -569,11 +580,12 @@ fn mean_response<T: Sample>(px: &Pixels<T>, fits: &Records<LevelFit>, levels: us
         .map(|c| {
             let mut acc = vec![(0.0, 0.0); levels * (1 + n_adc)];
             for i in c * chunk..((c + 1) * chunk).min(n) {
-                if fits.at(i).quartic.is_none() {
+                let fit = fits.at(i);
+                if fit.quartic.is_none() {
                     continue;
                 }
                 let (r, a) = (px.response(i), px.adc(i));
-                for p in px.all_smoothed(i).iter().filter(|p| p.level < levels && p.sigma > 0.0) {
+                for p in px.all_smoothed(i, &fit.noise).iter().filter(|p| p.level < levels && p.sigma > 0.0) {
                     let w = 1.0 / (p.sigma * p.sigma);
                     for k in [p.level, levels + a * levels + p.level] {
                         acc[k] = (acc[k].0 + w, acc[k].1 + w * r);
@@ -628,10 +640,11 @@ pub(super) fn level_term<T: Sample>(px: &Pixels<T>, skip: &[bool]) -> LevelTerm 
     // Each pixel's quartic residuals on all its levels, recomputed per pass: (level,
     // residual DN, sigma DN, the quartic's signal there above its dark).
     let quartic_residuals = |i: usize, f: &mut dyn FnMut(usize, f64, f64, f64)| {
-        let Some(q) = &fits.at(i).quartic else { return };
+        let fit = fits.at(i);
+        let Some(q) = &fit.quartic else { return };
         let mut grad = [0.0; 5];
         let at0 = quartic.eval(q, 0.0, &mut grad);
-        for p in px.all_smoothed(i).iter().filter(|p| p.level < levels) {
+        for p in px.all_smoothed(i, &fit.noise).iter().filter(|p| p.level < levels) {
             let v = quartic.eval(q, p.x, &mut grad);
             f(p.level, p.y - v, p.sigma, v - at0);
         }
@@ -727,9 +740,10 @@ pub(super) fn wald<T: Sample>(term: &LevelTerm, px: &Pixels<T>, sel: &(dyn Fn(us
     let group = |i: usize| if pooled { 0 } else { px.adc(i) };
     let line = Response::Poly(1);
     let per = clipped_means(px.len(), n_adc * levels, &|i, f| {
-        let Some(p) = term.fits.at(i).line.filter(|_| sel(i)) else { return };
+        let fit = term.fits.at(i);
+        let Some(p) = fit.line.filter(|_| sel(i)) else { return };
         let mut grad = [0.0; 2];
-        for q in px.all_smoothed(i).iter().filter(|q| q.level < levels) {
+        for q in px.all_smoothed(i, &fit.noise).iter().filter(|q| q.level < levels) {
             f(group(i) * levels + q.level, q.y - line.eval(&p, q.x, &mut grad), q.sigma);
         }
     });
@@ -833,9 +847,12 @@ mod tests {
     fn level_fits_read_back_as_written() {
         let q = [1.0, -0.0, 2.5e-300, -7.0, f64::MAX];
         let s = [4.0, -1e-300, 9.5, 0.0, 0.0];
-        for f in [LevelFit { quartic: Some(q), slopes: Some(s), line: Some([3.0, -4.0]) }, LevelFit::LOST, LevelFit { quartic: None, slopes: None, line: Some([0.5, 0.25]) }, LevelFit { quartic: None, slopes: Some(s), line: None }] {
+        let m: Vec<f64> = (0..8).map(f64::from).collect();
+        let noise = NoiseFit::new(&m, &[1.0, 2.0, 3.5, 4.0, 5.0, 6.5, 7.0, 8.0]);
+        for f in [LevelFit { quartic: Some(q), slopes: Some(s), line: Some([3.0, -4.0]), noise }, LevelFit::LOST, LevelFit { quartic: None, slopes: None, line: Some([0.5, 0.25]), noise: NoiseFit::NONE }, LevelFit { quartic: None, slopes: Some(s), line: None, noise }] {
             let back = super::super::records::round_trip(f);
-            let bits = |f: LevelFit| (f.quartic.map(|q| q.map(f64::to_bits)), f.slopes.map(|q| q.map(f64::to_bits)), f.line.map(|l| l.map(f64::to_bits)));
+            // (The noise fit by what it gives at a level, its own bytes tested beside it.)
+            let bits = |f: LevelFit| (f.quartic.map(|q| q.map(f64::to_bits)), f.slopes.map(|q| q.map(f64::to_bits)), f.line.map(|l| l.map(f64::to_bits)), f.noise.variance(3.0, 2.0, 8).to_bits());
             assert_eq!(bits(back), bits(f));
         }
     }

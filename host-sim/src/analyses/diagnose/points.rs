@@ -6,6 +6,7 @@
 use super::cubes::{Levels, SetView};
 use super::pixel_fit::Point;
 use super::records::{Keep, Records};
+use super::smooth_noise::NoiseFit;
 use crate::formats::fits::Sample;
 
 /// A per-level term taken out of pixels' means: `(c, var)` in DN and DN^2 at `level` for
@@ -152,7 +153,7 @@ impl<'a, T: Sample> Pixels<'a, T> {
     /// where one is given (its variance added to the noise, and the rounding of the
     /// mean's value type: [`Sample::rounding_var`]).
     pub fn halves(&self, i: usize, common: Option<&dyn Common>) -> (Vec<Point>, Vec<Point>) {
-        self.points(i, common, false)
+        self.points(i, common, None)
     }
 
     /// All levels of pixel `i`: the even ones, then the odd ones.
@@ -162,18 +163,28 @@ impl<'a, T: Sample> Pixels<'a, T> {
         ev
     }
 
+    /// Pixel `i`'s frame variance fitted over its levels below saturation
+    /// ([`super::smooth_noise`]), for [`Pixels::all_smoothed`].
+    pub fn noise_fit(&self, i: usize) -> NoiseFit {
+        let valid = self.valid(i);
+        self.with_levels(i, |at| {
+            let (mean, var): (Vec<f64>, Vec<f64>) = (0..valid).map(|l| (at.mean(l), at.std(l).powi(2))).unzip();
+            NoiseFit::new(&mean, &var)
+        })
+    }
+
     /// [`Pixels::all`] without a term, each mean's noise from the pixel's frame variance
-    /// smoothed over its levels ([`super::smooth_noise`]): the weights of the fits to
-    /// means that carry the level errors, which their own noisy variances share out
-    /// unevenly between pixels. Each smoothed variance carries its own `d / (d - 2)` for
-    /// its degrees of freedom in place of `kappa`.
-    pub fn all_smoothed(&self, i: usize) -> Vec<Point> {
-        let (mut ev, od) = self.points(i, None, true);
+    /// smoothed over its levels (`noise`, [`Pixels::noise_fit`] of the same pixel): the
+    /// weights of the fits to means that carry the level errors, which their own noisy
+    /// variances share out unevenly between pixels. Each smoothed variance carries its
+    /// own `d / (d - 2)` for its degrees of freedom in place of `kappa`.
+    pub fn all_smoothed(&self, i: usize, noise: &NoiseFit) -> Vec<Point> {
+        let (mut ev, od) = self.points(i, None, Some(noise));
         ev.extend(od);
         ev
     }
 
-    fn points(&self, i: usize, common: Option<&dyn Common>, smoothed: bool) -> (Vec<Point>, Vec<Point>) {
+    fn points(&self, i: usize, common: Option<&dyn Common>, smoothed: Option<&NoiseFit>) -> (Vec<Point>, Vec<Point>) {
         let set = self.set;
         let p = self.index(i);
         let valid = usize::from(self.valid.at(p));
@@ -183,18 +194,12 @@ impl<'a, T: Sample> Pixels<'a, T> {
         let shape = common.and_then(|t| t.shape(i));
         let mut halves = (Vec::with_capacity(valid.div_ceil(2)), Vec::with_capacity(valid / 2));
         set.with_pixel(p, |at| {
-            // The noise of each mean: `kappa s^2 / N`, or the smoothed variance over `N`.
-            let smooth = smoothed.then(|| {
-                let mean: Vec<f64> = (0..valid).map(|l| at.mean(l)).collect();
-                let mut var: Vec<f64> = (0..valid).map(|l| at.std(l).powi(2)).collect();
-                super::smooth_noise::smooth_variance(&mean, &mut var, set.n_frames);
-                var
-            });
             let pts = (0..valid)
                 .map(|l| {
                     let (c, v) = common.and_then(|t| t.at(l, i, adc, shape.as_ref())).unwrap_or((0.0, 0.0));
                     let (m, s) = (at.mean(l), at.std(l));
-                    let noise = smooth.as_ref().map_or(self.kappa * s * s / n, |var| var[l] / n);
+                    // The noise of each mean: `kappa s^2 / N`, or the smoothed variance over `N`.
+                    let noise = smoothed.map_or(self.kappa * s * s / n, |fit| fit.variance(m, s * s, set.n_frames) / n);
                     Point { level: l, x: self.x[l], y: m - c, sigma: (noise.max(floor) + self.bias2[l] + v + T::rounding_var(m)).sqrt() }
                 })
                 .filter(|q| q.x.is_finite() && q.y.is_finite() && q.sigma.is_finite());

@@ -32,11 +32,11 @@ const BLOCK_BYTES: usize = 256 << 10;
 const KINDS_AT_ONCE: u64 = 13;
 
 /// Bytes a pixel's records take held: its fits on either half of its levels (120), the
-/// level term's fits through its levels (72), its scores under up to five models at once
+/// level term's fits through its levels and its frame variance over them (200), its scores under up to five models at once
 /// (24 each), a pair of values for the population medians (16), its unsaturated levels
 /// (2), its index and its index among the good pixels (4 each) and its bad-pixel flags
 /// (2). Spilled, they go to the disk (at [`Record::BYTES`] each).
-pub const RECORD_BYTES: u64 = 120 + 72 + 5 * 24 + 16 + 2 + 4 + 4 + 2;
+pub const RECORD_BYTES: u64 = 120 + 200 + 5 * 24 + 16 + 2 + 4 + 4 + 2;
 
 /// Bytes per pixel that stay in memory however its records are kept: the set's
 /// bad-pixel mask where it has one (held beside the blocks when the set is read by rows).

@@ -314,11 +314,12 @@ mod tests {
     fn the_per_pixel_records_are_their_stated_size_and_read_back() {
         assert_eq!(std::mem::size_of::<PixelFits>(), 120);
         assert_eq!(std::mem::size_of::<super::super::super::scores::Score>(), 24);
-        // The budget's records held: these fits, the level term's (a quartic and a line,
-        // each an `Option`), five models' scores and a pair of values; the unsaturated
-        // levels, the pixel's and the good pixel's indices and the flags.
-        let level = std::mem::size_of::<(Option<[f64; 5]>, Option<[f64; 2]>)>();
-        assert_eq!(level, 72);
+        // The budget's records held: these fits, the level term's (a quartic, a quadratic
+        // and a line, each an `Option`, and the frame variance's fit), five models' scores
+        // and a pair of values; the unsaturated levels, the pixel's and the good pixel's
+        // indices and the flags.
+        let level = super::super::super::levels::LEVEL_FIT_BYTES;
+        assert_eq!(level, 200);
         assert_eq!(std::mem::size_of::<Flags>(), 2);
         let small = std::mem::size_of::<u16>() + 2 * std::mem::size_of::<u32>() + std::mem::size_of::<Flags>();
         assert_eq!(super::super::super::records::RECORD_BYTES as usize, 120 + level + 5 * 24 + std::mem::size_of::<[f64; 2]>() + small);
