@@ -47,6 +47,10 @@ Hidden effects the reference's camera lacks (all off by default):
   to the plain Camera's for the same seed. The generator's own offset/gain
   searches and PointsGenerator's dark grab also see the effects.
   * --adcs N: column c is read by ADC c mod N (only matters with DNL).
+  * --cfa R,R,...: a colour filter, p x p relative responses (row-major, tiled
+    from pixel (0, 0)) multiplying the PRNU image: the reference's own per-pixel
+    QE factor, so each channel's photons and shot noise follow its response.
+    truth.json's prnu_realized_with_dead then holds the pattern too.
   * --dnl-rms R, --dnl-adc A|all: differential nonlinearity of ADC A (or of
     every ADC, each its own draw). Code widths w_k = 1 + R g_k, g_k standard
     normal from numpy.random.default_rng([seed, 4, adc]), clipped to >= 0.2,
@@ -321,6 +325,10 @@ def parse_args(argv):
                         "(bad_pixel's bad_value; default 0.02 = 300 e- of the "
                         "default full well; bad_pixel's own default 1.0 saturates "
                         "them, and then the reference's PRNU1288 is NaN)")
+    g.add_argument("--cfa", default=None, metavar="R,R,...",
+                   help="a colour filter's response pattern: p x p relative "
+                        "responses, row-major (4 numbers: 2 x 2), multiplying "
+                        "the PRNU image, tiled from pixel (0, 0) (default none)")
     g.add_argument("--dead", type=int, default=0,
                    help="number of dead pixels, PRNU factor 0 (default 0)")
     g.add_argument("--f-number", type=float, default=8.0, help="default 8")
@@ -416,6 +424,16 @@ def main(argv):
         prnu += np.random.default_rng([a.seed, 2]).normal(0.0, a.prnu, (H, W))
         np.clip(prnu, 0.0, None, out=prnu)
     prnu_gauss = prnu.copy()
+    # A colour filter: the PRNU image times the tiled cell responses (the
+    # reference's own per-pixel QE factor, so photon and shot noise follow it).
+    cfa = None
+    if a.cfa:
+        cfa = [float(v) for v in a.cfa.split(",")]
+        period = int(round(len(cfa) ** 0.5))
+        if period * period != len(cfa) or period < 1 or min(cfa) <= 0:
+            sys.exit("emva_simulate: --cfa needs p x p positive numbers")
+        cells = np.array(cfa).reshape(period, period)
+        prnu *= np.tile(cells, (H // period + 1, W // period + 1))[:H, :W]
 
     # Hot pixels with the reference's bad_pixel (global numpy RNG, draws with
     # replacement, so top up until the count of distinct hot pixels is --hot).
@@ -559,6 +577,7 @@ def main(argv):
         "prnu": a.prnu,
         "prnu_realized": sd(prnu_gauss),
         "prnu_realized_with_dead": sd(prnu),
+        "cfa": cfa,
         "hot": {"count": int(hot.sum()), "level_e": a.hot_level * a.u_esat,
                 "positions_row_col": np.argwhere(hot).tolist()},
         "dead": {"count": int(dead.sum()), "prnu_factor": 0.0,

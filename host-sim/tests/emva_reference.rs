@@ -354,6 +354,42 @@ fn defect_pixels_planted_by_the_reference_simulator_are_counted() {
     }
 }
 
+/// Issue 58: a colour camera's set from the reference's simulator (its PRNU image times a
+/// 2 x 2 pattern 1.23 0.99 0.55 1.23, issue 58's consumer camera's channels), with hot and
+/// dead pixels planted and without: exactly the planted pixels are defects, at their
+/// positions, no channel is, the pattern is reported with each cell within 1% of the
+/// planted, and `diagnose` names `bad-pixels` with the planted count, or nothing. Against
+/// a neighbourhood of all channels the red channel was 4,716 high-PRNU and 147 dead
+/// pixels where 10 hot and 8 dead were planted.
+#[test]
+fn a_colour_filters_channels_are_not_defects() {
+    let py = venv_python();
+    let tmp = tempfile::tempdir().unwrap();
+    let planted_cells = [1.23, 0.99, 0.55, 1.23];
+    for (seed, hot, dead) in [("21", 10usize, 8usize), ("22", 0, 0), ("23", 3, 12)] {
+        let dir = tmp.path().join(seed);
+        let args = ["--bits", "12", "--seed", seed, "--cfa", "1.23,0.99,0.55,1.23", "--hot", &hot.to_string(), "--dead", &dead.to_string()];
+        let descriptor = simulate(&py, &dir, &args);
+        let truth: Value = serde_json::from_slice(&std::fs::read(dir.join("truth.json")).unwrap()).unwrap();
+        let position = |p: &Value| (p[0].as_u64().unwrap() as usize, p[1].as_u64().unwrap() as usize);
+        let mut planted: Vec<(usize, usize)> = ["hot", "dead"].iter().flat_map(|k| truth[*k]["positions_row_col"].as_array().unwrap().iter().map(position).collect::<Vec<_>>()).collect();
+        planted.sort_unstable();
+        planted.dedup();
+        let found = &dncal(&descriptor, &[])["defect_pixels"];
+        eprintln!("seed {seed}: planted hot {hot}, dead {dead}: found {found}");
+        assert_eq!((found["hot"].as_u64(), found["dead"].as_u64(), found["high_prnu"].as_u64()), (Some(hot as u64), Some(dead as u64), Some(0)));
+        let listed: Vec<(usize, usize)> = found["positions"].as_array().unwrap().iter().map(position).collect();
+        assert_eq!(listed, planted);
+        assert_eq!(found["cells"]["period"].as_u64(), Some(2));
+        // (The planted cells' mean is 1.)
+        let cells: Vec<f64> = found["cells"]["response"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+        assert!(cells.iter().zip(planted_cells).all(|(got, want)| (got / want - 1.0).abs() < 0.01), "{cells:?}");
+        let named: Vec<_> = diagnose(&descriptor).into_iter().filter(|f| f.0 != "insufficient-noise").collect();
+        let want: Vec<(String, Option<u64>, Option<u64>)> = if planted.is_empty() { vec![] } else { vec![("bad-pixels".into(), None, Some(planted.len() as u64))] };
+        assert_eq!(named, want, "seed {seed}");
+    }
+}
+
 /// `dncal diagnose --json` of `descriptor`: the named effects, with their ADC and count.
 fn diagnose(descriptor: &Path) -> Vec<(String, Option<u64>, Option<u64>)> {
     let out = Command::new(env!("CARGO_BIN_EXE_dncal")).arg("diagnose").arg(descriptor).arg("--json").output().unwrap();

@@ -85,10 +85,11 @@ pub fn diagnose_defects(set: &EmvaSet) -> Result<DefectOutcome, HostError> {
         gain: (before / after.max(1e-300)).sqrt(),
         all_data_rms_after: None,
         detail: format!(
-            "{count} defect pixels flagged alike on both halves of the spatial series ({half} + {half} frames): {} hot, {} dead, {} high PRNU (dncal's criteria, docs/emva.md); flagged on one half only: {}",
+            "{count} defect pixels flagged alike on both halves of the spatial series ({half} + {half} frames): {} hot, {} dead, {} high PRNU (dncal's criteria, docs/emva.md{}); flagged on one half only: {}",
             by(HOT),
             by(DEAD),
             by(HIGH_PRNU),
+            a.cells.as_ref().map_or(String::new(), |c| format!("; each pixel against its own cell of {}", c.describe())),
             (na + nb) as usize - 2 * count
         ),
         residuals: None,

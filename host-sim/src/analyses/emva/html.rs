@@ -199,8 +199,8 @@ fn page_html(descriptor: &Path, sheet: &Datasheet, figures: &[PathBuf]) -> Strin
     match &s.defect_pixels {
         Some(d) => {
             html += &format!(
-                "<h2>Defect pixels</h2><p>dncal's criteria (the standard defines no counts; <code>docs/emva.md</code>): hot {} (dark above its median by more than {:.3} DN), dead {} (below half their neighbourhood's response), high PRNU {} (high-pass response beyond {:.3} DN); {} pixels in all.</p>",
-                d.hot, d.hot_threshold_dn, d.dead, d.high_prnu, d.prnu_threshold_dn, d.total
+                "<h2>Defect pixels</h2><p>dncal's criteria (the standard defines no counts; <code>docs/emva.md</code>): hot {} (dark above its median by more than {:.3} DN), dead {} (below half their neighbourhood's response), high PRNU {} (high-pass response beyond {:.3} DN); {} pixels in all{}.</p>",
+                d.hot, d.hot_threshold_dn, d.dead, d.high_prnu, d.prnu_threshold_dn, d.total, esc(&d.against())
             );
         }
         None => html += &format!("<h2>Defect pixels</h2><p>{}</p>", esc(sheet.why("defect_pixels"))),

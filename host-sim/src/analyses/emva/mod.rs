@@ -10,6 +10,7 @@
 //! - [`sheet`]: the whole datasheet of a set; [`html`]: it as a folder with the plots;
 //! - [`fit`]: the standard's three straight-line fits.
 
+pub mod cells;
 pub mod datasheet;
 pub mod descriptor;
 pub mod fit;

@@ -142,7 +142,7 @@ fn datasheet_text(set: &Header, s: &Datasheet) -> String {
         value("prnu_pixel_pct", sp.prnu_pixel_pct, " %", 3),
     );
     out += &match &sp.defect_pixels {
-        Some(d) => format!("defect pixels            hot {}, dead {}, high PRNU {} ({} in all; dncal's criteria, docs/emva.md)\n", d.hot, d.dead, d.high_prnu, d.total),
+        Some(d) => format!("defect pixels            hot {}, dead {}, high PRNU {} ({} in all; dncal's criteria, docs/emva.md{})\n", d.hot, d.dead, d.high_prnu, d.total, d.against()),
         None => format!("defect pixels            - ({})\n", s.why("defect_pixels")),
     };
     out

@@ -29,6 +29,7 @@ use serde::Serialize;
 
 use super::descriptor::{at_line, DescriptorFault};
 use super::highpass::{high_pass, NoiseGains, SCALE};
+use super::cells::CellPattern;
 use super::Release;
 use super::{load_image, EmvaLevel, EmvaSet, LevelKind, Series};
 use crate::infra::stats::robust;
@@ -328,6 +329,12 @@ pub const DEAD_RESPONSE: f64 = 0.5;
 ///   its `5 x 5` neighbourhood by more than [`DEFECT_SIGMAS`] robust standard deviations
 ///   of that difference (a median high-pass: the standard's box high-pass would let one
 ///   dead pixel push its neighbours over the threshold).
+///
+/// Where the response has a pattern periodic in rows and columns ([`CellPattern`]: a
+/// colour filter's channels), a pixel's neighbourhood is its own cell's pixels a period
+/// apart (the `5 x 5` of that channel's image) and its departure is divided by its
+/// cell's response, so each channel is its own population (EMVA 1288 treats a colour
+/// camera's channels apart).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct DefectPixels {
     /// Hot pixels.
@@ -344,6 +351,19 @@ pub struct DefectPixels {
     pub prnu_threshold_dn: f64,
     /// Positions `(row, column)` of the first 1000 defects, row-major.
     pub positions: Vec<(usize, usize)>,
+    /// A response pattern periodic in rows and columns (a colour filter's channels,
+    /// interleaved column ADCs' gains), where the image has one: each pixel was held
+    /// against its own cell's neighbours and its departure scaled by its cell's response.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cells: Option<CellPattern>,
+}
+
+impl DefectPixels {
+    /// What the counts were taken against beyond the criteria: the response pattern,
+    /// where there is one ("" without).
+    pub fn against(&self) -> String {
+        self.cells.as_ref().map_or(String::new(), |c| format!("; each pixel against its own cell of {}", c.describe()))
+    }
 }
 
 
@@ -356,7 +376,7 @@ pub const HIGH_PRNU: u8 = 4;
 
 /// Counts the defect pixels of a bright and a dark spatial series (see [`DefectPixels`]).
 pub fn defect_pixels(bright: &SpatialSeries, dark: &SpatialSeries, bright_stack_dn2: f64, dark_stack_dn2: f64) -> DefectPixels {
-    let DefectMap { kind, hot_threshold_dn, prnu_threshold_dn, .. } = defect_map(bright, dark, bright_stack_dn2, dark_stack_dn2);
+    let DefectMap { kind, hot_threshold_dn, prnu_threshold_dn, cells, .. } = defect_map(bright, dark, bright_stack_dn2, dark_stack_dn2);
     let cols = dark.cols;
     let count = |bit: u8| kind.iter().filter(|&&k| k & bit != 0).count();
     DefectPixels {
@@ -367,6 +387,7 @@ pub fn defect_pixels(bright: &SpatialSeries, dark: &SpatialSeries, bright_stack_
         hot_threshold_dn,
         prnu_threshold_dn,
         positions: kind.iter().enumerate().filter(|(_, &k)| k != 0).take(1000).map(|(i, _)| (i / cols, i % cols)).collect(),
+        cells,
     }
 }
 
@@ -382,6 +403,9 @@ pub struct DefectMap {
     pub hot_threshold_dn: f64,
     /// The high-PRNU threshold, DN.
     pub prnu_threshold_dn: f64,
+    /// The response pattern each pixel was held against its own cell of, where the
+    /// image has one ([`CellPattern`]).
+    pub cells: Option<CellPattern>,
 }
 
 /// Every pixel's defect kinds and score (see [`DefectPixels`] for the criteria).
@@ -404,14 +428,23 @@ pub fn defect_map(bright: &SpatialSeries, dark: &SpatialSeries, bright_stack_dn2
     // plane the median of the symmetric window is the centre value, so gradients cancel).
     let response: Vec<i64> = bright.sum.iter().zip(&dark.sum).map(|(&b, &d)| b * dark.frames as i64 - d * bright.frames as i64).collect();
     let unit = lb * ld;
-    // Each pixel against the median of the 5 x 5 window around it, clipped at the image's
-    // edges (at least 3 x 3 pixels: a corner's), so that border pixels are classified too.
+    // A response pattern periodic in rows and columns (a colour filter's channels): each
+    // pixel against its own cell's neighbours (the pixels a period apart), its departure
+    // over its cell's response ([`CellPattern`]); without one, period 1.
+    let cells = CellPattern::find(&response.iter().map(|&v| v as f64).collect::<Vec<_>>(), cols);
+    let p = cells.as_ref().map_or(1, |c| c.period);
+    let relative = |i: usize| cells.as_ref().map_or(1.0, |c| c.at(i / cols, i % cols));
+    // The pixels of `x`'s cell within 2 periods of it, in `0..n`.
+    let span = |x: usize, n: usize| (x - p * (x / p).min(2)..=x + p * ((n - 1 - x) / p).min(2)).step_by(p);
+    // Each pixel against the median of the 5 x 5 window around it (of its cell's pixels),
+    // clipped at the image's edges (at least 3 x 3 pixels: a corner's), so that border
+    // pixels are classified too.
     let local: Vec<Option<(f64, f64)>> = (0..rows * cols)
         .into_par_iter()
         .map(|i| {
             let (r, c) = (i / cols, i % cols);
-            let (r0, r1, c0, c1) = (r.saturating_sub(2), (r + 3).min(rows), c.saturating_sub(2), (c + 3).min(cols));
-            let mut window: Vec<i64> = (r0..r1).flat_map(|rr| response[rr * cols + c0..rr * cols + c1].iter().copied()).collect();
+            let response = &response;
+            let mut window: Vec<i64> = span(r, rows).flat_map(|rr| span(c, cols).map(move |cc| response[rr * cols + cc])).collect();
             if window.len() < 9 {
                 return None;
             }
@@ -420,20 +453,22 @@ pub fn defect_map(bright: &SpatialSeries, dark: &SpatialSeries, bright_stack_dn2
             Some((response[i] as f64 / unit, med as f64 / unit))
         })
         .collect();
-    let deviation: Vec<f64> = local.iter().flatten().map(|(v, m)| v - m).collect();
+    // Departures over the cell's response: in the units of the mean cell's.
+    let deviation: Vec<f64> = local.iter().enumerate().filter_map(|(i, l)| l.map(|(v, m)| (v - m) / relative(i))).collect();
     let (dev_centre, dev_sigma) = robust(&deviation);
     let temporal = (bright_stack_dn2 / lb + dark_stack_dn2 / ld).sqrt();
     let prnu_threshold = DEFECT_SIGMAS * dev_sigma.max(temporal);
     for (at, l) in local.iter().enumerate() {
         let Some(&(value, neighbourhood)) = l.as_ref() else { continue };
-        score[at] = score[at].max((value - neighbourhood - dev_centre).abs() * DEFECT_SIGMAS / prnu_threshold.max(1e-300));
+        let departure = (value - neighbourhood) / relative(at) - dev_centre;
+        score[at] = score[at].max(departure.abs() * DEFECT_SIGMAS / prnu_threshold.max(1e-300));
         if neighbourhood > 0.0 && value < DEAD_RESPONSE * neighbourhood {
             kind[at] |= DEAD;
-        } else if (value - neighbourhood - dev_centre).abs() > prnu_threshold {
+        } else if departure.abs() > prnu_threshold {
             kind[at] |= HIGH_PRNU;
         }
     }
-    DefectMap { kind, score, hot_threshold_dn: hot_threshold, prnu_threshold_dn: prnu_threshold }
+    DefectMap { kind, score, hot_threshold_dn: hot_threshold, prnu_threshold_dn: prnu_threshold, cells }
 }
 
 #[cfg(test)]
