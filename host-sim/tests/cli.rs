@@ -877,7 +877,7 @@ fn diagnose_reads_a_set_by_rows_beyond_its_budget_with_the_same_numbers() {
     let held = stdout_json(&dncal(&["diagnose", "lin.fits", "--json"], d));
     assert!(held.get("block_rows").is_none(), "{held}");
     assert!(!held["findings"].as_array().unwrap().is_empty(), "{held}");
-    // 64 x 64 pixels: 341 bytes each of state (1.3 MiB) and the illumination fit's sums
+    // 64 x 64 pixels: 469 bytes each of state (1.8 MiB) and the illumination fit's sums
     // (57.7 MiB at 41 levels) fit 60 MiB, with the set as f32 (41 levels x 2 cubes x 4
     // bytes, 1.3 MiB more) they do not; the blocks take what is left (a few rows each, by
     // the threads there are).

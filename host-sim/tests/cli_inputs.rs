@@ -221,12 +221,12 @@ fn sizes_over_the_memory_budget_are_refused_before_allocating() {
     assert_eq!((out.status.code(), stderr.lines().count()), (Some(1), 1));
     let out = dncal(&["linearity", "lin.fits", "--max-memory", "128K", "--json"], d);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    // diagnose: 341 bytes per pixel beyond the set, 42.6 KiB (spilling its records would
+    // diagnose: 469 bytes per pixel beyond the set, 58.6 KiB (spilling its records would
     // take more here: a block of each kind per thread), and the illumination fit's sums
     // and fields, 1.6 MiB (65 tasks' sums of 12 levels x 2 halves x 64 bins of 16 bytes,
     // and 16; 15 modes), refused before the set is read by rows.
     let out = dncal(&["diagnose", "lin.fits", "--max-memory", "40K"], d);
-    assert_error(&out, "lin.fits: diagnosing the linearity set of 16 x 8 pixels x 12 levels by rows (the per-pixel records 42.6 KiB + the illumination fit 1.6 MiB) needs about 1.7 MiB, more than the memory budget of 40.0 KiB (--max-memory)");
+    assert_error(&out, "lin.fits: diagnosing the linearity set of 16 x 8 pixels x 12 levels by rows (the per-pixel records 58.6 KiB + the illumination fit 1.6 MiB) needs about 1.7 MiB, more than the memory budget of 40.0 KiB (--max-memory)");
 
     // A camera config: 4096 x 4096 pixels of 17 bytes or more (gain, dark, state and the
     // nonlinearity terms) is more than 256 MiB.

@@ -347,7 +347,8 @@ pub struct DefectPixels {
     pub total: usize,
     /// The hot threshold above the dark median, DN.
     pub hot_threshold_dn: f64,
-    /// The high-PRNU threshold on the response's departure from its neighbourhood, DN.
+    /// The high-PRNU threshold on the response's departure from its neighbourhood, DN
+    /// (where there is a response pattern, DN of the mean cell's response).
     pub prnu_threshold_dn: f64,
     /// Positions `(row, column)` of the first 1000 defects, row-major.
     pub positions: Vec<(usize, usize)>,
