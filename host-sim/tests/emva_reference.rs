@@ -326,6 +326,17 @@ print(json.dumps([t for _, _, t in levels]))
     }
 }
 
+/// `(row, column)` pairs of a JSON array of them.
+fn positions(v: &Value) -> Vec<(usize, usize)> {
+    v.as_array().unwrap().iter().map(|p| (p[0].as_u64().unwrap() as usize, p[1].as_u64().unwrap() as usize)).collect()
+}
+
+/// The positions of the `kind` ("hot", "dead") pixels `emva_simulate.py` planted in `dir`.
+fn planted_at(dir: &Path, kind: &str) -> Vec<(usize, usize)> {
+    let truth: Value = serde_json::from_slice(&std::fs::read(dir.join("truth.json")).unwrap()).unwrap();
+    positions(&truth[kind]["positions_row_col"])
+}
+
 /// Defect pixels planted by the reference's simulator (hot: the reference's own
 /// `bad_pixel`, 300 e- of dark signal; dead: PRNU factor 0) are counted exactly by
 /// dncal's criteria, at their positions, border pixels included. A clean set has none.
@@ -337,10 +348,7 @@ fn defect_pixels_planted_by_the_reference_simulator_are_counted() {
         let dir = tmp.path().join(seed);
         let args = ["--bits", "12", "--seed", seed, "--exposure-fixed", "2000000", "--hot", &hot.to_string(), "--dead", &dead.to_string()];
         let descriptor = simulate(&py, &dir, &args);
-        let truth: Value = serde_json::from_slice(&std::fs::read(dir.join("truth.json")).unwrap()).unwrap();
-        let position = |p: &Value| (p[0].as_u64().unwrap() as usize, p[1].as_u64().unwrap() as usize);
-        let hot_at: Vec<(usize, usize)> = truth["hot"]["positions_row_col"].as_array().unwrap().iter().map(position).collect();
-        let dead_at: Vec<(usize, usize)> = truth["dead"]["positions_row_col"].as_array().unwrap().iter().map(position).collect();
+        let (hot_at, dead_at) = (planted_at(&dir, "hot"), planted_at(&dir, "dead"));
         let found = &dncal(&descriptor, &[])["defect_pixels"];
         eprintln!("seed {seed}: planted hot {hot}, dead {dead}: found {found}");
         assert_eq!(found["hot"].as_u64().unwrap() as usize, hot_at.len());
@@ -349,7 +357,7 @@ fn defect_pixels_planted_by_the_reference_simulator_are_counted() {
         let mut planted: Vec<(usize, usize)> = hot_at.iter().chain(dead_at.iter()).copied().collect();
         planted.sort_unstable();
         planted.dedup();
-        let listed: Vec<(usize, usize)> = found["positions"].as_array().unwrap().iter().map(position).collect();
+        let listed = positions(&found["positions"]);
         assert_eq!(listed, planted);
     }
 }
@@ -370,15 +378,13 @@ fn a_colour_filters_channels_are_not_defects() {
         let dir = tmp.path().join(seed);
         let args = ["--bits", "12", "--seed", seed, "--cfa", "1.23,0.99,0.55,1.23", "--hot", &hot.to_string(), "--dead", &dead.to_string()];
         let descriptor = simulate(&py, &dir, &args);
-        let truth: Value = serde_json::from_slice(&std::fs::read(dir.join("truth.json")).unwrap()).unwrap();
-        let position = |p: &Value| (p[0].as_u64().unwrap() as usize, p[1].as_u64().unwrap() as usize);
-        let mut planted: Vec<(usize, usize)> = ["hot", "dead"].iter().flat_map(|k| truth[*k]["positions_row_col"].as_array().unwrap().iter().map(position).collect::<Vec<_>>()).collect();
+        let mut planted: Vec<(usize, usize)> = ["hot", "dead"].iter().flat_map(|k| planted_at(&dir, k)).collect();
         planted.sort_unstable();
         planted.dedup();
         let found = &dncal(&descriptor, &[])["defect_pixels"];
         eprintln!("seed {seed}: planted hot {hot}, dead {dead}: found {found}");
         assert_eq!((found["hot"].as_u64(), found["dead"].as_u64(), found["high_prnu"].as_u64()), (Some(hot as u64), Some(dead as u64), Some(0)));
-        let listed: Vec<(usize, usize)> = found["positions"].as_array().unwrap().iter().map(position).collect();
+        let listed = positions(&found["positions"]);
         assert_eq!(listed, planted);
         assert_eq!(found["cells"]["period"].as_u64(), Some(2));
         // (The planted cells' mean is 1.)
