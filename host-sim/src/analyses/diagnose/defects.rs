@@ -13,6 +13,7 @@
 //! standard deviations), over all pixels and over those the first half did not flag.
 
 use super::*;
+use crate::analyses::emva::cells::CellPattern;
 use crate::analyses::emva::spatial::{defect_map, spatial_levels, SpatialSeries, DEAD, HIGH_PRNU, HOT};
 use crate::analyses::emva::{EmvaSet, Release};
 use crate::HostError;
@@ -27,8 +28,10 @@ pub enum DefectOutcome {
     /// flagged alike (row-major; the photon transfer is then taken without them, as the
     /// standard leaves defect pixels out of what it reports).
     Tested {
-        /// The `bad-pixels` finding, when significant.
-        finding: Option<Finding>,
+        /// The `cfa-pattern` finding, where both halves find the same response pattern
+        /// ([`pattern_finding`]: the pixels were held against their own cells), then the
+        /// `bad-pixels` finding, when significant.
+        findings: Vec<Finding>,
         /// The confirmed defect pixels, row-major; empty when none.
         defects: Vec<bool>,
     },
@@ -54,11 +57,12 @@ pub fn diagnose_defects(set: &EmvaSet) -> Result<DefectOutcome, HostError> {
         Ok(defect_map(&b, &d, cb.stack_var_dn2, cd.stack_var_dn2))
     };
     let (a, b) = (map(0..half)?, map(half..2 * half)?);
+    let pattern = pattern_finding(a.cells.as_ref(), b.cells.as_ref(), half);
     let n = a.kind.len() as f64;
     let confirmed: Vec<u8> = a.kind.iter().zip(&b.kind).map(|(x, y)| x & y).collect();
     let count = confirmed.iter().filter(|&&k| k != 0).count();
     if count == 0 {
-        return Ok(DefectOutcome::Tested { finding: None, defects: Vec::new() });
+        return Ok(DefectOutcome::Tested { findings: pattern.into_iter().collect(), defects: Vec::new() });
     }
     let by = |bit: u8| confirmed.iter().filter(|&&k| k & bit != 0).count();
     let (na, nb) = (a.kind.iter().filter(|&&k| k != 0).count() as f64, b.kind.iter().filter(|&&k| k != 0).count() as f64);
@@ -71,7 +75,7 @@ pub fn diagnose_defects(set: &EmvaSet) -> Result<DefectOutcome, HostError> {
     let before = mean_sq(&|_| true);
     let after = mean_sq(&|i| a.kind[i] == 0);
     if significance <= SIGNIFICANCE {
-        return Ok(DefectOutcome::Tested { finding: None, defects: Vec::new() });
+        return Ok(DefectOutcome::Tested { findings: pattern.into_iter().collect(), defects: Vec::new() });
     }
     let defects = confirmed.iter().map(|&k| k != 0).collect();
     let finding = Some(Finding {
@@ -94,7 +98,63 @@ pub fn diagnose_defects(set: &EmvaSet) -> Result<DefectOutcome, HostError> {
         ),
         residuals: None,
     });
-    Ok(DefectOutcome::Tested { finding, defects })
+    Ok(DefectOutcome::Tested { findings: pattern.into_iter().chain(finding).collect(), defects })
+}
+
+/// The `cfa-pattern` finding of an EMVA set, held out by halves of its spatial series:
+/// named where both halves' averaged responses have a pattern ([`CellPattern`]: each a
+/// cell 2% and 5 standard errors off the cells' mean) of the same period. Significance:
+/// the smaller of the two halves' largest cell departure in its standard errors; the
+/// test's RMS: the second half's cells off the flat response (before) and off the first
+/// half's cells (after), in their standard errors. The channels' own datasheets (gain,
+/// quantum efficiency, PRNU within each) are the datasheet's (`emva::channels`).
+pub fn pattern_finding(a: Option<&CellPattern>, b: Option<&CellPattern>, half: usize) -> Option<Finding> {
+    let (a, b) = (a?, b?);
+    if a.period != b.period || !interacts(a) || !interacts(b) {
+        return None;
+    }
+    let z = |c: &CellPattern| c.response.iter().zip(&c.se).map(|(r, se)| (r - 1.0).abs() / se.max(1e-300)).fold(0.0, f64::max);
+    let rms = |v: Vec<f64>| (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
+    let before = rms(b.response.iter().zip(&b.se).map(|(r, se)| (r - 1.0) / se.max(1e-300)).collect());
+    let after = rms(b.response.iter().zip(&a.response).zip(a.se.iter().zip(&b.se)).map(|((rb, ra), (sa, sb))| (rb - ra) / sa.hypot(*sb).max(1e-300)).collect());
+    let p = a.period;
+    let cells: Vec<String> = b.response.iter().enumerate().map(|(c, r)| format!("({}, {}) {r:.3}", c / p, c % p)).collect();
+    Some(Finding {
+        effect: Effect::CfaPattern,
+        adc: None,
+        count: None,
+        sigma_dn: None,
+        significance: z(a).min(z(b)),
+        rms_before: before,
+        rms_after: after,
+        gain: before / after.max(1e-300),
+        all_data_rms_after: None,
+        detail: format!(
+            "a {p} x {p} pattern of response in rows and columns together (a colour filter array), found alike on both halves of the spatial series ({half} + {half} frames): cells (row, column mod {p}) {} of their mean (second half). Each pixel's defect test is against its own cell's population, and each channel gets a datasheet of its own pixels (EMVA 1288 takes a colour camera's channels apart)",
+            cells.join(", ")
+        ),
+        residuals: None,
+    })
+}
+
+/// Whether a pattern is of rows and columns together, as a colour filter's is: some
+/// cell's interaction (its response's logarithm less its row's and its column's means,
+/// plus the grand mean) departs by more than 2% and 5 of its standard errors. A pattern
+/// of columns alone is interleaved column ADCs' gains (of rows alone, a two-sided
+/// readout's), not a colour filter: the channels' datasheets still give each its own.
+fn interacts(c: &CellPattern) -> bool {
+    let p = c.period;
+    let log: Vec<f64> = c.response.iter().map(|r| r.max(1e-300).ln()).collect();
+    let mean = |f: &dyn Fn(usize) -> bool| {
+        let v: Vec<f64> = (0..p * p).filter(|&k| f(k)).map(|k| log[k]).collect();
+        v.iter().sum::<f64>() / v.len().max(1) as f64
+    };
+    let grand = mean(&|_| true);
+    (0..p * p).any(|k| {
+        let (i, j) = (k / p, k % p);
+        let interaction = log[k] - mean(&|m| m / p == i) - mean(&|m| m % p == j) + grand;
+        interaction.abs() > 0.02_f64.max(5.0 * c.se[k] / c.response[k].max(1e-300))
+    })
 }
 
 /// `P(X >= count)` for `X` Poisson of mean `chance`, as a one-sided normal deviate
@@ -114,6 +174,20 @@ fn chance_sigma(count: usize, chance: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A Bayer filter's cells interact (rows and columns together); four column ADCs'
+    /// gains, read at period 4, and rows apart do not.
+    #[test]
+    fn a_colour_filter_interacts_and_column_gains_do_not() {
+        let pattern = |period: usize, response: Vec<f64>| CellPattern { period, se: vec![0.001; response.len()], response };
+        assert!(interacts(&pattern(2, vec![1.23, 0.99, 0.55, 1.23])));
+        let adcs: Vec<f64> = (0..16).map(|k| [1.0, 1.03, 0.98, 0.99][k % 4]).collect();
+        assert!(!interacts(&pattern(4, adcs)));
+        assert!(!interacts(&pattern(2, vec![1.1, 1.1, 0.9, 0.9])));
+        // (Beyond 5 standard errors only.)
+        assert!(!interacts(&CellPattern { period: 2, response: vec![1.03, 0.97, 0.97, 1.03], se: vec![0.01; 4] }));
+        assert!(interacts(&pattern(2, vec![1.03, 0.97, 0.97, 1.03])));
+    }
 
     /// Against hand values: P(X >= 3 | 0.01) = 1.65e-7 (5.10 sigma); P(X >= 1 | 1) =
     /// 1 - e^-1 = 0.632 (-0.34 sigma).

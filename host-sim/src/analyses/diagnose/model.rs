@@ -164,11 +164,23 @@ pub fn ptc_model(set: &crate::analyses::emva::EmvaSet, sheet: &crate::analyses::
         offset_dn: Some(dark_dn),
         full_scale_dn: Some(summary.saturation_dn),
         saturated: summary.saturation_reached,
-        prnu_rms: sheet.spatial.prnu_pct.map(|p| p / 100.0),
-        dsnu_dn: sheet.spatial.dsnu_dn,
+        prnu_rms: sheet.spatial.nonuniformity.prnu_pct.map(|p| p / 100.0),
+        dsnu_dn: sheet.spatial.nonuniformity.dsnu_dn,
         bad_fraction: d.findings.iter().find(|f| f.effect == Effect::BadPixels).and_then(|f| f.count).map(|n| n as f64 / (set.width * set.height).max(1) as f64),
         ..Default::default()
     };
+    // A colour filter named: its cells, and the PRNU within a channel (the rms of the
+    // channels' own), not the whole image's, which holds the pattern.
+    let cells = sheet.spatial.defect_pixels.as_ref().and_then(|p| p.cells.as_ref());
+    if let (Some(f), Some(cells), Some(channels)) = (d.findings.iter_mut().find(|f| f.effect == Effect::CfaPattern), cells, &sheet.spatial.channels) {
+        f.detail += &format!("; per channel (row, column), each on its own pixels: {}", crate::analyses::emva::channels::describe(channels));
+        let within: Vec<f64> = channels.iter().map(|c| c.nonuniformity.prnu_pct.map_or(f64::NAN, |p| p / 100.0)).collect();
+        let finite: Vec<f64> = within.iter().copied().filter(|v| v.is_finite()).collect();
+        if !finite.is_empty() {
+            d.measured.prnu_rms = Some((finite.iter().map(|v| v * v).sum::<f64>() / finite.len() as f64).sqrt());
+        }
+        d.measured.cfa = Some(crate::analyses::diagnose::channels::CfaResponse { period: cells.period, response: cells.response.clone(), prnu_within: within, bayer: None });
+    }
     apply_measured(c, d)
 }
 

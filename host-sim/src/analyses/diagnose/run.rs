@@ -312,11 +312,11 @@ pub fn diagnose_as(read_from: &Path, input: &Path, params: &DiagnoseParams, mut 
         // every later step is taken without them (a hot pixel that saturates at the bright
         // levels moved the level means by 40 pixels' share and read as a 1.5 DN bend,
         // `global-nonlinearity` at 75 sigma).
-        let (defect_finding, defects) = match crate::analyses::diagnose::diagnose_defects(&set)? {
-            crate::analyses::diagnose::DefectOutcome::Tested { finding, defects } => (finding, defects),
+        let (defect_findings, defects) = match crate::analyses::diagnose::diagnose_defects(&set)? {
+            crate::analyses::diagnose::DefectOutcome::Tested { findings, defects } => (findings, defects),
             crate::analyses::diagnose::DefectOutcome::NotTested(why) => {
                 not_tested.push(why);
-                (None, Vec::new())
+                (Vec::new(), Vec::new())
             }
         };
         // An ADC with named code widths has integral nonlinearity too (its cumulative code
@@ -337,7 +337,7 @@ pub fn diagnose_as(read_from: &Path, input: &Path, params: &DiagnoseParams, mut 
             d.baseline.model += &format!("; the {n_defects} defect pixels left out");
         }
         d.findings.extend(code_findings);
-        d.findings.extend(defect_finding);
+        d.findings.extend(defect_findings);
         d.not_tested.extend(not_tested);
         if let Some((density, residuals)) = code_density {
             d.code_density = Some(density);

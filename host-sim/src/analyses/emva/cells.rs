@@ -57,6 +57,8 @@ pub struct CellPattern {
     /// Per cell `(row mod period) * period + column mod period`: its median response over
     /// the mean of the cells' medians.
     pub response: Vec<f64>,
+    /// Per cell, the standard error of its response (relative to the cells' mean).
+    pub se: Vec<f64>,
 }
 
 impl CellPattern {
@@ -86,8 +88,7 @@ impl CellPattern {
         }
         let found = periods.iter().find_map(|&p| {
             let t = table(response, cols, p)?;
-            let cells: Vec<f64> = t.iter().map(|c| c.0).collect();
-            let pattern = CellPattern { period: p, response: cells };
+            let pattern = CellPattern { period: p, response: t.iter().map(|c| c.0).collect(), se: t.iter().map(|c| c.1).collect() };
             let flat: Vec<f64> = response.iter().enumerate().map(|(i, v)| v / pattern.at(i / cols, i % cols)).collect();
             (p == longest || table(&flat, cols, longest).is_some_and(|rest| !departs(&rest, EXPLAINED))).then_some(pattern)
         })?;

@@ -186,15 +186,15 @@ fn page_html(descriptor: &Path, sheet: &Datasheet, figures: &[PathBuf]) -> Strin
     html += &row(sheet, "Dark current (mean)", "dark_current_mean_e_per_s", t.dark_current_mean_e_per_s, "e-/s", 2);
     html += &row(sheet, "Dark current (variance)", "dark_current_var_e_per_s", t.dark_current_var_e_per_s, "e-/s", 2);
     html += "</table><h2>Spatial</h2><table><tr><th>quantity</th><th>value</th><th>JSON key</th></tr>\n";
-    html += &row(sheet, "DSNU", "dsnu_dn", s.dsnu_dn, "DN", 3);
-    html += &row(sheet, "DSNU", "dsnu_e", s.dsnu_e, "e-", 2);
-    html += &row(sheet, "DSNU row / column / pixel", "dsnu_row_e", s.dsnu_row_e, "e-", 2);
-    html += &row(sheet, "", "dsnu_col_e", s.dsnu_col_e, "e-", 2);
-    html += &row(sheet, "", "dsnu_pixel_e", s.dsnu_pixel_e, "e-", 2);
-    html += &row(sheet, "PRNU", "prnu_pct", s.prnu_pct, "%", 3);
-    html += &row(sheet, "PRNU row / column / pixel", "prnu_row_pct", s.prnu_row_pct, "%", 3);
-    html += &row(sheet, "", "prnu_col_pct", s.prnu_col_pct, "%", 3);
-    html += &row(sheet, "", "prnu_pixel_pct", s.prnu_pixel_pct, "%", 3);
+    html += &row(sheet, "DSNU", "dsnu_dn", s.nonuniformity.dsnu_dn, "DN", 3);
+    html += &row(sheet, "DSNU", "dsnu_e", s.nonuniformity.dsnu_e, "e-", 2);
+    html += &row(sheet, "DSNU row / column / pixel", "dsnu_row_e", s.nonuniformity.dsnu_row_e, "e-", 2);
+    html += &row(sheet, "", "dsnu_col_e", s.nonuniformity.dsnu_col_e, "e-", 2);
+    html += &row(sheet, "", "dsnu_pixel_e", s.nonuniformity.dsnu_pixel_e, "e-", 2);
+    html += &row(sheet, "PRNU", "prnu_pct", s.nonuniformity.prnu_pct, "%", 3);
+    html += &row(sheet, "PRNU row / column / pixel", "prnu_row_pct", s.nonuniformity.prnu_row_pct, "%", 3);
+    html += &row(sheet, "", "prnu_col_pct", s.nonuniformity.prnu_col_pct, "%", 3);
+    html += &row(sheet, "", "prnu_pixel_pct", s.nonuniformity.prnu_pixel_pct, "%", 3);
     html += "</table>";
     match &s.defect_pixels {
         Some(d) => {
@@ -204,6 +204,27 @@ fn page_html(descriptor: &Path, sheet: &Datasheet, figures: &[PathBuf]) -> Strin
             );
         }
         None => html += &format!("<h2>Defect pixels</h2><p>{}</p>", esc(sheet.why("defect_pixels"))),
+    }
+    if let Some(channels) = &s.channels {
+        html += "<h2>Channels</h2><p>Each cell of the response pattern characterized on its own pixels, as EMVA 1288 takes a colour camera's channels apart (JSON: <code>channels</code>, the whole datasheet's keys for each).</p>\
+                 <table><tr><th>cell (row, column)</th><th>response</th><th>K (DN/e-)</th><th>QE (%)</th><th>dark noise (e-)</th><th>saturation capacity (e-)</th><th>DSNU (e-)</th><th>PRNU (%)</th></tr>\n";
+        for c in channels {
+            let t = c.temporal.as_ref();
+            let cell = |v: Option<f64>, digits: usize| v.map_or("-".to_string(), |v| format!("{v:.digits$}"));
+            html += &format!(
+                "<tr><td>({}, {})</td><td>{:.3}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>\n",
+                c.row,
+                c.column,
+                c.response,
+                cell(t.map(|t| t.gain_dn_per_e), 4),
+                cell(t.map(|t| 100.0 * t.quantum_efficiency), 2),
+                cell(t.and_then(|t| t.dark_noise_e), 2),
+                cell(t.and_then(|t| t.saturation_capacity_e), 0),
+                cell(c.nonuniformity.dsnu_e, 2),
+                cell(c.nonuniformity.prnu_pct, 3)
+            );
+        }
+        html += "</table>";
     }
     for (file, caption) in [
         ("photon_transfer.png", "Photon transfer"),

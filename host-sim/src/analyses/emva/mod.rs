@@ -7,10 +7,12 @@
 //!   sensitivity threshold, dynamic range, linearity, dark current);
 //! - [`spatial`]: DSNU and PRNU with their row, column and pixel parts, spectrograms,
 //!   histograms and defect pixels from the many-frame series;
+//! - [`channels`]: a colour camera's channels, each characterized on its own pixels;
 //! - [`sheet`]: the whole datasheet of a set; [`html`]: it as a folder with the plots;
 //! - [`fit`]: the standard's three straight-line fits.
 
 pub mod cells;
+pub mod channels;
 pub mod datasheet;
 pub mod descriptor;
 pub mod fit;

@@ -131,20 +131,45 @@ fn datasheet_text(set: &Header, s: &Datasheet) -> String {
         value("linearity_error_pct", t.linearity_error_pct, " %", 3),
         value("dark_current_mean_e_per_s", t.dark_current_mean_e_per_s, " e-/s", 2),
         value("dark_current_var_e_per_s", t.dark_current_var_e_per_s, " e-/s", 2),
-        value("dsnu_dn", sp.dsnu_dn, " DN", 3),
-        value("dsnu_e", sp.dsnu_e, " e-", 2),
-        value("dsnu_row_e", sp.dsnu_row_e, " e-", 2),
-        value("dsnu_col_e", sp.dsnu_col_e, " e-", 2),
-        value("dsnu_pixel_e", sp.dsnu_pixel_e, " e-", 2),
-        value("prnu_pct", sp.prnu_pct, " %", 3),
-        value("prnu_row_pct", sp.prnu_row_pct, " %", 3),
-        value("prnu_col_pct", sp.prnu_col_pct, " %", 3),
-        value("prnu_pixel_pct", sp.prnu_pixel_pct, " %", 3),
+        value("dsnu_dn", sp.nonuniformity.dsnu_dn, " DN", 3),
+        value("dsnu_e", sp.nonuniformity.dsnu_e, " e-", 2),
+        value("dsnu_row_e", sp.nonuniformity.dsnu_row_e, " e-", 2),
+        value("dsnu_col_e", sp.nonuniformity.dsnu_col_e, " e-", 2),
+        value("dsnu_pixel_e", sp.nonuniformity.dsnu_pixel_e, " e-", 2),
+        value("prnu_pct", sp.nonuniformity.prnu_pct, " %", 3),
+        value("prnu_row_pct", sp.nonuniformity.prnu_row_pct, " %", 3),
+        value("prnu_col_pct", sp.nonuniformity.prnu_col_pct, " %", 3),
+        value("prnu_pixel_pct", sp.nonuniformity.prnu_pixel_pct, " %", 3),
     );
     out += &match &sp.defect_pixels {
         Some(d) => format!("defect pixels            hot {}, dead {}, high PRNU {} ({} in all; dncal's criteria, docs/emva.md{})\n", d.hot, d.dead, d.high_prnu, d.total, d.against()),
         None => format!("defect pixels            - ({})\n", s.why("defect_pixels")),
     };
+    if let Some(channels) = &sp.channels {
+        out += &format!("channels                 {} of a response pattern, each on its own pixels (EMVA 1288 takes a colour camera's channels apart):\n", channels.len());
+        for c in channels {
+            let or_why = |key: &str, v: Option<f64>, unit: &str, digits: usize| match (v, &c.temporal) {
+                (Some(v), _) => format!("{v:.digits$}{unit}"),
+                (None, Some(t)) => format!("- ({})", t.why.get(key).map_or("not measured", String::as_str)),
+                (None, None) => "-".to_string(),
+            };
+            let t = c.temporal.as_ref();
+            out += &format!(
+                "  ({}, {}) response {:.3}, {} px: K {}, QE {}, dark noise {}, saturation capacity {}, DSNU {}, PRNU {}{}\n",
+                c.row,
+                c.column,
+                c.response,
+                c.pixels,
+                or_why("gain_dn_per_e", t.map(|t| t.gain_dn_per_e), " DN/e-", 4),
+                or_why("quantum_efficiency", t.map(|t| 100.0 * t.quantum_efficiency), " %", 1),
+                or_why("dark_noise_e", t.and_then(|t| t.dark_noise_e), " e-", 2),
+                or_why("saturation_capacity_e", t.and_then(|t| t.saturation_capacity_e), " e-", 0),
+                or_why("dsnu_e", c.nonuniformity.dsnu_e, " e-", 2),
+                or_why("prnu_pct", c.nonuniformity.prnu_pct, " %", 3),
+                c.refused.as_ref().map_or(String::new(), |r| format!(" (no photon transfer: {r})")),
+            );
+        }
+    }
     out
 }
 

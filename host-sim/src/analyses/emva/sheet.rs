@@ -6,7 +6,8 @@ use serde::Serialize;
 
 use super::datasheet::{PtcSummary, Release};
 use super::highpass;
-use super::spatial::{accumulated_percent, defect_pixels, high_pass_5x5, histogram, spatial_pair, spectrogram, Components, DefectPixels, Histogram};
+use super::spatial::{accumulated_percent, defect_pixels, high_pass_5x5, histogram, spatial_pair, spectrogram, Components, DefectPixels, Histogram, Nonuniformity, NONUNIFORMITY_KEYS};
+use super::channels::{channels, Channel};
 use super::{photon_transfer, EmvaSet, PtcPoint};
 use crate::HostError;
 
@@ -53,24 +54,9 @@ pub struct SpatialSummary {
     pub spatial_frames: Option<(usize, usize)>,
     /// Photons per pixel of the bright spatial series.
     pub spatial_photons: Option<f64>,
-    /// DSNU, DN.
-    pub dsnu_dn: Option<f64>,
-    /// DSNU, e-.
-    pub dsnu_e: Option<f64>,
-    /// Row part of the DSNU, e-.
-    pub dsnu_row_e: Option<f64>,
-    /// Column part, e-.
-    pub dsnu_col_e: Option<f64>,
-    /// Pixel part, e-.
-    pub dsnu_pixel_e: Option<f64>,
-    /// PRNU, %.
-    pub prnu_pct: Option<f64>,
-    /// Row part of the PRNU, %.
-    pub prnu_row_pct: Option<f64>,
-    /// Column part, %.
-    pub prnu_col_pct: Option<f64>,
-    /// Pixel part, %.
-    pub prnu_pixel_pct: Option<f64>,
+    /// DSNU and PRNU with their parts.
+    #[serde(flatten)]
+    pub nonuniformity: Nonuniformity,
     /// The variance components of the bright and dark series.
     pub components: Option<(Components, Components)>,
     /// Spectrograms.
@@ -79,6 +65,11 @@ pub struct SpatialSummary {
     pub histograms: Option<DefectHistograms>,
     /// Defect-pixel counts (dncal's criteria: [`DefectPixels`]).
     pub defect_pixels: Option<DefectPixels>,
+    /// Where the response has a pattern periodic in rows and columns
+    /// ([`DefectPixels::cells`]: a colour filter's channels), each cell's datasheet of
+    /// its own pixels ([`super::channels`]); absent without one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub channels: Option<Vec<Channel>>,
 }
 
 /// The datasheet of a set.
@@ -98,20 +89,6 @@ impl Datasheet {
     /// Why the value under `key` is missing (`not measured` where no reason was given).
     pub fn why(&self, key: &str) -> &str {
         self.temporal.why.get(key).map_or("not measured", String::as_str)
-    }
-}
-
-/// `sqrt(variance) / scale` when the variance is positive; else `None` with the reason
-/// under `key`.
-fn root(why: &mut std::collections::BTreeMap<String, String>, key: &str, variance: f64, scale: f64, what: &str) -> Option<f64> {
-    if variance.is_finite() && variance >= 0.0 && scale.is_finite() && scale > 0.0 {
-        Some(variance.sqrt() / scale)
-    } else if variance.is_nan() {
-        why.insert(key.into(), "the row, column and pixel split needs at least 2 rows and 2 columns with MN > M + N".into());
-        None
-    } else {
-        why.insert(key.into(), format!("{what} variance {variance:.4e} DN^2 is negative: below what the spatial series resolves"));
-        None
     }
 }
 
@@ -175,7 +152,7 @@ pub fn datasheet_of(set: &EmvaSet, points: &[PtcPoint], release: Option<Release>
     let k = temporal.gain_dn_per_e;
     let mut s = SpatialSummary::default();
     let Some((bright, dark)) = pair else {
-        for key in ["dsnu_dn", "dsnu_e", "dsnu_row_e", "dsnu_col_e", "dsnu_pixel_e", "prnu_pct", "prnu_row_pct", "prnu_col_pct", "prnu_pixel_pct", "defect_pixels"] {
+        for key in NONUNIFORMITY_KEYS.into_iter().chain(["defect_pixels"]) {
             why.insert(key.into(), "no spatial series (a bright and a dark level of more than two frames)".into());
         }
         return Ok(Datasheet { version: set.version.clone(), temporal, spatial: s });
@@ -187,30 +164,19 @@ pub fn datasheet_of(set: &EmvaSet, points: &[PtcPoint], release: Option<Release>
     let (rows, cols) = (bright.rows, bright.cols);
     let filtered = release == Release::R4;
     if filtered && !highpass::fits(rows, cols) {
-        for key in ["dsnu_dn", "dsnu_e", "dsnu_row_e", "dsnu_col_e", "dsnu_pixel_e", "prnu_pct", "prnu_row_pct", "prnu_col_pct", "prnu_pixel_pct"] {
-            why.insert(key.into(), format!("Release 4.0 high-pass filters the nonuniformity images over 19 x 19 pixels: a {rows} x {cols} image is too small (at least 20 x 20)"));
+        for key in NONUNIFORMITY_KEYS {
+            why.insert(key.into(), super::channels::too_small_to_filter(rows, cols));
         }
         s.defect_pixels = Some(defect_pixels(&bright, &dark, b.stack_var_dn2, d.stack_var_dn2));
         return Ok(Datasheet { version: set.version.clone(), temporal, spatial: s });
     }
-    s.dsnu_dn = root(why, "dsnu_dn", d.total_dn2, 1.0, "the dark spatial");
-    s.dsnu_e = root(why, "dsnu_e", d.total_dn2, k, "the dark spatial");
-    s.dsnu_row_e = root(why, "dsnu_row_e", d.row_dn2, k, "the dark row");
-    s.dsnu_col_e = root(why, "dsnu_col_e", d.col_dn2, k, "the dark column");
-    s.dsnu_pixel_e = root(why, "dsnu_pixel_e", d.pixel_dn2, k, "the dark pixel");
-    if signal > 0.0 {
-        let pct = signal / 100.0;
-        s.prnu_pct = root(why, "prnu_pct", b.total_dn2 - d.total_dn2, pct, "the bright minus dark spatial");
-        s.prnu_row_pct = root(why, "prnu_row_pct", b.row_dn2 - d.row_dn2, pct, "the bright minus dark row");
-        s.prnu_col_pct = root(why, "prnu_col_pct", b.col_dn2 - d.col_dn2, pct, "the bright minus dark column");
-        s.prnu_pixel_pct = root(why, "prnu_pixel_pct", b.pixel_dn2 - d.pixel_dn2, pct, "the bright minus dark pixel");
-    } else {
-        for key in ["prnu_pct", "prnu_row_pct", "prnu_col_pct", "prnu_pixel_pct"] {
-            why.insert(key.into(), format!("the bright spatial series is {signal:.3} DN above dark: no photo response to compare"));
-        }
-    }
+    s.nonuniformity = Nonuniformity::of(why, &b, &d, k);
     s.components = Some((b, d));
-    s.defect_pixels = Some(defect_pixels(&bright, &dark, b.stack_var_dn2, d.stack_var_dn2));
+    let defects = defect_pixels(&bright, &dark, b.stack_var_dn2, d.stack_var_dn2);
+    if let Some(cells) = &defects.cells {
+        s.channels = Some(channels(set, &bright, &dark, cells, release)?);
+    }
+    s.defect_pixels = Some(defects);
 
     let (lb, ld) = (bright.frames as f64, dark.frames as f64);
     // Release 4.0: spectrograms and histograms of the filtered images (section 8.1), in

@@ -124,6 +124,20 @@ impl SpatialSeries {
         })
     }
 
+    /// The sub-series of one cell of a pattern of `period` pixels in rows and columns:
+    /// the pixels at rows `row, row + period, ...` and columns `column, column + period,
+    /// ...` as an image of their own (a colour filter's channel, as EMVA 1288 takes a
+    /// colour camera's channels apart). `None` where the cell holds no pixel.
+    pub fn cell(&self, row: usize, column: usize, period: usize) -> Option<SpatialSeries> {
+        let p = period.max(1);
+        let (rows, cols) = (self.rows.saturating_sub(row).div_ceil(p), self.cols.saturating_sub(column).div_ceil(p));
+        if rows == 0 || cols == 0 {
+            return None;
+        }
+        let pick = |v: &[i64]| -> Vec<i64> { (0..rows).flat_map(|r| (0..cols).map(move |c| (row + r * p) * self.cols + column + c * p)).map(|i| v[i]).collect() };
+        Some(SpatialSeries { rows, cols, sum: pick(&self.sum), sum_sq: pick(&self.sum_sq), ..*self })
+    }
+
     /// The variance components (module documentation). Release 4.0 takes the spatial
     /// variance over `MN` instead of `MN - 1` (eq. 35), and all of them from the averaged
     /// image high-pass filtered ([`super::highpass`], section 8.1), with the temporal
@@ -177,6 +191,75 @@ fn variance_parts(image: &[f64], rows: usize, cols: usize, dof: f64, temporal: f
     // The split needs M, N >= 2 and MN > M + N; a 2 x 2 or one-line image has none.
     let d = if rows_cols_ok(rows, cols) { m * n - m - n } else { f64::NAN };
     [total, (m * n - n) / d * rav - m / d * (total - cav), (m * n - m) / d * cav - n / d * (total - rav), m * n / d * (total - cav - rav)]
+}
+
+/// DSNU and PRNU with their row, column and pixel parts (module documentation);
+/// a value that is missing has its reason in the datasheet's `why` under its key.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct Nonuniformity {
+    /// DSNU, DN.
+    pub dsnu_dn: Option<f64>,
+    /// DSNU, e-.
+    pub dsnu_e: Option<f64>,
+    /// Row part of the DSNU, e-.
+    pub dsnu_row_e: Option<f64>,
+    /// Column part, e-.
+    pub dsnu_col_e: Option<f64>,
+    /// Pixel part, e-.
+    pub dsnu_pixel_e: Option<f64>,
+    /// PRNU, %.
+    pub prnu_pct: Option<f64>,
+    /// Row part of the PRNU, %.
+    pub prnu_row_pct: Option<f64>,
+    /// Column part, %.
+    pub prnu_col_pct: Option<f64>,
+    /// Pixel part, %.
+    pub prnu_pixel_pct: Option<f64>,
+}
+
+/// Every key of [`Nonuniformity`].
+pub const NONUNIFORMITY_KEYS: [&str; 9] = ["dsnu_dn", "dsnu_e", "dsnu_row_e", "dsnu_col_e", "dsnu_pixel_e", "prnu_pct", "prnu_row_pct", "prnu_col_pct", "prnu_pixel_pct"];
+
+impl Nonuniformity {
+    /// The DSNU and PRNU of a bright and a dark series' components at gain `k` (DN/e-),
+    /// the reason for each missing one recorded in `why`.
+    pub fn of(why: &mut std::collections::BTreeMap<String, String>, b: &Components, d: &Components, k: f64) -> Nonuniformity {
+        let signal = b.mean_dn - d.mean_dn;
+        let mut n = Nonuniformity {
+            dsnu_dn: root(why, "dsnu_dn", d.total_dn2, 1.0, "the dark spatial"),
+            dsnu_e: root(why, "dsnu_e", d.total_dn2, k, "the dark spatial"),
+            dsnu_row_e: root(why, "dsnu_row_e", d.row_dn2, k, "the dark row"),
+            dsnu_col_e: root(why, "dsnu_col_e", d.col_dn2, k, "the dark column"),
+            dsnu_pixel_e: root(why, "dsnu_pixel_e", d.pixel_dn2, k, "the dark pixel"),
+            ..Nonuniformity::default()
+        };
+        if signal > 0.0 {
+            let pct = signal / 100.0;
+            n.prnu_pct = root(why, "prnu_pct", b.total_dn2 - d.total_dn2, pct, "the bright minus dark spatial");
+            n.prnu_row_pct = root(why, "prnu_row_pct", b.row_dn2 - d.row_dn2, pct, "the bright minus dark row");
+            n.prnu_col_pct = root(why, "prnu_col_pct", b.col_dn2 - d.col_dn2, pct, "the bright minus dark column");
+            n.prnu_pixel_pct = root(why, "prnu_pixel_pct", b.pixel_dn2 - d.pixel_dn2, pct, "the bright minus dark pixel");
+        } else {
+            for key in ["prnu_pct", "prnu_row_pct", "prnu_col_pct", "prnu_pixel_pct"] {
+                why.insert(key.into(), format!("the bright spatial series is {signal:.3} DN above dark: no photo response to compare"));
+            }
+        }
+        n
+    }
+}
+
+/// `sqrt(variance) / scale` when the variance is positive; else `None` with the reason
+/// under `key`.
+fn root(why: &mut std::collections::BTreeMap<String, String>, key: &str, variance: f64, scale: f64, what: &str) -> Option<f64> {
+    if variance.is_finite() && variance >= 0.0 && scale.is_finite() && scale > 0.0 {
+        Some(variance.sqrt() / scale)
+    } else if variance.is_nan() {
+        why.insert(key.into(), "the row, column and pixel split needs at least 2 rows and 2 columns with MN > M + N".into());
+        None
+    } else {
+        why.insert(key.into(), format!("{what} variance {variance:.4e} DN^2 is negative: below what the spatial series resolves"));
+        None
+    }
 }
 
 /// Whether a `rows x cols` image can be split into row, column and pixel parts: at least

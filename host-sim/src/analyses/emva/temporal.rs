@@ -73,39 +73,64 @@ struct PairStatistics {
 /// `columns`, if given, selects the pixels used: one flag per column of a row (the images
 /// are rows of `columns.len()` pixels), or one per pixel (its length the image's).
 fn pair_statistics(a: &[u16], b: &[u16], top: u16, columns: Option<&[bool]>) -> PairStatistics {
-    let len = a.len().min(b.len());
-    let used = |i: &usize| columns.is_none_or(|c| c[i % c.len()]);
-    let n = match columns {
-        None => len,
-        Some([]) => 0,
-        Some(_) => (0..len).filter(used).count(),
-    } as i128;
-    if n == 0 {
-        return PairStatistics { mean: f64::NAN, var: f64::NAN, diff: f64::NAN, top_fraction: f64::NAN };
-    }
-    let (mut sum, mut diff, mut diff2, mut at_top) = (0i128, 0i128, 0i128, 0u64);
-    for (_, (&x, &y)) in a.iter().zip(b).enumerate().filter(|(i, _)| used(i)) {
+    let used = |i: usize| columns.is_none_or(|c| c.get(i % c.len().max(1)).copied().unwrap_or(false));
+    pair_statistics_by(a, b, top, 1, &|i| used(i).then_some(0))[0]
+}
+
+/// [`pair_statistics`] of each class of pixels: `class(i)` is pixel `i`'s class, below
+/// `classes`, or `None` to leave it out (a class without pixels gives NaN statistics).
+/// One pass over the pair for all the classes: a colour camera's channels
+/// ([`photon_transfer_cells`]).
+fn pair_statistics_by(a: &[u16], b: &[u16], top: u16, classes: usize, class: &(dyn Fn(usize) -> Option<usize> + Sync)) -> Vec<PairStatistics> {
+    // (Pixels, sum, difference, squared difference, codes at the top.)
+    let mut acc = vec![(0i128, 0i128, 0i128, 0i128, 0u64); classes];
+    for (i, (&x, &y)) in a.iter().zip(b).enumerate() {
+        let Some(k) = class(i).filter(|&k| k < classes) else { continue };
         let d = x as i128 - y as i128;
-        sum += x as i128 + y as i128;
-        diff += d;
-        diff2 += d * d;
-        at_top += u64::from(x == top) + u64::from(y == top);
+        let t = &mut acc[k];
+        t.0 += 1;
+        t.1 += x as i128 + y as i128;
+        t.2 += d;
+        t.3 += d * d;
+        t.4 += u64::from(x == top) + u64::from(y == top);
     }
-    PairStatistics {
-        mean: sum as f64 / (2 * n) as f64,
-        var: (n * diff2 - diff * diff) as f64 / (n * n) as f64 / 2.0,
-        diff: diff as f64 / n as f64,
-        top_fraction: at_top as f64 / (2 * n) as f64,
-    }
+    acc.into_iter()
+        .map(|(n, sum, diff, diff2, at_top)| match n {
+            0 => PairStatistics { mean: f64::NAN, var: f64::NAN, diff: f64::NAN, top_fraction: f64::NAN },
+            n => PairStatistics {
+                mean: sum as f64 / (2 * n) as f64,
+                var: (n * diff2 - diff * diff) as f64 / (n * n) as f64 / 2.0,
+                diff: diff as f64 / n as f64,
+                top_fraction: at_top as f64 / (2 * n) as f64,
+            },
+        })
+        .collect()
 }
 
 /// The statistics of a level's first two frames.
-fn level_statistics(set: &EmvaSet, level: &EmvaLevel, columns: Option<&[bool]>) -> Result<PairStatistics, HostError> {
+fn level_statistics(set: &EmvaSet, level: &EmvaLevel, classes: &Classes) -> Result<Vec<PairStatistics>, HostError> {
     let [a, b, ..] = &level.images[..] else {
         return Err(at_line(&set.path, level.line, DescriptorFault::PtcFrames));
     };
     let (a, b) = (load_image(set, a)?, load_image(set, b)?);
-    Ok(pair_statistics(&a, &b, ((1u32 << set.bits) - 1) as u16, columns))
+    let top = ((1u32 << set.bits) - 1) as u16;
+    Ok(match classes {
+        Classes::Selected(columns) => vec![pair_statistics(&a, &b, top, *columns)],
+        Classes::Cells(period) => pair_statistics_by(&a, &b, top, period * period, &|i| Some(cell_of(i, set.width, *period))),
+    })
+}
+
+/// The pixels a photon-transfer curve is taken of.
+enum Classes<'a> {
+    /// The pixels `keep` selects (see [`photon_transfer_selected`]), or all: one curve.
+    Selected(Option<&'a [bool]>),
+    /// Each cell of a pattern of this period in rows and columns: a curve each.
+    Cells(usize),
+}
+
+/// The cell `(row mod p) * p + column mod p` of pixel `i` of rows of `width` pixels.
+fn cell_of(i: usize, width: usize, p: usize) -> usize {
+    (i / width.max(1) % p) * p + i % width.max(1) % p
 }
 
 /// The photon-transfer curve: one point per illuminated temporal level, sorted by photons
@@ -117,7 +142,16 @@ fn level_statistics(set: &EmvaSet, level: &EmvaLevel, columns: Option<&[bool]>) 
 /// silently. A level of one frame is an error; spatial series (more than two frames) are
 /// left out. Levels are loaded in parallel.
 pub fn photon_transfer(set: &EmvaSet) -> Result<Vec<PtcPoint>, HostError> {
-    photon_transfer_of(set, None)
+    Ok(photon_transfer_of(set, &Classes::Selected(None))?.swap_remove(0))
+}
+
+/// The photon-transfer curve of each cell of a pattern of `period` pixels in rows and
+/// columns (a colour filter's channels: EMVA 1288 characterizes a colour camera's
+/// channels apart), `(row mod period) * period + column mod period`; the frames are
+/// decoded once for all of them. Each curve is [`photon_transfer`]'s of that cell's
+/// pixels alone, as the standard's subsampled channel images give it.
+pub fn photon_transfer_cells(set: &EmvaSet, period: usize) -> Result<Vec<Vec<PtcPoint>>, HostError> {
+    photon_transfer_of(set, &Classes::Cells(period.max(1)))
 }
 
 /// The photon-transfer curve of the pixels selected by `keep`: one flag per column of
@@ -133,10 +167,11 @@ pub fn photon_transfer_selected(set: &EmvaSet, keep: &[bool]) -> Result<Vec<PtcP
             message: format!("a selection of {} flags, {} set, for {} columns of {} pixels", keep.len(), keep.iter().filter(|c| **c).count(), set.width, set.width * set.height),
         });
     }
-    photon_transfer_of(set, Some(keep))
+    Ok(photon_transfer_of(set, &Classes::Selected(Some(keep)))?.swap_remove(0))
 }
 
-fn photon_transfer_of(set: &EmvaSet, columns: Option<&[bool]>) -> Result<Vec<PtcPoint>, HostError> {
+/// The curves of [`Classes`]: one for `Selected`, one a cell for `Cells`.
+fn photon_transfer_of(set: &EmvaSet, classes: &Classes) -> Result<Vec<Vec<PtcPoint>>, HostError> {
     if let Some(single) = set.levels.iter().find(|l| l.series().is_none()) {
         return Err(at_line(&set.path, single.line, DescriptorFault::SingleFrame));
     }
@@ -172,15 +207,25 @@ fn photon_transfer_of(set: &EmvaSet, columns: Option<&[bool]>) -> Result<Vec<Ptc
     let mut needed: Vec<usize> = pairs.iter().flat_map(|&(b, d, _)| [b, d]).collect();
     needed.sort_unstable();
     needed.dedup();
-    let stats: Vec<(usize, PairStatistics)> = needed
+    let stats: Vec<(usize, Vec<PairStatistics>)> = needed
         .par_iter()
-        .map(|&i| level_statistics(set, &set.levels[i], columns).map(|s| (i, s)))
+        .map(|&i| level_statistics(set, &set.levels[i], classes).map(|s| (i, s)))
         .collect::<Result<_, _>>()?;
+    let curves = match classes {
+        Classes::Selected(_) => 1,
+        Classes::Cells(p) => p * p,
+    };
+    Ok((0..curves).map(|k| curve(set, &pairs, &stats, k)).collect())
+}
+
+/// The curve of class `k` of the levels' statistics `stats`, one point a pair of an
+/// illuminated level and its dark level (`pairs`: their indices and the photons).
+fn curve(set: &EmvaSet, pairs: &[(usize, usize, f64)], stats: &[(usize, Vec<PairStatistics>)], k: usize) -> Vec<PtcPoint> {
     const MISSING: PairStatistics = PairStatistics { mean: f64::NAN, var: f64::NAN, diff: f64::NAN, top_fraction: f64::NAN };
-    let of = |i: usize| stats.iter().find(|(j, _)| *j == i).map_or(MISSING, |(_, s)| *s);
+    let of = |i: usize| stats.iter().find(|(j, _)| *j == i).and_then(|(_, s)| s.get(k).copied()).unwrap_or(MISSING);
     let mut points: Vec<PtcPoint> = pairs
-        .into_iter()
-        .map(|(b, d, photons)| {
+        .iter()
+        .map(|&(b, d, photons)| {
             let (bright, dark) = (of(b), of(d));
             PtcPoint {
                 line: set.levels[b].line,
@@ -199,7 +244,7 @@ fn photon_transfer_of(set: &EmvaSet, columns: Option<&[bool]>) -> Result<Vec<Ptc
         })
         .collect();
     points.sort_by(|a, b| a.photons.total_cmp(&b.photons).then(a.exposure.total_cmp(&b.exposure)));
-    Ok(points)
+    points
 }
 
 #[cfg(test)]
