@@ -411,7 +411,8 @@ fn a_colour_filters_channels_are_not_defects() {
 /// A colour camera's channels, each characterized on its own pixels, against the
 /// reference run on each channel's own set (`scripts/emva_channels.py`: every frame's
 /// pixels of one cell of the 2 x 2 pattern, as the standard measures a colour camera's
-/// channels): every quantity within the monochrome comparison's tolerances (under
+/// channels): every quantity within the monochrome comparison's tolerances, 1% and 5%
+/// (measured: 1e-9 or better on these seeds; under
 /// `--release 3.1`, the definitions the reference computes). One difference is allowed:
 /// a channel that never saturates (the 0.55 one, at 55% of the top code at the brightest
 /// level) has no saturation in dncal ("not reached"), where the reference takes its
@@ -446,6 +447,8 @@ fn a_colour_cameras_channels_are_each_the_references_monochrome_set() {
             // (A channel that never saturates: the reference's saturation is its brightest
             // level, dncal's none; its gain fit then ends at 70% of a different level.)
             let unsaturated = channel["saturation_capacity_e"].is_null() && channel["why"]["saturation_capacity_e"].as_str().is_some_and(|w| w.contains("saturation not reached"));
+            // (Only the 0.55 channel, at 55% of the top code at the brightest level.)
+            assert_eq!(unsaturated, k == 2, "seed {seed} channel {k}: {}", channel["why"]);
             if unsaturated {
                 for key in NEEDS_SATURATION {
                     let reference_key = QUANTITIES.iter().find(|q| q.0 == key).unwrap().1;

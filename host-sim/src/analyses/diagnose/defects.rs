@@ -101,19 +101,21 @@ pub fn diagnose_defects(set: &EmvaSet) -> Result<DefectOutcome, HostError> {
     Ok(DefectOutcome::Tested { findings: pattern.into_iter().chain(finding).collect(), defects })
 }
 
-/// The `cfa-pattern` finding of an EMVA set, held out by halves of its spatial series:
-/// named where both halves' averaged responses have a pattern ([`CellPattern`]: each a
-/// cell 2% and 5 standard errors off the cells' mean) of the same period. Significance:
-/// the smaller of the two halves' largest cell departure in its standard errors; the
-/// test's RMS: the second half's cells off the flat response (before) and off the first
-/// half's cells (after), in their standard errors. The channels' own datasheets (gain,
-/// quantum efficiency, PRNU within each) are the datasheet's (`emva::channels`).
+/// The `cfa-pattern` finding of an EMVA set, from the two halves of its spatial series'
+/// frames: named where both halves' averaged responses have a pattern ([`CellPattern`]:
+/// each a cell 2% and 5 standard errors off the cells' mean) of the same period whose
+/// rows and columns interact ([`interaction`]). The halves share the pixels, so they
+/// replicate the pattern against the temporal noise only, not against another sensor's
+/// pixels. Significance: the smaller of the two halves' largest interaction in its
+/// standard errors (what the naming tests); the test's RMS: the second half's cells off
+/// the flat response (before) and off the first half's cells (after), in their standard
+/// errors. The channels' own datasheets (gain, quantum efficiency, PRNU within each) are
+/// the datasheet's (`emva::channels`).
 pub fn pattern_finding(a: Option<&CellPattern>, b: Option<&CellPattern>, half: usize) -> Option<Finding> {
     let (a, b) = (a?, b?);
     if a.period != b.period || !interacts(a) || !interacts(b) {
         return None;
     }
-    let z = |c: &CellPattern| c.response.iter().zip(&c.se).map(|(r, se)| (r - 1.0).abs() / se.max(1e-300)).fold(0.0, f64::max);
     let rms = |v: Vec<f64>| (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
     let before = rms(b.response.iter().zip(&b.se).map(|(r, se)| (r - 1.0) / se.max(1e-300)).collect());
     let after = rms(b.response.iter().zip(&a.response).zip(a.se.iter().zip(&b.se)).map(|((rb, ra), (sa, sb))| (rb - ra) / sa.hypot(*sb).max(1e-300)).collect());
@@ -124,7 +126,7 @@ pub fn pattern_finding(a: Option<&CellPattern>, b: Option<&CellPattern>, half: u
         adc: None,
         count: None,
         sigma_dn: None,
-        significance: z(a).min(z(b)),
+        significance: interaction(a).min(interaction(b)),
         rms_before: before,
         rms_after: after,
         gain: before / after.max(1e-300),
@@ -139,10 +141,27 @@ pub fn pattern_finding(a: Option<&CellPattern>, b: Option<&CellPattern>, half: u
 
 /// Whether a pattern is of rows and columns together, as a colour filter's is: some
 /// cell's interaction (its response's logarithm less its row's and its column's means,
-/// plus the grand mean) departs by more than 2% and 5 of its standard errors. A pattern
-/// of columns alone is interleaved column ADCs' gains (of rows alone, a two-sided
-/// readout's), not a colour filter: the channels' datasheets still give each its own.
+/// plus the grand mean) departs by more than 2% and [`INTERACTION_SES`] of its standard
+/// errors. A pattern of columns alone is interleaved column ADCs' gains (of rows alone,
+/// a two-sided readout's), not a colour filter: the channels' datasheets still give each
+/// its own. What this cannot tell: a 2 x 2 readout of four taps whose gains interact
+/// (`ln(g00 g11 / (g01 g10)) / 4` beyond 2%) is the same data as a colour filter, and a
+/// Bayer filter whose `R B` is its greens' square has no interaction (docs/diagnose.md).
 fn interacts(c: &CellPattern) -> bool {
+    interaction_cells(c).into_iter().any(|(i, se)| i.abs() > 0.02_f64.max(INTERACTION_SES * se))
+}
+
+/// Standard errors an interaction must exceed ([`interacts`]).
+const INTERACTION_SES: f64 = 5.0;
+
+/// The largest interaction of `c`'s cells in its standard errors ([`interacts`]).
+fn interaction(c: &CellPattern) -> f64 {
+    interaction_cells(c).into_iter().map(|(i, se)| i.abs() / se.max(1e-300)).fold(0.0, f64::max)
+}
+
+/// Per cell of `c`: its interaction (as [`interacts`] defines it) and the standard error of
+/// its log-response (its response's over the response).
+fn interaction_cells(c: &CellPattern) -> Vec<(f64, f64)> {
     let p = c.period;
     let log: Vec<f64> = c.response.iter().map(|r| r.max(1e-300).ln()).collect();
     let mean = |f: &dyn Fn(usize) -> bool| {
@@ -150,11 +169,12 @@ fn interacts(c: &CellPattern) -> bool {
         v.iter().sum::<f64>() / v.len().max(1) as f64
     };
     let grand = mean(&|_| true);
-    (0..p * p).any(|k| {
-        let (i, j) = (k / p, k % p);
-        let interaction = log[k] - mean(&|m| m / p == i) - mean(&|m| m % p == j) + grand;
-        interaction.abs() > 0.02_f64.max(5.0 * c.se[k] / c.response[k].max(1e-300))
-    })
+    (0..p * p)
+        .map(|k| {
+            let (i, j) = (k / p, k % p);
+            (log[k] - mean(&|m| m / p == i) - mean(&|m| m % p == j) + grand, c.se[k] / c.response[k].max(1e-300))
+        })
+        .collect()
 }
 
 /// `P(X >= count)` for `X` Poisson of mean `chance`, as a one-sided normal deviate
@@ -187,6 +207,10 @@ mod tests {
         // (Beyond 5 standard errors only.)
         assert!(!interacts(&CellPattern { period: 2, response: vec![1.03, 0.97, 0.97, 1.03], se: vec![0.01; 4] }));
         assert!(interacts(&pattern(2, vec![1.03, 0.97, 0.97, 1.03])));
+        // (The interaction of a 2 x 2 pattern is ln(g00 g11 / (g01 g10)) / 4 at every cell,
+        // in standard errors of 0.001 / g: the most of them at the largest g.)
+        let want = (1.23f64 * 1.23 / (0.99 * 0.55)).ln() / 4.0 / (0.001 / 1.23);
+        assert!((interaction(&pattern(2, vec![1.23, 0.99, 0.55, 1.23])) / want - 1.0).abs() < 1e-9);
     }
 
     /// Against hand values: P(X >= 3 | 0.01) = 1.65e-7 (5.10 sigma); P(X >= 1 | 1) =

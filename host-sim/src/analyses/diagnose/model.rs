@@ -169,15 +169,23 @@ pub fn ptc_model(set: &crate::analyses::emva::EmvaSet, sheet: &crate::analyses::
         bad_fraction: d.findings.iter().find(|f| f.effect == Effect::BadPixels).and_then(|f| f.count).map(|n| n as f64 / (set.width * set.height).max(1) as f64),
         ..Default::default()
     };
-    // A colour filter named: its cells, and the PRNU within a channel (the rms of the
-    // channels' own), not the whole image's, which holds the pattern.
+    // A response pattern (a colour filter's channels, or column or row gains): its cells,
+    // and the PRNU within a cell (the rms of the channels' own) where every channel has
+    // one; never the whole image's, which holds the pattern (none then).
     let cells = sheet.spatial.defect_pixels.as_ref().and_then(|p| p.cells.as_ref());
-    if let (Some(f), Some(cells), Some(channels)) = (d.findings.iter_mut().find(|f| f.effect == Effect::CfaPattern), cells, &sheet.spatial.channels) {
-        f.detail += &format!("; per channel (row, column), each on its own pixels: {}", crate::analyses::emva::channels::describe(channels));
+    if let (Some(cells), Some(channels)) = (cells, &sheet.spatial.channels) {
         let within: Vec<f64> = channels.iter().map(|c| c.nonuniformity.prnu_pct.map_or(f64::NAN, |p| p / 100.0)).collect();
-        let finite: Vec<f64> = within.iter().copied().filter(|v| v.is_finite()).collect();
-        if !finite.is_empty() {
-            d.measured.prnu_rms = Some((finite.iter().map(|v| v * v).sum::<f64>() / finite.len() as f64).sqrt());
+        d.measured.prnu_rms = within.iter().all(|v| v.is_finite()).then(|| (within.iter().map(|v| v * v).sum::<f64>() / within.len().max(1) as f64).sqrt());
+        let each = crate::analyses::emva::channels::describe(channels);
+        match d.findings.iter_mut().find(|f| f.effect == Effect::CfaPattern) {
+            Some(f) => f.detail += &format!("; per channel (row, column), each on its own pixels: {each}"),
+            None => d.not_tested.push(format!(
+                "cfa-pattern: {}, but its rows and columns do not interact as a colour filter's do (column or row gains; or a filter whose R B is its greens' square): not named; the model takes its cells and the PRNU within them; per cell: {each}",
+                cells.describe()
+            )),
+        }
+        if d.measured.prnu_rms.is_none() {
+            d.not_tested.push("prnu: within a channel not measured (a channel's image too small for its nonuniformity); the whole image's holds the pattern and is not the model's".into());
         }
         d.measured.cfa = Some(crate::analyses::diagnose::channels::CfaResponse { period: cells.period, response: cells.response.clone(), prnu_within: within, bayer: None });
     }
