@@ -955,7 +955,16 @@ fn bench_reports_ratios_against_in_process_references() {
     let dir = tempfile::tempdir().unwrap();
     // With the astropy venv's python3 first on PATH (the system's may hold numpy and not
     // astropy, as CI's did), so the numpy references must run.
-    let s = stdout_json(&dncal_in_venv(&["bench", "--runs", "2", "--frames", "1", "--whole", "--linearity-side", "32", "--diagnose-side", "40", "--json"], dir.path()));
+    // (`--check`: every row against its recorded floor. At one frame and these sizes a
+    // row may fall below it, which exits 1 with the JSON written all the same; no row may
+    // lack a floor, and the exit code is the check's.)
+    let out = dncal_in_venv(&["bench", "--runs", "2", "--frames", "1", "--whole", "--linearity-side", "32", "--diagnose-side", "40", "--check", "--json"], dir.path());
+    let s: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("stdout is not JSON ({e}): {}", String::from_utf8_lossy(&out.stderr)));
+    let failures = s["check"]["failures"].as_array().unwrap_or_else(|| panic!("no check: {s}"));
+    assert!(failures.iter().all(|f| !f.as_str().unwrap().contains("no floor recorded")), "{failures:?}");
+    assert_eq!(out.status.success(), failures.is_empty(), "exit {:?}: {failures:?}", out.status);
+    // (The whole commands are against fixed limits: reported, not checked.)
+    assert!(s["check"]["unchecked"].as_array().unwrap().iter().any(|u| u.as_str().unwrap().starts_with("demo, defaults, wall")), "{s}");
     assert_eq!(s["runs"], 2);
     assert!(s["machine"].as_str().unwrap().contains("logical cores"));
     let ratios = s["ratios"].as_array().unwrap();

@@ -530,6 +530,11 @@ pub(crate) enum Cmd {
         /// Side of the `diagnose` set of --whole, pixels (limits checked at 2048 only).
         #[arg(long, default_value_t = dncal_host::checks::bench::whole::DIAGNOSE_SIDE, requires = "whole")]
         diagnose_side: usize,
+        /// Fail (exit 1) where a row's median ratio is more than 25% below the floor
+        /// recorded for it (host-sim/src/checks/bench/ratchet.rs; rows against a fixed
+        /// reference are reported, not checked).
+        #[arg(long)]
+        check: bool,
         /// Print a JSON summary on stdout.
         #[arg(long)]
         json: bool,

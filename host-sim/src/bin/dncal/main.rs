@@ -139,7 +139,7 @@ fn run(cli: Cli, outputs: &Hold) -> Result<ExitCode, HostError> {
             print(json, &r)?;
             return Ok(passed(r.ok));
         }
-        Cmd::Bench { runs, frames, no_numpy, python, whole, linearity_side, diagnose_side, json } => {
+        Cmd::Bench { runs, frames, no_numpy, python, whole, linearity_side, diagnose_side, check, json } => {
             let params = bench::BenchParams { runs, frames, numpy: !no_numpy, python };
             params.check()?;
             let whole = match whole {
@@ -159,7 +159,11 @@ fn run(cli: Cli, outputs: &Hold) -> Result<ExitCode, HostError> {
             let mut r = r?;
             r.ratios.extend(whole_rows);
             r.notes.extend(whole_notes);
+            if check {
+                r.check = Some(bench::ratchet::check(&r));
+            }
             print(json, &r)?;
+            return Ok(passed(r.check.as_ref().is_none_or(|c| c.holds())));
         }
     }
     Ok(ExitCode::SUCCESS)

@@ -16,6 +16,7 @@
 
 pub mod child;
 pub mod python;
+pub mod ratchet;
 pub mod whole;
 
 use std::hint::black_box;
@@ -100,6 +101,9 @@ pub struct BenchReport {
     pub ratios: Vec<Ratio>,
     /// What was skipped and why.
     pub notes: Vec<String>,
+    /// Each row against its recorded floor, with `--check` ([`ratchet`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub check: Option<ratchet::Checked>,
 }
 
 impl Report for BenchReport {
@@ -109,24 +113,48 @@ impl Report for BenchReport {
         let baseline_width = self.ratios.iter().map(|x| x.baseline.len()).max().unwrap_or(0);
         for x in &self.ratios {
             let target = x.target.map_or(String::new(), |g| format!("  target >= {g}: {}", if x.holds == Some(true) { "holds" } else { "NOT MET" }));
+            let floor = match ratchet::floor_of(x) {
+                Some((ratchet::Floor::Ratio(f), _)) => format!("  floor {f}"),
+                Some((ratchet::Floor::Fixed, _)) => "  (fixed reference)".to_string(),
+                None => "  NO FLOOR".to_string(),
+            };
             // Rates below 10 (pixels an instruction) keep three decimals.
             let rate = |r: f64| if r < 10.0 { format!("{r:>8.3}") } else { format!("{r:>8.1}") };
             t += &format!(
-                "{:<name_width$} {} {:<8} vs {:<baseline_width$} {}: {:.2}x ({:.2}-{:.2}){target}\n",
+                "{:<name_width$} {} {:<8} vs {:<baseline_width$} {}: {}x ({}-{}){target}{floor}\n",
                 x.name,
                 rate(x.rate),
                 x.unit,
                 x.baseline,
                 rate(x.baseline_rate),
-                x.ratio_median,
-                x.ratio_min,
-                x.ratio_max
+                ratio_text(x.ratio_median),
+                ratio_text(x.ratio_min),
+                ratio_text(x.ratio_max)
             );
         }
         for n in &self.notes {
             t += &format!("note: {n}\n");
         }
+        if let Some(c) = &self.check {
+            for u in &c.unchecked {
+                t += &format!("check: {u}\n");
+            }
+            t += &match c.holds() {
+                true => format!("check: every row at or above {} of its floor\n", ratchet::SLACK),
+                false => c.failures.iter().map(|f| format!("check FAILS: {f}\n")).collect(),
+            };
+        }
         t
+    }
+}
+
+/// A ratio as the text prints it: two decimals, or three significant digits below 0.1
+/// (`diagnose` against its fits read 0.01x at 0.013 and at 0.007 alike).
+fn ratio_text(r: f64) -> String {
+    if r.abs() < 0.1 && r != 0.0 {
+        format!("{:.*}", (2 - r.abs().log10().floor() as i32).max(2) as usize, r)
+    } else {
+        format!("{r:.2}")
     }
 }
 
@@ -396,7 +424,7 @@ pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, Ho
     } else if p.numpy && notes.is_empty() {
         notes.push("numpy: not every run measured".into());
     }
-    Ok(BenchReport { machine: machine(), runs, ratios, notes })
+    Ok(BenchReport { machine: machine(), runs, ratios, notes, check: None })
 }
 
 /// How many times [`bench`] calls its `progress`: each run of the core, and each of the

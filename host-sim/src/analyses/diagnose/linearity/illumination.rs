@@ -88,13 +88,14 @@ fn sizes(width: usize, height: usize, levels: usize) -> Option<((usize, usize), 
 /// levels, whatever its pixels: the bins' sums of every task and their total (16 bytes a
 /// bin, level and half of the rows each; at most [`BUDGET`] over the tasks), each level's
 /// two halves' normal matrices and vectors, fields and the variances they add at each
-/// bin, the modes' means over each bin, and the cosines (measured: 56 MB of a 64 x 64 x
-/// 41 set's 59 MB peak beyond the binary's own; here 57 MiB).
+/// bin and their row functions ([`Grid::separable`]), the modes' means over each bin, and
+/// the cosines (measured: 56 MB of a 64 x 64 x 41 set's 59 MB peak beyond the binary's
+/// own; here 57 MiB).
 pub(crate) fn grid_bytes(width: usize, height: usize, levels: usize) -> u64 {
     let Some(((bx, by), (kx, ky))) = sizes(width, height, levels) else { return 0 };
     let (bins, modes, levels) = ((bx * by) as u64, ((kx + 1) * (ky + 1) - 1) as u64, levels as u64);
     let sums = (crate::analyses::diagnose::TASKS as u64 + 1) * levels * 2 * (bins * 16 + 16);
-    let halves = levels * 2 * 8 * (modes * modes + 4 * modes + bins);
+    let halves = levels * 2 * 8 * (modes * modes + 4 * modes + bins + ((ky + 1) * width) as u64);
     let basis = 2 * bins * modes * 8;
     let cosines = 8 * ((kx + 1) * width + (ky + 1) * height) as u64;
     sums + halves + basis + cosines
@@ -137,9 +138,32 @@ impl Grid {
         (y * self.by / self.height) * self.bx + x * self.bx / self.width
     }
 
-    /// The field of coefficients `f` at the pixel at column `x`, row `y`.
+    /// The field of coefficients `f` at the pixel at column `x`, row `y`: every mode's
+    /// term (the oracle of [`Grid::at_rows`]).
+    #[cfg(test)]
     fn at(&self, f: &DVector<f64>, x: usize, y: usize) -> f64 {
         self.orders.iter().zip(f.iter()).map(|(&(p, q), c)| c * self.cos_x[p][x] * self.cos_y[q][y]).sum()
+    }
+
+    /// The field of coefficients `f` summed over its column orders, per row order `q` and
+    /// column `x`: `g_q(x) = sum_p f_pq cos(pi p (x + 0.5) / width)`, `(ky + 1) x width`.
+    /// The field at a pixel is then `sum_q cos_y[q][y] g_q(x)` ([`Grid::at_rows`]): 11
+    /// terms where the modes are 120 (a 128 x 128 x 41 diagnosis spent 27% of its time
+    /// summing the modes at every pixel and level, in every pass).
+    fn separable(&self, f: &DVector<f64>) -> Vec<f64> {
+        let mut rows = vec![0.0; self.cos_y.len() * self.width];
+        for (&(p, q), c) in self.orders.iter().zip(f.iter()) {
+            for (r, cx) in rows[q * self.width..][..self.width].iter_mut().zip(&self.cos_x[p]) {
+                *r += c * cx;
+            }
+        }
+        rows
+    }
+
+    /// The field whose row functions are `rows` ([`Grid::separable`]) at column `x`, row
+    /// `y`.
+    fn at_rows(&self, rows: &[f64], x: usize, y: usize) -> f64 {
+        self.cos_y.iter().enumerate().map(|(q, c)| c[y] * rows[q * self.width + x]).sum()
     }
 }
 
@@ -181,19 +205,28 @@ struct Half {
 impl Half {
     fn of(grid: &Grid, odd: usize, w: &[f64], wr: &[f64], (sq, count): (f64, u32)) -> Option<Half> {
         let k = grid.modes();
-        let (mut a, mut c, mut bsum) = (DMatrix::zeros(k, k), DVector::zeros(k), DVector::zeros(k));
-        let (mut total_w, mut total, mut used) = (0.0, 0.0, 0);
-        for (b, basis) in grid.basis[odd].iter().enumerate().filter(|(b, _)| w[*b] > 0.0) {
-            a.ger(w[b], basis, basis, 1.0);
+        let (mut c, mut bsum) = (DVector::zeros(k), DVector::zeros(k));
+        let (mut total_w, mut total) = (0.0, 0.0);
+        let used: Vec<usize> = (0..grid.bins()).filter(|&b| w[b] > 0.0).collect();
+        if used.len() < k + 2 || count < 2 {
+            return None;
+        }
+        // The normal matrix `sum_b w_b basis_b basis_b^T` as one product `S S^T` of the
+        // bins' modes scaled by `sqrt(w_b)` (a bin's rank-one updates, one after another,
+        // were 10% of a 128 x 128 x 41 diagnosis).
+        let mut scaled = DMatrix::zeros(k, used.len());
+        for (j, &b) in used.iter().enumerate() {
+            let basis = &grid.basis[odd][b];
+            scaled.column_mut(j).axpy(w[b].sqrt(), basis, 0.0);
             c.axpy(wr[b], basis, 1.0);
             bsum.axpy(w[b], basis, 1.0);
             total_w += w[b];
             total += wr[b];
-            used += 1;
         }
-        if used < k + 2 || count < 2 || total_w <= 0.0 {
+        if total_w <= 0.0 {
             return None;
         }
+        let mut a = &scaled * scaled.transpose();
         let mean_mode = bsum / total_w;
         a.ger(-total_w, &mean_mode, &mean_mode, 1.0);
         c.axpy(-total, &mean_mode, 1.0);
@@ -209,8 +242,14 @@ impl Half {
 #[derive(Clone)]
 struct Field {
     f: DVector<f64>,
+    /// `f`'s row functions ([`Grid::separable`]).
+    rows: Vec<f64>,
     mean_mode: DVector<f64>,
     added: Vec<f64>,
+    /// Per half of the rows a correction lands on (even, odd): `f`'s mean over the pixels
+    /// it corrects there, `f . mean_mode` of that half's field (this one's where that half
+    /// has none), made once a level and round, not at every pixel ([`Pattern::change`]).
+    about: [f64; 2],
 }
 
 /// The light's pattern per level, as a term every pixel's means lose, with the level term
@@ -240,9 +279,9 @@ impl<T: Sample> Pattern<'_, T> {
         let field = fields[from].as_ref()?;
         // About the field's mean over the pixels it corrects (the level term's part), or
         // over those it was fitted on where that half has no fit.
-        let mean = field.f.dot(fields[own].as_ref().map_or(&field.mean_mode, |f| &f.mean_mode));
+        let mean = field.about[own];
         let var = if self.cross { field.added[self.grid.bin(x, y)] } else { 0.0 };
-        Some((self.grid.at(&field.f, x, y) - mean, var))
+        Some((self.grid.at_rows(&field.rows, x, y) - mean, var))
     }
 
     /// The pattern's change of pixel `i`'s mean at `level`, DN, for its quadratic `shape`.
@@ -355,11 +394,18 @@ pub(super) fn illumination_change<'a, T: Sample>(px: &'a Pixels<'a, T>, level: O
                         let inverse = chol.inverse();
                         // The variance the fit adds at each bin of the other half.
                         let added = term.grid.basis[1 - odd].iter().map(|b| h.var.max(1.0) * (&inverse * (b - &h.mean_mode)).dot(&(b - &h.mean_mode))).collect();
-                        *field = Some(Field { f, mean_mode: h.mean_mode.clone(), added });
+                        let rows = term.grid.separable(&f);
+                        *field = Some(Field { f, rows, mean_mode: h.mean_mode.clone(), added, about: [0.0; 2] });
                     }
                     None => *field = None,
                 }
                 *slot = half;
+            }
+            // Each field's mean over the pixels of either half it corrects.
+            let fields = &mut term.fields[l];
+            let modes: [Option<DVector<f64>>; 2] = [0, 1].map(|own| fields[own].as_ref().map(|f| f.mean_mode.clone()));
+            for field in fields.iter_mut().flatten() {
+                field.about = [0, 1].map(|own| field.f.dot(modes[own].as_ref().unwrap_or(&field.mean_mode)));
             }
         }
     }
@@ -491,6 +537,24 @@ mod tests {
                     assert!(dot > 0.2 * 4096.0, "mode {p}: {dot}");
                 } else {
                     assert!(dot.abs() < 1e-9, "modes {p}, {q}: {dot}");
+                }
+            }
+        }
+    }
+
+    /// The field from its row functions is every mode's sum, to 1e-12 of the field's
+    /// scale, at every pixel of an odd-sized grid with random coefficients.
+    #[test]
+    fn the_separable_field_is_the_sum_of_its_modes() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand::rngs::StdRng::seed_from_u64(59);
+        for (w, h) in [(64, 64), (50, 37), (130, 97)] {
+            let g = Grid::new(w, h, 41).unwrap();
+            let f = DVector::from_fn(g.modes(), |_, _| rng.random_range(-1e-3..1e-3));
+            let rows = g.separable(&f);
+            for y in 0..h {
+                for x in 0..w {
+                    assert!((g.at_rows(&rows, x, y) - g.at(&f, x, y)).abs() < 1e-12 * 1e-3, "{w} x {h} at ({x}, {y})");
                 }
             }
         }
