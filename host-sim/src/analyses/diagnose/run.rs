@@ -90,7 +90,7 @@ fn diagnose_linearity_file(read_from: &Path, input: &Path, block_rows: Option<us
     let spill_if = |np: u64, beside: u64| spill_records(np, beside, spill, limit());
     let records = |spilled: bool| if spilled { "the mask and the blocks of the spilled records" } else { "the per-pixel records" };
     // The illumination fit's sums and fields: set by the frame's size and the levels,
-    // whatever the pixels (up to 57 MiB at 41 levels), held or by rows.
+    // whatever the pixels (up to 72 MiB at 41 levels), held or by rows.
     let grid = |[w, h, l]: [usize; 3]| crate::analyses::diagnose::illumination_bytes(w, h, l);
     let subject = |[w, h, l]: [usize; 3], how: &str| format!("diagnosing the linearity set of {w} x {h} pixels x {l} levels{how}");
     let spin = |[w, h, l]: [usize; 3], how: &str| crate::infra::progress::spinner(&format!("diagnosing {} (linearity set, {w} x {h} pixels, {l} levels{how})", input.display()));

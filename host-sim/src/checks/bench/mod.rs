@@ -115,7 +115,7 @@ impl Report for BenchReport {
             let target = x.target.map_or(String::new(), |g| format!("  target >= {g}: {}", if x.holds == Some(true) { "holds" } else { "NOT MET" }));
             let floor = match ratchet::floor_of(x) {
                 Some((ratchet::Floor::Ratio(f), _)) => format!("  floor {f}"),
-                Some((ratchet::Floor::Fixed, _)) => "  (fixed reference)".to_string(),
+                Some((ratchet::Floor::Reported, _)) => "  (reported, not checked)".to_string(),
                 None => "  NO FLOOR".to_string(),
             };
             // Rates below 10 (pixels an instruction) keep three decimals.

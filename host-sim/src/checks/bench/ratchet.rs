@@ -28,8 +28,10 @@ pub const SLACK: f64 = 0.75;
 pub enum Floor {
     /// A ratio against a reference in the same process: `--check` holds it.
     Ratio(f64),
-    /// Against a fixed reference: the machine's speed does not cancel; reported only.
-    Fixed,
+    /// Reported only: against a fixed reference (the machine's speed does not cancel), or
+    /// a measure of the host more than of the code (two threads' speed-up, which another
+    /// tenant on the second core halves).
+    Reported,
 }
 
 /// The recorded floors: (row name, baseline, floor, where it comes from). Measured with
@@ -39,20 +41,20 @@ pub enum Floor {
 const FLOORS: &[(&str, &str, Floor, &str)] = &[
     ("core, line by line", "plain LUT loop", Floor::Ratio(0.70), "medians 0.73-0.89 (checked, 3 invocations, 2026-12-04); 0.87-0.94 release"),
     ("core, frame as a block", "plain LUT loop", Floor::Ratio(0.72), "medians 0.75-0.87 (checked); 0.88-0.99 release"),
-    ("core, frame as a block", "byte bound (no LUT)", Floor::Ratio(0.25), "medians 0.44-0.54 (checked, Xeon); 0.285 release on the AMD EPYC"),
-    ("core, frame as a block", "numpy lut[adc, codes]", Floor::Ratio(4.5), "medians 5.27 (AMD EPYC) to 8.77 (Xeon), release; the checked build's core is slower"),
-    ("core, # bands, # threads", "core, # band, # thread", Floor::Ratio(1.15), "medians 1.40-2.03 (checked), 1.28-2.16 release: below 0.86 the bands are slower than one"),
-    ("plain loop, # bands, # threads", "plain loop, # band, # thread", Floor::Ratio(1.0), "the machine's own ceiling: medians 1.06-1.21 (checked), 1.46-1.86 release"),
-    ("stream, end to end", "one K-Cor camera (fixed)", Floor::Fixed, "a fixed rate"),
-    ("stream --frames-from", "one K-Cor camera (fixed)", Floor::Fixed, "a fixed rate"),
+    ("core, frame as a block", "byte bound (no LUT)", Floor::Ratio(0.15), "medians 0.44-0.54 (checked, Xeon); 0.23-0.33 release on the AMD EPYC, where the checked build's core runs at about 0.76-0.99 of its release speed"),
+    ("core, frame as a block", "numpy lut[adc, codes]", Floor::Ratio(4.0), "medians 4.97-8.77 release (AMD EPYC to Xeon); the checked build's core is up to a quarter slower; numpy alone (CI's python3 has it)"),
+    ("core, # bands, # threads", "core, # band, # thread", Floor::Reported, "two threads' speed-up: medians 1.40-2.03 (checked), 1.28-2.16 release, single runs down to 0.98: the host's second core more than the code"),
+    ("plain loop, # bands, # threads", "plain loop, # band, # thread", Floor::Reported, "the host's own ceiling: medians 1.06-1.21 (checked), 1.46-1.86 release"),
+    ("stream, end to end", "one K-Cor camera (fixed)", Floor::Reported, "a fixed rate"),
+    ("stream --frames-from", "one K-Cor camera (fixed)", Floor::Reported, "a fixed rate"),
     ("Poisson draw, a mean per pixel (PTRS)", "rand_distr Poisson::new + sample", Floor::Ratio(0.85), "medians 0.90-0.93 (Xeon) to 1.29"),
     ("linearity, # x # x #", "numpy/astropy, same steps", Floor::Ratio(12.0), "medians 14.5-26, release"),
-    ("diagnose, # x # x # linearity set", "one quartic SVD fit per pixel", Floor::Ratio(0.015), "0.0164-0.0172 (checked, the separable illumination field); 0.013 at 02913d3, issue 59's figure after 5.7 times slower; raise it as that is mended"),
+    ("diagnose, # x # x # linearity set", "one quartic SVD fit per pixel", Floor::Ratio(0.018), "0.0227 (checked, a0f0fa6's illumination stage; single runs 0.0214-0.0254); 0.013 at 02913d3, issue 59's figure after 5.7 times slower; raise it as that is mended"),
     ("firmware correction, QEMU count", "issue #: # instructions a pixel", Floor::Ratio(1.12), "a count: 6.249 instructions a pixel since 25cd9de"),
     ("linearity # x # x #, whole process", "numpy/astropy, same steps, # run", Floor::Ratio(10.0), "its target; 47x at 1024 x 1024 (25cd9de)"),
-    ("linearity # x # x #, *", "issue #: *", Floor::Fixed, "a limit of the whole command"),
-    ("diagnose # x # x #, *", "issue #: *", Floor::Fixed, "a limit of the whole command"),
-    ("demo, defaults, wall", "issue #: # s", Floor::Fixed, "a limit of the whole command"),
+    ("linearity # x # x #, *", "issue #: *", Floor::Reported, "a limit of the whole command"),
+    ("diagnose # x # x #, *", "issue #: *", Floor::Reported, "a limit of the whole command"),
+    ("demo, defaults, wall", "issue #: # s", Floor::Reported, "a limit of the whole command"),
     ("Python *", "the core's Corrector, same frames", Floor::Ratio(1.0 / 1.2), "its target; no run recorded yet"),
     ("Python fit_linearity, *", "dncal linearity's analysis", Floor::Ratio(1.0 / 1.2), "its target; no run recorded yet"),
 ];
@@ -93,7 +95,7 @@ pub fn floor_of(row: &Ratio) -> Option<(Floor, &'static str)> {
 pub struct Checked {
     /// Rows below [`SLACK`] times their floor, or without a floor: what fails.
     pub failures: Vec<String>,
-    /// Rows reported without a check (against a fixed reference).
+    /// Rows reported without a check ([`Floor::Reported`]), with why.
     pub unchecked: Vec<String>,
 }
 
@@ -111,7 +113,7 @@ pub fn check(report: &BenchReport) -> Checked {
         let row = format!("{} vs {}", r.name, r.baseline);
         match floor_of(r) {
             None => c.failures.push(format!("{row}: no floor recorded (checks/bench/ratchet.rs)")),
-            Some((Floor::Fixed, _)) => c.unchecked.push(format!("{row}: against a fixed reference, {:.4}x (not a ratio the machine's speed cancels in)", r.ratio_median)),
+            Some((Floor::Reported, why)) => c.unchecked.push(format!("{row}: {:.4}x, reported, not checked ({why})", r.ratio_median)),
             Some((Floor::Ratio(f), why)) => {
                 // (A NaN median, a row that did not measure, fails too.)
                 if r.ratio_median.is_nan() || r.ratio_median < SLACK * f {
@@ -170,7 +172,7 @@ mod tests {
         }
     }
 
-    /// A row at its floor holds, at 0.76 of it holds, at 0.74 fails; a fixed one never
+    /// A row at its floor holds, at 0.76 of it holds, at 0.74 fails; a reported one never
     /// fails; one without a floor fails.
     #[test]
     fn check_fails_a_row_below_three_quarters_of_its_floor() {
@@ -182,10 +184,10 @@ mod tests {
             check: None,
         };
         let diagnose = ("diagnose, 128 x 128 x 41 linearity set", "one quartic SVD fit per pixel");
-        assert!(check(&report(0.015, diagnose.0, diagnose.1)).holds());
-        assert!(check(&report(0.76 * 0.015, diagnose.0, diagnose.1)).holds());
-        let slow = check(&report(0.74 * 0.015, diagnose.0, diagnose.1));
-        assert!(!slow.holds() && slow.failures[0].contains("below 0.75 of its floor 0.015"), "{slow:?}");
+        assert!(check(&report(0.018, diagnose.0, diagnose.1)).holds());
+        assert!(check(&report(0.76 * 0.018, diagnose.0, diagnose.1)).holds());
+        let slow = check(&report(0.74 * 0.018, diagnose.0, diagnose.1));
+        assert!(!slow.holds() && slow.failures[0].contains("below 0.75 of its floor 0.018"), "{slow:?}");
         let fixed = check(&report(0.01, "stream, end to end", "one K-Cor camera (fixed)"));
         assert!(fixed.holds() && fixed.unchecked.len() == 1);
         assert!(!check(&report(5.0, "something new", "anything")).holds());

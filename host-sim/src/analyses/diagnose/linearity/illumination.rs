@@ -89,8 +89,8 @@ fn sizes(width: usize, height: usize, levels: usize) -> Option<((usize, usize), 
 /// bin, level and half of the rows each; at most [`BUDGET`] over the tasks), each level's
 /// two halves' normal matrices and vectors, fields and the variances they add at each
 /// bin and their row functions ([`Grid::separable`]), the modes' means over each bin, and
-/// the cosines (measured: 56 MB of a 64 x 64 x 41 set's 59 MB peak beyond the binary's
-/// own; here 57 MiB).
+/// the cosines (measured before the row functions: 56 MB of a 64 x 64 x 41 set's 59 MB
+/// peak beyond the binary's own; here 58 MiB, 72 MiB at 2048 x 2048).
 pub(crate) fn grid_bytes(width: usize, height: usize, levels: usize) -> u64 {
     let Some(((bx, by), (kx, ky))) = sizes(width, height, levels) else { return 0 };
     let (bins, modes, levels) = ((bx * by) as u64, ((kx + 1) * (ky + 1) - 1) as u64, levels as u64);
