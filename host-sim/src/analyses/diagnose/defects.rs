@@ -116,9 +116,9 @@ pub fn pattern_finding(a: Option<&CellPattern>, b: Option<&CellPattern>, half: u
     if a.period != b.period || !interacts(a) || !interacts(b) {
         return None;
     }
-    let rms = |v: Vec<f64>| (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
-    let before = rms(b.response.iter().zip(&b.se).map(|(r, se)| (r - 1.0) / se.max(1e-300)).collect());
-    let after = rms(b.response.iter().zip(&a.response).zip(a.se.iter().zip(&b.se)).map(|((rb, ra), (sa, sb))| (rb - ra) / sa.hypot(*sb).max(1e-300)).collect());
+    let rms = crate::infra::stats::rms;
+    let before = rms(&b.response.iter().zip(&b.se).map(|(r, se)| (r - 1.0) / se.max(1e-300)).collect::<Vec<_>>());
+    let after = rms(&b.response.iter().zip(&a.response).zip(a.se.iter().zip(&b.se)).map(|((rb, ra), (sa, sb))| (rb - ra) / sa.hypot(*sb).max(1e-300)).collect::<Vec<_>>());
     let p = a.period;
     let cells: Vec<String> = b.response.iter().enumerate().map(|(c, r)| format!("({}, {}) {r:.3}", c / p, c % p)).collect();
     Some(Finding {

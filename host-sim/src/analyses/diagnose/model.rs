@@ -175,7 +175,7 @@ pub fn ptc_model(set: &crate::analyses::emva::EmvaSet, sheet: &crate::analyses::
     let cells = sheet.spatial.defect_pixels.as_ref().and_then(|p| p.cells.as_ref());
     if let (Some(cells), Some(channels)) = (cells, &sheet.spatial.channels) {
         let within: Vec<f64> = channels.iter().map(|c| c.nonuniformity.prnu_pct.map_or(f64::NAN, |p| p / 100.0)).collect();
-        d.measured.prnu_rms = within.iter().all(|v| v.is_finite()).then(|| (within.iter().map(|v| v * v).sum::<f64>() / within.len().max(1) as f64).sqrt());
+        d.measured.prnu_rms = within.iter().all(|v| v.is_finite()).then(|| crate::infra::stats::rms(&within));
         let each = crate::analyses::emva::channels::describe(channels);
         match d.findings.iter_mut().find(|f| f.effect == Effect::CfaPattern) {
             Some(f) => f.detail += &format!("; per channel (row, column), each on its own pixels: {each}"),

@@ -69,11 +69,6 @@ pub fn describe(channels: &[Channel]) -> String {
     each.join("; ")
 }
 
-/// Why Release 4.0 gives no nonuniformity of a `rows x cols` image.
-pub fn too_small_to_filter(rows: usize, cols: usize) -> String {
-    format!("Release 4.0 high-pass filters the nonuniformity images over 19 x 19 pixels: a {rows} x {cols} image is too small (at least 20 x 20)")
-}
-
 /// Each cell of `cells` characterized on its own pixels: its photon transfer from the
 /// set's temporal series (decoded once for all the cells), its DSNU and PRNU from the
 /// `bright` and `dark` spatial series' sub-images, with `release`'s definitions.
@@ -99,7 +94,7 @@ pub fn channels(set: &EmvaSet, bright: &SpatialSeries, dark: &SpatialSeries, cel
                 (b, _) => {
                     let (rows, cols) = b.map_or((0, 0), |b| (b.rows, b.cols));
                     for key in NONUNIFORMITY_KEYS {
-                        why.insert(key.into(), too_small_to_filter(rows, cols));
+                        why.insert(key.into(), highpass::too_small(rows, cols));
                     }
                     Nonuniformity::default()
                 }

@@ -30,6 +30,12 @@ pub fn fits(rows: usize, cols: usize) -> bool {
     rows >= 2 * RADIUS + 2 && cols >= 2 * RADIUS + 2
 }
 
+/// Why Release 4.0 gives no nonuniformity of a `rows x cols` image that does not
+/// [`fits`].
+pub fn too_small(rows: usize, cols: usize) -> String {
+    format!("Release 4.0 high-pass filters the nonuniformity images over 19 x 19 pixels: a {rows} x {cols} image is too small (at least 20 x 20)")
+}
+
 /// The filtered `rows x cols` integer image, [`SCALE`] times the filtered value, on the
 /// `(rows - 18) x (cols - 18)` pixels whose window lies inside; empty where it does not
 /// [`fits`].

@@ -165,7 +165,7 @@ pub fn datasheet_of(set: &EmvaSet, points: &[PtcPoint], release: Option<Release>
     let filtered = release == Release::R4;
     if filtered && !highpass::fits(rows, cols) {
         for key in NONUNIFORMITY_KEYS {
-            why.insert(key.into(), super::channels::too_small_to_filter(rows, cols));
+            why.insert(key.into(), highpass::too_small(rows, cols));
         }
         s.defect_pixels = Some(defect_pixels(&bright, &dark, b.stack_var_dn2, d.stack_var_dn2));
         return Ok(Datasheet { version: set.version.clone(), temporal, spatial: s });

@@ -152,7 +152,7 @@ impl Report for BenchReport {
 /// (`diagnose` against its fits read 0.01x at 0.013 and at 0.007 alike).
 fn ratio_text(r: f64) -> String {
     if r.abs() < 0.1 && r != 0.0 {
-        format!("{:.*}", (2 - r.abs().log10().floor() as i32).max(2) as usize, r)
+        format!("{:.*}", (2 - r.abs().log10().floor() as i32) as usize, r)
     } else {
         format!("{r:.2}")
     }
