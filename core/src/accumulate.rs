@@ -356,7 +356,13 @@ impl<'a, const N: usize, const CODES: usize> Corrector<'a, N, CODES> {
         let luts = self.banks.active();
         let sums = self.sums.rows_mut(frame.state, first_row, lines);
         let mut report = LineReport::default();
-        for (line, line_sums) in codes.chunks_exact(width).zip(sums.chunks_exact_mut(width)) {
+        // Where the width is a multiple of N, column `i mod width` of the block goes to
+        // the ADC of column `i`, and the block is one line to the loop: no per-line call,
+        // and a vector loop runs across the lines' ends (`dncal bench`, checked build,
+        // AVX-512: medians 0.99-1.06 of the bench's bare gather loop, 0.99-1.01 line by
+        // line).
+        let line = if width.is_multiple_of(N) { codes.len() } else { width };
+        for (line, line_sums) in codes.chunks_exact(line).zip(sums.chunks_exact_mut(line)) {
             let r = match frame.mode {
                 SumMode::Exact => add_line::<Exact, N, CODES>(luts, first_column, line, line_sums),
                 SumMode::Saturating => add_line::<Saturating, N, CODES>(luts, first_column, line, line_sums),
@@ -375,7 +381,7 @@ impl<'a, const N: usize, const CODES: usize> Corrector<'a, N, CODES> {
     fn check_block(&self, first_row: u16, len: usize) -> Result<(OpenFrame, usize), CoreError> {
         let frame = self.frame.ok_or(CoreError::NoFrame)?;
         let width = self.sums.geometry.width as usize;
-        if len == 0 || len % width != 0 {
+        if len == 0 || !len.is_multiple_of(width) {
             return Err(CoreError::Length { what: Quantity::BlockPixels, expected: width as u32, got: len as u32 });
         }
         let lines = len / width;
@@ -536,7 +542,13 @@ fn add_line<A: Add, const N: usize, const CODES: usize>(
     let masked = |raw: u16| raw as usize & top;
     if A::UNDOABLE {
         let mut or = 0u32;
-        let mut report = add_indexed::<A, N, CODES>(luts, first_column, codes, sums, |word| or |= word, masked);
+        let mut report = match gathered(luts, first_column, codes, sums) {
+            Some(all) => {
+                or = all;
+                LineReport::default()
+            }
+            None => add_indexed::<A, N, CODES>(luts, first_column, codes, sums, |word| or |= word, masked),
+        };
         if ((or as u16 | (or >> 16) as u16) as usize) > top {
             report.out_of_range_codes = retake_out_of_range(luts, first_column, codes, sums);
         }
@@ -548,6 +560,20 @@ fn add_line<A: Add, const N: usize, const CODES: usize>(
         report.out_of_range_codes = count_above_top::<CODES>(codes);
         report
     }
+}
+
+/// The exact loop as a vector gather where the host has one ([`crate::simd`]): the OR of
+/// the codes, having added their masked entries; `None`, having added nothing, where it
+/// does not apply.
+#[cfg(all(feature = "simd", target_arch = "x86_64"))]
+#[inline(always)]
+fn gathered<const N: usize, const CODES: usize>(luts: &LutSet<N, CODES>, first_column: u32, codes: &[u16], sums: &mut [u32]) -> Option<u32> {
+    crate::simd::add_exact(crate::simd::Kernel::detected(), luts.tables(), first_column, codes, sums)
+}
+#[cfg(not(all(feature = "simd", target_arch = "x86_64")))]
+#[inline(always)]
+fn gathered<const N: usize, const CODES: usize>(_: &LutSet<N, CODES>, _: u32, _: &[u16], _: &mut [u32]) -> Option<u32> {
+    None
 }
 
 /// Takes back the masked entry each out-of-range code of a line added and adds the one
@@ -698,7 +724,7 @@ mod tests {
         // One call a frame through SealedSums: the sums, counts and status equal those
         // of one corrector that ran them all.
         let g = Geometry::new(8, 2, 2, 3).unwrap();
-        let frame = |f: u32| -> [u16; 16] { core::array::from_fn(|i| if f % 7 == 0 { (i as u16 * 517 + f as u16) % 5000 } else { 4095 }) };
+        let frame = |f: u32| -> [u16; 16] { core::array::from_fn(|i| if f.is_multiple_of(7) { (i as u16 * 517 + f as u16) % 5000 } else { 4095 }) };
         let state = |f: u32| if f < 515 { 0 } else { 1 };
         let (mut once_buf, mut banks_once) = ([0u32; 32], LutBanks::new(top_luts()));
         let mut once = Corrector::new(&mut banks_once, g, &mut once_buf).unwrap();

@@ -46,7 +46,7 @@ fn std_dn(l: usize, r: usize, c: usize) -> f64 {
     0.5 + 0.125 * l as f64 + 0.0625 * r as f64 + 0.03125 * c as f64
 }
 fn mask_bad(r: usize, c: usize) -> u8 {
-    u8::from((5 * r + c) % 7 == 0)
+    u8::from((5 * r + c).is_multiple_of(7))
 }
 fn voltage_v(l: usize) -> f64 {
     0.25 * l as f64

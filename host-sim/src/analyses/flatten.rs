@@ -454,7 +454,7 @@ fn fit_range(counts: &[u64], p: &FlattenParams) -> Result<Range<usize>, FlattenE
     if n < 2 || !n.is_power_of_two() || n > 1 << MAX_BITS {
         return Err(FlattenError::Length { len: n });
     }
-    if p.median_window % 2 == 0 {
+    if p.median_window.is_multiple_of(2) {
         return Err(FlattenError::MedianWindow { window: p.median_window });
     }
     if p.spline_points < 4 {

@@ -183,7 +183,7 @@ impl Counter {
 
     /// The counter of [`Counter::to_words`]; `None` for words it cannot have made.
     pub fn from_words(w: &[u64]) -> Option<Counter> {
-        if w.len() % 3 != 0 {
+        if !w.len().is_multiple_of(3) {
             return None;
         }
         let cells = w
@@ -319,7 +319,7 @@ impl Selection {
 /// gives it (the mean of the two middle values of an even count), by a [`Selection`] of
 /// two cells per set: cell `2q` holds set `q`'s lower middle, `2q + 1` its upper.
 pub fn median_rank(cell: usize, count: usize) -> usize {
-    if cell % 2 == 0 { (count - 1) / 2 } else { count / 2 }
+    if cell.is_multiple_of(2) { (count - 1) / 2 } else { count / 2 }
 }
 
 /// The medians of a [`Selection`] run with [`median_rank`] over `2 q` cells, with each

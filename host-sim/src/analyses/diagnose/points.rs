@@ -130,7 +130,7 @@ impl<'a, T: Sample> Pixels<'a, T> {
     /// Whether pixel `i` lies on an even row: those estimate shared parameters, the odd
     /// rows score them.
     pub fn estimating(&self, i: usize) -> bool {
-        (self.index(i) / self.set.width) % 2 == 0
+        (self.index(i) / self.set.width).is_multiple_of(2)
     }
 
     /// Pixel `i`'s column and row in the set.

@@ -609,7 +609,7 @@ mod tests {
         fn put(&self, out: &mut Put<'_>) {
             out.u16(self.0 as u16);
             out.u8((self.0 >> 16) as u8);
-            if self.0 % 2 == 0 {
+            if self.0.is_multiple_of(2) {
                 out.u8((self.0 >> 24) as u8);
             }
         }
@@ -645,7 +645,7 @@ mod tests {
             0 => -0.0,
             1 => f64::from_bits(j as u64),
             2 => f64::from_bits(0x7ff8_0000_0000_0000 | j as u64),
-            _ => (j as f64).sqrt() * if j % 2 == 0 { 1.0 } else { -1.0 },
+            _ => (j as f64).sqrt() * if j.is_multiple_of(2) { 1.0 } else { -1.0 },
         };
         Pair(v, (j % 65_536) as u16)
     }

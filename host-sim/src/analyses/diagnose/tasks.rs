@@ -42,7 +42,7 @@ mod tests {
         /// same split (a float sum per task, compared bit for bit, shows both).
         #[test]
         fn the_tasks_are_the_chunks_of_the_picked_list(n in 0usize..3000, every in 1usize..9, seed in 0u64..1000) {
-            let pick = |j: usize| ((j as u64 * 2_654_435_761 + seed) % every as u64 == 0).then(|| (j as f64).sqrt() * 1e-3 + j as f64);
+            let pick = |j: usize| (j as u64 * 2_654_435_761 + seed).is_multiple_of(every as u64).then(|| (j as f64).sqrt() * 1e-3 + j as f64);
             let list: Vec<f64> = (0..n).filter_map(pick).collect();
             let naive: Vec<(Vec<f64>, u64)> = list.par_chunks(list.len().div_ceil(crate::analyses::diagnose::TASKS).max(1)).map(|c| (c.to_vec(), c.iter().sum::<f64>().to_bits())).collect();
             let ours = picked_tasks(n, pick, |it| {

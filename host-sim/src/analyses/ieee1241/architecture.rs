@@ -54,7 +54,7 @@ pub struct Candidate {
 pub fn layouts(bits: u32) -> Vec<(Vec<u32>, bool)> {
     let uniform = |s: u32| -> Vec<u32> {
         let mut v = vec![s; (bits / s) as usize];
-        if bits % s != 0 {
+        if !bits.is_multiple_of(s) {
             v.push(bits % s);
         }
         v

@@ -229,8 +229,8 @@ mod tests {
         let slow = |j: usize| 10f64.powi(-(j as i32 % 12) - 1);
         let quartic = [100.0, 3000.0, -150.0, 40.0, -12.0];
         let n = 37;
-        let coef = |j: usize, k: usize| if j % 3 == 0 { quartic[k] } else if k == 4 { 1.0 } else { 0.0 };
-        let m = |j: usize| if j % 3 == 0 { 1500.0 + j as f64 } else { slow(j) };
+        let coef = |j: usize, k: usize| if j.is_multiple_of(3) { quartic[k] } else if k == 4 { 1.0 } else { 0.0 };
+        let m = |j: usize| if j.is_multiple_of(3) { 1500.0 + j as f64 } else { slow(j) };
         let mut got = vec![0.0; n];
         invert_all(&mut got, 5, 1.0, coef, m, |_| false);
         for (j, &g) in got.iter().enumerate() {

@@ -7,6 +7,9 @@
 //! - **plain LUT loop**: `sums[i] += lut[i mod 4][min(code, top)]` over groups of four
 //!   pixels, no bookkeeping (the core must also count out-of-range codes and check lines);
 //! - **byte bound**: `sums[i] += code` (the same memory traffic without the table);
+//! - **gather loop**: the plain LUT loop as one vector gather a step where the CPU has
+//!   one (AVX-512 or AVX2, [`gather`]), the bare instruction the core's host path must
+//!   keep up with;
 //! - **numpy**: `sums[s] += lut[column mod 4, codes]` in python3 with numpy, timed in its
 //!   own process around the same work (skipped, with a note, where numpy is missing).
 //!
@@ -15,6 +18,7 @@
 //! issue's limits.
 
 pub mod child;
+pub mod gather;
 pub mod python;
 pub mod ratchet;
 pub mod whole;
@@ -390,6 +394,12 @@ pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, Ho
         ratio("core, frame as a block", &core.by_block, "plain LUT loop", &core.plain, "Mpx/s", Some(0.95)),
         ratio("core, frame as a block", &core.by_block, "byte bound (no LUT)", &core.bytes, "Mpx/s", Some(0.4)),
     ];
+    // Said after the rows: an empty `notes` until then means numpy ran.
+    let mut kernel_notes = vec![format!("the core's line loop on this CPU: {}", dncal_core::simd::Kernel::detected().name())];
+    match gather::available().filter(|_| !core.gather.is_empty()) {
+        Some(width) => ratios.push(ratio("core, frame as a block", &core.by_block, &format!("gather loop ({width})"), &core.gather, "Mpx/s", Some(1.0))),
+        None => kernel_notes.push("no vector gather on this CPU: the gather loop's row was not measured".into()),
+    }
     match &core.banded {
         Some(b) => {
             let t = b.threads;
@@ -424,6 +434,7 @@ pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, Ho
     } else if p.numpy && notes.is_empty() {
         notes.push("numpy: not every run measured".into());
     }
+    notes.extend(kernel_notes);
     Ok(BenchReport { machine: machine(), runs, ratios, notes, check: None })
 }
 
@@ -451,6 +462,8 @@ struct CoreRates {
     by_block: Vec<f64>,
     plain: Vec<f64>,
     bytes: Vec<f64>,
+    /// The gather loop's, where the CPU has a gather.
+    gather: Vec<f64>,
     numpy: Vec<f64>,
     /// With more than one thread: the bands' rates.
     banded: Option<Banded>,
@@ -480,7 +493,9 @@ fn core_runs(p: &BenchParams, progress: &impl Fn(&str), notes: &mut Vec<String>)
     let core_err = |e: dncal_core::CoreError| HostError::core(format!("{}: the core refused the bench's frame", crate::Subject::Bench), e);
     let n = WIDTH * HEIGHT;
     let (mut line_sums, mut block_sums, mut plain_sums, mut byte_sums) = (vec![0u32; STATES * n], vec![0u32; STATES * n], vec![0u32; STATES * n], vec![0u32; STATES * n]);
-    let mut r = CoreRates { by_line: Vec::new(), by_block: Vec::new(), plain: Vec::new(), bytes: Vec::new(), numpy: Vec::new(), banded: None };
+    let gather_codes = gather::available().and_then(|_| gather::InRange::new(&codes));
+    let mut gather_sums = vec![0u32; if gather_codes.is_some() { STATES * n } else { 0 }];
+    let mut r = CoreRates { by_line: Vec::new(), by_block: Vec::new(), plain: Vec::new(), bytes: Vec::new(), gather: Vec::new(), numpy: Vec::new(), banded: None };
     // The parallel path against itself on one band: both clear their sums once per run.
     // The bands run on rayon's pool: as many as it has threads.
     let threads = rayon::current_num_threads();
@@ -525,6 +540,14 @@ fn core_runs(p: &BenchParams, progress: &impl Fn(&str), notes: &mut Vec<String>)
             (0..frames).for_each(|f| bytes_frame(black_box(&codes), &mut byte_sums[f % STATES * n..][..n]));
             Ok(())
         })?;
+        if let Some(frame) = gather_codes {
+            timed(&mut r.gather, &mut || {
+                (0..frames).for_each(|f| {
+                    black_box(gather::gather_lut_frame(&bits, black_box(frame), &mut gather_sums[f % STATES * n..][..n]));
+                });
+                Ok(())
+            })?;
+        }
         if run > 0 && p.numpy && notes.is_empty() {
             match numpy_rate(frames) {
                 Ok(rate) => r.numpy.push(rate),
@@ -555,7 +578,7 @@ fn core_runs(p: &BenchParams, progress: &impl Fn(&str), notes: &mut Vec<String>)
         })?;
     }
     // The core and the plain loop must agree bit for bit, or the comparison is void.
-    if c_line.sums().as_slice() != plain_sums.as_slice() || c_block.sums().as_slice() != plain_sums.as_slice() {
+    if c_line.sums().as_slice() != plain_sums.as_slice() || c_block.sums().as_slice() != plain_sums.as_slice() || (gather_codes.is_some() && gather_sums != plain_sums) {
         return Err(HostError::invalid(crate::Subject::Bench, "the core's sums differ from the plain LUT loop's"));
     }
     if many_bands.sums() != one_band.sums() {

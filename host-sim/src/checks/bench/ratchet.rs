@@ -42,6 +42,7 @@ const FLOORS: &[(&str, &str, Floor, &str)] = &[
     ("core, line by line", "plain LUT loop", Floor::Ratio(0.70), "medians 0.73-0.89 (checked, 3 invocations, 2026-12-04); 0.87-0.94 release"),
     ("core, frame as a block", "plain LUT loop", Floor::Ratio(0.72), "medians 0.75-0.87 (checked); 0.88-0.99 release"),
     ("core, frame as a block", "byte bound (no LUT)", Floor::Ratio(0.15), "medians 0.44-0.54 (checked, Xeon); 0.23-0.33 release on the AMD EPYC, where the checked build's core runs at about 0.76-0.99 of its release speed"),
+    ("core, frame as a block", "gather loop (AVX*", Floor::Ratio(0.85), "medians 0.99, 1.05, 1.06 (checked, AVX-512 Xeon, the core on its AVX-512 kernel, 2026-12-04); 0.95 with the core held to its portable loop"),
     ("core, frame as a block", "numpy lut[adc, codes]", Floor::Ratio(4.0), "medians 4.97-8.77 release (AMD EPYC to Xeon); the checked build's core is up to a quarter slower; numpy alone (CI's python3 has it)"),
     ("core, # bands, # threads", "core, # band, # thread", Floor::Reported, "two threads' speed-up: medians 1.40-2.03 (checked), 1.28-2.16 release, single runs down to 0.98: the host's second core more than the code"),
     ("plain loop, # bands, # threads", "plain loop, # band, # thread", Floor::Reported, "the host's own ceiling: medians 1.06-1.21 (checked), 1.46-1.86 release"),

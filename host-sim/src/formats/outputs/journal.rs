@@ -186,7 +186,7 @@ fn hex(path: &Path) -> String {
 }
 
 fn unhex(text: &str) -> Option<PathBuf> {
-    if text.len() % 2 != 0 {
+    if !text.len().is_multiple_of(2) {
         return None;
     }
     let bytes: Option<Vec<u8>> = (0..text.len()).step_by(2).map(|i| u8::from_str_radix(text.get(i..i + 2)?, 16).ok()).collect();
