@@ -115,3 +115,40 @@ def test_bad_inputs_raise_as_the_in_memory_fit(sets):
     bad_mask[1, 1] = 2
     with pytest.raises(dncal.InputError, match="the block from row 0, column 0"):
         dd.fit_linearity(m, s, voltage, frames, mask=bad_mask)
+
+
+def test_a_set_read_from_its_file_by_the_workers(sets, tmp_path):
+    """Issue 59: open_linearity's cubes are read block by block from the file by the
+    workers: the same numbers as the file read whole, a graph that holds no data, and on
+    two worker processes the fit equals the in-memory fit of the same file."""
+    distributed = pytest.importorskip("distributed")
+    fits = pytest.importorskip("astropy.io.fits")
+    import pickle
+
+    path = sets / "lin.fits"
+    mean, std, voltage, frames = read_set(path)
+    with fits.open(path) as f:
+        mask = np.asarray(f["MASK"].data, dtype=np.uint8) if "MASK" in f else np.zeros(mean.shape[1:], np.uint8)
+    s = dd.open_linearity(path, chunks=(13, 17))
+    assert s.mean.chunks == ((14,), (13, 13, 13, 1), (17, 17, 14)) and s.mean.dtype == np.float64
+    assert np.array_equal(s.mean.compute(), mean) and np.array_equal(s.std.compute(), std)
+    assert np.array_equal(s.voltage, voltage) and s.frames == frames and np.array_equal(s.mask, mask)
+    assert (s.bit_depth, s.n_adc, s.reference) == (12, 4, "photodiode")
+    graph = len(pickle.dumps(dict(s.mean.__dask_graph__())))
+    assert graph < mean.nbytes / 10, f"the graph holds {graph} bytes, the cube {mean.nbytes}"
+    want = dncal.fit_linearity(mean, std, voltage, frames, mask=mask)
+    # Each task reads its own block (the regions), unless the cube was rechunked: then
+    # the blocks are read as any Dask array's are, with the same numbers.
+    assert dd._regions(s.mean, s.mean.chunks[1], s.mean.chunks[2]) is not None
+    other = s.mean.rechunk((14, 20, 20)), s.std.rechunk((14, 20, 20))
+    assert dd._regions(other[0], other[0].chunks[1], other[0].chunks[2]) is None
+    same(dd.fit_linearity(*other, s.voltage, s.frames, mask=s.mask), want)
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, distributed.Client(cluster):
+        same(dd.fit_linearity(s.mean, s.std, s.voltage, s.frames, mask=s.mask, bit_depth=s.bit_depth, n_adc=s.n_adc), want)
+    # A file that is missing, or not a linearity set, is named with its fault.
+    with pytest.raises(dncal.DncalIOError, match="nothing.fits: cannot read"):
+        dd.open_linearity(tmp_path / "nothing.fits")
+    with pytest.raises(dncal.InputError, match=r"h.fits: not a linearity set: no STD extension"):
+        dd.open_linearity(sets / "h.fits")
+    with pytest.raises(ValueError, match="chunks"):
+        dd.open_linearity(path, chunks=(0, 17))

@@ -22,6 +22,8 @@ import numpy as np
 
 import json as _json
 import logging
+import os
+import threading
 import time
 from contextlib import contextmanager
 
@@ -140,7 +142,10 @@ def correct(frames, lut, states: int, first_column: int = 0, frame_states=None) 
 
 
 def _c(a: np.ndarray, dtype) -> np.ndarray:
-    """An aligned, C-ordered array of `dtype` (arrays from pickle may be neither)."""
+    """An aligned, C-ordered array of `dtype` (arrays from pickle may be neither); a
+    :class:`Region` read here, on the worker running the task."""
+    if isinstance(a, Region):
+        a = a.read()
     return np.require(a, dtype=dtype, requirements=["C", "A"])
 
 
@@ -187,21 +192,84 @@ def _step(name: str, passes: Optional[List[int]] = None):
     log.info("%s: %.3f s%s", name, time.perf_counter() - t, extra)
 
 
-def _medians(queries: int, tally: Callable[[np.ndarray], List[Any]], passes: Optional[List[int]] = None) -> Tuple[np.ndarray, np.ndarray]:
+#: Up to this many blocks, a median pass's tallies are added by the caller, not by a task
+#: on a worker (a level median's tally is 2 x 256 x 8 bytes a level and block).
+MERGE_HERE = 64
+
+
+def _medians(queries: int, tally: Callable[[np.ndarray, bool], Tuple[List[Any], Tuple[Any, ...]]], passes: Optional[List[int]] = None, on_first: Optional[Callable[..., None]] = None) -> Tuple[np.ndarray, np.ndarray]:
     """Exact medians of `queries` sets spread over blocks: passes of the radix search,
-    each `tally(counter)` a delayed tally per block, merged and taken by the search."""
+    each `tally(counter, first)` a delayed tally per block, merged and taken by the
+    search, and on the first pass (`first` true) a tuple of other delayed values, computed
+    in the same round trip to the workers and handed to `on_first` before the search
+    reads that pass (work that needs the same blocks: a pass fewer)."""
     search = _dncal._MedianSearch(queries)
     # 8 bits a pass: at most 8 histogram passes and one collection.
-    for _ in range(9):
+    for n in range(9):
         if search.done:
             break
         if passes is not None:
             passes[0] += 1
-        (total,) = dask.compute(dask.delayed(_merge)(tally(search.counter())))
+        tallies, extra = tally(search.counter(), n == 0)
+        if len(tallies) <= MERGE_HERE:
+            # A few blocks' tallies come straight here and are added here: one hop fewer
+            # than a merging task, whose inputs would travel to its worker first.
+            (tallies, *extra) = dask.compute(tallies, *extra)
+            total = _merge(list(tallies))
+        else:
+            (total, *extra) = dask.compute(dask.delayed(_merge)(tallies), *extra)
+        if n == 0 and on_first is not None:
+            on_first(*extra)
         search.advance([_c(v, np.float64) for v in total] if isinstance(total, list) else _c(total, np.uint64))
     if not search.done:
         raise RuntimeError("the exact median search did not end in 9 passes: the blocks' values changed between passes")
     return search.medians()
+
+
+# The blocks' tasks, as functions of the module: a task names them, where a lambda of
+# the fit would be pickled by value into every task of every pass.
+
+
+def _mask_tally(counter, fits, first_row, first_column):
+    """A block's tally for the mask's medians (the flat's signal, the fit residual)."""
+    return _dncal._lin_mask_tally(counter, _f(fits)[3], _f(fits)[2], first_row, first_column)
+
+
+def _mask_block(fits, mask, signal_medians, residual_medians, first_row, first_column):
+    """A block's mask (reasons, uint8)."""
+    return _dncal._lin_mask(_f(fits)[3], _f(fits)[2], None if mask is None else _c(mask, np.uint8), signal_medians, residual_medians, (first_row, first_column))
+
+
+def _good(mask) -> int:
+    """A block's count of good pixels."""
+    return int(np.count_nonzero(mask == 0))
+
+
+def _level_tally(counter, mean, mask, fits, voltage):
+    """A block's tally for each level's median."""
+    return _dncal._lin_level_tally(counter, _c(mean, np.float64), _c(mask, np.uint8), _f(fits)[0], _c(voltage, np.float64))
+
+
+def _level_stats(*a):
+    """A block's statistics' parts (stage 4 without the cube)."""
+    return _level_pass(*a)[0]
+
+
+def _level_cube(*a):
+    """A block's corrected cube, unfilled (stage 4)."""
+    return _level_pass(*a)[1]
+
+
+def _coefficients(fits) -> np.ndarray:
+    """A block's coefficients, (order + 1, rows, cols)."""
+    return np.moveaxis(fits[1], -1, 0).copy()
+
+
+def _tally_and_sums(counter, mean, mask, fits, voltage):
+    """A block's first level-median tally and its level sums, its block of the cube
+    read once for both."""
+    m, k, n, v = _c(mean, np.float64), _c(mask, np.uint8), _f(fits)[0], _c(voltage, np.float64)
+    return _dncal._lin_level_tally(counter, m, k, n, v), _dncal._lin_level_sums(m, k, n, v)
 
 
 def _level_pass(mean, std, fits, mask, keys, global_coefficients, level_means, keep):
@@ -214,7 +282,184 @@ def _fill(block: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return _dncal._lin_fill(_c(block, np.float64), _c(mask, np.uint8))
 
 
+class FitsCube:
+    """One float cube (levels, rows, cols) of a FITS file, read a block at a time where
+    the block is needed: what :func:`open_linearity` gives ``dask.array.from_array``.
+
+    It holds only the file's path, the HDU's name and its shape, so a task graph that
+    carries it is a few hundred bytes whatever the set's size, and each worker reads its
+    own blocks from the file (astropy, memory-mapped: a block's rows are read, nothing
+    else) and converts them from FITS's big-endian to native float64."""
+
+    def __init__(self, path: str, hdu: str, shape: Tuple[int, int, int]):
+        self.path, self.hdu, self.shape = path, hdu, tuple(shape)
+        self.dtype, self.ndim = np.dtype(np.float64), 3
+
+    def __dask_tokenize__(self):
+        import os
+
+        return (self.path, self.hdu, self.shape, os.stat(self.path).st_mtime_ns)
+
+    def __getitem__(self, index):
+        from astropy.io import fits
+
+        with fits.open(self.path, memmap=True, lazy_load_hdus=True) as f:
+            return np.array(f[self.hdu].data[index], dtype=np.float64, order="C")
+
+
+class Region:
+    """A block of a :class:`FitsCube` (all levels, rows ``rows``, columns ``cols``), passed
+    to a block's task in place of its data: the task reads it where it runs. A block's
+    task then depends only on the block's persisted fits, so it runs on the worker that
+    holds them, and no block of the cube crosses between workers (each pass over the
+    cube re-reads it from the file, which the operating system caches)."""
+
+    def __init__(self, cube: FitsCube, rows: slice, cols: slice):
+        self.cube, self.rows, self.cols = cube, rows, cols
+
+    def __dask_tokenize__(self):
+        return (self.cube.__dask_tokenize__(), self.rows.start, self.rows.stop, self.cols.start, self.cols.stop)
+
+    def read(self) -> np.ndarray:
+        """The block, read-only: from this process's keep (:data:`BLOCK_KEEP_MIB`) where a
+        task of the same fit read it before, else from the file."""
+        key = self.__dask_tokenize__()
+        with _KEPT_LOCK:
+            kept = _KEPT.get(key)
+        if kept is not None:
+            return kept
+        block = self.cube[:, self.rows, self.cols]
+        block.flags.writeable = False
+        with _KEPT_LOCK:
+            if sum(b.nbytes for b in _KEPT.values()) + block.nbytes <= _keep_budget():
+                _KEPT[key] = block
+        return block
+
+
+#: A fit passes over a file's cube several times (the fits, the median passes, the
+#: statistics); each process keeps the blocks its tasks read, up to this many MiB
+#: (``DNCAL_DASK_BLOCK_KEEP_MIB`` in the workers' environment; 0 keeps none), and drops
+#: them when the fit's report is made (on every worker of a ``distributed`` client). The
+#: first blocks read are kept, not the last: the passes visit the blocks in the same
+#: order, so a keep that cannot hold them all still saves every pass its first blocks'
+#: reads, where evicting the oldest would save none.
+BLOCK_KEEP_MIB = 512.0
+_KEPT: Dict[Any, np.ndarray] = {}
+_KEPT_LOCK = threading.Lock()
+
+
+def _keep_budget() -> int:
+    """Bytes of blocks a process keeps."""
+    try:
+        mib = float(os.environ.get("DNCAL_DASK_BLOCK_KEEP_MIB", BLOCK_KEEP_MIB))
+    except ValueError:
+        mib = BLOCK_KEEP_MIB
+    return int(max(mib, 0.0) * 2**20)
+
+
+def _drop_kept() -> int:
+    """Drops this process's kept blocks; how many there were."""
+    with _KEPT_LOCK:
+        n = len(_KEPT)
+        _KEPT.clear()
+    return n
+
+
+def _forget_blocks() -> None:
+    """Drops the kept blocks here and on the workers of the current distributed client."""
+    _drop_kept()
+    try:
+        from distributed import get_client
+
+        client = get_client()
+    except (ImportError, ValueError):
+        return
+    client.run(_drop_kept)
+
+
+def _regions(a, row_chunks, col_chunks):
+    """The blocks of `a` as :class:`Region` s, where `a` is a cube :func:`open_linearity`
+    made and still has the chunks it was made with; else None."""
+    source = getattr(a, "_dncal_source", None)
+    if source is None or source[1] != a.chunks or a.chunks[1:] != (row_chunks, col_chunks):
+        return None
+    r0, c0 = np.cumsum((0,) + row_chunks), np.cumsum((0,) + col_chunks)
+    return [[Region(source[0], slice(int(r0[i]), int(r0[i + 1])), slice(int(c0[j]), int(c0[j + 1]))) for j in range(len(col_chunks))] for i in range(len(row_chunks))]
+
+
+def open_linearity(path, chunks: Tuple[int, int] = (256, 256)):
+    """A linearity set in a FITS file (as ``dncal simulate linearity`` writes it, and
+    ``dncal linearity`` reads it) as a :class:`dncal.LinearitySet` whose ``mean`` and
+    ``std`` are ``dask.array`` cubes chunked ``chunks`` (rows, columns), all levels a
+    block, each block read from the file by the worker that needs it
+    (:class:`FitsCube`): a set larger than any one machine's memory, held as a 16k x 16k
+    sensor's data would be, on storage every worker sees. The voltage, the frame count,
+    the ADC keys and the mask (small) are read here. Needs astropy.
+
+    Raises :class:`dncal.DncalIOError` for a file that cannot be opened and
+    :class:`dncal.InputError` for one that is not a linearity set (a missing extension,
+    key or column, cubes of different shapes), naming the file."""
+    from . import LinearitySet
+    from .errors import DncalIOError, InputError
+
+    try:
+        from astropy.io import fits
+    except ImportError as e:  # pragma: no cover - the message is the point
+        raise ImportError("dncal.dask.open_linearity needs astropy: pip install astropy") from e
+    path = str(path)
+    rows_chunk, cols_chunk = (int(c) for c in chunks)
+    if rows_chunk < 1 or cols_chunk < 1:
+        raise ValueError(f"chunks: {chunks}, but two positive sizes (rows, columns) are needed")
+    try:
+        f = fits.open(path, memmap=True, lazy_load_hdus=True)
+    except OSError as e:
+        raise DncalIOError(f"{path}: cannot read: {e}") from e
+    try:
+        with f:
+            names = [h.name for h in f]
+            for need in ("STD", "REFERENCE"):
+                if need not in names:
+                    raise InputError(f"{path}: not a linearity set: no {need} extension")
+            header = f[0].header
+            shape = tuple(f[0].shape or ())
+            if len(shape) != 3 or tuple(f["STD"].shape or ()) != shape:
+                raise InputError(f"{path}: not a linearity set: the mean cube is {shape} and STD {tuple(f['STD'].shape or ())}, but two equal (levels, rows, cols) cubes are needed")
+            keys = {}
+            for key in ("NFRAMES", "BITDEPTH", "NADC"):
+                if key not in header:
+                    raise InputError(f"{path}: not a linearity set: no {key} key in the primary header")
+                keys[key] = int(header[key])
+            table = f["REFERENCE"].data
+            columns = [c.upper() for c in table.columns.names]
+            reference = "photodiode" if "VOLTAGE" in columns else "exposure" if "EXPOSURE" in columns else None
+            if reference is None:
+                raise InputError(f"{path}: REFERENCE has neither a VOLTAGE nor an EXPOSURE column")
+            voltage = np.array(table["VOLTAGE" if reference == "photodiode" else "EXPOSURE"], dtype=np.float64)
+            mask = np.array(f["MASK"].data, dtype=np.uint8) if "MASK" in names else np.zeros(shape[1:], dtype=np.uint8)
+            # The layout as the file names it from its first stored pixel; offsets or a
+            # bottom-up row order are not applied here (the fit does not use the layout).
+            simple = int(header.get("XBAYROFF", 0)) % 2 == 0 and int(header.get("YBAYROFF", 0)) % 2 == 0 and str(header.get("ROWORDER", "TOP-DOWN")).strip() == "TOP-DOWN"
+            bayer = str(header.get("BAYERPAT", "")).strip() or None
+    except (KeyError, TypeError, ValueError) as e:
+        if isinstance(e, InputError):
+            raise
+        raise InputError(f"{path}: not a linearity set: {e}") from e
+    c = (shape[0], rows_chunk, cols_chunk)
+    mean, std = (da.from_array(FitsCube(path, hdu, shape), chunks=c, lock=False, asarray=False, fancy=False) for hdu in ("PRIMARY", "STD"))
+    # What fit_linearity needs to hand each task its block's place, not its data.
+    for a, hdu in ((mean, "PRIMARY"), (std, "STD")):
+        a._dncal_source = (FitsCube(path, hdu, shape), a.chunks)
+    return LinearitySet(mean, std, voltage, mask, keys["NFRAMES"], keys["BITDEPTH"], keys["NADC"], bayer if simple else None, reference)
+
+
 def fit_linearity(mean, std, voltage, frames: int, *, order: int = 4, flat_level: Optional[int] = None, mask=None, bit_depth: int = 12, n_adc: int = 4, keep_corrected: bool = True):
+    try:
+        return _fit_linearity(mean, std, voltage, frames, order=order, flat_level=flat_level, mask=mask, bit_depth=bit_depth, n_adc=n_adc, keep_corrected=keep_corrected)
+    finally:
+        _forget_blocks()
+
+
+def _fit_linearity(mean, std, voltage, frames: int, *, order: int = 4, flat_level: Optional[int] = None, mask=None, bit_depth: int = 12, n_adc: int = 4, keep_corrected: bool = True):
     """The pixel-wise linearity analysis of a set held as Dask arrays: bit for bit what
     :func:`dncal.fit_linearity` gives on the same numbers in memory.
 
@@ -227,7 +472,10 @@ def fit_linearity(mean, std, voltage, frames: int, *, order: int = 4, flat_level
     median (exact radix selections, a few passes of histograms over the blocks), each
     level's mean and the RMS statistics (exact sums, rounded once). Each block's fits
     are persisted between the passes (about 8 x (order + 4) bytes per pixel on the
-    workers); ``mean`` is read once per pass (persist it too where it fits).
+    workers); ``mean`` is read once per pass (persist it too where it fits), unless it
+    comes from :func:`open_linearity`: then each block's task reads its block from the
+    file where it runs, and each process keeps the blocks it read for the passes that
+    follow (:data:`BLOCK_KEEP_MIB`).
 
     Returns a :class:`dncal.LinearityFit` whose ``report`` is computed (a dict, as the
     in-memory one) and whose ``coefficients``, ``mask`` and ``corrected`` are Dask arrays
@@ -252,6 +500,8 @@ def fit_linearity(mean, std, voltage, frames: int, *, order: int = 4, flat_level
     mean = mean.rechunk({0: -1})
     std = std.rechunk(mean.chunks)
     row_chunks, col_chunks = mean.chunks[1], mean.chunks[2]
+    # Cubes open_linearity made: each task reads its own block from the file.
+    regions = _regions(mean, row_chunks, col_chunks), _regions(std, row_chunks, col_chunks)
     if mask is not None:
         if mask.dtype != np.uint8:
             raise TypeError(f"mask: dtype {mask.dtype}, but uint8 is needed")
@@ -259,6 +509,8 @@ def fit_linearity(mean, std, voltage, frames: int, *, order: int = 4, flat_level
             raise ValueError(f"mask: shape {mask.shape}, but frames are {rows} x {cols}")
         mask = (mask if isinstance(mask, da.Array) else da.from_array(mask)).rechunk((row_chunks, col_chunks))
     mb, sb = mean.to_delayed()[0], std.to_delayed()[0]
+    if regions[0] is not None and regions[1] is not None:
+        mb, sb = regions
     kb = None if mask is None else mask.to_delayed()
     r0 = np.cumsum((0,) + row_chunks[:-1])
     c0 = np.cumsum((0,) + col_chunks[:-1])
@@ -278,27 +530,40 @@ def fit_linearity(mean, std, voltage, frames: int, *, order: int = 4, flat_level
     passes = [0]
     with _step("mask medians", passes):
         # (The flat's signal, then the residual, by cell of the 2 x 2 period: a colour filter's channels.)
-        med, _ = _medians(8, lambda w: [dask.delayed(lambda w, f, r, c: _dncal._lin_mask_tally(w, _f(f)[3], _f(f)[2], r, c))(w, f, int(r0[i]), int(c0[j])) for f, (i, j) in zip(fits, grid)], passes)
-    mask_fn = dask.delayed(lambda f, k, s, r, i, j: _dncal._lin_mask(_f(f)[3], _f(f)[2], None if k is None else _c(k, np.uint8), s, r, (i, j)), pure=True)
+        med, _ = _medians(8, lambda w, _: ([dask.delayed(_mask_tally)(w, f, int(r0[i]), int(c0[j])) for f, (i, j) in zip(fits, grid)], ()), passes)
+    mask_fn = dask.delayed(_mask_block, pure=True)
     masks = dask.persist(*[mask_fn(f, None if kb is None else kb[i][j], [float(m) for m in med[:4]], [float(m) for m in med[4:]], int(r0[i]), int(c0[j])) for f, (i, j) in zip(fits, grid)])
-    (good,) = dask.compute(dask.delayed(sum)([dask.delayed(lambda m: int(np.count_nonzero(m == 0)))(m) for m in masks]))
-    if good == 0:
-        _dncal._lin_global(keys, [], [], 0, rows * cols)  # raises AllMasked, as the in-memory fit does
+    good_count = dask.delayed(sum)([dask.delayed(_good)(m) for m in masks])
 
-    # Each level's median and count of the counted pixels; the global cubic.
-    level_tally = dask.delayed(lambda w, m, k, f, v: _dncal._lin_level_tally(w, _c(m, np.float64), _c(k, np.uint8), _f(f)[0], _c(v, np.float64)))
+    # Each level's median and count of the counted pixels; the global cubic. With the
+    # first pass over the cube, in the same round trip and reading of each block, the
+    # good pixels' count and each level's exact sums (for its mean): a pass fewer.
+    # (The block's level sums and first tally come out of one task, so its block of the
+    # cube is read once for both.)
+    level_tally = dask.delayed(_level_tally)
+    both = dask.delayed(_tally_and_sums, nout=2)
+    parts: List[Any] = []
+
+    def tally(w, first):
+        if not first:
+            return [level_tally(w, mb[i][j], k, f, voltage) for f, k, (i, j) in zip(fits, masks, grid)], ()
+        pairs = [both(w, mb[i][j], k, f, voltage) for f, k, (i, j) in zip(fits, masks, grid)]
+        return [p[0] for p in pairs], (good_count, dask.delayed(_add_parts)([p[1] for p in pairs]))
+
+    def check_and_keep(good, level_parts):
+        if good == 0:
+            _dncal._lin_global(keys, [], [], 0, rows * cols)  # raises AllMasked, as the in-memory fit does
+        parts.extend([good, level_parts])
+
     passes = [0]
-    with _step(f"level medians ({levels} levels)", passes):
-        medians, counts = _medians(levels, lambda w: [level_tally(w, mb[i][j], k, f, voltage) for f, k, (i, j) in zip(fits, masks, grid)], passes)
+    with _step(f"level medians and means ({levels} levels)", passes):
+        medians, counts = _medians(levels, tally, passes, on_first=check_and_keep)
+    good, level_parts = parts
     global_coefficients = _dncal._lin_global(keys, [float(m) for m in medians], [int(n) for n in counts], good, rows * cols)
-    # Each level's mean of the counted pixels (exact sums).
-    sums = dask.delayed(lambda m, k, f, v: _dncal._lin_level_sums(_c(m, np.float64), _c(k, np.uint8), _f(f)[0], _c(v, np.float64)))
-    with _step("level means (exact sums)"):
-        (level_parts,) = dask.compute(dask.delayed(_add_parts)([sums(mb[i][j], k, f, voltage) for f, k, (i, j) in zip(fits, masks, grid)]))
     level_means = [float(x) for x in _dncal._lin_means(*_parts(level_parts))]
 
     # The statistics (without the cube: it is the lazy result below).
-    stats = dask.delayed(lambda *a: _level_pass(*a)[0])
+    stats = dask.delayed(_level_stats)
     with _step("statistics (inversion, exact sums)"):
         (stat_parts,) = dask.compute(dask.delayed(_add_parts)([stats(mb[i][j], sb[i][j], f, k, keys_d, global_coefficients, level_means, False) for f, k, (i, j) in zip(fits, masks, grid)]))
     masked = rows * cols - good
@@ -306,11 +571,14 @@ def fit_linearity(mean, std, voltage, frames: int, *, order: int = 4, flat_level
 
     k1 = min(max(order, 1), 8) + 1
     at = {g: n for n, g in enumerate(grid)}
-    coefficients = da.block([[da.from_delayed(dask.delayed(lambda f: np.moveaxis(f[1], -1, 0).copy())(fits[at[(i, j)]]), shape=(k1, h, w), dtype=np.float64) for j, w in enumerate(col_chunks)] for i, h in enumerate(row_chunks)])
+    coefficients = da.block([[da.from_delayed(dask.delayed(_coefficients)(fits[at[(i, j)]]), shape=(k1, h, w), dtype=np.float64) for j, w in enumerate(col_chunks)] for i, h in enumerate(row_chunks)])
     reasons = da.block([[da.from_delayed(masks[at[(i, j)]], shape=(h, w), dtype=np.uint8) for j, w in enumerate(col_chunks)] for i, h in enumerate(row_chunks)])
     corrected = None
     if keep_corrected:
-        cube = dask.delayed(lambda *a: _level_pass(*a)[1])
+        cube = dask.delayed(_level_cube)
         unfilled = da.block([[da.from_delayed(cube(mb[i][j], sb[i][j], fits[at[(i, j)]], masks[at[(i, j)]], keys_d, global_coefficients, level_means, True), shape=(levels, h, w), dtype=np.float64) for j, w in enumerate(col_chunks)] for i, h in enumerate(row_chunks)])
         corrected = da.map_overlap(_fill, unfilled, reasons[None], depth={0: 0, 1: 1, 2: 1}, boundary="none", dtype=np.float64, align_arrays=False)
     return LinearityFit(report, coefficients, reasons, corrected)
+
+
+fit_linearity.__doc__ = _fit_linearity.__doc__
