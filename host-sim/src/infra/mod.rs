@@ -2,6 +2,7 @@
 //! regions of interest, text made safe for a terminal, order statistics, robust statistics and least squares, and the
 //! core on several threads. Imports `dncal-core` only.
 
+pub mod allocator;
 pub mod budget;
 pub mod dims;
 pub mod exact_sum;

@@ -28,6 +28,11 @@ fn main() -> ExitCode {
         Ok(cli) => cli,
         Err(e) => return usage_error(e),
     };
+    // Before any thread starts; `diagnose` only, where it was measured to pay
+    // (infra/allocator.rs).
+    if matches!(cli.command, Cmd::Diagnose { .. }) {
+        dncal_host::infra::allocator::reuse_freed_blocks();
+    }
     // The outputs stay undoable until the report is on stdout: a report that cannot be
     // written (`--json > /dev/full`) leaves no outputs either (issue 43).
     let outputs = dncal_host::formats::outputs::hold();
