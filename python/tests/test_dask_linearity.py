@@ -137,12 +137,33 @@ def test_a_set_read_from_its_file_by_the_workers(sets, tmp_path):
     graph = len(pickle.dumps(dict(s.mean.__dask_graph__())))
     assert graph < mean.nbytes / 10, f"the graph holds {graph} bytes, the cube {mean.nbytes}"
     want = dncal.fit_linearity(mean, std, voltage, frames, mask=mask)
-    # Each task reads its own block (the regions), unless the cube was rechunked: then
-    # the blocks are read as any Dask array's are, with the same numbers.
-    assert dd._regions(s.mean, s.mean.chunks[1], s.mean.chunks[2]) is not None
+    # Each task reads its own block (the regions): counted inside the fit, on threads.
+    reads = []
+    read = dd.Region.read
+    dd.Region.read = lambda r: reads.append(r.fit) or read(r)
+    try:
+        same(dd.fit_linearity(s.mean, s.std, s.voltage, s.frames, mask=s.mask), want)
+    finally:
+        dd.Region.read = read
+    # 12 blocks, each read by the fit (2 cubes), each level-median pass (1) and the
+    # statistics (2), under one fit's name; and by the lazy corrected cube (2), unkept.
+    # The fit's kept blocks are dropped at its end.
+    kept = [r for r in reads if r is not None]
+    assert reads.count(None) == 12 * 2 and len(set(kept)) == 1 and len(kept) >= 12 * 5 and len(kept) % 12 == 0, (len(reads), set(reads))
+    assert not dd._KEPT
+    # A cube rechunked, or written into, is read as any Dask array is (the same numbers).
     other = s.mean.rechunk((14, 20, 20)), s.std.rechunk((14, 20, 20))
-    assert dd._regions(other[0], other[0].chunks[1], other[0].chunks[2]) is None
+    assert dd._regions(other[0], other[0].chunks[1], other[0].chunks[2], "t") is None
     same(dd.fit_linearity(*other, s.voltage, s.frames, mask=s.mask), want)
+    edited = dd.open_linearity(path, chunks=(13, 17))
+    assert dd._regions(edited.mean, (13, 13, 13, 1), (17, 17, 14), "t") is not None
+    edited.mean[:, 30, 40] = edited.mean[0, 30, 40]
+    assert dd._regions(edited.mean, (13, 13, 13, 1), (17, 17, 14), "t") is None
+    dead = mean.copy()
+    dead[:, 30, 40] = dead[0, 30, 40]
+    same(dd.fit_linearity(edited.mean, edited.std, s.voltage, s.frames, mask=s.mask), dncal.fit_linearity(dead, std, voltage, frames, mask=mask))
+    # -1: a whole axis a block.
+    assert dd.open_linearity(path, chunks=(-1, 17)).mean.chunks == ((14,), (40,), (17, 17, 14))
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, distributed.Client(cluster):
         same(dd.fit_linearity(s.mean, s.std, s.voltage, s.frames, mask=s.mask, bit_depth=s.bit_depth, n_adc=s.n_adc), want)
     # A file that is missing, or not a linearity set, is named with its fault.

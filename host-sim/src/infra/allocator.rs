@@ -10,8 +10,9 @@
 //! of those shootdowns) at 10.5% of a `dncal diagnose` of a 128 x 128 x 41 set
 //! (2026-12-04, 2-vCPU Xeon). With the threshold at its 32 MiB maximum and the heap kept
 //! up to 64 MiB of free top, freed blocks are reused instead: the same run took 1.86-1.88 s
-//! against 2.15-2.16 s, with a peak resident memory of 86 MB against 84 MB; `farm-bench`,
-//! 8 pairs of whole commands: wall 0.884 (0.859-0.942) of before. Blocks of 32 MiB and
+//! against 2.15-2.16 s (`GLIBC_TUNABLES`, three runs each); `farm-bench`, pairs of whole
+//! commands against the build before: wall 0.884 (8 pairs, 0.859-0.942) and 0.879 (6
+//! pairs), peak 84.9 MiB against 84.7 (medians). Blocks of 32 MiB and
 //! more (a set's cubes) are still mapped and unmapped on their own.
 //!
 //! Only `diagnose` sets them: `linearity` on a 512 x 512 x 41 set ran at 1.02-1.03 of
@@ -23,26 +24,19 @@ pub const MMAP_THRESHOLD_BYTES: i32 = 32 << 20;
 /// The free top the heap keeps before it trims.
 pub const TRIM_THRESHOLD_BYTES: i32 = 64 << 20;
 
-/// Sets the thresholds (glibc on Linux; elsewhere nothing). Whether glibc took both.
+/// Sets the thresholds (glibc on Linux; elsewhere nothing). Whether glibc took both (it
+/// takes any value here; a newer glibc that capped the threshold would say no). Not
+/// tested in the library's tests: it changes the allocator of the whole test process
+/// while other tests allocate, and `mallopt` is not safe beside other threads.
 pub fn reuse_freed_blocks() -> bool {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     {
-        // SAFETY: mallopt only sets the allocator's parameters; called before any thread
-        // of ours starts.
+        // SAFETY: mallopt only sets the allocator's parameters; `dncal`'s main calls this
+        // before any thread starts (mallopt is not thread-safe).
         unsafe { libc::mallopt(libc::M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES) == 1 && libc::mallopt(libc::M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES) == 1 }
     }
     #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
     {
         false
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    #[test]
-    fn glibc_takes_both_thresholds() {
-        // A threshold glibc refuses (its mmap threshold above 32 MiB) would leave the
-        // allocator as it was, silently: the values must be ones it takes.
-        assert_eq!(super::reuse_freed_blocks(), cfg!(all(target_os = "linux", target_env = "gnu")));
     }
 }

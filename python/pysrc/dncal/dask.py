@@ -23,8 +23,10 @@ import numpy as np
 import json as _json
 import logging
 import os
+import sys
 import threading
 import time
+import uuid
 from contextlib import contextmanager
 
 from . import _dncal
@@ -296,9 +298,10 @@ class FitsCube:
         self.dtype, self.ndim = np.dtype(np.float64), 3
 
     def __dask_tokenize__(self):
-        import os
-
-        return (self.path, self.hdu, self.shape, os.stat(self.path).st_mtime_ns)
+        # The file as it is now: a rewrite changes its inode, size or change time even
+        # where it keeps the modification time (`cp -p`, `rsync -t`, tar).
+        st = os.stat(self.path)
+        return (self.path, self.hdu, self.shape, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
 
     def __getitem__(self, index):
         from astropy.io import fits
@@ -311,19 +314,29 @@ class Region:
     """A block of a :class:`FitsCube` (all levels, rows ``rows``, columns ``cols``), passed
     to a block's task in place of its data: the task reads it where it runs. A block's
     task then depends only on the block's persisted fits, so it runs on the worker that
-    holds them, and no block of the cube crosses between workers (each pass over the
-    cube re-reads it from the file, which the operating system caches)."""
+    holds them, and no block of the cube crosses between workers.
 
-    def __init__(self, cube: FitsCube, rows: slice, cols: slice):
-        self.cube, self.rows, self.cols = cube, rows, cols
+    ``fit`` names the :func:`fit_linearity` call it belongs to: its blocks are kept under
+    that name (``None``: never kept) and dropped when that fit ends, and the name is part
+    of its token, so two fits never share a persisted key."""
+
+    def __init__(self, cube: FitsCube, rows: slice, cols: slice, fit: Optional[str]):
+        self.cube, self.rows, self.cols, self.fit = cube, rows, cols, fit
 
     def __dask_tokenize__(self):
-        return (self.cube.__dask_tokenize__(), self.rows.start, self.rows.stop, self.cols.start, self.cols.stop)
+        return (self.cube.__dask_tokenize__(), self.rows.start, self.rows.stop, self.cols.start, self.cols.stop, self.fit)
+
+    def unkept(self) -> "Region":
+        """The same block, read from the file every time (for work after the fit: the
+        lazy corrected cube)."""
+        return Region(self.cube, self.rows, self.cols, None)
 
     def read(self) -> np.ndarray:
         """The block, read-only: from this process's keep (:data:`BLOCK_KEEP_MIB`) where a
         task of the same fit read it before, else from the file."""
-        key = self.__dask_tokenize__()
+        if self.fit is None:
+            return self.cube[:, self.rows, self.cols]
+        key = (self.fit, self.cube.hdu, self.rows.start, self.rows.stop, self.cols.start, self.cols.stop)
         with _KEPT_LOCK:
             kept = _KEPT.get(key)
         if kept is not None:
@@ -337,9 +350,10 @@ class Region:
 
 
 #: A fit passes over a file's cube several times (the fits, the median passes, the
-#: statistics); each process keeps the blocks its tasks read, up to this many MiB
-#: (``DNCAL_DASK_BLOCK_KEEP_MIB`` in the workers' environment; 0 keeps none), and drops
-#: them when the fit's report is made (on every worker of a ``distributed`` client). The
+#: statistics); each process keeps the blocks its tasks read, up to this many MiB, and
+#: drops them when the fit's report is made (on every worker of a ``distributed`` client).
+#: A worker process takes its budget from ``DNCAL_DASK_BLOCK_KEEP_MIB`` in its environment
+#: (0 keeps none); this default is what applies where that is not set. The
 #: first blocks read are kept, not the last: the passes visit the blocks in the same
 #: order, so a keep that cannot hold them all still saves every pass its first blocks'
 #: reads, where evicting the oldest would save none.
@@ -357,34 +371,44 @@ def _keep_budget() -> int:
     return int(max(mib, 0.0) * 2**20)
 
 
-def _drop_kept() -> int:
-    """Drops this process's kept blocks; how many there were."""
+def _drop_kept(fit: str) -> int:
+    """Drops this process's blocks kept for fit `fit`; how many there were."""
     with _KEPT_LOCK:
-        n = len(_KEPT)
-        _KEPT.clear()
-    return n
+        mine = [k for k in _KEPT if k[0] == fit]
+        for k in mine:
+            del _KEPT[k]
+    return len(mine)
 
 
-def _forget_blocks() -> None:
-    """Drops the kept blocks here and on the workers of the current distributed client."""
-    _drop_kept()
+def _forget_blocks(fit: str) -> None:
+    """Drops fit `fit`'s kept blocks here and on the workers of the current distributed
+    client (where one is in use). A failure to reach the workers is logged, never raised:
+    it must not replace the fit's own error, and the blocks then stay until the workers
+    end."""
+    _drop_kept(fit)
+    if "distributed" not in sys.modules:
+        return
     try:
         from distributed import get_client
 
         client = get_client()
     except (ImportError, ValueError):
         return
-    client.run(_drop_kept)
+    try:
+        client.run(_drop_kept, fit)
+    except Exception as e:  # noqa: BLE001 - see the docstring
+        log.warning("the workers' kept blocks of fit %s were not dropped: %s", fit, e)
 
 
-def _regions(a, row_chunks, col_chunks):
-    """The blocks of `a` as :class:`Region` s, where `a` is a cube :func:`open_linearity`
-    made and still has the chunks it was made with; else None."""
+def _regions(a, row_chunks, col_chunks, fit: Optional[str]):
+    """The blocks of `a` as :class:`Region` s of fit `fit`, where `a` is a cube
+    :func:`open_linearity` made, unchanged (the same graph: an assignment into it, or a
+    rechunk, makes another) ; else None."""
     source = getattr(a, "_dncal_source", None)
-    if source is None or source[1] != a.chunks or a.chunks[1:] != (row_chunks, col_chunks):
+    if source is None or source[1] != a.name or a.chunks[1:] != (row_chunks, col_chunks):
         return None
     r0, c0 = np.cumsum((0,) + row_chunks), np.cumsum((0,) + col_chunks)
-    return [[Region(source[0], slice(int(r0[i]), int(r0[i + 1])), slice(int(c0[j]), int(c0[j + 1]))) for j in range(len(col_chunks))] for i in range(len(row_chunks))]
+    return [[Region(source[0], slice(int(r0[i]), int(r0[i + 1])), slice(int(c0[j]), int(c0[j + 1])), fit) for j in range(len(col_chunks))] for i in range(len(row_chunks))]
 
 
 def open_linearity(path, chunks: Tuple[int, int] = (256, 256)):
@@ -396,7 +420,8 @@ def open_linearity(path, chunks: Tuple[int, int] = (256, 256)):
     sensor's data would be, on storage every worker sees. The voltage, the frame count,
     the ADC keys and the mask (small) are read here. Needs astropy.
 
-    Raises :class:`dncal.DncalIOError` for a file that cannot be opened and
+    Fit it with :func:`fit_linearity` (the set's own ``fit`` is the in-memory one, for
+    numpy arrays). Raises :class:`dncal.DncalIOError` for a file that cannot be opened and
     :class:`dncal.InputError` for one that is not a linearity set (a missing extension,
     key or column, cubes of different shapes), naming the file."""
     from . import LinearitySet
@@ -406,10 +431,11 @@ def open_linearity(path, chunks: Tuple[int, int] = (256, 256)):
         from astropy.io import fits
     except ImportError as e:  # pragma: no cover - the message is the point
         raise ImportError("dncal.dask.open_linearity needs astropy: pip install astropy") from e
-    path = str(path)
+    # Absolute: the workers may run elsewhere in the file system's tree.
+    path = os.path.abspath(str(path))
     rows_chunk, cols_chunk = (int(c) for c in chunks)
-    if rows_chunk < 1 or cols_chunk < 1:
-        raise ValueError(f"chunks: {chunks}, but two positive sizes (rows, columns) are needed")
+    if rows_chunk < 1 and rows_chunk != -1 or cols_chunk < 1 and cols_chunk != -1:
+        raise ValueError(f"chunks: {chunks}, but two positive sizes (rows, columns), or -1 for a whole axis, are needed")
     try:
         f = fits.open(path, memmap=True, lazy_load_hdus=True)
     except OSError as e:
@@ -440,26 +466,27 @@ def open_linearity(path, chunks: Tuple[int, int] = (256, 256)):
             # bottom-up row order are not applied here (the fit does not use the layout).
             simple = int(header.get("XBAYROFF", 0)) % 2 == 0 and int(header.get("YBAYROFF", 0)) % 2 == 0 and str(header.get("ROWORDER", "TOP-DOWN")).strip() == "TOP-DOWN"
             bayer = str(header.get("BAYERPAT", "")).strip() or None
-    except (KeyError, TypeError, ValueError) as e:
+    except (KeyError, TypeError, ValueError, AttributeError) as e:
         if isinstance(e, InputError):
             raise
         raise InputError(f"{path}: not a linearity set: {e}") from e
-    c = (shape[0], rows_chunk, cols_chunk)
+    c = (shape[0], shape[1] if rows_chunk == -1 else rows_chunk, shape[2] if cols_chunk == -1 else cols_chunk)
     mean, std = (da.from_array(FitsCube(path, hdu, shape), chunks=c, lock=False, asarray=False, fancy=False) for hdu in ("PRIMARY", "STD"))
     # What fit_linearity needs to hand each task its block's place, not its data.
     for a, hdu in ((mean, "PRIMARY"), (std, "STD")):
-        a._dncal_source = (FitsCube(path, hdu, shape), a.chunks)
+        a._dncal_source = (FitsCube(path, hdu, shape), a.name)
     return LinearitySet(mean, std, voltage, mask, keys["NFRAMES"], keys["BITDEPTH"], keys["NADC"], bayer if simple else None, reference)
 
 
 def fit_linearity(mean, std, voltage, frames: int, *, order: int = 4, flat_level: Optional[int] = None, mask=None, bit_depth: int = 12, n_adc: int = 4, keep_corrected: bool = True):
+    run = uuid.uuid4().hex
     try:
-        return _fit_linearity(mean, std, voltage, frames, order=order, flat_level=flat_level, mask=mask, bit_depth=bit_depth, n_adc=n_adc, keep_corrected=keep_corrected)
+        return _fit_linearity(mean, std, voltage, frames, order=order, flat_level=flat_level, mask=mask, bit_depth=bit_depth, n_adc=n_adc, keep_corrected=keep_corrected, run=run)
     finally:
-        _forget_blocks()
+        _forget_blocks(run)
 
 
-def _fit_linearity(mean, std, voltage, frames: int, *, order: int = 4, flat_level: Optional[int] = None, mask=None, bit_depth: int = 12, n_adc: int = 4, keep_corrected: bool = True):
+def _fit_linearity(mean, std, voltage, frames: int, *, order: int = 4, flat_level: Optional[int] = None, mask=None, bit_depth: int = 12, n_adc: int = 4, keep_corrected: bool = True, run: Optional[str] = None):
     """The pixel-wise linearity analysis of a set held as Dask arrays: bit for bit what
     :func:`dncal.fit_linearity` gives on the same numbers in memory.
 
@@ -501,7 +528,7 @@ def _fit_linearity(mean, std, voltage, frames: int, *, order: int = 4, flat_leve
     std = std.rechunk(mean.chunks)
     row_chunks, col_chunks = mean.chunks[1], mean.chunks[2]
     # Cubes open_linearity made: each task reads its own block from the file.
-    regions = _regions(mean, row_chunks, col_chunks), _regions(std, row_chunks, col_chunks)
+    regions = _regions(mean, row_chunks, col_chunks, run), _regions(std, row_chunks, col_chunks, run)
     if mask is not None:
         if mask.dtype != np.uint8:
             raise TypeError(f"mask: dtype {mask.dtype}, but uint8 is needed")
@@ -509,8 +536,11 @@ def _fit_linearity(mean, std, voltage, frames: int, *, order: int = 4, flat_leve
             raise ValueError(f"mask: shape {mask.shape}, but frames are {rows} x {cols}")
         mask = (mask if isinstance(mask, da.Array) else da.from_array(mask)).rechunk((row_chunks, col_chunks))
     mb, sb = mean.to_delayed()[0], std.to_delayed()[0]
+    # After the fit (the lazy corrected cube) the blocks are read without being kept.
+    later_mb, later_sb = mb, sb
     if regions[0] is not None and regions[1] is not None:
         mb, sb = regions
+        later_mb, later_sb = ([[r.unkept() for r in row] for row in rs] for rs in regions)
     kb = None if mask is None else mask.to_delayed()
     r0 = np.cumsum((0,) + row_chunks[:-1])
     c0 = np.cumsum((0,) + col_chunks[:-1])
@@ -576,7 +606,7 @@ def _fit_linearity(mean, std, voltage, frames: int, *, order: int = 4, flat_leve
     corrected = None
     if keep_corrected:
         cube = dask.delayed(_level_cube)
-        unfilled = da.block([[da.from_delayed(cube(mb[i][j], sb[i][j], fits[at[(i, j)]], masks[at[(i, j)]], keys_d, global_coefficients, level_means, True), shape=(levels, h, w), dtype=np.float64) for j, w in enumerate(col_chunks)] for i, h in enumerate(row_chunks)])
+        unfilled = da.block([[da.from_delayed(cube(later_mb[i][j], later_sb[i][j], fits[at[(i, j)]], masks[at[(i, j)]], keys_d, global_coefficients, level_means, True), shape=(levels, h, w), dtype=np.float64) for j, w in enumerate(col_chunks)] for i, h in enumerate(row_chunks)])
         corrected = da.map_overlap(_fill, unfilled, reasons[None], depth={0: 0, 1: 1, 2: 1}, boundary="none", dtype=np.float64, align_arrays=False)
     return LinearityFit(report, coefficients, reasons, corrected)
 

@@ -11,15 +11,15 @@
 
 /// The widest gather this CPU has, as the row's name gives it; `None` where it has none.
 pub fn available() -> Option<&'static str> {
-    if !cfg!(target_arch = "x86_64") {
-        None
-    } else if std::is_x86_feature_detected!("avx512f") {
-        Some("AVX-512")
-    } else if std::is_x86_feature_detected!("avx2") {
-        Some("AVX2")
-    } else {
-        None
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::is_x86_feature_detected!("avx512f") {
+            return Some("AVX-512");
+        } else if std::is_x86_feature_detected!("avx2") {
+            return Some("AVX2");
+        }
     }
+    None
 }
 
 /// A frame's codes checked once for the gather: all in range, a multiple of 16 long.

@@ -395,7 +395,11 @@ pub fn bench(p: &BenchParams, progress: impl Fn(&str)) -> Result<BenchReport, Ho
         ratio("core, frame as a block", &core.by_block, "byte bound (no LUT)", &core.bytes, "Mpx/s", Some(0.4)),
     ];
     // Said after the rows: an empty `notes` until then means numpy ran.
-    let mut kernel_notes = vec![format!("the core's line loop on this CPU: {}", dncal_core::simd::Kernel::detected().name())];
+    #[cfg(target_arch = "x86_64")]
+    let kernel = dncal_core::simd::Kernel::detected().name();
+    #[cfg(not(target_arch = "x86_64"))]
+    let kernel = "portable";
+    let mut kernel_notes = vec![format!("the core's line loop on this CPU: {kernel}")];
     match gather::available().filter(|_| !core.gather.is_empty()) {
         Some(width) => ratios.push(ratio("core, frame as a block", &core.by_block, &format!("gather loop ({width})"), &core.gather, "Mpx/s", Some(1.0))),
         None => kernel_notes.push("no vector gather on this CPU: the gather loop's row was not measured".into()),
