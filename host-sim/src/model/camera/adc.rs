@@ -122,6 +122,16 @@ impl AdcTransfer {
         // floor(v + 1/2) clamped to the codes; truncation gives the same after the clamp
         // (it differs from floor only below 0) without a libm call per pixel.
         let mut k = ((v + 0.5) as i64).clamp(0, top as i64) as usize;
+        // One step either way as arithmetic, not a branch: the comparisons go either way
+        // pixel by pixel (a code's DN error moves its edges by a few percent of a code),
+        // where a branch on them was mispredicted. `levels[0]` is -inf: never above `v`.
+        // Below, the walk finishes what one step could not (an edge a code or more away),
+        // a branch that almost never goes. Same codes (a simulated set byte for byte);
+        // `dncal stream --frames 64` at 0.945 of its wall time (farm-bench, 6 pairs).
+        k -= usize::from(self.levels[k] > v);
+        if k < top {
+            k += usize::from(self.levels[k + 1] <= v);
+        }
         while k > 0 && self.levels[k] > v {
             k -= 1;
         }
@@ -226,6 +236,36 @@ mod tests {
         for k in 1..4095 {
             assert_eq!(adc.code(adc.level(k)), k as u16);
             assert_eq!(adc.code(adc.level(k) - 1e-9), (k - 1) as u16);
+        }
+    }
+
+    proptest::proptest! {
+        /// The code of any value is the largest k with T_k <= v, as a plain scan finds it:
+        /// edges up to three codes from their ideal place (past the one step the search
+        /// takes as arithmetic), missing codes (equal neighbours), values far outside.
+        #[test]
+        fn the_code_is_the_largest_level_below_the_value(
+            shifts in proptest::collection::vec(-3.0f64..3.0, 15),
+            missing in proptest::collection::vec(proptest::bool::weighted(0.1), 15),
+            values in proptest::collection::vec(-8.0f64..24.0, 1..200),
+        ) {
+            // Non-decreasing levels from shifted ideal ones (a running maximum), with
+            // some equal to their neighbour below.
+            let mut levels: Vec<f64> = Vec::new();
+            for k in 0..15 {
+                let ideal = k as f64 + 0.5 + shifts[k];
+                let t = match levels.last() {
+                    Some(&prev) if missing[k] => prev,
+                    Some(&prev) => ideal.max(prev),
+                    None => ideal,
+                };
+                levels.push(t);
+            }
+            let adc = AdcTransfer::from_monotone_levels(&levels).unwrap();
+            for &v in &values {
+                let naive = (1..16).filter(|&k| levels[k - 1] <= v).max().unwrap_or(0) as u16;
+                proptest::prop_assert_eq!(adc.code(v), naive, "v = {}", v);
+            }
         }
     }
 
