@@ -24,7 +24,6 @@ import argparse
 import json
 import logging
 import os
-import re
 import statistics
 import tempfile
 import time
@@ -32,19 +31,7 @@ import time
 import numpy as np
 
 import dncal
-
-
-class Steps(logging.Handler):
-    """Collects dncal.dask's step log lines: name, seconds, passes."""
-
-    def __init__(self):
-        super().__init__()
-        self.steps = []
-
-    def emit(self, record):
-        m = re.match(r"(.*): ([0-9.]+) s(?:, (\d+) passes)?$", record.getMessage())
-        if m:
-            self.steps.append({"step": m.group(1), "seconds": float(m.group(2)), "passes": int(m.group(3)) if m.group(3) else None})
+from dask_scale import Steps  # the same directory: the Dask fit's step log, parsed once
 
 
 def released(client):

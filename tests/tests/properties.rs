@@ -81,6 +81,18 @@ fn weights_strategy(codes: usize) -> impl Strategy<Value = Vec<u32>> {
     proptest::collection::vec(prop_oneof![0u32..(3 << 24), Just(1 << 24), Just(1 << 13), Just(3 << 13)], codes)
 }
 
+/// Random monotonic tables of 64 codes for N ADCs (steps below 100 000 units) and
+/// `frames` frames of codes 0-79 (some above the top, 63), drawn in that order from `rng`.
+fn random_luts_and_frames<const N: usize>(g: Geometry, frames: u32, rng: &mut dncal_host::model::synth::Rng) -> (LutSet<N, 64>, Vec<Vec<u16>>) {
+    let tables: [[u32; 64]; N] = core::array::from_fn(|_| {
+        let mut acc = 0u32;
+        core::array::from_fn(|_| { acc += (rng.next_u64() % 100_000) as u32; acc })
+    });
+    let luts = LutSet::<N, 64>::from_bits(&tables).unwrap();
+    let frame_codes = (0..frames).map(|_| (0..g.pixels()).map(|_| (rng.next_u64() % 80) as u16).collect()).collect();
+    (luts, frame_codes)
+}
+
 /// Frames of random codes (some above the top, 63) delivered as blocks of whole lines of
 /// random sizes (a DMA engine's transfers) through a corrector of N ADCs: the sums and
 /// out-of-range counts must be the naive reference's.
@@ -89,14 +101,7 @@ fn block_case<const N: usize>(width: u16, height: u16, states: u8, first_column:
     // transfers): the sums and out-of-range counts are the naive reference's.
     let g = Geometry::new(width, height, states, first_column).unwrap();
     let mut rng = dncal_host::model::synth::Rng::new(seed);
-    let tables: [[u32; 64]; N] = core::array::from_fn(|_| {
-        let mut acc = 0u32;
-        core::array::from_fn(|_| { acc += (rng.next_u64() % 100_000) as u32; acc })
-    });
-    let luts = LutSet::<N, 64>::from_bits(&tables).unwrap();
-    let frame_codes: Vec<Vec<u16>> = (0..frames)
-        .map(|_| (0..g.pixels()).map(|_| (rng.next_u64() % 80) as u16).collect())
-        .collect();
+    let (luts, frame_codes) = random_luts_and_frames::<N>(g, frames, &mut rng);
     let mut banks = LutBanks::new(luts.clone());
     let mut sums = vec![0u32; g.sum_len()];
     let mut c = Corrector::new(&mut banks, g, &mut sums).unwrap();
@@ -152,14 +157,7 @@ proptest! {
     ) {
         let g = Geometry::new(width, height, states, first_column).unwrap();
         let mut rng = dncal_host::model::synth::Rng::new(seed);
-        let tables: [[u32; 64]; 3] = core::array::from_fn(|_| {
-            let mut acc = 0u32;
-            core::array::from_fn(|_| { acc += (rng.next_u64() % 100_000) as u32; acc })
-        });
-        let luts = LutSet::<3, 64>::from_bits(&tables).unwrap();
-        let frame_codes: Vec<Vec<u16>> = (0..frames)
-            .map(|_| (0..g.pixels()).map(|_| (rng.next_u64() % 80) as u16).collect())
-            .collect();
+        let (luts, frame_codes) = random_luts_and_frames::<3>(g, frames, &mut rng);
         let mut banks = LutBanks::new(luts.clone());
         let mut sums = vec![0u32; g.sum_len()];
         let mut c = Corrector::new(&mut banks, g, &mut sums).unwrap();
