@@ -105,7 +105,161 @@ impl Scored {
 
 /// Weighted Gauss-Newton fit of `model` to `fit` (from `start`), scored on `test`.
 /// `None` when there are too few points or the normal matrix is singular.
+///
+/// Models of up to [`MAX_PARAMS`] parameters (all of the catalogue's) are solved on the
+/// stack, a row at a time ([`Triangle`]); larger ones by [`fit_and_score_dense`], the
+/// heap-allocated QR this replaced (which took a third of a diagnosis in allocations and
+/// forming `Q`) and which the tests hold it to.
 pub(super) fn fit_and_score(model: Response, start: &[f64], fit: &[Point], test: &[Point]) -> Option<Scored> {
+    let np = model.params();
+    if np > MAX_PARAMS || start.len() != np {
+        return fit_and_score_dense(model, start, fit, test);
+    }
+    if fit.len() <= np {
+        return None;
+    }
+    let mut p = [0.0; MAX_PARAMS];
+    p[..np].copy_from_slice(start);
+    // A polynomial (or a curve of fixed shape plus dark and gain) is linear in its
+    // parameters: one step from any start is its least-squares solution, and its
+    // factor does not depend on where it is taken.
+    let iterations = if matches!(model, Response::Curve(..)) { 8 } else { 1 };
+    let mut factor = None;
+    for _ in 0..iterations {
+        let t = Triangle::of(model, &p[..np], fit)?;
+        let step = t.solve()?;
+        p.iter_mut().zip(&step[..np]).for_each(|(a, d)| *a += d);
+        let converged = step[..np].iter().zip(&p).all(|(d, a)| d.abs() <= 1e-12 * a.abs().max(1.0));
+        factor = Some(t);
+        if converged {
+            break;
+        }
+    }
+    // The factor at the parameters reached (a curve's moved with its last step).
+    let t = match (model, factor) {
+        (Response::Curve(..), _) | (_, None) => Triangle::of(model, &p[..np], fit)?,
+        (_, Some(t)) => t,
+    };
+    t.solve()?;
+    let mut grad = [0.0; MAX_PARAMS];
+    let chi2_fit = fit
+        .iter()
+        .map(|q| {
+            let r = (q.y - model.eval(&p[..np], q.x, &mut grad[..np])) / q.sigma;
+            r * r
+        })
+        .sum();
+    // The held-out residuals' null covariance: `C = I + J_t A^-1 J_t^T` with `A = R^T R`,
+    // so `tr C = n + |W|^2` and `tr C^2 = n + 2 |W|^2 + |W^T W|^2` (Frobenius) for
+    // `W = J_t R^-1`, a row `w = R^-T j` at a time.
+    let (mut tr_m, mut gram) = (0.0, [[0.0; MAX_PARAMS]; MAX_PARAMS]);
+    let mut z = Vec::with_capacity(test.len());
+    for q in test {
+        let v = model.eval(&p[..np], q.x, &mut grad[..np]);
+        z.push(Z(u16::try_from(q.level).unwrap_or(u16::MAX), ((q.y - v) / q.sigma) as f32));
+        let mut row = [0.0; MAX_PARAMS];
+        row[..np].iter_mut().zip(&grad[..np]).for_each(|(r, g)| *r = g / q.sigma);
+        let w = t.forward(&row);
+        for a in 0..np {
+            tr_m += w[a] * w[a];
+            for b in 0..np {
+                gram[a][b] += w[a] * w[b];
+            }
+        }
+    }
+    let tr_m2: f64 = gram.iter().flatten().map(|g| g * g).sum();
+    let n = test.len() as f64;
+    Some(Scored { params: p[..np].to_vec(), chi2_fit, z, tr: n + tr_m, tr2: n + 2.0 * tr_m + tr_m2 })
+}
+
+/// The most parameters [`fit_and_score`] solves on the stack: the quartic's five.
+pub(super) const MAX_PARAMS: usize = 5;
+
+/// The upper-triangular factor `R` of a weighted least-squares problem `J step = r` and
+/// `Q^T r`, built a row at a time by Givens rotations: the factor Householder's QR gives
+/// (up to the signs of its rows), without `J` or `Q` ever held.
+struct Triangle {
+    np: usize,
+    r: [[f64; MAX_PARAMS]; MAX_PARAMS],
+    qtr: [f64; MAX_PARAMS],
+}
+
+impl Triangle {
+    /// The factor of `model` at parameters `p` through `pts` (rows `grad / sigma`, right
+    /// side `(y - value) / sigma`); `None` where a row is not finite (a diverging step).
+    fn of(model: Response, p: &[f64], pts: &[Point]) -> Option<Triangle> {
+        let np = p.len();
+        let mut t = Triangle { np, r: [[0.0; MAX_PARAMS]; MAX_PARAMS], qtr: [0.0; MAX_PARAMS] };
+        let mut grad = [0.0; MAX_PARAMS];
+        for q in pts {
+            let v = model.eval(p, q.x, &mut grad[..np]);
+            let mut row = [0.0; MAX_PARAMS];
+            row[..np].iter_mut().zip(&grad[..np]).for_each(|(r, g)| *r = g / q.sigma);
+            let rhs = (q.y - v) / q.sigma;
+            if !(rhs.is_finite() && row.iter().all(|v| v.is_finite())) {
+                return None;
+            }
+            t.add(row, rhs);
+        }
+        Some(t)
+    }
+
+    /// Rotates one row into the factor.
+    fn add(&mut self, mut row: [f64; MAX_PARAMS], mut rhs: f64) {
+        for k in 0..self.np {
+            if row[k] == 0.0 {
+                continue;
+            }
+            let (a, b) = (self.r[k][k], row[k]);
+            // (libm's `hypot`, careful of overflow at any scale, was 14% of a diagnosis; the
+            // rows here are weighted DN, far from it.)
+            let h = match (a * a + b * b).sqrt() {
+                h if h.is_normal() => h,
+                _ => a.hypot(b),
+            };
+            let (c, s) = (a / h, b / h);
+            for j in k..self.np {
+                let (u, v) = (self.r[k][j], row[j]);
+                self.r[k][j] = c * u + s * v;
+                row[j] = c * v - s * u;
+            }
+            let u = self.qtr[k];
+            self.qtr[k] = c * u + s * rhs;
+            rhs = c * rhs - s * u;
+        }
+    }
+
+    /// The least-squares step `R^-1 Q^T r`; `None` where `R` is near singular (a
+    /// diagonal at most 1e-12 of the largest: repeated or nearly equal references, a
+    /// pixel whose levels cannot fix its parameters), as the SVD's cut-off made it.
+    fn solve(&self) -> Option<[f64; MAX_PARAMS]> {
+        let np = self.np;
+        let (lo, hi) = (0..np).map(|k| self.r[k][k].abs()).fold((f64::INFINITY, 0.0f64), |(lo, hi), d| (lo.min(d), hi.max(d)));
+        if lo.is_nan() || lo <= 1e-12 * hi {
+            return None;
+        }
+        let mut x = [0.0; MAX_PARAMS];
+        for k in (0..np).rev() {
+            let tail: f64 = (k + 1..np).map(|j| self.r[k][j] * x[j]).sum();
+            x[k] = (self.qtr[k] - tail) / self.r[k][k];
+        }
+        Some(x)
+    }
+
+    /// `R^-T v`: forward substitution through `R^T`.
+    fn forward(&self, v: &[f64; MAX_PARAMS]) -> [f64; MAX_PARAMS] {
+        let mut w = [0.0; MAX_PARAMS];
+        for k in 0..self.np {
+            let head: f64 = (0..k).map(|j| self.r[j][k] * w[j]).sum();
+            w[k] = (v[k] - head) / self.r[k][k];
+        }
+        w
+    }
+}
+
+/// [`fit_and_score`] by nalgebra's heap-allocated Householder QR, for models of more than
+/// [`MAX_PARAMS`] parameters (and the oracle of its tests).
+pub(super) fn fit_and_score_dense(model: Response, start: &[f64], fit: &[Point], test: &[Point]) -> Option<Scored> {
     let np = model.params();
     if fit.len() <= np {
         return None;
@@ -190,5 +344,117 @@ impl Totals {
     }
     pub(super) fn excess(&self) -> f64 {
         (self.s - self.e) / self.v.sqrt().max(1e-300)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Points at distinct references in [0, 1], means of a smooth response plus `noise`
+    /// (fractions of each point's sigma), sigmas of a few DN.
+    fn points(xs: &[f64], coeffs: &[f64; 5], noise: &[f64], sigmas: &[f64]) -> Vec<Point> {
+        let mut sorted = xs.to_vec();
+        sorted.sort_by(f64::total_cmp);
+        sorted
+            .iter()
+            .enumerate()
+            .map(|(level, &x)| {
+                let y = coeffs.iter().rev().fold(0.0, |acc, c| acc * x + c);
+                let sigma = sigmas[level % sigmas.len()];
+                Point { level, x, y: y + noise[level % noise.len()] * sigma, sigma }
+            })
+            .collect()
+    }
+
+    /// `a` and `b` agree to `tol` of `scale` (or of themselves, where larger).
+    fn close(a: f64, b: f64, scale: f64, tol: f64) -> bool {
+        (a - b).abs() <= tol * scale.max(a.abs()).max(b.abs())
+    }
+
+    /// The held-out covariance's traces as the definition has them: `C = I + J_t A^-1
+    /// J_t^T`, `A = J_f^T J_f`, built whole and traced.
+    fn traces_naive(model: Response, p: &[f64], fit: &[Point], test: &[Point]) -> (f64, f64) {
+        let np = model.params();
+        let jac = |pts: &[Point]| {
+            let mut grad = vec![0.0; np];
+            DMatrix::from_fn(pts.len(), np, |i, k| {
+                model.eval(p, pts[i].x, &mut grad);
+                grad[k] / pts[i].sigma
+            })
+        };
+        let (jf, jt) = (jac(fit), jac(test));
+        let a_inv = (jf.transpose() * &jf).try_inverse().unwrap();
+        let c = DMatrix::identity(test.len(), test.len()) + &jt * a_inv * jt.transpose();
+        (c.trace(), (&c * &c).trace())
+    }
+
+    proptest::proptest! {
+        /// The stack solver gives what the heap QR gives (parameters, fit chi^2, held-out
+        /// residuals and traces), and the traces are those of the covariance built whole:
+        /// for every model of the catalogue, on random references, responses, noise and
+        /// weights.
+        #[test]
+        fn the_stack_fit_is_the_dense_fit(
+            xs in proptest::collection::vec(0.0f64..1.0, 12..42),
+            c in proptest::array::uniform5(-50.0f64..50.0),
+            gain in 500.0f64..4000.0,
+            noise in proptest::collection::vec(-3.0f64..3.0, 1..42),
+            sigmas in proptest::collection::vec(0.05f64..20.0, 1..42),
+            model in 0usize..5,
+            split in 0usize..2,
+        ) {
+            let coeffs = [c[0] + 100.0, gain, c[2], c[3], c[4]];
+            let pts = points(&xs, &coeffs, &noise, &sigmas);
+            let (fit, test): (Vec<Point>, Vec<Point>) = if split == 0 {
+                pts.iter().partition(|q| q.level % 2 == 0)
+            } else {
+                (pts.clone(), Vec::new())
+            };
+            let bend = [0.02, -0.01, 0.005];
+            let (model, start) = match model {
+                0 => (Response::Poly(1), vec![0.0; 2]),
+                1 => (Response::Poly(2), vec![0.0; 3]),
+                2 => (Response::Poly(4), vec![0.0; 5]),
+                3 => (Response::Curve(bend, 4095.0), vec![coeffs[0], gain]),
+                _ => (Response::Common(bend, 4095.0, gain), vec![0.0; 2]),
+            };
+            let (ours, dense) = (fit_and_score(model, &start, &fit, &test), fit_and_score_dense(model, &start, &fit, &test));
+            // Nearly repeated references may put one on either side of the cut-off: then
+            // neither is compared.
+            let (Some(ours), Some(dense)) = (ours, dense) else { return Ok(()) };
+            let scale = coeffs.iter().map(|c| c.abs()).fold(0.0, f64::max);
+            for (a, b) in ours.params.iter().zip(&dense.params) {
+                proptest::prop_assert!(close(*a, *b, scale, 1e-7), "{:?} vs {:?}", ours.params, dense.params);
+            }
+            proptest::prop_assert!(close(ours.chi2_fit, dense.chi2_fit, 1.0, 1e-7));
+            proptest::prop_assert_eq!(ours.z.len(), dense.z.len());
+            for (a, b) in ours.z.iter().zip(&dense.z) {
+                proptest::prop_assert_eq!(a.level(), b.level());
+                proptest::prop_assert!(close(a.z(), b.z(), 1.0, 1e-5), "z {} vs {}", a.z(), b.z());
+            }
+            proptest::prop_assert!(close(ours.tr, dense.tr, 1.0, 1e-9) && close(ours.tr2, dense.tr2, 1.0, 1e-9));
+            if !test.is_empty() {
+                let (tr, tr2) = traces_naive(model, &ours.params, &fit, &test);
+                proptest::prop_assert!(close(ours.tr, tr, 1.0, 1e-9) && close(ours.tr2, tr2, 1.0, 1e-9), "{} {} vs {} {}", ours.tr, ours.tr2, tr, tr2);
+            }
+        }
+    }
+
+    /// A noiseless quartic is recovered to rounding, whatever the weights; with its
+    /// references all equal, or fewer points than parameters, there is no fit.
+    #[test]
+    fn a_noiseless_quartic_is_recovered_and_degenerate_levels_are_none() {
+        let xs: Vec<f64> = (0..21).map(|k| f64::from(k) / 20.0).collect();
+        let coeffs = [101.5, 3000.0, -40.0, 12.5, -3.0];
+        let pts = points(&xs, &coeffs, &[0.0], &[0.3, 2.0, 7.0]);
+        let s = fit_and_score(Response::Poly(4), &[0.0; 5], &pts, &[]).unwrap();
+        for (a, b) in s.params.iter().zip(&coeffs) {
+            assert!((a - b).abs() < 1e-9 * 3000.0, "{:?}", s.params);
+        }
+        assert!(s.chi2_fit < 1e-12);
+        let flat: Vec<Point> = pts.iter().map(|q| Point { x: 0.5, ..*q }).collect();
+        assert!(fit_and_score(Response::Poly(4), &[0.0; 5], &flat, &[]).is_none());
+        assert!(fit_and_score(Response::Poly(4), &[0.0; 5], &pts[..5], &[]).is_none());
     }
 }
