@@ -61,7 +61,13 @@ pub(super) struct SetView<'a, T: Sample> {
 }
 
 enum Cubes<'a, T: Sample> {
-    Held { mean: &'a [T], std: &'a [T] },
+    Held {
+        mean: &'a [T],
+        std: &'a [T],
+        /// One run of pixels a thread of the pool (and one for any other thread), its
+        /// levels side by side ([`Tile`]).
+        tiles: Vec<Mutex<Tile<T>>>,
+    },
     Rows {
         file: &'a LinearityRows,
         /// Rows per block.
@@ -81,6 +87,27 @@ struct Block<T> {
     mean: Vec<T>,
     std: Vec<T>,
     bytes: Vec<u8>,
+}
+
+/// Bytes of a [`Tile`]: a few hundred kilobytes, in a core's own cache while its pixels
+/// are fitted.
+const TILE_BYTES: usize = 1 << 20;
+
+/// Consecutive pixels of a held set with each pixel's levels side by side (the cubes are
+/// level-major): a pass that visits a pixel's levels one after another read them a frame
+/// apart, and at a frame of a power of two bytes (128 x 128 pixels, 2048 x 2048) all of
+/// them fell in the same sets of the caches, a load that stalled a fifth of a
+/// diagnosis. Copied level by level from the cubes, where the reads are consecutive.
+struct Tile<T> {
+    first: usize,
+    pixels: usize,
+    mean: Vec<T>,
+    std: Vec<T>,
+}
+
+/// Bytes the tiles of a held set's diagnosis take, every thread's.
+pub fn tile_bytes() -> u64 {
+    ((rayon::current_num_threads() + 1) * TILE_BYTES) as u64
 }
 
 /// The levels of one pixel: level `l` at `(skip + l) * stride + at` of each cube.
@@ -137,7 +164,7 @@ impl<'a, T: Sample> SetView<'a, T> {
             mask: set.mask.as_deref(),
             keys: set.keys,
             skip: 0,
-            cubes: Cubes::Held { mean: &set.mean, std: &set.std },
+            cubes: Cubes::Held { mean: &set.mean, std: &set.std, tiles: (0..=rayon::current_num_threads()).map(|_| Mutex::new(Tile { first: usize::MAX, pixels: 0, mean: Vec::new(), std: Vec::new() })).collect() },
         }
     }
 
@@ -180,7 +207,7 @@ impl<'a, T: Sample> SetView<'a, T> {
     /// `f` running for another pixel of the same thread, the pixel alone is read.)
     pub fn with_pixel<R>(&self, p: usize, f: impl FnOnce(Levels<'_, T>) -> R) -> R {
         let (file, failed) = match &self.cubes {
-            Cubes::Held { mean, std } => return f(Levels { mean, std, stride: self.frame(), at: p, skip: self.skip }),
+            Cubes::Held { mean, std, tiles } => return self.with_tile(mean, std, tiles, p, f),
             Cubes::Rows { file, failed, .. } => (file, failed),
         };
         let row = p / self.width;
@@ -195,6 +222,45 @@ impl<'a, T: Sample> SetView<'a, T> {
         }
         let f = f.take().expect("with_block did not call f: it returned None");
         f(Levels { mean: &one.mean, std: &one.std, stride: 1, at: 0, skip: self.skip })
+    }
+
+    /// `f` of the levels of pixel `p` of a held set, from the calling thread's tile
+    /// (filled with the run of pixels holding `p` where it holds another); from the cubes
+    /// where that tile is in use (by `f` of an enclosing call on the same thread).
+    fn with_tile<R>(&self, mean: &[T], std: &[T], tiles: &[Mutex<Tile<T>>], p: usize, f: impl FnOnce(Levels<'_, T>) -> R) -> R {
+        let frame = self.frame();
+        let slot = rayon::current_thread_index().unwrap_or(tiles.len() - 1) % tiles.len();
+        let mut tile = match tiles[slot].try_lock() {
+            Ok(t) => t,
+            Err(std::sync::TryLockError::Poisoned(e)) => e.into_inner(),
+            Err(std::sync::TryLockError::WouldBlock) => return f(Levels { mean, std, stride: frame, at: p, skip: self.skip }),
+        };
+        // Every level of the file, the skipped ones too (`skip` counts in the index).
+        let levels = (mean.len() / frame.max(1)).max(1);
+        if !(tile.first..tile.first.saturating_add(tile.pixels)).contains(&p) {
+            let run = (TILE_BYTES / (2 * levels * std::mem::size_of::<T>())).max(1);
+            let first = p - p % run;
+            let pixels = run.min(frame - first);
+            let t = &mut *tile;
+            (t.first, t.pixels) = (usize::MAX, 0);
+            for (to, from) in [(&mut t.mean, mean), (&mut t.std, std)] {
+                to.clear();
+                to.resize(pixels * levels, T::from_f64(0.0));
+                // Runs of 64 pixels, every level of a run before the next: what is written
+                // stays in the first cache while it is, each level's run read whole.
+                for start in (0..pixels).step_by(64) {
+                    let n = 64.min(pixels - start);
+                    let into = &mut to[start * levels..][..n * levels];
+                    for l in 0..levels {
+                        for (k, v) in from[l * frame + first + start..][..n].iter().enumerate() {
+                            into[k * levels + l] = *v;
+                        }
+                    }
+                }
+            }
+            (t.first, t.pixels) = (first, pixels);
+        }
+        f(Levels { mean: &tile.mean, std: &tile.std, stride: 1, at: (p - tile.first) * levels, skip: self.skip })
     }
 
     /// `f` of the block holding `row`, read into the calling thread's slot; `None` where
@@ -249,7 +315,7 @@ impl<'a, T: Sample> SetView<'a, T> {
                 let span = b * rows..((b + 1) * rows).min(self.height);
                 let of = |b: &Block<T>| f(&Rows { rows: span.clone(), mean: &b.mean, std: &b.std, stride: b.rows * self.width, offset: b.first * self.width, skip: self.skip });
                 match &self.cubes {
-                    Cubes::Held { mean, std } => f(&Rows { rows: span.clone(), mean, std, stride: self.frame(), offset: 0, skip: self.skip }),
+                    Cubes::Held { mean, std, .. } => f(&Rows { rows: span.clone(), mean, std, stride: self.frame(), offset: 0, skip: self.skip }),
                     // The block holding the span's first row is the span (spans are
                     // blocks); where the thread's slot is in use, a block of its own.
                     Cubes::Rows { file, failed, .. } => self.with_block(span.start, of).unwrap_or_else(|| {
@@ -298,6 +364,29 @@ mod tests {
         assert_eq!(blocks_of::<f32>([2048, 2048, 41], None, 0).0, 1, "at least a row");
         assert_eq!(blocks_of::<f32>([64, 10, 41], None, u64::MAX).0, 10, "at most the frame");
         assert_eq!(blocks_of::<f32>([2048, 2048, 41], Some(100), 0), (100, slots * 100 * row), "asked: taken, and counted");
+    }
+
+    /// A held set's pixels through the threads' runs of pixels are the cubes' values, in
+    /// order and out of it, across runs, nested (the inner call reads the cubes), and
+    /// with levels skipped.
+    #[test]
+    fn a_held_sets_runs_of_pixels_are_its_values() {
+        let set = linearity_set(&Plant { width: 100, height: 70, levels: 11, ..Plant::default() }, &[], 3);
+        let np = 100 * 70;
+        // (f64, 11 levels: runs of 5957 pixels, two in the frame.)
+        assert!(TILE_BYTES / (2 * 11 * 8) < np);
+        let direct = |p: usize, skip: usize| (skip..11).map(|l| (set.mean[l * np + p], set.std[l * np + p])).collect::<Vec<_>>();
+        let mut view = SetView::held(&set);
+        let all = |v: &SetView<f64>, p: usize| v.with_pixel(p, |a| (0..v.levels).map(|l| (a.mean(l), a.std(l))).collect::<Vec<_>>());
+        for p in [0, 1, 5956, 5957, 6999, 3, 6500, 0] {
+            assert_eq!(all(&view, p), direct(p, 0), "pixel {p}");
+            let q = np - 1 - p;
+            let (outer, inner) = view.with_pixel(p, |a| ((0..11).map(|l| (a.mean(l), a.std(l))).collect::<Vec<_>>(), all(&view, q)));
+            assert_eq!((outer, inner), (direct(p, 0), direct(q, 0)), "pixels {p} and {q}");
+        }
+        assert!((0..np).into_par_iter().all(|p| all(&view, p) == direct(p, 0)));
+        view.skip_levels(2);
+        assert!((0..np).into_par_iter().all(|p| all(&view, p) == direct(p, 2)));
     }
 
     /// Every value read by rows is the held set's: through a thread's block, through the

@@ -24,6 +24,7 @@ pub mod run;
 
 pub use codes::{diagnose_code_density, CodeDensity};
 pub use cubes::blocks_of;
+pub(crate) use cubes::tile_bytes;
 pub use defects::{diagnose_defects, DefectOutcome};
 pub use histograms::{diagnose_histograms, AdcArchitecture, ArchitectureScore};
 pub use linearity::{diagnose_linearity, diagnose_linearity_rows, diagnose_linearity_spilled};

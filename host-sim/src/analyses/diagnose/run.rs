@@ -99,10 +99,12 @@ fn diagnose_linearity_file(read_from: &Path, input: &Path, block_rows: Option<us
     // Decided from the header: held (read and checked in one pass) where the set and the
     // state fit the budget, its records spilled if that makes them fit, else read by
     // rows; the records spilled where held they do not fit beside the set or its blocks.
+    // Held, each thread's run of pixels with their levels side by side.
+    let tiles = crate::analyses::diagnose::tile_bytes();
     let opened = open_linearity_rows(read_from)?;
     let by_rows = opened.filter(|o| {
         let [w, h, l] = o.shape();
-        read_by_rows((w * h) as u64, l as u64, grid(o.shape()), block_rows.is_some(), spill, limit())
+        read_by_rows((w * h) as u64, l as u64, grid(o.shape()).saturating_add(tiles), block_rows.is_some(), spill, limit())
     });
     let Some(opened) = by_rows else {
         // Held (a compressed file, scaled cubes, or a set that fits): the set, the state,
@@ -111,13 +113,13 @@ fn diagnose_linearity_file(read_from: &Path, input: &Path, block_rows: Option<us
         let plan = |shape: &LinearityShape| {
             let dims = [shape.width, shape.height, shape.levels];
             let (np, set) = (shape.pixels(), bytes_of(shape.values(), 8));
-            let spill = spill_if(np, set.saturating_add(grid(dims)));
-            Need::new().with("the set as f32", set).with(records(spill), state(np, spill)).with("the illumination fit", grid(dims)).with("the file decompressed", shape.resident).check(input, &subject(dims, ""))
+            let spill = spill_if(np, set.saturating_add(grid(dims)).saturating_add(tiles));
+            Need::new().with("the set as f32", set).with(records(spill), state(np, spill)).with("the illumination fit", grid(dims)).with("each thread's run of pixels", tiles).with("the file decompressed", shape.resident).check(input, &subject(dims, ""))
         };
         let set = read_linearity_planned::<f32>(read_from, plan)?;
         let dims = [set.width, set.height, set.levels];
         let np = (set.width * set.height) as u64;
-        let spill = spill_if(np, bytes_of(np * set.levels as u64, 8).saturating_add(grid(dims)));
+        let spill = spill_if(np, bytes_of(np * set.levels as u64, 8).saturating_add(grid(dims)).saturating_add(tiles));
         let s = spin(dims, spilling(spill));
         let d = if spill { crate::analyses::diagnose::diagnose_linearity_spilled(&set, 0.01) } else { diagnose_linearity(&set, 0.01) }.map_err(failed);
         s.finish_and_clear();
