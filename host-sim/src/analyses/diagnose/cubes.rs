@@ -89,8 +89,8 @@ struct Block<T> {
     bytes: Vec<u8>,
 }
 
-/// Bytes of a [`Tile`]: a few hundred kilobytes, in a core's own cache while its pixels
-/// are fitted.
+/// Bytes of a [`Tile`]: a megabyte, in a core's second-level cache on the machines
+/// measured while its pixels are fitted.
 const TILE_BYTES: usize = 1 << 20;
 
 /// Consecutive pixels of a held set with each pixel's levels side by side (the cubes are

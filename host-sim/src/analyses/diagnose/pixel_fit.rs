@@ -107,7 +107,7 @@ impl Scored {
 /// `None` when there are too few points or the normal matrix is singular.
 ///
 /// Models of up to [`MAX_PARAMS`] parameters (all of the catalogue's) are solved on the
-/// stack, a row at a time ([`Triangle`]); larger ones by [`fit_and_score_dense`], the
+/// stack, by Householder reflections of up to 64 rows at a time ([`Triangle`]); larger ones by [`fit_and_score_dense`], the
 /// heap-allocated QR this replaced (which took a third of a diagnosis in allocations and
 /// forming `Q`) and which the tests hold it to.
 pub(super) fn fit_and_score(model: Response, start: &[f64], fit: &[Point], test: &[Point]) -> Option<Scored> {
@@ -136,9 +136,9 @@ pub(super) fn fit_and_score(model: Response, start: &[f64], fit: &[Point], test:
         }
     }
     // The factor at the parameters reached (a curve's moved with its last step).
-    let t = match (model, factor) {
-        (Response::Curve(..), _) | (_, None) => Triangle::of(model, &p[..np], fit)?,
-        (_, Some(t)) => t,
+    let t = match factor {
+        Some(t) if !matches!(model, Response::Curve(..)) => t,
+        _ => Triangle::of(model, &p[..np], fit)?,
     };
     t.solve()?;
     let mut grad = [0.0; MAX_PARAMS];
@@ -202,7 +202,7 @@ impl Triangle {
         let mut rows = np;
         for q in pts {
             if rows == CHUNK {
-                Self::reduce(&mut a, np, rows);
+                Self::reduce(&mut a, np, rows)?;
                 rows = np;
             }
             let v = model.eval(p, q.x, &mut grad[..np]);
@@ -216,23 +216,30 @@ impl Triangle {
             a[np][rows] = rhs;
             rows += 1;
         }
-        Self::reduce(&mut a, np, rows);
+        Self::reduce(&mut a, np, rows)?;
         let mut t = Triangle { np, r: [[0.0; MAX_PARAMS]; MAX_PARAMS], qtr: [0.0; MAX_PARAMS] };
-        for i in 0..np {
-            for j in i..np {
-                t.r[i][j] = a[j][i];
+        // (`a` is column-major, `r` row-major.)
+        for (i, (row, qtr)) in t.r.iter_mut().zip(&mut t.qtr).enumerate().take(np) {
+            for (j, column) in a.iter().enumerate().take(np).skip(i) {
+                row[j] = column[i];
             }
-            t.qtr[i] = a[np][i];
+            *qtr = a[np][i];
         }
         Some(t)
     }
 
     /// Householder reflections of the first `rows` rows of `a` (`np` columns and the right
-    /// side): its first `np` rows become `R` and `Q^T r`, the rest is left behind.
-    fn reduce(a: &mut [[f64; CHUNK]; MAX_PARAMS + 1], np: usize, rows: usize) {
+    /// side): its first `np` rows become `R` and `Q^T r`, the rest is left behind. `None`
+    /// where a column's norm overflows (entries of 1e154 or more: a diverging step),
+    /// which nalgebra's QR met as an infinite diagonal and no fit.
+    fn reduce(a: &mut [[f64; CHUNK]; MAX_PARAMS + 1], np: usize, rows: usize) -> Option<()> {
         for j in 0..np.min(rows) {
             let norm = a[j][j..rows].iter().map(|v| v * v).sum::<f64>().sqrt();
-            if norm == 0.0 || !norm.is_finite() {
+            if !norm.is_finite() {
+                return None;
+            }
+            // (A zero column stays zero: `R`'s diagonal there is 0, and no fit.)
+            if norm == 0.0 {
                 continue;
             }
             // The reflection taking column `j` below the diagonal to `alpha e_j`, `v` of
@@ -240,6 +247,9 @@ impl Triangle {
             let alpha = if a[j][j] > 0.0 { -norm } else { norm };
             a[j][j] -= alpha;
             let vv: f64 = a[j][j..rows].iter().map(|v| v * v).sum();
+            if !vv.is_finite() {
+                return None;
+            }
             let (head, tail) = a.split_at_mut(j + 1);
             let v = &head[j][j..rows];
             for col in tail.iter_mut().take(np - j) {
@@ -249,6 +259,7 @@ impl Triangle {
             head[j][j] = alpha;
             head[j][j + 1..rows].iter_mut().for_each(|v| *v = 0.0);
         }
+        Some(())
     }
 
     /// The least-squares step `R^-1 Q^T r`; `None` where `R` is near singular (a
@@ -256,8 +267,12 @@ impl Triangle {
     /// pixel whose levels cannot fix its parameters), as the SVD's cut-off made it.
     fn solve(&self) -> Option<[f64; MAX_PARAMS]> {
         let np = self.np;
-        let (lo, hi) = (0..np).map(|k| self.r[k][k].abs()).fold((f64::INFINITY, 0.0f64), |(lo, hi), d| (lo.min(d), hi.max(d)));
-        if lo.is_nan() || lo <= 1e-12 * hi {
+        let diagonal = (0..np).map(|k| self.r[k][k].abs());
+        if diagonal.clone().any(f64::is_nan) {
+            return None;
+        }
+        let (lo, hi) = diagonal.fold((f64::INFINITY, 0.0f64), |(lo, hi), d| (lo.min(d), hi.max(d)));
+        if !(hi.is_finite() && lo > 1e-12 * hi) {
             return None;
         }
         let mut x = [0.0; MAX_PARAMS];
@@ -373,7 +388,7 @@ impl Totals {
 mod tests {
     use super::*;
 
-    /// Points at references rising by `steps` from 0 to 1 (a set's levels: distinct),
+    /// Points at references rising by `steps` from 0 to below 1 (a set's levels: distinct),
     /// means of a smooth response plus `noise` (fractions of each point's sigma), sigmas
     /// of a few DN.
     fn points(steps: &[f64], coeffs: &[f64; 5], noise: &[f64], sigmas: &[f64]) -> Vec<Point> {
@@ -428,15 +443,15 @@ mod tests {
     proptest::proptest! {
         /// The stack solver gives what the heap QR gives (parameters, fit chi^2, held-out
         /// residuals and traces), and the traces are those of the covariance built whole:
-        /// for every model of the catalogue, on random references, responses, noise and
-        /// weights.
+        /// for every model of the catalogue, on random references (12 to 199 of them: the
+        /// stack's chunks of 64 rows one after another), responses, noise and weights.
         #[test]
         fn the_stack_fit_is_the_dense_fit(
-            steps in proptest::collection::vec(0.2f64..1.0, 12..42),
+            steps in proptest::collection::vec(0.2f64..1.0, 12..200),
             c in proptest::array::uniform5(-50.0f64..50.0),
             gain in 500.0f64..4000.0,
             noise in proptest::collection::vec(-3.0f64..3.0, 1..42),
-            sigmas in proptest::collection::vec(0.5f64..10.0, 1..42),
+            sigmas in proptest::collection::vec(0.2f64..20.0, 1..42),
             model in 0usize..5,
             split in 0usize..2,
         ) {
@@ -472,9 +487,9 @@ mod tests {
             // The traces go through `A^-1`, which the dense fit and the definition invert
             // whole: they agree to the rounding of `A`'s condition number. (With sigmas
             // 400 times apart, held-out levels of 1e5 times a fitted one's weight gave
-            // traces of 3e4 that differed in their tenth digit: the sigmas here are 20
-            // times apart at most, as a pixel's from dark to the top level.)
-            let tol = 1e-9f64.max(1e-15 * condition_of_normal_matrix(model, &ours.params, &fit));
+            // traces of 3e4 that differed in their tenth digit: the sigmas here are 100
+            // times apart at most, a pixel's from dark to the top level are 10-30.)
+            let tol = 1e-9f64.max(1e-14 * condition_of_normal_matrix(model, &ours.params, &fit));
             proptest::prop_assert!(close(ours.tr, dense.tr, 1.0, tol) && close(ours.tr2, dense.tr2, 1.0, tol), "{} {} vs {} {}", ours.tr, ours.tr2, dense.tr, dense.tr2);
             if !test.is_empty() {
                 let (tr, tr2) = traces_naive(model, &ours.params, &fit, &test);

@@ -86,7 +86,8 @@ fn sizes(width: usize, height: usize, levels: usize) -> Option<((usize, usize), 
 
 /// Bytes [`illumination_change`] holds at once for a `width x height` set of `levels`
 /// levels, whatever its pixels: the bins' sums of every task and their total (16 bytes a
-/// bin, level and half of the rows each; at most [`BUDGET`] over the tasks), each level's
+/// bin, level and half of the rows each; at most [`BUDGET`] over the tasks; the tasks now
+/// run two a thread at a time, so this is at most what they hold), each level's
 /// two halves' normal matrices and vectors, fields and the variances they add at each
 /// bin and their row functions ([`Grid::separable`]), the modes' means over each bin, and
 /// the cosines (measured before the row functions: 56 MB of a 64 x 64 x 41 set's 59 MB
@@ -238,13 +239,15 @@ impl Half {
 /// One level's field fitted on one half of the rows: its modes' coefficients (relative
 /// change of the light), the modes' weighted mean over that half's pixels, and per bin
 /// of the other half the variance the fit adds to a correction there (`b^T A^-1 b`, `b`
-/// the bin's mean modes about this half's mean: they vary little within a bin).
+/// the bin's mean modes about this half's mean: they vary little within a bin), made in
+/// the last round only, the one whose fields correct the held-out pixels.
 #[derive(Clone)]
 struct Field {
     f: DVector<f64>,
     /// `f`'s row functions ([`Grid::separable`]).
     rows: Vec<f64>,
     mean_mode: DVector<f64>,
+    /// Per bin of the other half (empty before the last round).
     added: Vec<f64>,
     /// Per half of the rows a correction lands on (even, odd): `f`'s mean over the pixels
     /// it corrects there, `f . mean_mode` of that half's field (this one's where that half
@@ -423,28 +426,20 @@ pub(super) fn illumination_change<'a, T: Sample>(px: &'a Pixels<'a, T>, level: O
         // Each level's two halves apart (in parallel over the levels: each is a 120 x 120
         // normal matrix and its factorization), then each field's mean over the pixels of
         // either half it corrects.
-        let grid = &term.grid;
-        let solved: Vec<[(Option<Half>, Option<Field>); 2]> = (0..nl)
-            .into_par_iter()
-            .map(|l| {
-                let mut pair = [0, 1].map(|odd| {
-                    let span = at(l, odd)..at(l, odd) + nb;
-                    let half = Half::of(grid, odd, &sums.w[span.clone()], &sums.wr[span], sums.sq[l * 2 + odd]);
-                    let field = half.as_ref().and_then(|h| Field::step(grid, odd, h, term.fields[l][odd].as_ref(), last));
-                    (half, field)
-                });
-                let modes: [Option<DVector<f64>>; 2] = [0, 1].map(|own| pair[own].1.as_ref().map(|f| f.mean_mode.clone()));
-                for field in pair.iter_mut().filter_map(|p| p.1.as_mut()) {
-                    field.about = [0, 1].map(|own| field.f.dot(modes[own].as_ref().unwrap_or(&field.mean_mode)));
-                }
-                pair
-            })
-            .collect();
-        for ((slots, fields), pair) in halves.iter_mut().zip(term.fields.iter_mut()).zip(solved) {
-            let [(he, fe), (ho, fo)] = pair;
-            *slots = [he, ho];
-            *fields = [fe, fo];
-        }
+        // (In place: the round before's halves and fields go as this round's come.)
+        let (grid, fields) = (&term.grid, &mut term.fields);
+        halves.par_iter_mut().zip(fields.par_iter_mut()).enumerate().for_each(|(l, (level_halves, level_fields))| {
+            for odd in 0..2 {
+                let span = at(l, odd)..at(l, odd) + nb;
+                let half = Half::of(grid, odd, &sums.w[span.clone()], &sums.wr[span], sums.sq[l * 2 + odd]);
+                level_fields[odd] = half.as_ref().and_then(|h| Field::step(grid, odd, h, level_fields[odd].as_ref(), last));
+                level_halves[odd] = half;
+            }
+            let modes: [Option<DVector<f64>>; 2] = [0, 1].map(|own| level_fields[own].as_ref().map(|f| f.mean_mode.clone()));
+            for field in level_fields.iter_mut().flatten() {
+                field.about = [0, 1].map(|own| field.f.dot(modes[own].as_ref().unwrap_or(&field.mean_mode)));
+            }
+        });
     }
     // The halves' fields agree: each direction's T in its null spread.
     let mut agreement = [(0.0, 0.0); 2];
