@@ -110,6 +110,19 @@ pub fn tile_bytes() -> u64 {
     ((rayon::current_num_threads() + 1) * TILE_BYTES) as u64
 }
 
+/// The calling thread's slot of `slots` (one a thread of the pool, the last for any other
+/// thread), locked; `None` where it is in use (by an enclosing call on the same thread, or
+/// by another thread outside the pool). A slot poisoned by a panic is taken: its holder
+/// marks it empty while it fills it.
+fn thread_slot<S>(slots: &[Mutex<S>]) -> Option<std::sync::MutexGuard<'_, S>> {
+    let slot = rayon::current_thread_index().unwrap_or(slots.len() - 1) % slots.len();
+    match slots[slot].try_lock() {
+        Ok(s) => Some(s),
+        Err(std::sync::TryLockError::Poisoned(e)) => Some(e.into_inner()),
+        Err(std::sync::TryLockError::WouldBlock) => None,
+    }
+}
+
 /// The levels of one pixel: level `l` at `(skip + l) * stride + at` of each cube.
 #[derive(Clone, Copy)]
 pub(super) struct Levels<'b, T> {
@@ -229,12 +242,7 @@ impl<'a, T: Sample> SetView<'a, T> {
     /// where that tile is in use (by `f` of an enclosing call on the same thread).
     fn with_tile<R>(&self, mean: &[T], std: &[T], tiles: &[Mutex<Tile<T>>], p: usize, f: impl FnOnce(Levels<'_, T>) -> R) -> R {
         let frame = self.frame();
-        let slot = rayon::current_thread_index().unwrap_or(tiles.len() - 1) % tiles.len();
-        let mut tile = match tiles[slot].try_lock() {
-            Ok(t) => t,
-            Err(std::sync::TryLockError::Poisoned(e)) => e.into_inner(),
-            Err(std::sync::TryLockError::WouldBlock) => return f(Levels { mean, std, stride: frame, at: p, skip: self.skip }),
-        };
+        let Some(mut tile) = thread_slot(tiles) else { return f(Levels { mean, std, stride: frame, at: p, skip: self.skip }) };
         // Every level of the file, the skipped ones too (`skip` counts in the index).
         let levels = (mean.len() / frame.max(1)).max(1);
         if !(tile.first..tile.first.saturating_add(tile.pixels)).contains(&p) {
@@ -268,12 +276,7 @@ impl<'a, T: Sample> SetView<'a, T> {
     /// thread outside the pool). Only for a set read by rows.
     fn with_block<R>(&self, row: usize, f: impl FnOnce(&Block<T>) -> R) -> Option<R> {
         let Cubes::Rows { file, rows, slots, failed } = &self.cubes else { return None };
-        let slot = rayon::current_thread_index().unwrap_or(slots.len() - 1) % slots.len();
-        let mut block = match slots[slot].try_lock() {
-            Ok(b) => b,
-            Err(std::sync::TryLockError::Poisoned(e)) => e.into_inner(),
-            Err(std::sync::TryLockError::WouldBlock) => return None,
-        };
+        let mut block = thread_slot(slots)?;
         if !(block.first..block.first + block.rows).contains(&row) {
             let first = row - row % rows;
             let span = first..(first + rows).min(self.height);

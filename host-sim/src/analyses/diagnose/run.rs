@@ -71,8 +71,7 @@ fn spill_records(np: u64, beside: u64, asked: bool, limit: u64) -> bool {
 /// Whether a set of `np` pixels and `levels` levels that can be read by rows is, rather
 /// than held: where rows are asked for, or where the set held (as `f32`) does not fit
 /// beside the records and `beside` bytes more (the illumination fit's sums, the threads'
-/// runs of pixels), the records
-/// spilled if that is what makes it fit.
+/// runs of pixels), the records spilled if that is what makes it fit.
 fn read_by_rows(np: u64, levels: u64, beside: u64, rows_asked: bool, spill_asked: bool, limit: u64) -> bool {
     let set = crate::infra::budget::bytes_of(np.saturating_mul(levels), 8).saturating_add(beside);
     rows_asked || state(np, spill_records(np, set, spill_asked, limit)).saturating_add(set) > limit
