@@ -626,17 +626,28 @@ fn stream_ratios(camera: &crate::model::camera::Camera, runs: usize) -> Result<[
     ])
 }
 
-/// The camera sampler's Poisson draw, a mean per pixel as in a frame with PRNU: PTRS
-/// (`camera::sample::poisson`) against rand_distr's `Poisson` built per mean, on the same
-/// generator and means (electrons across the range, 200 to 180 000).
+/// The camera sampler's draws, a mean per pixel as in a frame with PRNU: a line's eight
+/// streams (`camera::draws::LineDraws`, a Poisson count and a read-noise Gaussian per
+/// pixel, in chunks of 256 as the sampler takes them) against rand_distr's `Poisson`
+/// built per mean on one Xoshiro256++ stream (its Poisson count alone), on the same
+/// means (electrons across the range, 200 to 180 000). Its target, 4: four lanes' worth
+/// of a scalar draw, the least a vectorized draw should give.
 fn poisson_ratio(runs: usize) -> Ratio {
+    use crate::model::camera::draws::{LineDraws, Stream};
     let means: Vec<f64> = (0..1 << 18).map(|i| 200.0 + (i as f64 * 0.618_034).fract() * 179_800.0).collect();
     let (mut ptrs_rates, mut crate_rates) = (Vec::new(), Vec::new());
+    let (mut n, mut z) = (vec![0.0; 256], vec![0.0; 256]);
     for run in 0..=runs {
-        let mut g = crate::model::camera::sample::line_rng(run as u64, 0);
+        let mut lanes = LineDraws::new(run as u64, 0);
         let t = Instant::now();
-        black_box(means.iter().map(|&m| crate::model::camera::sample::poisson(&mut g, m)).sum::<f64>());
+        let mut total = 0.0;
+        for mu in means.chunks(256) {
+            lanes.draw(mu, &mut n, &mut z);
+            total += black_box(&n)[0] + black_box(&z)[0];
+        }
+        black_box(total);
         let a = t.elapsed().as_secs_f64();
+        let mut g = Stream::from_seed(run as u64);
         let t = Instant::now();
         black_box(means.iter().map(|&m| rand_distr::Poisson::new(m).map_or(0.0, |d| rand_distr::Distribution::sample(&d, &mut g))).sum::<f64>());
         let b = t.elapsed().as_secs_f64();
@@ -645,7 +656,7 @@ fn poisson_ratio(runs: usize) -> Ratio {
             crate_rates.push(means.len() as f64 / b / 1e6);
         }
     }
-    ratio("Poisson draw, a mean per pixel (PTRS)", &ptrs_rates, "rand_distr Poisson::new + sample", &crate_rates, "Mdraws/s", None)
+    ratio("camera draws, 8 streams (PTRS, Box-Muller)", &ptrs_rates, "rand_distr Poisson::new + sample", &crate_rates, "Mpx/s", Some(4.0))
 }
 
 /// `linearity` on a 256 x 256 x 41-level set against the same steps in numpy, both from

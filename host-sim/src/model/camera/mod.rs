@@ -21,6 +21,7 @@ pub mod adc;
 pub mod architecture;
 pub mod calibration;
 pub mod config;
+pub mod draws;
 pub mod exact;
 pub mod nested;
 pub mod pixels;
