@@ -633,15 +633,15 @@ fn stream_ratios(camera: &crate::model::camera::Camera, runs: usize) -> Result<[
 /// means (electrons across the range, 200 to 180 000). Its target, 4: four lanes' worth
 /// of a scalar draw, the least a vectorized draw should give.
 fn poisson_ratio(runs: usize) -> Ratio {
-    use crate::model::camera::draws::{LineDraws, Stream};
+    use crate::model::camera::draws::{LineDraws, Stream, CHUNK};
     let means: Vec<f64> = (0..1 << 18).map(|i| 200.0 + (i as f64 * 0.618_034).fract() * 179_800.0).collect();
     let (mut ptrs_rates, mut crate_rates) = (Vec::new(), Vec::new());
-    let (mut n, mut z) = (vec![0.0; 256], vec![0.0; 256]);
+    let (mut n, mut z) = ([0.0; CHUNK], [0.0; CHUNK]);
     for run in 0..=runs {
         let mut lanes = LineDraws::new(run as u64, 0);
         let t = Instant::now();
         let mut total = 0.0;
-        for mu in means.chunks(256) {
+        for mu in means.chunks(CHUNK) {
             lanes.draw(mu, &mut n, &mut z);
             total += black_box(&n)[0] + black_box(&z)[0];
         }

@@ -93,38 +93,35 @@ impl RngCore for Stream {
     }
 }
 
-/// The seed of stream `lane` of line `row` of the frame seeded `frame_seed`: the line's
-/// seed (as the single-stream sampler had it) run through SplitMix64, one output a lane.
-pub fn lane_seed(frame_seed: u64, row: usize, lane: usize) -> u64 {
+/// The seeds of a line's 2 x [`LANES`] streams (first streams, then retry streams): the
+/// line's seed (as the single-stream sampler had it) run through SplitMix64, one output
+/// a stream.
+pub fn line_seeds(frame_seed: u64, row: usize) -> [u64; 2 * LANES] {
     let mut line = frame_seed ^ (row as u64 + 1).wrapping_mul(0xA076_1D64_78BD_642F);
-    let mut seed = 0;
-    for _ in 0..=lane {
-        seed = splitmix(&mut line);
-    }
-    seed
+    std::array::from_fn(|_| splitmix(&mut line))
 }
 
-// fdlibm's e_log.c (Sun Microsystems, 1993): ln 2 in two parts and the minimax
-// coefficients of (ln(1+f) - 2s)/s, s = f / (2 + f), on |f| < sqrt(2) - 1, written as
-// fdlibm prints them (the same doubles; clippy would have them cut).
+/// The seed of stream `lane` (0-15) of line `row` of the frame seeded `frame_seed`.
+pub fn lane_seed(frame_seed: u64, row: usize, lane: usize) -> u64 {
+    line_seeds(frame_seed, row)[lane]
+}
+
+// fdlibm's e_log.c (Sun Microsystems, 1993): ln 2 in two parts (high, low) and the
+// minimax coefficients Lg1..Lg7 of (ln(1+f) - 2s)/s, s = f / (2 + f), on
+// |f| < sqrt(2) - 1, written as fdlibm prints them (the same doubles; clippy would have
+// them cut).
 #[allow(clippy::excessive_precision)]
-const LN2_HI: f64 = 6.931_471_803_691_238_164_90e-01;
+const LN2: (f64, f64) = (6.931_471_803_691_238_164_90e-01, 1.908_214_929_270_587_700_02e-10);
 #[allow(clippy::excessive_precision)]
-const LN2_LO: f64 = 1.908_214_929_270_587_700_02e-10;
-#[allow(clippy::excessive_precision)]
-const LG1: f64 = 6.666_666_666_666_735_130e-01;
-#[allow(clippy::excessive_precision)]
-const LG2: f64 = 3.999_999_999_940_941_908e-01;
-#[allow(clippy::excessive_precision)]
-const LG3: f64 = 2.857_142_874_366_239_149e-01;
-#[allow(clippy::excessive_precision)]
-const LG4: f64 = 2.222_219_843_214_978_396e-01;
-#[allow(clippy::excessive_precision)]
-const LG5: f64 = 1.818_357_216_161_805_012e-01;
-#[allow(clippy::excessive_precision)]
-const LG6: f64 = 1.531_383_769_920_937_332e-01;
-#[allow(clippy::excessive_precision)]
-const LG7: f64 = 1.479_819_860_511_658_591e-01;
+const LG: [f64; 7] = [
+    6.666_666_666_666_735_130e-01,
+    3.999_999_999_940_941_908e-01,
+    2.857_142_874_366_239_149e-01,
+    2.222_219_843_214_978_396e-01,
+    1.818_357_216_161_805_012e-01,
+    1.531_383_769_920_937_332e-01,
+    1.479_819_860_511_658_591e-01,
+];
 
 /// ln x, within a unit in the last place of libm's (fdlibm's reduction and polynomial,
 /// written without branches so a vector unit runs it): x > 0 normal. Zero and
@@ -145,9 +142,9 @@ pub fn ln(x: f64) -> f64 {
     let s = f / (2.0 + f);
     let z = s * s;
     let w = z * z;
-    let r = z * (LG1 + w * (LG3 + w * (LG5 + w * LG7))) + w * (LG2 + w * (LG4 + w * LG6));
+    let r = z * (LG[0] + w * (LG[2] + w * (LG[4] + w * LG[6]))) + w * (LG[1] + w * (LG[3] + w * LG[5]));
     let hfsq = 0.5 * f * f;
-    let y = dk * LN2_HI - ((hfsq - (s * (hfsq + r) + dk * LN2_LO)) - f);
+    let y = dk * LN2.0 - ((hfsq - (s * (hfsq + r) + dk * LN2.1)) - f);
     if x >= f64::MIN_POSITIVE {
         y
     } else if x >= 0.0 {
@@ -393,9 +390,10 @@ pub struct LineDraws {
 impl LineDraws {
     /// The streams of line `row` of the frame seeded `frame_seed`.
     pub fn new(frame_seed: u64, row: usize) -> Self {
-        let first: [Stream; LANES] = std::array::from_fn(|lane| Stream::from_seed(lane_seed(frame_seed, row, lane)));
+        let seeds = line_seeds(frame_seed, row);
+        let first: [Stream; LANES] = std::array::from_fn(|lane| Stream::from_seed(seeds[lane]));
         let s = std::array::from_fn(|w| std::array::from_fn(|lane| first[lane].0[w]));
-        let retry = std::array::from_fn(|lane| Stream::from_seed(lane_seed(frame_seed, row, LANES + lane)));
+        let retry = std::array::from_fn(|lane| Stream::from_seed(seeds[LANES + lane]));
         LineDraws { s, retry, spare: [0.0; LANES], drawn: 0, ended: false }
     }
 
