@@ -16,7 +16,7 @@ wheel (scripts/python-bench.sh --dask-files builds it and runs this):
 
 Prints a JSON object: the in-memory seconds per run, and per N the cluster's seconds,
 the per-run ratios (cluster over in-memory, the same run), their median, and the global
-steps' times of the last run (`dncal.dask.log`).
+steps' times of each run (`dncal.dask.log`).
 Usage: python dask_files.py [--side 512] [--levels 41] [--chunk 256] [--workers 1,2,4] [--runs 3]
 """
 
@@ -75,7 +75,7 @@ def main():
     steps = Steps()
     dd.log.addHandler(steps)
     dd.log.setLevel(logging.INFO)
-    out = {"side": a.side, "levels": a.levels, "chunk": a.chunk, "blocks": -(-a.side // a.chunk) ** 2, "cores": cores, "runs": a.runs, "in_memory_s": [], "clusters": {}}
+    out = {"side": a.side, "levels": a.levels, "chunk": a.chunk, "blocks": (-(-a.side // a.chunk)) ** 2, "cores": cores, "runs": a.runs, "in_memory_s": [], "clusters": {}}
     with tempfile.TemporaryDirectory() as d:
         path = f"{d}/lin.fits"
         write_set(path, s)
@@ -109,7 +109,7 @@ def main():
                         out["clusters"][n]["seconds"].append(time.perf_counter() - t)
                     if got.report != want.report or not np.array_equal(coefficients, want.coefficients, equal_nan=True):
                         raise SystemExit(f"{n} workers: the fit from the file differs from the in-memory fit")
-                    out["clusters"][n]["steps"] = steps.steps
+                    out["clusters"][n].setdefault("steps", []).append(steps.steps)
                     # The fit's persisted blocks are released before the next run, which
                     # would otherwise find the same keys (the same file and arguments)
                     # still held and skip the per-pixel fits.

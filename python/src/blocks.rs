@@ -10,12 +10,11 @@ use dncal_host::analyses::linearity::run::check_plan;
 use dncal_host::model::camera::config::cfa_cell;
 use dncal_host::formats::fits::{check_linearity, SetView};
 use dncal_host::infra::exact_sum::{ExactRms, ExactSum, LIMBS};
-use dncal_host::infra::select::{median_rank, medians_of, Counter, Selection, Tally, BINS};
+use dncal_host::infra::select::{median_rank, medians_of, Counter, Selection, Tally};
 use dncal_host::{HostError, Origin};
 use numpy::{Ix1, Ix2, Ix3, PyArray1, PyArray2, PyArray3, PyUntypedArrayMethods};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
-use pyo3::types::PyList;
 
 use crate::arrays;
 use crate::errors::raise;
@@ -105,8 +104,8 @@ fn _lin_check_flat(reaching: Vec<usize>, flat_level: usize) -> PyResult<()> {
     check_flat_counts(&reaching, flat_level).map_err(|e| raise("InputError", format!("--flat-level: {e} (linearity set)")))
 }
 
-/// A search for the exact medians of `queries` sets of values spread over blocks (the
-/// driver's side): [`Selection`] with two cells per set.
+/// A search for the exact medians of `queries` sets of about `items` values each spread
+/// over blocks (the driver's side): [`Selection`] with two cells per set.
 #[pyclass(module = "dncal._dncal", name = "_MedianSearch")]
 struct MedianSearch {
     search: Selection,
@@ -115,8 +114,8 @@ struct MedianSearch {
 #[pymethods]
 impl MedianSearch {
     #[new]
-    fn new(queries: usize) -> Self {
-        MedianSearch { search: Selection::new(2 * queries) }
+    fn new(queries: usize, items: usize) -> Self {
+        MedianSearch { search: Selection::new(2 * queries, items) }
     }
 
     /// Whether every median is found.
@@ -131,27 +130,13 @@ impl MedianSearch {
         arrays::new(py, w.len(), w)
     }
 
-    /// Takes the pass's total: a uint64 (cells, BINS) histogram array, or a list of
-    /// float64 arrays of collected values per cell.
+    /// Takes the pass's total: the words of the blocks' tallies merged
+    /// (`_median_merge`).
     fn advance(&mut self, total: &Bound<'_, PyAny>) -> PyResult<()> {
         let cells = self.search.values().len();
-        let tally = if let Ok(list) = total.cast::<PyList>() {
-            let mut v = Vec::with_capacity(cells);
-            for item in list.iter() {
-                v.push(arrays::view::<f64, Ix1>(&item, "collected values", "(n,)")?.as_slice()?.to_vec());
-            }
-            Tally::Values(v)
-        } else {
-            let h = arrays::view::<u64, Ix2>(total, "histograms", "(cells, bins)")?;
-            if h.shape() != [cells, BINS] {
-                return Err(PyValueError::new_err(format!("histograms: shape {:?}, but ({cells}, {BINS}) is this search's", h.shape())));
-            }
-            Tally::Histograms(h.as_slice()?.chunks(BINS).map(<[u64]>::to_vec).collect())
-        };
-        if let Tally::Values(v) = &tally {
-            if v.len() != cells {
-                return Err(PyValueError::new_err(format!("collected values: {} cells, but this search has {cells}", v.len())));
-            }
+        let tally = tally_of(total)?;
+        if tally.cells() != cells {
+            return Err(PyValueError::new_err(format!("tally: {} cells, but this search has {cells}", tally.cells())));
         }
         self.search.advance(tally, &median_rank);
         Ok(())
@@ -165,37 +150,52 @@ impl MedianSearch {
     }
 }
 
-/// A block's tally for `counter`: `visit` calls its argument with (cell, value) pairs.
-fn tally<'py>(py: Python<'py>, counter: &[u64], visit: impl FnOnce(&mut dyn FnMut(usize, f64)) + Send) -> PyResult<Bound<'py, PyAny>> {
+/// A tally of its words (uint64 (n,)).
+fn tally_of(words: &Bound<'_, PyAny>) -> PyResult<Tally> {
+    let w = arrays::view::<u64, Ix1>(words, "tally", "(n,)")?;
+    Tally::from_words(w.as_slice()?).ok_or_else(|| PyValueError::new_err("tally: not the words of a median search's tally"))
+}
+
+/// Blocks' tallies of one pass (their words) merged into one (counts added, values
+/// appended: any order gives the same medians).
+#[pyfunction]
+fn _median_merge<'py>(py: Python<'py>, tallies: Vec<Bound<'py, PyAny>>) -> PyResult<Bound<'py, PyArray1<u64>>> {
+    let mut all = tallies.iter().map(tally_of).collect::<PyResult<Vec<_>>>()?.into_iter();
+    let mut total = all.next().ok_or_else(|| PyValueError::new_err("tallies: none to merge"))?;
+    py.detach(|| all.for_each(|t| total.merge(t)));
+    let w = total.to_words();
+    arrays::new(py, w.len(), w)
+}
+
+/// A block's tally for `counter`: `visit` calls its argument with a cell and values of
+/// it (any number of calls a cell); `salt` (the block's place) makes its sample its own.
+fn tally<'py>(py: Python<'py>, counter: &[u64], salt: u64, visit: impl FnOnce(&mut dyn FnMut(usize, &[f64])) + Send) -> PyResult<Bound<'py, PyArray1<u64>>> {
     let counter = Counter::from_words(counter).ok_or_else(|| PyValueError::new_err("counter: not the words of a search's counter"))?;
-    let t = py.detach(|| {
-        let mut t = counter.tally();
-        visit(&mut |c, v| counter.add(&mut t, c, v));
-        t
+    let w = py.detach(|| {
+        let mut t = counter.tally(salt);
+        visit(&mut |c, v| counter.add_all(&mut t, c, v));
+        t.to_words()
     });
-    Ok(match t {
-        Tally::Histograms(h) => {
-            let cells = h.len();
-            let flat: Vec<u64> = h.into_iter().flat_map(|x| if x.is_empty() { vec![0; BINS] } else { x }).collect();
-            arrays::new(py, (cells, BINS), flat)?.into_any()
-        }
-        Tally::Values(v) => PyList::new(py, v.into_iter().map(|x| PyArray1::from_vec(py, x)))?.into_any(),
-    })
+    arrays::new(py, w.len(), w)
 }
 
 /// A block's tally of its flat signal (the search's sets 0-3) and fit residual (sets 4-7)
 /// by cell of the 2 x 2 period (`(row mod 2) * 2 + column mod 2` of the whole frame: the
 /// block starts at row `r0`, column `c0`).
 #[pyfunction]
-fn _lin_mask_tally<'py>(py: Python<'py>, counter: Vec<u64>, signal: &Bound<'py, PyAny>, resid: &Bound<'py, PyAny>, r0: usize, c0: usize) -> PyResult<Bound<'py, PyAny>> {
+fn _lin_mask_tally<'py>(py: Python<'py>, counter: Vec<u64>, signal: &Bound<'py, PyAny>, resid: &Bound<'py, PyAny>, r0: usize, c0: usize) -> PyResult<Bound<'py, PyArray1<u64>>> {
     let s = arrays::view::<f64, Ix2>(signal, "signal", "(rows, cols)")?;
     let r = arrays::view::<f64, Ix2>(resid, "resid", "(rows, cols)")?;
     let w = s.shape()[1].max(1);
     let (s, r) = (s.as_slice()?, r.as_slice()?);
-    tally(py, &counter, |f| {
+    tally(py, &counter, ((r0 as u64) << 32) ^ c0 as u64, |f| {
         for (set, values) in [s, r].into_iter().enumerate() {
+            let mut by_cell: [Vec<f64>; 4] = Default::default();
             for (p, &v) in values.iter().enumerate() {
-                let q = 4 * set + cfa_cell(c0 + p % w, r0 + p / w, 2);
+                by_cell[cfa_cell(c0 + p % w, r0 + p / w, 2)].push(v);
+            }
+            for (k, v) in by_cell.iter().enumerate() {
+                let q = 4 * set + k;
                 f(2 * q, v);
                 f(2 * q + 1, v);
             }
@@ -242,17 +242,19 @@ fn counted_of<'a>(mean: &'a numpy::PyReadonlyArray3<'_, f64>, mask: &'a numpy::P
     Ok(Counted { set, mask: mask.as_slice()?, valid: valid.as_slice()?.iter().map(|&n| n as usize).collect() })
 }
 
-/// A block's tally of each level's counted means (set `l` of the search is level `l`).
+/// A block's tally of each level's counted means (set `l` of the search is level `l`);
+/// `salt` tells the blocks' samples apart (the block's place).
 #[pyfunction]
-fn _lin_level_tally<'py>(py: Python<'py>, counter: Vec<u64>, mean: &Bound<'py, PyAny>, mask: &Bound<'py, PyAny>, valid: &Bound<'py, PyAny>, voltage: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyAny>> {
+fn _lin_level_tally<'py>(py: Python<'py>, counter: Vec<u64>, mean: &Bound<'py, PyAny>, mask: &Bound<'py, PyAny>, valid: &Bound<'py, PyAny>, voltage: &Bound<'py, PyAny>, salt: u64) -> PyResult<Bound<'py, PyArray1<u64>>> {
     let (m, k, n, v) = block_arrays(mean, mask, valid, voltage)?;
     let c = counted_of(&m, &k, &n, v.as_slice()?)?;
-    tally(py, &counter, |f| {
+    tally(py, &counter, salt, |f| {
+        let mut values = Vec::with_capacity(c.mask.len());
         for l in 0..c.set.levels {
-            for x in counted_means(&c.set, c.mask, &c.valid, l) {
-                f(2 * l, x);
-                f(2 * l + 1, x);
-            }
+            values.clear();
+            values.extend(counted_means(&c.set, c.mask, &c.valid, l));
+            f(2 * l, &values);
+            f(2 * l + 1, &values);
         }
     })
 }
@@ -418,6 +420,7 @@ fn _lin_report(
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<MedianSearch>()?;
+    m.add_function(wrap_pyfunction!(_median_merge, m)?)?;
     for f in [
         wrap_pyfunction!(_lin_check, m)?,
         wrap_pyfunction!(_lin_fit, m)?,

@@ -167,11 +167,9 @@ def _reaching(fits, levels: int) -> np.ndarray:
 
 
 def _merge(tallies: List[Any]):
-    """Tallies of one pass added: histograms bin by bin (integers), collected values
-    appended per cell (a multiset: the order does not matter)."""
-    if isinstance(tallies[0], list):
-        return [np.concatenate([t[c] for t in tallies]) for c in range(len(tallies[0]))]
-    return np.sum(np.stack(tallies), axis=0, dtype=np.uint64)
+    """Tallies of one pass merged (counts added, values appended: a multiset, the order
+    does not matter), as words."""
+    return _dncal._median_merge([_c(t, np.uint64) for t in tallies])
 
 
 def _add_parts(parts: List[Tuple[np.ndarray, np.ndarray, np.ndarray]]):
@@ -195,34 +193,42 @@ def _step(name: str, passes: Optional[List[int]] = None):
 
 
 #: Up to this many blocks, a median pass's tallies are added by the caller, not by a task
-#: on a worker (a level median's tally is 2 x 256 x 8 bytes a level and block).
+#: on a worker (a level median's tally is 2 x 256 x 8 bytes a level and block and its
+#: sample on the first pass, the values inside its bracket on the second: about
+#: 3 x (Z x pixels / 2)^(2/3) values a level in all).
 MERGE_HERE = 64
 
 
-def _medians(queries: int, tally: Callable[[np.ndarray, bool], Tuple[List[Any], Tuple[Any, ...]]], passes: Optional[List[int]] = None, on_first: Optional[Callable[..., None]] = None) -> Tuple[np.ndarray, np.ndarray]:
-    """Exact medians of `queries` sets spread over blocks: passes of the radix search,
-    each `tally(counter, first)` a delayed tally per block, merged and taken by the
-    search, and on the first pass (`first` true) a tuple of other delayed values, computed
-    in the same round trip to the workers and handed to `on_first` before the search
-    reads that pass (work that needs the same blocks: a pass fewer)."""
-    search = _dncal._MedianSearch(queries)
-    # 8 bits a pass: at most 8 histogram passes and one collection.
+def _gather(tallies: List[Any], *extra: Any) -> Tuple[Any, List[Any]]:
+    """One pass's tallies merged, and `extra` delayed values computed in the same round
+    trip to the workers."""
+    if len(tallies) <= MERGE_HERE:
+        # A few blocks' tallies come straight here and are merged here: one hop fewer
+        # than a merging task, whose inputs would travel to its worker first.
+        (tallies, *done) = dask.compute(tallies, *extra)
+        return _merge(list(tallies)), done
+    (total, *done) = dask.compute(dask.delayed(_merge)(tallies), *extra)
+    return total, done
+
+
+def _medians(search: Any, tally: Callable[[np.ndarray, bool], Tuple[List[Any], Tuple[Any, ...]]], passes: Optional[List[int]] = None, on_first: Optional[Callable[..., None]] = None) -> Tuple[np.ndarray, np.ndarray]:
+    """Exact medians of a `_MedianSearch` over blocks, to its end: passes of the search (a
+    sample and a histogram, then the values inside a bracket: two passes unless a bracket
+    missed), each `tally(counter, first)` a delayed tally per block, merged and taken by
+    the search, and on this call's first pass (`first` true) a tuple of other delayed
+    values, computed in the same round trip to the workers and handed to `on_first`
+    before the search reads that pass (work that needs the same blocks: a pass fewer)."""
+    # At most 8 histogram passes and one collection.
     for n in range(9):
         if search.done:
             break
         if passes is not None:
             passes[0] += 1
         tallies, extra = tally(search.counter(), n == 0)
-        if len(tallies) <= MERGE_HERE:
-            # A few blocks' tallies come straight here and are added here: one hop fewer
-            # than a merging task, whose inputs would travel to its worker first.
-            (tallies, *extra) = dask.compute(tallies, *extra)
-            total = _merge(list(tallies))
-        else:
-            (total, *extra) = dask.compute(dask.delayed(_merge)(tallies), *extra)
+        total, done = _gather(tallies, *extra)
         if n == 0 and on_first is not None:
-            on_first(*extra)
-        search.advance([_c(v, np.float64) for v in total] if isinstance(total, list) else _c(total, np.uint64))
+            on_first(*done)
+        search.advance(_c(total, np.uint64))
     if not search.done:
         raise RuntimeError("the exact median search did not end in 9 passes: the blocks' values changed between passes")
     return search.medians()
@@ -247,9 +253,9 @@ def _good(mask) -> int:
     return int(np.count_nonzero(mask == 0))
 
 
-def _level_tally(counter, mean, mask, fits, voltage):
-    """A block's tally for each level's median."""
-    return _dncal._lin_level_tally(counter, _c(mean, np.float64), _c(mask, np.uint8), _f(fits)[0], _c(voltage, np.float64))
+def _level_tally(counter, mean, mask, fits, voltage, salt):
+    """A block's tally for each level's median (`salt`: the block's own sample)."""
+    return _dncal._lin_level_tally(counter, _c(mean, np.float64), _c(mask, np.uint8), _f(fits)[0], _c(voltage, np.float64), salt)
 
 
 def _level_stats(*a):
@@ -267,11 +273,11 @@ def _coefficients(fits) -> np.ndarray:
     return np.moveaxis(fits[1], -1, 0).copy()
 
 
-def _tally_and_sums(counter, mean, mask, fits, voltage):
+def _tally_and_sums(counter, mean, mask, fits, voltage, salt):
     """A block's first level-median tally and its level sums, its block of the cube
     read once for both."""
     m, k, n, v = _c(mean, np.float64), _c(mask, np.uint8), _f(fits)[0], _c(voltage, np.float64)
-    return _dncal._lin_level_tally(counter, m, k, n, v), _dncal._lin_level_sums(m, k, n, v)
+    return _dncal._lin_level_tally(counter, m, k, n, v, salt), _dncal._lin_level_sums(m, k, n, v)
 
 
 def _level_pass(mean, std, fits, mask, keys, global_coefficients, level_means, keep):
@@ -547,20 +553,28 @@ def _fit_linearity(mean, std, voltage, frames: int, *, order: int = 4, flat_leve
     grid = [(i, j) for i in range(len(row_chunks)) for j in range(len(col_chunks))]
     keys_d = dask.delayed(keys, pure=True)
 
-    # Stage 1, kept on the workers for the passes that follow.
+    # Stage 1, kept on the workers for the passes that follow. The mask's medians' first
+    # pass (a histogram and a sample, the same for any data) comes back with them: a
+    # round trip fewer. (The flat's signal, then the residual, by cell of the 2 x 2
+    # period: a colour filter's channels.)
     fit = dask.delayed(_fit_block, pure=True)
-    with _step(f"per-pixel fits, {len(grid)} blocks"):
+    mask_search = _dncal._MedianSearch(8, rows * cols // 4)
+
+    def mask_tallies(w):
+        return [dask.delayed(_mask_tally)(w, f, int(r0[i]), int(c0[j])) for f, (i, j) in zip(fits, grid)]
+
+    with _step(f"per-pixel fits and the mask's first median pass, {len(grid)} blocks"):
         fits = dask.persist(*[fit(mb[i][j], sb[i][j], None if kb is None else kb[i][j], keys_d, int(r0[i]), int(c0[j])) for i, j in grid])
-        dask.compute([dask.delayed(len)(f) for f in fits])
+        total, _ = _gather(mask_tallies(mask_search.counter()))
+        mask_search.advance(_c(total, np.uint64))
     if flat_level is not None:
         (reaching,) = dask.compute(dask.delayed(lambda rs: np.sum(np.stack(rs), axis=0))([dask.delayed(_reaching)(f, levels) for f in fits]))
         _dncal._lin_check_flat([int(n) for n in reaching], flat_level)
 
     # The mask's medians, then each block's mask (kept).
     passes = [0]
-    with _step("mask medians", passes):
-        # (The flat's signal, then the residual, by cell of the 2 x 2 period: a colour filter's channels.)
-        med, _ = _medians(8, lambda w, _: ([dask.delayed(_mask_tally)(w, f, int(r0[i]), int(c0[j])) for f, (i, j) in zip(fits, grid)], ()), passes)
+    with _step("mask medians, after the first pass", passes):
+        med, _ = _medians(mask_search, lambda w, _: (mask_tallies(w), ()), passes)
     mask_fn = dask.delayed(_mask_block, pure=True)
     masks = dask.persist(*[mask_fn(f, None if kb is None else kb[i][j], [float(m) for m in med[:4]], [float(m) for m in med[4:]], int(r0[i]), int(c0[j])) for f, (i, j) in zip(fits, grid)])
     good_count = dask.delayed(sum)([dask.delayed(_good)(m) for m in masks])
@@ -576,8 +590,8 @@ def _fit_linearity(mean, std, voltage, frames: int, *, order: int = 4, flat_leve
 
     def tally(w, first):
         if not first:
-            return [level_tally(w, mb[i][j], k, f, voltage) for f, k, (i, j) in zip(fits, masks, grid)], ()
-        pairs = [both(w, mb[i][j], k, f, voltage) for f, k, (i, j) in zip(fits, masks, grid)]
+            return [level_tally(w, mb[i][j], k, f, voltage, b) for b, (f, k, (i, j)) in enumerate(zip(fits, masks, grid))], ()
+        pairs = [both(w, mb[i][j], k, f, voltage, b) for b, (f, k, (i, j)) in enumerate(zip(fits, masks, grid))]
         return [p[0] for p in pairs], (good_count, dask.delayed(_add_parts)([p[1] for p in pairs]))
 
     def check_and_keep(good, level_parts):
@@ -587,7 +601,7 @@ def _fit_linearity(mean, std, voltage, frames: int, *, order: int = 4, flat_leve
 
     passes = [0]
     with _step(f"level medians and means ({levels} levels)", passes):
-        medians, counts = _medians(levels, tally, passes, on_first=check_and_keep)
+        medians, counts = _medians(_dncal._MedianSearch(levels, rows * cols), tally, passes, on_first=check_and_keep)
     good, level_parts = parts
     global_coefficients = _dncal._lin_global(keys, [float(m) for m in medians], [int(n) for n in counts], good, rows * cols)
     level_means = [float(x) for x in _dncal._lin_means(*_parts(level_parts))]
