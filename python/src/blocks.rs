@@ -157,11 +157,15 @@ fn tally_of(words: &Bound<'_, PyAny>) -> PyResult<Tally> {
 }
 
 /// Blocks' tallies of one pass (their words) merged into one (counts added, values
-/// appended: any order gives the same medians).
+/// appended: any order gives the same medians). Tallies of different cell counts are
+/// refused; counts of different kinds end their medians as NaN (never a wrong value).
 #[pyfunction]
 fn _median_merge<'py>(py: Python<'py>, tallies: Vec<Bound<'py, PyAny>>) -> PyResult<Bound<'py, PyArray1<u64>>> {
     let mut all = tallies.iter().map(tally_of).collect::<PyResult<Vec<_>>>()?.into_iter();
     let mut total = all.next().ok_or_else(|| PyValueError::new_err("tallies: none to merge"))?;
+    if let Some(t) = all.as_slice().iter().find(|t| t.cells() != total.cells()) {
+        return Err(PyValueError::new_err(format!("tallies: {} cells and {}, not one pass's", total.cells(), t.cells())));
+    }
     py.detach(|| all.for_each(|t| total.merge(t)));
     let w = total.to_words();
     arrays::new(py, w.len(), w)

@@ -22,9 +22,17 @@
 //! at most [`COLLECT`] values collects it. Whatever the sample, the result is the value
 //! a sort would give, whatever the range or the outliers: two passes, at most nine.
 //!
-//! Memory per cell and task: a 256-bin histogram and the sample on the first pass, then a
-//! bracket's values (about 0.6 MiB for a cell of 4 million), at most [`COLLECT`] values
-//! or a histogram after.
+//! `n` is the count of items a selection is told (a cell's values, where each item gives
+//! a cell one value, as every caller's does), the sample at least [`SAMPLE_LEAST`] and at
+//! most [`SAMPLE_MOST`] values; a bracket expected to hold more than [`BRACKET_MOST`]
+//! is not tried (cells of more than about 13 million values take the radix passes).
+//! Memory per cell: a 256-bin histogram and the sample on the first pass (0.35 MiB for a
+//! cell of 4 million), then a bracket's values (about 93 000, 0.71 MiB, for the same
+//! cell; a task gives up its bracket past twice that, and so does the total), at most
+//! [`COLLECT`] values or a histogram after. The miss rate is the median's; for ranks
+//! near the ends with small samples the normal approximation is optimistic (a bracket
+//! of 64 sampled values at rank 0.999 misses about 5e-5 of the time), which costs
+//! passes, never the value.
 
 use rayon::prelude::*;
 
@@ -36,12 +44,17 @@ const DIGIT: u32 = 8;
 /// A bin with at most this many values is collected and selected from.
 const COLLECT: usize = 1 << 14;
 /// A bracket's half-width, in standard deviations of the wanted rank's place in the
-/// sample (a binomial count): it misses on one side with probability ~2.9e-7.
+/// sample (a binomial count): at the median it misses on one side with probability
+/// ~2.9e-7 (the normal tail; ~2.3e-7 by the exact hypergeometric one at n = 4 million).
 const Z: f64 = 5.0;
 /// The fewest sampled values a bracket is drawn from (below, the radix passes go on).
 const MIN_SAMPLE: usize = 64;
-/// The most values a bracket is expected to hold, or it is not tried.
-const BRACKET_MOST: f64 = (1u64 << 22) as f64;
+/// The most values a bracket is expected to hold, or it is not tried (2 MiB a cell: a
+/// Dask driver receives every cell's; with the sample's cap, cells of up to about 13
+/// million values are bracketed, larger ones take the radix passes).
+const BRACKET_MOST: f64 = (1u64 << 18) as f64;
+/// The largest sample a selection asks for (0.5 MiB a cell).
+const SAMPLE_MOST: f64 = (1u64 << 16) as f64;
 /// The least sample a selection asks for: a few thousand values cost nothing beside a
 /// pass, and a cell of fewer is done in one.
 const SAMPLE_LEAST: f64 = 4096.0;
@@ -63,7 +76,7 @@ fn value(k: u64) -> f64 {
 /// a hash of the place (SplitMix64's finalizer), not of the value, so equal values are
 /// sampled independently and the sample does not depend on them.
 fn sampled(rate: u64, salt: u64, cell: usize, n: u64) -> bool {
-    let mut z = salt.wrapping_mul(0xD1B5_4A32_D192_ED03) ^ ((cell as u64) << 40).wrapping_add(n).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    let mut z = salt.wrapping_add(0x2545_F491_4F6C_DD1D).wrapping_mul(0xD1B5_4A32_D192_ED03) ^ ((cell as u64) << 40).wrapping_add(n).wrapping_mul(0x9E37_79B9_7F4A_7C15);
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
     z ^= z >> 31;
@@ -71,10 +84,11 @@ fn sampled(rate: u64, salt: u64, cell: usize, n: u64) -> bool {
 }
 
 /// The sampling rate (in units of 2^-63) for a selection over `items` values a cell:
-/// about `(Z n / 2)^(2/3)` of them, at least [`SAMPLE_LEAST`] (all of a small set).
+/// about `(Z n / 2)^(2/3)` of them, at least [`SAMPLE_LEAST`] (all of a small set), at
+/// most [`SAMPLE_MOST`].
 fn sample_rate(items: usize) -> u64 {
     let n = items.max(1) as f64;
-    let m = (Z * n / 2.0).powf(2.0 / 3.0).max(SAMPLE_LEAST);
+    let m = (Z * n / 2.0).powf(2.0 / 3.0).clamp(SAMPLE_LEAST, SAMPLE_MOST);
     if m >= n { 1 << 63 } else { (m / n * 2f64.powi(63)) as u64 }
 }
 
@@ -186,6 +200,9 @@ enum Count {
     /// Counts below and at the ends, the values between them (dropped, `over`, past the
     /// bracket's `most`).
     Bracket { below: u64, at_lo: u64, at_hi: u64, inside: Vec<f64>, over: bool },
+    /// Counts of different kinds merged (tallies of different passes): the cell ends
+    /// without a value.
+    Bad,
 }
 
 /// One pass's counts, per cell, made by one task (`salt` makes its sample its own).
@@ -204,24 +221,31 @@ fn shares(k: u64, prefix: u64, fixed: u32) -> bool {
 }
 
 impl Tally {
-    /// Adds `other`'s counts (histograms bin by bin; values and samples appended).
+    /// Adds `other`'s counts (histograms bin by bin; values and samples appended). Counts
+    /// of different kinds, or tallies of different cell counts (not one pass's), make
+    /// the cells [`Count::Bad`]: a search ends them without a value, never with a wrong
+    /// one.
     pub fn merge(&mut self, other: Tally) {
+        if self.cells.len() != other.cells.len() {
+            self.cells.iter_mut().for_each(|c| *c = Count::Bad);
+            return;
+        }
         for (a, b) in self.cells.iter_mut().zip(other.cells) {
             match (a, b) {
                 (Count::Histogram { bins: x, sample: s, seen: n }, Count::Histogram { bins: y, sample: mut t, seen: m }) => {
                     if x.is_empty() {
                         *x = y;
                     } else if !y.is_empty() {
-                        x.iter_mut().zip(y).for_each(|(p, q)| *p += q);
+                        x.iter_mut().zip(y).for_each(|(p, q)| *p = p.wrapping_add(q));
                     }
                     s.append(&mut t);
-                    *n += m;
+                    *n = n.wrapping_add(m);
                 }
                 (Count::Values(x), Count::Values(mut y)) => x.append(&mut y),
                 (Count::Bracket { below, at_lo, at_hi, inside, over }, Count::Bracket { below: b, at_lo: l, at_hi: h, inside: mut i, over: o }) => {
-                    *below += b;
-                    *at_lo += l;
-                    *at_hi += h;
+                    *below = below.wrapping_add(b);
+                    *at_lo = at_lo.wrapping_add(l);
+                    *at_hi = at_hi.wrapping_add(h);
                     *over |= o;
                     if *over {
                         *inside = Vec::new();
@@ -229,9 +253,9 @@ impl Tally {
                         inside.append(&mut i);
                     }
                 }
-                // Tallies of one pass count a cell one way; an idle count takes the other's.
-                (a @ Count::Idle, b) => *a = b,
-                _ => {}
+                (Count::Idle, Count::Idle) => {}
+                // Tallies of one pass count a cell one way.
+                (a, _) => *a = Count::Bad,
             }
         }
     }
@@ -248,7 +272,7 @@ impl Tally {
             .map(|c| match c {
                 Count::Histogram { sample, .. } => sample.len(),
                 Count::Values(v) | Count::Bracket { inside: v, .. } => v.len(),
-                Count::Idle => 0,
+                Count::Idle | Count::Bad => 0,
             })
             .max()
             .unwrap_or(0)
@@ -264,6 +288,7 @@ impl Tally {
         for c in &self.cells {
             match c {
                 Count::Idle => w.push(0),
+                Count::Bad => w.push(4),
                 Count::Histogram { bins, sample, seen } => {
                     w.extend([1, *seen, bins.len() as u64]);
                     w.extend(bins);
@@ -291,13 +316,14 @@ impl Tally {
         if cells > w.len() {
             return None;
         }
-        let mut out = Vec::with_capacity(cells);
+        let mut out = Vec::with_capacity(cells.min(1 << 12));
         fn take(next: &mut dyn FnMut() -> Option<u64>, n: u64) -> Option<Vec<u64>> {
             (0..n).map(|_| next()).collect()
         }
         for _ in 0..cells {
             out.push(match next()? {
                 0 => Count::Idle,
+                4 => Count::Bad,
                 1 => {
                     let seen = next()?;
                     let nb = next()?;
@@ -500,7 +526,7 @@ impl Selection {
                 }
                 (Ask::Bracket(b), Count::Bracket { below, at_lo, at_hi, inside, over }) => {
                     x.bracket = None;
-                    if !over {
+                    if !over && inside.len() as u64 <= b.most {
                         // Otherwise the radix passes go on from the first pass's digit.
                         x.done = within(x.rank, b, [below, at_lo, at_hi], inside);
                     }
@@ -525,7 +551,7 @@ impl Selection {
 /// counted); on the first pass, its count and rank.
 fn narrow(x: &mut Search, bins: &[u64], c: usize, rank: &(dyn Fn(usize, usize) -> usize + Sync)) {
     if x.fixed == 0 {
-        let count = bins.iter().sum::<u64>() as usize;
+        let count = bins.iter().fold(0u64, |a, &b| a.wrapping_add(b)) as usize;
         x.count = count;
         if count == 0 {
             x.done = Some(f64::NAN);
@@ -564,7 +590,6 @@ fn bracket(x: &mut Search, mut sample: Vec<f64>, collect: usize) -> Option<Brack
     if x.inside <= collect || m < MIN_SAMPLE {
         return None;
     }
-    sample.sort_unstable_by(f64::total_cmp);
     // The rank's place in the sample: binomial about q m.
     let (n, mf) = (x.count as f64, m as f64);
     let q = (x.rank as f64 + 0.5) / n;
@@ -574,8 +599,10 @@ fn bracket(x: &mut Search, mut sample: Vec<f64>, collect: usize) -> Option<Brack
     if expect > BRACKET_MOST {
         return None;
     }
-    let lo = if lo < 0.0 { 0 } else { key(sample[lo as usize]) };
-    let hi = if hi >= mf { u64::MAX } else { key(sample[hi as usize]) };
+    // Two order statistics of the sample (linear time each, not a sort).
+    let mut at = |i: f64| key(*sample.select_nth_unstable_by(i as usize, f64::total_cmp).1);
+    let lo = if lo < 0.0 { 0 } else { at(lo) };
+    let hi = if hi >= mf { u64::MAX } else { at(hi) };
     Some(Bracket { lo, hi, most: (2.0 * expect) as u64 + collect as u64 })
 }
 
@@ -774,11 +801,72 @@ mod tests {
         search.cells[1].bracket = Some(Bracket { lo: k(10.75), hi: k(11.0), most: 1 << 20 });
         search.cells[2].bracket = Some(Bracket { lo: k(mid - 0.1), hi: k(mid + 0.1), most: 0 });
         pass(&mut search);
-        assert!(search.cells[..3].iter().all(|x| x.done.is_none()) && search.cells[3].done.is_some());
+        assert!(search.cells[..3].iter().all(|x| x.done.is_none() && x.fixed == 8) && search.cells[3].done.is_some());
+        let mut passes = 2;
         while !search.done() {
             pass(&mut search);
+            passes += 1;
         }
         assert_eq!(search.values(), sorted_rank(&values, 4, &rank));
+        // The radix passes went on from the first pass's digit: one pass more than the
+        // radix search alone takes.
+        let (want, _, radix) = run(Selection::with(4, 64, 0), values.len(), &rank, &visit);
+        assert_eq!((search.values(), passes), (want, radix + 1));
+    }
+
+    /// The rank's value at each place a bracket can hold it, counted as a pass would: on
+    /// its low end, inside, on its high end, and missed below and above; a bracket with
+    /// equal ends; open ends.
+    #[test]
+    fn a_bracket_gives_the_rank_at_its_ends_and_inside() {
+        let values = [1.0, 2.0, 2.0, 3.0, 4.0, 4.0, 4.0, 5.0, -0.0, 0.0];
+        let mut sorted = values.to_vec();
+        sorted.sort_by(f64::total_cmp);
+        for (lo, hi) in [(2.0, 4.0), (0.0, 4.0), (-0.0, 0.0), (4.0, 4.0), (1.0, 5.0)] {
+            for open in [(false, false), (true, false), (false, true), (true, true)] {
+                let b = Bracket { lo: if open.0 { 0 } else { key(lo) }, hi: if open.1 { u64::MAX } else { key(hi) }, most: 100 };
+                let counter = Counter { cells: vec![Ask::Bracket(b)], rate: 0 };
+                let mut t = counter.tally(0);
+                counter.add_all(&mut t, 0, &values);
+                let Count::Bracket { below, at_lo, at_hi, inside, .. } = t.cells[0].clone() else { unreachable!() };
+                for (rank, &want) in sorted.iter().enumerate() {
+                    let got = within(rank, b, [below, at_lo, at_hi], inside.clone());
+                    let (l, h) = (if open.0 { f64::NEG_INFINITY } else { lo }, if open.1 { f64::INFINITY } else { hi });
+                    let held = want.total_cmp(&l).is_ge() && want.total_cmp(&h).is_le();
+                    assert_eq!(got.map(f64::to_bits), held.then(|| want.to_bits()), "rank {rank} in [{lo}, {hi}], open {open:?}");
+                }
+            }
+        }
+    }
+
+    /// Merging: a task over its bracket's `most` makes the total over (its values were
+    /// dropped, its counts kept), and counts of different kinds or cell counts (tallies
+    /// of different passes) end the cells without a value.
+    #[test]
+    fn merged_tallies_keep_an_overflow_and_refuse_mixed_passes() {
+        let b = Bracket { lo: key(1.0), hi: key(9.0), most: 3 };
+        let counter = Counter { cells: vec![Ask::Bracket(b)], rate: 0 };
+        let (mut few, mut many) = (counter.tally(0), counter.tally(1));
+        counter.add_all(&mut few, 0, &[2.0, 3.0]);
+        counter.add_all(&mut many, 0, &[2.0, 3.0, 4.0, 5.0]);
+        for (mut a, b_) in [(few.clone(), many.clone()), (many, few)] {
+            a.merge(b_);
+            assert!(matches!(&a.cells[0], Count::Bracket { inside, over: true, .. } if inside.is_empty()), "{a:?}");
+        }
+        let mut search = Selection::with(1, 1, 0);
+        let first = search.counter();
+        let mut t = counter.tally(0);
+        counter.add_all(&mut t, 0, &[1.0]);
+        let mut h = first.tally(1);
+        first.add_all(&mut h, 0, &[1.0, 2.0, 3.0]);
+        h.merge(t);
+        assert_eq!(h.cells[0], Count::Bad);
+        search.advance(h, &median_rank);
+        assert!(search.done() && search.values()[0].is_nan());
+        let mut two = Counter { cells: vec![Ask::Idle; 2], rate: 0 }.tally(0);
+        two.merge(first.tally(0));
+        assert!(two.cells.iter().all(|c| *c == Count::Bad));
+        assert_eq!(Tally::from_words(&two.to_words()), Some(Tally { cells: vec![Count::Bad; 2], salt: 0 }));
     }
 
     #[test]
@@ -816,9 +904,10 @@ mod tests {
             assert!(Counter::from_words(&words).is_none(), "{words:?}");
         }
         assert!(Counter::from_words(&[h, 5 << 56, 8, 0, 1, 0, 64, 0, 2, 3, 3, 9, 3, 0, 0, 0, 0]).is_some());
-        // Tallies a counter cannot make: more cells than words, a histogram of 3 bins,
-        // an unknown count, words left over, values cut short.
-        for words in [vec![2, 0], vec![1, 1, 0, 3, 1, 2, 3, 0], vec![1, 4], vec![1, 0, 0], vec![1, 2, 3, 0]] {
+        // Tallies a counter cannot make: more cells than words (a count past the guard,
+        // one within it), a histogram of 3 bins, an unknown count, words left over,
+        // values cut short.
+        for words in [vec![u64::MAX], vec![1 << 40, 0], vec![2, 0], vec![1, 1, 0, 3, 1, 2, 3, 0], vec![1, 5], vec![1, 0, 0], vec![1, 2, 3, 0]] {
             assert!(Tally::from_words(&words).is_none(), "{words:?}");
         }
     }

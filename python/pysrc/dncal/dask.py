@@ -193,9 +193,10 @@ def _step(name: str, passes: Optional[List[int]] = None):
 
 
 #: Up to this many blocks, a median pass's tallies are added by the caller, not by a task
-#: on a worker (a level median's tally is 2 x 256 x 8 bytes a level and block and its
-#: sample on the first pass, the values inside its bracket on the second: about
-#: 3 x (Z x pixels / 2)^(2/3) values a level in all).
+#: on a worker (a median is two cells, its lower and upper middle; a cell's tally is
+#: 256 x 8 bytes a block and a sample of m = (5 x pixels / 2)^(2/3) values over the
+#: blocks on the first pass, about 2 m values inside its bracket on the second: 6 m
+#: values a median over both passes, 45 000 for a million pixels).
 MERGE_HERE = 64
 
 
@@ -218,7 +219,8 @@ def _medians(search: Any, tally: Callable[[np.ndarray, bool], Tuple[List[Any], T
     the search, and on this call's first pass (`first` true) a tuple of other delayed
     values, computed in the same round trip to the workers and handed to `on_first`
     before the search reads that pass (work that needs the same blocks: a pass fewer)."""
-    # At most 8 histogram passes and one collection.
+    # A histogram and a sample, a bracket, and (after a miss) up to 7 passes of the radix
+    # search from the first pass's 8 bits: 9 at most.
     for n in range(9):
         if search.done:
             break
