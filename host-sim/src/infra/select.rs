@@ -213,7 +213,7 @@ pub struct Tally {
 }
 
 /// Bins of a histogram pass.
-pub const BINS: usize = 1 << DIGIT;
+const BINS: usize = 1 << DIGIT;
 
 /// Whether key `k` shares the high `fixed` bits of `prefix`.
 fn shares(k: u64, prefix: u64, fixed: u32) -> bool {
