@@ -13,6 +13,9 @@ wheel (scripts/python-bench.sh --dask-files builds it and runs this):
    compute, timed together; checked equal to the in-memory fit, bit for bit.
 3. Each worker's native threads (the library's rayon pool) are CORES / N (at least 1),
    so N processes use the machine's cores as the in-memory fit does.
+4. The workers start with `dncal.dask.worker_environ()` in the nannies' pre-spawn
+   environment (glibc's heap kept between tasks); `--default-malloc` starts them with
+   distributed's own (`MALLOC_TRIM_THRESHOLD_=65536`).
 
 Prints a JSON object: the in-memory seconds per run, and per N the cluster's seconds,
 the per-run ratios (cluster over in-memory, the same run), their median, and the global
@@ -65,6 +68,7 @@ def main():
     p.add_argument("--chunk", type=int, default=256)
     p.add_argument("--workers", default="1,2,4")
     p.add_argument("--runs", type=int, default=3)
+    p.add_argument("--default-malloc", action="store_true", help="distributed's own worker environment, not dncal.dask.worker_environ()")
     a = p.parse_args()
     import distributed
     from dncal import dask as dd
@@ -75,7 +79,11 @@ def main():
     steps = Steps()
     dd.log.addHandler(steps)
     dd.log.setLevel(logging.INFO)
-    out = {"side": a.side, "levels": a.levels, "chunk": a.chunk, "blocks": (-(-a.side // a.chunk)) ** 2, "cores": cores, "runs": a.runs, "in_memory_s": [], "clusters": {}}
+    import dask
+
+    environ = dask.config.get("distributed.nanny.pre-spawn-environ") if a.default_malloc else dd.worker_environ()
+    dask.config.set({"distributed.nanny.pre-spawn-environ": environ})
+    out = {"worker_environ": {k: str(v) for k, v in environ.items() if k.startswith("MALLOC_")}, "side": a.side, "levels": a.levels, "chunk": a.chunk, "blocks": (-(-a.side // a.chunk)) ** 2, "cores": cores, "runs": a.runs, "in_memory_s": [], "clusters": {}}
     with tempfile.TemporaryDirectory() as d:
         path = f"{d}/lin.fits"
         write_set(path, s)
