@@ -10,6 +10,7 @@ pub mod frame_sums;
 pub mod parallel;
 pub mod printable;
 pub mod progress;
+pub mod recorded;
 pub mod roi;
 pub mod select;
 pub mod stats;

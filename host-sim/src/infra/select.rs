@@ -116,7 +116,9 @@ fn fold_items<A: Send>(n: usize, init: &(dyn Fn(usize) -> A + Sync), step: &(dyn
 /// their number; NaN for a cell without values. Items `0..n` are visited by `visit`,
 /// which must give the same values on every pass.
 pub fn select(n: usize, cells: usize, rank: &(dyn Fn(usize, usize) -> usize + Sync), visit: &Visit) -> Vec<f64> {
-    run(Selection::new(cells, n), n, rank, visit).0
+    // Two passes at least (but for a cell sampled whole): the values recorded on the first
+    // and read back on the others where they fit (`super::recorded`; the same values).
+    super::recorded::within(n, visit, |v| run(Selection::new(cells, n), n, rank, v).0)
 }
 
 /// A selection run to its end over items `0..n`; also the most values any cell held at
@@ -647,8 +649,15 @@ pub fn upper_medians(n: usize, cells: usize, visit: &Visit) -> Vec<f64> {
 /// Per cell, [`crate::infra::stats::robust`]: the upper median and 1.4826 times the upper median
 /// of the absolute deviations from it.
 pub fn robust(n: usize, cells: usize, visit: &Visit) -> Vec<(f64, f64)> {
-    let m = upper_medians(n, cells, visit);
-    let mad = upper_medians(n, cells, &|i, f| visit(i, &mut |c, v| f(c, (v - m[c]).abs())));
+    super::recorded::within(n, visit, |v| robust_replayed(n, cells, v))
+}
+
+/// [`robust`] of a visit that is cheap to repeat (values already recorded,
+/// [`super::recorded`]): its four passes read `visit` itself.
+pub fn robust_replayed(n: usize, cells: usize, visit: &Visit) -> Vec<(f64, f64)> {
+    let upper = |_: usize, count: usize| count / 2;
+    let m = run(Selection::new(cells, n), n, &upper, visit).0;
+    let mad = run(Selection::new(cells, n), n, &upper, &|i, f| visit(i, &mut |c, v| f(c, (v - m[c]).abs()))).0;
     m.into_iter().zip(mad).map(|(m, d)| (m, 1.4826 * d)).collect()
 }
 

@@ -382,7 +382,14 @@ type Visit<'a> = dyn Fn(usize, &mut dyn FnMut(usize, f64, f64)) + Sync + 'a;
 /// cell), then the weighted sums of what the clip keeps, then their scatter about the
 /// mean.
 fn clipped_means(n: usize, cells: usize, visit: &Visit) -> Vec<Clipped> {
-    let clip = crate::infra::select::robust(n, cells, &|i, f| visit(i, &mut |k, r, s| f(k, r / s)));
+    // Six passes over the same residuals: recorded on the first where they fit
+    // ([`crate::infra::recorded`]; the same values in the same order, so the same sums).
+    crate::infra::recorded::within(n, &|i, f| visit(i, &mut |k, r, s| f(k, (r, s))), |v| clipped_means_of(n, cells, &|i, f| v(i, &mut |k, (r, s)| f(k, r, s))))
+}
+
+/// [`clipped_means`] in its passes over `visit`.
+fn clipped_means_of(n: usize, cells: usize, visit: &Visit) -> Vec<Clipped> {
+    let clip = crate::infra::select::robust_replayed(n, cells, &|i, f| visit(i, &mut |k, r, s| f(k, r / s)));
     let clip: Vec<(f64, f64)> = clip.into_iter().map(|(m, sd)| (m, 5.0 * sd.max(1e-12))).collect();
     let kept = |k: usize, r: f64, s: f64| clip[k].0.is_finite() && (r / s - clip[k].0).abs() <= clip[k].1;
     // Per cell: values, kept values, `sum 1 / s^2`, `sum r / s^2`; then the scatter.
@@ -839,6 +846,34 @@ mod tests {
             assert!(high.iter().all(|l| l % 2 == 1) && low.iter().all(|l| l % 2 == 0) && high.len() + low.len() == n);
             assert!((step / 20.0 - 1.0).abs() < 0.1 && se < 1.0, "{n} levels: step {step} +- {se}");
         }
+    }
+
+    /// The clipped means with the residuals recorded once are those of six passes over
+    /// the visit itself, bit for bit (outliers clipped, a cell with too few pixels NaN);
+    /// and the centre is the clipped weighted mean worked by hand.
+    #[test]
+    fn clipped_means_recorded_are_the_passes_over_the_visit() {
+        let n = 3000;
+        // Pixel i: cell i % 3 at r = a smooth spread with every 50th an outlier, sigma
+        // from 1 to 2; cell 3 only from the first 5 pixels (below MIN_PIXELS).
+        let r = |i: usize| if i % 50 == 7 { 1e3 } else { ((i * 7919) % 1000) as f64 / 500.0 - 1.0 };
+        let s = |i: usize| 1.0 + (i % 11) as f64 / 10.0;
+        let visit = |i: usize, f: &mut dyn FnMut(usize, f64, f64)| {
+            f(i % 3, r(i), s(i));
+            if i < 5 {
+                f(3, r(i), s(i));
+            }
+        };
+        let (recorded, passes) = (clipped_means(n, 4, &visit), clipped_means_of(n, 4, &visit));
+        for (a, b) in recorded.iter().zip(&passes) {
+            assert_eq!((a.c.to_bits(), a.var.to_bits(), a.count), (b.c.to_bits(), b.var.to_bits(), b.count));
+        }
+        assert!(recorded[3].c.is_nan() && recorded[3].count == 5);
+        // By hand: cell 0 without its outliers (all beyond 5 robust deviations), weighted 1 / s^2.
+        let kept: Vec<usize> = (0..n).filter(|i| i % 3 == 0 && i % 50 != 7).collect();
+        let (w, wr) = kept.iter().fold((0.0, 0.0), |(w, wr), &i| (w + s(i).powi(-2), wr + r(i) / (s(i) * s(i))));
+        assert!((recorded[0].c - wr / w).abs() < 1e-12, "{} against {}", recorded[0].c, wr / w);
+        assert_eq!(recorded[0].count, 1000);
     }
 
     /// A pixel's level fits spilled and read back: both, neither, or a line alone, the
