@@ -83,7 +83,7 @@ def main():
 
     environ = dask.config.get("distributed.nanny.pre-spawn-environ") if a.default_malloc else dd.worker_environ()
     dask.config.set({"distributed.nanny.pre-spawn-environ": environ})
-    out = {"worker_environ": {k: str(v) for k, v in environ.items() if k.startswith("MALLOC_")}, "side": a.side, "levels": a.levels, "chunk": a.chunk, "blocks": (-(-a.side // a.chunk)) ** 2, "cores": cores, "runs": a.runs, "in_memory_s": [], "clusters": {}}
+    out = {"worker_environ_asked": {k: str(v) for k, v in environ.items() if k.startswith("MALLOC_")}, "side": a.side, "levels": a.levels, "chunk": a.chunk, "blocks": (-(-a.side // a.chunk)) ** 2, "cores": cores, "runs": a.runs, "in_memory_s": [], "clusters": {}}
     with tempfile.TemporaryDirectory() as d:
         path = f"{d}/lin.fits"
         write_set(path, s)
@@ -95,6 +95,10 @@ def main():
                 cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None, env={"RAYON_NUM_THREADS": threads})
                 clusters[n] = (cluster, distributed.Client(cluster, set_as_default=False))
                 out["clusters"][n] = {"workers": n, "native_threads_a_worker": int(threads), "seconds": []}
+                # What the workers got (this process's own environment wins over the
+                # configuration's).
+                got = clusters[n][1].run(lambda: sorted((k, v) for k, v in os.environ.items() if k.startswith("MALLOC_")))
+                out["clusters"][n]["workers_malloc"] = [dict(e) for e in {tuple(e) for e in got.values()}]
             # One fit per cluster first, not timed: the workers import dncal and astropy
             # and the file comes into the page cache, as on a cluster already running.
             for n, (_, client) in clusters.items():

@@ -1,6 +1,7 @@
 """dncal.dask against the in-memory core on the same frames: on Dask's threaded
 scheduler and on a LocalCluster of two worker processes, with sets of many chunks."""
 
+import logging
 import os
 
 import numpy as np
@@ -82,35 +83,57 @@ def _refault_count() -> int:
     return after - before
 
 
+def _without_malloc_vars() -> None:
+    for k in [k for k in os.environ if k.startswith("MALLOC_")]:
+        del os.environ[k]
+
+
 def test_worker_environ_keeps_a_workers_heap():
     """With dd.worker_environ in the nannies' pre-spawn environment a worker touches a
     freed block's memory again without faulting it in; with distributed's default (trim
     above 64 KiB) every such block is faulted in anew (24 MiB: 12 huge or 6 144 small
-    pages at least)."""
+    pages at least). glibc's variables: glibc only."""
+    import platform
+
     distributed = pytest.importorskip("distributed")
+    if platform.libc_ver()[0] != "glibc":
+        pytest.skip("MALLOC_* are glibc's")
     env = dd.worker_environ(keep_mib=512, pad_mib=64)
     assert env["MALLOC_TRIM_THRESHOLD_"] == str(512 * 2**20) and env["MALLOC_TOP_PAD_"] == str(64 * 2**20)
     assert env["MALLOC_MMAP_THRESHOLD_"] == str(32 * 2**20)
-    with dask.config.set({"distributed.nanny.pre-spawn-environ": {"OMP_NUM_THREADS": 1, "MALLOC_TRIM_THRESHOLD_": 65536}}):
-        kept = dd.worker_environ()
-        assert kept["OMP_NUM_THREADS"] == "1", "the configuration's own entries are kept"
-        assert kept["MALLOC_TRIM_THRESHOLD_"] == str(1024 * 2**20)
-        faults = {}
-        # A nanny sets its pre-spawn environment in this process's own, where it then
-        # wins over the configuration (distributed's rule; an earlier test's cluster left
-        # it there): each cluster starts from an environment without MALLOC_*, and this
-        # process's is put back after.
-        saved = {k: v for k, v in os.environ.items() if k.startswith("MALLOC_")}
-        for name, environ in (("kept", kept), ("default", None)):
-            for k in [k for k in os.environ if k.startswith("MALLOC_")]:
-                del os.environ[k]
-            with dask.config.set({"distributed.nanny.pre-spawn-environ": environ} if environ else {}):
-                with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, distributed.Client(cluster) as client:
-                    seen = list(client.run(lambda: __import__("os").environ.get("MALLOC_TRIM_THRESHOLD_")).values())
-                    assert seen == ["65536" if environ is None else str(1024 * 2**20)]
-                    faults[name] = min(client.submit(_refault_count, pure=False).result() for _ in range(3))
-        for k in [k for k in os.environ if k.startswith("MALLOC_")]:
-            del os.environ[k]
+    # A nanny sets its pre-spawn environment in this process's own, where it then wins
+    # over the configuration (distributed's rule; an earlier test's cluster may have left
+    # it there): each cluster starts from an environment without MALLOC_*, and this
+    # process's is put back after, whatever happens.
+    saved = {k: v for k, v in os.environ.items() if k.startswith("MALLOC_")}
+    try:
+        _without_malloc_vars()
+        with dask.config.set({"distributed.nanny.pre-spawn-environ": {"OMP_NUM_THREADS": 1, "MALLOC_TRIM_THRESHOLD_": 65536, "UNSET_ME": None}}):
+            kept = dd.worker_environ()
+            assert kept["OMP_NUM_THREADS"] == "1", "the configuration's own entries are kept"
+            assert "UNSET_ME" not in kept, "an entry of None (unset) is left out, not made 'None'"
+            assert kept["MALLOC_TRIM_THRESHOLD_"] == str(1024 * 2**20)
+            # A variable of this process's own that would win is named.
+            os.environ["MALLOC_TRIM_THRESHOLD_"] = "65536"
+            said = []
+            handler = logging.Handler(logging.WARNING)
+            handler.emit = lambda record: said.append(record.getMessage())
+            dd.log.addHandler(handler)
+            try:
+                dd.worker_environ()
+            finally:
+                dd.log.removeHandler(handler)
+            assert any("MALLOC_TRIM_THRESHOLD_=65536" in m for m in said), said
+            faults = {}
+            for name, environ in (("kept", kept), ("default", None)):
+                _without_malloc_vars()
+                with dask.config.set({"distributed.nanny.pre-spawn-environ": environ} if environ else {}):
+                    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, distributed.Client(cluster) as client:
+                        seen = list(client.run(lambda: __import__("os").environ.get("MALLOC_TRIM_THRESHOLD_")).values())
+                        assert seen == ["65536" if environ is None else str(1024 * 2**20)]
+                        faults[name] = min(client.submit(_refault_count, pure=False).result() for _ in range(3))
+    finally:
+        _without_malloc_vars()
         os.environ.update(saved)
     assert faults["kept"] < 8 and faults["default"] >= 12, faults
     for bad in ({"keep_mib": -1}, {"pad_mib": float("nan")}, {"keep_mib": 4096}):

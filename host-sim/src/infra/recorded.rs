@@ -4,37 +4,43 @@
 //! the same values several times: a median two passes, a median and its absolute deviation
 //! four, a clipped mean six. Where an item's values are computed (a pixel's points: its
 //! levels read a frame apart, its noise, the terms taken out), computing them again is
-//! most of each pass. Recorded, each pass after the first reads them from memory.
+//! most of each pass. Recorded, every pass reads them from memory instead.
 //!
-//! The replay gives each item's values in the order the visit gave them, so whatever is
-//! computed from them (a tally, a sum added in item order) is the same bit for bit with
-//! or without the recording. A recording holds at most [`most_bytes`]; a visit that gives
-//! more is used as it is, pass after pass.
-
-use std::sync::atomic::{AtomicBool, Ordering};
+//! The items are split in one run of consecutive items a thread; each run records its
+//! items in order until its share of [`most_bytes`] is full, and a pass replays the items
+//! recorded and visits the rest. So nothing recorded is lost where the values do not all
+//! fit (a 2048 x 2048 set's: the first few percent are replayed), and each item's values
+//! come in the order the visit gave them: whatever is computed from them (a tally, a sum
+//! added in item order) is the same bit for bit with or without the recording.
+//!
+//! A recording is beyond what a command's memory plan counts ([`super::budget`]): at most
+//! a sixteenth of the budget, "somewhat more than it checked".
 
 use rayon::prelude::*;
 
 /// The most a recording holds: 256 MiB, or a sixteenth of the memory budget
 /// ([`super::budget::limit`]) where that is less. A cell and a value take 12 bytes (20 for
-/// a pair of values), so 256 MiB holds a 256 x 256 set's 41 levels in two cells each
-/// twice over; a 2048 x 2048 set's 344 million are visited as before, after a recording
-/// that stopped at 256 MiB (a few percent of one pass).
+/// a pair of values) and an item 4 more, so 256 MiB holds a 256 x 256 set's 41 levels in
+/// two cells each twice over, about two thirds of a 512 x 512 set's clipped-mean
+/// residuals and 3% of a 2048 x 2048 set's.
 pub fn most_bytes() -> usize {
     let budget = usize::try_from(super::budget::limit() / 16).unwrap_or(usize::MAX);
     budget.min(256 << 20)
 }
 
-/// Items `first..first + ends.len()` of a recording: item `first + j`'s values are
-/// `values[ends[j - 1]..ends[j]]` (from 0 for `j = 0`), each with its cell.
+/// Items `first..first + ends.len()` of a run, recorded: item `first + j`'s values are
+/// `values[ends[j - 1]..ends[j]]` (from 0 for `j = 0`), each with its cell. The run's
+/// items from `first + ends.len()` to `last` are not recorded.
 struct Chunk<V> {
     first: usize,
+    last: usize,
     ends: Vec<u32>,
     cells: Vec<u32>,
     values: Vec<V>,
 }
 
-/// The values a visit gave items `0..n`, in chunks of consecutive items (one a thread).
+/// The values a visit gave items `0..n`, in runs of consecutive items (one a thread),
+/// each recorded from its start as far as its share allowed.
 pub struct Recorded<V> {
     chunks: Vec<Chunk<V>>,
 }
@@ -43,24 +49,28 @@ pub struct Recorded<V> {
 pub type VisitOf<'a, V> = dyn Fn(usize, &mut dyn FnMut(usize, V)) + Sync + 'a;
 
 impl<V: Copy + Send + Sync> Recorded<V> {
-    /// The values `visit` gives items `0..n`, recorded in one parallel pass; `None` where
-    /// they come to more than `most` bytes (or a cell or count past `u32`).
-    pub fn of(n: usize, visit: &VisitOf<'_, V>, most: usize) -> Option<Self> {
+    /// The values `visit` gives items `0..n`, recorded in one parallel pass, at most
+    /// `most` bytes (by capacity, items' ends included): each run stops at the first item
+    /// whose values would pass its share (that item and the rest are not recorded).
+    pub fn of(n: usize, visit: &VisitOf<'_, V>, most: usize) -> Self {
         let t = rayon::current_num_threads().clamp(1, n.max(1));
-        // Each chunk's share of `most`, by capacity: grown by hand, never past it.
         let each = size_of::<V>() + size_of::<u32>();
-        let per = (most / t / each).min(u32::MAX as usize);
-        // Set by the first chunk past its share: the others stop at their next item.
-        let stop = AtomicBool::new(false);
-        let chunks: Option<Vec<Chunk<V>>> = (0..t)
+        let chunks = (0..t)
             .into_par_iter()
             .map(|k| {
                 let (first, last) = (k * n / t, (k + 1) * n / t);
-                let mut c = Chunk { first, ends: Vec::with_capacity(last - first), cells: Vec::new(), values: Vec::new() };
-                let mut over = false;
+                // The run's share less its items' ends, in values.
+                let share = (most / t).saturating_sub((last - first) * size_of::<u32>());
+                let per = (share / each).min(u32::MAX as usize);
+                let mut c = Chunk { first, last, ends: Vec::with_capacity(if per > 0 { last - first } else { 0 }), cells: Vec::new(), values: Vec::new() };
                 for i in first..last {
+                    let mut over = false;
                     visit(i, &mut |cell, v| {
+                        if over {
+                            return;
+                        }
                         if c.values.len() == c.values.capacity() {
+                            // Grown by hand, never past the share.
                             let more = c.values.capacity().max(4096).min(per - c.values.len());
                             c.values.reserve_exact(more);
                             c.cells.reserve_exact(more);
@@ -73,25 +83,34 @@ impl<V: Copy + Send + Sync> Recorded<V> {
                             _ => over = true,
                         }
                     });
-                    if over || stop.load(Ordering::Relaxed) {
-                        stop.store(true, Ordering::Relaxed);
-                        return None;
+                    if over {
+                        // This item's values in part: dropped, and the run ends here.
+                        let kept = c.ends.last().map_or(0, |&e| e as usize);
+                        c.values.truncate(kept);
+                        c.cells.truncate(kept);
+                        break;
                     }
                     c.ends.push(c.values.len() as u32);
                 }
-                Some(c)
+                c
             })
             .collect();
-        chunks.map(|chunks| Recorded { chunks })
+        Recorded { chunks }
     }
 
-    /// Item `i`'s values, in the order the visit gave them.
-    pub fn visit(&self, i: usize, f: &mut dyn FnMut(usize, V)) {
-        // Chunks start at strictly rising items (each holds one at least, but for n = 0).
+    /// Items recorded, of all.
+    pub fn items(&self) -> usize {
+        self.chunks.iter().map(|c| c.ends.len()).sum()
+    }
+
+    /// Item `i`'s values, in the order the visit gave them: replayed where recorded, else
+    /// from `visit` (the visit recorded from).
+    pub fn visit(&self, i: usize, f: &mut dyn FnMut(usize, V), visit: &VisitOf<'_, V>) {
+        // Runs start at strictly rising items (each holds one at least, but for n = 0).
         let k = self.chunks.partition_point(|c| c.first <= i);
-        let Some(c) = k.checked_sub(1).map(|k| &self.chunks[k]) else { return };
+        let Some(c) = k.checked_sub(1).map(|k| &self.chunks[k]).filter(|c| i < c.last) else { return };
         let j = i - c.first;
-        let Some(&end) = c.ends.get(j) else { return };
+        let Some(&end) = c.ends.get(j) else { return visit(i, f) };
         let start = if j == 0 { 0 } else { c.ends[j - 1] };
         for v in start as usize..end as usize {
             f(c.cells[v] as usize, c.values[v]);
@@ -99,18 +118,21 @@ impl<V: Copy + Send + Sync> Recorded<V> {
     }
 }
 
-/// `then` of a visit that gives what `visit` gives items `0..n`: its values recorded
-/// where they fit [`most_bytes`], else `visit` itself.
+/// `then` of a visit that gives what `visit` gives items `0..n`, with the values recorded
+/// as far as [`most_bytes`] allows (none recorded: `visit` itself).
 pub fn within<V: Copy + Send + Sync, R>(n: usize, visit: &VisitOf<'_, V>, then: impl FnOnce(&VisitOf<'_, V>) -> R) -> R {
-    match Recorded::of(n, visit, most_bytes()) {
-        Some(rec) => then(&|i, f| rec.visit(i, f)),
-        None => then(visit),
+    let rec = Recorded::of(n, visit, most_bytes());
+    if rec.items() == 0 {
+        drop(rec);
+        return then(visit);
     }
+    then(&|i, f| rec.visit(i, f, visit))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::sync::atomic::{AtomicUsize, Ordering};
 
     /// Item `i` gives `i % 5` values, cells and values from `i`.
     fn visit(i: usize, f: &mut dyn FnMut(usize, (f64, f64))) {
@@ -130,22 +152,36 @@ mod tests {
     #[test]
     fn a_replay_gives_each_items_values_in_order() {
         for n in [0, 1, 2, 3, 17, 1000] {
-            let rec = Recorded::of(n, &visit, 1 << 20).expect("fits");
-            assert_eq!(all(n, &|i, f| rec.visit(i, f)), all(n, &visit), "{n} items");
+            let rec = Recorded::of(n, &visit, 1 << 20);
+            assert_eq!(rec.items(), n, "{n} items, all recorded");
+            // A replay that never visits: every item's values from the recording.
+            let never = |_: usize, _: &mut dyn FnMut(usize, (f64, f64))| panic!("visited");
+            assert_eq!(all(n, &|i, f| rec.visit(i, f, &never)), all(n, &visit), "{n} items");
             // Past the end: nothing.
             let mut none = 0;
-            rec.visit(n, &mut |_, _| none += 1);
+            rec.visit(n, &mut |_, _| none += 1, &visit);
             assert_eq!(none, 0);
         }
     }
 
+    /// 1000 items give 2000 values of 20 bytes and 4 bytes an item: 44 000 bytes.
     #[test]
-    fn too_many_values_are_not_recorded_and_within_still_gives_them() {
-        // 1000 items give 2000 values of 20 bytes (40 000 bytes): 16 000 bytes is short,
-        // 39 000 too (by the last item's values, on any number of threads).
-        assert!(Recorded::of(1000, &visit, 16_000).is_none());
-        assert!(Recorded::of(1000, &visit, 39_000).is_none());
-        assert!(Recorded::of(1000, &visit, 1 << 20).is_some());
+    fn a_recording_short_of_room_replays_what_it_holds_and_visits_the_rest() {
+        for most in [0, 100, 16_000, 43_000] {
+            let rec = Recorded::of(1000, &visit, most);
+            assert!(rec.items() < 1000, "{most} bytes");
+            if most >= 16_000 {
+                assert!(rec.items() > 0, "{most} bytes: some recorded");
+            }
+            let visits = AtomicUsize::new(0);
+            let counted = |i: usize, f: &mut dyn FnMut(usize, (f64, f64))| {
+                visits.fetch_add(1, Ordering::Relaxed);
+                visit(i, f)
+            };
+            assert_eq!(all(1000, &|i, f| rec.visit(i, f, &counted)), all(1000, &visit), "{most} bytes");
+            assert_eq!(visits.load(Ordering::Relaxed), 1000 - rec.items(), "{most} bytes: only the items not recorded visited");
+        }
+        assert_eq!(Recorded::of(1000, &visit, 44_000 * 2).items(), 1000);
         let got = within(1000, &visit, |v| all(1000, v));
         assert_eq!(got, all(1000, &visit));
     }

@@ -116,8 +116,8 @@ fn fold_items<A: Send>(n: usize, init: &(dyn Fn(usize) -> A + Sync), step: &(dyn
 /// their number; NaN for a cell without values. Items `0..n` are visited by `visit`,
 /// which must give the same values on every pass.
 pub fn select(n: usize, cells: usize, rank: &(dyn Fn(usize, usize) -> usize + Sync), visit: &Visit) -> Vec<f64> {
-    // Two passes at least (but for a cell sampled whole): the values recorded on the first
-    // and read back on the others where they fit (`super::recorded`; the same values).
+    // Two passes at least (but for a cell sampled whole): the values recorded once, as far
+    // as they fit, and every pass reading them back (`super::recorded`; the same values).
     super::recorded::within(n, visit, |v| run(Selection::new(cells, n), n, rank, v).0)
 }
 

@@ -55,12 +55,14 @@ def worker_environ(keep_mib: float = 1024, pad_mib: float = 256) -> Dict[str, st
         with dask.config.set({"distributed.nanny.pre-spawn-environ": dncal.dask.worker_environ()}):
             cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1)
 
-    (``dask worker``: the same keys as ``DASK_DISTRIBUTED__NANNY__PRE_SPAWN_ENVIRON__...``
-    in its environment.) Where the starting process's own environment already has one of
-    these variables, ``distributed`` takes that one instead; a nanny started there before
-    left ``MALLOC_TRIM_THRESHOLD_=65536`` in it. The mapping is the configuration's own ``pre-spawn-environ``
-    with three entries set: ``MALLOC_MMAP_THRESHOLD_`` at glibc's 32 MiB maximum (a
-    block's array comes from the heap, not from a mapping of its own), and
+    For ``dask worker`` (or ``dask-worker``) export the ``MALLOC_*`` entries in the shell
+    that starts it: dask's ``DASK_...`` variables lower-case their keys, which glibc then
+    does not read. Where the starting process's own environment already has one of these
+    variables, ``distributed`` takes that one instead (a nanny started there before left
+    ``MALLOC_TRIM_THRESHOLD_=65536`` in it); this function warns where it does. The
+    mapping is the configuration's own ``pre-spawn-environ`` (its ``None`` entries, which
+    unset a variable, left out) with three entries set: ``MALLOC_MMAP_THRESHOLD_`` at
+    32 MiB (a block's array comes from the heap, not from a mapping of its own), and
     ``MALLOC_TRIM_THRESHOLD_`` (``keep_mib``) and ``MALLOC_TOP_PAD_`` (``pad_mib``): how
     much freed heap a worker keeps, and how much more it asks for when it grows.
 
@@ -68,24 +70,27 @@ def worker_environ(keep_mib: float = 1024, pad_mib: float = 256) -> Dict[str, st
     task's arrays (a 256 x 256 x 41 block is 21.5 MiB a cube) are new pages, faulted in
     and zeroed by the kernel. On a virtual machine that reports free pages to its host
     (virtio-balloon's free page reporting), such pages may have left the guest, and
-    faulting them back costs the host's work: on the developers' 2-vCPU machine a task's
-    system time went from under 0.02 s to 0.2-0.53 s in a third of the runs
-    (``clear_page_erms`` under the FITS block's byte swap was 11% of all samples), and
-    the fit from a file on 2 workers took 1.6-2.8 s in those runs against 1.1-1.3 s.
-    With this environment the same tasks took 0-170 page faults instead of 2 000-4 000,
-    and the fit 1.35 times the in-memory time as a median of 9 runs where it took 1.67
-    (docs/python.md, "The slow runs"). The cost: each
-    worker holds up to ``keep_mib`` of freed heap, which ``distributed`` counts as
-    unmanaged memory.
+    faulting them back costs the host's work: on the developers' 2-vCPU machine a slow
+    task's system time was 0.2-0.53 s where a fast one's was under 0.02 s
+    (``clear_page_erms`` under the FITS block's byte swap was 11% of all samples). With
+    this environment the same tasks took 0-170 page faults instead of 2 000-4 000, and the
+    fit from a file on 2 workers 1.35 times the in-memory time as a median of 9 runs
+    (1.07-1.70 s) where it took 1.67 (1.14-2.30 s; docs/python.md, "The slow runs"). The
+    cost: each worker holds up to ``keep_mib`` of freed heap, which ``distributed`` counts
+    as unmanaged memory.
     """
     if not (keep_mib >= 0 and pad_mib >= 0) or keep_mib > 2**31 / 2**20 or pad_mib > 2**31 / 2**20:
         raise ValueError(f"worker_environ: keep_mib {keep_mib} and pad_mib {pad_mib} must be from 0 to 2048")
-    env = {str(k): str(v) for k, v in (dask.config.get("distributed.nanny.pre-spawn-environ", default=None) or {}).items()}
-    env.update({
+    env = {str(k): str(v) for k, v in (dask.config.get("distributed.nanny.pre-spawn-environ", default=None) or {}).items() if v is not None}
+    kept = {
         "MALLOC_MMAP_THRESHOLD_": str(32 * 2**20),
         "MALLOC_TRIM_THRESHOLD_": str(min(int(keep_mib * 2**20), 2**31 - 1)),
         "MALLOC_TOP_PAD_": str(min(int(pad_mib * 2**20), 2**31 - 1)),
-    })
+    }
+    env.update(kept)
+    other = {k: os.environ[k] for k, v in kept.items() if os.environ.get(k, v) != v}
+    if other:
+        log.warning("worker_environ: this process's environment has %s, which distributed's nannies started from here take instead", ", ".join(f"{k}={v}" for k, v in sorted(other.items())))
     return env
 
 

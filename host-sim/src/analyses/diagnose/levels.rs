@@ -382,8 +382,9 @@ type Visit<'a> = dyn Fn(usize, &mut dyn FnMut(usize, f64, f64)) + Sync + 'a;
 /// cell), then the weighted sums of what the clip keeps, then their scatter about the
 /// mean.
 fn clipped_means(n: usize, cells: usize, visit: &Visit) -> Vec<Clipped> {
-    // Six passes over the same residuals: recorded on the first where they fit
-    // ([`crate::infra::recorded`]; the same values in the same order, so the same sums).
+    // Six passes over the same residuals: recorded once, as far as they fit, and read
+    // back by each ([`crate::infra::recorded`]; the same values in the same order, so the
+    // same sums).
     crate::infra::recorded::within(n, &|i, f| visit(i, &mut |k, r, s| f(k, (r, s))), |v| clipped_means_of(n, cells, &|i, f| v(i, &mut |k, (r, s)| f(k, r, s))))
 }
 
@@ -858,13 +859,21 @@ mod tests {
         // from 1 to 2; cell 3 only from the first 5 pixels (below MIN_PIXELS).
         let r = |i: usize| if i % 50 == 7 { 1e3 } else { ((i * 7919) % 1000) as f64 / 500.0 - 1.0 };
         let s = |i: usize| 1.0 + (i % 11) as f64 / 10.0;
+        let visits = std::sync::atomic::AtomicUsize::new(0);
         let visit = |i: usize, f: &mut dyn FnMut(usize, f64, f64)| {
+            visits.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
             f(i % 3, r(i), s(i));
             if i < 5 {
                 f(3, r(i), s(i));
             }
         };
-        let (recorded, passes) = (clipped_means(n, 4, &visit), clipped_means_of(n, 4, &visit));
+        let recorded = clipped_means(n, 4, &visit);
+        // Each pixel visited once, on the recording's pass; the passes over the visit
+        // itself visit each pixel four times (the median and the deviation one pass each
+        // here, their cells' 1 000 values sampled whole, then the two sums).
+        assert_eq!(visits.swap(0, std::sync::atomic::Ordering::Relaxed), n);
+        let passes = clipped_means_of(n, 4, &visit);
+        assert_eq!(visits.load(std::sync::atomic::Ordering::Relaxed), 4 * n);
         for (a, b) in recorded.iter().zip(&passes) {
             assert_eq!((a.c.to_bits(), a.var.to_bits(), a.count), (b.c.to_bits(), b.var.to_bits(), b.count));
         }

@@ -43,7 +43,10 @@ pub const RECORD_BYTES: u64 = 120 + 200 + 5 * 24 + 16 + 2 + 4 + 4 + 2;
 /// Nothing else a diagnosis keeps grows with the sensor once its records are spilled
 /// (2048 x 2048 by rows, records spilled: 89 MB resident in all, against 183 MB when
 /// the indices, the levels below saturation, the flags and a shared curve's list of
-/// pixels stayed, 34 bytes a pixel).
+/// pixels stayed, 34 bytes a pixel). The recordings of a pass's values
+/// ([`crate::infra::recorded`]) add up to a sixteenth of the budget while a selection or a
+/// clipped mean runs, whatever the sensor (64 MiB under `--max-memory 1G`; the 89 MB was
+/// measured before them).
 pub const RESIDENT_BYTES: u64 = 1;
 
 /// Bytes the blocks of spilled records of `pixels` pixels take at once: a block of

@@ -297,12 +297,20 @@ pub(super) struct Pattern<'a, T: Sample> {
     /// Whether a pixel loses the other half's field (held out) or its own half's (while
     /// the halves are fitted).
     cross: bool,
+    /// Once the fields are final: [`Pattern::change`] of every level and pixel (`level *
+    /// pixels + i`), where it fits [`crate::infra::recorded::most_bytes`] (24 bytes each:
+    /// 16 MB at 128 x 128 x 41, 64 MB at 256 x 256). Every pass after the stage reads the
+    /// field at every point; summed again each time (11 terms) it was 8% of a diagnosis.
+    held: Option<Vec<Option<(f64, f64)>>>,
 }
 
 impl<T: Sample> Pattern<'_, T> {
     /// The relative change of the light at pixel `i`'s position at `level`, and the variance
     /// of its estimate there.
     fn change(&self, level: usize, i: usize) -> Option<(f64, f64)> {
+        if let Some(held) = &self.held {
+            return held.get(level * self.px.len() + i).copied().flatten();
+        }
         let (x, y) = self.px.position(i);
         let own = y % 2;
         let from = if self.cross { 1 - own } else { own };
@@ -313,6 +321,17 @@ impl<T: Sample> Pattern<'_, T> {
         let mean = field.about[own];
         let var = if self.cross { field.added[self.grid.bin(x, y)] } else { 0.0 };
         Some((self.grid.at_rows(&field.rows, x, y) - mean, var))
+    }
+
+    /// Holds [`Pattern::change`] of every level and pixel (the fields final, held out)
+    /// where it fits; the same values, read instead of summed.
+    fn hold(&mut self) {
+        let (n, nl) = (self.px.len(), self.fields.len());
+        let fits = n.checked_mul(nl).and_then(|k| k.checked_mul(size_of::<Option<(f64, f64)>>())).is_some_and(|b| b <= crate::infra::recorded::most_bytes());
+        if fits {
+            let table = (0..n * nl).into_par_iter().map(|k| self.change(k / n, k % n)).collect();
+            self.held = Some(table);
+        }
     }
 
     /// The pattern's change of pixel `i`'s mean at `level`, DN, for its quadratic `shape`.
@@ -378,7 +397,7 @@ pub(super) fn illumination_change<'a, T: Sample>(px: &'a Pixels<'a, T>, level: O
     let grid = Grid::new(w, h, nl)?;
     let nb = grid.bins();
     let at = |l: usize, odd: usize| (l * 2 + odd) * nb;
-    let mut term = Pattern { px, level, shapes, grid, fields: vec![[None, None]; nl], cross: false };
+    let mut term = Pattern { px, level, shapes, grid, fields: vec![[None, None]; nl], cross: false, held: None };
     let mut halves: Vec<[Option<Half>; 2]> = vec![[None, None]; nl];
     let n = px.len();
     let chunk = n.div_ceil(crate::analyses::diagnose::TASKS).max(1);
@@ -466,6 +485,7 @@ pub(super) fn illumination_change<'a, T: Sample>(px: &'a Pixels<'a, T>, level: O
     // Held out: each pixel's quartic fitted on its even levels, scored on its odd ones,
     // with and without the other half's pattern.
     term.cross = true;
+    term.hold();
     let scored = |common: Option<&dyn Common>, i: usize| {
         let (ev, od) = px.halves(i, common);
         fit_and_score(QUARTIC, &[0.0; 5], &ev, &od)
