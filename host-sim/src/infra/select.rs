@@ -641,9 +641,15 @@ pub fn medians_of(search: &Selection) -> Vec<(f64, usize)> {
         .collect()
 }
 
+/// The rank of the upper median of `count` values ([`crate::infra::stats::upper_median`]),
+/// whatever the cell.
+fn upper_rank(_: usize, count: usize) -> usize {
+    count / 2
+}
+
 /// Per cell, the upper median of its finite values ([`crate::infra::stats::upper_median`]).
 pub fn upper_medians(n: usize, cells: usize, visit: &Visit) -> Vec<f64> {
-    select(n, cells, &|_, count| count / 2, visit)
+    select(n, cells, &upper_rank, visit)
 }
 
 /// Per cell, [`crate::infra::stats::robust`]: the upper median and 1.4826 times the upper median
@@ -655,9 +661,8 @@ pub fn robust(n: usize, cells: usize, visit: &Visit) -> Vec<(f64, f64)> {
 /// [`robust`] of a visit that is cheap to repeat (values already recorded,
 /// [`super::recorded`]): its four passes read `visit` itself.
 pub fn robust_replayed(n: usize, cells: usize, visit: &Visit) -> Vec<(f64, f64)> {
-    let upper = |_: usize, count: usize| count / 2;
-    let m = run(Selection::new(cells, n), n, &upper, visit).0;
-    let mad = run(Selection::new(cells, n), n, &upper, &|i, f| visit(i, &mut |c, v| f(c, (v - m[c]).abs()))).0;
+    let m = run(Selection::new(cells, n), n, &upper_rank, visit).0;
+    let mad = run(Selection::new(cells, n), n, &upper_rank, &|i, f| visit(i, &mut |c, v| f(c, (v - m[c]).abs()))).0;
     m.into_iter().zip(mad).map(|(m, d)| (m, 1.4826 * d)).collect()
 }
 
