@@ -24,7 +24,7 @@ use dncal_fpga_model::faults::SplitMix64;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::model::camera::{Camera, CameraConfig};
+use crate::model::camera::{Camera, CameraConfig, Sampler};
 use crate::analyses::flatten::to_core_weights;
 use crate::model::reference::{ReferenceLut, ReferenceTables};
 use crate::{HostError, Subject};
@@ -498,13 +498,14 @@ fn draw_frame(seg: &Segment, camera: &Camera, frame_seed: u64, state: u8, tables
         _ => vec![],
     };
     let range = refs.range(state as usize);
+    let sampler = camera.sampler();
     let (frame_oor, frame_clipped) = codes
         .par_chunks_mut(w)
         .zip(refs.quantized[range.clone()].par_chunks_mut(w))
         .zip(refs.centers[range].par_chunks_mut(w))
         .enumerate()
         .map(|(y, ((line, q), f))| {
-            draw_line(seg.codes, camera, seg.first_row as usize + y, x0, frame_seed, &light, line);
+            draw_line(seg.codes, &sampler, seg.first_row as usize + y, x0, frame_seed, &light, line);
             let counts = tables.add_line::<N>(x0, line, q, f);
             (counts.out_of_range, counts.clipped)
         })
@@ -619,7 +620,7 @@ fn check_fpga_sums(device: &mut dncal_fpga_model::Fpga, refs: &References, shape
 }
 
 /// Fills `line` (sensor row `row`, from column `x0`) with codes of the segment's kind.
-fn draw_line(kind: Codes, camera: &Camera, row: usize, x0: usize, frame_seed: u64, light: &[f64], line: &mut [u16]) {
+fn draw_line(kind: Codes, sampler: &Sampler<'_>, row: usize, x0: usize, frame_seed: u64, light: &[f64], line: &mut [u16]) {
     let mut rng = SplitMix64::new(frame_seed ^ (row as u64 + 1).wrapping_mul(0xA076_1D64_78BD_642F));
     match kind {
         Codes::Uniform => line.iter_mut().for_each(|c| *c = rng.below(CODES as u64) as u16),
@@ -628,7 +629,7 @@ fn draw_line(kind: Codes, camera: &Camera, row: usize, x0: usize, frame_seed: u6
             *c = if r & 7 == 0 { TOP + 1 + ((r >> 3) % (u16::MAX - TOP) as u64) as u16 } else { ((r >> 3) % CODES as u64) as u16 };
         }),
         Codes::NearTop => line.iter_mut().for_each(|c| *c = TOP - 7 + rng.below(16) as u16),
-        Codes::Camera { .. } => camera.sample_span_into(row, x0..x0 + line.len(), frame_seed, |c| light[c - x0], line),
+        Codes::Camera { .. } => sampler.sample_span_into(row, x0..x0 + line.len(), frame_seed, |c| light[c - x0], line),
     }
 }
 

@@ -303,6 +303,7 @@ fn run_typed<const N: usize, const CODES: usize>(
     let mut core_s = 0.0;
     let x0 = p.first_column as usize;
     let mut sampled = vec![0u16; if p.recorded.is_some() { 0 } else { w * h }];
+    let sampler = camera.sampler();
     for frame in 0..p.frames {
         let state = (frame % p.states as u32) as u8;
         let frame_seed = crate::model::camera::sample::frame_seed(p.seed, frame as u64);
@@ -320,7 +321,7 @@ fn run_typed<const N: usize, const CODES: usize>(
                 // The light is the same on every row of a frame: once per column, not per pixel.
                 let light: Vec<f64> = (x0..x0 + w).map(|c| illumination(p, peak, c, state)).collect();
                 sampled.par_chunks_mut(w).zip(refs).enumerate().for_each(|(y, (line, (q, f)))| {
-                    camera.sample_span_into(p.first_row as usize + y, x0..x0 + w, frame_seed, |c| light[c - x0], line);
+                    sampler.sample_span_into(p.first_row as usize + y, x0..x0 + w, frame_seed, |c| light[c - x0], line);
                     // One pass over each line while it is in cache: drawn, then added
                     // to the float and quantized references.
                     reference.add_line::<N>(x0, line, q, f);

@@ -50,7 +50,7 @@ impl ReferenceLut {
 
     /// The tables the checks sum: [`Self::quantized`] beside the centres.
     pub fn tables(self) -> ReferenceTables {
-        ReferenceTables { quantized: self.quantized(), centers: self.centers }
+        ReferenceTables::new(&self.quantized(), &self.centers)
     }
 
     /// Deviation of each code's center from an ideal ADC's `k + 1/2`, DN: the cumulative
@@ -61,13 +61,17 @@ impl ReferenceLut {
 }
 
 /// The reference as the bit-exactness checks (`stream`, the soak) sum it, per ADC and
-/// code: the quantized entries `RNE(2^11 c_k)` (LUT units) and the centres `c_k` (DN).
+/// code: the quantized entries `RNE(2^11 c_k)` (LUT units) and the centres `c_k` (DN),
+/// every ADC's table one after the other so that a line's loop reads any pixel's entry
+/// with one index (a vector unit's gather).
 #[derive(Debug, Clone, PartialEq)]
 pub struct ReferenceTables {
-    /// `quantized[adc][code]`, LUT units.
-    pub quantized: Vec<Vec<u64>>,
-    /// `centers[adc][code]`, DN.
-    pub centers: Vec<Vec<f64>>,
+    /// ADC `a`'s entry for code `k` at `a * codes + k`, LUT units.
+    quantized: Vec<u64>,
+    /// The centres, in the same places, DN.
+    centers: Vec<f64>,
+    /// Codes a table.
+    codes: usize,
 }
 
 /// What one line added to the reference sums.
@@ -81,22 +85,46 @@ pub struct LineCounts {
 }
 
 impl ReferenceTables {
+    /// The tables of `quantized[adc][code]` and `centers[adc][code]` (the ADCs' tables
+    /// of the first's length; the rest of a longer one is not read, a shorter one is
+    /// padded with its last entry).
+    pub fn new(quantized: &[Vec<u64>], centers: &[Vec<f64>]) -> Self {
+        let codes = quantized.first().map_or(0, Vec::len);
+        fn flat<T: Copy + Default>(tables: &[Vec<T>], codes: usize) -> Vec<T> {
+            tables.iter().flat_map(|t| (0..codes).map(move |k| t.get(k).or(t.last()).copied().unwrap_or_default())).collect()
+        }
+        ReferenceTables { quantized: flat(quantized, codes), centers: flat(&centers[..centers.len().min(quantized.len())], codes), codes }
+    }
+
     /// Adds one line of raw codes to one state's sums: the exact sums `q` (LUT units, u64,
     /// never clipped) and the float sums `f` (DN). The line's first pixel is sensor
     /// column `first_column`; column `c` is read by ADC `c mod N` (the paper's four
     /// pipelined ADCs for N = 4). The one reference-sum loop of the host's checks.
+    ///
+    /// (A loop a vector unit runs: indices in wrapping arithmetic that cannot wrap, an
+    /// index at most the tables' last after its `min`; the sums saturate, which a u64 of
+    /// 2^23-unit entries reaches after 2^41 frames.)
     pub fn add_line<const N: usize>(&self, first_column: usize, line: &[u16], q: &mut [u64], f: &mut [f64]) -> LineCounts {
-        let top = self.quantized.first().map_or(0, |t| t.len().saturating_sub(1));
         let mut counts = LineCounts::default();
-        for (x, ((&code, q), f)) in line.iter().zip(q.iter_mut()).zip(f.iter_mut()).enumerate() {
-            let adc = (first_column + x) % N;
-            let k = usize::from(code).min(top);
-            counts.out_of_range += u64::from(usize::from(code) > top);
-            let e = self.quantized[adc][k];
-            counts.clipped += u64::from((*q).min(u64::from(u32::MAX)) + e > u64::from(u32::MAX));
-            *q += e;
-            *f += self.centers[adc][k];
+        let Some(last) = self.quantized.len().min(self.centers.len()).checked_sub(1) else { return counts };
+        let (top, codes) = (self.codes.saturating_sub(1), self.codes);
+        let len = line.len().min(q.len()).min(f.len());
+        let (line, q, f) = (&line[..len], &mut q[..len], &mut f[..len]);
+        let (quantized, centers) = (&self.quantized[..=last], &self.centers[..=last]);
+        let adc0 = first_column % N.max(1);
+        let (mut out_of_range, mut clipped) = (0u64, 0u64);
+        for x in 0..len {
+            let code = usize::from(line[x]);
+            let k = code.min(top);
+            out_of_range = out_of_range.wrapping_add(u64::from(code > top));
+            let at = (adc0.wrapping_add(x) % N.max(1)).wrapping_mul(codes).wrapping_add(k).min(last);
+            let e = quantized[at];
+            clipped = clipped.wrapping_add(u64::from(q[x].min(u64::from(u32::MAX)).wrapping_add(e) > u64::from(u32::MAX)));
+            q[x] = q[x].saturating_add(e);
+            f[x] += centers[at];
         }
+        counts.out_of_range = out_of_range;
+        counts.clipped = clipped;
         counts
     }
 }
@@ -123,10 +151,7 @@ mod tests {
     #[test]
     fn a_line_adds_the_entry_of_its_adc_and_clamped_code_to_each_sum() {
         // Two ADCs of four codes, written out: column c is read by ADC c mod 2.
-        let tables = ReferenceTables {
-            quantized: vec![vec![1, 10, 100, 1000], vec![2, 20, 200, u64::from(u32::MAX)]],
-            centers: vec![vec![0.5, 1.5, 2.5, 3.5], vec![0.25, 1.25, 2.25, 3.25]],
-        };
+        let tables = ReferenceTables::new(&[vec![1, 10, 100, 1000], vec![2, 20, 200, u64::from(u32::MAX)]], &[vec![0.5, 1.5, 2.5, 3.5], vec![0.25, 1.25, 2.25, 3.25]]);
         // The line starts at sensor column 3 (ADC 1); code 9 is above the top (3) and
         // sums as code 3.
         let line = [0u16, 1, 9, 3];

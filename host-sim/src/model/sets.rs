@@ -195,9 +195,10 @@ pub fn frames_of(camera: &Camera, n: usize, photons: f64, (x0, y0, w, h): (usize
     let bytes = (n as u64).saturating_mul((w * h) as u64);
     crate::infra::budget::check(crate::Subject::SimulateFramesArguments, "the simulated frames", crate::infra::budget::bytes_of(bytes, 2))?;
     let mut out = vec![0u16; n * w * h];
+    let sampler = camera.sampler();
     out.par_chunks_mut((w * h).max(1)).enumerate().for_each(|(f, frame)| {
         let s = frame_seed(seed, f as u64);
-        frame.chunks_mut(w).enumerate().for_each(|(y, line)| camera.sample_span_into(y0 + y, x0..x0 + w, s, |_| photons, line));
+        frame.chunks_mut(w).enumerate().for_each(|(y, line)| sampler.sample_span_into(y0 + y, x0..x0 + w, s, |_| photons, line));
     });
     Ok(out)
 }

@@ -133,6 +133,15 @@ impl AdcTransfer {
         // one of the two steps applies, so the code is the same.
         let (below, above) = (self.levels[k] > v, k < top && self.levels[(k + 1).min(top)] <= v);
         k = k - usize::from(below) + usize::from(above);
+        self.walk(k, v)
+    }
+
+    /// The code of analog value `v` DN walked to from code `k`: down while `T_k > v`, up
+    /// while `T_{k+1} <= v` (a code from a guess a few codes off).
+    #[inline]
+    pub fn walk(&self, mut k: usize, v: f64) -> u16 {
+        let top = self.levels.len() - 1;
+        k = k.min(top);
         while k > 0 && self.levels[k] > v {
             k -= 1;
         }
@@ -140,6 +149,12 @@ impl AdcTransfer {
             k += 1;
         }
         k as u16
+    }
+
+    /// The transition levels `T_0..T_{codes-1}` (`T_0` = -inf), DN: what a sampler
+    /// searches.
+    pub fn edges(&self) -> &[f64] {
+        &self.levels
     }
 
     /// Code widths w_k = T_{k+1} - T_k for the inner codes 1..codes-2, DN. Code 0 and the

@@ -322,13 +322,14 @@ impl Camera {
                 // Welford per pixel over the frames.
                 let mut mean = vec![0.0; w * h];
                 let mut m2 = vec![0.0; w * h];
+                let sampler = self.sampler();
                 for f in 0..p.frames {
                     let photons = nominal * (1.0 + jitter[f as usize]);
                     let seed = p.seed ^ ((level as u64) << 40) ^ ((f as u64) << 8);
                     for y in 0..h {
                         let line = match &change {
-                            Some(c) => self.sample_span(y0 + y, x0..x0 + w, seed, |x| photons * (1.0 + c[y * w + x - x0])),
-                            None => self.sample_span(y0 + y, x0..x0 + w, seed, |_| photons),
+                            Some(c) => sampler.sample_span(y0 + y, x0..x0 + w, seed, |x| photons * (1.0 + c[y * w + x - x0])),
+                            None => sampler.sample_span(y0 + y, x0..x0 + w, seed, |_| photons),
                         };
                         for (x, &c) in line.iter().enumerate() {
                             let i = y * w + x;

@@ -403,8 +403,7 @@ impl LineDraws {
     /// rest of its streams' draws unused, and pixels drawn after it would not follow the
     /// contract (a debug build panics there; `sample_span_into` never does it).
     pub fn draw(&mut self, mu: &[f64], n: &mut [f64], z: &mut [f64]) {
-        let build = [Build::Avx512, Build::Avx2].into_iter().find(|b| b.available()).unwrap_or(Build::Portable);
-        self.draw_with(build, mu, n, z)
+        self.draw_with(Build::best(), mu, n, z)
     }
 
     /// [`Self::draw`] with a given build, `Portable` where the CPU lacks the one asked
@@ -537,6 +536,11 @@ pub enum Build {
 }
 
 impl Build {
+    /// The widest build this CPU has.
+    pub fn best() -> Self {
+        [Build::Avx512, Build::Avx2].into_iter().find(|b| b.available()).unwrap_or(Build::Portable)
+    }
+
     /// Whether this CPU has the build's instructions (the portable one: always).
     pub fn available(self) -> bool {
         match self {

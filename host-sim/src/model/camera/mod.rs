@@ -31,6 +31,7 @@ pub use adc::AdcTransfer;
 pub use architecture::Architecture;
 pub use config::{AdcConfig, AdcModel, CameraConfig, ConfigError};
 pub use pixels::{PixelMaps, PixelState};
+pub use sample::Sampler;
 
 /// A camera: its configuration, one ADC per ADC index, and its pixel maps.
 pub struct Camera {
