@@ -247,7 +247,10 @@ impl Pool {
             let luts = Box::new(Mvd1024eLuts::from_weights(slices).map_err(|err| HostError::core("soak LUT pool", err))?);
             let mut image = vec![0u8; image_len::<N, CODES>()];
             encode_image(&*luts, &mut image).map_err(|err| HostError::core("soak LUT image", err))?;
-            pool.references.push(ReferenceLut::from_weights(&e.reference).tables());
+            if e.reference.len() != N {
+                return Err(HostError::invalid(Subject::SoakLutPool, format!("{} reference weight vectors, need {N}", e.reference.len())));
+            }
+            pool.references.push(ReferenceLut::from_weights(&e.reference).tables()?);
             pool.luts.push(luts);
             pool.images.push(image);
         }
@@ -498,14 +501,15 @@ fn draw_frame(seg: &Segment, camera: &Camera, frame_seed: u64, state: u8, tables
         _ => vec![],
     };
     let range = refs.range(state as usize);
-    let sampler = camera.sampler();
+    // (Laid out only where the segment draws from the camera.)
+    let sampler = std::sync::OnceLock::new();
     let (frame_oor, frame_clipped) = codes
         .par_chunks_mut(w)
         .zip(refs.quantized[range.clone()].par_chunks_mut(w))
         .zip(refs.centers[range].par_chunks_mut(w))
         .enumerate()
         .map(|(y, ((line, q), f))| {
-            draw_line(seg.codes, &sampler, seg.first_row as usize + y, x0, frame_seed, &light, line);
+            draw_line(seg.codes, camera, &sampler, seg.first_row as usize + y, x0, frame_seed, &light, line);
             let counts = tables.add_line::<N>(x0, line, q, f);
             (counts.out_of_range, counts.clipped)
         })
@@ -620,7 +624,8 @@ fn check_fpga_sums(device: &mut dncal_fpga_model::Fpga, refs: &References, shape
 }
 
 /// Fills `line` (sensor row `row`, from column `x0`) with codes of the segment's kind.
-fn draw_line(kind: Codes, sampler: &Sampler<'_>, row: usize, x0: usize, frame_seed: u64, light: &[f64], line: &mut [u16]) {
+#[allow(clippy::too_many_arguments)]
+fn draw_line<'a>(kind: Codes, camera: &'a Camera, sampler: &std::sync::OnceLock<Sampler<'a>>, row: usize, x0: usize, frame_seed: u64, light: &[f64], line: &mut [u16]) {
     let mut rng = SplitMix64::new(frame_seed ^ (row as u64 + 1).wrapping_mul(0xA076_1D64_78BD_642F));
     match kind {
         Codes::Uniform => line.iter_mut().for_each(|c| *c = rng.below(CODES as u64) as u16),
@@ -629,7 +634,7 @@ fn draw_line(kind: Codes, sampler: &Sampler<'_>, row: usize, x0: usize, frame_se
             *c = if r & 7 == 0 { TOP + 1 + ((r >> 3) % (u16::MAX - TOP) as u64) as u16 } else { ((r >> 3) % CODES as u64) as u16 };
         }),
         Codes::NearTop => line.iter_mut().for_each(|c| *c = TOP - 7 + rng.below(16) as u16),
-        Codes::Camera { .. } => sampler.sample_span_into(row, x0..x0 + line.len(), frame_seed, |c| light[c - x0], line),
+        Codes::Camera { .. } => sampler.get_or_init(|| camera.sampler()).sample_span_into(row, x0..x0 + line.len(), frame_seed, |c| light[c - x0], line),
     }
 }
 

@@ -282,7 +282,7 @@ fn run_typed<const N: usize, const CODES: usize>(
     if reference.centers.len() != N || reference.centers.iter().any(|t| t.len() != CODES) {
         return Err(HostError::invalid(Subject::ReferenceWeights, format!("need {N} vectors of {CODES} weights")));
     }
-    let reference = reference.tables();
+    let reference = reference.tables()?;
 
     // The core in bands of rows, one per thread; the references written first on every
     // thread (a fresh page read before its first write costs a copy-on-write fault and a

@@ -10,6 +10,8 @@
 //! must reproduce every core entry bit for bit, and a sum of `F` frames of entries must
 //! lie within `F 2^-12` DN of the f64 sum of the centers.
 
+use crate::{HostError, Subject};
+
 /// Centers of every code of every ADC, DN.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ReferenceLut {
@@ -49,7 +51,7 @@ impl ReferenceLut {
     }
 
     /// The tables the checks sum: [`Self::quantized`] beside the centres.
-    pub fn tables(self) -> ReferenceTables {
+    pub fn tables(self) -> Result<ReferenceTables, HostError> {
         ReferenceTables::new(&self.quantized(), &self.centers)
     }
 
@@ -85,26 +87,41 @@ pub struct LineCounts {
 }
 
 impl ReferenceTables {
-    /// The tables of `quantized[adc][code]` and `centers[adc][code]` (the ADCs' tables
-    /// of the first's length; the rest of a longer one is not read, a shorter one is
-    /// padded with its last entry).
-    pub fn new(quantized: &[Vec<u64>], centers: &[Vec<f64>]) -> Self {
+    /// The tables of `quantized[adc][code]` and `centers[adc][code]`: at least one ADC,
+    /// every table of the same non-zero length, as many centre tables as quantized ones.
+    pub fn new(quantized: &[Vec<u64>], centers: &[Vec<f64>]) -> Result<Self, HostError> {
         let codes = quantized.first().map_or(0, Vec::len);
-        fn flat<T: Copy + Default>(tables: &[Vec<T>], codes: usize) -> Vec<T> {
-            tables.iter().flat_map(|t| (0..codes).map(move |k| t.get(k).or(t.last()).copied().unwrap_or_default())).collect()
+        if codes == 0 || centers.len() != quantized.len() || quantized.iter().any(|t| t.len() != codes) || centers.iter().any(|t| t.len() != codes) {
+            let lengths = |t: &[usize]| t.iter().map(|n| n.to_string()).collect::<Vec<_>>().join(", ");
+            return Err(HostError::invalid(
+                Subject::ReferenceWeights,
+                format!(
+                    "the reference needs one table of codes per ADC, all of one non-zero length: quantized tables of {} codes, centre tables of {}",
+                    lengths(&quantized.iter().map(Vec::len).collect::<Vec<_>>()),
+                    lengths(&centers.iter().map(Vec::len).collect::<Vec<_>>())
+                ),
+            ));
         }
-        ReferenceTables { quantized: flat(quantized, codes), centers: flat(&centers[..centers.len().min(quantized.len())], codes), codes }
+        Ok(ReferenceTables { quantized: quantized.concat(), centers: centers.concat(), codes })
+    }
+
+    /// The number of ADCs.
+    pub fn adcs(&self) -> usize {
+        self.quantized.len() / self.codes.max(1)
     }
 
     /// Adds one line of raw codes to one state's sums: the exact sums `q` (LUT units, u64,
-    /// never clipped) and the float sums `f` (DN). The line's first pixel is sensor
-    /// column `first_column`; column `c` is read by ADC `c mod N` (the paper's four
-    /// pipelined ADCs for N = 4). The one reference-sum loop of the host's checks.
+    /// not clipped at 32 bits as the core's are; saturating at u64::MAX, which 2^41
+    /// frames of the largest entries would reach) and the float sums `f` (DN). The
+    /// line's first pixel is sensor column `first_column`; column `c` is read by ADC
+    /// `c mod N` (the paper's four pipelined ADCs for N = 4), `N` at most the tables'
+    /// ADCs (a larger `N` is the caller's error: it panics, as an index past the tables
+    /// did). The one reference-sum loop of the host's checks.
     ///
     /// (A loop a vector unit runs: indices in wrapping arithmetic that cannot wrap, an
-    /// index at most the tables' last after its `min`; the sums saturate, which a u64 of
-    /// 2^23-unit entries reaches after 2^41 frames.)
+    /// index at most the tables' last after its `min`.)
     pub fn add_line<const N: usize>(&self, first_column: usize, line: &[u16], q: &mut [u64], f: &mut [f64]) -> LineCounts {
+        assert!(N <= self.adcs(), "add_line::<{N}> on reference tables of {} ADCs", self.adcs());
         let mut counts = LineCounts::default();
         let Some(last) = self.quantized.len().min(self.centers.len()).checked_sub(1) else { return counts };
         let (top, codes) = (self.codes.saturating_sub(1), self.codes);
@@ -151,7 +168,11 @@ mod tests {
     #[test]
     fn a_line_adds_the_entry_of_its_adc_and_clamped_code_to_each_sum() {
         // Two ADCs of four codes, written out: column c is read by ADC c mod 2.
-        let tables = ReferenceTables::new(&[vec![1, 10, 100, 1000], vec![2, 20, 200, u64::from(u32::MAX)]], &[vec![0.5, 1.5, 2.5, 3.5], vec![0.25, 1.25, 2.25, 3.25]]);
+        let tables = ReferenceTables::new(&[vec![1, 10, 100, 1000], vec![2, 20, 200, u64::from(u32::MAX)]], &[vec![0.5, 1.5, 2.5, 3.5], vec![0.25, 1.25, 2.25, 3.25]]).unwrap();
+        // Tables of two lengths, or centres for another count of ADCs, are refused.
+        assert!(ReferenceTables::new(&[vec![1, 10], vec![2]], &[vec![0.5, 1.5], vec![0.25]]).is_err());
+        assert!(ReferenceTables::new(&[vec![1, 10]], &[vec![0.5, 1.5], vec![0.25, 1.25]]).is_err());
+        assert!(ReferenceTables::new(&[], &[]).is_err());
         // The line starts at sensor column 3 (ADC 1); code 9 is above the top (3) and
         // sums as code 3.
         let line = [0u16, 1, 9, 3];

@@ -601,7 +601,12 @@ fn core_runs(p: &BenchParams, progress: &impl Fn(&str), notes: &mut Vec<String>)
 /// check) on 1024 x 1024 frames, and replay (`stream --frames-from`) of recorded frames
 /// of uniform codes, against one K-Coronagraph camera's rate (1024 x 1024 x 150 Hz): a
 /// fixed rate, not a run in this process, so a ratio's spread is the stream's own.
-fn stream_ratios(camera: &crate::model::camera::Camera, runs: usize) -> Result<[Ratio; 2], HostError> {
+///
+/// And the stream on one thread against the draws alone on one thread, run by run: what
+/// the sampler adds to its draws (each pixel's code, the check's references, the core),
+/// a ratio the machine's speed cancels in, so that a slower code stage fails the ratchet
+/// where the rows against the fixed rate are only reported.
+fn stream_ratios(camera: &crate::model::camera::Camera, runs: usize) -> Result<[Ratio; 3], HostError> {
     use crate::checks::streaming::{run_stream, StreamParams};
     let weights = crate::checks::stream_run::oracle_weights(camera)?;
     let cube = crate::formats::fits::FrameCube { width: WIDTH, height: HEIGHT, frames: 16, codes: uniform_codes(WIDTH * HEIGHT).repeat(16) };
@@ -619,8 +624,15 @@ fn stream_ratios(camera: &crate::model::camera::Camera, runs: usize) -> Result<[
     };
     let sampled = rates("stream", &StreamParams::full_frame(camera, 8))?;
     let replayed = rates("replay", &replay)?;
+    let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().map_err(|e| HostError::invalid(crate::Subject::Bench, format!("a one-thread pool: {e}")))?;
+    let (mut alone, mut drawn) = (Vec::new(), Vec::new());
+    for run in 0..runs.min(3) {
+        alone.extend(one.install(|| rates("stream on one thread", &StreamParams::full_frame(camera, 4)))?);
+        drawn.push(draws_alone(run as u64));
+    }
     let camera_rate = |n: usize| vec![1024.0 * 1024.0 * 150.0 / 1e6; n];
     Ok([
+        ratio("stream, end to end, 1 thread", &alone, "its draws alone, 1 thread", &drawn, "Mpx/s", None),
         ratio("stream, end to end", &sampled, "one K-Cor camera (fixed)", &camera_rate(sampled.len()), "Mpx/s", Some(1.0)),
         ratio("stream --frames-from", &replayed, "one K-Cor camera (fixed)", &camera_rate(replayed.len()), "Mpx/s", Some(1.0)),
     ])
@@ -633,30 +645,43 @@ fn stream_ratios(camera: &crate::model::camera::Camera, runs: usize) -> Result<[
 /// means (electrons across the range, 200 to 180 000). Its target, 4: four lanes' worth
 /// of a scalar draw, the least a vectorized draw should give.
 fn poisson_ratio(runs: usize) -> Ratio {
-    use crate::model::camera::draws::{LineDraws, Stream, CHUNK};
-    let means: Vec<f64> = (0..1 << 18).map(|i| 200.0 + (i as f64 * 0.618_034).fract() * 179_800.0).collect();
+    use crate::model::camera::draws::Stream;
+    let means = draw_means();
     let (mut ptrs_rates, mut crate_rates) = (Vec::new(), Vec::new());
-    let (mut n, mut z) = ([0.0; CHUNK], [0.0; CHUNK]);
     for run in 0..=runs {
-        let mut lanes = LineDraws::new(run as u64, 0);
-        let t = Instant::now();
-        let mut total = 0.0;
-        for mu in means.chunks(CHUNK) {
-            lanes.draw(mu, &mut n, &mut z);
-            total += black_box(&n)[0] + black_box(&z)[0];
-        }
-        black_box(total);
-        let a = t.elapsed().as_secs_f64();
+        let ours = draws_alone(run as u64);
         let mut g = Stream::from_seed(run as u64);
         let t = Instant::now();
         black_box(means.iter().map(|&m| rand_distr::Poisson::new(m).map_or(0.0, |d| rand_distr::Distribution::sample(&d, &mut g))).sum::<f64>());
         let b = t.elapsed().as_secs_f64();
         if run > 0 {
-            ptrs_rates.push(means.len() as f64 / a / 1e6);
+            ptrs_rates.push(ours);
             crate_rates.push(means.len() as f64 / b / 1e6);
         }
     }
     ratio("camera draws, 8 streams (PTRS, Box-Muller)", &ptrs_rates, "rand_distr Poisson::new + sample", &crate_rates, "Mpx/s", Some(4.0))
+}
+
+/// The means the draw rows draw: 2^18 electrons across the range, 200 to 180 000.
+fn draw_means() -> Vec<f64> {
+    (0..1 << 18).map(|i| 200.0 + (i as f64 * 0.618_034).fract() * 179_800.0).collect()
+}
+
+/// A line's eight streams drawing [`draw_means`] (a Poisson count and a Gaussian a
+/// pixel, in chunks as the sampler takes them) on this thread, Mpx/s.
+fn draws_alone(seed: u64) -> f64 {
+    use crate::model::camera::draws::{LineDraws, CHUNK};
+    let means = draw_means();
+    let (mut n, mut z) = ([0.0; CHUNK], [0.0; CHUNK]);
+    let mut lanes = LineDraws::new(seed, 0);
+    let t = Instant::now();
+    let mut total = 0.0;
+    for mu in means.chunks(CHUNK) {
+        lanes.draw(mu, &mut n, &mut z);
+        total += black_box(&n)[0] + black_box(&z)[0];
+    }
+    black_box(total);
+    means.len() as f64 / t.elapsed().as_secs_f64() / 1e6
 }
 
 /// `linearity` on a 256 x 256 x 41-level set against the same steps in numpy, both from

@@ -125,7 +125,7 @@ impl AdcTransfer {
         // One step either way as arithmetic, not a branch: the comparisons go either way
         // pixel by pixel (a code's DN error moves its edges by a few percent of a code),
         // where a branch on them was mispredicted. `levels[0]` is -inf: never above `v`.
-        // Below, the walk finishes what one step could not (an edge a code or more away),
+        // Then the walk ([`Self::walk`]) finishes what one step could not (an edge a code or more away),
         // a branch that almost never goes. Same codes (a simulated set byte for byte);
         // `dncal stream --frames 64` at 0.945 of its wall time (farm-bench, 6 pairs).
         // Both neighbours' edges are loaded at once (the step up read the edge the step

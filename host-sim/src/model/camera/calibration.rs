@@ -312,6 +312,7 @@ impl Camera {
         let (x0, y0, w, h) = p.roi;
         let sat = self.saturation_photons() * p.overshoot;
         let done = std::sync::atomic::AtomicU64::new(0);
+        let sampler = self.sampler();
         let per_level: Vec<(Vec<f64>, Vec<f64>)> = (0..p.levels)
             .into_par_iter()
             .map(|level| {
@@ -322,7 +323,6 @@ impl Camera {
                 // Welford per pixel over the frames.
                 let mut mean = vec![0.0; w * h];
                 let mut m2 = vec![0.0; w * h];
-                let sampler = self.sampler();
                 for f in 0..p.frames {
                     let photons = nominal * (1.0 + jitter[f as usize]);
                     let seed = p.seed ^ ((level as u64) << 40) ^ ((f as u64) << 8);

@@ -314,8 +314,8 @@ mod sampler_tests {
         #[test]
         fn the_samplers_codes_are_the_models_pixel_by_pixel(
             n_adc in 1usize..6,
-            bits in 8u32..13,
-            terms in 0usize..4,
+            bits in 8u32..17,
+            terms in 0usize..6,
             spread in 0.0f64..0.02,
             bad in 0.0f64..0.2,
             drift in any::<bool>(),
@@ -324,7 +324,7 @@ mod sampler_tests {
             peak in 0.0f64..1.3,
             seed in any::<u64>(),
         ) {
-            let nonlinearity = [-0.02, 0.02, 0.005][..terms].to_vec();
+            let nonlinearity = [-0.02, 0.02, 0.005, -0.003, 0.001][..terms].to_vec();
             let mut cfg = CameraConfig {
                 width: 768,
                 height: 3,
