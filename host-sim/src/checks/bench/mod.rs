@@ -626,9 +626,10 @@ fn stream_ratios(camera: &crate::model::camera::Camera, runs: usize) -> Result<[
     let replayed = rates("replay", &replay)?;
     let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().map_err(|e| HostError::invalid(crate::Subject::Bench, format!("a one-thread pool: {e}")))?;
     let (mut alone, mut drawn) = (Vec::new(), Vec::new());
+    let means = draw_means();
     for run in 0..runs.min(3) {
         alone.extend(one.install(|| rates("stream on one thread", &StreamParams::full_frame(camera, 4)))?);
-        drawn.push(draws_alone(run as u64));
+        drawn.push(draws_alone(&means, run as u64));
     }
     let camera_rate = |n: usize| vec![1024.0 * 1024.0 * 150.0 / 1e6; n];
     Ok([
@@ -649,7 +650,7 @@ fn poisson_ratio(runs: usize) -> Ratio {
     let means = draw_means();
     let (mut ptrs_rates, mut crate_rates) = (Vec::new(), Vec::new());
     for run in 0..=runs {
-        let ours = draws_alone(run as u64);
+        let ours = draws_alone(&means, run as u64);
         let mut g = Stream::from_seed(run as u64);
         let t = Instant::now();
         black_box(means.iter().map(|&m| rand_distr::Poisson::new(m).map_or(0.0, |d| rand_distr::Distribution::sample(&d, &mut g))).sum::<f64>());
@@ -667,11 +668,10 @@ fn draw_means() -> Vec<f64> {
     (0..1 << 18).map(|i| 200.0 + (i as f64 * 0.618_034).fract() * 179_800.0).collect()
 }
 
-/// A line's eight streams drawing [`draw_means`] (a Poisson count and a Gaussian a
-/// pixel, in chunks as the sampler takes them) on this thread, Mpx/s.
-fn draws_alone(seed: u64) -> f64 {
+/// A line's eight streams drawing `means` ([`draw_means`]: a Poisson count and a
+/// Gaussian a pixel, in chunks as the sampler takes them) on this thread, Mpx/s.
+fn draws_alone(means: &[f64], seed: u64) -> f64 {
     use crate::model::camera::draws::{LineDraws, CHUNK};
-    let means = draw_means();
     let (mut n, mut z) = ([0.0; CHUNK], [0.0; CHUNK]);
     let mut lanes = LineDraws::new(seed, 0);
     let t = Instant::now();

@@ -196,9 +196,10 @@ impl<'a> Sampler<'a> {
             *v = (fw * p + read * z) * inv_gain + offset;
         }
         let mut walk = [false; CHUNK];
-        search(&self.edges, cfg.codes() - 1, &self.bases[adc0..adc0 + len], &v[..len], out, &mut walk[..len]);
+        let top = cfg.codes() - 1;
+        search(&self.edges, top, &self.bases[adc0..adc0 + len], &v[..len], out, &mut walk[..len]);
         // The few a step could not reach, pixel by pixel; hot pixels read the top code.
-        let top = (cfg.codes() - 1) as u16;
+        let top = top as u16;
         let state = &camera.pixels.state[i0..i0 + len];
         for (t, (out, &s)) in out.iter_mut().zip(state).enumerate() {
             if walk[t] {
