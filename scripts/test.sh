@@ -4,6 +4,11 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/firmware.sh install
+# The RTL's co-simulation (fpga-model/tests/rtl_cosim.rs) needs Verilator: installed from
+# Debian when missing (with iverilog and yosys), and required here, where the test alone
+# would skip without it.
+scripts/hdl.sh install
+export DNCAL_REQUIRE_HDL=1
 # The FITS interchange tests open our files in astropy (the astronomers' reference reader),
 # in a venv of its own under target/ (the tests also make it when missing): nothing goes
 # into the system Python.

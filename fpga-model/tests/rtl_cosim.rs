@@ -1,0 +1,395 @@
+//! The RTL (hdl/rtl/dncal_datapath.v, simulated by Verilator through hdl/tb/harness.cpp)
+//! against the FPGA model and the core: for any LUTs, frame size, tap count (1, 2, 4, 8),
+//! memory latency and bandwidth, FIFO size, blanking and modulation sequence, with LUT
+//! swaps between frames while pixels are still in the pipeline, the sums are the core's
+//! bit for bit, and the cycle count and every counter the model keeps that the RTL has
+//! (pixels, FIFO overflows and high-water mark, codes out of range, clipped additions,
+//! read-modify-write hazards, frames per state) are the model's.
+//!
+//! Verilator comes from Debian (`scripts/hdl.sh install`, which scripts/test.sh runs); where
+//! it is missing the tests say so and pass, unless `DNCAL_REQUIRE_HDL` is set (the test
+//! script sets it), which makes a missing tool a failure.
+
+mod common;
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+
+use common::{image, luts, weights};
+use dncal_core::driver::Datapath;
+use dncal_core::{Corrector, Geometry, LutBanks, Mvd1024eLuts};
+use dncal_fpga_model::{Config, Fpga, Stats};
+use proptest::prelude::*;
+
+/// The tap counts the RTL is built for.
+const TAPS: [usize; 4] = [1, 2, 4, 8];
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+/// The harness built for `taps`, or `None` (with a line saying why) where Verilator is
+/// missing and not required.
+fn harness(taps: usize) -> Option<PathBuf> {
+    let script = root().join("scripts/hdl.sh");
+    let have = Command::new(&script).arg("have").status().is_ok_and(|s| s.success());
+    if !have {
+        assert!(std::env::var_os("DNCAL_REQUIRE_HDL").is_none(), "DNCAL_REQUIRE_HDL is set and Verilator is missing: run scripts/hdl.sh install");
+        eprintln!("rtl_cosim: Verilator is missing (scripts/hdl.sh install): the RTL is not co-simulated");
+        return None;
+    }
+    let out = Command::new(&script).args(["build", &taps.to_string()]).stderr(Stdio::inherit()).output().expect("scripts/hdl.sh runs");
+    assert!(out.status.success(), "scripts/hdl.sh build {taps} failed");
+    let path = String::from_utf8(out.stdout).unwrap();
+    Some(PathBuf::from(path.lines().last().expect("hdl.sh prints the harness's path").trim()))
+}
+
+/// The harness of each of [`TAPS`], built once for the test binary.
+fn harnesses() -> &'static [Option<PathBuf>; 4] {
+    static BUILT: std::sync::OnceLock<[Option<PathBuf>; 4]> = std::sync::OnceLock::new();
+    BUILT.get_or_init(|| TAPS.map(harness))
+}
+
+/// One co-simulation: geometry, timing, and frames (state, lines, a LUT seed to upload
+/// and activate before the frame).
+#[derive(Debug, Clone)]
+struct Case {
+    taps: usize,
+    mem_latency: u32,
+    mem_words: u32,
+    fifo_depth: usize,
+    h_blank: u32,
+    v_blank: u32,
+    width: u16,
+    height: u16,
+    states: u8,
+    first_column: u16,
+    frames: Vec<(u8, Vec<Vec<u16>>, Option<u64>)>,
+}
+
+/// What a run ends with: the sums of every state, the frames per state, the counters.
+#[derive(Debug, PartialEq, Eq)]
+struct Outcome {
+    sums: Vec<u32>,
+    frames: Vec<u32>,
+    cycles: u64,
+    pixels: u64,
+    fifo_overflows: u32,
+    fifo_high_water: usize,
+    out_of_range: u32,
+    saturated: u32,
+    rmw_hazards: u32,
+}
+
+impl Case {
+    fn config(&self) -> Config {
+        Config {
+            taps: self.taps,
+            fifo_depth: self.fifo_depth,
+            mem_latency: self.mem_latency,
+            mem_words_per_cycle: self.mem_words,
+            h_blank: self.h_blank,
+            v_blank: self.v_blank,
+            ..Config::default()
+        }
+    }
+
+    fn geometry(&self) -> Geometry {
+        Geometry::new(self.width, self.height, self.states, self.first_column).unwrap()
+    }
+
+    /// The model, configured and loaded over SPI by the core's driver, as in the
+    /// bit-exactness test; and its count of uploads over a bank queued pixels still use
+    /// (the RTL has two banks and no copies: those runs are not comparable).
+    fn model(&self) -> (Outcome, u32) {
+        let mut dp = Datapath::new(Fpga::new(self.config(), Geometry::new(1, 1, 1, 0).unwrap()).unwrap());
+        dp.identify().unwrap();
+        dp.configure(self.geometry()).unwrap();
+        dp.upload_lut_image(&image(&luts(&weights(1)))).unwrap();
+        for (state, lines, seed) in &self.frames {
+            if let Some(seed) = seed {
+                dp.upload_lut_image(&image(&luts(&weights(*seed)))).unwrap();
+            }
+            let refs: Vec<&[u16]> = lines.iter().map(|l| l.as_slice()).collect();
+            let mut fpga = dp.release();
+            fpga.stream_frame(*state, &refs).unwrap();
+            dp = Datapath::new(fpga);
+        }
+        let mut fpga = dp.release();
+        fpga.drain();
+        let st: Stats = fpga.stats();
+        let sums = (0..self.states).flat_map(|s| fpga.sums(s).unwrap().to_vec()).collect();
+        let frames = (0..8).map(|s| fpga.frames(s)).collect();
+        let outcome = Outcome {
+            sums,
+            frames,
+            cycles: st.cycles,
+            pixels: st.pixels,
+            fifo_overflows: st.fifo_overflows,
+            fifo_high_water: st.fifo_high_water,
+            out_of_range: st.out_of_range,
+            saturated: st.saturated,
+            rmw_hazards: st.rmw_hazards,
+        };
+        (outcome, st.lut_overwrite_hazards)
+    }
+
+    /// The core's sums of the same frames (its own arithmetic, frame by frame).
+    fn core(&self) -> Vec<u32> {
+        let geometry = self.geometry();
+        let mut banks = LutBanks::new(Mvd1024eLuts::ideal());
+        let mut sums = vec![0u32; geometry.sum_len()];
+        let mut core = Corrector::new(&mut banks, geometry, &mut sums).unwrap();
+        core.banks_mut().stage(&luts(&weights(1)));
+        core.request_activation().unwrap();
+        for (state, lines, seed) in &self.frames {
+            if let Some(seed) = seed {
+                core.banks_mut().stage(&luts(&weights(*seed)));
+                core.request_activation().unwrap();
+            }
+            core.begin_frame(*state).unwrap();
+            for (row, line) in lines.iter().enumerate() {
+                core.accumulate_line(row as u16, line).unwrap();
+            }
+            core.end_frame().unwrap();
+        }
+        (0..self.states).flat_map(|s| core.sums().state(s).unwrap().to_vec()).collect()
+    }
+
+    /// The harness's script of this case.
+    fn script(&self) -> Vec<u8> {
+        let mut s = Vec::new();
+        let lut = |s: &mut Vec<u8>, seed: u64| {
+            let l = luts(&weights(seed));
+            for (adc, table) in l.tables().iter().enumerate() {
+                write!(s, "lut {adc}").unwrap();
+                for e in table {
+                    write!(s, " {}", e.to_bits()).unwrap();
+                }
+                writeln!(s).unwrap();
+            }
+            writeln!(s, "swap").unwrap();
+        };
+        writeln!(s, "config {} {} {} {} {} {} {}", self.width, self.height, self.states, self.first_column, self.mem_latency, self.mem_words, self.fifo_depth).unwrap();
+        lut(&mut s, 1);
+        for (state, lines, seed) in &self.frames {
+            if let Some(seed) = seed {
+                lut(&mut s, *seed);
+            }
+            writeln!(s, "frame {state} {} {} {}", self.v_blank, self.h_blank, lines.len()).unwrap();
+            for line in lines {
+                write!(s, "{}", line.len()).unwrap();
+                for c in line {
+                    write!(s, " {c}").unwrap();
+                }
+                writeln!(s).unwrap();
+            }
+        }
+        writeln!(s, "drain\nsums\nstats").unwrap();
+        s
+    }
+
+    /// The RTL's run of this case on `harness`.
+    fn rtl(&self, harness: &Path) -> Outcome {
+        let mut child = Command::new(harness).stdin(Stdio::piped()).stdout(Stdio::piped()).stderr(Stdio::inherit()).spawn().expect("the harness starts");
+        let script = self.script();
+        let mut stdin = child.stdin.take().unwrap();
+        let writer = std::thread::spawn(move || stdin.write_all(&script));
+        let out = child.wait_with_output().unwrap();
+        writer.join().unwrap().expect("the harness reads its script");
+        assert!(out.status.success(), "the harness failed on {self:?}");
+        let text = String::from_utf8(out.stdout).unwrap();
+        let mut lines = text.lines();
+        let sums: Vec<u32> = lines.next().unwrap_or("").split_whitespace().map(|v| v.parse().unwrap()).collect();
+        let stats: std::collections::HashMap<&str, u64> = lines.next().expect("a stats line").split_whitespace().map(|kv| {
+            let (k, v) = kv.split_once('=').unwrap();
+            (k, v.parse().unwrap())
+        }).collect();
+        let get = |k: &str| *stats.get(k).unwrap_or_else(|| panic!("no {k} in the harness's stats"));
+        Outcome {
+            sums,
+            frames: (0..8).map(|s| get(&format!("frames{s}")) as u32).collect(),
+            cycles: get("cycles"),
+            pixels: get("pixels"),
+            fifo_overflows: get("fifo_overflows") as u32,
+            fifo_high_water: get("fifo_high_water") as usize,
+            out_of_range: get("out_of_range") as u32,
+            saturated: get("saturated") as u32,
+            rmw_hazards: get("rmw_hazards") as u32,
+        }
+    }
+}
+
+/// The RTL, the model and (where no pixel was dropped) the core agree on `c`; returns
+/// the pixels the RTL summed.
+fn agree(c: &Case) -> Result<u64, TestCaseError> {
+    let Some(h) = &harnesses()[TAPS.iter().position(|&t| t == c.taps).unwrap()] else { return Ok(0) };
+    let (model, overwrites) = c.model();
+    prop_assume!(overwrites == 0, "an upload over a bank queued pixels use: the model keeps a copy, the RTL's two banks do not");
+    let rtl = c.rtl(h);
+    prop_assert_eq!(&rtl, &model, "the RTL against the model");
+    if model.fifo_overflows == 0 {
+        prop_assert_eq!(&rtl.sums, &c.core(), "the RTL against the core");
+    }
+    Ok(rtl.pixels)
+}
+
+fn case() -> impl Strategy<Value = Case> {
+    let timing = (prop::sample::select(&TAPS[..]), 1u32..=40, 0u32..=8, 0u32..20, 0u32..6, prop::bool::weighted(0.25));
+    let shape = (1u16..=37, 1u16..=5, 1u8..=4, 0u16..=9);
+    (timing, shape).prop_flat_map(|((taps, mem_latency, words_less, h_blank, v_blank, starved), (width, height, states, first_column))| {
+        // Mostly enough bandwidth and FIFO for every pixel; a quarter of the cases starve
+        // the memory and shrink the FIFO to its least, so that pixels are dropped.
+        let mem_words = if starved { (2 * taps as u32).saturating_sub(words_less).max(1) } else { 2 * taps as u32 + words_less % 3 };
+        let fifo_depth = if starved { taps } else { 4096 };
+        let frame = (0..states, prop::collection::vec(prop::collection::vec(prop_oneof![9 => 0u16..4096, 1 => 4096u16..=u16::MAX], width as usize), height as usize), prop::option::weighted(0.3, 2u64..1000));
+        prop::collection::vec(frame, 1..7).prop_map(move |frames| Case { taps, mem_latency, mem_words, fifo_depth, h_blank, v_blank, width, height, states, first_column, frames })
+    })
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 96, ..ProptestConfig::default() })]
+    #[test]
+    fn the_rtl_is_the_model_cycle_for_cycle_and_the_core_bit_for_bit(c in case()) {
+        agree(&c)?;
+    }
+}
+
+/// Random codes (one in ten above the top code) for `frames` frames of `c`'s geometry,
+/// a new LUT every fourth frame.
+fn frames_of(width: u16, height: u16, states: u8, frames: usize, seed: u64) -> Vec<(u8, Vec<Vec<u16>>, Option<u64>)> {
+    let mut s = seed;
+    let mut next = move || {
+        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        s >> 33
+    };
+    (0..frames)
+        .map(|f| {
+            let lines = (0..height).map(|_| (0..width).map(|_| if next() % 10 == 0 { 4096 + (next() % 60000) as u16 } else { (next() % 4096) as u16 }).collect()).collect();
+            (f as u8 % states, lines, (f % 4 == 3).then_some(100 + f as u64))
+        })
+        .collect()
+}
+
+/// The test command's million pixels: 256 x 64 pixels, 4 states, 16 frames at each tap
+/// count, the memory 32 cycles away, the LUT swapped every fourth frame.
+#[test]
+fn a_million_pixels_at_every_tap_count() {
+    let mut summed = 0;
+    for taps in TAPS {
+        let c = Case {
+            taps,
+            mem_latency: 32,
+            mem_words: 2 * taps as u32,
+            fifo_depth: 4096,
+            h_blank: 8,
+            v_blank: 16,
+            width: 256,
+            height: 64,
+            states: 4,
+            first_column: 2,
+            frames: frames_of(256, 64, 4, 16, taps as u64),
+        };
+        summed += agree(&c).unwrap();
+    }
+    assert!(summed == 0 || summed == 4 * 16 * 256 * 64, "{summed} pixels summed");
+}
+
+/// The counters the random cases reach rarely, each against a closed form: a starved
+/// memory drops pixels (8 taps into one pixel a cycle through a 64-pixel FIFO: 1,729 of
+/// 2,048, the model's test's count); frames shorter than the memory's latency revisit sums
+/// still in flight (two per frame after the first); 600 frames of the top code clip from
+/// the 513th on (88 clipped additions).
+#[test]
+fn drops_hazards_and_saturation_are_the_models() {
+    let line = |n: usize, code: u16| vec![code; n];
+    let starved = Case {
+        taps: 8,
+        mem_latency: 10,
+        mem_words: 2,
+        fifo_depth: 64,
+        h_blank: 0,
+        v_blank: 0,
+        width: 1024,
+        height: 2,
+        states: 1,
+        first_column: 0,
+        frames: vec![(0, vec![line(1024, 100), line(1024, 100)], None)],
+    };
+    let hazards = Case {
+        taps: 2,
+        mem_latency: 50,
+        mem_words: 4,
+        fifo_depth: 16,
+        h_blank: 0,
+        v_blank: 0,
+        width: 2,
+        height: 1,
+        states: 1,
+        first_column: 0,
+        frames: vec![(0, vec![vec![5, 6]], None); 2],
+    };
+    let saturating = Case {
+        taps: 1,
+        mem_latency: 3,
+        mem_words: 2,
+        fifo_depth: 16,
+        h_blank: 0,
+        v_blank: 0,
+        width: 1,
+        height: 1,
+        states: 1,
+        first_column: 0,
+        frames: vec![(0, vec![vec![4095]], None); 600],
+    };
+    for (c, what, want) in [(&starved, "dropped", 1729), (&hazards, "hazards", 2), (&saturating, "clipped", 88)] {
+        let Some(h) = &harnesses()[TAPS.iter().position(|&t| t == c.taps).unwrap()] else { return };
+        let rtl = c.rtl(h);
+        let (model, _) = c.model();
+        assert_eq!(rtl, model, "{what}");
+        let got = match what {
+            "dropped" => rtl.fifo_overflows,
+            "hazards" => rtl.rmw_hazards,
+            _ => rtl.saturated,
+        };
+        assert_eq!(got, want, "{what}");
+    }
+    // (The clipped sum: 600 entries of 4095.5 x 2^11 clipped at 2^32 - 1.)
+    let h = harnesses()[0].as_ref().unwrap();
+    assert_eq!(saturating.rtl(h).sums, vec![u32::MAX]);
+}
+
+/// The constants the RTL and its harness share with the core and the model, as the
+/// generated `hdl/rtl/dncal_consts.vh` and `hdl/tb/dncal_consts.h` hold them: never typed
+/// twice. `DNCAL_BLESS=1` writes the files from the core; otherwise they must match.
+#[test]
+fn the_rtls_constants_are_the_cores() {
+    let codes = dncal_fpga_model::datapath::CODES;
+    assert!(codes.is_power_of_two());
+    let words = Config::default().sum_words;
+    assert!(words.is_power_of_two());
+    let consts = [
+        ("LUT entry bits (dncal_core::LUT_ENTRY_BITS)", "ENTRY_BITS", dncal_core::LUT_ENTRY_BITS as usize),
+        ("bits of a code (log2 of the model's CODES)", "CODE_BITS", codes.trailing_zeros() as usize),
+        ("ADCs, column c read by ADC c mod ADCS (the model's ADCS)", "ADCS", dncal_fpga_model::datapath::ADCS),
+        ("modulation states (dncal_core::MAX_STATES)", "MAX_STATES", dncal_core::MAX_STATES),
+        ("frames a state sums exactly (dncal_core::EXACT_FRAMES)", "EXACT_FRAMES", dncal_core::EXACT_FRAMES as usize),
+        ("bits of a sum address (log2 of the model's default sum_words)", "ADDR_W", words.trailing_zeros() as usize),
+    ];
+    let head = "Generated from the core by fpga-model/tests/rtl_cosim.rs (DNCAL_BLESS=1 cargo test -p dncal-fpga-model --test rtl_cosim); do not edit.";
+    let mut vh = format!("// {head}\n`ifndef DNCAL_CONSTS_VH\n`define DNCAL_CONSTS_VH\n");
+    let mut h = format!("// {head}\n#pragma once\n");
+    for (what, name, value) in consts {
+        vh += &format!("// {what}\n`define DNCAL_{name} {value}\n");
+        h += &format!("// {what}\nstatic const int DNCAL_{name} = {value};\n");
+    }
+    vh += "`endif\n";
+    for (path, want) in [(root().join("hdl/rtl/dncal_consts.vh"), vh), (root().join("hdl/tb/dncal_consts.h"), h)] {
+        if std::env::var_os("DNCAL_BLESS").is_some() {
+            std::fs::write(&path, &want).unwrap();
+        }
+        let have = std::fs::read_to_string(&path).unwrap_or_default();
+        assert_eq!(have, want, "{} is not the core's: DNCAL_BLESS=1 cargo test -p dncal-fpga-model --test rtl_cosim", path.display());
+    }
+}
