@@ -1,10 +1,12 @@
-//! The RTL (hdl/rtl/dncal_datapath.v, simulated by Verilator through hdl/tb/harness.cpp)
-//! against the FPGA model and the core: for any LUTs, frame size, tap count (1, 2, 4, 8),
+//! The RTL (hdl/rtl/dncal_top.v: the datapath and its register map on an SPI slave,
+//! simulated by Verilator through hdl/tb/harness.cpp) against the FPGA model and the core,
+//! both configured and loaded by the core's own SPI driver (`dncal_core::driver::Datapath`
+//! over `embedded_hal::spi::SpiDevice`): for any LUTs, frame size, tap count (1, 2, 4, 8),
 //! memory latency and bandwidth, FIFO size, blanking and modulation sequence, with LUT
-//! swaps between frames while pixels are still in the pipeline, the sums are the core's
-//! bit for bit, and the cycle count and every counter the model keeps that the RTL has
-//! (pixels, FIFO overflows and high-water mark, codes out of range, clipped additions,
-//! read-modify-write hazards, frames per state) are the model's.
+//! uploads and swaps between frames while pixels are still in the pipeline, the sums are
+//! the core's bit for bit, and the cycle count, the registers the driver reads (status,
+//! counters, FIFO overflows) and the counters the register map does not hold (pixels,
+//! FIFO high-water mark, read-modify-write hazards, frames per state) are the model's.
 //!
 //! Verilator comes from Debian (`scripts/hdl.sh install`, which scripts/test.sh runs); where
 //! it is missing the tests say so and pass, unless `DNCAL_REQUIRE_HDL` is set (the test
@@ -12,14 +14,15 @@
 
 mod common;
 
-use std::io::Write;
+use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::{Child, ChildStdin, ChildStdout, Command, Stdio};
 
 use common::{image, luts, weights};
 use dncal_core::driver::Datapath;
-use dncal_core::{Corrector, Geometry, LutBanks, Mvd1024eLuts};
+use dncal_core::{Corrector, Geometry, LutBanks, Mvd1024eLuts, Status};
 use dncal_fpga_model::{Config, Fpga, Stats};
+use embedded_hal::spi::{ErrorKind, ErrorType, Operation, SpiDevice};
 use proptest::prelude::*;
 
 /// The tap counts the RTL is built for.
@@ -68,18 +71,126 @@ struct Case {
     frames: Vec<(u8, Vec<Vec<u16>>, Option<u64>)>,
 }
 
-/// What a run ends with: the sums of every state, the frames per state, the counters.
+/// What a run ends with: the sums of every state, the frames per state, the counters, and
+/// what the driver reads over SPI.
 #[derive(Debug, PartialEq, Eq)]
 struct Outcome {
     sums: Vec<u32>,
     frames: Vec<u32>,
     cycles: u64,
     pixels: u64,
-    fifo_overflows: u32,
     fifo_high_water: usize,
-    out_of_range: u32,
-    saturated: u32,
     rmw_hazards: u32,
+    counters: Status,
+    fifo_overflows: u32,
+    status: u32,
+}
+
+/// The RTL as the driver's SPI device: the harness process, a command a line and its
+/// answer.
+struct Rtl {
+    child: Child,
+    to: ChildStdin,
+    from: BufReader<ChildStdout>,
+}
+
+impl Rtl {
+    fn start(harness: &Path, c: &Case) -> Rtl {
+        let mut child = Command::new(harness).stdin(Stdio::piped()).stdout(Stdio::piped()).stderr(Stdio::inherit()).spawn().expect("the harness starts");
+        let (to, from) = (child.stdin.take().unwrap(), BufReader::new(child.stdout.take().unwrap()));
+        let mut rtl = Rtl { child, to, from };
+        assert_eq!(rtl.ask(format!("board {} {} {}", c.mem_latency, c.mem_words, c.fifo_depth)), "ok");
+        rtl
+    }
+
+    /// Sends one command, returns its answer's line.
+    fn ask(&mut self, command: String) -> String {
+        writeln!(self.to, "{command}").expect("the harness reads its commands");
+        self.to.flush().unwrap();
+        let mut line = String::new();
+        self.from.read_line(&mut line).expect("the harness answers");
+        assert!(!line.is_empty(), "the harness ended on: {}", &command[..command.len().min(80)]);
+        line.trim_end().to_string()
+    }
+
+    fn frame(&mut self, c: &Case, state: u8, lines: &[Vec<u16>]) {
+        let mut f = format!("frame {state} {} {} {}", c.v_blank, c.h_blank, lines.len());
+        for line in lines {
+            f += &format!(" {}", line.len());
+            for v in line {
+                f += &format!(" {v}");
+            }
+        }
+        assert_eq!(self.ask(f), "ok");
+    }
+
+    fn sums(&mut self, n: usize) -> Vec<u32> {
+        self.ask(format!("sums {n}")).split_whitespace().map(|v| v.parse().unwrap()).collect()
+    }
+
+    fn stats(&mut self) -> std::collections::HashMap<String, u64> {
+        self.ask("stats".into()).split_whitespace().map(|kv| {
+            let (k, v) = kv.split_once('=').unwrap();
+            (k.to_string(), v.parse().unwrap())
+        }).collect()
+    }
+}
+
+impl Drop for Rtl {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl ErrorType for Rtl {
+    type Error = ErrorKind;
+}
+
+/// One chip-select assertion: the written bytes out, zeros clocked for the reads (real
+/// hardware answers nothing else: a refused frame is seen by the host in the frame count,
+/// not as an error).
+impl SpiDevice for Rtl {
+    fn transaction(&mut self, ops: &mut [Operation<'_, u8>]) -> Result<(), ErrorKind> {
+        let mut out = Vec::new();
+        for op in ops.iter() {
+            match op {
+                Operation::Write(b) => out.extend_from_slice(b),
+                Operation::Read(b) => out.extend(std::iter::repeat_n(0u8, b.len())),
+                Operation::Transfer(r, w) => out.extend((0..r.len().max(w.len())).map(|i| w.get(i).copied().unwrap_or(0))),
+                Operation::TransferInPlace(b) => out.extend_from_slice(b),
+                Operation::DelayNs(_) => {}
+            }
+        }
+        let mut command = format!("spi {}", out.len());
+        for b in &out {
+            command += &format!(" {b}");
+        }
+        let answer = self.ask(command);
+        let miso: Vec<u8> = answer.strip_prefix("miso").expect("a MISO answer").split_whitespace().map(|v| v.parse().unwrap()).collect();
+        let mut at = 0;
+        for op in ops.iter_mut() {
+            match op {
+                Operation::Write(b) => at += b.len(),
+                Operation::Read(b) => {
+                    b.copy_from_slice(&miso[at..at + b.len()]);
+                    at += b.len();
+                }
+                Operation::Transfer(r, w) => {
+                    let n = r.len().max(w.len());
+                    r.copy_from_slice(&miso[at..at + r.len()]);
+                    at += n;
+                }
+                Operation::TransferInPlace(b) => {
+                    let n = b.len();
+                    b.copy_from_slice(&miso[at..at + n]);
+                    at += n;
+                }
+                Operation::DelayNs(_) => {}
+            }
+        }
+        Ok(())
+    }
 }
 
 impl Case {
@@ -118,6 +229,9 @@ impl Case {
         }
         let mut fpga = dp.release();
         fpga.drain();
+        let mut dp = Datapath::new(fpga);
+        let (counters, fifo_overflows, status) = (dp.counters().unwrap(), dp.fifo_overflows().unwrap(), dp.status().unwrap().to_bits());
+        let fpga = dp.release();
         let st: Stats = fpga.stats();
         let sums = (0..self.states).flat_map(|s| fpga.sums(s).unwrap().to_vec()).collect();
         let frames = (0..8).map(|s| fpga.frames(s)).collect();
@@ -126,11 +240,11 @@ impl Case {
             frames,
             cycles: st.cycles,
             pixels: st.pixels,
-            fifo_overflows: st.fifo_overflows,
             fifo_high_water: st.fifo_high_water,
-            out_of_range: st.out_of_range,
-            saturated: st.saturated,
             rmw_hazards: st.rmw_hazards,
+            counters,
+            fifo_overflows,
+            status,
         };
         (outcome, st.lut_overwrite_hazards)
     }
@@ -157,66 +271,33 @@ impl Case {
         (0..self.states).flat_map(|s| core.sums().state(s).unwrap().to_vec()).collect()
     }
 
-    /// The harness's script of this case.
-    fn script(&self) -> Vec<u8> {
-        let mut s = Vec::new();
-        let lut = |s: &mut Vec<u8>, seed: u64| {
-            let l = luts(&weights(seed));
-            for (adc, table) in l.tables().iter().enumerate() {
-                write!(s, "lut {adc}").unwrap();
-                for e in table {
-                    write!(s, " {}", e.to_bits()).unwrap();
-                }
-                writeln!(s).unwrap();
-            }
-            writeln!(s, "swap").unwrap();
-        };
-        writeln!(s, "config {} {} {} {} {} {} {}", self.width, self.height, self.states, self.first_column, self.mem_latency, self.mem_words, self.fifo_depth).unwrap();
-        lut(&mut s, 1);
+    /// The RTL's run of this case on `harness`, configured, loaded and read by the driver.
+    fn rtl(&self, harness: &Path) -> Outcome {
+        let mut dp = Datapath::new(Rtl::start(harness, self));
+        dp.identify().unwrap();
+        dp.configure(self.geometry()).unwrap();
+        dp.upload_lut_image(&image(&luts(&weights(1)))).unwrap();
         for (state, lines, seed) in &self.frames {
             if let Some(seed) = seed {
-                lut(&mut s, *seed);
+                dp.upload_lut_image(&image(&luts(&weights(*seed)))).unwrap();
             }
-            writeln!(s, "frame {state} {} {} {}", self.v_blank, self.h_blank, lines.len()).unwrap();
-            for line in lines {
-                write!(s, "{}", line.len()).unwrap();
-                for c in line {
-                    write!(s, " {c}").unwrap();
-                }
-                writeln!(s).unwrap();
-            }
+            dp.device_mut().frame(self, *state, lines);
         }
-        writeln!(s, "drain\nsums\nstats").unwrap();
-        s
-    }
-
-    /// The RTL's run of this case on `harness`.
-    fn rtl(&self, harness: &Path) -> Outcome {
-        let mut child = Command::new(harness).stdin(Stdio::piped()).stdout(Stdio::piped()).stderr(Stdio::inherit()).spawn().expect("the harness starts");
-        let script = self.script();
-        let mut stdin = child.stdin.take().unwrap();
-        let writer = std::thread::spawn(move || stdin.write_all(&script));
-        let out = child.wait_with_output().unwrap();
-        writer.join().unwrap().expect("the harness reads its script");
-        assert!(out.status.success(), "the harness failed on {self:?}");
-        let text = String::from_utf8(out.stdout).unwrap();
-        let mut lines = text.lines();
-        let sums: Vec<u32> = lines.next().unwrap_or("").split_whitespace().map(|v| v.parse().unwrap()).collect();
-        let stats: std::collections::HashMap<&str, u64> = lines.next().expect("a stats line").split_whitespace().map(|kv| {
-            let (k, v) = kv.split_once('=').unwrap();
-            (k, v.parse().unwrap())
-        }).collect();
+        assert_eq!(dp.device_mut().ask("drain".into()), "ok");
+        let (counters, fifo_overflows, status) = (dp.counters().unwrap(), dp.fifo_overflows().unwrap(), dp.status().unwrap().to_bits());
+        let mut rtl = dp.release();
+        let stats = rtl.stats();
         let get = |k: &str| *stats.get(k).unwrap_or_else(|| panic!("no {k} in the harness's stats"));
         Outcome {
-            sums,
+            sums: rtl.sums(self.geometry().sum_len()),
             frames: (0..8).map(|s| get(&format!("frames{s}")) as u32).collect(),
             cycles: get("cycles"),
             pixels: get("pixels"),
-            fifo_overflows: get("fifo_overflows") as u32,
             fifo_high_water: get("fifo_high_water") as usize,
-            out_of_range: get("out_of_range") as u32,
-            saturated: get("saturated") as u32,
             rmw_hazards: get("rmw_hazards") as u32,
+            counters,
+            fifo_overflows,
+            status,
         }
     }
 }
@@ -229,7 +310,7 @@ fn agree(c: &Case) -> Result<u64, TestCaseError> {
     prop_assume!(overwrites == 0, "an upload over a bank queued pixels use: the model keeps a copy, the RTL's two banks do not");
     let rtl = c.rtl(h);
     prop_assert_eq!(&rtl, &model, "the RTL against the model");
-    if model.fifo_overflows == 0 {
+    if rtl.fifo_overflows == 0 {
         prop_assert_eq!(&rtl.sums, &c.core(), "the RTL against the core");
     }
     Ok(rtl.pixels)
@@ -351,7 +432,7 @@ fn drops_hazards_and_saturation_are_the_models() {
         let got = match what {
             "dropped" => rtl.fifo_overflows,
             "hazards" => rtl.rmw_hazards,
-            _ => rtl.saturated,
+            _ => rtl.counters.saturated_additions,
         };
         assert_eq!(got, want, "{what}");
     }
@@ -369,20 +450,52 @@ fn the_rtls_constants_are_the_cores() {
     assert!(codes.is_power_of_two());
     let words = Config::default().sum_words;
     assert!(words.is_power_of_two());
-    let consts = [
-        ("LUT entry bits (dncal_core::LUT_ENTRY_BITS)", "ENTRY_BITS", dncal_core::LUT_ENTRY_BITS as usize),
-        ("bits of a code (log2 of the model's CODES)", "CODE_BITS", codes.trailing_zeros() as usize),
-        ("ADCs, column c read by ADC c mod ADCS (the model's ADCS)", "ADCS", dncal_fpga_model::datapath::ADCS),
-        ("modulation states (dncal_core::MAX_STATES)", "MAX_STATES", dncal_core::MAX_STATES),
-        ("frames a state sums exactly (dncal_core::EXACT_FRAMES)", "EXACT_FRAMES", dncal_core::EXACT_FRAMES as usize),
-        ("bits of a sum address (log2 of the model's default sum_words)", "ADDR_W", words.trailing_zeros() as usize),
-    ];
+    use dncal_core::regs::{control, status, Reg};
+    let mut consts: Vec<(String, String, u64)> = [
+        ("LUT entry bits (dncal_core::LUT_ENTRY_BITS)", "ENTRY_BITS", u64::from(dncal_core::LUT_ENTRY_BITS)),
+        ("bits of a code (log2 of the model's CODES)", "CODE_BITS", u64::from(codes.trailing_zeros())),
+        ("ADCs, column c read by ADC c mod ADCS (the model's ADCS)", "ADCS", dncal_fpga_model::datapath::ADCS as u64),
+        ("modulation states (dncal_core::MAX_STATES)", "MAX_STATES", dncal_core::MAX_STATES as u64),
+        ("frames a state sums exactly (dncal_core::EXACT_FRAMES)", "EXACT_FRAMES", u64::from(dncal_core::EXACT_FRAMES)),
+        ("bits of a sum address (log2 of the model's default sum_words)", "ADDR_W", u64::from(words.trailing_zeros())),
+        ("the ID register's value (dncal_core::regs::DEVICE_ID)", "DEVICE_ID", u64::from(dncal_core::regs::DEVICE_ID)),
+        ("SPI command: write a register", "CMD_WRITE_REG", u64::from(dncal_core::regs::CMD_WRITE_REG)),
+        ("SPI command: read a register", "CMD_READ_REG", u64::from(dncal_core::regs::CMD_READ_REG)),
+        ("SPI command: LUT image bytes", "CMD_LUT_DATA", u64::from(dncal_core::regs::CMD_LUT_DATA)),
+        ("largest LUT chunk, bytes", "MAX_LUT_CHUNK", dncal_core::regs::MAX_LUT_CHUNK as u64),
+        ("bytes of a WRITE_REG frame", "WRITE_FRAME_LEN", dncal_core::regs::WRITE_FRAME_LEN as u64),
+        ("bytes of a READ_REG request", "READ_REQUEST_LEN", dncal_core::regs::READ_REQUEST_LEN as u64),
+        ("bytes clocked back after a READ_REG request", "READ_RESPONSE_LEN", dncal_core::regs::READ_RESPONSE_LEN as u64),
+        ("bytes of a LUT_DATA header", "LUT_HEADER_LEN", dncal_core::regs::LUT_HEADER_LEN as u64),
+        ("CONTROL: LUT_BEGIN", "CONTROL_LUT_BEGIN", u64::from(control::LUT_BEGIN)),
+        ("CONTROL: LUT_COMMIT", "CONTROL_LUT_COMMIT", u64::from(control::LUT_COMMIT)),
+        ("CONTROL: CLEAR_SUMS", "CONTROL_CLEAR_SUMS", u64::from(control::CLEAR_SUMS)),
+        ("CONTROL: LUT_END", "CONTROL_LUT_END", u64::from(control::LUT_END)),
+        ("STATUS: staging valid", "STATUS_STAGING_VALID", u64::from(status::STAGING_VALID)),
+        ("STATUS: activation pending", "STATUS_ACTIVATION_PENDING", u64::from(status::ACTIVATION_PENDING)),
+        ("STATUS: frame open", "STATUS_FRAME_OPEN", u64::from(status::FRAME_OPEN)),
+        ("STATUS: upload failed", "STATUS_UPLOAD_FAILED", u64::from(status::UPLOAD_FAILED)),
+        ("STATUS: upload open", "STATUS_UPLOAD_OPEN", u64::from(status::UPLOAD_OPEN)),
+        ("STATUS: shift of the active bank", "STATUS_ACTIVE_BANK_SHIFT", u64::from(status::ACTIVE_BANK_SHIFT)),
+        ("LUT image: magic, little-endian (dncal_core::image::MAGIC)", "IMAGE_MAGIC", u64::from(u32::from_le_bytes(dncal_core::image::MAGIC))),
+        ("LUT image: version", "IMAGE_VERSION", u64::from(dncal_core::image::VERSION)),
+        ("LUT image: header bytes", "IMAGE_HEADER_LEN", dncal_core::image::HEADER_LEN as u64),
+        ("LUT image: fractional bits of an entry", "IMAGE_FRAC_BITS", u64::from(dncal_core::Mvd1024eLuts::FRAC_BITS)),
+        ("LUT image: bytes in all", "IMAGE_LEN", dncal_core::image_len::<4, 4096>() as u64),
+    ]
+    .into_iter()
+    .map(|(w, n, v)| (w.to_string(), n.to_string(), v))
+    .collect();
+    for reg in Reg::ALL {
+        let name: String = format!("{reg:?}").chars().flat_map(|c| if c.is_uppercase() { vec!['_', c] } else { vec![c.to_ascii_uppercase()] }).collect();
+        consts.push((format!("register {reg:?}"), format!("REG{name}"), reg as u64));
+    }
     let head = "Generated from the core by fpga-model/tests/rtl_cosim.rs (DNCAL_BLESS=1 cargo test -p dncal-fpga-model --test rtl_cosim); do not edit.";
     let mut vh = format!("// {head}\n`ifndef DNCAL_CONSTS_VH\n`define DNCAL_CONSTS_VH\n");
     let mut h = format!("// {head}\n#pragma once\n");
     for (what, name, value) in consts {
         vh += &format!("// {what}\n`define DNCAL_{name} {value}\n");
-        h += &format!("// {what}\nstatic const int DNCAL_{name} = {value};\n");
+        h += &format!("// {what}\nstatic const long long DNCAL_{name} = {value};\n");
     }
     vh += "`endif\n";
     for (path, want) in [(root().join("hdl/rtl/dncal_consts.vh"), vh), (root().join("hdl/tb/dncal_consts.h"), h)] {

@@ -20,17 +20,18 @@
 //
 // The memory port (the co-simulation harness's model, hdl/tb/harness.cpp): a write and a
 // read of one cycle take effect at its rising edge, the write first; a read's data is on
-// `mem_rd_data` during the cycle `mem_latency` after its issue. A sum whose earlier
-// read-modify-write is still in flight would be read stale: the write stage forwards the
-// newest value written to the same address since the read (the last `mem_latency - 1`
-// cycles' writes, then the lanes before it in the same cycle), and counts each such pixel
-// in `rmw_hazards`, the model's count of where hardware needs forwarding.
+// `mem_rd_data` at the edge `mem_latency - 1` cycles after that one, where the port's
+// register takes it, so that the write stage has it `mem_latency` cycles after the issue.
+// A sum whose earlier read-modify-write is still in flight would be read stale: the write
+// stage forwards the newest value written to the same address since the read (the last
+// `mem_latency - 1` cycles' writes, then the lanes before it in the same cycle), and counts
+// each such pixel in `rmw_hazards`, the model's count of where hardware needs forwarding.
 //
 // LUT banks: two, each 4 ADCs x 2^CODE_BITS entries of ENTRY_BITS bits. The upload port
-// (`cfg_clk`, the configuration side's clock) writes the staging bank; `lut_swap` makes
-// it active for the pixels that enter from that cycle on (pixels already queued keep the
-// bank they entered with). Uploading over a bank queued pixels still use is the model's
-// `lut_overwrite_hazards`; the SPI side will hold its upload until they drain.
+// (`cfg_clk`, the configuration side's clock: dncal_regs.v) writes the staging bank, the
+// one `active_bank` does not name; a pixel looks up the bank `active_bank` named when it
+// entered (pixels already queued keep theirs). Uploading over a bank queued pixels still
+// use is the model's `lut_overwrite_hazards`.
 `default_nettype none
 `include "dncal_consts.vh"
 
@@ -57,9 +58,10 @@ module dncal_datapath #(
     /* verilator lint_off UNUSEDSIGNAL */
     input  wire [15:0]               first_column,
     /* verilator lint_on UNUSEDSIGNAL */
-    input  wire [6:0]                mem_latency,   // 1..MAX_LATENCY
-    input  wire [7:0]                mem_words,     // 1..255
-    input  wire [FIFO_AW:0]          fifo_limit,    // TAPS..2^FIFO_AW
+    // What a board fixes, sampled while `rst` is high.
+    input  wire [6:0]                mem_latency_in,   // 1..MAX_LATENCY
+    input  wire [7:0]                mem_words_in,     // 1..255
+    input  wire [FIFO_AW:0]          fifo_limit_in,    // TAPS..2^FIFO_AW
     // Pixels.
     input  wire                      sof,           // first cycle of a frame; `state` valid
     input  wire [STATE_BITS-1:0]     state,
@@ -67,7 +69,8 @@ module dncal_datapath #(
     input  wire                      beat_valid,    // line-valid: a beat this cycle
     input  wire [3:0]                beat_count,    // its pixels, 1..TAPS
     input  wire [16*TAPS-1:0]        beat_data,     // pixel k at bits 16k+15..16k
-    input  wire                      lut_swap,
+    input  wire                      active_bank,   // the bank pixels entering now use
+    input  wire                      clear_toggle,  // toggled: clear the per-state frame counts
     // LUT upload (configuration clock): the staging bank's entry of `cfg_adc`, `cfg_code`.
     input  wire                      cfg_clk,
     input  wire                      cfg_we,
@@ -89,9 +92,25 @@ module dncal_datapath #(
     output reg  [31:0]               rmw_hazards,
     output reg  [FIFO_AW:0]          fifo_high_water,
     output wire [32*`DNCAL_MAX_STATES-1:0] frames,  // per modulation state
+    output reg  [31:0]               frames_total,  // frames ended (not cleared)
+    output reg                       frame_open,    // between a frame's first and last cycle
     output wire                      busy           // pixels in the FIFO or the pipeline
 );
     localparam integer DEPTH = 1 << FIFO_AW;
+    reg [6:0]       mem_latency;
+    reg [7:0]       mem_words;
+    reg [FIFO_AW:0] fifo_limit;
+    always @(posedge clk)
+        if (rst) begin
+            mem_latency <= mem_latency_in;
+            mem_words <= mem_words_in;
+            fifo_limit <= fifo_limit_in;
+        end
+    // The memory's read data, registered at the port: a read's data is captured at the edge
+    // `mem_latency - 1` cycles after the one that issued it (the same edge when the latency
+    // is 1), and is the write stage's in the cycle after.
+    reg [32*TAPS-1:0] rd_q;
+    always @(posedge clk) rd_q <= mem_rd_data;
     localparam integer LUT_AW = 1 + ADC_BITS + CODE_BITS;
     localparam [CODE_BITS-1:0] TOP = {CODE_BITS{1'b1}};
 
@@ -99,7 +118,6 @@ module dncal_datapath #(
     reg  [STATE_BITS-1:0] cur_state;
     reg  [ADDR_W-1:0] row_base;   // (state * height + row) * width
     reg  [15:0]       col;
-    reg               act;        // the active LUT bank
     wire [31:0]       frame_pixels = {16'd0, width} * {16'd0, height};
     // (Only the address's ADDR_W bits are kept: a geometry whose sums exceed the sum
     // memory is refused where it is set, as the model's `Config::holds`.)
@@ -109,7 +127,8 @@ module dncal_datapath #(
     wire [ADDR_W-1:0] base_now = sof ? state_base[ADDR_W-1:0] : row_base;
     wire [15:0]       col_now = sof ? 16'd0 : col;
     wire [STATE_BITS-1:0] state_now = sof ? state : cur_state;
-    wire              in_bank = act ^ lut_swap;
+    wire              in_bank = active_bank;
+    reg               clear_seen;
     wire [16:0]       col_end = {1'b0, col_now} + {13'd0, beat_count};
 
     // ---- FIFO ----------------------------------------------------------------------
@@ -150,7 +169,7 @@ module dncal_datapath #(
             reg [ENTRY_BITS-1:0] lut [0:(1 << LUT_AW) - 1];
             wire [FIFO_AW-1:0] at = head + g[FIFO_AW-1:0];
             always @(posedge cfg_clk)
-                if (cfg_we) lut[{~act, cfg_adc, cfg_code}] <= cfg_entry;
+                if (cfg_we) lut[{~active_bank, cfg_adc, cfg_code}] <= cfg_entry;
             always @(posedge clk) begin
                 lk_entry[g] <= lut[{q_bank[at], q_adc[at], q_code[at]}];
                 lk_addr[g]  <= q_addr[at];
@@ -196,7 +215,7 @@ module dncal_datapath #(
         forwarded = {TAPS{1'b0}};
         for (k = 0; k < TAPS; k = k + 1) begin
             a = w_addr[ADDR_W*k +: ADDR_W];
-            base = mem_rd_data[32*k +: 32];
+            base = rd_q[32*k +: 32];
             // Oldest first, so that the newest write to the address is the one kept.
             for (s = MAX_LATENCY; s >= 1; s = s - 1)
                 if (s < {25'd0, mem_latency})
@@ -272,7 +291,9 @@ module dncal_datapath #(
             rmw_hazards <= 32'd0;
             fifo_high_water <= {(FIFO_AW + 1){1'b0}};
             for (k = 0; k < `DNCAL_MAX_STATES; k = k + 1) frame_count[k] <= 32'd0;
-            act <= 1'b0;
+            clear_seen <= clear_toggle;
+            frames_total <= 32'd0;
+            frame_open <= 1'b0;
             cur_state <= {STATE_BITS{1'b0}};
             row_base <= {ADDR_W{1'b0}};
             col <= 16'd0;
@@ -307,7 +328,6 @@ module dncal_datapath #(
             fifo_overflows <= sat_add(fifo_overflows, offered - accepted);
             if (count_next > fifo_high_water) fifo_high_water <= count_next;
             // Frame position: the next beat's column and row.
-            act <= in_bank;
             cur_state <= state_now;
             if (beat_valid) begin
                 if (col_end >= {1'b0, width}) begin
@@ -321,7 +341,16 @@ module dncal_datapath #(
                 col <= col_now;
                 row_base <= base_now;
             end
-            if (eof) frame_count[state_now] <= sat_add(frame_count[state_now], 4'd1);
+            // (A clear, then the frame that ends in this cycle.)
+            if (clear_seen != clear_toggle) begin
+                clear_seen <= clear_toggle;
+                for (k = 0; k < `DNCAL_MAX_STATES; k = k + 1)
+                    frame_count[k] <= (eof && k == {{(32 - STATE_BITS){1'b0}}, state_now}) ? 32'd1 : 32'd0;
+            end else if (eof) begin
+                frame_count[state_now] <= sat_add(frame_count[state_now], 4'd1);
+            end
+            if (eof) frames_total <= sat_add(frames_total, 4'd1);
+            frame_open <= (sof || frame_open) && !eof;
         end
     end
 endmodule

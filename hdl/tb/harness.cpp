@@ -1,20 +1,23 @@
-// Co-simulation harness of hdl/rtl/dncal_datapath.v (Verilator): drives the datapath a
-// pixel clock at a time from a script on stdin, as fpga-model's `Fpga::stream_frame`
-// drives its model, and holds the sum memory the RTL reads and writes. Built by
-// scripts/hdl.sh for one tap count (-DTAPS); fpga-model/tests/rtl_cosim.rs writes the
-// script and compares what this prints with the model and the core.
+// Co-simulation harness of hdl/rtl/dncal_top.v (Verilator): the datapath and its register
+// map, driven a clock at a time from commands on stdin, each answered with one line on
+// stdout. Pixel frames run the pixel clock only, as fpga-model's `Fpga::stream_frame`
+// counts its cycles; SPI transactions run the configuration clock only (SCK an eighth of
+// it: four cycles low, four high), as the model's register traffic takes no
+// pixel cycles. The harness holds the sum memory the RTL reads and writes. Built by
+// scripts/hdl.sh for one tap count (-DTAPS); fpga-model/tests/rtl_cosim.rs drives it
+// through the core's own SPI driver and compares with the model and the core.
 //
-// Script (whitespace-separated words):
-//   config W H STATES FIRST LATENCY WORDS LIMIT   geometry and timing; clears the sums
-//   lut ADC e_0 ... e_{CODES-1}                    the staging bank's table of one ADC
-//   swap                                           the staging bank active from the next cycle
-//                                                  (an upload before that cycle replaces it)
-//   frame STATE VBLANK HBLANK LINES                then LINES lines: N c_0 ... c_{N-1}
-//   drain                                          cycles without input until idle
-//   sums                                           prints every sum, state-major, one line
-//   stats                                          prints the counters, `name=value`
+// Commands (whitespace-separated words):
+//   board LATENCY WORDS LIMIT            the memory's latency and bandwidth, the FIFO's size
+//   spi N b_0 ... b_{N-1}                one chip-select assertion clocking N bytes out on
+//                                        MOSI; answers `miso` and the N bytes read
+//   frame STATE VBLANK HBLANK LINES      then LINES lines: N c_0 ... c_{N-1}
+//   drain                                pixel clocks without input until idle
+//   sums COUNT                           the first COUNT sums, state-major
+//   stats                                the counters, `name=value`
 // The sum memory: a cycle's writes, then its reads, at the rising edge; a read's data is
-// presented LATENCY cycles later (see the RTL's header).
+// presented to the port's register at the edge LATENCY - 1 cycles later (dncal_datapath.v). The RTL's clear (a new geometry,
+// CLEAR_SUMS) zeroes it at once, as the model's does.
 #include <cstdint>
 #include <cstdio>
 #include <cstdlib>
@@ -22,7 +25,7 @@
 #include <string>
 #include <vector>
 
-#include "Vdncal_datapath.h"
+#include "Vdncal_top.h"
 #include "dncal_consts.h"
 #include "verilated.h"
 
@@ -62,35 +65,29 @@ static void put(VlWide<N>& v, int lo, int w, uint64_t x) {
 }
 
 struct Harness {
-    Vdncal_datapath top;
+    Vdncal_top top;
     std::vector<uint32_t> mem;
     std::vector<std::vector<uint32_t>> ring = std::vector<std::vector<uint32_t>>(kRing, std::vector<uint32_t>(TAPS, 0));
     uint64_t cycle = 0;
     int latency = 1;
-    bool swap_pending = false;
+    bool cleared = false;
+
+    uint32_t& at(uint64_t a) {
+        if (a >= (1ull << kAddrW)) fail("an address beyond the sum memory: " + std::to_string(a));
+        if (a >= mem.size()) mem.resize(a + 1, 0);
+        return mem[a];
+    }
 
     // One pixel clock with the inputs set by the caller.
     void tick() {
-        top.lut_swap = swap_pending;
-        swap_pending = false;
-        for (int k = 0; k < TAPS; ++k) put(top.mem_rd_data, 32 * k, 32, ring[cycle % kRing][k]);
         top.clk = 0;
         top.eval();
         for (int k = 0; k < TAPS; ++k)
-            if (get(top.mem_wr_en, k, 1)) {
-                uint64_t a = get(top.mem_wr_addr, kAddrW * k, kAddrW);
-                if (a >= mem.size()) fail("write beyond the sums at " + std::to_string(a));
-                mem[a] = (uint32_t)get(top.mem_wr_data, 32 * k, 32);
-            }
-        for (int k = 0; k < TAPS; ++k) {
-            uint32_t v = 0;
-            if (get(top.mem_rd_en, k, 1)) {
-                uint64_t a = get(top.mem_rd_addr, kAddrW * k, kAddrW);
-                if (a >= mem.size()) fail("read beyond the sums at " + std::to_string(a));
-                v = mem[a];
-            }
-            ring[(cycle + latency) % kRing][k] = v;
-        }
+            if (get(top.mem_wr_en, k, 1)) at(get(top.mem_wr_addr, kAddrW * k, kAddrW)) = (uint32_t)get(top.mem_wr_data, 32 * k, 32);
+        // A read's data goes to the port's register `latency - 1` edges after this one.
+        for (int k = 0; k < TAPS; ++k)
+            ring[(cycle + latency - 1) % kRing][k] = get(top.mem_rd_en, k, 1) ? at(get(top.mem_rd_addr, kAddrW * k, kAddrW)) : 0;
+        for (int k = 0; k < TAPS; ++k) put(top.mem_rd_data, 32 * k, 32, ring[cycle % kRing][k]);
         top.clk = 1;
         top.eval();
         top.sof = 0;
@@ -99,15 +96,63 @@ struct Harness {
         ++cycle;
     }
 
+    // One configuration clock.
+    void cfg_tick() {
+        top.cfg_clk = 1;
+        top.eval();
+        top.cfg_clk = 0;
+        top.eval();
+        if ((bool)top.clear_toggle != cleared) {
+            cleared = top.clear_toggle;
+            std::fill(mem.begin(), mem.end(), 0);
+        }
+    }
+
+    void cfg_ticks(int n) {
+        for (int i = 0; i < n; ++i) cfg_tick();
+    }
+
+    // One chip-select assertion: the bytes out on MOSI, those read on MISO (sampled just
+    // before each rising edge of SCK).
+    std::vector<uint8_t> spi(const std::vector<uint8_t>& out) {
+        std::vector<uint8_t> in;
+        top.spi_cs_n = 0;
+        cfg_ticks(8);
+        for (uint8_t b : out) {
+            uint8_t r = 0;
+            for (int bit = 7; bit >= 0; --bit) {
+                top.spi_mosi = (b >> bit) & 1;
+                cfg_ticks(4);
+                r = (uint8_t)((r << 1) | (top.spi_miso & 1));
+                top.spi_sck = 1;
+                cfg_ticks(4);
+                top.spi_sck = 0;
+            }
+            in.push_back(r);
+        }
+        cfg_ticks(4);
+        top.spi_cs_n = 1;
+        cfg_ticks(8);
+        return in;
+    }
+
     void reset() {
         top.rst = 1;
-        top.clk = 0;
-        top.eval();
-        top.clk = 1;
-        top.eval();
+        top.spi_cs_n = 1;
+        top.spi_sck = 0;
+        for (int i = 0; i < 2; ++i) {
+            top.clk = 0;
+            top.cfg_clk = 0;
+            top.eval();
+            top.clk = 1;
+            top.cfg_clk = 1;
+            top.eval();
+        }
         top.rst = 0;
         top.clk = 0;
+        top.cfg_clk = 0;
         top.eval();
+        cleared = top.clear_toggle;
     }
 };
 
@@ -121,42 +166,27 @@ int main(int argc, char** argv) {
     Verilated::commandArgs(argc, argv);
     std::ios::sync_with_stdio(false);
     Harness h;
-    h.top.cfg_clk = 0;
     h.reset();
-    long width = 0, height = 0, states = 0;
     std::string cmd;
     while (std::cin >> cmd) {
-        if (cmd == "config") {
-            width = word(std::cin), height = word(std::cin), states = word(std::cin);
-            long first = word(std::cin), latency = word(std::cin), words = word(std::cin), limit = word(std::cin);
+        if (cmd == "board") {
+            long latency = word(std::cin), words = word(std::cin), limit = word(std::cin);
             if (latency < 1 || latency >= kRing) fail("latency out of range");
-            h.top.width = (uint16_t)width;
-            h.top.height = (uint16_t)height;
-            h.top.first_column = (uint16_t)first;
             h.top.mem_latency = (uint8_t)latency;
             h.top.mem_words = (uint8_t)words;
             h.top.fifo_limit = (uint32_t)limit;
             h.latency = (int)latency;
-            h.mem.assign((size_t)(width * height * states), 0);
-        } else if (cmd == "lut") {
-            // An upload before the last one's swap reached a pixel clock writes the same
-            // staging bank again: with no pixel between them the two swaps are one, and the
-            // tables active after it are this upload's, as in the model.
-            h.swap_pending = false;
-            long adc = word(std::cin);
-            for (int c = 0; c < kCodes; ++c) {
-                h.top.cfg_we = 1;
-                h.top.cfg_adc = (uint8_t)adc;
-                h.top.cfg_code = (uint16_t)c;
-                h.top.cfg_entry = (uint32_t)word(std::cin);
-                h.top.cfg_clk = 1;
-                h.top.eval();
-                h.top.cfg_clk = 0;
-                h.top.eval();
-            }
-            h.top.cfg_we = 0;
-        } else if (cmd == "swap") {
-            h.swap_pending = true;
+            // (The board's constants are sampled during reset.)
+            h.reset();
+            std::cout << "ok\n";
+        } else if (cmd == "spi") {
+            long n = word(std::cin);
+            std::vector<uint8_t> out;
+            for (long i = 0; i < n; ++i) out.push_back((uint8_t)word(std::cin));
+            std::vector<uint8_t> in = h.spi(out);
+            std::cout << "miso";
+            for (uint8_t b : in) std::cout << " " << (int)b;
+            std::cout << "\n";
         } else if (cmd == "frame") {
             long state = word(std::cin), vblank = word(std::cin), hblank = word(std::cin), lines = word(std::cin);
             // The frame's cycles: vertical blanking, then each line's beats and blanking.
@@ -181,6 +211,7 @@ int main(int argc, char** argv) {
                 for (int k = 0; k < TAPS; ++k) put(h.top.beat_data, 16 * k, 16, k < cycles[i].count ? cycles[i].px[k] : 0);
                 h.tick();
             }
+            std::cout << "ok\n";
         } else if (cmd == "drain") {
             for (;;) {
                 h.top.clk = 0;
@@ -188,20 +219,21 @@ int main(int argc, char** argv) {
                 if (!h.top.busy) break;
                 h.tick();
             }
+            std::cout << "ok\n";
         } else if (cmd == "sums") {
-            for (size_t i = 0; i < h.mem.size(); ++i) std::cout << (i ? " " : "") << h.mem[i];
+            long n = word(std::cin);
+            for (long i = 0; i < n; ++i) std::cout << (i ? " " : "") << h.at((uint64_t)i);
             std::cout << "\n";
         } else if (cmd == "stats") {
-            std::cout << "cycles=" << h.cycle << " pixels=" << h.top.pixels << " fifo_overflows=" << h.top.fifo_overflows
-                      << " out_of_range=" << h.top.out_of_range << " saturated=" << h.top.saturated
-                      << " rmw_hazards=" << h.top.rmw_hazards << " fifo_high_water=" << h.top.fifo_high_water;
+            std::cout << "cycles=" << h.cycle << " pixels=" << h.top.pixels << " rmw_hazards=" << h.top.rmw_hazards
+                      << " fifo_high_water=" << h.top.fifo_high_water;
             for (int s = 0; s < DNCAL_MAX_STATES; ++s) std::cout << " frames" << s << "=" << get(h.top.frames, 32 * s, 32);
             std::cout << "\n";
         } else {
             fail("unknown command " + cmd);
         }
+        std::cout.flush();
     }
-    std::cout.flush();
     h.top.final();
     return 0;
 }
