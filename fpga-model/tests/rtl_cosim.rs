@@ -21,6 +21,9 @@ use std::process::{Child, ChildStdin, ChildStdout, Command, Stdio};
 use common::{image, luts, weights};
 use dncal_core::driver::Datapath;
 use dncal_core::{Corrector, Geometry, LutBanks, Mvd1024eLuts, Status};
+use dncal_core::regs::Reg;
+use dncal_core::CoreError;
+use dncal_fpga_model::faults::{FaultKind, FaultyBus, SplitMix64};
 use dncal_fpga_model::{Config, Fpga, Stats};
 use embedded_hal::spi::{ErrorKind, ErrorType, Operation, SpiDevice};
 use proptest::prelude::*;
@@ -133,6 +136,18 @@ impl Rtl {
             let (k, v) = kv.split_once('=').unwrap();
             (k.to_string(), v.parse().unwrap())
         }).collect()
+    }
+}
+
+impl Rtl {
+    /// What a read of `reg` returns, seen from the test bench (no frame, not counted).
+    fn peek(&mut self, reg: Reg) -> u32 {
+        self.ask(format!("peek {}", reg as u8)).parse().unwrap()
+    }
+
+    /// The active bank's tables, entry bits.
+    fn tables(&mut self) -> Vec<Vec<u32>> {
+        (0..4).map(|a| self.ask(format!("table {a}")).split_whitespace().map(|v| v.parse().unwrap()).collect()).collect()
     }
 }
 
@@ -505,4 +520,235 @@ fn the_rtls_constants_are_the_cores() {
         let have = std::fs::read_to_string(&path).unwrap_or_default();
         assert_eq!(have, want, "{} is not the core's: DNCAL_BLESS=1 cargo test -p dncal-fpga-model --test rtl_cosim", path.display());
     }
+}
+
+/// A driver call of the fault test (as fpga-model/tests/spi_faults.rs, against the RTL).
+#[derive(Debug, Clone, Copy)]
+enum Op {
+    Upload(usize),
+    Write(Reg, u32),
+    Read(Reg),
+    Configure(Geometry),
+    Identify,
+}
+
+impl Op {
+    fn random(rng: &mut SplitMix64) -> Op {
+        match rng.below(16) {
+            0..=5 => Op::Upload(rng.below(3) as usize),
+            6..=9 => {
+                let (reg, lo, hi) = [(Reg::Width, 1, 64), (Reg::Height, 1, 8), (Reg::States, 1, 4), (Reg::FirstColumn, 0, 2000)][rng.below(4) as usize];
+                Op::Write(reg, (lo + rng.below(hi + 1 - lo)) as u32)
+            }
+            10..=12 => Op::Read(Reg::ALL[rng.below(Reg::ALL.len() as u64) as usize]),
+            13..=14 => Op::Configure(Geometry::new(1 + rng.below(64) as u16, 1 + rng.below(8) as u16, 1 + rng.below(4) as u8, rng.below(2001) as u16).unwrap()),
+            _ => Op::Identify,
+        }
+    }
+
+    /// Transactions a clean run of the call makes (where the armed fault may land).
+    fn transactions(self, image_len: usize) -> u64 {
+        match self {
+            Op::Upload(_) => 6 + image_len.div_ceil(256) as u64,
+            Op::Write(..) => 2,
+            Op::Read(_) | Op::Identify => 1,
+            Op::Configure(_) => 8,
+        }
+    }
+}
+
+/// What the RTL must hold: the active tables and the geometry's registers.
+#[derive(Debug, Clone, PartialEq, Eq)]
+struct Held {
+    tables: Vec<Vec<u32>>,
+    geometry: [u32; 4],
+}
+
+const GEOMETRY_REGS: [Reg; 4] = [Reg::Width, Reg::Height, Reg::States, Reg::FirstColumn];
+
+fn held(dp: &mut Datapath<FaultyBus<Rtl>>) -> Held {
+    let rtl = dp.device_mut().inner_mut();
+    Held { tables: rtl.tables(), geometry: GEOMETRY_REGS.map(|r| rtl.peek(r)) }
+}
+
+fn geometry_of(g: Geometry) -> [u32; 4] {
+    [u32::from(g.width()), u32::from(g.height()), u32::from(g.states()), u32::from(g.first_column())]
+}
+
+/// Runs `op`; on success checks a read against the RTL's own view, and updates `intended`.
+fn run(dp: &mut Datapath<FaultyBus<Rtl>>, op: Op, images: &[(Vec<u8>, Vec<Vec<u32>>)], intended: &mut Held) -> Result<(), CoreError> {
+    match op {
+        Op::Upload(i) => {
+            dp.upload_lut_image(&images[i].0)?;
+            intended.tables = images[i].1.clone();
+        }
+        Op::Write(reg, v) => {
+            dp.write_reg(reg, v)?;
+            intended.geometry[GEOMETRY_REGS.iter().position(|&r| r == reg).unwrap()] = v;
+        }
+        Op::Configure(g) => {
+            dp.configure(g)?;
+            intended.geometry = geometry_of(g);
+        }
+        Op::Read(reg) => {
+            let v = dp.read_reg(reg)?;
+            assert_eq!(v, dp.device_mut().inner_mut().peek(reg), "a read of {reg:?} returned what the RTL holds");
+        }
+        Op::Identify => dp.identify()?,
+    }
+    Ok(())
+}
+
+/// The SPI fault injector of fpga-model between the core's driver and the RTL: one fault
+/// armed per call at a random transaction of it (bit flips written and read, dropped,
+/// duplicated and truncated transactions, chip-select glitches), each detected by one of
+/// the driver's checks and recovered, the RTL then holding exactly what was asked; then
+/// faults at a rate of 3% of transactions, where every call returns the right state or an
+/// error and the active tables are always the previous image's or the new one's.
+#[test]
+fn spi_faults_against_the_rtl_are_detected_and_no_bad_lut_is_ever_active() {
+    let Some(h) = &harnesses()[0] else { return };
+    let c = Case { taps: 1, mem_latency: 4, mem_words: 2, fifo_depth: 16, h_blank: 0, v_blank: 0, width: 16, height: 4, states: 2, first_column: 0, frames: Vec::new() };
+    let seed = 0x60_5EED;
+    let mut dp = Datapath::new(FaultyBus::new(Rtl::start(h, &c), seed));
+    let images: Vec<(Vec<u8>, Vec<Vec<u32>>)> = (1..=3)
+        .map(|s| {
+            let l = luts(&weights(s));
+            (image(&l), l.tables().iter().map(|t| t.iter().map(|e| e.to_bits()).collect()).collect())
+        })
+        .collect();
+    dp.identify().unwrap();
+    dp.configure(c.geometry()).unwrap();
+    dp.upload_lut_image(&images[0].0).unwrap();
+    let mut intended = Held { tables: images[0].1.clone(), geometry: geometry_of(c.geometry()) };
+    assert_eq!(held(&mut dp), intended, "a clean start");
+    let mut rng = SplitMix64::new(seed ^ 0xA5A5);
+    let (mut injected, mut kinds) = (0, std::collections::BTreeMap::new());
+    for call in 0..120 {
+        let op = Op::random(&mut rng);
+        let kind = FaultKind::ALL[rng.below(6) as usize];
+        let at = rng.below(op.transactions(images[0].0.len()));
+        let (log_before, stats_before) = (dp.device_mut().log().len(), dp.link_stats());
+        dp.device_mut().arm(kind, at);
+        let result = run(&mut dp, op, &images, &mut intended);
+        dp.device_mut().disarm();
+        let faults = dp.device_mut().log()[log_before..].to_vec();
+        assert!(result.is_ok(), "call {call} {op:?} with {faults:?}: a single fault must be recovered, got {result:?}");
+        assert_eq!(held(&mut dp), intended, "call {call} {op:?} with {faults:?}");
+        if let Some(f) = faults.first() {
+            injected += 1;
+            *kinds.entry(format!("{:?}", f.kind)).or_insert(0) += 1;
+            assert!(dp.link_stats().detections() > stats_before.detections(), "call {call} {op:?}: {f:?} went undetected");
+        }
+    }
+    assert!(injected >= 100 && kinds.len() == 6, "{injected} faults injected: {kinds:?}");
+    println!("RTL, SPI faults one a call: {injected} injected, all detected and recovered ({kinds:?})");
+    dp.device_mut().set_rate(0.03, &FaultKind::ALL);
+    let mut errors = 0;
+    for call in 0..40 {
+        let op = Op::random(&mut rng);
+        let before = intended.clone();
+        if let Err(e) = run(&mut dp, op, &images, &mut intended) {
+            assert!(matches!(e, CoreError::Link { .. } | CoreError::StagingNotValid), "call {call} {op:?}: {e:?}");
+            errors += 1;
+            let now = held(&mut dp);
+            if let Op::Upload(i) = op {
+                assert!(now.tables == before.tables || now.tables == images[i].1, "call {call}: a failed upload left foreign tables active");
+            }
+            intended = now;
+        }
+        assert_eq!(held(&mut dp), intended, "storm call {call} {op:?}");
+    }
+    println!("RTL, SPI faults at 3% of transactions: 40 calls, {errors} gave up, the tables always the old or the new image's");
+    dp.device_mut().set_rate(0.0, &[]);
+    dp.upload_lut_image(&images[2].0).unwrap();
+    assert_eq!(held(&mut dp).tables, images[2].1, "after the storm");
+}
+
+/// Frames the driver never sends, on the model and on the RTL alike: a write with a bad
+/// CRC, a write held after a refusal, a value the register cannot take, a read with a bad
+/// CRC, chunks without an upload, repeated, after a gap, and a chunk split by a
+/// chip-select glitch whose tail is a valid write of `WIDTH` (the hold must refuse it).
+/// Every read's 7 response bytes (value, frame count, CRC) are the model's, and so are
+/// the geometry and STATUS after each frame.
+#[test]
+fn raw_frames_are_refused_and_counted_as_the_models() {
+    use dncal_core::regs::{control, lut_header, read_request, write_frame, READ_RESPONSE_LEN};
+    let Some(h) = &harnesses()[0] else { return };
+    let c = Case { taps: 1, mem_latency: 4, mem_words: 2, fifo_depth: 16, h_blank: 0, v_blank: 0, width: 16, height: 2, states: 1, first_column: 0, frames: Vec::new() };
+    let mut rtl = Rtl::start(h, &c);
+    let mut model = Fpga::new(c.config(), c.geometry()).unwrap();
+    let setup = [write_frame(Reg::Width, 16), write_frame(Reg::Height, 2), write_frame(Reg::States, 1), write_frame(Reg::FirstColumn, 0)];
+    let chunk = |offset: u32, n: usize| {
+        let mut f = lut_header(offset, n as u16).to_vec();
+        f.extend(std::iter::repeat_n(0u8, n));
+        f
+    };
+    let bad_crc = |mut f: Vec<u8>, at: usize| {
+        f[at] ^= 0x40;
+        f
+    };
+    let tail = write_frame(Reg::Width, 3).to_vec();
+    let mut split = lut_header(0, 20).to_vec();
+    split.extend([0; 13]);
+    split.extend(&tail);
+    let (first_half, second_half) = (split[..20].to_vec(), split[20..].to_vec());
+    let read = |reg| (read_request(reg).to_vec(), true);
+    let write = |f: Vec<u8>| (f, false);
+    let mut frames: Vec<(Vec<u8>, bool)> = setup.iter().map(|f| write(f.to_vec())).collect();
+    frames.extend([
+        read(Reg::Id),
+        write(write_frame(Reg::Width, 8).to_vec()),
+        write(bad_crc(write_frame(Reg::Width, 9).to_vec(), 3)),
+        write(write_frame(Reg::Width, 0).to_vec()),
+        read(Reg::Width),
+        write(write_frame(Reg::Width, 0).to_vec()),
+        write(write_frame(Reg::States, 9).to_vec()),
+        write(write_frame(Reg::Height, 0x1_0000).to_vec()),
+        write(write_frame(Reg::Saturated, 5).to_vec()),
+        read(Reg::Width),
+        (bad_crc(read_request(Reg::Width).to_vec(), 1), true),
+        read(Reg::Status),
+        write(chunk(0, 4)),
+        read(Reg::Status),
+        write(write_frame(Reg::Control, control::LUT_BEGIN).to_vec()),
+        read(Reg::Status),
+        write(chunk(0, 4)),
+        write(chunk(0, 4)),
+        read(Reg::Status),
+        write(write_frame(Reg::Control, control::LUT_BEGIN).to_vec()),
+        write(chunk(0, 4)),
+        write(chunk(8, 4)),
+        read(Reg::Status),
+        write(write_frame(Reg::Control, control::LUT_BEGIN).to_vec()),
+        write(first_half),
+        write(second_half),
+        read(Reg::Width),
+        read(Reg::Status),
+        write(tail.clone()),
+        read(Reg::Width),
+        write(write_frame(Reg::Control, control::LUT_BEGIN | control::LUT_COMMIT).to_vec()),
+        read(Reg::Status),
+        write(vec![0x7F]),
+        write(Vec::new()),
+        read(Reg::Frames),
+        read(Reg::LutSwaps),
+    ]);
+    for (k, (bytes, is_read)) in frames.iter().enumerate() {
+        let mut theirs = [0u8; READ_RESPONSE_LEN];
+        let mut ours = [0u8; READ_RESPONSE_LEN];
+        if *is_read {
+            let _ = model.transaction(&mut [Operation::Write(bytes), Operation::Read(&mut theirs)]);
+            rtl.transaction(&mut [Operation::Write(bytes), Operation::Read(&mut ours)]).unwrap();
+            assert_eq!(ours, theirs, "frame {k}: the response to {bytes:02x?}");
+        } else {
+            let _ = model.transaction(&mut [Operation::Write(bytes)]);
+            rtl.transaction(&mut [Operation::Write(bytes)]).unwrap();
+        }
+        // (From the model's geometry on: the RTL starts at 1 x 1.)
+        for reg in [Reg::Width, Reg::Height, Reg::States, Reg::FirstColumn, Reg::Status].into_iter().filter(|_| k >= setup.len() - 1) {
+            assert_eq!(rtl.peek(reg), model.read_register(reg), "frame {k} ({bytes:02x?}): {reg:?}");
+        }
+    }
+    assert_eq!(rtl.peek(Reg::Width), 3, "the tail was taken only after a read");
 }

@@ -94,7 +94,11 @@ module dncal_datapath #(
     output wire [32*`DNCAL_MAX_STATES-1:0] frames,  // per modulation state
     output reg  [31:0]               frames_total,  // frames ended (not cleared)
     output reg                       frame_open,    // between a frame's first and last cycle
-    output wire                      busy           // pixels in the FIFO or the pipeline
+    output wire                      busy,          // pixels in the FIFO or the pipeline
+    // A test bench's view: the active bank's entry of {ADC, code} `dbg_lut_addr` (lane 0's
+    // copy, read without a clock; tie it off in a design).
+    input  wire [ADC_BITS+CODE_BITS-1:0] dbg_lut_addr,
+    output wire [ENTRY_BITS-1:0]     dbg_lut_entry
 );
     localparam integer DEPTH = 1 << FIFO_AW;
     reg [6:0]       mem_latency;
@@ -175,6 +179,9 @@ module dncal_datapath #(
                 lk_addr[g]  <= q_addr[at];
             end
             assign popped_oor[g] = g < npop && q_oor[at];
+            if (g == 0) begin : view
+                assign dbg_lut_entry = lut[{active_bank, dbg_lut_addr}];
+            end
             assign mem_rd_en[g] = lk_valid[g];
             assign mem_rd_addr[ADDR_W*g +: ADDR_W] = lk_addr[g];
             assign lk_addr_v[ADDR_W*g +: ADDR_W] = lk_addr[g];

@@ -19,8 +19,8 @@
 // fewer or more than 7 bytes of, the RTL has already sent those bytes: the read is refused
 // (not counted, the hold set) all the same.
 //
-// The LUT image (dncal_core::image) streams into the staging bank as it arrives: header
-// against the expected one, every entry below 2^ENTRY_BITS and not below its
+// The LUT image (dncal_core::image) streams into the staging bank as it arrives: the
+// header against the expected one when its last byte arrives, every entry below 2^ENTRY_BITS and not below its
 // predecessor within an ADC, the length, and the CRC-32 (IEEE 802.3) trailer; the first
 // error fails the upload. LUT_END validates (STATUS: staging valid or upload failed);
 // LUT_COMMIT validates and, if valid, activates the staging bank at once when no frame
@@ -60,7 +60,10 @@ module dncal_regs #(
     input  wire [31:0]           out_of_range,
     input  wire [31:0]           saturated,
     input  wire [31:0]           frames,
-    input  wire [31:0]           fifo_overflows
+    input  wire [31:0]           fifo_overflows,
+    // A test bench's view, not a frame (not counted): the value a read of `dbg_addr` returns.
+    input  wire [7:0]            dbg_addr,
+    output wire [31:0]           dbg_value
 );
     localparam integer CODES = 1 << CODE_BITS;
     localparam integer ENTRIES = `DNCAL_ADCS * CODES;
@@ -144,6 +147,7 @@ module dncal_regs #(
     reg [23:0] word;           // the entry's or trailer's first three bytes
     reg [31:0] previous;
     reg [31:0] crc;
+    reg        header_bad;     // a header byte so far was not the expected one
 
     wire [31:0] status = {22'd0, 1'b0, active_bank, 3'd0, staging == LOADING, staging == FAILED,
                           frame_open, pending, staging == VALID};
@@ -168,6 +172,8 @@ module dncal_regs #(
             endcase
         end
     endfunction
+
+    assign dbg_value = value_of(dbg_addr);
 
     // ---- SPI bytes ---------------------------------------------------------------------
     reg [2:0] sck_s, cs_s;
@@ -236,7 +242,9 @@ module dncal_regs #(
         if (pos >= IMAGE_LEN) begin
             img_fail = 1'b1;
         end else if (pos < HEADER_LEN) begin
-            img_fail = byte_in != header_byte(pos[3:0]);
+            // (Judged whole at its last byte, as the core's loader does: STATUS says
+            // nothing of a header until it has all arrived.)
+            img_fail = pos == HEADER_LEN - 1 && (header_bad || byte_in != header_byte(pos[3:0]));
         end else if (pos[1:0] == 2'd3) begin
             if (pos < ENTRIES_END) begin
                 img_write = 1'b1;
@@ -265,6 +273,7 @@ module dncal_regs #(
             staging <= EMPTY; pending <= 1'b0; lut_swaps <= 32'd0;
             accepted <= 16'd0; hold <= 1'b0; lut_open <= 1'b0; lut_received <= 32'd0;
             pos <= 32'd0; done <= 1'b0; word <= 24'd0; previous <= 32'd0; crc <= 32'hFFFF_FFFF;
+            header_bad <= 1'b0;
             nbit <= 3'd0; shift <= 7'd0; nbytes <= 16'd0; resp <= {56{1'b1}};
             cmd <= 8'd0; addr <= 8'd0; value <= 32'd0; len <= 16'd0;
             fcrc <= 8'd0; fcrc_prev <= 8'd0; last <= 8'd0; req_ok <= 1'b0; lut_ok <= 1'b0;
@@ -310,6 +319,7 @@ module dncal_regs #(
                     pos <= pos + 32'd1;
                     if (pos < ENTRIES_END) crc <= crc32(crc, byte_in);
                     word <= {byte_in, word[23:8]};
+                    if (pos < HEADER_LEN && byte_in != header_byte(pos[3:0])) header_bad <= 1'b1;
                     if (img_fail) staging <= FAILED;
                     if (img_done) done <= 1'b1;
                     if (img_write && !img_fail) begin
@@ -362,6 +372,7 @@ module dncal_regs #(
                         if ((value & `DNCAL_CONTROL_LUT_BEGIN) != 0) begin
                             staging <= LOADING; pending <= 1'b0;
                             pos <= 32'd0; done <= 1'b0; crc <= 32'hFFFF_FFFF; previous <= 32'd0;
+                            header_bad <= 1'b0;
                             lut_open <= 1'b1; lut_received <= 32'd0;
                         end
                         if ((value & (`DNCAL_CONTROL_LUT_END | `DNCAL_CONTROL_LUT_COMMIT)) != 0) begin

@@ -48,7 +48,13 @@ module dncal_top #(
     output wire [31:0]            rmw_hazards,
     output wire [FIFO_AW:0]       fifo_high_water,
     output wire [32*`DNCAL_MAX_STATES-1:0] frames,
-    output wire                   busy
+    output wire                   busy,
+    // A test bench's view (tie `dbg_addr` and `dbg_lut_addr` off in a design): the value a
+    // register read would return, without a frame; the active bank's LUT entries.
+    input  wire [7:0]             dbg_addr,
+    output wire [31:0]            dbg_value,
+    input  wire [$clog2(`DNCAL_ADCS)+CODE_BITS-1:0] dbg_lut_addr,
+    output wire [`DNCAL_ENTRY_BITS-1:0] dbg_lut_entry
 );
     localparam integer ENTRY_BITS = `DNCAL_ENTRY_BITS;
     localparam integer ADC_BITS = $clog2(`DNCAL_ADCS);
@@ -68,7 +74,8 @@ module dncal_top #(
         .first_column(first_column), .active_bank(active_bank), .lut_we(lut_we),
         .lut_adc(lut_adc), .lut_code(lut_code), .lut_entry(lut_entry),
         .clear_toggle(clear_toggle), .frame_open(frame_open), .out_of_range(out_of_range),
-        .saturated(saturated), .frames(frames_total), .fifo_overflows(fifo_overflows)
+        .saturated(saturated), .frames(frames_total), .fifo_overflows(fifo_overflows),
+        .dbg_addr(dbg_addr), .dbg_value(dbg_value)
     );
 
     dncal_datapath #(
@@ -85,7 +92,8 @@ module dncal_top #(
         .mem_wr_data(mem_wr_data), .pixels(pixels), .fifo_overflows(fifo_overflows),
         .out_of_range(out_of_range), .saturated(saturated), .rmw_hazards(rmw_hazards),
         .fifo_high_water(fifo_high_water), .frames(frames), .frames_total(frames_total),
-        .frame_open(frame_open), .busy(busy)
+        .frame_open(frame_open), .busy(busy), .dbg_lut_addr(dbg_lut_addr),
+        .dbg_lut_entry(dbg_lut_entry)
     );
 endmodule
 

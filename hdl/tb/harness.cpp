@@ -15,6 +15,8 @@
 //   drain                                pixel clocks without input until idle
 //   sums COUNT                           the first COUNT sums, state-major
 //   stats                                the counters, `name=value`
+//   peek ADDR                            the value a read of register ADDR would return (no frame)
+//   table ADC                            the active bank's table of one ADC
 // The sum memory: a cycle's writes, then its reads, at the rising edge; a read's data is
 // presented to the port's register at the edge LATENCY - 1 cycles later (dncal_datapath.v). The RTL's clear (a new geometry,
 // CLEAR_SUMS) zeroes it at once, as the model's does.
@@ -223,6 +225,20 @@ int main(int argc, char** argv) {
         } else if (cmd == "sums") {
             long n = word(std::cin);
             for (long i = 0; i < n; ++i) std::cout << (i ? " " : "") << h.at((uint64_t)i);
+            std::cout << "\n";
+        } else if (cmd == "peek") {
+            // What a read of a register would return, without a frame.
+            h.top.dbg_addr = (uint8_t)word(std::cin);
+            h.top.eval();
+            std::cout << h.top.dbg_value << "\n";
+        } else if (cmd == "table") {
+            // The active bank's table of one ADC.
+            long adc = word(std::cin);
+            for (int c = 0; c < kCodes; ++c) {
+                h.top.dbg_lut_addr = (uint32_t)((adc << DNCAL_CODE_BITS) | c);
+                h.top.eval();
+                std::cout << (c ? " " : "") << h.top.dbg_lut_entry;
+            }
             std::cout << "\n";
         } else if (cmd == "stats") {
             std::cout << "cycles=" << h.cycle << " pixels=" << h.top.pixels << " rmw_hazards=" << h.top.rmw_hazards
