@@ -5,6 +5,7 @@
 #   scripts/hdl.sh have         exit 0 if Verilator is there (installs nothing)
 #   scripts/hdl.sh lint         verilator --lint-only -Wall at every tap count, and iverilog
 #   scripts/hdl.sh build TAPS   build the harness for TAPS pixels a clock; prints its path
+#   scripts/hdl.sh soak [PIXELS] the co-simulation on PIXELS pixels (10^8 by default)
 #   scripts/hdl.sh synth [DIR]  Yosys synthesis (iCE40 at 1, 2, 4 taps, Xilinx at 1-8) and
 #                               nextpnr-ice40 place and route where it fits; a markdown
 #                               table on stdout, the tools' logs in DIR (docs/fpga.md)
@@ -120,5 +121,11 @@ case "${1:-}" in
   lint) lint ;;
   build) build "${2:-}" ;;
   synth) synth "${2:-}" ;;
-  *) echo "usage: $0 install|have|lint|build TAPS|synth [DIR]" >&2; exit 2 ;;
+  soak)
+    install
+    cd "$root"
+    DNCAL_REQUIRE_HDL=1 DNCAL_RTL_SOAK_PIXELS="${2:-100000000}" exec cargo test --profile checked --locked \
+      -p dncal-fpga-model --test rtl_cosim -- --ignored --nocapture soak_the_rtl
+    ;;
+  *) echo "usage: $0 install|have|lint|build TAPS|synth [DIR]|soak [PIXELS]" >&2; exit 2 ;;
 esac

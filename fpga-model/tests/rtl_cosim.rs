@@ -752,3 +752,43 @@ fn raw_frames_are_refused_and_counted_as_the_models() {
     }
     assert_eq!(rtl.peek(Reg::Width), 3, "the tail was taken only after a read");
 }
+
+/// The soak (`scripts/hdl.sh soak`, not in the test command): `DNCAL_RTL_SOAK_PIXELS`
+/// pixels (10^8 unless set) in rounds of 262,144 (16 frames of 256 x 64 over 4 states),
+/// each round at a tap count, memory
+/// latency (1-40), bandwidth (2-3 words a pixel a tap), blanking and codes drawn from
+/// its seed, against the model and the core as every other case here.
+#[test]
+#[ignore = "the soak: scripts/hdl.sh soak"]
+fn soak_the_rtl_against_the_model_and_the_core() {
+    let pixels: u64 = std::env::var("DNCAL_RTL_SOAK_PIXELS").ok().and_then(|v| v.parse().ok()).unwrap_or(100_000_000);
+    let round = 16 * 256 * 64;
+    let started = std::time::Instant::now();
+    let (mut summed, mut rounds) = (0u64, 0u64);
+    while summed < pixels {
+        let mut rng = SplitMix64::new(0x50A4 + rounds);
+        let taps = TAPS[rng.below(4) as usize];
+        let c = Case {
+            taps,
+            mem_latency: 1 + rng.below(40) as u32,
+            mem_words: 2 * taps as u32 + rng.below(taps as u64 + 1) as u32,
+            fifo_depth: 4096,
+            h_blank: rng.below(20) as u32,
+            v_blank: rng.below(64) as u32,
+            width: 256,
+            height: 64,
+            states: 4,
+            first_column: rng.below(10) as u16,
+            frames: frames_of(256, 64, 4, 16, rng.next_u64()),
+        };
+        let got = agree(&c).unwrap();
+        if got == 0 {
+            return;
+        }
+        assert_eq!(got, round, "round {rounds}: {} taps", c.taps);
+        summed += got;
+        rounds += 1;
+        eprintln!("soak: {summed} pixels in {rounds} rounds, {:.0} s", started.elapsed().as_secs_f64());
+    }
+    println!("soak: {summed} pixels in {rounds} rounds bit-exact with the core and cycle-exact with the model, {:.0} s", started.elapsed().as_secs_f64());
+}
