@@ -4,7 +4,9 @@
 #   scripts/hdl.sh install      install the HDL tools if missing
 #   scripts/hdl.sh have         exit 0 if Verilator is there (installs nothing)
 #   scripts/hdl.sh lint         verilator --lint-only -Wall at every tap count, and iverilog
-#   scripts/hdl.sh build TAPS   build the harness for TAPS pixels a clock; prints its path
+#   scripts/hdl.sh build TAPS [HEX_DIR]
+#                               build the harness for TAPS pixels a clock (its bank 0 from
+#                               the $readmemh tables in HEX_DIR, if given); prints its path
 #   scripts/hdl.sh soak [PIXELS] the co-simulation on PIXELS pixels (10^8 by default)
 #   scripts/hdl.sh synth [DIR]  Yosys synthesis (iCE40 at 1, 2, 4 taps, Xilinx at 1-8) and
 #                               nextpnr-ice40 place and route where it fits; a markdown
@@ -50,19 +52,26 @@ lint() {
 }
 
 build() {
-  local taps=${1:?usage: hdl.sh build TAPS}
+  local taps=${1:?usage: hdl.sh build TAPS [LUT_HEX_DIR]} hex=${2:-}
   case "$taps" in 1|2|4|8) ;; *) echo "hdl.sh: TAPS must be 1, 2, 4 or 8, got $taps" >&2; exit 2 ;; esac
   install
-  local dir="$out/taps$taps"
+  local dir="$out/taps$taps" params=()
+  # With a directory of $readmemh tables (as `dncal fpga-size --lut` writes them), a build
+  # of its own whose bank 0 starts with them.
+  if [ -n "$hex" ]; then
+    dir="$out/taps$taps-hex"
+    params=("-GLUT_HEX=\"$hex\"")
+  fi
   local bin="$dir/harness"
-  # Rebuilt when the RTL, the harness or this script is newer than the binary.
+  # Rebuilt when anything under hdl/, this script or the tables' directory is newer.
   local newer
-  newer=$(find "$root/hdl" "$0" -newer "$bin" -type f 2>/dev/null | head -1 || true)
-  if [ ! -x "$bin" ] || [ -n "$newer" ]; then
+  newer=$(find "$root/hdl" "$0" ${hex:+"$hex"} -newer "$bin" -type f 2>/dev/null | head -1 || true)
+  if [ ! -x "$bin" ] || [ -n "$newer" ] || { [ -n "$hex" ] && ! grep -qF "$hex" "$dir/built-with" 2>/dev/null; }; then
     mkdir -p "$dir"
-    verilator --cc --exe --build -O2 -j 2 -Wno-fatal -I"$root/hdl/rtl" -GTAPS="$taps" \
+    verilator --cc --exe --build -O2 -j 2 -Wno-fatal -I"$root/hdl/rtl" -GTAPS="$taps" "${params[@]}" \
       -CFLAGS "-O2 -DTAPS=$taps -I$root/hdl/tb" -Mdir "$dir/obj" -o "$bin" \
       "${rtl_all[@]}" "$root/hdl/tb/harness.cpp" >&2
+    echo "$hex" > "$dir/built-with"
   fi
   echo "$bin"
 }
@@ -119,7 +128,7 @@ case "${1:-}" in
   install) install ;;
   have) command -v verilator >/dev/null ;;
   lint) lint ;;
-  build) build "${2:-}" ;;
+  build) build "${2:-}" "${3:-}" ;;
   synth) synth "${2:-}" ;;
   soak)
     install

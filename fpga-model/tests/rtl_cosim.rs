@@ -792,3 +792,44 @@ fn soak_the_rtl_against_the_model_and_the_core() {
     }
     println!("soak: {summed} pixels in {rounds} rounds bit-exact with the core and cycle-exact with the model, {:.0} s", started.elapsed().as_secs_f64());
 }
+
+/// The RTL's initial tables from the `$readmemh` files `dncal fpga-size --lut` writes
+/// (`dncal_fpga_model::sizing::readmemh`, the command's own writer): a build whose bank 0
+/// starts with them holds them entry for entry before any upload, and sums a frame of
+/// every code at every ADC with them.
+#[test]
+fn the_initial_tables_are_the_readmemh_files() {
+    if harnesses()[0].is_none() {
+        return;
+    }
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("rtl-lut-hex");
+    std::fs::create_dir_all(&dir).unwrap();
+    let tables = luts(&weights(11));
+    for (a, table) in tables.tables().iter().enumerate() {
+        let path = dir.join(format!("lut_adc{a}.hex"));
+        let text = dncal_fpga_model::sizing::readmemh(a, &table[..]);
+        // (Written only when it changes, so that the build is not made again each run.)
+        if std::fs::read_to_string(&path).ok().as_deref() != Some(text.as_str()) {
+            std::fs::write(&path, text).unwrap();
+        }
+    }
+    let out = Command::new(root().join("scripts/hdl.sh")).args(["build", "1", dir.to_str().unwrap()]).stderr(Stdio::inherit()).output().unwrap();
+    assert!(out.status.success(), "the build with initial tables failed");
+    let harness = PathBuf::from(String::from_utf8(out.stdout).unwrap().lines().last().unwrap().trim());
+    let c = Case { taps: 1, mem_latency: 3, mem_words: 2, fifo_depth: 16, h_blank: 2, v_blank: 2, width: 4096, height: 4, states: 1, first_column: 0, frames: Vec::new() };
+    let mut dp = Datapath::new(Rtl::start(&harness, &c));
+    let want: Vec<Vec<u32>> = tables.tables().iter().map(|t| t.iter().map(|e| e.to_bits()).collect()).collect();
+    assert_eq!(dp.device_mut().tables(), want, "bank 0 after reset");
+    dp.identify().unwrap();
+    dp.configure(c.geometry()).unwrap();
+    // Row r, column k reads code (k + r) mod 4096 at ADC k mod 4: every code at every ADC.
+    let lines: Vec<Vec<u16>> = (0..4).map(|r| (0..4096).map(|k| ((k + r) % 4096) as u16).collect()).collect();
+    dp.device_mut().frame(&c, 0, &lines);
+    assert_eq!(dp.device_mut().ask("drain".into()), "ok");
+    let sums = dp.device_mut().sums(4 * 4096);
+    for (r, line) in lines.iter().enumerate() {
+        for (k, &code) in line.iter().enumerate() {
+            assert_eq!(sums[r * 4096 + k], want[k % 4][code as usize], "row {r}, column {k}");
+        }
+    }
+}

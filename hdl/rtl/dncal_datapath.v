@@ -47,7 +47,11 @@ module dncal_datapath #(
     parameter integer CODE_BITS = `DNCAL_CODE_BITS,
     parameter integer ENTRY_BITS = `DNCAL_ENTRY_BITS,
     parameter integer ADC_BITS = `DNCAL_ADC_BITS,
-    parameter integer STATE_BITS = `DNCAL_STATE_BITS
+    parameter integer STATE_BITS = `DNCAL_STATE_BITS,
+    // A directory holding `lut_adc0.hex` .. `lut_adc3.hex` as `dncal fpga-size --lut L.fits
+    // -o DIR` writes them: bank 0's tables (the active bank after reset) from the start;
+    // empty: no initial contents (the tables come over SPI).
+    parameter LUT_HEX = ""
 ) (
     input  wire                      clk,
     input  wire                      rst,
@@ -174,6 +178,13 @@ module dncal_datapath #(
             wire [FIFO_AW-1:0] at = head + g[FIFO_AW-1:0];
             always @(posedge cfg_clk)
                 if (cfg_we) lut[{~active_bank, cfg_adc, cfg_code}] <= cfg_entry;
+            if (LUT_HEX != "") begin : initial_tables
+                integer a;
+                initial
+                    for (a = 0; a < (1 << ADC_BITS); a = a + 1)
+                        $readmemh({LUT_HEX, "/lut_adc", 8'd48 + a[7:0], ".hex"}, lut,
+                                  a << CODE_BITS, ((a + 1) << CODE_BITS) - 1);
+            end
             always @(posedge clk) begin
                 lk_entry[g] <= lut[{q_bank[at], q_adc[at], q_code[at]}];
                 lk_addr[g]  <= q_addr[at];

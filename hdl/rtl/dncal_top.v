@@ -13,7 +13,8 @@ module dncal_top #(
     parameter integer FIFO_AW = 12,
     parameter integer MAX_LATENCY = 64,
     parameter integer ADDR_W = `DNCAL_ADDR_W,
-    parameter integer CODE_BITS = `DNCAL_CODE_BITS
+    parameter integer CODE_BITS = `DNCAL_CODE_BITS,
+    parameter LUT_HEX = ""   // the initial tables' directory (dncal_datapath.v)
 ) (
     input  wire                   clk,
     input  wire                   cfg_clk,
@@ -80,7 +81,7 @@ module dncal_top #(
 
     dncal_datapath #(
         .TAPS(TAPS), .FIFO_AW(FIFO_AW), .MAX_LATENCY(MAX_LATENCY), .ADDR_W(ADDR_W),
-        .CODE_BITS(CODE_BITS)
+        .CODE_BITS(CODE_BITS), .LUT_HEX(LUT_HEX)
     ) dp (
         .clk(clk), .rst(rst), .width(width), .height(height), .first_column(first_column),
         .mem_latency_in(mem_latency), .mem_words_in(mem_words), .fifo_limit_in(fifo_limit),
