@@ -108,7 +108,12 @@ synth() {
       for dev in "hx8k --package ct256" "up5k --package sg48"; do
         # shellcheck disable=SC2086
         if nextpnr-ice40 --$dev --json "$dir/ice40-t$taps-c8.json" --freq 20 --seed 1 --timing-allow-fail --pcf-allow-unconstrained >"$dir/pnr-t$taps-${dev%% *}.log" 2>&1; then
-          pnr="$pnr; ${dev%% *}: $(grep -o 'Max frequency for clock[^:]*: [0-9.]* MHz' "$dir/pnr-t$taps-${dev%% *}.log" | tail -1 | grep -o '[0-9.]* MHz'), $(grep -o 'ICESTORM_LC: *[0-9]*/ *[0-9]*' "$dir/pnr-t$taps-${dev%% *}.log" | tail -1 | tr -s ' ') LCs"
+          # (The routed report, the last of each clock's: the pixel clock, then the
+          # configuration clock.)
+          local log="$dir/pnr-t$taps-${dev%% *}.log" fmax
+          fmax=$(grep -o "Max frequency for clock *'[a-z_]*" "$log" | tail -2 | sed "s/.*'//" | while read -r c; do
+            printf '%s %s MHz, ' "$c" "$(grep -o "Max frequency for clock *'$c[^:]*: [0-9.]* MHz" "$log" | tail -1 | grep -o '[0-9.]* MHz$' | cut -d' ' -f1)"; done)
+          pnr="$pnr; ${dev%% *}: ${fmax}$(grep -o 'ICESTORM_LC: *[0-9]*/ *[0-9]*' "$log" | tail -1 | tr -s ' ') LCs"
         else
           pnr="$pnr; ${dev%% *}: does not fit ($(grep -m1 -o 'ERROR: .*' "$dir/pnr-t$taps-${dev%% *}.log" | cut -c1-80))"
         fi

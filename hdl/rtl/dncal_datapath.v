@@ -100,7 +100,7 @@ module dncal_datapath #(
     output reg                       frame_open,    // between a frame's first and last cycle
     output wire                      busy,          // pixels in the FIFO or the pipeline
     // A test bench's view: the active bank's entry of {ADC, code} `dbg_lut_addr` (lane 0's
-    // copy, read without a clock; tie it off in a design).
+    // copy, read without a clock; zero where SYNTHESIS is defined, as Yosys defines it).
     input  wire [ADC_BITS+CODE_BITS-1:0] dbg_lut_addr,
     output wire [ENTRY_BITS-1:0]     dbg_lut_entry
 );
@@ -191,7 +191,12 @@ module dncal_datapath #(
             end
             assign popped_oor[g] = g < npop && q_oor[at];
             if (g == 0) begin : view
+`ifdef SYNTHESIS
+                // (An unclocked read port would keep the table out of block RAM.)
+                assign dbg_lut_entry = {ENTRY_BITS{1'b0}};
+`else
                 assign dbg_lut_entry = lut[{active_bank, dbg_lut_addr}];
+`endif
             end
             assign mem_rd_en[g] = lk_valid[g];
             assign mem_rd_addr[ADDR_W*g +: ADDR_W] = lk_addr[g];
