@@ -439,6 +439,26 @@ fn drops_hazards_and_saturation_are_the_models() {
         first_column: 0,
         frames: vec![(0, vec![vec![4095]], None); 600],
     };
+    // A dropped pixel leaves two pixels of one sum side by side in the FIFO: they leave it in
+    // the same cycle, and the second's write must take the first's (the same-cycle chain
+    // of the write stage; an independent review found the case).
+    let chained = Case {
+        taps: 4,
+        mem_latency: 3,
+        mem_words: 3,
+        fifo_depth: 4,
+        h_blank: 0,
+        v_blank: 0,
+        width: 3,
+        height: 1,
+        states: 1,
+        first_column: 0,
+        frames: vec![(0, vec![vec![100, 200, 300]], None); 4],
+    };
+    let Some(h4) = &harnesses()[2] else { return };
+    let (rtl, model) = (chained.rtl(h4), chained.model().0);
+    assert_eq!(rtl, model, "two pixels of one sum in one cycle");
+    assert!(rtl.fifo_overflows > 0 && rtl.rmw_hazards > 0, "{rtl:?}");
     for (c, what, want) in [(&starved, "dropped", 1729), (&hazards, "hazards", 2), (&saturating, "clipped", 88)] {
         let Some(h) = &harnesses()[TAPS.iter().position(|&t| t == c.taps).unwrap()] else { return };
         let rtl = c.rtl(h);
@@ -668,7 +688,8 @@ fn spi_faults_against_the_rtl_are_detected_and_no_bad_lut_is_ever_active() {
 /// Frames the driver never sends, on the model and on the RTL alike: a write with a bad
 /// CRC, a write held after a refusal, a value the register cannot take, a read with a bad
 /// CRC, chunks without an upload, repeated, after a gap, and a chunk split by a
-/// chip-select glitch whose tail is a valid write of `WIDTH` (the hold must refuse it).
+/// chip-select glitch whose tail is a valid write of `WIDTH` (the hold must refuse it), a
+/// chunk longer than 256 bytes, a geometry whose sums the memory cannot hold.
 /// Every read's 7 response bytes (value, frame count, CRC) are the model's, and so are
 /// the geometry and STATUS after each frame.
 #[test]
@@ -729,6 +750,12 @@ fn raw_frames_are_refused_and_counted_as_the_models() {
         read(Reg::Width),
         write(write_frame(Reg::Control, control::LUT_BEGIN | control::LUT_COMMIT).to_vec()),
         read(Reg::Status),
+        write(write_frame(Reg::Control, control::LUT_BEGIN).to_vec()),
+        write(chunk(0, 257)),
+        read(Reg::Status),
+        write(write_frame(Reg::Width, 65535).to_vec()),
+        write(write_frame(Reg::Height, 65535).to_vec()),
+        read(Reg::Height),
         write(vec![0x7F]),
         write(Vec::new()),
         read(Reg::Frames),
@@ -750,7 +777,8 @@ fn raw_frames_are_refused_and_counted_as_the_models() {
             assert_eq!(rtl.peek(reg), model.read_register(reg), "frame {k} ({bytes:02x?}): {reg:?}");
         }
     }
-    assert_eq!(rtl.peek(Reg::Width), 3, "the tail was taken only after a read");
+    // (The width after the glitch's tail was taken, then 65535; the height kept.)
+    assert_eq!((rtl.peek(Reg::Width), rtl.peek(Reg::Height)), (65535, 2), "a geometry beyond the sum memory is refused");
 }
 
 /// The soak (`scripts/hdl.sh soak`, not in the test command): `DNCAL_RTL_SOAK_PIXELS`
@@ -831,5 +859,177 @@ fn the_initial_tables_are_the_readmemh_files() {
         for (k, &code) in line.iter().enumerate() {
             assert_eq!(sums[r * 4096 + k], want[k % 4][code as usize], "row {r}, column {k}");
         }
+    }
+}
+
+
+/// What the driver does beyond frames and uploads, on the model and the RTL alike: the
+/// tables both start with (the ideal ones), CLEAR_SUMS and a new geometry after frames
+/// (each after the pipeline drained, as the model drains before it clears), images whose
+/// CRC-32 holds but whose content the core's loader refuses (a header for 10-bit codes, an
+/// entry of 2^23, an entry below its predecessor) or takes (a drop across two ADCs' tables).
+#[test]
+fn clears_geometry_changes_and_bad_content_are_the_models() {
+    use dncal_core::regs::control;
+    let Some(h) = &harnesses()[1] else { return };
+    let c = Case { taps: 2, mem_latency: 5, mem_words: 4, fifo_depth: 64, h_blank: 1, v_blank: 2, width: 6, height: 3, states: 2, first_column: 1, frames: Vec::new() };
+    let mut rtl = Side { dp: Datapath::new(Rtl::start(h, &c)), last_upload: String::new() };
+    let mut model = Side { dp: Datapath::new(Fpga::new(c.config(), Geometry::new(1, 1, 1, 0).unwrap()).unwrap()), last_upload: String::new() };
+    let ideal: Vec<Vec<u32>> = Mvd1024eLuts::ideal().tables().iter().map(|t| t.iter().map(|e| e.to_bits()).collect()).collect();
+    assert_eq!(rtl.dp.device_mut().tables(), ideal, "the tables after reset");
+    for d in [&mut rtl as &mut dyn Driven, &mut model] {
+        d.identify();
+        d.configure(c.geometry());
+    }
+    let frame = |k: u16| -> Vec<Vec<u16>> { (0..3).map(|r| (0..6).map(|x| (x * 500 + r * 7 + k) % 4096).collect()).collect() };
+    let good = image(&luts(&weights(5)));
+    let with_crc = |mut img: Vec<u8>| {
+        let n = img.len() - 4;
+        let crc = dncal_core::image::CRC32.checksum(&img[..n]);
+        img[n..].copy_from_slice(&crc.to_le_bytes());
+        img
+    };
+    let entry_at = |adc: usize, code: usize| dncal_core::image::HEADER_LEN + 4 * (adc * 4096 + code);
+    let set_entry = |mut img: Vec<u8>, at: usize, v: u32| {
+        img[at..at + 4].copy_from_slice(&v.to_le_bytes());
+        with_crc(img)
+    };
+    let mut ten_bits = good.clone();
+    ten_bits[6] = 10;
+    let ten_bits = with_crc(ten_bits);
+    let too_big = set_entry(good.clone(), entry_at(1, 7), 1 << 23);
+    let below = set_entry(good.clone(), entry_at(2, 100), 5);
+    // The last entry of ADC 0 above ADC 1's first: allowed (monotonic within a table).
+    let across = set_entry(good.clone(), entry_at(0, 4095), (1 << 23) - 1);
+    let steps: Vec<Step> = vec![
+        Box::new(|d| d.frame(&c, 0, &frame(1))),
+        Box::new(|d| d.frame(&c, 1, &frame(2))),
+        Box::new(|d| d.drain()),
+        Box::new(|d| d.write(Reg::Control, control::CLEAR_SUMS)),
+        Box::new(|d| d.frame(&c, 1, &frame(3))),
+        Box::new(|d| d.frame(&c, 1, &frame(4))),
+        Box::new(|d| d.upload(&good)),
+        Box::new(|d| d.frame(&c, 0, &frame(5))),
+        Box::new(|d| d.drain()),
+        Box::new(|d| d.write(Reg::Width, 5)),
+        Box::new(|d| d.write(Reg::Width, 6)),
+        Box::new(|d| d.frame(&c, 0, &frame(6))),
+        Box::new(|d| d.upload(&ten_bits)),
+        Box::new(|d| d.upload(&too_big)),
+        Box::new(|d| d.upload(&below)),
+        Box::new(|d| d.frame(&c, 1, &frame(7))),
+        Box::new(|d| d.upload(&across)),
+        Box::new(|d| d.frame(&c, 1, &frame(8))),
+        Box::new(|d| d.drain()),
+    ];
+    for (k, step) in steps.iter().enumerate() {
+        step(&mut rtl);
+        step(&mut model);
+        let (r, m) = (rtl.seen(), model.seen());
+        assert_eq!(r, m, "after step {k}");
+    }
+    let n = c.geometry().sum_len();
+    assert_eq!(rtl.sums(n), model.sums(n));
+}
+
+/// One step of the test above, run on each side.
+type Step<'a> = Box<dyn Fn(&mut dyn Driven) + 'a>;
+
+/// A driver and its device, model or RTL, as the test above runs them side by side, with
+/// the last upload's outcome.
+struct Side<D: SpiDevice<u8>> {
+    dp: Datapath<D>,
+    last_upload: String,
+}
+
+trait Driven {
+    fn identify(&mut self);
+    fn configure(&mut self, g: Geometry);
+    fn write(&mut self, reg: Reg, v: u32);
+    fn upload(&mut self, image: &[u8]);
+    fn frame(&mut self, c: &Case, state: u8, lines: &[Vec<u16>]);
+    fn drain(&mut self);
+    /// What the driver reads back, the last upload's outcome, and the active tables.
+    fn seen(&mut self) -> (Status, u32, u32, [u32; 4], String, Vec<Vec<u32>>);
+    /// The sums of states 0 and 1.
+    fn sums(&mut self, n: usize) -> Vec<u32>;
+}
+
+impl<D: SpiDevice<u8>> Side<D> {
+    fn read_back(&mut self) -> (Status, u32, u32, [u32; 4], String) {
+        let dp = &mut self.dp;
+        let geometry = [Reg::Width, Reg::Height, Reg::States, Reg::FirstColumn].map(|r| dp.read_reg(r).unwrap());
+        (dp.counters().unwrap(), dp.fifo_overflows().unwrap(), dp.status().unwrap().to_bits(), geometry, self.last_upload.clone())
+    }
+    fn identify(&mut self) {
+        self.dp.identify().unwrap();
+    }
+    fn configure(&mut self, g: Geometry) {
+        self.dp.configure(g).unwrap();
+    }
+    fn write(&mut self, reg: Reg, v: u32) {
+        self.dp.write_reg(reg, v).unwrap();
+    }
+    fn upload(&mut self, image: &[u8]) {
+        self.last_upload = format!("{:?}", self.dp.upload_lut_image(image).map(|_| ()));
+    }
+}
+
+impl Driven for Side<Rtl> {
+    fn identify(&mut self) {
+        Side::identify(self);
+    }
+    fn configure(&mut self, g: Geometry) {
+        Side::configure(self, g);
+    }
+    fn write(&mut self, reg: Reg, v: u32) {
+        Side::write(self, reg, v);
+    }
+    fn upload(&mut self, image: &[u8]) {
+        Side::upload(self, image);
+    }
+    fn frame(&mut self, c: &Case, state: u8, lines: &[Vec<u16>]) {
+        self.dp.device_mut().frame(c, state, lines);
+    }
+    fn drain(&mut self) {
+        assert_eq!(self.dp.device_mut().ask("drain".into()), "ok");
+    }
+    fn seen(&mut self) -> (Status, u32, u32, [u32; 4], String, Vec<Vec<u32>>) {
+        let (a, b, c, d, e) = self.read_back();
+        (a, b, c, d, e, self.dp.device_mut().tables())
+    }
+    fn sums(&mut self, n: usize) -> Vec<u32> {
+        self.dp.device_mut().sums(n)
+    }
+}
+
+impl Driven for Side<Fpga> {
+    fn identify(&mut self) {
+        Side::identify(self);
+    }
+    fn configure(&mut self, g: Geometry) {
+        Side::configure(self, g);
+    }
+    fn write(&mut self, reg: Reg, v: u32) {
+        Side::write(self, reg, v);
+    }
+    fn upload(&mut self, image: &[u8]) {
+        Side::upload(self, image);
+    }
+    fn frame(&mut self, _: &Case, state: u8, lines: &[Vec<u16>]) {
+        let refs: Vec<&[u16]> = lines.iter().map(|l| l.as_slice()).collect();
+        self.dp.device_mut().stream_frame(state, &refs).unwrap();
+    }
+    fn drain(&mut self) {
+        self.dp.device_mut().drain();
+    }
+    fn seen(&mut self) -> (Status, u32, u32, [u32; 4], String, Vec<Vec<u32>>) {
+        let (a, b, c, d, e) = self.read_back();
+        let tables = self.dp.device_mut().banks().active().tables().iter().map(|t| t.iter().map(|e| e.to_bits()).collect()).collect();
+        (a, b, c, d, e, tables)
+    }
+    fn sums(&mut self, n: usize) -> Vec<u32> {
+        let f = self.dp.device_mut();
+        f.sums(0).unwrap().iter().chain(f.sums(1).unwrap()).copied().take(n).collect()
     }
 }

@@ -50,7 +50,7 @@ module dncal_datapath #(
     parameter integer STATE_BITS = `DNCAL_STATE_BITS,
     // A directory holding `lut_adc0.hex` .. `lut_adc3.hex` as `dncal fpga-size --lut L.fits
     // -o DIR` writes them: bank 0's tables (the active bank after reset) from the start;
-    // empty: no initial contents (the tables come over SPI).
+    // empty: both banks start with the ideal tables, as the model's.
     parameter LUT_HEX = ""
 ) (
     input  wire                      clk,
@@ -74,7 +74,7 @@ module dncal_datapath #(
     input  wire [3:0]                beat_count,    // its pixels, 1..TAPS
     input  wire [16*TAPS-1:0]        beat_data,     // pixel k at bits 16k+15..16k
     input  wire                      active_bank,   // the bank pixels entering now use
-    input  wire                      clear_toggle,  // toggled: clear the per-state frame counts
+    input  wire [7:0]                clear_count,   // a change: clear the per-state frame counts
     // LUT upload (configuration clock): the staging bank's entry of `cfg_adc`, `cfg_code`.
     input  wire                      cfg_clk,
     input  wire                      cfg_we,
@@ -136,7 +136,7 @@ module dncal_datapath #(
     wire [15:0]       col_now = sof ? 16'd0 : col;
     wire [STATE_BITS-1:0] state_now = sof ? state : cur_state;
     wire              in_bank = active_bank;
-    reg               clear_seen;
+    reg  [7:0]        clear_seen;
     wire [16:0]       col_end = {1'b0, col_now} + {13'd0, beat_count};
 
     // ---- FIFO ----------------------------------------------------------------------
@@ -166,6 +166,12 @@ module dncal_datapath #(
     wire [3:0] offered = beat_valid ? beat_count : 4'd0;
     wire [3:0] accepted = {{(FIFO_AW - 3){1'b0}}, offered} > room ? room[3:0] : offered;
 
+    // The ideal table's entry of `code`: (code + 1/2) DN in units of 2^-(ENTRY_BITS -
+    // CODE_BITS) DN (the core's `LutEntry::ideal`).
+    function automatic [ENTRY_BITS-1:0] ideal(input [CODE_BITS-1:0] code);
+        ideal = {code, 1'b1, {(ENTRY_BITS - CODE_BITS - 1){1'b0}}};
+    endfunction
+
     // ---- LUT banks: one replica a lane ---------------------------------------------
     reg [TAPS-1:0]         lk_valid;
     reg [ADDR_W-1:0]       lk_addr  [0:TAPS-1];
@@ -178,7 +184,14 @@ module dncal_datapath #(
             wire [FIFO_AW-1:0] at = head + g[FIFO_AW-1:0];
             always @(posedge cfg_clk)
                 if (cfg_we) lut[{~active_bank, cfg_adc, cfg_code}] <= cfg_entry;
-            if (LUT_HEX != "") begin : initial_tables
+            if (LUT_HEX == "") begin : ideal_tables
+                // Without files, both banks start with the ideal tables, as the model's
+                // and the core's: code k reads k + 1/2 DN.
+                integer i;
+                initial
+                    for (i = 0; i < (1 << LUT_AW); i = i + 1)
+                        lut[i] = ideal(i[CODE_BITS-1:0]);
+            end else begin : initial_tables
                 integer a;
                 initial
                     for (a = 0; a < (1 << ADC_BITS); a = a + 1)
@@ -314,7 +327,7 @@ module dncal_datapath #(
             rmw_hazards <= 32'd0;
             fifo_high_water <= {(FIFO_AW + 1){1'b0}};
             for (k = 0; k < `DNCAL_MAX_STATES; k = k + 1) frame_count[k] <= 32'd0;
-            clear_seen <= clear_toggle;
+            clear_seen <= clear_count;
             frames_total <= 32'd0;
             frame_open <= 1'b0;
             cur_state <= {STATE_BITS{1'b0}};
@@ -365,8 +378,9 @@ module dncal_datapath #(
                 row_base <= base_now;
             end
             // (A clear, then the frame that ends in this cycle.)
-            if (clear_seen != clear_toggle) begin
-                clear_seen <= clear_toggle;
+            // (A count, not a toggle: two clears between pixel clocks are still a clear.)
+            if (clear_seen != clear_count) begin
+                clear_seen <= clear_count;
                 for (k = 0; k < `DNCAL_MAX_STATES; k = k + 1)
                     frame_count[k] <= (eof && k == {{(32 - STATE_BITS){1'b0}}, state_now}) ? 32'd1 : 32'd0;
             end else if (eof) begin

@@ -3,8 +3,10 @@
 //
 // Clock: `clk`, the configuration side's (the datapath's `cfg_clk`). SPI mode 0 (MOSI
 // sampled on SCK's rising edge, MISO changed on its falling edge, most significant bit
-// first), SCK, MOSI and CS# synchronized into `clk` (two flip-flops each), so SCK must be
-// at most a quarter of `clk`.
+// first), SCK, MOSI and CS# synchronized into `clk` (two flip-flops each). MISO changes
+// about three `clk` cycles after SCK falls, so SCK must be at most a sixth of `clk` (an
+// independent review measured a quarter failing: a read's bits came one late); the
+// co-simulation runs it at an eighth.
 //
 // A frame is the bytes of one chip-select assertion (the rules are dncal_core::regs'):
 //   WRITE_REG  cmd, addr, value (u32 LE), crc8                7 bytes
@@ -52,9 +54,9 @@ module dncal_regs #(
     output reg  [ADC_BITS-1:0]   lut_adc,
     output reg  [CODE_BITS-1:0]  lut_code,
     output reg  [ENTRY_BITS-1:0] lut_entry,
-    // Toggles when the sums and per-state frame counts are to be cleared (a new geometry,
-    // CLEAR_SUMS).
-    output reg                   clear_toggle,
+    // Counts the clears of the sums and per-state frame counts (a new geometry,
+    // CLEAR_SUMS), modulo 256.
+    output reg  [7:0]            clear_count,
     // From the datapath.
     input  wire                  frame_open,
     input  wire [31:0]           out_of_range,
@@ -269,7 +271,7 @@ module dncal_regs #(
             spi_miso <= 1'b1;
             width <= 16'd1; height <= 16'd1; states <= 4'd1; first_column <= 16'd0;
             active_bank <= 1'b0;
-            clear_toggle <= 1'b0;
+            clear_count <= 8'd0;
             staging <= EMPTY; pending <= 1'b0; lut_swaps <= 32'd0;
             accepted <= 16'd0; hold <= 1'b0; lut_open <= 1'b0; lut_received <= 32'd0;
             pos <= 32'd0; done <= 1'b0; word <= 24'd0; previous <= 32'd0; crc <= 32'hFFFF_FFFF;
@@ -385,10 +387,10 @@ module dncal_regs #(
                             if (frame_open) pending <= 1'b1;
                             else swap_now = 1'b1;
                         end
-                        if ((value & `DNCAL_CONTROL_CLEAR_SUMS) != 0) clear_toggle <= !clear_toggle;
+                        if ((value & `DNCAL_CONTROL_CLEAR_SUMS) != 0) clear_count <= clear_count + 8'd1;
                     end else if (g_ok && {g_w, g_h, g_s, g_f} != {width, height, states, first_column}) begin
                         width <= g_w; height <= g_h; states <= g_s; first_column <= g_f;
-                        clear_toggle <= !clear_toggle;
+                        clear_count <= clear_count + 8'd1;
                     end
                 end
                 if (swap_now) begin

@@ -36,14 +36,14 @@ module dncal_top #(
     input  wire                   beat_valid,
     input  wire [3:0]             beat_count,
     input  wire [16*TAPS-1:0]     beat_data,
-    // Sum memory; `clear_toggle` toggles when it is to be zeroed.
+    // Sum memory; `clear_count` counts the clears it is to be zeroed by.
     output wire [TAPS-1:0]        mem_rd_en,
     output wire [ADDR_W*TAPS-1:0] mem_rd_addr,
     input  wire [32*TAPS-1:0]     mem_rd_data,
     output wire [TAPS-1:0]        mem_wr_en,
     output wire [ADDR_W*TAPS-1:0] mem_wr_addr,
     output wire [32*TAPS-1:0]     mem_wr_data,
-    output wire                   clear_toggle,
+    output wire [7:0]             clear_count,
     // What the register map does not hold, for the co-simulation's comparison.
     output wire [31:0]            pixels,
     output wire [31:0]            rmw_hazards,
@@ -74,7 +74,7 @@ module dncal_top #(
         .spi_miso(spi_miso), .width(width), .height(height), .states(states),
         .first_column(first_column), .active_bank(active_bank), .lut_we(lut_we),
         .lut_adc(lut_adc), .lut_code(lut_code), .lut_entry(lut_entry),
-        .clear_toggle(clear_toggle), .frame_open(frame_open), .out_of_range(out_of_range),
+        .clear_count(clear_count), .frame_open(frame_open), .out_of_range(out_of_range),
         .saturated(saturated), .frames(frames_total), .fifo_overflows(fifo_overflows),
         .dbg_addr(dbg_addr), .dbg_value(dbg_value)
     );
@@ -86,7 +86,7 @@ module dncal_top #(
         .clk(clk), .rst(rst), .width(width), .height(height), .first_column(first_column),
         .mem_latency_in(mem_latency), .mem_words_in(mem_words), .fifo_limit_in(fifo_limit),
         .sof(sof), .state(state), .eof(eof), .beat_valid(beat_valid), .beat_count(beat_count),
-        .beat_data(beat_data), .active_bank(active_bank), .clear_toggle(clear_toggle),
+        .beat_data(beat_data), .active_bank(active_bank), .clear_count(clear_count),
         .cfg_clk(cfg_clk), .cfg_we(lut_we), .cfg_adc(lut_adc), .cfg_code(lut_code),
         .cfg_entry(lut_entry), .mem_rd_en(mem_rd_en), .mem_rd_addr(mem_rd_addr),
         .mem_rd_data(mem_rd_data), .mem_wr_en(mem_wr_en), .mem_wr_addr(mem_wr_addr),

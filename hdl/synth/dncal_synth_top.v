@@ -28,7 +28,7 @@ module dncal_synth_top #(
     localparam integer ADC_BITS = $clog2(`DNCAL_ADCS);
     // The inputs, in the order of the concatenation below.
     localparam integer IN_W = 1 + 3 + 1 + STATE_BITS + 1 + 1 + 4 + 16 * TAPS + 32 * TAPS;
-    localparam integer OUT_W = 1 + TAPS + ADDR_W * TAPS + TAPS + ADDR_W * TAPS + 32 * TAPS + 1
+    localparam integer OUT_W = 1 + TAPS + ADDR_W * TAPS + TAPS + ADDR_W * TAPS + 32 * TAPS + 8
                                + 32 * 2 + (FIFO_AW + 1) + 32 * `DNCAL_MAX_STATES + 1;
     reg [IN_W-1:0] in;
     always @(posedge clk) in <= {in[IN_W-2:0], din};
@@ -41,7 +41,8 @@ module dncal_synth_top #(
     assign {rst, spi_sck, spi_cs_n, spi_mosi, sof, state, eof, beat_valid, beat_count, beat_data,
             mem_rd_data} = in;
 
-    wire spi_miso, clear_toggle, busy;
+    wire spi_miso, busy;
+    wire [7:0] clear_count;
     wire [TAPS-1:0] mem_rd_en, mem_wr_en;
     wire [ADDR_W*TAPS-1:0] mem_rd_addr, mem_wr_addr;
     wire [32*TAPS-1:0] mem_wr_data;
@@ -61,7 +62,7 @@ module dncal_synth_top #(
         .beat_valid(beat_valid), .beat_count(beat_count), .beat_data(beat_data),
         .mem_rd_en(mem_rd_en), .mem_rd_addr(mem_rd_addr), .mem_rd_data(mem_rd_data),
         .mem_wr_en(mem_wr_en), .mem_wr_addr(mem_wr_addr), .mem_wr_data(mem_wr_data),
-        .clear_toggle(clear_toggle), .pixels(pixels), .rmw_hazards(rmw_hazards),
+        .clear_count(clear_count), .pixels(pixels), .rmw_hazards(rmw_hazards),
         .fifo_high_water(fifo_high_water), .frames(frames), .busy(busy),
         .dbg_addr(8'd0), .dbg_value(), .dbg_lut_addr({(ADC_BITS + CODE_BITS){1'b0}}),
         .dbg_lut_entry()
@@ -69,7 +70,7 @@ module dncal_synth_top #(
     /* verilator lint_on PINCONNECTEMPTY */
 
     wire [OUT_W-1:0] out = {spi_miso, mem_rd_en, mem_rd_addr, mem_wr_en, mem_wr_addr, mem_wr_data,
-                            clear_toggle, pixels, rmw_hazards, fifo_high_water, frames, busy};
+                            clear_count, pixels, rmw_hazards, fifo_high_water, frames, busy};
     // (At least one bit of padding: a replication of zero bits is not Verilog-2005.)
     localparam integer GROUPS = OUT_W / 16 + 1;
     reg [OUT_W-1:0] out_r;

@@ -72,7 +72,7 @@ struct Harness {
     std::vector<std::vector<uint32_t>> ring = std::vector<std::vector<uint32_t>>(kRing, std::vector<uint32_t>(TAPS, 0));
     uint64_t cycle = 0;
     int latency = 1;
-    bool cleared = false;
+    int cleared = 0;
 
     uint32_t& at(uint64_t a) {
         if (a >= (1ull << kAddrW)) fail("an address beyond the sum memory: " + std::to_string(a));
@@ -104,8 +104,8 @@ struct Harness {
         top.eval();
         top.cfg_clk = 0;
         top.eval();
-        if ((bool)top.clear_toggle != cleared) {
-            cleared = top.clear_toggle;
+        if ((int)top.clear_count != cleared) {
+            cleared = top.clear_count;
             std::fill(mem.begin(), mem.end(), 0);
         }
     }
@@ -154,7 +154,7 @@ struct Harness {
         top.clk = 0;
         top.cfg_clk = 0;
         top.eval();
-        cleared = top.clear_toggle;
+        cleared = top.clear_count;
     }
 };
 
