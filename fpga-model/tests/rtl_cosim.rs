@@ -877,9 +877,8 @@ fn clears_geometry_changes_and_bad_content_are_the_models() {
     let mut model = Side { dp: Datapath::new(Fpga::new(c.config(), Geometry::new(1, 1, 1, 0).unwrap()).unwrap()), last_upload: String::new() };
     let ideal: Vec<Vec<u32>> = Mvd1024eLuts::ideal().tables().iter().map(|t| t.iter().map(|e| e.to_bits()).collect()).collect();
     assert_eq!(rtl.dp.device_mut().tables(), ideal, "the tables after reset");
-    for d in [&mut rtl as &mut dyn Driven, &mut model] {
-        d.identify();
-        d.configure(c.geometry());
+    for dp in [&mut rtl.dp as &mut dyn Configure, &mut model.dp] {
+        dp.start(c.geometry());
     }
     let frame = |k: u16| -> Vec<Vec<u16>> { (0..3).map(|r| (0..6).map(|x| (x * 500 + r * 7 + k) % 4096).collect()).collect() };
     let good = image(&luts(&weights(5)));
@@ -901,30 +900,30 @@ fn clears_geometry_changes_and_bad_content_are_the_models() {
     let below = set_entry(good.clone(), entry_at(2, 100), 5);
     // The last entry of ADC 0 above ADC 1's first: allowed (monotonic within a table).
     let across = set_entry(good.clone(), entry_at(0, 4095), (1 << 23) - 1);
-    let steps: Vec<Step> = vec![
-        Box::new(|d| d.frame(&c, 0, &frame(1))),
-        Box::new(|d| d.frame(&c, 1, &frame(2))),
-        Box::new(|d| d.drain()),
-        Box::new(|d| d.write(Reg::Control, control::CLEAR_SUMS)),
-        Box::new(|d| d.frame(&c, 1, &frame(3))),
-        Box::new(|d| d.frame(&c, 1, &frame(4))),
-        Box::new(|d| d.upload(&good)),
-        Box::new(|d| d.frame(&c, 0, &frame(5))),
-        Box::new(|d| d.drain()),
-        Box::new(|d| d.write(Reg::Width, 5)),
-        Box::new(|d| d.write(Reg::Width, 6)),
-        Box::new(|d| d.frame(&c, 0, &frame(6))),
-        Box::new(|d| d.upload(&ten_bits)),
-        Box::new(|d| d.upload(&too_big)),
-        Box::new(|d| d.upload(&below)),
-        Box::new(|d| d.frame(&c, 1, &frame(7))),
-        Box::new(|d| d.upload(&across)),
-        Box::new(|d| d.frame(&c, 1, &frame(8))),
-        Box::new(|d| d.drain()),
+    let steps = [
+        Step::Frame(0, 1),
+        Step::Frame(1, 2),
+        Step::Drain,
+        Step::Write(Reg::Control, control::CLEAR_SUMS),
+        Step::Frame(1, 3),
+        Step::Frame(1, 4),
+        Step::Upload(&good),
+        Step::Frame(0, 5),
+        Step::Drain,
+        Step::Write(Reg::Width, 5),
+        Step::Write(Reg::Width, 6),
+        Step::Frame(0, 6),
+        Step::Upload(&ten_bits),
+        Step::Upload(&too_big),
+        Step::Upload(&below),
+        Step::Frame(1, 7),
+        Step::Upload(&across),
+        Step::Frame(1, 8),
+        Step::Drain,
     ];
     for (k, step) in steps.iter().enumerate() {
-        step(&mut rtl);
-        step(&mut model);
+        rtl.apply(&c, step, &frame);
+        model.apply(&c, step, &frame);
         let (r, m) = (rtl.seen(), model.seen());
         assert_eq!(r, m, "after step {k}");
     }
@@ -932,104 +931,95 @@ fn clears_geometry_changes_and_bad_content_are_the_models() {
     assert_eq!(rtl.sums(n), model.sums(n));
 }
 
-/// One step of the test above, run on each side.
-type Step<'a> = Box<dyn Fn(&mut dyn Driven) + 'a>;
+/// One step of the test above, run on each side: a frame of a state (its lines numbered
+/// by the second field), a drain, a register write, an upload.
+enum Step<'a> {
+    Frame(u8, u16),
+    Drain,
+    Write(Reg, u32),
+    Upload(&'a [u8]),
+}
+
+/// What the test above does to a driver's device beyond SPI: frames, drains, and what it
+/// reads of the device's state without a frame.
+trait Device: SpiDevice<u8> {
+    fn frame(&mut self, c: &Case, state: u8, lines: &[Vec<u16>]);
+    fn drain(&mut self);
+    /// The active bank's tables, entry bits.
+    fn active_tables(&mut self) -> Vec<Vec<u32>>;
+    /// The sums of the first `n` sum pixels, state-major.
+    fn first_sums(&mut self, n: usize) -> Vec<u32>;
+}
+
+impl Device for Rtl {
+    fn frame(&mut self, c: &Case, state: u8, lines: &[Vec<u16>]) {
+        Rtl::frame(self, c, state, lines);
+    }
+    fn drain(&mut self) {
+        assert_eq!(self.ask("drain".into()), "ok");
+    }
+    fn active_tables(&mut self) -> Vec<Vec<u32>> {
+        self.tables()
+    }
+    fn first_sums(&mut self, n: usize) -> Vec<u32> {
+        self.sums(n)
+    }
+}
+
+impl Device for Fpga {
+    fn frame(&mut self, _: &Case, state: u8, lines: &[Vec<u16>]) {
+        let refs: Vec<&[u16]> = lines.iter().map(|l| l.as_slice()).collect();
+        self.stream_frame(state, &refs).unwrap();
+    }
+    fn drain(&mut self) {
+        Fpga::drain(self);
+    }
+    fn active_tables(&mut self) -> Vec<Vec<u32>> {
+        self.banks().active().tables().iter().map(|t| t.iter().map(|e| e.to_bits()).collect()).collect()
+    }
+    fn first_sums(&mut self, n: usize) -> Vec<u32> {
+        (0..self.geometry().states()).flat_map(|s| self.sums(s).unwrap().to_vec()).take(n).collect()
+    }
+}
+
+/// A driver's start on either side: identified and configured.
+trait Configure {
+    fn start(&mut self, g: Geometry);
+}
+
+impl<D: SpiDevice<u8>> Configure for Datapath<D> {
+    fn start(&mut self, g: Geometry) {
+        self.identify().unwrap();
+        self.configure(g).unwrap();
+    }
+}
 
 /// A driver and its device, model or RTL, as the test above runs them side by side, with
 /// the last upload's outcome.
-struct Side<D: SpiDevice<u8>> {
+struct Side<D: Device> {
     dp: Datapath<D>,
     last_upload: String,
 }
 
-trait Driven {
-    fn identify(&mut self);
-    fn configure(&mut self, g: Geometry);
-    fn write(&mut self, reg: Reg, v: u32);
-    fn upload(&mut self, image: &[u8]);
-    fn frame(&mut self, c: &Case, state: u8, lines: &[Vec<u16>]);
-    fn drain(&mut self);
-    /// What the driver reads back, the last upload's outcome, and the active tables.
-    fn seen(&mut self) -> (Status, u32, u32, [u32; 4], String, Vec<Vec<u32>>);
-    /// The sums of states 0 and 1.
-    fn sums(&mut self, n: usize) -> Vec<u32>;
-}
+impl<D: Device> Side<D> {
+    fn apply(&mut self, c: &Case, step: &Step<'_>, frame: &dyn Fn(u16) -> Vec<Vec<u16>>) {
+        match *step {
+            Step::Frame(state, k) => self.dp.device_mut().frame(c, state, &frame(k)),
+            Step::Drain => self.dp.device_mut().drain(),
+            Step::Write(reg, v) => self.dp.write_reg(reg, v).unwrap(),
+            Step::Upload(image) => self.last_upload = format!("{:?}", self.dp.upload_lut_image(image).map(|_| ())),
+        }
+    }
 
-impl<D: SpiDevice<u8>> Side<D> {
-    fn read_back(&mut self) -> (Status, u32, u32, [u32; 4], String) {
+    /// What the driver reads back (counters, FIFO overflows, STATUS, the geometry), the
+    /// last upload's outcome, and the active tables.
+    fn seen(&mut self) -> (Status, u32, u32, [u32; 4], String, Vec<Vec<u32>>) {
         let dp = &mut self.dp;
         let geometry = [Reg::Width, Reg::Height, Reg::States, Reg::FirstColumn].map(|r| dp.read_reg(r).unwrap());
-        (dp.counters().unwrap(), dp.fifo_overflows().unwrap(), dp.status().unwrap().to_bits(), geometry, self.last_upload.clone())
+        (dp.counters().unwrap(), dp.fifo_overflows().unwrap(), dp.status().unwrap().to_bits(), geometry, self.last_upload.clone(), dp.device_mut().active_tables())
     }
-    fn identify(&mut self) {
-        self.dp.identify().unwrap();
-    }
-    fn configure(&mut self, g: Geometry) {
-        self.dp.configure(g).unwrap();
-    }
-    fn write(&mut self, reg: Reg, v: u32) {
-        self.dp.write_reg(reg, v).unwrap();
-    }
-    fn upload(&mut self, image: &[u8]) {
-        self.last_upload = format!("{:?}", self.dp.upload_lut_image(image).map(|_| ()));
-    }
-}
 
-impl Driven for Side<Rtl> {
-    fn identify(&mut self) {
-        Side::identify(self);
-    }
-    fn configure(&mut self, g: Geometry) {
-        Side::configure(self, g);
-    }
-    fn write(&mut self, reg: Reg, v: u32) {
-        Side::write(self, reg, v);
-    }
-    fn upload(&mut self, image: &[u8]) {
-        Side::upload(self, image);
-    }
-    fn frame(&mut self, c: &Case, state: u8, lines: &[Vec<u16>]) {
-        self.dp.device_mut().frame(c, state, lines);
-    }
-    fn drain(&mut self) {
-        assert_eq!(self.dp.device_mut().ask("drain".into()), "ok");
-    }
-    fn seen(&mut self) -> (Status, u32, u32, [u32; 4], String, Vec<Vec<u32>>) {
-        let (a, b, c, d, e) = self.read_back();
-        (a, b, c, d, e, self.dp.device_mut().tables())
-    }
     fn sums(&mut self, n: usize) -> Vec<u32> {
-        self.dp.device_mut().sums(n)
-    }
-}
-
-impl Driven for Side<Fpga> {
-    fn identify(&mut self) {
-        Side::identify(self);
-    }
-    fn configure(&mut self, g: Geometry) {
-        Side::configure(self, g);
-    }
-    fn write(&mut self, reg: Reg, v: u32) {
-        Side::write(self, reg, v);
-    }
-    fn upload(&mut self, image: &[u8]) {
-        Side::upload(self, image);
-    }
-    fn frame(&mut self, _: &Case, state: u8, lines: &[Vec<u16>]) {
-        let refs: Vec<&[u16]> = lines.iter().map(|l| l.as_slice()).collect();
-        self.dp.device_mut().stream_frame(state, &refs).unwrap();
-    }
-    fn drain(&mut self) {
-        self.dp.device_mut().drain();
-    }
-    fn seen(&mut self) -> (Status, u32, u32, [u32; 4], String, Vec<Vec<u32>>) {
-        let (a, b, c, d, e) = self.read_back();
-        let tables = self.dp.device_mut().banks().active().tables().iter().map(|t| t.iter().map(|e| e.to_bits()).collect()).collect();
-        (a, b, c, d, e, tables)
-    }
-    fn sums(&mut self, n: usize) -> Vec<u32> {
-        let f = self.dp.device_mut();
-        f.sums(0).unwrap().iter().chain(f.sums(1).unwrap()).copied().take(n).collect()
+        self.dp.device_mut().first_sums(n)
     }
 }

@@ -334,10 +334,10 @@ module dncal_regs #(
                 end
             end
             // The frame ends: accepted, or refused.
+            swap_now = 1'b0;
             if (cs_rise) begin
                 accept = 1'b0;
                 refuse = 1'b0;
-                swap_now = 1'b0;
                 case (cmd)
                     `DNCAL_CMD_WRITE_REG: begin
                         if (n == `DNCAL_WRITE_FRAME_LEN && fcrc_prev == last && known(addr) && !hold) accept = 1'b1;
@@ -393,15 +393,10 @@ module dncal_regs #(
                         clear_count <= clear_count + 8'd1;
                     end
                 end
-                if (swap_now) begin
-                    active_bank <= !active_bank;
-                    staging <= EMPTY;
-                    pending <= 1'b0;
-                    lut_swaps <= lut_swaps + 32'd1;
-                end
             end
-            // An activation requested while a frame was open: when it ends.
-            if (pending && !frame_open && !cs_rise) begin
+            // The activation: at once (a LUT_COMMIT between frames), or, requested while a
+            // frame was open, when it ends.
+            if (swap_now || (pending && !frame_open && !cs_rise)) begin
                 active_bank <= !active_bank;
                 staging <= EMPTY;
                 pending <= 1'b0;
